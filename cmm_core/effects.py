@@ -1,0 +1,235 @@
+"""The effect catalogue and the model-spec language (SPEC "the effect catalogue").
+
+A model is a comma-separated effect list applied left to right: names of the 21 errors,
+groups (``kinematic21``, ``translational``, ``rotational``, ``squareness``), ``name:order``
+and ``-name``; plus the physical effects ``plate_thermal``, ``plate_sag``, ``probe_offset``
+and ``drift``. Rigid placement of each position is always in the model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .kinematics import ERROR_NAMES, ROTATIONAL, SQUARENESS, TRANSLATIONAL
+
+GROUPS = {
+    "kinematic21": ERROR_NAMES,
+    "translational": TRANSLATIONAL,
+    "rotational": ROTATIONAL,
+    "squareness": SQUARENESS,
+}
+PHYSICAL = ("plate_thermal", "plate_sag", "probe_offset", "drift")
+MAX_ORDER = 5
+
+_AXIS = {"x": "X", "y": "Y", "z": "Z"}
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One catalogue entry: what it is, what it needs, what it is confused with.
+
+    Attributes
+    ----------
+    name : str
+        Catalogue name used in model specs (``dyz``, ``dyz:3``, ``plate_sag``).
+    title : str
+        Short human title.
+    explanation : str
+        What a metrologist would write about the physical effect.
+    needs : str
+        The data it needs to be identifiable.
+    confused_with : str
+        Effects it can be mistaken for with common measurement plans.
+    separate_by : str
+        The measurement that separates it from those.
+    """
+
+    name: str
+    title: str
+    explanation: str
+    needs: str
+    confused_with: str
+    separate_by: str
+
+
+def _kinematic_effect(name: str) -> Effect:
+    if name in SQUARENESS:
+        a, b = _AXIS[name[1]], _AXIS[name[2]]
+        return Effect(name, f"squareness {a}{b}",
+                      f"the {a} and {b} axes are not at 90°: {a} readings drift in "
+                      f"proportion to {b}.",
+                      f"a placement spanning {a} and {b} (diagonal or rotated positions).",
+                      f"a rotation of the plate or the straightness of the {a}/{b} axes.",
+                      "two placements rotated by 90° (reversal).")
+    ax, d = _AXIS[name[1]], _AXIS[name[2]]
+    if name[0] == "d" and name[1] == name[2]:
+        return Effect(name, f"{ax} positioning (scale)",
+                      f"the {ax} scale reads wrong by an amount that varies along {ax}: "
+                      f"lengths along {ax} come out too long or too short.",
+                      f"balls spread along {ax} against a calibrated length.",
+                      "plate thermal expansion (a uniform scale in every axis).",
+                      "a certificate at 20 °C and a recorded plate temperature.")
+    if name[0] == "d":
+        return Effect(name, f"{ax} straightness in {d}",
+                      f"the {ax} carriage does not move in a straight line: it wanders in "
+                      f"{d} as {ax} changes (a bow, not a tilt).",
+                      f"balls spread along {ax}; {d} readings of them.",
+                      f"rotation errors of the {ax} axis seen through a probe offset, or "
+                      "plate form.",
+                      "the same balls with two probe offsets.")
+    rot = {"x": "roll", "y": "pitch", "z": "yaw"}
+    kind = {("x", "x"): "roll", ("y", "y"): "roll", ("z", "z"): "roll"}.get(
+        (name[1], name[2]), rot[name[2]])
+    return Effect(name, f"{ax} carriage {kind} (about {d})",
+                  f"the {ax} carriage tilts about {d} as it moves: points away from the "
+                  f"axis line (Abbe offset) shift in proportion to their lever arm.",
+                  f"balls spread along {ax} measured at different lever arms (probe "
+                  "offsets or heights).",
+                  f"straightness of the {ax} axis when all points share one lever arm.",
+                  "two probe offsets or two heights of the plate.")
+
+
+_PHYSICAL = {
+    "plate_thermal": Effect(
+        "plate_thermal", "plate thermal expansion",
+        "the plate was not at 20 °C: it grows by CTE × (T − 20 °C), a uniform scale of every "
+        "ball-to-ball length, different for each recorded temperature.",
+        "a temp_C column that varies between positions or over time.",
+        "the positioning (scale) errors dxx, dyy, dzz when the temperature is constant.",
+        "positions measured at different plate temperatures."),
+    "plate_sag": Effect(
+        "plate_sag", "plate sag (gravity bending)",
+        "a horizontally supported plate bends under its own weight: the out-of-plane "
+        "coordinates follow a bowl shared by all horizontal placements and absent when the "
+        "plate stands vertically.",
+        "horizontal and vertical placements with a certificate (fixed or prior).",
+        "the straightness of the axes spanning the plate (dxz, dyz) and plate form.",
+        "the same horizontal placement at two heights or a vertical placement."),
+    "probe_offset": Effect(
+        "probe_offset", "probe offset error",
+        "a stylus's qualified offset is wrong: every point measured with that stylus is "
+        "shifted by the same vector.",
+        "several probes measuring the same balls in the same position.",
+        "the rigid placement of a position when each position uses only one probe, and "
+        "drift when the probes are measured one after the other.",
+        "interleave the probes ball by ball within one position."),
+    "drift": Effect(
+        "drift", "drift with time",
+        "the machine or plate moves slowly during the measurement (thermal drift): each "
+        "position's coordinates change linearly with time.",
+        "time_min (or a known measurement order) with balls measured in a varied order.",
+        "a positioning or straightness error when the balls are measured row by row "
+        "(time follows x and y), and a probe step when probes are measured in blocks.",
+        "a serpentine or random measurement order, or repeating the first ball at the end."),
+}
+
+
+def catalogue_entry(name: str) -> Effect:
+    """Catalogue entry for an effect name (``dyz``, ``dyz:3`` or a physical effect)."""
+    base, _, order = name.partition(":")
+    if base in _PHYSICAL:
+        return _PHYSICAL[base]
+    if base in ERROR_NAMES:
+        e = _kinematic_effect(base)
+        if order:
+            return Effect(name, f"{e.title}, order {order}",
+                          f"{e.explanation} The current polynomial is too stiff: a "
+                          f"higher-order term (Chebyshev degree {order}) bends it.",
+                          e.needs, e.confused_with, e.separate_by)
+        return e
+    raise KeyError(name)
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """A parsed model: kinematic function orders and physical effect blocks.
+
+    Attributes
+    ----------
+    orders : tuple of (str, int)
+        Every one of the 21 errors with its order (0 = absent), in ``ERROR_NAMES`` order.
+    effects : tuple of str
+        Physical effects present, in ``PHYSICAL`` order.
+    default_order : int
+        Order used for functions named without ``:order``.
+    """
+
+    orders: tuple
+    effects: tuple
+    default_order: int = 2
+
+    def order(self, name: str) -> int:
+        """Order of one error function (0 when absent)."""
+        return dict(self.orders)[name]
+
+    @property
+    def active(self) -> tuple:
+        """``(name, order)`` for the functions present."""
+        return tuple((n, o) for n, o in self.orders if o > 0)
+
+    def to_string(self) -> str:
+        """Canonical spec string that parses back to this model."""
+        tokens = []
+        act = dict(self.active)
+        if set(act) == set(ERROR_NAMES):
+            tokens.append("kinematic21")
+            tokens += [f"{n}:{o}" for n, o in self.active if o != self.default_order]
+        else:
+            tokens += [n if o == self.default_order else f"{n}:{o}" for n, o in self.active]
+        tokens += list(self.effects)
+        return ",".join(tokens) if tokens else "rigid"
+
+    def with_token(self, token: str) -> ModelSpec:
+        """This model with one more token applied (``plate_sag``, ``-sxy``, ``dyz:3``)."""
+        return parse_spec(self.to_string() + "," + token, default_order=self.default_order)
+
+    def candidates(self) -> list:
+        """Tokens not yet in the model: absent errors, the next order of each present
+        function (up to ``MAX_ORDER``) and absent physical effects."""
+        out = []
+        for n, o in self.orders:
+            if o == 0:
+                out.append(n)
+            elif n not in SQUARENESS and o < MAX_ORDER:
+                out.append(f"{n}:{o + 1}")
+        out += [e for e in PHYSICAL if e not in self.effects]
+        return out
+
+
+def parse_spec(spec: str, *, default_order: int = 2) -> ModelSpec:
+    """Parse a model spec string (SPEC grammar), raising ValueError on unknown tokens.
+
+    ``""`` or ``"rigid"`` is the rigid-placement-only model.
+    """
+    if not 1 <= default_order <= MAX_ORDER:
+        raise ValueError(f"order must be 1-{MAX_ORDER}, got {default_order}.")
+    orders = dict.fromkeys(ERROR_NAMES, 0)
+    effects = set()
+    for raw in str(spec).split(","):
+        tok = raw.strip()
+        if not tok or tok == "rigid":
+            continue
+        remove = tok.startswith("-")
+        tok = tok.lstrip("-+").strip()
+        base, _, ordtxt = tok.partition(":")
+        order = default_order
+        if ordtxt:
+            try:
+                order = int(ordtxt)
+            except ValueError:
+                raise ValueError(f"model token {raw.strip()!r}: the order after ':' must be "
+                                 "a whole number 1-5.") from None
+            if not 1 <= order <= MAX_ORDER:
+                raise ValueError(f"model token {raw.strip()!r}: order must be 1-{MAX_ORDER}.")
+        if base in PHYSICAL:
+            (effects.discard if remove else effects.add)(base)
+            continue
+        names = GROUPS.get(base, (base,) if base in ERROR_NAMES else None)
+        if names is None:
+            known = ", ".join(list(GROUPS) + list(PHYSICAL))
+            raise ValueError(f"unknown model token {raw.strip()!r}; expected one of the 21 "
+                             f"error names (dxx ... syz) or {known}.")
+        for n in names:
+            orders[n] = 0 if remove else order
+    return ModelSpec(tuple(orders.items()), tuple(e for e in PHYSICAL if e in effects),
+                     default_order)

@@ -1,0 +1,639 @@
+"""Gauss-Newton fit of the local kinematic model with effect blocks (thesis §4.5.1).
+
+Each observation is a probed ball centre ``r`` (machine frame, mm) with nominal probe
+offset ``p``. Its residual (µm) is the corrected measurement minus the placed ball::
+
+    d = x*(r - p, p + dp) - drift(t) - (R_k c_b' + t_k)
+
+with ``x*`` the kinematic model (thesis eq. 4.13), ``(R_k, t_k)`` the rigid placement of
+position k, and ``c_b'`` the plate coordinates of ball b after the plate effects (thermal
+expansion, sag). Gauge constraints are imposed by QR null-space projection as in thesis
+appendix 2; the numerical rank of the scaled, reduced Jacobian (relative tolerance
+``rank_rtol`` on its singular values) decides which parameter combinations the data
+determine, and those that they do not are named in the result.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+import scipy.linalg as sla
+import scipy.sparse as sp
+from scipy.spatial.transform import Rotation
+
+from . import kinematics as kin
+from .dataset import Dataset
+from .effects import ModelSpec, parse_spec
+
+UM = 1e-3
+PLATE_MODES = ("fixed", "prior", "free")
+
+
+def _plate_u_um(cert_xyz_mm):
+    """Certificate standard uncertainty when none is printed: thesis appendix 1 plate
+    specification U(k=2) = sqrt(0.26² + (1.9e-3 l)²) µm with l the distance from ball 1."""
+    length = np.linalg.norm(cert_xyz_mm - cert_xyz_mm[0], axis=1)
+    u = np.sqrt(0.26**2 + (1.9e-3 * length) ** 2) / 2
+    return np.repeat(u[:, None], 3, axis=1)
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Arrays of the observations a fit uses (a selection of a dataset).
+
+    Attributes
+    ----------
+    table : DataFrame
+        The selected rows (position, probe, ball, source, row ...).
+    r_mm, p_mm : ndarray (n, 3)
+        Measured tip centres and nominal probe offsets, machine frame.
+    pos, probe, ball : ndarray of int (n,)
+        Indices into ``positions``, ``probes``, ``balls``.
+    positions, probes : list of str
+    balls : ndarray of int
+    plate0_mm : ndarray (B, 3)
+        Starting plate coordinates (certificate, or the mean measured plate).
+    cert_u_um : ndarray (B, 3) or None
+    dT_K : ndarray (n,)
+        Plate temperature minus 20 °C (zero when not recorded).
+    has_temp : bool
+    hours : ndarray (n,)
+        Time minus the position's mean time, in hours.
+    horizontal : ndarray of bool (P,)
+    R0, t0_mm : ndarray (P, 3, 3), (P, 3)
+        Nominal placements from the setup.
+    range_mm : ndarray (3,)
+    """
+
+    table: pd.DataFrame
+    r_mm: np.ndarray
+    p_mm: np.ndarray
+    pos: np.ndarray
+    probe: np.ndarray
+    ball: np.ndarray
+    positions: list
+    probes: list
+    balls: np.ndarray
+    plate0_mm: np.ndarray
+    cert_u_um: np.ndarray | None
+    dT_K: np.ndarray
+    has_temp: bool
+    hours: np.ndarray
+    horizontal: np.ndarray
+    R0: np.ndarray
+    t0_mm: np.ndarray
+    range_mm: np.ndarray
+    has_certificate: bool
+
+
+def select(data: Dataset, *, positions=None, probes=None, exclude=()) -> Observations:
+    """Observations of the chosen positions and probes, minus excluded rows.
+
+    ``exclude`` holds ``(position, probe, ball)`` triples (outliers the user removed).
+    """
+    df = data.meas
+    keep = np.ones(len(df), bool)
+    if positions is not None:
+        keep &= df["position"].isin(list(positions)).to_numpy()
+    if probes is not None:
+        keep &= df["probe"].isin(list(probes)).to_numpy()
+    ex = {(str(a), str(b), int(c)) for a, b, c in exclude}
+    if ex:
+        keep &= ~np.array([(p, q, int(b)) in ex for p, q, b in
+                           zip(df["position"], df["probe"], df["ball"], strict=True)])
+    t = df[keep].reset_index(drop=True)
+    if len(t) == 0:
+        raise ValueError("no observations left after the selection; choose at least one "
+                         "position and probe.")
+    positions = list(dict.fromkeys(t["position"]))
+    probes = list(dict.fromkeys(t["probe"]))
+    setup = data.setup
+    pos = t["position"].map({p: i for i, p in enumerate(positions)}).to_numpy()
+    prb = t["probe"].map({p: i for i, p in enumerate(probes)}).to_numpy()
+    r = t[["mx_mm", "my_mm", "mz_mm"]].to_numpy(float)
+    pnom = np.array([setup.probes[q] for q in probes])
+    R0 = np.array([setup.positions[p].rotation for p in positions])
+    t0 = np.array([setup.positions[p].origin_mm for p in positions])
+    cert = data.certificate
+    if cert is not None:
+        balls = cert.balls
+        plate0 = cert.xyz_mm.copy()
+        cu = cert.u_um if cert.u_um is not None else _plate_u_um(cert.xyz_mm)
+    else:
+        balls = np.unique(t["ball"].to_numpy())
+        cu = None
+        plate0 = np.zeros((len(balls), 3))
+        bidx = np.searchsorted(balls, t["ball"].to_numpy())
+        local = np.einsum("nji,nj->ni", R0[pos], r - t0[pos])  # nominal plate frame
+        np.add.at(plate0, bidx, local)
+        plate0 /= np.bincount(bidx, minlength=len(balls))[:, None]
+    ball = np.searchsorted(balls, t["ball"].to_numpy())
+    # Temperatures: the column, else start/finish of the position interpolated over order.
+    dT = np.zeros(len(t))
+    has_temp = "temp_C" in t and t["temp_C"].notna().all()
+    if has_temp:
+        dT = t["temp_C"].to_numpy(float) - 20.0
+    else:
+        for i, p in enumerate(positions):
+            rec = setup.positions[p].temp_C
+            sel = np.flatnonzero(pos == i)
+            if len(rec) >= 1 and len(sel):
+                has_temp = True
+                frac = np.linspace(0, 1, len(sel)) if len(sel) > 1 else np.zeros(1)
+                dT[sel] = rec[0] + (rec[-1] - rec[0]) * frac - 20.0
+    # Time: the column, else the order of rows (one minute per probed ball, an assumption).
+    tm = (t["time_min"].to_numpy(float) if "time_min" in t and t["time_min"].notna().all()
+          else np.arange(len(t), dtype=float))
+    hours = np.zeros(len(t))
+    for i in range(len(positions)):
+        sel = pos == i
+        hours[sel] = (tm[sel] - tm[sel].mean()) / 60.0
+    horiz = np.array([setup.positions[p].horizontal for p in positions])
+    return Observations(t, r, pnom[prb], pos, prb, ball, positions, probes, balls, plate0, cu,
+                        dT, bool(has_temp), hours, horiz, R0, t0, setup.range_mm,
+                        cert is not None)
+
+
+def _skew(v):
+    z = np.zeros(len(v))
+    return np.stack([z, -v[:, 2], v[:, 1], v[:, 2], z, -v[:, 0], -v[:, 1], v[:, 0], z],
+                    1).reshape(-1, 3, 3)
+
+
+def _kabsch(src, dst):
+    """Rotation and translation mapping src onto dst in the least-squares sense."""
+    cs, cd = src.mean(0), dst.mean(0)
+    U, _, Vt = np.linalg.svd((src - cs).T @ (dst - cd))
+    D = np.diag([1, 1, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return R, cd - R @ cs
+
+
+@dataclass
+class _Layout:
+    """Column layout of the parameter vector: block name -> slice, plus labels/units."""
+
+    blocks: dict = field(default_factory=dict)
+    labels: list = field(default_factory=list)
+    units: list = field(default_factory=list)
+    groups: list = field(default_factory=list)
+
+    def add(self, name, labels, unit):
+        i = len(self.labels)
+        self.blocks[name] = slice(i, i + len(labels))
+        self.labels += labels
+        self.units += [unit] * len(labels) if isinstance(unit, str) else unit
+        self.groups += [name] * len(labels)
+
+    @property
+    def n(self):
+        return len(self.labels)
+
+
+class Problem:
+    """Parameter layout, residuals and analytic Jacobian of one model on one selection."""
+
+    def __init__(self, obs: Observations, spec: ModelSpec, plate: str):
+        self.obs, self.spec, self.plate = obs, spec, plate
+        self.terms = kin.KinematicTerms(spec.active, tuple(obs.range_mm))
+        L = _Layout()
+        B, P, Q = len(obs.balls), len(obs.positions), len(obs.probes)
+        if plate != "fixed":
+            L.add("plate", [f"ball{b}.{a}" for b in obs.balls for a in "xyz"], "um")
+        L.add("rotation", [f"{p}.r{a}" for p in obs.positions for a in "xyz"], "urad")
+        L.add("translation", [f"{p}.t{a}" for p in obs.positions for a in "xyz"], "um")
+        L.add("kinematic", self.terms.labels, [self.terms.unit(x) for x in self.terms.labels])
+        if "probe_offset" in spec.effects:
+            L.add("probe_offset", [f"probe{q}.{a}" for q in obs.probes for a in "xyz"], "um")
+        if "plate_thermal" in spec.effects:
+            L.add("plate_thermal", ["plate_thermal.cte"], "1e-6/K")
+        if "plate_sag" in spec.effects:
+            L.add("plate_sag", ["plate_sag.uu", "plate_sag.uv", "plate_sag.vv"], "um")
+        if "drift" in spec.effects:
+            L.add("drift", [f"{p}.drift_{a}" for p in obs.positions for a in "xyz"], "um/h")
+        self.layout = L
+        centre = obs.plate0_mm.mean(0)
+        half = np.maximum(np.ptp(obs.plate0_mm, axis=0) / 2, 1.0)
+        self.plate_centre = centre
+        xi = (obs.plate0_mm - centre) / half
+        self.sag_basis = np.column_stack([xi[:, 0] ** 2, xi[:, 0] * xi[:, 1], xi[:, 1] ** 2])
+        self.n_obs = len(obs.r_mm)
+        self.B, self.P, self.Q = B, P, Q
+
+    # --- state ---------------------------------------------------------------------
+    def initial_state(self):
+        """Nominal plate, placements by a rigid fit of the plate to each position."""
+        o = self.obs
+        R = np.empty((self.P, 3, 3))
+        t = np.empty((self.P, 3))
+        for k in range(self.P):
+            sel = o.pos == k
+            R[k], t[k] = _kabsch(o.plate0_mm[o.ball[sel]], o.r_mm[sel])
+        return {"c": o.plate0_mm.copy(), "R": R, "t": t, "x": np.zeros(self.layout.n)}
+
+    def plate_points(self, state):
+        """Plate coordinates of every observation after thermal and sag effects (mm)."""
+        o, x, L = self.obs, state["x"], self.layout.blocks
+        c = state["c"][o.ball]
+        if "plate_thermal" in L:
+            alpha = x[L["plate_thermal"]][0] * 1e-6
+            c = self.plate_centre + (c - self.plate_centre) * (1 + alpha * o.dT_K[:, None])
+        if "plate_sag" in L:
+            w = self.sag_basis[o.ball] @ x[L["plate_sag"]] * UM
+            c = c + np.outer(w * o.horizontal[o.pos], [0, 0, 1])
+        return c
+
+    def residual(self, state, want_jac=False):
+        """Residuals (n, 3) in µm and, if asked, the sparse Jacobian (3n, N)."""
+        o, x, blk = self.obs, state["x"], self.layout.blocks
+        p = o.p_mm.copy()
+        if "probe_offset" in blk:
+            p = p + x[blk["probe_offset"]].reshape(-1, 3)[o.probe] * UM
+        coef = x[blk["kinematic"]]
+        xs, Jk = kin.jacobian(self.terms, coef, o.r_mm - o.p_mm, p) if want_jac else (
+            kin.model_point(self.terms, coef, o.r_mm - o.p_mm, p), None)
+        cp = self.plate_points(state)
+        Rk = state["R"][o.pos]
+        placed = np.einsum("nij,nj->ni", Rk, cp) + state["t"][o.pos]
+        d = (xs - placed) / UM
+        if "drift" in blk:
+            d -= x[blk["drift"]].reshape(-1, 3)[o.pos] * o.hours[:, None]
+        if not want_jac:
+            return d, None
+        rows, cols, vals = [], [], []
+        n = self.n_obs
+        r3 = (3 * np.arange(n))[:, None] + np.arange(3)[None, :]  # (n, 3)
+
+        def put(block_cols, M):
+            # M: (n, 3, k) derivative of the 3 residual components wrt k columns.
+            k = M.shape[2]
+            rows.append(np.repeat(r3[:, :, None], k, 2).ravel())
+            cols.append(np.broadcast_to(block_cols[:, None, :], (n, 3, k)).ravel())
+            vals.append(M.ravel())
+
+        if "plate" in blk:
+            scale = 1.0
+            if "plate_thermal" in blk:
+                scale = 1 + x[blk["plate_thermal"]][0] * 1e-6 * o.dT_K
+            s0 = blk["plate"].start
+            put(s0 + 3 * o.ball[:, None] + np.arange(3), -Rk * np.reshape(scale, (-1, 1, 1)))
+        v = np.einsum("nij,nj->ni", Rk, cp)
+        put(blk["rotation"].start + 3 * o.pos[:, None] + np.arange(3), _skew(v) * UM)
+        put(blk["translation"].start + 3 * o.pos[:, None] + np.arange(3),
+            -np.broadcast_to(np.eye(3), (n, 3, 3)))
+        sk = blk["kinematic"]
+        if sk.stop > sk.start:
+            put(np.broadcast_to(np.arange(sk.start, sk.stop), (n, sk.stop - sk.start)),
+                Jk / UM)
+        if "probe_offset" in blk:
+            Jp = kin.probe_jacobian(self.terms, coef, o.r_mm - o.p_mm)
+            put(blk["probe_offset"].start + 3 * o.probe[:, None] + np.arange(3), Jp)
+        if "plate_thermal" in blk:
+            dc = np.einsum("nij,nj->ni", Rk, (state["c"][o.ball] - self.plate_centre))
+            put(np.full((n, 1), blk["plate_thermal"].start),
+                (-dc * o.dT_K[:, None] * 1e-6 / UM)[:, :, None])
+        if "plate_sag" in blk:
+            nrm = Rk[:, :, 2] * o.horizontal[o.pos][:, None]
+            put(np.broadcast_to(np.arange(blk["plate_sag"].start, blk["plate_sag"].stop),
+                                (n, 3)), -nrm[:, :, None] * self.sag_basis[o.ball][:, None, :])
+        if "drift" in blk:
+            put(blk["drift"].start + 3 * o.pos[:, None] + np.arange(3),
+                -np.eye(3)[None] * o.hours[:, None, None])
+        J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(3 * n, self.layout.n))
+        return d, J
+
+    def constraints(self):
+        """Gauge constraints C (rows) on the parameter vector: C x = 0."""
+        L, rows = self.layout, []
+        if "plate" in L.blocks:
+            c = self.obs.plate0_mm - self.plate_centre
+            G = np.zeros((3 * self.B, 7))
+            for a in range(3):
+                G[a::3, a] = 1.0  # translations
+            rot = _skew(c)  # columns: small rotations about the centroid
+            for a in range(3):
+                G[:, 3 + a] = -rot[:, :, a].ravel()
+            G[:, 6] = c.ravel()  # isotropic scale: needs an external length reference
+            C = np.zeros((7, L.n))
+            C[:, L.blocks["plate"]] = G.T
+            rows.append(C)
+        if "probe_offset" in L.blocks:
+            C = np.zeros((3, L.n))
+            s = L.blocks["probe_offset"].start
+            for q in range(self.Q):
+                C[:, s + 3 * q: s + 3 * q + 3] = np.eye(3)
+            rows.append(C)
+        return np.vstack(rows) if rows else np.zeros((0, L.n))
+
+    def update(self, state, step):
+        """Apply a step: placements are updated multiplicatively so the rotation
+        parameters stay small increments (exact Jacobian at zero)."""
+        blk = self.layout.blocks
+        new = {k: v.copy() for k, v in state.items()}
+        new["x"] = state["x"] + step
+        w = new["x"][blk["rotation"]].reshape(-1, 3) * 1e-6
+        tau = new["x"][blk["translation"]].reshape(-1, 3) * UM
+        new["R"] = Rotation.from_rotvec(w).as_matrix() @ state["R"]
+        new["t"] = state["t"] + tau
+        new["x"][blk["rotation"]] = 0.0
+        new["x"][blk["translation"]] = 0.0
+        if "plate" in blk:
+            new["c"] = state["c"] + new["x"][blk["plate"]].reshape(-1, 3) * UM
+            new["x"][blk["plate"]] = 0.0
+        return new
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """Outcome of a kinematic-model fit.
+
+    Attributes
+    ----------
+    status : str
+        ``converged``, ``max_iterations`` or ``failed``.
+    message : str
+        Plain-language summary, including what the data cannot determine.
+    iterations : int
+        Gauss-Newton iterations taken.
+    spec : str
+        Canonical model spec.
+    plate : str
+        Plate geometry mode: fixed, prior or free.
+    sigma_um : float
+        Stated measurement repeatability used for weights and χ².
+    labels, units, groups : list of str
+        Name, unit and block of each parameter.
+    values : ndarray
+        Parameter estimates (plate: deviation from certificate or starting plate in µm;
+        placement: deviation from the setup's nominal placement).
+    u : ndarray
+        Standard uncertainties (NaN for parameters the data cannot determine).
+    covariance : ndarray
+        Parameter covariance by the law of propagation of uncertainty, σ-scaled.
+    residuals_um : ndarray (n, 3)
+        Corrected measurement minus placed ball, per observation.
+    table : DataFrame
+        The observations used (position, probe, ball, source file and row).
+    rms_um : float
+        RMS of all residual components.
+    chi2, dof, chi2_dof : float
+        χ² against ``sigma_um`` (plus prior terms), degrees of freedom, and their ratio.
+    bic : float
+        Bayesian information criterion χ² + rank · ln(number of residuals).
+    rank : int
+        Numerical rank of the constrained problem (effective number of parameters).
+    rank_rtol : float
+        Relative singular-value tolerance used for the rank.
+    unidentifiable : list of str
+        Parameters carrying weight in a combination the data cannot determine.
+    null_combinations : list of str
+        Those combinations, written out with their loadings.
+    n_obs : int
+        Observations (probed ball centres) used.
+    problem : Problem
+        The problem (layout, observations, kinematic terms) for prediction.
+    state : dict
+        Final plate coordinates, placements and parameter vector.
+    """
+
+    status: str
+    message: str
+    iterations: int
+    spec: str
+    plate: str
+    sigma_um: float
+    labels: list
+    units: list
+    groups: list
+    values: np.ndarray
+    u: np.ndarray
+    covariance: np.ndarray
+    residuals_um: np.ndarray
+    table: pd.DataFrame
+    rms_um: float
+    chi2: float
+    dof: int
+    chi2_dof: float
+    bic: float
+    rank: int
+    rank_rtol: float
+    unidentifiable: list
+    null_combinations: list
+    n_obs: int
+    problem: Problem = field(repr=False)
+    state: dict = field(repr=False)
+
+    @property
+    def terms(self) -> kin.KinematicTerms:
+        """Kinematic terms of the model."""
+        return self.problem.terms
+
+    def block(self, name: str):
+        """``(labels, values, u)`` of one parameter block."""
+        s = self.problem.layout.blocks.get(name, slice(0, 0))
+        return self.labels[s], self.values[s], self.u[s]
+
+    @property
+    def kinematic_coef(self) -> np.ndarray:
+        """Kinematic coefficients (µm, µrad)."""
+        return self.values[self.problem.layout.blocks["kinematic"]]
+
+    @property
+    def kinematic_cov(self) -> np.ndarray:
+        """Covariance of the kinematic coefficients."""
+        s = self.problem.layout.blocks["kinematic"]
+        return self.covariance[s, s]
+
+    @property
+    def identifiable(self) -> bool:
+        """True when the data determine every parameter."""
+        return not self.unidentifiable
+
+    def parameters_frame(self) -> pd.DataFrame:
+        """Parameter table: name, block, unit, value, standard uncertainty."""
+        return pd.DataFrame({"parameter": self.labels, "block": self.groups,
+                             "unit": self.units, "value": self.values, "u": self.u})
+
+    def residuals_frame(self) -> pd.DataFrame:
+        """Residuals per observation with position, probe, ball and source."""
+        t = self.table
+        cols = [c for c in ("position", "probe", "ball", "source", "row", "time_min",
+                            "temp_C") if c in t]
+        out = t[cols].copy()
+        out["rx_um"], out["ry_um"], out["rz_um"] = self.residuals_um.T
+        return out
+
+
+def _solve(J, d, C, rank_rtol):
+    """Minimum-norm Gauss-Newton step under constraints C x = 0 (QR null space, thesis
+    appendix 2), with column scaling and an eigen-decomposition of the reduced normal
+    matrix for the numerical rank. Returns step, covariance, rank, null vectors."""
+    n = J.shape[1]
+    norms = np.sqrt(np.asarray(J.multiply(J).sum(0)).ravel())
+    S = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
+    if C.shape[0]:
+        Q, _ = sla.qr((C * S).T)
+        rc = np.linalg.matrix_rank(C * S)
+        Z = Q[:, rc:]
+    else:
+        Z = np.eye(n)
+    Js = J @ sp.diags(S)
+    N = (Js.T @ Js).toarray() if sp.issparse(Js) else Js.T @ Js
+    g = np.asarray(Js.T @ d).ravel()
+    Nr = Z.T @ N @ Z
+    lam, V = np.linalg.eigh((Nr + Nr.T) / 2)
+    lam = np.clip(lam, 0, None)
+    sv = np.sqrt(lam)
+    keep = sv > rank_rtol * sv.max() if sv.max() > 0 else np.zeros_like(sv, bool)
+    Vk = V[:, keep]
+    inv = Vk / lam[keep]
+    step = -(S * (Z @ (inv @ (Vk.T @ (Z.T @ g)))))
+    cov = (S[:, None] * (Z @ inv @ Vk.T @ Z.T)) * S[None, :]
+    null = Z @ V[:, ~keep]  # in scaled parameter space
+    return step, cov, int(keep.sum()), null
+
+
+def _describe_null(null, labels, limit=6):
+    combos, names = [], set()
+    for j in range(null.shape[1]):
+        w = null[:, j] / np.abs(null[:, j]).max()
+        idx = np.argsort(-np.abs(w))
+        big = [i for i in idx if abs(w[i]) >= 0.2][:limit]
+        names.update(labels[i] for i in idx if abs(w[i]) >= 0.05)
+        combos.append(" + ".join(f"{w[i]:+.2f}·{labels[i]}" for i in big))
+    return combos, names
+
+
+def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, order: int = 2,
+        plate: str | None = None, sigma_um: float = 0.5, positions=None, probes=None,
+        exclude=(), rank_rtol: float = 1e-7, max_iter: int = 30, tol: float = 1e-9) -> FitResult:
+    """Fit a model to ball-plate measurements by Gauss-Newton (thesis §4.5.1).
+
+    Parameters
+    ----------
+    data : Dataset or Observations
+    spec : str or ModelSpec
+        Model spec (SPEC grammar), e.g. ``"kinematic21"``, ``"kinematic21,plate_sag"``.
+    order : int
+        Default Chebyshev order (1-5).
+    plate : {"fixed", "prior", "free"}, optional
+        Plate geometry: certificate fixed (default with a certificate), certificate as a
+        prior weighted by its uncertainty, or free (self-calibration; default without).
+    sigma_um : float
+        Measurement repeatability (µm) for the weights, χ² and covariance.
+    positions, probes : list of str, optional
+        Subsets to use (default all).
+    exclude : iterable of (position, probe, ball)
+        Observations left out (flagged outliers).
+    rank_rtol : float
+        Singular values of the column-scaled reduced Jacobian below ``rank_rtol`` times the
+        largest count as zero: those directions are reported as undetermined.
+
+    Returns
+    -------
+    FitResult
+        Never raises on non-convergence: ``status`` and ``message`` say what happened.
+    """
+    if not sigma_um > 0:
+        raise ValueError(f"sigma_um must be positive, got {sigma_um}.")
+    if isinstance(spec, str):
+        spec = parse_spec(spec, default_order=order)
+    obs = data if isinstance(data, Observations) else select(
+        data, positions=positions, probes=probes, exclude=exclude)
+    if plate is None:
+        plate = "fixed" if obs.has_certificate else "free"
+    if plate not in PLATE_MODES:
+        raise ValueError(f"plate must be one of {PLATE_MODES}, got {plate!r}.")
+    if plate in ("fixed", "prior") and not obs.has_certificate:
+        raise ValueError(f"plate={plate!r} needs a certificate; load one or use plate='free'.")
+    prob = Problem(obs, spec, plate)
+    L = prob.layout
+    C = prob.constraints()
+    state = prob.initial_state()
+
+    def weighted(st, want_jac):
+        d, J = prob.residual(st, want_jac)
+        r = d.ravel() / sigma_um
+        if J is not None:
+            J = J / sigma_um
+        if plate == "prior":
+            s = L.blocks["plate"]
+            dev = ((st["c"] - obs.plate0_mm) / UM + st["x"][s].reshape(-1, 3))
+            r = np.concatenate([r, (dev / obs.cert_u_um).ravel()])
+            if J is not None:
+                Jp = sp.csr_matrix((1.0 / obs.cert_u_um.ravel(),
+                                    (np.arange(s.stop - s.start), np.arange(s.start, s.stop))),
+                                   shape=(s.stop - s.start, L.n))
+                J = sp.vstack([J, Jp]).tocsr()
+        return d, r, J
+
+    status, it = "max_iterations", 0
+    d, r, J = weighted(state, True)
+    cost = r @ r
+    for it in range(1, max_iter + 1):
+        step, cov, rank, null = _solve(J, r, C, rank_rtol)
+        lam, accepted = 1.0, False
+        for _ in range(12):
+            trial = prob.update(state, lam * step)
+            _, rt, _ = weighted(trial, False)
+            if rt @ rt <= cost * (1 + 1e-12) or lam < 1e-3:
+                accepted = rt @ rt <= cost * (1 + 1e-12)
+                break
+            lam /= 2
+        if not accepted:
+            status = "converged" if abs(lam) < 1e-3 and cost < np.inf else "failed"
+            break
+        state = trial
+        new_cost = rt @ rt
+        d, r, J = weighted(state, True)
+        done = cost - new_cost <= tol * max(cost, 1.0)
+        cost = new_cost
+        if done:
+            status = "converged"
+            break
+    step, cov, rank, null = _solve(J, r, C, rank_rtol)
+    u = np.sqrt(np.clip(np.diag(cov), 0, None))
+    combos, names = _describe_null(null, L.labels)
+    unident = [lab for lab in L.labels if lab in names]
+    u = np.array([np.nan if lab in names else ui for lab, ui in zip(L.labels, u, strict=True)])
+    values = _report_values(prob, state)
+    n_rows = r.size
+    chi2 = float(r @ r)
+    dof = n_rows - rank - C.shape[0] * 0
+    bic = chi2 + rank * np.log(n_rows)
+    rms = float(np.sqrt(np.mean(d**2)))
+    msg = _message(status, it, rms, chi2 / max(dof, 1), combos)
+    return FitResult(status, msg, it, spec.to_string(), plate, sigma_um, list(L.labels),
+                     list(L.units), list(L.groups), values, u, cov, d, obs.table, rms, chi2,
+                     int(dof), chi2 / max(dof, 1), float(bic), rank, rank_rtol, unident, combos,
+                     prob.n_obs, prob, state)
+
+
+def _report_values(prob, state):
+    """Parameter values relative to the nominal setup / certificate, in their units."""
+    L, o = prob.layout.blocks, prob.obs
+    v = state["x"].copy()
+    if "plate" in L:
+        v[L["plate"]] = ((state["c"] - o.plate0_mm) / UM).ravel()
+    rot = np.array([Rotation.from_matrix(R @ R0.T).as_rotvec() for R, R0 in
+                    zip(state["R"], o.R0, strict=True)]) / 1e-6
+    v[L["rotation"]] = rot.ravel()
+    v[L["translation"]] = ((state["t"] - o.t0_mm) / UM).ravel()
+    return v
+
+
+def _message(status, it, rms, chi2_dof, combos):
+    head = {"converged": f"Converged in {it} iterations",
+            "max_iterations": f"Stopped after {it} iterations without converging",
+            "failed": "No step reduced the misfit"}[status]
+    msg = f"{head}: RMS {rms:.3f} µm, χ²/dof {chi2_dof:.2f}."
+    if combos:
+        msg += (f" The data cannot determine {len(combos)} parameter combination(s); they "
+                "are held at the minimum-norm solution and reported as unidentifiable: "
+                + "; ".join(combos[:4]) + (" ..." if len(combos) > 4 else "")
+                + ". Add positions, heights or probe offsets that exercise them, or remove "
+                "them from the model.")
+    return msg
