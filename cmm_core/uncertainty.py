@@ -1,0 +1,175 @@
+"""Uncertainty of the fitted model and of the CMM error it predicts (thesis §4.5.3).
+
+The parameter covariance comes from the fit (law of propagation of uncertainty,
+``V = σ² (JᵀJ)⁺`` on the constrained, full-rank problem). The error ``e(x, p)`` at any
+point is propagated through its analytic Jacobian. Thesis tables 4.1-4.3 define:
+
+- U1: the average standard uncertainty of the ball-centre coordinates,
+- U2: the average standard uncertainty of the CMM error at 200 random points in the
+  evaluated region (the box spanned by the measurements),
+- U3: the same over the whole working volume,
+
+each per axis, after removing the six rigid-body freedoms from the covariance (the
+thesis's ``xux2uzsp``): a rigid motion of the whole point set is not an error of the CMM,
+because the frame of the workpiece is always re-established.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import kinematics as kin
+from .fit import FitResult
+
+
+def rigid_body_projector(points_mm: np.ndarray) -> np.ndarray:
+    """Projector removing translations and small rotations of a point set (3m × 3m).
+
+    ``P = I - G G⁺`` with G the 6 rigid-body motion fields at the points (rotations about
+    the centroid); ``P V Pᵀ`` is the covariance the thesis's ``xux2uzsp`` returns.
+    """
+    c = np.asarray(points_mm, float) - np.mean(points_mm, 0)
+    m = len(c)
+    G = np.zeros((3 * m, 6))
+    for a in range(3):
+        G[a::3, a] = 1.0
+    # rotation about axis a moves point c by e_a x c
+    G[0::3, 3], G[1::3, 3], G[2::3, 3] = 0, -c[:, 2], c[:, 1]
+    G[0::3, 4], G[1::3, 4], G[2::3, 4] = c[:, 2], 0, -c[:, 0]
+    G[0::3, 5], G[1::3, 5], G[2::3, 5] = -c[:, 1], c[:, 0], 0
+    Q, _ = np.linalg.qr(G)
+    return np.eye(3 * m) - Q @ Q.T
+
+
+def _probe_vector(result: FitResult, probe):
+    obs = result.problem.obs
+    name = obs.probes[0] if probe is None else str(probe)
+    if name not in obs.probes:
+        raise ValueError(f"probe {name!r} was not in the fit (known: {', '.join(obs.probes)}).")
+    i = obs.probes.index(name)
+    p = obs.p_mm[obs.probe == i][0].copy()
+    lab, val, _ = result.block("probe_offset")
+    if len(lab):
+        p = p + val.reshape(-1, 3)[i] * 1e-3
+    return p
+
+
+def error_at(result: FitResult, x_mm, probe=None):
+    """Kinematic error and its standard uncertainty at scale readings ``x_mm``.
+
+    Parameters
+    ----------
+    result : FitResult
+    x_mm : array (m, 3)
+        Scale readings (ram reference point) in mm.
+    probe : str, optional
+        Probe whose offset the tip has (default the first probe of the fit).
+
+    Returns
+    -------
+    e_um, u_um : arrays (m, 3)
+        Error (true minus reported tip) and its standard uncertainty; u is NaN when the
+        model has parameters the data cannot determine.
+    """
+    x = np.atleast_2d(np.asarray(x_mm, float))
+    p = np.broadcast_to(_probe_vector(result, probe), x.shape)
+    coef = result.kinematic_coef
+    xs, J = kin.jacobian(result.terms, coef, x, p)
+    e = (xs - x - p) / kin.UM
+    Je = J / kin.UM
+    V = result.kinematic_cov
+    var = np.einsum("mik,kl,mil->mi", Je, V, Je)
+    u = np.sqrt(np.clip(var, 0, None))
+    if _undetermined(result, "kinematic") or _undetermined(result, "probe_offset"):
+        u[:] = np.nan
+    return e, u
+
+
+def _undetermined(result: FitResult, block: str) -> bool:
+    bad = set(result.unidentifiable)
+    return any(g == block and lab in bad
+               for g, lab in zip(result.groups, result.labels, strict=True))
+
+
+def error_covariance(result: FitResult, x_mm, probe=None):
+    """Full covariance (3m × 3m, µm²) of the error at the points, for maps and U2/U3."""
+    x = np.atleast_2d(np.asarray(x_mm, float))
+    p = np.broadcast_to(_probe_vector(result, probe), x.shape)
+    _, J = kin.jacobian(result.terms, result.kinematic_coef, x, p)
+    Je = (J / kin.UM).reshape(-1, J.shape[2])
+    return Je @ result.kinematic_cov @ Je.T
+
+
+@dataclass(frozen=True)
+class UncertaintySummary:
+    """U1, U2, U3 of thesis tables 4.1-4.3 (average standard uncertainties per axis, µm).
+
+    Attributes
+    ----------
+    U1_um : dict or None
+        Ball-centre coordinates (``None`` when the plate is fixed to the certificate).
+    U2_um : dict or None
+        CMM error at random points in the evaluated region.
+    U3_um : dict or None
+        CMM error at random points in the whole working volume.
+    region_mm : ndarray (2, 3)
+        Lower and upper corners of the evaluated region (scale readings).
+    message : str
+        What was computed, and why something was not.
+    """
+
+    U1_um: dict | None
+    U2_um: dict | None
+    U3_um: dict | None
+    region_mm: np.ndarray
+    message: str
+
+
+def _avg(V, m):
+    u = np.sqrt(np.clip(np.diag(V), 0, None)).reshape(m, 3)
+    return {a: float(u[:, i].mean()) for i, a in enumerate("xyz")}
+
+
+def evaluate(result: FitResult, *, n_random: int = 200, seed: int = 0,
+             probe=None) -> UncertaintySummary:
+    """U1, U2 and U3 as thesis §4.5.3 defines them, rigid-body freedoms removed.
+
+    A model whose parameters the data do not all determine gets no numbers: the message
+    names the undetermined combinations instead (thesis: "location 0 alone will lead to
+    the rank deficiency of the Jacobian matrix").
+    """
+    obs = result.problem.obs
+    x_meas = obs.r_mm - obs.p_mm
+    region = np.array([x_meas.min(0), x_meas.max(0)])
+    if _undetermined(result, "kinematic"):
+        return UncertaintySummary(None, None, None, region,
+                                  "Not evaluated: the data cannot determine "
+                                  f"{len(result.null_combinations)} parameter combination(s) "
+                                  f"({'; '.join(result.null_combinations[:3])}). Uncertainties "
+                                  "would be unbounded; add positions or probes, or remove "
+                                  "those functions from the model.")
+    rng = np.random.default_rng(seed)
+    msgs = []
+    U1 = None
+    labels, _, _ = result.block("plate")
+    if len(labels) and _undetermined(result, "plate"):
+        msgs.append("U1 not evaluated: the data cannot determine the plate")
+    elif len(labels):
+        s = result.problem.layout.blocks["plate"]
+        Vc = result.covariance[s, s]
+        P = rigid_body_projector(obs.plate0_mm)
+        U1 = _avg(P @ Vc @ P.T, len(obs.plate0_mm))
+        msgs.append(f"U1 over {len(obs.plate0_mm)} balls ({result.plate} plate)")
+    else:
+        msgs.append("U1 not evaluated: the plate is fixed to the certificate")
+    out = []
+    rng_mm = np.asarray(obs.range_mm, float)
+    for lo, hi in ((region[0], region[1]), (np.zeros(3), rng_mm)):
+        pts = lo + (hi - lo) * rng.random((n_random, 3))
+        V = error_covariance(result, pts, probe)
+        P = rigid_body_projector(pts)
+        out.append(_avg(P @ V @ P.T, n_random))
+    msgs.append(f"U2 and U3 at {n_random} random points (seed {seed})")
+    return UncertaintySummary(U1, out[0], out[1], region, "; ".join(msgs) + ".")
