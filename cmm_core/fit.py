@@ -559,31 +559,15 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     C = prob.constraints()
     state = prob.initial_state()
 
-    def weighted(st, want_jac):
-        d, J = prob.residual(st, want_jac)
-        r = d.ravel() / sigma_um
-        if J is not None:
-            J = J / sigma_um
-        if plate == "prior":
-            s = L.blocks["plate"]
-            dev = ((st["c"] - obs.plate0_mm) / UM + st["x"][s].reshape(-1, 3))
-            r = np.concatenate([r, (dev / obs.cert_u_um).ravel()])
-            if J is not None:
-                Jp = sp.csr_matrix((1.0 / obs.cert_u_um.ravel(),
-                                    (np.arange(s.stop - s.start), np.arange(s.start, s.stop))),
-                                   shape=(s.stop - s.start, L.n))
-                J = sp.vstack([J, Jp]).tocsr()
-        return d, r, J
-
     status, it = "max_iterations", 0
-    d, r, J = weighted(state, True)
+    d, r, J = weighted_residual(prob, state, sigma_um, True)
     cost = r @ r
     for it in range(1, max_iter + 1):
         step, cov, rank, null = _solve(J, r, C, rank_rtol)
         lam, accepted = 1.0, False
         for _ in range(12):
             trial = prob.update(state, lam * step)
-            _, rt, _ = weighted(trial, False)
+            _, rt, _ = weighted_residual(prob, trial, sigma_um, False)
             if rt @ rt <= cost * (1 + 1e-12) or lam < 1e-3:
                 accepted = rt @ rt <= cost * (1 + 1e-12)
                 break
@@ -593,7 +577,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
             break
         state = trial
         new_cost = rt @ rt
-        d, r, J = weighted(state, True)
+        d, r, J = weighted_residual(prob, state, sigma_um, True)
         done = cost - new_cost <= tol * max(cost, 1.0)
         cost = new_cost
         if done:
@@ -615,6 +599,28 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
                      list(L.units), list(L.groups), values, u, cov, d, obs.table, rms, chi2,
                      int(dof), chi2 / max(dof, 1), float(bic), rank, rank_rtol, unident, combos,
                      prob.n_obs, prob, state)
+
+
+def weighted_residual(prob: Problem, state, sigma_um: float, want_jac: bool):
+    """Residuals (µm, (n, 3)), the weighted residual vector and its Jacobian.
+
+    Observation rows are divided by σ; with a plate prior, rows ``(c - c_cert) / u_cert``
+    are appended so the certificate enters weighted by its uncertainty.
+    """
+    d, J = prob.residual(state, want_jac)
+    r = d.ravel() / sigma_um
+    if J is not None:
+        J = J / sigma_um
+    if prob.plate == "prior":
+        o, s = prob.obs, prob.layout.blocks["plate"]
+        dev = (state["c"] - o.plate0_mm) / UM + state["x"][s].reshape(-1, 3)
+        r = np.concatenate([r, (dev / o.cert_u_um).ravel()])
+        if J is not None:
+            Jp = sp.csr_matrix((1.0 / o.cert_u_um.ravel(),
+                                (np.arange(s.stop - s.start), np.arange(s.start, s.stop))),
+                               shape=(s.stop - s.start, prob.layout.n))
+            J = sp.vstack([J, Jp]).tocsr()
+    return d, r, J
 
 
 def _report_values(prob, state):

@@ -184,7 +184,6 @@ def simulate(config: dict | None = None) -> Simulation:
     clock = 0.0
     visit = _visit_order(rows, cols, cfg["order"], rng)
     for p in positions:
-        placement = setup.positions[p]
         seq = [(b, q) for b in visit for q in probes_of[p]] if cfg["probes_interleaved"] \
             else [(b, q) for q in probes_of[p] for b in visit]
         seq = seq * int(cfg["repeats"])

@@ -56,6 +56,16 @@ def _probe_vector(result: FitResult, probe):
     return p
 
 
+def propagate_error(terms, coef, cov, x_mm, p_mm):
+    """Error ``e(x, p)`` (µm) and its standard uncertainty ``sqrt(diag(J V Jᵀ))`` per
+    component, J the analytic Jacobian of the error with respect to the coefficients."""
+    xs, J = kin.jacobian(terms, coef, x_mm, p_mm)
+    e = (xs - x_mm - p_mm) / kin.UM
+    Je = J / kin.UM
+    u = np.sqrt(np.clip(np.einsum("mik,kl,mil->mi", Je, cov, Je), 0, None))
+    return e, u
+
+
 def error_at(result: FitResult, x_mm, probe=None):
     """Kinematic error and its standard uncertainty at scale readings ``x_mm``.
 
@@ -75,13 +85,7 @@ def error_at(result: FitResult, x_mm, probe=None):
     """
     x = np.atleast_2d(np.asarray(x_mm, float))
     p = np.broadcast_to(_probe_vector(result, probe), x.shape)
-    coef = result.kinematic_coef
-    xs, J = kin.jacobian(result.terms, coef, x, p)
-    e = (xs - x - p) / kin.UM
-    Je = J / kin.UM
-    V = result.kinematic_cov
-    var = np.einsum("mik,kl,mil->mi", Je, V, Je)
-    u = np.sqrt(np.clip(var, 0, None))
+    e, u = propagate_error(result.terms, result.kinematic_coef, result.kinematic_cov, x, p)
     if _undetermined(result, "kinematic") or _undetermined(result, "probe_offset"):
         u[:] = np.nan
     return e, u

@@ -1,0 +1,211 @@
+"""Command line (SPEC "Command line"): JSON to stdout or ``--json FILE``.
+
+Bad input exits with status 2 and one line on stderr naming the file, row and column.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .io import DataError
+
+
+def _dataset(args):
+    from .dataset import load_dataset
+
+    return load_dataset(args.meas, args.setup, args.certificate,
+                        name=", ".join(Path(m).name for m in args.meas))
+
+
+def _jsonable(o):
+    if isinstance(o, dict):
+        return {str(k): _jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _jsonable(o.tolist())
+    if isinstance(o, (np.floating, float)):
+        return None if not np.isfinite(o) else float(o)
+    if isinstance(o, np.integer):
+        return int(o)
+    return o
+
+
+def _fit_args(p, *, baseline=False):
+    p.add_argument("meas", nargs="+", help="one long-form CSV or thesis-form CSVs")
+    p.add_argument("--setup", required=True)
+    p.add_argument("--certificate")
+    if baseline:
+        p.add_argument("--baseline", default="kinematic21")
+    else:
+        p.add_argument("--model", default="kinematic21")
+    p.add_argument("--order", type=int, default=2)
+    p.add_argument("--plate", choices=("fixed", "prior", "free"))
+    p.add_argument("--sigma-um", type=float, default=0.5)
+    p.add_argument("--keep-outliers", action="store_true",
+                   help="fit every observation even if flagged as an outlier")
+
+
+def cmd_simulate(args):
+    from .simulate import simulate
+
+    try:
+        cfg = json.loads(Path(args.config).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DataError(f"cannot read the simulation config ({exc}).",
+                        file=Path(args.config).name) from exc
+    sim = simulate(cfg)
+    sim.write(args.out)
+    return {"out": str(args.out), "n_obs": len(sim.dataset.meas),
+            "files": ["measurements.csv", "setup.json", "certificate.csv", "truth.json"]}
+
+
+def _exclusions(data, keep):
+    from .outliers import detect_outliers
+
+    rep = detect_outliers(data)
+    out = [{k: o[k] for k in ("position", "probe", "ball", "axis", "deviation_um")}
+           for o in rep.outliers]
+    return out, ([] if keep else rep.exclusions)
+
+
+def cmd_fit(args):
+    from .compensate import save_model
+    from .fit import fit
+
+    data = _dataset(args)
+    outliers, exclude = _exclusions(data, args.keep_outliers)
+    r = fit(data, args.model, order=args.order, plate=args.plate, sigma_um=args.sigma_um,
+            exclude=exclude)
+    if args.save:
+        save_model(r, args.save)
+    return {"model": r.spec, "status": r.status, "message": r.message,
+            "n_obs": r.n_obs, "n_params": r.rank, "rms_um": r.rms_um, "chi2_dof": r.chi2_dof,
+            "bic": r.bic, "plate": r.plate,
+            "parameters": {lab: {"value": v, "u": u, "unit": un} for lab, v, u, un in
+                           zip(r.labels, r.values, r.u, r.units, strict=True)},
+            "unidentifiable": r.unidentifiable, "null_combinations": r.null_combinations,
+            "outliers": outliers, "excluded": [list(e) for e in exclude]}
+
+
+def cmd_diagnose(args):
+    from .diagnose import diagnose
+
+    data = _dataset(args)
+    outliers, exclude = _exclusions(data, args.keep_outliers)
+    d = diagnose(data, args.baseline, order=args.order, plate=args.plate,
+                 sigma_um=args.sigma_um, exclude=exclude)
+    out = d.to_dict()
+    out["outliers"] = outliers
+    return out
+
+
+def cmd_compensate(args):
+    from .compensate import compensate, load_model, read_points
+
+    model = load_model(args.model)
+    pts = read_points(args.points)
+    out = compensate(model, pts)
+    out.to_csv(args.out, index=False, float_format="%.6f")
+    return {"out": str(args.out), "n_points": len(out),
+            "max_correction_um": float(np.abs(out[["ex_um", "ey_um", "ez_um"]]).max().max())}
+
+
+def cmd_gp(args):
+    from .fit import fit
+    from .gp_cmm import gp_components
+
+    data = _dataset(args)
+    _, exclude = _exclusions(data, False)
+    r = fit(data, "kinematic21" if args.mean == "kinematic" else "rigid", order=args.order,
+            plate=args.plate, exclude=exclude)
+    obs = r.problem.obs
+    basis = None
+    if args.mean == "kinematic":
+        from .diagnose import kinematic_basis
+
+        basis = kinematic_basis(r)
+    comps = gp_components(obs.r_mm, r.residuals_um, mean="zero" if basis is not None
+                          else args.mean, kernel=args.kernel, basis=basis)
+    return {"mean": args.mean, "kernel": args.kernel, "components": comps.summary()}
+
+
+def cmd_budget(args):
+    from .gum import budget_from_dict
+
+    try:
+        d = json.loads(Path(args.budget).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DataError(f"cannot read the budget ({exc}).", file=Path(args.budget).name) \
+            from exc
+    return budget_from_dict(d)
+
+
+def cmd_air(args):
+    from .air import air_from_args
+
+    return air_from_args(args.t_C, args.p_Pa, args.rh_percent, args.wavelength_nm)
+
+
+def build_parser():
+    """Argument parser with one sub-command per SPEC command."""
+    ap = argparse.ArgumentParser(prog="python -m cmm_core", description="CMM error lab")
+    ap.add_argument("--json", help="write the JSON result to this file instead of stdout")
+    sub = ap.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("simulate", help="simulate a virtual CMM")
+    p.add_argument("config")
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=cmd_simulate)
+    p = sub.add_parser("fit", help="fit the kinematic model")
+    _fit_args(p)
+    p.add_argument("--save", help="write the fitted model (for compensate)")
+    p.set_defaults(func=cmd_fit)
+    p = sub.add_parser("diagnose", help="rank the effects missing from a baseline model")
+    _fit_args(p, baseline=True)
+    p.set_defaults(func=cmd_diagnose)
+    p = sub.add_parser("compensate", help="correct points with a saved model")
+    p.add_argument("model")
+    p.add_argument("points")
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=cmd_compensate)
+    p = sub.add_parser("gp", help="Gaussian-process model of the errors")
+    p.add_argument("meas", nargs="+")
+    p.add_argument("--setup", required=True)
+    p.add_argument("--certificate")
+    p.add_argument("--mean", choices=("zero", "quadratic", "kinematic"), default="zero")
+    p.add_argument("--kernel", choices=("se_iso", "se_ard"), default="se_iso")
+    p.add_argument("--order", type=int, default=2)
+    p.add_argument("--plate", choices=("fixed", "prior", "free"))
+    p.set_defaults(func=cmd_gp)
+    p = sub.add_parser("budget", help="GUM uncertainty budget")
+    p.add_argument("budget")
+    p.set_defaults(func=cmd_budget)
+    p = sub.add_parser("air", help="refractive index of air (modified Edlén)")
+    p.add_argument("--t-C", type=float, required=True, dest="t_C")
+    p.add_argument("--p-Pa", type=float, required=True, dest="p_Pa")
+    p.add_argument("--rh-percent", type=float, required=True, dest="rh_percent")
+    p.add_argument("--wavelength-nm", type=float, required=True, dest="wavelength_nm")
+    p.set_defaults(func=cmd_air)
+    return ap
+
+
+def main(argv=None) -> int:
+    """Run the CLI; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    try:
+        out = args.func(args)
+    except (DataError, ValueError, KeyError) as exc:
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        print(f"error: {msg}", file=sys.stderr)
+        return 2
+    text = json.dumps(_jsonable(out), indent=1)
+    if args.json:
+        Path(args.json).write_text(text)
+    else:
+        print(text)
+    return 0

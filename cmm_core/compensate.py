@@ -1,0 +1,156 @@
+"""Compensation: correct measured points with a fitted model, with uncertainties.
+
+The true tip centre of a reported point ``r`` measured with probe offset ``p`` is
+``r + e(r - p, p)`` (SPEC conventions). A saved model holds what that needs: the
+kinematic terms and coefficients with their covariance, and the probe offsets (nominal plus
+any fitted offset error).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from . import kinematics as kin
+from .fit import FitResult
+from .io import DataError, _numeric, _read_csv, _require
+from .uncertainty import propagate_error
+
+
+@dataclass(frozen=True)
+class Model:
+    """A fitted kinematic model detached from its data (what ``fit --save`` writes).
+
+    Attributes
+    ----------
+    spec : str
+    terms : KinematicTerms
+    coef : ndarray
+        Kinematic coefficients (µm, µrad).
+    cov : ndarray
+        Their covariance.
+    probes_mm : dict
+        Probe name -> effective offset (nominal plus fitted error) in mm.
+    undetermined : bool
+        True when some kinematic combination was not determined by the data; corrected
+        points then carry NaN uncertainties.
+    summary : dict
+        RMS, χ²/dof and provenance for the record.
+    """
+
+    spec: str
+    terms: kin.KinematicTerms
+    coef: np.ndarray
+    cov: np.ndarray
+    probes_mm: dict
+    undetermined: bool
+    summary: dict
+
+
+def model_from_result(result: FitResult) -> Model:
+    """Detach the model from a fit result."""
+    obs = result.problem.obs
+    probes = {}
+    lab, val, _ = result.block("probe_offset")
+    for i, q in enumerate(obs.probes):
+        p = obs.p_mm[obs.probe == i][0].copy()
+        if len(lab):
+            p = p + val.reshape(-1, 3)[i] * 1e-3
+        probes[q] = p
+    kin_labels = set(result.terms.labels)
+    return Model(result.spec, result.terms, result.kinematic_coef.copy(),
+                 result.kinematic_cov.copy(), probes,
+                 any(lab in kin_labels for lab in result.unidentifiable),
+                 {"rms_um": result.rms_um, "chi2_dof": result.chi2_dof, "n_obs": result.n_obs,
+                  "plate": result.plate, "sigma_um": result.sigma_um})
+
+
+def model_to_dict(model: Model | FitResult) -> dict:
+    """JSON-ready dict of a model (or of a fit result's model)."""
+    m = model_from_result(model) if isinstance(model, FitResult) else model
+    return {"format": "cmm-error-lab model 1", "spec": m.spec,
+            "orders": [list(o) for o in m.terms.orders], "range_mm": list(m.terms.range_mm),
+            "labels": m.terms.labels, "coef": m.coef.tolist(), "cov": m.cov.tolist(),
+            "probes_mm": {k: list(map(float, v)) for k, v in m.probes_mm.items()},
+            "undetermined": m.undetermined, "summary": m.summary}
+
+
+def model_from_dict(d: dict, *, name: str = "model") -> Model:
+    """Rebuild a model from :func:`model_to_dict` output, checking its shape."""
+    try:
+        terms = kin.KinematicTerms(tuple((str(n), int(o)) for n, o in d["orders"]),
+                                   tuple(float(x) for x in d["range_mm"]))
+        coef = np.asarray(d["coef"], float)
+        cov = np.asarray(d["cov"], float)
+        probes = {str(k): np.asarray(v, float) for k, v in d["probes_mm"].items()}
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DataError(f"is not a model file written by 'fit --save' ({exc}).",
+                        file=name) from exc
+    if coef.shape != (terms.n,) or cov.shape != (terms.n, terms.n):
+        raise DataError(f"expected {terms.n} coefficients and a {terms.n}x{terms.n} "
+                        f"covariance, found {coef.shape} and {cov.shape}.", file=name)
+    return Model(d.get("spec", ""), terms, coef, cov, probes, bool(d.get("undetermined")),
+                 d.get("summary", {}))
+
+
+def save_model(model: Model | FitResult, path) -> None:
+    """Write a model JSON file."""
+    Path(path).write_text(json.dumps(model_to_dict(model), indent=1))
+
+
+def load_model(path) -> Model:
+    """Read a model JSON file."""
+    p = Path(path)
+    try:
+        d = json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DataError(f"cannot read a model ({exc}).", file=p.name) from exc
+    return model_from_dict(d, name=p.name)
+
+
+def read_points(source, *, name=None) -> pd.DataFrame:
+    """Read points to correct: ``x_mm,y_mm,z_mm`` and ``probe`` (plus any other columns)."""
+    df, name = _read_csv(source, name)
+    _require(df, ("x_mm", "y_mm", "z_mm"), name, "points")
+    out = df.copy()
+    for c in ("x_mm", "y_mm", "z_mm"):
+        out[c] = _numeric(df, c, name)
+    out.attrs["source"] = name
+    return out
+
+
+def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
+    """Corrected points ``xc_mm, yc_mm, zc_mm`` with standard uncertainties in µm.
+
+    ``points`` needs ``x_mm, y_mm, z_mm`` (reported tip centres, machine frame) and a
+    ``probe`` column unless the model has a single probe.
+    """
+    m = model_from_result(model) if isinstance(model, FitResult) else model
+    name = points.attrs.get("source", "points")
+    if "probe" in points:
+        probes = points["probe"].astype(str).str.strip().to_numpy()
+    elif len(m.probes_mm) == 1:
+        probes = np.full(len(points), next(iter(m.probes_mm)))
+    else:
+        raise DataError(f"missing column 'probe'; the model has probes "
+                        f"{', '.join(m.probes_mm)}.", file=name, column="probe")
+    for i, q in enumerate(probes):
+        if q not in m.probes_mm:
+            raise DataError(f"probe {q!r} is not in the model (known: "
+                            f"{', '.join(m.probes_mm)}).", file=name, row=i + 2,
+                            column="probe")
+    r = points[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+    p = np.array([m.probes_mm[q] for q in probes]).reshape(-1, 3)
+    x = r - p
+    e_um, u = propagate_error(m.terms, m.coef, m.cov, x, p)
+    if m.undetermined:
+        u[:] = np.nan
+    out = points.copy()
+    out["xc_mm"], out["yc_mm"], out["zc_mm"] = (r + e_um * kin.UM).T
+    out["ex_um"], out["ey_um"], out["ez_um"] = e_um.T
+    out["u_x_um"], out["u_y_um"], out["u_z_um"] = u.T
+    return out

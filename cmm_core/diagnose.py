@@ -1,0 +1,286 @@
+"""Which physical effect is missing? Rank candidates by the misfit they explain.
+
+For a baseline fit, every catalogue token not yet in the model (``effects.ModelSpec.
+candidates``) is scored by the χ² reduction of one Gauss-Newton step of the augmented
+model from the baseline solution (a score test; the model is nearly linear, so this is the
+refit's reduction to high accuracy), and the best few are confirmed by a full refit. Each
+candidate gets:
+
+- ``delta_bic = -Δχ² + Δk ln N`` (Δk the rank it adds, N the number of residuals);
+- an F-test p-value ``F = (Δχ²/Δk) / (χ²_new/ν_new)``, robust to a misstated σ;
+- its signature: the residual pattern its refit removes, to draw beside the residuals;
+- aliases: other candidates whose signatures are nearly the same pattern with this data.
+
+A candidate is significant when ``p < alpha / n_candidates`` (Bonferroni over the
+candidates tried) and ``delta_bic < 0``; the verdict is the best significant candidate, or
+None: the data are explained to noise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from .effects import catalogue_entry, parse_spec
+from .fit import FitResult, Problem, _solve, fit, weighted_residual
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate effect scored against the baseline.
+
+    Attributes
+    ----------
+    effect : str
+        Model token (``plate_sag``, ``dyz:3``, ``sxy``).
+    title, explanation, needs, separate_by : str
+        From the effect catalogue.
+    rms_um, chi2_dof : float
+        Of the model with the effect added.
+    delta_chi2 : float
+        χ² reduction (baseline minus augmented).
+    n_params : int
+        Rank the effect adds (0: the data cannot determine it on top of the baseline).
+    delta_bic : float
+        BIC change; negative favours adding the effect.
+    p_value : float
+        F-test p-value of the χ² reduction.
+    significant : bool
+    confirmed : bool
+        True when the numbers come from a full refit, not only the one-step score.
+    signature_um : ndarray (n, 3)
+        Residual pattern the effect removes, aligned with the baseline's observations.
+    aliases : list of str
+        Candidates producing nearly the same pattern with this data.
+    """
+
+    effect: str
+    title: str
+    explanation: str
+    needs: str
+    separate_by: str
+    rms_um: float
+    chi2_dof: float
+    delta_chi2: float
+    n_params: int
+    delta_bic: float
+    p_value: float
+    significant: bool
+    confirmed: bool
+    signature_um: np.ndarray = field(repr=False)
+    aliases: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (no arrays)."""
+        return {"effect": self.effect, "title": self.title, "rms_um": self.rms_um,
+                "chi2_dof": self.chi2_dof, "delta_chi2": self.delta_chi2,
+                "n_params": self.n_params, "delta_bic": self.delta_bic,
+                "p_value": self.p_value, "significant": self.significant,
+                "confirmed": self.confirmed, "aliases": self.aliases,
+                "explanation": self.explanation, "separate_by": self.separate_by}
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """Ranked candidates and the verdict.
+
+    Attributes
+    ----------
+    baseline : FitResult
+    candidates : list of Candidate
+        Best first (most negative ΔBIC among significant, then by ΔBIC).
+    verdict : str or None
+        Best significant effect, or None when the data are explained to noise.
+    skipped : dict
+        Tokens not tried, with the reason (data they need are absent).
+    message : str
+        Plain-language conclusion.
+    """
+
+    baseline: FitResult
+    candidates: list
+    verdict: str | None
+    skipped: dict
+    message: str
+
+    def to_dict(self) -> dict:
+        """JSON-ready result in the SPEC ``diagnose`` shape."""
+        b = self.baseline
+        return {"baseline": {"model": b.spec, "rms_um": b.rms_um, "chi2_dof": b.chi2_dof,
+                             "bic": b.bic},
+                "candidates": [c.to_dict() for c in self.candidates],
+                "verdict": self.verdict, "skipped": self.skipped, "message": self.message}
+
+
+def _augmented_state(base: FitResult, prob: Problem):
+    """Baseline solution expressed in the augmented problem's parameter vector."""
+    st = {k: v.copy() for k, v in base.state.items()}
+    x = np.zeros(prob.layout.n)
+    old = dict(zip(base.labels, base.state["x"], strict=True))
+    for i, lab in enumerate(prob.layout.labels):
+        x[i] = old.get(lab, 0.0)
+    st["x"] = x
+    return st
+
+
+def _needs_met(token, base: FitResult):
+    o = base.problem.obs
+    name = token.partition(":")[0]
+    if name == "plate_thermal" and not o.has_temp:
+        return "needs plate temperatures (temp_C column or setup records)"
+    if name == "plate_thermal" and np.ptp(o.dT_K) < 1e-6:
+        return "the plate temperature never changes, so expansion is a pure scale error"
+    if name == "plate_sag" and not o.horizontal.any():
+        return "needs at least one horizontal placement"
+    if name == "probe_offset" and len(o.probes) < 2:
+        return "needs at least two probes"
+    if name == "drift" and np.ptp(o.hours) == 0:
+        return "needs measurement times"
+    return None
+
+
+def score(base: FitResult, token: str):
+    """One-step score of adding ``token``: (Δχ², Δrank, signature µm (n,3), χ² new)."""
+    spec = parse_spec(base.spec).with_token(token)
+    prob = Problem(base.problem.obs, spec, base.plate)
+    st = _augmented_state(base, prob)
+    d, r, J = weighted_residual(prob, st, base.sigma_um, True)
+    step, _, rank, _ = _solve(J, r, prob.constraints(), base.rank_rtol)
+    r_new = r + J @ step
+    chi2_new = float(r_new @ r_new)
+    n = prob.n_obs
+    sig = -(J @ step)[: 3 * n].reshape(n, 3) * base.sigma_um
+    return base.chi2 - chi2_new, rank - base.rank, sig, chi2_new
+
+
+def _stats(base: FitResult, dchi2, dk, chi2_new):
+    n_rows = base.dof + base.rank
+    dof_new = max(n_rows - base.rank - dk, 1)
+    dbic = -dchi2 + dk * np.log(n_rows)
+    if dk <= 0 or dchi2 <= 0:
+        return dbic, 1.0, dof_new
+    F = (dchi2 / dk) / max(chi2_new / dof_new, 1e-300)
+    return dbic, float(stats.f.sf(F, dk, dof_new)), dof_new
+
+
+def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
+             sigma_um: float = 0.5, exclude=(), positions=None, probes=None,
+             candidates=None, alpha: float = 0.01, confirm: int = 3,
+             alias_corr: float = 0.9) -> Diagnosis:
+    """Rank the catalogue effects missing from ``baseline`` (see module docstring).
+
+    Parameters
+    ----------
+    data : Dataset
+    baseline : str
+        Model spec of the baseline.
+    candidates : list of str, optional
+        Tokens to try (default: every catalogue token not in the baseline).
+    alpha : float
+        Family-wise false-alarm rate; each candidate is tested at ``alpha / n``.
+    confirm : int
+        How many of the best scored candidates are confirmed by a full refit.
+    alias_corr : float
+        Signature correlation above which two candidates are reported as aliases.
+    """
+    base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um, exclude=exclude,
+               positions=positions, probes=probes)
+    tokens = candidates if candidates is not None else parse_spec(
+        base.spec, default_order=order).candidates()
+    skipped, scored = {}, []
+    for tok in tokens:
+        why = _needs_met(tok, base)
+        if why:
+            skipped[tok] = why
+            continue
+        dchi2, dk, sig, chi2_new = score(base, tok)
+        scored.append([tok, dchi2, dk, sig, chi2_new, False, None])
+    scored.sort(key=lambda s: _stats(base, s[1], s[2], s[4])[0])
+    for s in scored[:confirm]:
+        if s[2] <= 0:
+            continue
+        ref = fit(base.problem.obs, parse_spec(base.spec, default_order=order).with_token(s[0]),
+                  plate=base.plate, sigma_um=sigma_um, rank_rtol=base.rank_rtol)
+        s[1], s[2], s[4], s[5], s[6] = base.chi2 - ref.chi2, ref.rank - base.rank, ref.chi2, \
+            True, ref
+    n_try = max(len(scored), 1)
+    out = []
+    n_rows = base.dof + base.rank
+    for tok, dchi2, dk, sig, chi2_new, confirmed, ref in scored:
+        dbic, p, dof_new = _stats(base, dchi2, dk, chi2_new)
+        e = catalogue_entry(tok)
+        # Unconfirmed candidates: RMS from the one-step χ² (prior rows are few).
+        rms = ref.rms_um if ref is not None else float(
+            np.sqrt(max(chi2_new, 0) / n_rows) * sigma_um)
+        out.append(Candidate(tok, e.title, e.explanation, e.needs, e.separate_by, rms,
+                             chi2_new / dof_new, float(dchi2), int(dk), float(dbic), p,
+                             bool(dk > 0 and p < alpha / n_try and dbic < 0), confirmed, sig))
+    out.sort(key=lambda c: (not c.significant, c.delta_bic))
+    out = _with_aliases(out, alias_corr)
+    verdict = out[0].effect if out and out[0].significant else None
+    msg = _conclusion(base, out, verdict)
+    return Diagnosis(base, out, verdict, skipped, msg)
+
+
+def _with_aliases(cands, threshold):
+    sigs = [c.signature_um.ravel() for c in cands]
+    norms = [np.linalg.norm(s) for s in sigs]
+    res = []
+    for i, c in enumerate(cands):
+        al = []
+        if norms[i] > 0 and c.n_params > 0:
+            for j, o in enumerate(cands):
+                if j != i and norms[j] > 0 and o.n_params > 0:
+                    corr = abs(sigs[i] @ sigs[j]) / (norms[i] * norms[j])
+                    if corr > threshold:
+                        al.append(o.effect)
+        res.append(Candidate(**{**c.__dict__, "aliases": al}))
+    return res
+
+
+def _conclusion(base, cands, verdict):
+    head = (f"Baseline {base.spec}: RMS {base.rms_um:.2f} µm, χ²/dof {base.chi2_dof:.2f} "
+            f"against σ = {base.sigma_um} µm.")
+    if verdict is None:
+        return head + (" No candidate effect explains a significant part of the remaining "
+                       "misfit: the data are explained to noise by this model."
+                       if base.chi2_dof < 1.5 else
+                       " No catalogue effect explains the remaining misfit significantly: "
+                       "look at the residual maps for blunders or an effect not in the "
+                       "catalogue.")
+    best = cands[0]
+    text = (f" Most likely missing: {best.title} ({best.effect}): adding it lowers χ² by "
+            f"{best.delta_chi2:.1f} for {best.n_params} parameter(s), ΔBIC "
+            f"{best.delta_bic:.1f}, p = {best.p_value:.2g}. {best.explanation}")
+    if best.aliases:
+        text += (f" With this data it cannot be told apart from {', '.join(best.aliases)}; "
+                 f"to separate them: {best.separate_by}")
+    return head + text
+
+
+def kinematic_basis(result: FitResult):
+    """Per-component design matrices of a fit at its observations, for a GP mean.
+
+    Returns a list of three arrays (n, m_c): an orthonormal basis of the columns of the
+    model's Jacobian restricted to the x, y and z residual rows, so that a GP over the
+    residuals with this explicit basis cannot absorb what the model already explains.
+    """
+    _, J = result.problem.residual(result.state, True)
+    J = J.toarray()
+    out = []
+    for c in range(3):
+        Jc = J[c::3]
+        Jc = Jc[:, np.linalg.norm(Jc, axis=0) > 0]
+        U, s, _ = np.linalg.svd(Jc, full_matrices=False)
+        keep = s > 1e-8 * s.max() if s.size else s.astype(bool)
+        k = min(int(keep.sum()), Jc.shape[0] - 3)
+        out.append(U[:, :k])
+    return out
+
+
+def history_entry(result: FitResult, gp_amplitude_um=None) -> dict:
+    """One row of the add-and-watch history."""
+    return {"model": result.spec, "rms_um": result.rms_um, "chi2_dof": result.chi2_dof,
+            "bic": result.bic, "n_params": result.rank, "gp_amplitude_um": gp_amplitude_um}

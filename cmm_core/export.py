@@ -1,0 +1,298 @@
+"""Exports: spreadsheet-safe CSV, the error-map grid, corrected points, project files.
+
+Everything here is plain Python over the core (no UI). Lengths are mm in files; errors
+and uncertainties are µm.
+
+- :func:`safe_csv` writes a DataFrame as CSV that is safe to open in a spreadsheet: text
+  cells starting with ``= + - @``, tab or carriage return that are not plain numbers get a
+  leading apostrophe (CSV formula injection).
+- :func:`error_map_grid` tabulates the fitted error and its standard uncertainty on a
+  regular grid of machine coordinates, the layout of an ISG-style compensation table.
+- :func:`compensate_points` corrects reported tip centres (uses ``cmm_core.compensate``
+  when it is available; otherwise a thin adapter over ``uncertainty.error_at``).
+- :func:`project_to_json` / :func:`project_from_json` save and restore a session: the
+  dataset files' content, setup, certificate, model, exclusions and history.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from datetime import UTC, datetime
+
+import numpy as np
+import pandas as pd
+
+from . import __version__
+from .io import DataError
+
+PROJECT_FORMAT = "cmm-error-lab-project"
+PROJECT_VERSION = 1
+_DANGEROUS = ("=", "+", "-", "@", "\t", "\r")
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def neutralise(value):
+    """A cell value safe for a spreadsheet: dangerous text gets a leading apostrophe."""
+    if isinstance(value, str) and value.startswith(_DANGEROUS) and not _is_number(value):
+        return "'" + value
+    return value
+
+
+def safe_frame(df: pd.DataFrame) -> pd.DataFrame:
+    """Copy of ``df`` with every text cell (and column name) neutralised."""
+    out = df.copy()
+    out.columns = [neutralise(str(c)) for c in out.columns]
+    for c in out.columns:
+        if not (pd.api.types.is_numeric_dtype(out[c]) or pd.api.types.is_bool_dtype(out[c])):
+            out[c] = out[c].map(neutralise)
+    return out
+
+
+def safe_csv(df: pd.DataFrame, *, float_format: str = "%.6g", header_lines=()) -> str:
+    """CSV text of ``df`` safe against formula injection, optional ``#`` comment lines first."""
+    buf = io.StringIO()
+    for line in header_lines:
+        buf.write("# " + str(line).replace("\n", " ").replace("\r", " ") + "\n")
+    safe_frame(df).to_csv(buf, index=False, float_format=float_format, lineterminator="\n")
+    return buf.getvalue()
+
+
+def parameters_csv(result) -> str:
+    """Fitted parameters with standard uncertainties (µm, µrad), one row per parameter."""
+    df = result.parameters_frame().rename(columns={"u": "u_standard"})
+    df["identifiable"] = ~df["parameter"].isin(result.unidentifiable)
+    head = [f"model {result.spec}; order per spec; plate {result.plate}; "
+            f"sigma {result.sigma_um} um; RMS {result.rms_um:.4f} um; "
+            f"chi2/dof {result.chi2_dof:.3f}; status {result.status}"]
+    return safe_csv(df, float_format="%.6g", header_lines=head)
+
+
+def residuals_csv(result) -> str:
+    """Residuals per observation (µm) with position, probe, ball, source file and row."""
+    return safe_csv(result.residuals_frame(), float_format="%.4f")
+
+
+def error_map_grid(result, *, step_mm=(100.0, 100.0, 100.0), lower_mm=None, upper_mm=None,
+                   probe=None) -> pd.DataFrame:
+    """Error map on a regular grid of scale readings: an ISG-style compensation table.
+
+    Parameters
+    ----------
+    result : FitResult
+    step_mm : float or 3 floats
+        Grid spacing per axis (mm).
+    lower_mm, upper_mm : 3 floats, optional
+        Grid corners (default: the machine's working volume, 0 .. range).
+    probe : str, optional
+        Probe whose offset the tip has (default the first probe of the fit).
+
+    Returns
+    -------
+    DataFrame with ``x_mm, y_mm, z_mm`` (grid, x fastest), ``ex_um, ey_um, ez_um`` (error:
+    true minus reported, add it to correct) and ``u_ex_um, u_ey_um, u_ez_um`` (standard
+    uncertainty, k = 1; NaN when the data do not determine the model).
+    """
+    from .uncertainty import error_at
+
+    rng = np.asarray(result.problem.obs.range_mm, float)
+    lo = np.zeros(3) if lower_mm is None else np.asarray(lower_mm, float)
+    hi = rng if upper_mm is None else np.asarray(upper_mm, float)
+    step = np.broadcast_to(np.asarray(step_mm, float), (3,))
+    if (step <= 0).any():
+        raise ValueError("grid step must be positive.")
+    axes = []
+    for a in range(3):
+        n = int(math.floor((hi[a] - lo[a]) / step[a] + 1e-9)) + 1
+        if n > 200:
+            raise ValueError(f"grid has {n} nodes along {'xyz'[a]}; use a coarser step.")
+        axes.append(lo[a] + step[a] * np.arange(max(n, 1)))
+    Z, Y, X = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+    pts = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+    e, u = error_at(result, pts, probe)
+    return pd.DataFrame({"x_mm": pts[:, 0], "y_mm": pts[:, 1], "z_mm": pts[:, 2],
+                         "ex_um": e[:, 0], "ey_um": e[:, 1], "ez_um": e[:, 2],
+                         "u_ex_um": u[:, 0], "u_ey_um": u[:, 1], "u_ez_um": u[:, 2]})
+
+
+def error_map_csv(result, grid: pd.DataFrame, probe=None) -> str:
+    """The error-map grid as CSV with a comment header stating model, probe and units."""
+    obs = result.problem.obs
+    head = ["CMM error map (ISG-style compensation table), cmm_core " + __version__,
+            f"model {result.spec}; plate {result.plate}; RMS {result.rms_um:.4f} um",
+            f"probe {probe or obs.probes[0]}; grid: scale readings in mm, x fastest",
+            "ex,ey,ez: error in um (true minus reported; add to correct); u_*: standard "
+            "uncertainty in um (k=1)"]
+    return safe_csv(grid, float_format="%.5f", header_lines=head)
+
+
+# ---------------------------------------------------------------------------------------
+# Compensation (adapter until / unless cmm_core.compensate provides it)
+# ---------------------------------------------------------------------------------------
+
+def read_points(source, name="points.csv") -> pd.DataFrame:
+    """Read points to correct: ``probe,x_mm,y_mm,z_mm`` (extra columns kept)."""
+    from .io import _numeric, _read_csv
+
+    df, name = _read_csv(source, name)
+    missing = [c for c in ("x_mm", "y_mm", "z_mm") if c not in df.columns]
+    if missing:
+        raise DataError(f"missing column(s) {', '.join(missing)}; expected "
+                        "probe,x_mm,y_mm,z_mm.", file=name,
+                        hint="one row per reported tip centre, lengths in mm.")
+    out = df.copy()
+    for c in ("x_mm", "y_mm", "z_mm"):
+        out[c] = _numeric(df, c, name)
+    if "probe" in out.columns:
+        out["probe"] = out["probe"].astype(str).str.strip()
+    return out
+
+
+def compensate_points(result, points: pd.DataFrame) -> pd.DataFrame:
+    """Corrected tip centres ``xc_mm, yc_mm, zc_mm`` and ``u_x_um, u_y_um, u_z_um``.
+
+    Uses ``cmm_core.compensate.compensate`` when it is available. ADAPTER otherwise: the
+    reported tip ``r`` with probe ``q`` is corrected to ``r + e(r - p_q, p_q)`` with the
+    error and its standard uncertainty from ``uncertainty.error_at``.
+    """
+    try:
+        from .compensate import compensate as core_compensate
+    except ImportError:
+        core_compensate = None
+    if core_compensate is not None:
+        return core_compensate(result, points)
+    from .uncertainty import error_at
+
+    obs = result.problem.obs
+    setup_probes = {q: obs.p_mm[obs.probe == i][0] for i, q in enumerate(obs.probes)}
+    df = points.copy()
+    if "probe" not in df.columns:
+        df["probe"] = obs.probes[0]
+    unknown = sorted(set(df["probe"].astype(str)) - set(setup_probes))
+    if unknown:
+        raise DataError(f"probe(s) {', '.join(unknown)} were not in the fit (known: "
+                        f"{', '.join(obs.probes)}).", column="probe")
+    r = df[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+    e = np.full(r.shape, np.nan)
+    u = np.full(r.shape, np.nan)
+    for q in dict.fromkeys(df["probe"].astype(str)):
+        sel = (df["probe"].astype(str) == q).to_numpy()
+        ei, ui = error_at(result, r[sel] - setup_probes[q], q)
+        e[sel], u[sel] = ei, ui
+    c = r + e * 1e-3
+    df["xc_mm"], df["yc_mm"], df["zc_mm"] = c.T
+    df["u_x_um"], df["u_y_um"], df["u_z_um"] = u.T
+    return df
+
+
+# ---------------------------------------------------------------------------------------
+# Project files
+# ---------------------------------------------------------------------------------------
+
+def _clean(obj):
+    """JSON-safe copy (numpy scalars and arrays to Python, NaN to None)."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _clean(obj.tolist())
+    if isinstance(obj, np.generic):
+        return _clean(obj.item())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def project_to_json(*, dataset_name: str, measurements: list, setup: str,
+                    certificate=None, model: dict, exclusions=(), history=(),
+                    extra: dict | None = None) -> str:
+    """Serialise a session to a project file (JSON text).
+
+    Parameters
+    ----------
+    dataset_name : str
+    measurements : list of (file name, CSV text)
+    setup : str
+        Setup JSON text.
+    certificate : (file name, CSV text) or None
+    model : dict
+        ``spec, order, plate, sigma_um, positions, probes``.
+    exclusions : iterable of (position, probe, ball)
+    history : iterable of dict
+        Diagnosis history rows.
+    """
+    doc = {"format": PROJECT_FORMAT, "version": PROJECT_VERSION,
+           "created": datetime.now(UTC).isoformat(timespec="seconds"),
+           "cmm_core": __version__,
+           "dataset": {"name": dataset_name,
+                       "measurements": [{"name": n, "content": c} for n, c in measurements],
+                       "setup": setup,
+                       "certificate": (None if certificate is None else
+                                       {"name": certificate[0], "content": certificate[1]})},
+           "model": model,
+           "exclusions": [[str(p), str(q), int(b)] for p, q, b in exclusions],
+           "history": list(history),
+           "extra": extra or {}}
+    return json.dumps(_clean(doc), indent=1, allow_nan=False)
+
+
+def project_from_json(text, name="project.json") -> dict:
+    """Parse and check a project file; returns the document with tuples restored.
+
+    Raises :class:`DataError` naming the field that is wrong.
+    """
+    if isinstance(text, bytes):
+        try:
+            text = text.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise DataError("is not UTF-8 text.", file=name) from exc
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise DataError(f"is not valid JSON: {exc.msg} at line {exc.lineno}.",
+                        file=name) from exc
+    if not isinstance(doc, dict) or doc.get("format") != PROJECT_FORMAT:
+        raise DataError(f"is not a CMM error lab project (expected \"format\": "
+                        f"\"{PROJECT_FORMAT}\").", file=name)
+    if doc.get("version", 0) > PROJECT_VERSION:
+        raise DataError(f"was written by a newer version (project version "
+                        f"{doc.get('version')}).", file=name)
+    ds = doc.get("dataset")
+    if not isinstance(ds, dict) or not ds.get("measurements") or not ds.get("setup"):
+        raise DataError("has no dataset (measurements and setup).", file=name,
+                        column="dataset")
+    meas = []
+    for i, m in enumerate(ds["measurements"]):
+        if not isinstance(m, dict) or not isinstance(m.get("content"), str):
+            raise DataError("measurement entry needs name and content.", file=name,
+                            column=f"dataset.measurements[{i}]")
+        meas.append((str(m.get("name") or f"file{i + 1}.csv"), m["content"]))
+    cert = ds.get("certificate")
+    if cert is not None:
+        if not isinstance(cert, dict) or not isinstance(cert.get("content"), str):
+            raise DataError("certificate needs name and content.", file=name,
+                            column="dataset.certificate")
+        cert = (str(cert.get("name") or "certificate.csv"), cert["content"])
+    setup = ds["setup"]
+    if isinstance(setup, dict):
+        setup = json.dumps(setup)
+    model = doc.get("model") or {}
+    if not isinstance(model, dict):
+        raise DataError("model must be an object.", file=name, column="model")
+    try:
+        excl = [(str(p), str(q), int(b)) for p, q, b in doc.get("exclusions", [])]
+    except (TypeError, ValueError) as exc:
+        raise DataError("exclusions must be [position, probe, ball] triples.", file=name,
+                        column="exclusions") from exc
+    return {"dataset_name": str(ds.get("name") or "project"), "measurements": meas,
+            "setup": setup, "certificate": cert, "model": model, "exclusions": excl,
+            "history": list(doc.get("history") or []), "extra": doc.get("extra") or {}}

@@ -1,0 +1,384 @@
+"""Figures (Plotly) and the self-contained HTML report.
+
+The figure builders are shared by the app and the report so both show the same thing.
+Micrometres on screen, units on every axis. The report embeds plotly.js once, inline (no
+network access is needed to open it).
+"""
+
+from __future__ import annotations
+
+import html
+from datetime import UTC, datetime
+
+import numpy as np
+import pandas as pd
+import plotly.graph_objects as go
+from plotly.subplots import make_subplots
+
+from . import __version__
+from . import kinematics as kin
+
+UM = 1e-3
+AXIS_COLOURS = {"x": "#1f77b4", "y": "#2ca02c", "z": "#d62728"}
+FUNCTION_UNITS = {"d": "µm", "r": "µrad", "s": "µrad"}
+
+
+def _layout(fig, title, height=None):
+    fig.update_layout(title=title, margin={"l": 60, "r": 20, "t": 60, "b": 50},
+                      legend={"orientation": "h", "y": -0.15}, template="plotly_white")
+    if height:
+        fig.update_layout(height=height)
+    return fig
+
+
+# ---------------------------------------------------------------------------------------
+# Error functions
+# ---------------------------------------------------------------------------------------
+
+def error_function_curves(result, name: str, n: int = 61):
+    """``(u_mm, value, u95)`` of one fitted error function along its axis, with the 95 %
+    band half-width (k = 2). Units: µm for d.., µrad for r.. and s.. (squareness angle)."""
+    terms = result.terms
+    axis = kin.axis_of(name)
+    stroke = float(terms.range_mm[axis])
+    u = np.linspace(0.0, stroke, n)
+    sl = terms.slices.get(name)
+    if sl is None or sl.stop == sl.start:
+        return u, np.zeros(n), np.zeros(n)
+    coef = result.kinematic_coef[sl]
+    V = result.kinematic_cov[sl, sl]
+    if name in kin.SQUARENESS:  # the coefficient is the angle itself (µrad)
+        val = np.full(n, float(coef[0]))
+        sd = np.full(n, float(np.sqrt(max(V[0, 0], 0.0))))
+    else:
+        D = terms.design(name, u)
+        val = D @ coef
+        sd = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", D, V, D), 0, None))
+    if name in set(result.unidentifiable) or any(
+            lab.startswith(name + "[") or lab == name for lab in result.unidentifiable):
+        sd = np.full(n, np.nan)
+    return u, val, 2.0 * sd
+
+
+def fig_error_functions(result, names=None, cols: int = 3):
+    """Fitted error functions with 95 % bands (k = 2), one panel per function."""
+    present = [n for n, o in result.terms.orders if o > 0]
+    names = [n for n in (names or present) if n in present]
+    if not names:
+        fig = go.Figure()
+        return _layout(fig, "No kinematic error functions in the model")
+    rows = int(np.ceil(len(names) / cols))
+    fig = make_subplots(rows=rows, cols=cols, subplot_titles=names,
+                        vertical_spacing=min(0.08, 0.6 / max(rows, 1)))
+    for i, name in enumerate(names):
+        r, c = i // cols + 1, i % cols + 1
+        u, val, band = error_function_curves(result, name)
+        colour = AXIS_COLOURS["xyz"[kin.axis_of(name)]]
+        if np.isfinite(band).all():
+            fig.add_trace(go.Scatter(x=np.r_[u, u[::-1]], y=np.r_[val + band, (val - band)[::-1]],
+                                     fill="toself", fillcolor="rgba(120,120,120,0.25)",
+                                     line={"width": 0}, hoverinfo="skip", showlegend=i == 0,
+                                     name="95 % band (k = 2)"), row=r, col=c)
+        fig.add_trace(go.Scatter(x=u, y=val, mode="lines", line={"color": colour},
+                                 name=name, showlegend=False,
+                                 hovertemplate=f"{name}: %{{y:.3f}}<extra></extra>"),
+                      row=r, col=c)
+        fig.update_xaxes(title_text=f"{'xyz'[kin.axis_of(name)]} (mm)", row=r, col=c)
+        fig.update_yaxes(title_text=FUNCTION_UNITS[name[0]], row=r, col=c)
+    return _layout(fig, "Fitted error functions with 95 % bands", height=260 * rows)
+
+
+# ---------------------------------------------------------------------------------------
+# Magnified deviation plots (thesis figures 4.8-4.10)
+# ---------------------------------------------------------------------------------------
+
+def deviations_plate_frame(result, position: str, probe=None) -> pd.DataFrame:
+    """Measured and model-predicted deviations from the (fitted) plate, plate frame, µm.
+
+    The fitted placement of the position maps the reported points back to the plate frame;
+    the model-predicted reported point is ``r - residual``.
+    """
+    obs = result.problem.obs
+    st = result.state
+    t = result.table
+    sel = (t["position"] == position).to_numpy()
+    if probe is not None:
+        sel &= (t["probe"].astype(str) == str(probe)).to_numpy()
+    if not sel.any():
+        return pd.DataFrame()
+    k = obs.positions.index(position)
+    R, tr = st["R"][k], st["t"][k]
+    plate = st["c"] if "c" in st else obs.plate0_mm
+    r = obs.r_mm[sel]
+    d = result.residuals_um[sel]
+    c = plate[obs.ball[sel]]
+    meas = (r - tr) @ R - c
+    pred = (r - d * UM - tr) @ R - c
+    out = pd.DataFrame({"ball": t["ball"].to_numpy()[sel], "probe": t["probe"].to_numpy()[sel],
+                        "u_mm": c[:, 0], "v_mm": c[:, 1], "w_mm": c[:, 2]})
+    for i, a in enumerate("uvw"):
+        out[f"meas_d{a}_um"] = meas[:, i] / UM
+        out[f"pred_d{a}_um"] = pred[:, i] / UM
+    return out
+
+
+def fig_deviation(result, position: str, magnification: float = 2000.0, probe=None):
+    """Nominal grid, measured and predicted points with deviations magnified (plate frame)."""
+    df = deviations_plate_frame(result, position, probe)
+    fig = go.Figure()
+    if df.empty:
+        return _layout(fig, f"{position}: no observations")
+    m = magnification * UM  # µm -> mm, magnified
+    u, v = df["u_mm"].to_numpy(), df["v_mm"].to_numpy()
+    fig.add_trace(go.Scatter(x=u, y=v, mode="markers", name="nominal (certificate)",
+                             marker={"symbol": "circle-open", "size": 9, "color": "black"},
+                             text=df["ball"], hovertemplate="ball %{text}<extra>nominal</extra>"))
+    for kind, colour, sym in (("meas", "#d62728", "x"), ("pred", "#1f77b4", "cross")):
+        x = u + m * df[f"{kind}_du_um"].to_numpy()
+        y = v + m * df[f"{kind}_dv_um"].to_numpy()
+        label = "measured" if kind == "meas" else "predicted by model"
+        fig.add_trace(go.Scatter(
+            x=x, y=y, mode="markers", name=label,
+            marker={"symbol": sym, "size": 8, "color": colour},
+            customdata=np.column_stack([df["ball"], df[f"{kind}_du_um"], df[f"{kind}_dv_um"],
+                                        df[f"{kind}_dw_um"]]),
+            hovertemplate=("ball %{customdata[0]}<br>du %{customdata[1]:.2f} µm<br>"
+                           "dv %{customdata[2]:.2f} µm<br>dw %{customdata[3]:.2f} µm"
+                           f"<extra>{label}</extra>")))
+        # lines from nominal to the magnified point
+        xs = np.column_stack([u, x, np.full_like(u, np.nan)]).ravel()
+        ys = np.column_stack([v, y, np.full_like(v, np.nan)]).ravel()
+        fig.add_trace(go.Scatter(x=xs, y=ys, mode="lines", showlegend=False,
+                                 line={"color": colour, "width": 1}, hoverinfo="skip"))
+    fig.update_xaxes(title_text=f"plate u (mm); deviations ×{magnification:g}")
+    fig.update_yaxes(title_text=f"plate v (mm); deviations ×{magnification:g}",
+                     scaleanchor="x", scaleratio=1)
+    return _layout(fig, f"{position}: nominal vs measured vs predicted "
+                        f"(magnification ×{magnification:g})", height=480)
+
+
+# ---------------------------------------------------------------------------------------
+# Residual patterns, signatures, maps
+# ---------------------------------------------------------------------------------------
+
+def fig_pattern(table: pd.DataFrame, values_um, title: str, height: int = 330):
+    """A per-observation pattern (residuals or a candidate's signature), µm, three panels
+    (x, y, z) over the observations grouped by position."""
+    values_um = np.asarray(values_um, float)
+    labels = (table["position"].astype(str) + "/" + table["probe"].astype(str) + " b"
+              + table["ball"].astype(str)).to_numpy()
+    idx = np.arange(len(table))
+    fig = make_subplots(rows=1, cols=3, subplot_titles=("x", "y", "z"), shared_yaxes=True)
+    positions = list(dict.fromkeys(table["position"]))
+    palette = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b",
+               "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"]
+    for j, pos in enumerate(positions):
+        sel = (table["position"] == pos).to_numpy()
+        for a in range(3):
+            fig.add_trace(go.Scatter(x=idx[sel], y=values_um[sel, a], mode="markers",
+                                     marker={"size": 5, "color": palette[j % len(palette)]},
+                                     name=str(pos), legendgroup=str(pos), showlegend=a == 0,
+                                     text=labels[sel],
+                                     hovertemplate="%{text}: %{y:.3f} µm<extra></extra>"),
+                          row=1, col=a + 1)
+    for a in range(3):
+        fig.update_xaxes(title_text="observation (by position)", row=1, col=a + 1)
+    fig.update_yaxes(title_text="µm", row=1, col=1)
+    return _layout(fig, title, height=height)
+
+
+def fig_residual_map(result, component: str = "norm"):
+    """Residuals at the measured points in the machine volume (colour in µm)."""
+    t = result.table
+    d = result.residuals_um
+    val = np.linalg.norm(d, axis=1) if component == "norm" else d[:, "xyz".index(component)]
+    label = "|residual|" if component == "norm" else f"residual {component}"
+    fig = go.Figure(go.Scatter3d(
+        x=t["mx_mm"], y=t["my_mm"], z=t["mz_mm"], mode="markers",
+        marker={"size": 4, "color": val, "colorscale": "RdBu_r" if component != "norm"
+                else "Viridis", "colorbar": {"title": {"text": f"{label} (µm)"}}},
+        text=t["position"].astype(str) + " ball " + t["ball"].astype(str),
+        hovertemplate="%{text}<br>%{marker.color:.3f} µm<extra></extra>"))
+    fig.update_layout(scene={"xaxis_title": "X (mm)", "yaxis_title": "Y (mm)",
+                             "zaxis_title": "Z (mm)", "aspectmode": "data"})
+    return _layout(fig, f"Residual map: {label} in µm", height=480)
+
+
+def residual_summary(result) -> pd.DataFrame:
+    """RMS of the residuals (µm) per position and probe and axis."""
+    df = result.residuals_frame()
+    g = df.groupby(["position", "probe"], sort=False)[["rx_um", "ry_um", "rz_um"]]
+    out = g.apply(lambda s: np.sqrt((s**2).mean())).reset_index()
+    out.columns = ["position", "probe", "rms_x_um", "rms_y_um", "rms_z_um"]
+    return out
+
+
+# ---------------------------------------------------------------------------------------
+# History, placements
+# ---------------------------------------------------------------------------------------
+
+def fig_history(history: list):
+    """RMS, χ²/dof, BIC and GP discrepancy amplitude as effects are added or removed."""
+    fig = make_subplots(rows=1, cols=4, subplot_titles=("RMS (µm)", "χ²/dof", "BIC",
+                                                       "GP discrepancy (µm)"))
+    if not history:
+        return _layout(fig, "Diagnosis history (empty)", height=320)
+    steps = [f"{i}: {h.get('change') or h.get('spec')}" for i, h in enumerate(history)]
+    for c, key in enumerate(("rms_um", "chi2_dof", "bic", "gp_amplitude_um"), start=1):
+        y = [h.get(key) for h in history]
+        y = [np.nan if v is None else v for v in y]
+        fig.add_trace(go.Scatter(x=list(range(len(history))), y=y, mode="lines+markers",
+                                 text=steps, showlegend=False,
+                                 hovertemplate="%{text}<br>%{y:.4g}<extra></extra>"),
+                      row=1, col=c)
+        fig.update_xaxes(title_text="step", tickmode="array",
+                         tickvals=list(range(len(history))), row=1, col=c)
+    return _layout(fig, "Diagnosis history: fit quality as effects are added", height=340)
+
+
+def fig_placements(dataset, certificate_xyz=None):
+    """3D view of the plate placements (measured ball centres) in the machine volume."""
+    rng = np.asarray(dataset.setup.range_mm, float)
+    fig = go.Figure()
+    # machine volume wireframe
+    corners = np.array([[x, y, z] for x in (0, rng[0]) for y in (0, rng[1]) for z in (0, rng[2])])
+    edges = [(0, 1), (0, 2), (0, 4), (1, 3), (1, 5), (2, 3), (2, 6), (3, 7), (4, 5), (4, 6),
+             (5, 7), (6, 7)]
+    xs, ys, zs = [], [], []
+    for a, b in edges:
+        for arr, k in ((xs, 0), (ys, 1), (zs, 2)):
+            arr += [corners[a, k], corners[b, k], None]
+    fig.add_trace(go.Scatter3d(x=xs, y=ys, z=zs, mode="lines", name="working volume",
+                               line={"color": "grey", "width": 2}, hoverinfo="skip"))
+    m = dataset.meas
+    for pos, g in m.groupby("position", sort=False):
+        fig.add_trace(go.Scatter3d(
+            x=g["mx_mm"], y=g["my_mm"], z=g["mz_mm"], mode="markers", name=str(pos),
+            marker={"size": 3},
+            text=g["probe"].astype(str).radd("probe ") + ", ball " + g["ball"].astype(str),
+            hovertemplate="%{text}<br>(%{x:.1f}, %{y:.1f}, %{z:.1f}) mm<extra>"
+                          + str(pos) + "</extra>"))
+    fig.update_layout(scene={"xaxis_title": "X (mm)", "yaxis_title": "Y (mm)",
+                             "zaxis_title": "Z (mm)", "aspectmode": "data"})
+    return _layout(fig, "Plate placements in the machine volume (mm)", height=520)
+
+
+def fig_surface_grid(xg, yg, values, *, title: str, unit: str, points=None, colorscale="RdBu_r"):
+    """A heatmap of a quantity over an XY grid (mm) with the measured points on top."""
+    fig = go.Figure(go.Heatmap(x=xg, y=yg, z=values, colorscale=colorscale,
+                               colorbar={"title": {"text": unit}},
+                               hovertemplate="X %{x:.0f} mm<br>Y %{y:.0f} mm<br>%{z:.3f} "
+                                             + unit + "<extra></extra>"))
+    if points is not None and len(points):
+        fig.add_trace(go.Scatter(x=points[:, 0], y=points[:, 1], mode="markers",
+                                 name="measured points",
+                                 marker={"size": 5, "color": "black", "symbol": "x"}))
+    fig.update_xaxes(title_text="X (mm)")
+    fig.update_yaxes(title_text="Y (mm)", scaleanchor="x", scaleratio=1)
+    return _layout(fig, title, height=420)
+
+
+# ---------------------------------------------------------------------------------------
+# The report
+# ---------------------------------------------------------------------------------------
+
+def _table_html(df: pd.DataFrame, floatfmt="{:.4g}") -> str:
+    return df.to_html(index=False, border=0, classes="tbl", na_rep="—",
+                      float_format=lambda v: floatfmt.format(v), escape=True)
+
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,sans-serif;margin:2em auto;max-width:1200px;
+color:#222;padding:0 1em}h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;
+margin-top:1.6em}table.tbl{border-collapse:collapse;font-size:.85em;margin:.5em 0}
+table.tbl td,table.tbl th{border:1px solid #ddd;padding:2px 6px;text-align:right}
+.note{color:#555;font-size:.9em}.kv td{padding:2px 10px}
+"""
+
+
+def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None,
+                 diagnosis=None, magnification: float = 2000.0, extra_sections=()) -> str:
+    """A self-contained HTML report of a fit: summary, figures and tables.
+
+    Parameters
+    ----------
+    dataset : Dataset
+    result : FitResult
+    exclusions : iterable of (position, probe, ball)
+    history : list of dict
+        Diagnosis history rows (spec, change, rms_um, chi2_dof, bic, gp_amplitude_um).
+    uncertainty : UncertaintySummary, optional
+    diagnosis : DataFrame, optional
+        Ranked candidate effects.
+    extra_sections : iterable of (heading, html) pairs, optional
+
+    Returns
+    -------
+    str
+        One HTML document; plotly.js is embedded once, inline (no network needed).
+    """
+    parts = []
+    first = [True]
+
+    def fig_html(fig):
+        out = fig.to_html(full_html=False, include_plotlyjs=bool(first[0]),
+                          config={"displaylogo": False})
+        first[0] = False
+        return out
+
+    def section(title, *items):
+        parts.append(f"<h2>{html.escape(title)}</h2>")
+        parts.extend(items)
+
+    now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    summary = [("Dataset", dataset.name), ("Positions", ", ".join(map(str, dataset.positions))),
+               ("Probes", ", ".join(map(str, dataset.probes))),
+               ("Model", result.spec), ("Plate geometry", result.plate),
+               ("Repeatability σ", f"{result.sigma_um:g} µm"),
+               ("Observations", str(result.n_obs)), ("Status", result.status),
+               ("RMS of residuals", f"{result.rms_um:.3f} µm"),
+               ("χ²/dof", f"{result.chi2_dof:.3f}"), ("BIC", f"{result.bic:.1f}"),
+               ("Effective parameters (rank)", str(result.rank)),
+               ("Excluded observations", "; ".join(f"{p}/{q} ball {b}"
+                                                   for p, q, b in exclusions) or "none")]
+    rows = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>"
+                   for k, v in summary)
+    parts.append(f"<h1>CMM error lab report</h1><p class='note'>Generated {now} by cmm_core "
+                 f"{__version__}. Lengths in mm, errors and uncertainties in µm (rotations "
+                 "µrad); bands and expanded uncertainties at k = 2.</p>")
+    section("Summary", f"<table class='kv'>{rows}</table>",
+            f"<p>{html.escape(result.message)}</p>")
+    if result.unidentifiable:
+        section("Identifiability",
+                "<p>The data cannot determine these parameter combinations:</p><ul>"
+                + "".join(f"<li>{html.escape(c)}</li>" for c in result.null_combinations)
+                + "</ul>")
+    section("Plate placements", fig_html(fig_placements(dataset)))
+    section("Fitted error functions", fig_html(fig_error_functions(result)))
+    for pos in result.problem.obs.positions:
+        section(f"Deviations, {pos}", fig_html(fig_deviation(result, pos, magnification)))
+    section("Residuals", fig_html(fig_pattern(result.table, result.residuals_um,
+                                              "Residuals per observation (µm)")),
+            _table_html(residual_summary(result)))
+    if uncertainty is not None:
+        rows_u = []
+        for lab in ("U1_um", "U2_um", "U3_um"):
+            val = getattr(uncertainty, lab, None)
+            rows_u.append({"quantity": lab[:2], **({f"{a} (µm)": val[a] for a in "xyz"}
+                                                   if val else {})})
+        section("Uncertainty (standard, k = 1; thesis tables 4.1-4.3)",
+                _table_html(pd.DataFrame(rows_u)),
+                f"<p class='note'>{html.escape(uncertainty.message)}</p>")
+    if diagnosis is not None and len(diagnosis):
+        section("Diagnosis: candidate effects, best first", _table_html(diagnosis))
+    if history:
+        hist = pd.DataFrame(history)
+        section("Diagnosis history", fig_html(fig_history(list(history))), _table_html(hist))
+    pf = result.parameters_frame()
+    pf["identifiable"] = ~pf["parameter"].isin(result.unidentifiable)
+    section("Fitted parameters (value and standard uncertainty)", _table_html(pf))
+    for heading, body in extra_sections:
+        section(heading, body)
+    return ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+            "<title>CMM error lab report</title>"
+            f"<style>{_CSS}</style></head><body>" + "\n".join(parts) + "</body></html>")
