@@ -1,0 +1,74 @@
+"""The forward model: analytic Jacobian against finite differences, basis constraints."""
+
+import numpy as np
+import pytest
+
+from cmm_core import kinematics as kin
+from cmm_core.effects import parse_spec
+
+RANGE = (1200.0, 1000.0, 700.0)
+
+
+def _terms(order):
+    return kin.KinematicTerms(parse_spec("kinematic21", default_order=order).active, RANGE)
+
+
+@pytest.mark.parametrize("order", [1, 2, 3, 5])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_jacobian_matches_central_differences(order, seed):
+    rng = np.random.default_rng(seed)
+    terms = _terms(order)
+    # Large coefficients (50 µm, 50 µrad) so that rotation nonlinearity is exercised.
+    coef = rng.normal(0, 50, terms.n)
+    x = rng.uniform(0, 1, (20, 3)) * RANGE
+    p = rng.normal(0, 100, (20, 3))
+    _, J = kin.jacobian(terms, coef, x, p)
+    # Step 0.1 µm or µrad: round-off of coordinates near 1000 mm (2e-13 mm) over 2h is
+    # 1e-12 mm, and the truncation error (h² times third derivatives of rotations) is smaller.
+    h = 0.1
+    for j in range(terms.n):
+        e = np.zeros(terms.n)
+        e[j] = h
+        fd = (kin.model_point(terms, coef + e, x, p) - kin.model_point(terms, coef - e, x, p))
+        fd /= 2 * h
+        np.testing.assert_allclose(J[:, :, j], fd, atol=1e-11, rtol=1e-7,
+                                   err_msg=terms.labels[j])
+
+
+def test_error_functions_are_zero_at_origin_and_straightness_at_both_ends():
+    for name in kin.ERROR_NAMES:
+        if name in kin.SQUARENESS:
+            continue
+        stroke = RANGE[kin.axis_of(name)]
+        B = kin.basis(name, np.array([0.0, stroke]), 4, stroke)
+        assert np.allclose(B[0], 0, atol=1e-12)
+        if name in kin.STRAIGHTNESS:
+            assert np.allclose(B[1], 0, atol=1e-12)  # no linear term
+        else:
+            assert not np.allclose(B[1], 0)
+
+
+def test_single_errors_act_as_the_spec_says():
+    """Squareness sxy adds sxy*y to x; positioning dxx adds to x; a z-yaw moves the tip by
+    rzz × probe lever arm (thesis fig. 4.10)."""
+    terms = _terms(2)
+    x = np.array([[100.0, 500.0, 300.0]])
+    p = np.array([[50.0, 0.0, -100.0]])
+    coef = np.zeros(terms.n)
+    coef[terms.slices["sxy"]] = 10.0  # µrad
+    e = kin.error(terms, coef, x, p)
+    np.testing.assert_allclose(e, [[10e-6 * 500 * 1e3, 0, 0]], atol=1e-9)
+    coef[:] = 0
+    coef[terms.slices["rzz"].start] = 5.0  # first Chebyshev coefficient, µrad
+    ang = terms.design("rzz", x[:, 2]) @ coef[terms.slices["rzz"]] * 1e-6
+    e = kin.error(terms, coef, x, p)
+    np.testing.assert_allclose(e[0, 1], ang[0] * 50 * 1e3, rtol=1e-6)
+
+
+def test_invert_reaches_the_target(rng):
+    terms = _terms(3)
+    coef = rng.normal(0, 20, terms.n)
+    s = rng.uniform(0, 1, (50, 3)) * RANGE
+    p = rng.normal(0, 80, (50, 3))
+    x = kin.invert(terms, coef, s, p)
+    assert np.abs(kin.model_point(terms, coef, x, p) - s).max() < 1e-10
