@@ -267,16 +267,14 @@ class Problem:
             d -= x[blk["drift"]].reshape(-1, 3)[o.pos] * o.hours[:, None]
         if not want_jac:
             return d, None
-        rows, cols, vals = [], [], []
+        cols, vals = [], []
         n = self.n_obs
-        r3 = (3 * np.arange(n))[:, None] + np.arange(3)[None, :]  # (n, 3)
 
         def put(block_cols, M):
-            # M: (n, 3, k) derivative of the 3 residual components wrt k columns.
-            k = M.shape[2]
-            rows.append(np.repeat(r3[:, :, None], k, 2).ravel())
-            cols.append(np.broadcast_to(block_cols[:, None, :], (n, 3, k)).ravel())
-            vals.append(M.ravel())
+            # M: (n, 3, k) derivative of the 3 residual components wrt k columns. Every row
+            # has the same number of entries per block, so CSR is assembled directly.
+            cols.append(np.broadcast_to(block_cols[:, None, :], M.shape))
+            vals.append(M)
 
         if "plate" in blk:
             scale = 1.0
@@ -306,8 +304,10 @@ class Problem:
         if "drift" in blk:
             put(blk["drift"].start + 3 * o.pos[:, None] + np.arange(3),
                 -np.eye(3)[None] * o.hours[:, None, None])
-        J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(3 * n, self.layout.n))
+        k = sum(c.shape[2] for c in cols)
+        J = sp.csr_matrix((np.concatenate(vals, 2).reshape(3 * n, k).ravel(),
+                           np.concatenate(cols, 2).reshape(3 * n, k).ravel(),
+                           np.arange(3 * n + 1) * k), shape=(3 * n, self.layout.n))
         return d, J
 
     def constraints(self):
