@@ -58,11 +58,14 @@ def safe_frame(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def safe_csv(df: pd.DataFrame, *, float_format: str = "%.6g", header_lines=()) -> str:
-    """CSV text of ``df`` safe against formula injection, optional ``#`` comment lines first."""
+    """CSV text of ``df`` safe against formula injection, optional ``#`` comment lines first.
+
+    Lines end in CRLF (RFC 4180), so a carriage return inside a text cell is quoted.
+    """
     buf = io.StringIO()
     for line in header_lines:
-        buf.write("# " + str(line).replace("\n", " ").replace("\r", " ") + "\n")
-    safe_frame(df).to_csv(buf, index=False, float_format=float_format, lineterminator="\n")
+        buf.write("# " + str(line).replace("\n", " ").replace("\r", " ") + "\r\n")
+    safe_frame(df).to_csv(buf, index=False, float_format=float_format, lineterminator="\r\n")
     return buf.getvalue()
 
 

@@ -37,6 +37,9 @@ class OutlierReport:
         ``median of N groups`` or ``certificate``.
     deviations : DataFrame
         Deviation of every coordinate from the reference (µm), for plotting.
+    certificate_suspects : list of dict
+        ``{"ball", "axis", "deviation_um", "robust_z"}``: certificate coordinates that the
+        median of all positions contradicts (median minus certificate).
     """
 
     outliers: list
@@ -44,6 +47,7 @@ class OutlierReport:
     threshold_um: dict
     reference: str
     deviations: pd.DataFrame
+    certificate_suspects: list = ()
 
     @property
     def exclusions(self) -> list:
@@ -120,7 +124,34 @@ def detect_outliers(data: Dataset, *, k: float = 5.0, floor_um: float = 10.0,
                                 "source": s, "row": None if r is None else int(r)})
     out.sort(key=lambda o: -abs(o["deviation_um"]))
     axes = dict(zip("xyz", range(3), strict=True))
+    cert = []
+    if use_median and data.certificate is not None and G >= 3:
+        cert = _certificate_check(ref, data.certificate, k, floor_um)
     return OutlierReport(out, {n: float(scale[a]) for n, a in axes.items()},
                          {n: float(thr[a]) for n, a in axes.items()},
                          f"median of {G} groups" if use_median else "certificate",
-                         pd.DataFrame(rows))
+                         pd.DataFrame(rows), cert)
+
+
+def _certificate_check(ref, cert, k, floor_um):
+    """Certificate balls that disagree with the median of all positions.
+
+    The median plate is aligned rigidly to the certificate; a certificate coordinate is
+    suspect when it differs by more than ``k`` robust standard deviations and
+    ``floor_um``. Such a value cannot be excluded like a measurement: fit with the plate
+    free or as a prior, or query the calibration laboratory."""
+    ok = ~np.isnan(ref[:, 0])
+    R, t = rigid_fit(ref[ok], cert.xyz_mm[ok])
+    dev = np.full(ref.shape, np.nan)
+    dev[ok] = ((ref[ok] @ R.T + t) - cert.xyz_mm[ok]) * 1e3
+    out = []
+    for a in range(3):
+        v = dev[ok, a]
+        sc = 1.4826 * np.median(np.abs(v - np.median(v)))
+        thr = max(k * sc, floor_um)
+        for i in np.flatnonzero(ok):
+            if abs(dev[i, a] - np.median(v)) > thr:
+                out.append({"ball": int(cert.balls[i]), "axis": "xyz"[a],
+                            "deviation_um": round(float(dev[i, a]), 3),
+                            "robust_z": round(float(dev[i, a] / max(sc, 1e-9)), 1)})
+    return out

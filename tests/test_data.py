@@ -102,3 +102,12 @@ def test_thesis_setup_places_plates_inside_the_machine(thesis):
         assert (m >= -1).all() and (m <= thesis.setup.range_mm + 1).all()
     assert thesis.setup.positions["BP111"].horizontal
     assert not thesis.setup.positions["BP211"].horizontal
+
+
+def test_certificate_ball_16_x_contradicted_by_all_positions(thesis):
+    """Appendix 5 gives ball 16 X = -0.03190 mm; the five consistent tables give about
+    -0.052 mm: the certificate value is suspect by about 20 µm."""
+    rep = detect_outliers(thesis)
+    sus = {(s["ball"], s["axis"]): s["deviation_um"] for s in rep.certificate_suspects}
+    assert set(sus) == {(16, "x")}
+    assert -25 < sus[(16, "x")] < -15

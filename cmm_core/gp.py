@@ -1,0 +1,727 @@
+"""Gaussian-process regression with explicit basis functions (thesis chapter 5, appendix 3).
+
+The model is the one of Rasmussen & Williams (2006), *Gaussian Processes for Machine
+Learning* (R&W), §2.7::
+
+    y = f(x) + h(x)ᵀβ + ε,   f ~ GP(0, k),   ε ~ N(0, σ_n²),   β ~ N(b, B), B → ∞
+
+with ``k`` the squared-exponential covariance (thesis eq. 5.1, R&W eq. 2.31 isotropic or
+eq. 5.1 with automatic relevance determination) and ``h`` a set of explicit basis functions
+(the parametric mean: nothing, a constant, a linear or quadratic polynomial, thesis eq. 5.11
+``meanMylinear_2D``, or any design matrix such as a kinematic model's). The coefficients β
+are marginalised analytically under a vague prior rather than optimised as hyperparameters
+as the thesis's GPML script does; this gives the extra predictive variance term of
+R&W eq. 2.42 and the adjusted marginal likelihood of R&W eq. 2.45.
+
+Hyperparameters (length scale(s), signal and noise standard deviations) are chosen by
+maximising the log marginal likelihood with L-BFGS-B in log space, with analytic gradients
+(R&W eq. 5.9, using the projected matrix ``P`` for a basis mean), from a default start and
+``restarts`` further seeded random starts. Inputs are centred and scaled by one common
+factor, outputs by their RMS, for conditioning; everything is reported in data units
+(X in mm, y in µm for the CMM use).
+
+Leave-one-out predictions are in closed form (R&W §5.4.2, eq. 5.12), with ``P`` in place
+of ``K⁻¹`` when a basis is marginalised.
+
+Only numpy and scipy are used.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from itertools import combinations_with_replacement
+
+import numpy as np
+import scipy.linalg as sla
+from scipy.optimize import minimize
+from scipy.spatial.distance import cdist
+
+__all__ = ["GPResult", "fit_gp", "log_marginal_likelihood", "polynomial_basis", "MEANS", "KERNELS"]
+
+MEANS = ("zero", "constant", "linear", "quadratic", "thesis_quadratic")
+"""Built-in parametric means (explicit basis functions marginalised analytically)."""
+KERNELS = ("se_iso", "se_ard")
+"""Squared-exponential covariance, isotropic (one length scale) or ARD (one per input)."""
+
+_LOG2PI = np.log(2 * np.pi)
+_JITTER_START = 1e-10  # relative to the mean diagonal of K
+_JITTER_MAX = 1e-4
+_RANK_RTOL = 1e-9  # basis columns with pivoted-QR |R_jj| below this times |R_00| are dropped
+_CHUNK = 4096  # prediction points per block
+
+
+# --------------------------------------------------------------------------- basis
+
+def polynomial_basis(X, kind: str):
+    """Design matrix of a built-in polynomial mean, in the units of ``X``.
+
+    Parameters
+    ----------
+    X : array_like (n, d)
+    kind : {"zero", "constant", "linear", "quadratic", "thesis_quadratic"}
+        ``quadratic`` is the full quadratic in all inputs (1, x_i, x_i x_j for i <= j);
+        ``thesis_quadratic`` is thesis eq. 5.11 exactly (``meanMylinear_2D``:
+        a1 + a2 x1 + a3 x1², first input only).
+
+    Returns
+    -------
+    H : ndarray (n, m)
+    names : tuple of str
+        Column names, e.g. ``("1", "x1", "x1*x2")``.
+    """
+    X = np.atleast_2d(np.asarray(X, dtype=float))
+    n, d = X.shape
+    lab = [f"x{i + 1}" for i in range(d)]
+    if kind == "zero":
+        return np.zeros((n, 0)), ()
+    cols, names = [np.ones(n)], ["1"]
+    if kind == "thesis_quadratic":
+        return np.column_stack([np.ones(n), X[:, 0], X[:, 0] ** 2]), ("1", "x1", "x1^2")
+    if kind in ("linear", "quadratic"):
+        cols += [X[:, i] for i in range(d)]
+        names += lab
+    if kind == "quadratic":
+        for i, j in combinations_with_replacement(range(d), 2):
+            cols.append(X[:, i] * X[:, j])
+            names.append(f"{lab[i]}^2" if i == j else f"{lab[i]}*{lab[j]}")
+    if kind not in ("constant", "linear", "quadratic"):
+        raise ValueError(f"mean {kind!r} is not a built-in mean: expected one of {MEANS}, a "
+                         "callable h(X) -> (n, m) or an (n, m) design matrix")
+    return np.column_stack(cols), tuple(names)
+
+
+# --------------------------------------------------------------------------- core
+
+class _Problem:
+    """Standardised data and the negative log marginal likelihood with its gradient.
+
+    Internal units: ``Xs = (X - centre)/x_scale``, ``ys = y/y_scale``; the basis is the
+    orthonormal ``Q`` of a pivoted QR of the column-normalised user basis.
+    """
+
+    def __init__(self, Xs, ys, Q, ard):
+        self.Xs, self.ys, self.Q, self.ard = Xs, ys, Q, ard
+        self.n, self.d = Xs.shape
+        self.m = Q.shape[1]
+        if ard:
+            self.D2 = np.stack([cdist(Xs[:, [i]], Xs[:, [i]], "sqeuclidean")
+                                for i in range(self.d)])
+        else:
+            self.D2 = cdist(Xs, Xs, "sqeuclidean")
+        self.n_jitter = 0
+        self.n_eval = 0
+
+    def n_length(self):
+        return self.d if self.ard else 1
+
+    def kernel(self, log_l, sf2):
+        if self.ard:
+            K = np.tensordot(0.5 / np.exp(2 * log_l), self.D2, axes=1)
+        else:
+            K = self.D2 * (0.5 / np.exp(2 * log_l[0]))
+        np.negative(K, out=K)
+        np.exp(K, out=K)
+        K *= sf2
+        return K
+
+    def factor(self, theta):
+        """Cholesky factor of K_y (jitter only if it fails) and the basis quantities."""
+        nl = self.n_length()
+        log_l, sf2, sn2 = theta[:nl], np.exp(2 * theta[nl]), np.exp(2 * theta[nl + 1])
+        Kf = self.kernel(log_l, sf2)
+        Ky = Kf.copy()
+        Ky.flat[:: self.n + 1] += sn2
+        jitter = 0.0
+        scale = sf2 + sn2
+        while True:
+            try:
+                L, _ = sla.cho_factor(Ky, lower=True, check_finite=False)
+                break
+            except sla.LinAlgError:
+                new = _JITTER_START * scale if jitter == 0 else 10 * jitter
+                if new > _JITTER_MAX * scale:
+                    return None
+                Ky.flat[:: self.n + 1] += new - jitter
+                jitter = new
+        if jitter:
+            self.n_jitter += 1
+        a0 = sla.cho_solve((L, True), self.ys, check_finite=False)
+        st = {"L": L, "Kf": Kf, "sf2": sf2, "sn2": sn2, "log_l": log_l, "jitter": jitter}
+        if self.m:
+            KiQ = sla.cho_solve((L, True), self.Q, check_finite=False)
+            A = self.Q.T @ KiQ
+            try:
+                LA, _ = sla.cho_factor(A, lower=True, check_finite=False)
+            except sla.LinAlgError:
+                return None
+            beta = sla.cho_solve((LA, True), self.Q.T @ a0, check_finite=False)
+            alpha = a0 - KiQ @ beta
+            logdetA = 2 * np.log(np.diag(LA)).sum()
+            st.update(KiQ=KiQ, LA=LA, beta=beta, logdetA=logdetA)
+        else:
+            alpha, logdetA = a0, 0.0
+            st.update(beta=np.zeros(0), logdetA=0.0)
+        st["alpha"] = alpha
+        st["lml"] = (-0.5 * self.ys @ alpha - np.log(np.diag(L)).sum() - 0.5 * logdetA
+                     - 0.5 * (self.n - self.m) * _LOG2PI)
+        return st
+
+    def projected(self, st):
+        """P = K⁻¹ - K⁻¹H A⁻¹ Hᵀ K⁻¹ (R&W §2.7); P = K⁻¹ without a basis."""
+        P = sla.cho_solve((st["L"], True), np.eye(self.n), check_finite=False)
+        if self.m:
+            W = sla.solve_triangular(st["LA"], st["KiQ"].T, lower=True, check_finite=False)
+            P -= W.T @ W
+        return P
+
+    def objective(self, theta):
+        """Negative log marginal likelihood and its gradient in log hyperparameters.
+
+        ∂ log p/∂θ_j = ½ αᵀ ∂K/∂θ_j α - ½ tr(P ∂K/∂θ_j), α = P y (R&W eq. 5.9 with P).
+        """
+        self.n_eval += 1
+        st = self.factor(theta)
+        if st is None:
+            return 1e25, np.zeros_like(theta)
+        alpha = st["alpha"]
+        M = self.projected(st)
+        M -= np.outer(alpha, alpha)  # M = P - ααᵀ, grad_j = -½ tr(M ∂K_j)
+        MK = M * st["Kf"]
+        nl = self.n_length()
+        g = np.empty_like(theta)
+        if self.ard:
+            for i in range(self.d):
+                g[i] = -0.5 * np.vdot(MK, self.D2[i]) / np.exp(2 * st["log_l"][i])
+        else:
+            g[0] = -0.5 * np.vdot(MK, self.D2) / np.exp(2 * st["log_l"][0])
+        g[nl] = -MK.sum()
+        g[nl + 1] = -st["sn2"] * np.trace(M)
+        return -st["lml"], -g
+
+
+# --------------------------------------------------------------------------- result
+
+@dataclass(frozen=True, eq=False)
+class GPResult:
+    """A fitted Gaussian process (hyperparameters in data units).
+
+    Attributes
+    ----------
+    mean : str
+        The mean: a built-in name (see ``MEANS``), ``"callable"`` or ``"matrix"``.
+    kernel : str
+        ``"se_iso"`` or ``"se_ard"``.
+    n : int
+        Number of training points.
+    input_dim : int
+        Number of input coordinates (1, 2 or 3).
+    length_scale_mm : tuple of float
+        SE length scale(s) in the units of X (one for ``se_iso``, one per input for
+        ``se_ard``).
+    signal_sd_um : float
+        Signal standard deviation σ_f (units of y): k(x, x) = σ_f².
+    noise_sd_um : float
+        Noise standard deviation σ_n of the Gaussian likelihood (units of y). Predictive
+        variances from ``predict`` are of the latent function and exclude it.
+    log_marginal_likelihood : float
+        log p(y | X, θ) at the reported hyperparameters. With a basis it is R&W eq. 2.45
+        without the terms that diverge with the vague prior (the log|B| term), for the basis
+        as defined in data units (``mean_terms``); comparable between hyperparameters, not
+        between different bases.
+    mean_terms : tuple of str
+        Names of the basis columns used.
+    basis_dropped : tuple of str
+        Basis columns dropped because the data do not determine them (linearly dependent on
+        the others at the training inputs, pivoted QR with relative tolerance 1e-9).
+    mean_coefficients : ndarray (m,)
+        β̄ = A⁻¹ Hᵀ K_y⁻¹ y (R&W eq. 2.42), coefficients of ``mean_terms`` in data units.
+    mean_coefficients_cov : ndarray (m, m)
+        Their posterior covariance A⁻¹ = (Hᵀ K_y⁻¹ H)⁻¹.
+    loo_mean_um : ndarray (n,)
+        Leave-one-out predictive mean of each y_i (R&W eq. 5.12), hyperparameters fixed.
+    loo_sd_um : ndarray (n,)
+        Leave-one-out predictive standard deviation of each y_i, noise included
+        (``inf`` where leaving the point out leaves a basis coefficient undetermined).
+    loo_rms_um : float
+        RMS of y - loo_mean over the points with a finite LOO prediction.
+    loo_log_predictive : float
+        Leave-one-out log predictive probability Σ log p(y_i | X, y_-i, θ) (R&W eq. 5.11).
+    status : str
+        ``"converged"``, ``"not_converged"`` (best start did not satisfy L-BFGS-B's
+        convergence test; the best point found is reported) or ``"fixed"`` (no
+        optimisation asked for).
+    success : bool
+        ``status != "not_converged"``.
+    message : str
+        Optimiser message, hyperparameters at their bounds and any jitter, in words.
+    n_evaluations : int
+        Likelihood evaluations over all starts.
+    start_log_ml : tuple of float
+        Final log marginal likelihood of each start (default start first); ``nan`` for a
+        start where the likelihood could not be evaluated.
+    jitter_um2 : float
+        Variance added to the diagonal of K_y at the reported hyperparameters because its
+        Cholesky factorisation failed (units of y²); 0 when none was needed.
+    n_jitter_events : int
+        Number of factorisations during the fit that needed jitter.
+    bounds : dict
+        Bounds on the hyperparameters, data units: ``{name: (low, high)}``.
+    """
+
+    mean: str
+    kernel: str
+    n: int
+    input_dim: int
+    length_scale_mm: tuple
+    signal_sd_um: float
+    noise_sd_um: float
+    log_marginal_likelihood: float
+    mean_terms: tuple
+    basis_dropped: tuple
+    mean_coefficients: np.ndarray
+    mean_coefficients_cov: np.ndarray
+    loo_mean_um: np.ndarray
+    loo_sd_um: np.ndarray
+    loo_rms_um: float
+    loo_log_predictive: float
+    status: str
+    success: bool
+    message: str
+    n_evaluations: int
+    start_log_ml: tuple
+    jitter_um2: float
+    n_jitter_events: int
+    bounds: dict
+    _state: dict = field(repr=False)
+
+    @property
+    def hyperparameters(self) -> dict:
+        """Readable hyperparameters: ``length_scale_mm``, ``signal_sd_um``, ``noise_sd_um``."""
+        ls = self.length_scale_mm
+        return {"length_scale_mm": ls[0] if self.kernel == "se_iso" else list(ls),
+                "signal_sd_um": self.signal_sd_um, "noise_sd_um": self.noise_sd_um}
+
+    def summary(self) -> dict:
+        """JSON-ready summary: hyperparameters, log marginal likelihood, LOO RMS, status."""
+        return {**self.hyperparameters,
+                "log_marginal_likelihood": float(self.log_marginal_likelihood),
+                "loo_rms_um": float(self.loo_rms_um),
+                "n": self.n, "mean": self.mean, "n_mean_terms": len(self.mean_terms),
+                # coefficients by name for the named (built-in) means only; a design
+                # matrix's coefficients are in GPResult.mean_coefficients
+                "mean_coefficients": ({t: float(b) for t, b in
+                                       zip(self.mean_terms, self.mean_coefficients, strict=True)}
+                                      if self.mean in MEANS else None),
+                "basis_dropped": list(self.basis_dropped), "kernel": self.kernel,
+                "status": self.status, "message": self.message,
+                "jitter_um2": float(self.jitter_um2)}
+
+    def predict(self, X_new, H_new=None, *, include_mean: bool = True):
+        """Predictive mean and variance of the latent function at ``X_new``.
+
+        f̄* = k*ᵀ K_y⁻¹ (y - Hβ̄) + h*ᵀβ̄ and
+        V[f*] = k** - k*ᵀ K_y⁻¹ k* + Rᵀ A⁻¹ R, R = h* - Hᵀ K_y⁻¹ k* (R&W eq. 2.41-2.42;
+        eq. 2.23-2.24 without a basis). The noise variance is not included: add
+        ``noise_sd_um**2`` for the variance of a new observation.
+
+        Parameters
+        ----------
+        X_new : array_like (m, d) (or (m,) when d = 1)
+        H_new : array_like (m, p), optional
+            Basis at ``X_new``; required when the mean was given as a design matrix
+            (the basis is otherwise evaluated from the mean's definition).
+        include_mean : bool
+            With ``False``, return only the GP part conditional on β = β̄:
+            mean k*ᵀ K_y⁻¹ (y - Hβ̄), variance k** - k*ᵀ K_y⁻¹ k* (the discrepancy from the
+            parametric mean, e.g. of a kinematic model, at points where its basis is unknown).
+
+        Returns
+        -------
+        mean : ndarray (m,)
+        var : ndarray (m,)
+        """
+        s = self._state
+        Xn = _as_inputs(X_new, "X_new")
+        if Xn.shape[1] != self.input_dim:
+            raise ValueError(f"X_new has {Xn.shape[1]} columns, expected {self.input_dim} "
+                             "(the number of input coordinates the GP was fitted on)")
+        use_basis = include_mean and s["m"] > 0
+        if use_basis:
+            Hn = self._basis_at(Xn, H_new)
+            # internal basis q* = (h*_kept / d) R⁻¹
+            Qn = sla.solve_triangular(s["R"], (Hn[:, s["keep"]] / s["col_norm"]).T,
+                                      trans="T", lower=False, check_finite=False).T
+        Xs = (Xn - s["centre"]) / s["x_scale"]
+        mean = np.empty(len(Xn))
+        var = np.empty(len(Xn))
+        for lo in range(0, len(Xn), _CHUNK):
+            sl = slice(lo, lo + _CHUNK)
+            Ks = _cross_kernel(Xs[sl], s["Xs"], s["length_s"], s["sf2"])
+            mu = Ks @ s["alpha"]
+            v = sla.solve_triangular(s["L"], Ks.T, lower=True, check_finite=False)
+            vv = s["sf2"] - np.einsum("ij,ij->j", v, v)
+            if use_basis:
+                mu += Qn[sl] @ s["beta"]
+                Rm = Qn[sl].T - s["KiQ"].T @ Ks.T
+                w = sla.solve_triangular(s["LA"], Rm, lower=True, check_finite=False)
+                vv += np.einsum("ij,ij->j", w, w)
+            mean[sl] = mu
+            var[sl] = np.maximum(vv, 0.0)
+        return mean * s["y_scale"], var * s["y_scale"] ** 2
+
+    def _basis_at(self, Xn, H_new):
+        s = self._state
+        if H_new is not None:
+            Hn = np.asarray(H_new, dtype=float)
+            if Hn.ndim == 1 and s["m_user"] == 1:
+                Hn = Hn[:, None]
+            if Hn.shape != (len(Xn), s["m_user"]):
+                raise ValueError(f"H_new has shape {Hn.shape}, expected {(len(Xn), s['m_user'])}"
+                                 " (the basis at X_new, same columns as the training basis)")
+            return Hn
+        if s["basis_fn"] is None:
+            raise ValueError("the mean was given as a design matrix at the training points: "
+                             "pass H_new (the basis at X_new), or include_mean=False for the "
+                             "GP part alone")
+        return _eval_basis(s["basis_fn"], Xn, s["m_user"])
+
+
+def _cross_kernel(A, B, length, sf2):
+    return sf2 * np.exp(-0.5 * cdist(A / length, B / length, "sqeuclidean"))
+
+
+def _as_inputs(X, name):
+    X = np.asarray(X, dtype=float)
+    if X.ndim == 1:
+        X = X[:, None]
+    if X.ndim != 2 or X.shape[1] not in (1, 2, 3):
+        raise ValueError(f"{name} has shape {np.shape(X)}, expected (n,) or (n, d) with "
+                         "d = 1, 2 or 3 input coordinates")
+    if not np.all(np.isfinite(X)):
+        raise ValueError(f"{name} contains NaN or inf values: expected finite coordinates")
+    return X
+
+
+def _eval_basis(fn, X, m=None):
+    H = np.asarray(fn(X), dtype=float)
+    if H.ndim == 1:
+        H = H[:, None]
+    if H.ndim != 2 or H.shape[0] != len(X) or (m is not None and H.shape[1] != m):
+        raise ValueError(f"the basis function returned shape {H.shape}, expected "
+                         f"({len(X)}, {m if m is not None else 'm'})")
+    return H
+
+
+def _resolve_mean(mean, X):
+    """(label, H in data units, names, callable or None)."""
+    if isinstance(mean, str):
+        H, names = polynomial_basis(X, mean)
+        return mean, H, names, (lambda Z, _k=mean: polynomial_basis(Z, _k)[0])
+    if callable(mean):
+        H = _eval_basis(mean, X)
+        return "callable", H, tuple(f"h{j + 1}" for j in range(H.shape[1])), mean
+    H = np.asarray(mean, dtype=float)
+    if H.ndim == 1:
+        H = H[:, None]
+    if H.ndim != 2 or H.shape[0] != len(X):
+        raise ValueError(f"the mean design matrix has shape {np.shape(mean)}, expected "
+                         f"({len(X)}, m): one row per training point")
+    return "matrix", H, tuple(f"h{j + 1}" for j in range(H.shape[1])), None
+
+
+class _Context:
+    """Standardised data and basis shared by ``fit_gp`` and ``log_marginal_likelihood``."""
+
+
+def _prepare(X, y, mean, kernel):
+    X = _as_inputs(X, "X")
+    y = np.asarray(y, dtype=float)
+    if y.ndim == 2 and y.shape[1] == 1:
+        y = y[:, 0]
+    if y.ndim != 1 or len(y) != len(X):
+        raise ValueError(f"y has shape {y.shape}, expected ({len(X)},): one value per row of X")
+    if not np.all(np.isfinite(y)):
+        raise ValueError("y contains NaN or inf values: expected finite observations "
+                         "(drop or impute them before fitting)")
+    if kernel not in KERNELS:
+        raise ValueError(f"kernel {kernel!r} is unknown: expected one of {KERNELS}")
+    n, d = X.shape
+    label, H, names, basis_fn = _resolve_mean(mean, X)
+    if not np.all(np.isfinite(H)):
+        raise ValueError("the mean's basis contains NaN or inf values at the training points")
+    m_user = H.shape[1]
+
+    # basis: column-normalise, pivoted QR, drop what the data cannot determine
+    if m_user:
+        col = np.linalg.norm(H, axis=0)
+        zero = col == 0
+        col[zero] = 1.0
+        Qf, Rf, piv = sla.qr(H / col, mode="economic", pivoting=True, check_finite=False)
+        diag = np.abs(np.diag(Rf))
+        r = int(np.sum(diag > _RANK_RTOL * diag[0])) if diag.size and diag[0] > 0 else 0
+        keep = np.sort(piv[:r])
+        # QR again on the kept columns in their original order (R upper triangular for them)
+        Q, R = sla.qr(H[:, keep] / col[keep], mode="economic", check_finite=False)
+        col_keep = col[keep]
+        dropped = tuple(names[j] for j in range(m_user) if j not in set(keep.tolist()))
+    else:
+        keep = np.zeros(0, dtype=int)
+        Q, R, col_keep, dropped = np.zeros((n, 0)), np.zeros((0, 0)), np.zeros(0), ()
+    m = Q.shape[1]
+    if n < m + 2:
+        raise ValueError(f"{n} points for a mean with {m} determinable basis functions: "
+                         f"expected at least {m + 2} (use a simpler mean or more points)")
+
+    centre = X.mean(axis=0)
+    extent = float(np.ptp(X, axis=0).max())
+    if extent == 0:
+        raise ValueError("all input points coincide: expected at least two distinct points")
+    x_scale = extent
+    Xs = (X - centre) / x_scale
+    resid = y - Q @ (Q.T @ y) if m else y
+    y_scale = float(np.sqrt(np.mean(resid**2)))
+    y_rms = float(np.sqrt(np.mean(y**2)))
+    if y_scale <= 1e-12 * y_rms or y_scale == 0:
+        y_scale = y_rms or 1.0
+
+    ctx = _Context()
+    ctx.__dict__.update(n=n, d=d, m=m, m_user=m_user, label=label, names=names,
+                        basis_fn=basis_fn, keep=keep, Q=Q, R=R, col_keep=col_keep,
+                        dropped=dropped, extent=extent, x_scale=x_scale, y_scale=y_scale,
+                        centre=centre, Xs=Xs, X=X, y=y)
+    ctx.prob = _Problem(Xs, y / y_scale, Q, kernel == "se_ard")
+    # log ML in data units = standardised value + offset (undo y scaling and basis scaling)
+    logdetR = float(np.log(np.abs(np.diag(R))).sum()) if m else 0.0
+    ctx.lml_offset = -(n - m) * np.log(y_scale) - logdetR - float(np.log(col_keep).sum())
+    return ctx
+
+
+_HYPER = ("length_scale_mm", "signal_sd_um", "noise_sd_um")
+
+
+def _theta_from(hyper: dict, ctx, nl, theta):
+    """Standardised log hyperparameters from readable ones (data units)."""
+    theta = np.array(theta, dtype=float)
+    units = {"signal_sd_um": ctx.y_scale, "noise_sd_um": ctx.y_scale}
+    for k, v in hyper.items():
+        if k not in _HYPER:
+            raise ValueError(f"hyperparameter {k!r} is unknown: expected one of {_HYPER}")
+        v = np.atleast_1d(np.asarray(v, dtype=float))
+        if np.any(~np.isfinite(v)) or np.any(v <= 0):
+            raise ValueError(f"{k} = {v}: expected positive finite values")
+        if k == "length_scale_mm":
+            if v.size not in (1, nl):
+                raise ValueError(f"length_scale_mm has {v.size} values, expected 1 or {nl}")
+            theta[:nl] = np.log(v / ctx.x_scale)
+        else:
+            if v.size != 1:
+                raise ValueError(f"{k} has {v.size} values, expected 1")
+            theta[nl + (k == "noise_sd_um")] = np.log(v[0] / units[k])
+    return theta
+
+
+def log_marginal_likelihood(X, y, hyperparameters: dict, *, mean="zero",
+                            kernel: str = "se_iso"):
+    """Log marginal likelihood and its gradient at given hyperparameters.
+
+    Parameters
+    ----------
+    X, y, mean, kernel
+        As for ``fit_gp``.
+    hyperparameters : dict
+        ``length_scale_mm`` (one value, or one per input for ``se_ard``), ``signal_sd_um``,
+        ``noise_sd_um``, all required.
+
+    Returns
+    -------
+    lml : float
+        As ``GPResult.log_marginal_likelihood`` (R&W eq. 2.30, or eq. 2.45 without the
+        divergent terms with a basis).
+    grad : ndarray (p,)
+        ∂ lml / ∂ log θ for θ = (length scale(s), σ_f, σ_n), analytic (R&W eq. 5.9 with the
+        projected matrix P of §2.7). The same in any units, since it is per log unit.
+    """
+    missing = [k for k in _HYPER if k not in hyperparameters]
+    if missing:
+        raise ValueError(f"hyperparameters lack {missing}: expected all of {_HYPER}")
+    ctx = _prepare(X, y, mean, kernel)
+    nl = ctx.d if kernel == "se_ard" else 1
+    theta = _theta_from(hyperparameters, ctx, nl, np.zeros(nl + 2))
+    val, grad = ctx.prob.objective(theta)
+    if val >= 1e24:
+        raise ValueError("the covariance matrix is not positive definite even with jitter at "
+                         "these hyperparameters (increase noise_sd_um)")
+    return float(-val + ctx.lml_offset), -grad
+
+
+_BOUND_FACTORS = {"length": (1e-3, 1e3), "signal": (1e-3, 1e2), "noise": (1e-4, 1e1)}
+
+
+def fit_gp(X, y, *, mean="zero", kernel: str = "se_iso", restarts: int = 3, seed=0,
+           bounds: dict | None = None, initial: dict | None = None,
+           optimize: bool = True) -> GPResult:
+    """Fit a GP regression model by maximising the marginal likelihood.
+
+    Parameters
+    ----------
+    X : array_like (n,) or (n, d), d = 1, 2 or 3
+        Inputs (mm for CMM coordinates).
+    y : array_like (n,)
+        Observations (µm for CMM errors).
+    mean : str, callable or array_like (n, m)
+        Parametric mean as explicit basis functions whose coefficients are marginalised under
+        a vague prior (R&W §2.7): ``"zero"`` (thesis appendix 3 part T2), ``"constant"``,
+        ``"linear"``, ``"quadratic"`` (full quadratic in all inputs), ``"thesis_quadratic"``
+        (thesis eq. 5.11, ``meanMylinear_2D``: 1, x1, x1²), a callable ``h(X) -> (n, m)``, or
+        the design matrix at the training points (e.g. a kinematic model's Jacobian; then
+        ``predict`` needs ``H_new``). Polynomials are evaluated in the units of X.
+    kernel : {"se_iso", "se_ard"}
+        Squared-exponential covariance (thesis eq. 5.1, covSEiso; or covSEard).
+    restarts : int
+        Random starts in addition to the default start (as scikit-learn's
+        ``n_restarts_optimizer``), drawn log-uniformly from a plausible box inside the
+        bounds with ``np.random.default_rng(seed)``.
+    seed : int or numpy Generator
+    bounds : dict, optional
+        Override bounds in data units, keys ``length_scale_mm``, ``signal_sd_um``,
+        ``noise_sd_um``, values ``(low, high)``. Defaults: length scale 1e-3..1e3 × the
+        input extent (largest coordinate range), σ_f 1e-3..1e2 × and σ_n 1e-4..10 × the
+        RMS of y after removing the least-squares basis fit.
+    initial : dict, optional
+        Starting hyperparameters in data units (same keys); with ``optimize=False`` they
+        are used as they are.
+    optimize : bool
+        ``False`` evaluates the model at ``initial`` (status ``"fixed"``).
+
+    Returns
+    -------
+    GPResult
+        Never raises on non-convergence: see ``status`` and ``message``.
+
+    Raises
+    ------
+    ValueError
+        Bad shapes, non-finite values, unknown mean or kernel, or too few points.
+    """
+    ctx = _prepare(X, y, mean, kernel)
+    n, d, m, m_user = ctx.n, ctx.d, ctx.m, ctx.m_user
+    label, names, basis_fn, keep = ctx.label, ctx.names, ctx.basis_fn, ctx.keep
+    R, col_keep, dropped = ctx.R, ctx.col_keep, ctx.dropped
+    extent, x_scale, y_scale, centre, Xs = (ctx.extent, ctx.x_scale, ctx.y_scale, ctx.centre,
+                                            ctx.Xs)
+    y = ctx.y
+    ard = kernel == "se_ard"
+    nl = d if ard else 1
+    bnd = {"length_scale_mm": tuple(f * extent for f in _BOUND_FACTORS["length"]),
+           "signal_sd_um": tuple(f * y_scale for f in _BOUND_FACTORS["signal"]),
+           "noise_sd_um": tuple(f * y_scale for f in _BOUND_FACTORS["noise"])}
+    for k, v in (bounds or {}).items():
+        if k not in bnd:
+            raise ValueError(f"bounds key {k!r} is unknown: expected one of {tuple(bnd)}")
+        lo, hi = (float(t) for t in v)
+        if not 0 < lo <= hi:
+            raise ValueError(f"bounds[{k!r}] = {v}: expected 0 < low <= high")
+        bnd[k] = (lo, hi)
+    units = {"length_scale_mm": x_scale, "signal_sd_um": y_scale, "noise_sd_um": y_scale}
+    lb = np.array([np.log(bnd["length_scale_mm"][0] / x_scale)] * nl
+                  + [np.log(bnd[k][0] / units[k]) for k in ("signal_sd_um", "noise_sd_um")])
+    ub = np.array([np.log(bnd["length_scale_mm"][1] / x_scale)] * nl
+                  + [np.log(bnd[k][1] / units[k]) for k in ("signal_sd_um", "noise_sd_um")])
+
+    # default start: length 0.3 extent, σ_f = RMS, σ_n = 0.3 RMS (standardised units)
+    theta0 = _theta_from(initial or {}, ctx, nl, np.array([np.log(0.3)] * nl + [0.0, np.log(0.3)]))
+    if optimize:
+        theta0 = np.clip(theta0, lb, ub)
+
+    prob = ctx.prob
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    starts = [theta0]
+    box_lo = np.array([np.log(0.05)] * nl + [np.log(0.2), np.log(0.01)])
+    box_hi = np.array([np.log(3.0)] * nl + [np.log(3.0), np.log(1.0)])
+    for _ in range(max(int(restarts), 0) if optimize else 0):
+        starts.append(np.clip(rng.uniform(box_lo, box_hi), lb, ub))
+
+    best, best_val, best_res, start_lml = None, np.inf, None, []
+    if optimize:
+        for t0 in starts:
+            res = minimize(prob.objective, t0, jac=True, method="L-BFGS-B",
+                           bounds=list(zip(lb, ub, strict=True)))
+            val = float(res.fun)
+            start_lml.append(-val if val < 1e24 else np.nan)
+            if val < best_val:
+                best, best_val, best_res = res.x, val, res
+        if best is None:
+            best, best_res = theta0, None
+        status = "converged" if best_res is not None and best_res.success else "not_converged"
+        msg = [best_res.message if best_res is not None else
+               "the likelihood could not be evaluated at any start"]
+    else:
+        best, status, msg = theta0, "fixed", ["hyperparameters fixed at the values given"]
+
+    st = prob.factor(best)
+    if st is None:
+        raise ValueError("the covariance matrix is not positive definite even with jitter at "
+                         "the given hyperparameters (increase noise_sd_um)")
+    if isinstance(msg[0], bytes):
+        msg[0] = msg[0].decode()
+    msg[0] = str(msg[0])
+
+    # readable hyperparameters and bound notes
+    length = np.exp(best[:nl]) * x_scale
+    sf, sn = np.exp(best[nl]) * y_scale, np.exp(best[nl + 1]) * y_scale
+    if optimize:
+        for name, i in [("length_scale_mm", j) for j in range(nl)] + [
+                ("signal_sd_um", nl), ("noise_sd_um", nl + 1)]:
+            if ub[i] - lb[i] > 0 and (best[i] - lb[i] < 1e-6 or ub[i] - best[i] < 1e-6):
+                side = "lower" if best[i] - lb[i] < 1e-6 else "upper"
+                msg.append(f"{name} at its {side} bound {np.exp((lb if side == 'lower' else ub)[i]) * units[name]:.3g}")
+    if st["jitter"]:
+        msg.append(f"jitter {st['jitter'] * y_scale**2:.3g} added to the diagonal of K_y "
+                   "(Cholesky factorisation failed without it)")
+
+    lml = st["lml"] + ctx.lml_offset
+
+    # coefficients in data units: h_keptᵀβ = qᵀβ_Q with q = (h/col) R⁻¹
+    if m:
+        Rinv = sla.solve_triangular(R, np.eye(m), check_finite=False)
+        T = Rinv / col_keep[:, None]  # β_user = T β_Q
+        Ainv_Q = sla.cho_solve((st["LA"], True), np.eye(m), check_finite=False)
+        coef = T @ st["beta"] * y_scale
+        coef_cov = T @ Ainv_Q @ T.T * y_scale**2
+    else:
+        coef, coef_cov = np.zeros(0), np.zeros((0, 0))
+
+    # LOO in closed form (R&W eq. 5.12 with P): μ_i = y_i - [Py]_i/P_ii, σ_i² = 1/P_ii
+    P = prob.projected(st)
+    pdiag = np.diag(P).copy()
+    ok = pdiag > 1e-10 * np.max(np.abs(pdiag))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        loo_mu = np.where(ok, prob.ys - st["alpha"] / pdiag, np.nan)
+        loo_var = np.where(ok, 1.0 / pdiag, np.inf)
+    loo_mu_u = loo_mu * y_scale
+    loo_sd_u = np.sqrt(loo_var) * y_scale
+    loo_res = (y - loo_mu_u)[ok]
+    loo_rms = float(np.sqrt(np.mean(loo_res**2))) if ok.any() else float("nan")
+    loo_lp = float(np.sum(-0.5 * np.log(loo_var[ok] * y_scale**2)
+                          - loo_res**2 / (2 * loo_var[ok] * y_scale**2) - 0.5 * _LOG2PI))
+    if not ok.all():
+        msg.append(f"{int((~ok).sum())} point(s) without a leave-one-out prediction "
+                   "(a basis coefficient rests on them alone)")
+
+    state = {"Xs": Xs, "centre": centre, "x_scale": x_scale, "y_scale": y_scale,
+             "length_s": np.exp(best[:nl]) if ard else np.exp(best[0]),
+             "sf2": st["sf2"], "L": st["L"], "alpha": st["alpha"], "beta": st["beta"],
+             "m": m, "m_user": m_user, "keep": keep, "col_norm": col_keep, "R": R,
+             "KiQ": st.get("KiQ"), "LA": st.get("LA"), "basis_fn": basis_fn}
+    return GPResult(
+        mean=label, kernel=kernel, n=n, input_dim=d,
+        length_scale_mm=tuple(float(v) for v in length),
+        signal_sd_um=float(sf), noise_sd_um=float(sn), log_marginal_likelihood=float(lml),
+        mean_terms=tuple(names[j] for j in keep), basis_dropped=dropped,
+        mean_coefficients=coef, mean_coefficients_cov=coef_cov,
+        loo_mean_um=loo_mu_u, loo_sd_um=loo_sd_u, loo_rms_um=loo_rms,
+        loo_log_predictive=loo_lp, status=status, success=status != "not_converged",
+        message="; ".join(msg), n_evaluations=prob.n_eval,
+        start_log_ml=tuple(float(v + ctx.lml_offset) for v in start_lml),
+        jitter_um2=float(st["jitter"] * y_scale**2), n_jitter_events=prob.n_jitter,
+        bounds=bnd, _state=state)

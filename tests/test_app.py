@@ -1,0 +1,274 @@
+"""AppTest smoke and interaction tests of the Streamlit app (no browser)."""
+
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("streamlit")
+from streamlit.testing.v1 import AppTest  # noqa: E402
+
+from cmm_core import export  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+APP = str(ROOT / "app.py")
+THESIS = ROOT / "sample_data" / "thesis"
+PAGES = {
+    "pages/data.py": "Data",
+    "pages/kinematic.py": "Kinematic model",
+    "pages/gaussian_process.py": "Gaussian process",
+    "pages/diagnose.py": "Compare and diagnose",
+    "pages/uncertainty.py": "Uncertainty",
+    "pages/export.py": "Compensate and export",
+}
+TIMEOUT = 60
+
+
+def _new():
+    at = AppTest.from_file(APP, default_timeout=TIMEOUT)
+    at.run()
+    return at
+
+
+def _ok(at):
+    assert not at.exception, [e.message for e in at.exception]
+    assert not at.error, [e.value for e in at.error]
+
+
+def _frame(at, column):
+    """The first dataframe on the page having ``column`` (dataframe keys are not exposed)."""
+    for d in at.dataframe:
+        if column in d.value.columns:
+            return d.value
+    raise KeyError(column)
+
+
+def _sidebar_rms(at) -> float:
+    m = {x.label: x.value for x in at.sidebar.metric}
+    return float(m["RMS (µm)"])
+
+
+@pytest.fixture(scope="module")
+def app():
+    return _new()
+
+
+def test_first_run_shows_the_thesis_data_and_a_fitted_model(app):
+    _ok(app)
+    assert any("thesis tables" in m.value for m in app.sidebar.markdown)
+    assert any("kinematic21" in m.value for m in app.sidebar.markdown)
+    assert 4.0 < _sidebar_rms(app) < 6.0  # outliers included until the user excludes them
+    labels = [c.label for c in app.checkbox]
+    assert any("BP312 probe 6 ball 16" in lab for lab in labels)
+    assert any("BP112 probe 2 ball 7" in lab for lab in labels)
+
+
+@pytest.mark.parametrize("page", list(PAGES))
+def test_every_page_renders_without_error(app, page):
+    app.switch_page(page)
+    app.run()
+    _ok(app)
+    assert any(PAGES[page] in t.value for t in app.title)
+    assert [x.label for x in app.sidebar.metric] == ["RMS (µm)", "χ²/dof"]
+
+
+def test_kinematic_page_elements_and_order_change():
+    at = _new()
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    _ok(at)
+    assert len(at.get("plotly_chart")) >= 3  # error functions, deviations, residuals
+    assert "u" in _frame(at, "parameter").columns
+    assert at.slider(key="w_magnification").value == 2000.0
+    rms2 = _sidebar_rms(at)
+    at.selectbox(key="w_order").set_value(3)
+    at.run()
+    _ok(at)
+    assert any("order 3" in m.value for m in at.sidebar.markdown)
+    assert _sidebar_rms(at) < rms2  # more freedom, smaller residuals
+    at.slider(key="w_magnification").set_value(5000.0)
+    at.run()
+    _ok(at)
+    # the order survives a page switch
+    at.switch_page("pages/diagnose.py")
+    at.run()
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    assert at.selectbox(key="w_order").value == 3
+
+
+def test_bad_model_spec_is_a_message_not_a_traceback():
+    at = _new()
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    at.text_input(key="w_spec").set_value("kinematic21,warp_drive")
+    at.run()
+    assert not at.exception
+    assert any("unknown model token" in e.value for e in at.error)
+
+
+def test_excluding_outliers_lowers_the_rms():
+    at = _new()
+    before = _sidebar_rms(at)
+    at.button(key="exclude_all").click()
+    at.run()
+    _ok(at)
+    after = _sidebar_rms(at)
+    assert after < before - 1.0
+    assert all(c.value for c in at.checkbox if c.label.startswith("Exclude "))
+    # one checkbox back: that observation returns to the fit
+    box = next(c for c in at.checkbox if "ball 16" in c.label)
+    box.uncheck()
+    at.run()
+    assert after < _sidebar_rms(at)
+
+
+def test_diagnosis_add_an_effect_rms_falls_and_history_records_it():
+    at = _new()
+    at.button(key="exclude_all").click()
+    at.run()
+    at.switch_page("pages/diagnose.py")
+    at.run()
+    _ok(at)
+    before = _sidebar_rms(at)
+    at.button(key="run_diagnosis").click()
+    at.run()
+    _ok(at)
+    table = _frame(at, "delta_bic")
+    assert len(table) > 5
+    best = str(table.iloc[0]["effect"])
+    at.button(key=f"add_{best}").click()
+    at.run()
+    _ok(at)
+    assert best in at.session_state["spec"]
+    assert _sidebar_rms(at) < before
+    hist = _frame(at, "change")
+    assert len(hist) == 2 and hist.iloc[1]["change"] == best
+    assert hist.iloc[1]["rms_um"] < hist.iloc[0]["rms_um"]
+    # remove it again through the undo button
+    at.button(key="undo_step").click()
+    at.run()
+    _ok(at)
+    assert at.session_state["spec"] == "kinematic21"
+
+
+def test_remove_an_error_function():
+    at = _new()
+    at.switch_page("pages/diagnose.py")
+    at.run()
+    at.selectbox(key="w_remove").set_value("-sxy")
+    at.button(key="remove_effect").click()
+    at.run()
+    _ok(at)
+    assert at.session_state["spec"] == parse("kinematic21,-sxy")
+
+
+def parse(spec):
+    from cmm_core.effects import parse_spec
+
+    return parse_spec(spec).to_string()
+
+
+def test_upload_long_form_csv_and_a_malformed_one():
+    at = _new()
+    # long form built from the thesis tables (probe column named explicitly)
+    rows = ["position,probe,ball,x_mm,y_mm,z_mm"]
+    probes = {"BP111": "1", "BP112": "2", "BP211": "3", "BP212": "4", "BP311": "5",
+              "BP312": "6"}
+    for pos, q in probes.items():
+        for line in (THESIS / f"{pos}.csv").read_text().splitlines()[1:]:
+            rows.append(f"{pos},{q},{line}")
+    at.file_uploader(key="up_meas").set_value(
+        [("long.csv", "\n".join(rows).encode(), "text/csv")])
+    at.button(key="load_upload").click()
+    at.run()
+    _ok(at)
+    assert any("long.csv" in m.value for m in at.sidebar.markdown)
+    # malformed: a unit in a number cell -> a validation row naming file, row and column
+    bad = "ball,x_mm,y_mm,z_mm\n1,0,0,0\n2,133.0 mm,0,0\n3,266,0,0\n4,399,0,0\n"
+    at.file_uploader(key="up_meas").set_value([("BP111.csv", bad.encode(), "text/csv")])
+    at.button(key="load_upload").click()
+    at.run()
+    assert not at.exception
+    assert any("problem" in e.value for e in at.error)
+    probs = _frame(at, "hint")
+    assert probs.iloc[0]["file"] == "BP111.csv"
+    assert probs.iloc[0]["row"] == 3 and probs.iloc[0]["column"] == "x_mm"
+    assert any("long.csv" in m.value for m in at.sidebar.markdown)  # unchanged
+
+
+def test_simulate_a_virtual_cmm():
+    at = _new()
+    at.checkbox(key="sim_sag").check()
+    at.run()
+    at.button(key="simulate").click()
+    at.run()
+    _ok(at)
+    assert any("simulated" in m.value for m in at.sidebar.markdown)
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    _ok(at)
+    cols = _frame(at, "parameter").columns
+    assert "true (simulation)" in cols
+
+
+def test_downloads_present_and_project_roundtrip():
+    at = _new()
+    at.switch_page("pages/export.py")
+    at.run()
+    _ok(at)
+    keys = {b.key for b in at.get("download_button")}
+    assert {"dl_parameters", "dl_residuals", "dl_grid", "dl_report", "dl_project",
+            "dl_corrected"} <= keys
+    # a project file with a changed model and exclusions restores the session
+    text = export.project_to_json(
+        dataset_name="restored thesis",
+        measurements=[(f"{p}.csv", (THESIS / f"{p}.csv").read_text())
+                      for p in ("BP111", "BP112", "BP211", "BP212", "BP311", "BP312")],
+        setup=(THESIS / "setup.json").read_text(),
+        certificate=("certificate.csv", (THESIS / "certificate.csv").read_text()),
+        model={"spec": "kinematic21,plate_sag", "order": 2, "plate": "fixed",
+               "sigma_um": 0.5, "positions": None, "probes": None},
+        exclusions=[("BP112", "2", 7), ("BP312", "6", 16)],
+        history=[{"spec": "kinematic21", "change": "baseline"},
+                 {"spec": "kinematic21,plate_sag", "change": "plate_sag"}])
+    at.switch_page("pages/data.py")
+    at.run()
+    at.file_uploader(key="up_project").set_value(("p.json", text.encode(), "application/json"))
+    at.run()
+    at.button(key="restore_project").click()
+    at.run()
+    _ok(at)
+    assert at.session_state["spec"] == "kinematic21,plate_sag"
+    assert len(at.session_state["exclusions"]) == 2
+    assert any("restored thesis" in m.value for m in at.sidebar.markdown)
+    at.switch_page("pages/diagnose.py")
+    at.run()
+    _ok(at)
+    assert len(_frame(at, "change")) == 2
+
+
+def test_bad_project_file_is_a_message():
+    at = _new()
+    at.file_uploader(key="up_project").set_value(("p.json", b"{not json", "application/json"))
+    at.run()
+    at.button(key="restore_project").click()
+    at.run()
+    assert not at.exception
+    assert any("not valid JSON" in e.value for e in at.error)
+
+
+def test_gaussian_process_fit_and_chapter7_comparison():
+    at = _new()
+    at.switch_page("pages/gaussian_process.py")
+    at.run()
+    _ok(at)
+    cols = _frame(at, "kin_minus_meas_um").columns
+    assert {"kin_z", "thesis_pct_kin"} <= set(cols)
+    if not any(b.key == "fit_gp" for b in at.button):
+        pytest.skip("cmm_core.gp_cmm not available")
+    at.button(key="fit_gp").click()
+    at.run()
+    _ok(at)
+    hyp = _frame(at, "LOO RMS (µm)")
+    assert list(hyp["component"]) == ["x", "y", "z"]
+    assert {"gp_minus_meas_um", "gp_z", "thesis_pct_gp"} <= set(_frame(at, "gp_z").columns)

@@ -1,0 +1,153 @@
+"""Exports: spreadsheet safety, the error-map grid, compensation, project files, report."""
+
+import io
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cmm_core import export, report
+from cmm_core.dataset import THESIS_DIR, THESIS_POSITIONS, thesis_dataset
+from cmm_core.fit import fit
+from cmm_core.io import DataError
+
+
+@pytest.fixture(scope="module")
+def result():
+    return fit(thesis_dataset())
+
+
+@pytest.mark.parametrize("cell", ["=1+2", "+cmd", "-x", "@SUM(A1)", "\tfoo", "\rbar",
+                                  "=HYPERLINK(\"http://x\")", "-", "+"])
+def test_dangerous_text_cells_get_an_apostrophe(cell):
+    text = export.safe_csv(pd.DataFrame({"name": [cell], "v": [1.5]}))
+    got = pd.read_csv(io.StringIO(text), keep_default_na=False)["name"][0]
+    assert got.startswith("'")
+    assert got[1:].strip("\r\t") == cell.strip("\r\t")
+
+
+@pytest.mark.parametrize("cell", ["-1.5", "+2", "-3e-4", "BP111", "ball 7", "1"])
+def test_plain_numbers_and_text_are_untouched(cell):
+    assert export.neutralise(cell) == cell
+
+
+def test_numeric_columns_stay_numbers():
+    text = export.safe_csv(pd.DataFrame({"x_mm": [-1.25, 2.0], "probe": ["=1", "2"]}))
+    df = pd.read_csv(io.StringIO(text))
+    assert df["x_mm"].tolist() == [-1.25, 2.0]
+    assert df["probe"].tolist() == ["'=1", "2"]
+
+
+def test_column_names_are_neutralised_too():
+    text = export.safe_csv(pd.DataFrame({"=evil": [1]}))
+    assert text.splitlines()[0] == "'=evil"
+
+
+def test_parameters_and_residuals_csv(result):
+    p = pd.read_csv(io.StringIO(export.parameters_csv(result)), comment="#")
+    assert {"parameter", "block", "unit", "value", "u_standard", "identifiable"} <= set(p)
+    assert len(p) == len(result.labels)
+    r = pd.read_csv(io.StringIO(export.residuals_csv(result)))
+    assert len(r) == result.n_obs
+    assert np.allclose(r[["rx_um", "ry_um", "rz_um"]].to_numpy(), result.residuals_um,
+                       atol=1e-4)
+
+
+def test_error_map_grid_matches_the_model(result):
+    from cmm_core.uncertainty import error_at
+
+    g = export.error_map_grid(result, step_mm=(300, 250, 350))
+    assert list(g.columns) == ["x_mm", "y_mm", "z_mm", "ex_um", "ey_um", "ez_um",
+                               "u_ex_um", "u_ey_um", "u_ez_um"]
+    assert len(g) == 5 * 5 * 3  # 0..1200/300, 0..1000/250, 0..700/350
+    assert g["x_mm"].iloc[1] == 300.0 and g["y_mm"].iloc[0] == 0.0  # x fastest
+    e, u = error_at(result, g[["x_mm", "y_mm", "z_mm"]].to_numpy())
+    assert np.allclose(g[["ex_um", "ey_um", "ez_um"]].to_numpy(), e)
+    assert np.allclose(g[["u_ex_um", "u_ey_um", "u_ez_um"]].to_numpy(), u)
+    text = export.error_map_csv(result, g)
+    assert text.startswith("# CMM error map")
+    back = pd.read_csv(io.StringIO(text), comment="#")
+    assert np.allclose(back["ez_um"], g["ez_um"], atol=1e-5)
+    with pytest.raises(ValueError):
+        export.error_map_grid(result, step_mm=0.1)
+
+
+def test_compensation_adds_the_error(result):
+    from cmm_core.uncertainty import error_at
+
+    obs = result.problem.obs
+    pts = pd.DataFrame({"probe": ["1", "3"], "x_mm": [500.0, 700.0], "y_mm": [400.0, 300.0],
+                        "z_mm": [100.0, 200.0], "label": ["=a", "b"]})
+    out = export.compensate_points(result, pts)
+    assert {"xc_mm", "yc_mm", "zc_mm", "u_x_um", "u_y_um", "u_z_um"} <= set(out.columns)
+    p1 = obs.p_mm[obs.probe == obs.probes.index("1")][0]
+    e, _ = error_at(result, np.array([[500.0, 400.0, 100.0]]) - p1, "1")
+    assert np.allclose(out.loc[0, ["xc_mm", "yc_mm", "zc_mm"]].to_numpy(float),
+                       np.array([500.0, 400.0, 100.0]) + e[0] * 1e-3, atol=1e-9)
+
+
+def test_read_points_reports_row_and_column():
+    with pytest.raises(DataError) as exc:
+        export.read_points(b"probe,x_mm,y_mm,z_mm\n1,1,2,3\n1,abc,2,3\n", "pts.csv")
+    assert exc.value.row == 3 and exc.value.column == "x_mm"
+    with pytest.raises(DataError):
+        export.read_points(b"a,b\n1,2\n", "pts.csv")
+
+
+def _thesis_project(**kw):
+    args = dict(dataset_name="thesis",
+                measurements=[(f"{p}.csv", (THESIS_DIR / f"{p}.csv").read_text())
+                              for p in THESIS_POSITIONS],
+                setup=(THESIS_DIR / "setup.json").read_text(),
+                certificate=("certificate.csv", (THESIS_DIR / "certificate.csv").read_text()),
+                model={"spec": "kinematic21,plate_sag", "order": 3, "plate": "prior",
+                       "sigma_um": 0.7, "positions": None, "probes": ["1", "2"]},
+                exclusions=[("BP112", "2", 7)],
+                history=[{"spec": "kinematic21", "change": "baseline", "rms_um": float("nan")}])
+    args.update(kw)
+    return export.project_to_json(**args)
+
+
+def test_project_roundtrip_restores_everything():
+    doc = export.project_from_json(_thesis_project())
+    assert doc["dataset_name"] == "thesis"
+    assert [n for n, _ in doc["measurements"]] == [f"{p}.csv" for p in THESIS_POSITIONS]
+    assert doc["measurements"][0][1] == (THESIS_DIR / "BP111.csv").read_text()
+    assert doc["certificate"][0] == "certificate.csv"
+    assert doc["model"]["spec"] == "kinematic21,plate_sag" and doc["model"]["order"] == 3
+    assert doc["exclusions"] == [("BP112", "2", 7)]
+    assert doc["history"][0]["rms_um"] is None  # NaN is not JSON
+    # the restored files load into the same dataset
+    from cmm_core.dataset import load_dataset
+
+    ds = load_dataset([(io.StringIO(c), n) for n, c in doc["measurements"]],
+                      io.StringIO(doc["setup"]), (io.StringIO(doc["certificate"][1]),
+                                                  doc["certificate"][0]))
+    assert len(ds.meas) == len(thesis_dataset().meas)
+
+
+@pytest.mark.parametrize("text, needle", [
+    (b"{nope", "not valid JSON"),
+    (b"[1, 2]", "not a CMM error lab project"),
+    (b'{"format": "cmm-error-lab-project", "version": 99}', "newer version"),
+    (b'{"format": "cmm-error-lab-project", "version": 1}', "no dataset"),
+    (b"\xff\xfe", "UTF-8"),
+])
+def test_bad_project_files_are_data_errors(text, needle):
+    with pytest.raises(DataError, match=needle):
+        export.project_from_json(text)
+
+
+def test_report_is_self_contained(result):
+    ds = thesis_dataset()
+    html = report.build_report(ds, result, exclusions=[("BP112", "2", 7)],
+                               history=[{"spec": "kinematic21", "change": "baseline",
+                                         "rms_um": 5.2, "chi2_dof": 127.0, "bic": 1.0,
+                                         "gp_amplitude_um": None}])
+    assert html.startswith("<!DOCTYPE html>")
+    assert "<script src=" not in html.replace(" ", "")  # every script is inline
+    assert html.count("plotly.js v") >= 1  # the library itself is inline
+    assert html.count("Plotly.newPlot") >= 5
+    for text in ("Fitted error functions", "Deviations, BP111", "Residuals",
+                 "Fitted parameters", "BP112/2 ball 7", "kinematic21", "µm"):
+        assert text in html

@@ -1,0 +1,363 @@
+"""Gaussian-process error model (cmm_core.gp, cmm_core.gp_cmm): thesis chapter 5, appendix 3.
+
+References: Rasmussen & Williams (2006), *Gaussian Processes for Machine Learning* (R&W),
+§2.2 (eq. 2.23-2.30), §2.7 (eq. 2.41-2.45), §5.4 (eq. 5.9, 5.12); scikit-learn's
+GaussianProcessRegressor as an independent implementation (test-only dependency).
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.distance import cdist
+
+from cmm_core.gp import fit_gp, log_marginal_likelihood, polynomial_basis
+from cmm_core.gp_cmm import (
+    appendix3_workflow,
+    box_grid,
+    gp_components,
+    plate_grid,
+    predict_grid,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _surface(X):
+    """A smooth error surface (µm) over mm inputs, a few µm in amplitude."""
+    return 3 * np.sin(X[:, 0] / 120) + 2 * np.cos(X[:, 1] / 90)
+
+
+@pytest.fixture
+def data2d(rng):
+    X = rng.uniform(0, 500, (60, 2))
+    return X, _surface(X) + 0.3 * rng.standard_normal(60)
+
+
+def _se(A, B, ell, sf):
+    return sf**2 * np.exp(-0.5 * cdist(A / ell, B / ell, "sqeuclidean"))
+
+
+def _gauss_logpdf(C, y):
+    L = np.linalg.cholesky(C)
+    a = np.linalg.solve(L, y)
+    return -0.5 * a @ a - np.log(np.diag(L)).sum() - 0.5 * len(y) * np.log(2 * np.pi)
+
+
+# ----------------------------------------------------------------- against scikit-learn
+
+def test_matches_sklearn(data2d, rng):
+    """Same kernel (C × RBF + White), zero mean, 3 restarts: our log ML is no lower than
+    scikit-learn's and the predictions agree. Tolerances: both optimisers stop on a
+    projected-gradient test, so the optimum agrees to ~1e-6 in log ML and to 1e-4 µm
+    (µm-scale data) in the predictions."""
+    sk = pytest.importorskip("sklearn.gaussian_process")
+    kernels = pytest.importorskip("sklearn.gaussian_process.kernels")
+    X, y = data2d
+    ours = fit_gp(X, y, mean="zero", kernel="se_iso", restarts=3, seed=0)
+    k = kernels.ConstantKernel(1.0) * kernels.RBF(100.0) + kernels.WhiteKernel(0.1)
+    ref = sk.GaussianProcessRegressor(k, n_restarts_optimizer=3, random_state=0).fit(X, y)
+    assert ours.status == "converged"
+    assert ours.log_marginal_likelihood >= ref.log_marginal_likelihood_value_ - 1e-6
+    # sklearn's value of its own likelihood at our hyperparameters: the same function
+    theta = np.log([ours.signal_sd_um**2, ours.length_scale_mm[0], ours.noise_sd_um**2])
+    assert ref.log_marginal_likelihood(theta) == pytest.approx(
+        ours.log_marginal_likelihood, abs=1e-8)
+    Xt = rng.uniform(0, 500, (40, 2))
+    mu, var = ours.predict(Xt)
+    mu_ref, sd_ref = ref.predict(Xt, return_std=True)  # std includes the white noise
+    np.testing.assert_allclose(mu, mu_ref, atol=1e-4)
+    np.testing.assert_allclose(var + ours.noise_sd_um**2, sd_ref**2, atol=1e-4)
+
+
+def test_matches_sklearn_ard_3d(rng):
+    """3-D inputs with ARD against scikit-learn's anisotropic RBF."""
+    sk = pytest.importorskip("sklearn.gaussian_process")
+    kernels = pytest.importorskip("sklearn.gaussian_process.kernels")
+    X = rng.uniform(0, 600, (50, 3))
+    # every input matters, so that the optimum is interior for both (no bound effects)
+    y = (2 * np.sin(X[:, 0] / 150) + np.cos(X[:, 1] / 200) + 0.5 * np.sin(X[:, 2] / 100)
+         + 0.2 * rng.standard_normal(50))
+    ours = fit_gp(X, y, kernel="se_ard", restarts=3, seed=1)
+    k = (kernels.ConstantKernel(1.0) * kernels.RBF([200.0] * 3, (1e-2, 1e6))
+         + kernels.WhiteKernel(0.1))
+    ref = sk.GaussianProcessRegressor(k, n_restarts_optimizer=3, random_state=0).fit(X, y)
+    # ARD likelihoods have local optima: sklearn may stop in a worse one, never a better one
+    assert ours.log_marginal_likelihood >= ref.log_marginal_likelihood_value_ - 1e-6
+    # the same model: sklearn's likelihood at our hyperparameters, and its predictions with
+    # them fixed, equal ours (round-off level)
+    ls = list(ours.length_scale_mm)
+    theta = np.log([ours.signal_sd_um**2, *ls, ours.noise_sd_um**2])
+    assert ref.log_marginal_likelihood(theta) == pytest.approx(
+        ours.log_marginal_likelihood, abs=1e-8)
+    fixed = (kernels.ConstantKernel(ours.signal_sd_um**2) * kernels.RBF(ls)
+             + kernels.WhiteKernel(ours.noise_sd_um**2))
+    same = sk.GaussianProcessRegressor(fixed, optimizer=None).fit(X, y)
+    Xt = rng.uniform(0, 600, (20, 3))
+    mu, var = ours.predict(Xt)
+    mu_ref, sd_ref = same.predict(Xt, return_std=True)
+    np.testing.assert_allclose(mu, mu_ref, atol=1e-8)
+    np.testing.assert_allclose(var + ours.noise_sd_um**2, sd_ref**2, atol=1e-8)
+
+
+# ----------------------------------------------------------------- the likelihood
+
+@pytest.mark.parametrize("mean,kernel", [("zero", "se_iso"), ("quadratic", "se_iso"),
+                                         ("linear", "se_ard"), ("zero", "se_ard")])
+def test_gradient_matches_finite_differences(data2d, mean, kernel):
+    """Analytic ∂ log p/∂ log θ (R&W eq. 5.9 with P) against central differences,
+    step 1e-5 in log θ: truncation error ~1e-10 × third derivative, so 1e-5 relative."""
+    X, y = data2d
+    hyp = {"length_scale_mm": 150.0 if kernel == "se_iso" else [150.0, 110.0],
+           "signal_sd_um": 2.5, "noise_sd_um": 0.4}
+    f0, g = log_marginal_likelihood(X, y, hyp, mean=mean, kernel=kernel)
+    keys = [("length_scale_mm", i) for i in range(1 if kernel == "se_iso" else 2)]
+    keys += [("signal_sd_um", None), ("noise_sd_um", None)]
+    h = 1e-5
+    for j, (k, i) in enumerate(keys):
+        vals = []
+        for s in (+1, -1):
+            hp = {kk: np.atleast_1d(np.array(v, dtype=float)) for kk, v in hyp.items()}
+            if i is None:
+                hp[k] = hp[k] * np.exp(s * h)
+            else:
+                hp[k][i] *= np.exp(s * h)
+            vals.append(log_marginal_likelihood(X, y, hp, mean=mean, kernel=kernel)[0])
+        fd = (vals[0] - vals[1]) / (2 * h)
+        assert g[j] == pytest.approx(fd, rel=1e-5, abs=1e-6), (k, i)
+
+
+def test_zero_mean_lml_is_gaussian_density(data2d):
+    """Without a basis, log p(y) = log N(y; 0, K + σ_n² I) (R&W eq. 2.30) exactly."""
+    X, y = data2d
+    hyp = {"length_scale_mm": 130.0, "signal_sd_um": 2.0, "noise_sd_um": 0.3}
+    lml, _ = log_marginal_likelihood(X, y, hyp)
+    C = _se(X, X, 130.0, 2.0) + 0.09 * np.eye(len(X))
+    assert lml == pytest.approx(_gauss_logpdf(C, y), abs=1e-9)
+
+
+def test_basis_mean_is_limit_of_wide_gaussian_prior(rng):
+    """R&W §2.7: with β ~ N(0, b² I) the GP has covariance K + b² H Hᵀ. As b → ∞ its
+    predictions converge to the marginalised-basis ones (eq. 2.42) and its log ML, after
+    adding ½ log|B| = m log b and m/2 log 2π, converges to eq. 2.45 without the divergent
+    terms. Error is O(1/b²) (b = 1e3: ~1e-6 relative), round-off O(eps b² |H|²) (~1e-7)."""
+    X = rng.uniform(400, 600, (30, 2))
+    y = 5 + 0.02 * X[:, 0] + np.sin(X[:, 1] / 40) + 0.2 * rng.standard_normal(30)
+
+    def h(Z):  # a well-scaled quadratic basis, so that one b suits all columns
+        return polynomial_basis((Z - 500) / 100, "quadratic")[0]
+
+    hyp = {"length_scale_mm": 80.0, "signal_sd_um": 1.0, "noise_sd_um": 0.2}
+    res = fit_gp(X, y, mean=h, initial=hyp, optimize=False)
+    assert res.status == "fixed"
+    H, Xt = h(X), rng.uniform(400, 600, (5, 2))
+    Ht = h(Xt)
+    m = H.shape[1]
+    K = _se(X, X, 80.0, 1.0)
+    Ks = _se(Xt, X, 80.0, 1.0)
+    mu, var = res.predict(Xt)
+    errs = []
+    for b in (1e1, 1e2, 1e3):
+        Kb = K + b**2 * H @ H.T + 0.04 * np.eye(30)
+        lml_b = _gauss_logpdf(Kb, y) + m * np.log(b) + 0.5 * m * np.log(2 * np.pi)
+        Ksb = Ks + b**2 * Ht @ H.T
+        mu_b = Ksb @ np.linalg.solve(Kb, y)
+        var_b = 1 + b**2 * np.sum(Ht**2, 1) - np.einsum("ij,ji->i", Ksb,
+                                                        np.linalg.solve(Kb, Ksb.T))
+        errs.append((abs(lml_b - res.log_marginal_likelihood), np.abs(mu_b - mu).max(),
+                     np.abs(var_b - var).max()))
+    errs = np.array(errs)
+    assert np.all(np.diff(errs, axis=0) < 0)  # converging
+    assert errs[-1, 0] < 1e-3 and errs[-1, 1] < 1e-5 and errs[-1, 2] < 1e-6
+    # the same model with the basis given as a design matrix and H_new at the test points
+    res2 = fit_gp(X, y, mean=H, initial=hyp, optimize=False)
+    assert res2.log_marginal_likelihood == pytest.approx(res.log_marginal_likelihood, abs=1e-9)
+    np.testing.assert_allclose(res2.predict(Xt, Ht)[0], mu, atol=1e-10)
+    with pytest.raises(ValueError, match="H_new"):
+        res2.predict(Xt)
+
+
+def test_loo_closed_form_matches_refits(rng):
+    """R&W eq. 5.12 (with P for a basis) against n brute-force refits leaving each point
+    out, hyperparameters fixed: identical models, so agreement to round-off (1e-8 µm)."""
+    X = rng.uniform(400, 600, (15, 2))
+    y = _surface(X) + 0.02 * X[:, 0] + 0.3 * rng.standard_normal(15)
+    hyp = {"length_scale_mm": 70.0, "signal_sd_um": 1.5, "noise_sd_um": 0.3}
+    for mean in ("zero", "linear"):
+        res = fit_gp(X, y, mean=mean, initial=hyp, optimize=False)
+        for i in range(len(y)):
+            keep = np.arange(len(y)) != i
+            r_i = fit_gp(X[keep], y[keep], mean=mean, initial=hyp, optimize=False)
+            mu, var = r_i.predict(X[[i]])
+            assert res.loo_mean_um[i] == pytest.approx(mu[0], abs=1e-8)
+            assert res.loo_sd_um[i] ** 2 == pytest.approx(var[0] + 0.09, abs=1e-8)
+        rms = np.sqrt(np.mean((y - res.loo_mean_um) ** 2))
+        assert res.loo_rms_um == pytest.approx(rms)
+
+
+# ----------------------------------------------------------------- fitting behaviour
+
+def test_seeded_restarts_reproducible_and_reported(data2d):
+    X, y = data2d
+    a = fit_gp(X, y, restarts=2, seed=5)
+    b = fit_gp(X, y, restarts=2, seed=5)
+    assert a.log_marginal_likelihood == b.log_marginal_likelihood
+    assert len(a.start_log_ml) == 3
+    assert a.log_marginal_likelihood == pytest.approx(max(a.start_log_ml))
+    assert a.jitter_um2 == 0 and "jitter" not in a.message
+    assert a.noise_sd_um == pytest.approx(0.3, rel=0.3)  # the simulated noise
+    lo, hi = a.bounds["noise_sd_um"]
+    assert lo < a.noise_sd_um < hi
+
+
+def test_jitter_only_when_cholesky_fails_and_reported(rng):
+    """Duplicated inputs with a noise of 1e-9 σ_f: K_y is singular to working precision,
+    so the factorisation needs jitter, which the result reports."""
+    X = np.repeat(rng.uniform(0, 100, (10, 1)), 2, axis=0)
+    y = np.sin(X[:, 0] / 20)
+    hyp = {"length_scale_mm": 500.0, "signal_sd_um": 1.0, "noise_sd_um": 1e-9}
+    res = fit_gp(X, y, initial=hyp, optimize=False)
+    assert res.jitter_um2 > 0 and "jitter" in res.message
+    assert res.n_jitter_events >= 1
+    assert np.all(np.isfinite(res.predict(np.array([[50.0]]))[0]))
+
+
+def test_ard_finds_irrelevant_input(rng):
+    """y depends on x1 only: the ARD length scale of x2 and x3 ends much longer."""
+    X = rng.uniform(0, 500, (80, 3))
+    y = 2 * np.sin(X[:, 0] / 60) + 0.1 * rng.standard_normal(80)
+    res = fit_gp(X, y, kernel="se_ard", restarts=1, seed=0)
+    ls = np.array(res.length_scale_mm)
+    assert ls[1] > 5 * ls[0] and ls[2] > 5 * ls[0]
+    assert res.hyperparameters["length_scale_mm"] == list(res.length_scale_mm)
+
+
+def test_rank_deficient_basis_dropped_by_name(rng):
+    """A horizontal plate in machine coordinates (z constant): the quadratic mean's z terms
+    are not determined by the data and are reported as dropped, not silently kept."""
+    P = np.column_stack([rng.uniform(300, 900, 30), rng.uniform(200, 800, 30),
+                         np.full(30, 100.0)])
+    y = 0.01 * P[:, 0] + 0.5 * rng.standard_normal(30)
+    res = fit_gp(P, y, mean="quadratic", restarts=0)
+    assert set(res.basis_dropped) >= {"x3"} and len(res.mean_terms) == 6
+    assert np.isfinite(res.log_marginal_likelihood)
+    assert np.all(np.isfinite(res.predict(P[:3])[0]))
+
+
+def test_thesis_quadratic_is_eq_5_11():
+    X = np.array([[1.0, 7.0], [2.0, 8.0]])
+    H, names = polynomial_basis(X, "thesis_quadratic")
+    np.testing.assert_array_equal(H, [[1, 1, 1], [1, 2, 4]])
+    assert names == ("1", "x1", "x1^2")
+    assert polynomial_basis(X, "quadratic")[1] == ("1", "x1", "x2", "x1^2", "x1*x2", "x2^2")
+
+
+@pytest.mark.parametrize("call,match", [
+    (lambda: fit_gp(np.zeros((5, 2)) + np.arange(5)[:, None], np.zeros(4)), "expected"),
+    (lambda: fit_gp(np.zeros((5, 4)), np.zeros(5)), "d = 1, 2 or 3"),
+    (lambda: fit_gp(np.arange(5.0), [0, 1, np.nan, 2, 3]), "NaN"),
+    (lambda: fit_gp(np.arange(5.0), np.arange(5.0), kernel="matern"), "expected one of"),
+    (lambda: fit_gp(np.arange(5.0), np.arange(5.0), mean="cubic"), "expected one of"),
+    (lambda: fit_gp(np.ones(5), np.arange(5.0)), "coincide"),
+    (lambda: fit_gp(np.arange(4.0), np.arange(4.0), mean="quadratic"), "at least"),
+    (lambda: fit_gp(np.arange(5.0), np.arange(5.0), bounds={"noise_sd_um": (2, 1)}),
+     "low <= high"),
+    (lambda: gp_components(np.zeros((5, 3)), np.zeros((4, 3))), "expected"),
+    (lambda: gp_components(np.zeros((5, 3)), np.zeros((5, 3)), mean="linear",
+                           basis=np.ones((5, 1))), "one of them"),
+])
+def test_bad_input_raises_with_hint(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+# ----------------------------------------------------------------- CMM wrappers
+
+def test_components_grid_and_summary(rng):
+    """One GP per component on 3-D machine coordinates of two plate placements, predicted
+    on a plate grid and a box; summary is JSON-ready with the spec's fields."""
+    pl = plate_grid((-200, 200), (-200, 200), 5, origin_mm=(600, 500, 100))
+    pv = plate_grid((-200, 200), (-200, 200), 5, origin_mm=(600, 500, 350),
+                    u_axis=(1, -1, 0), v_axis=(0, 0, 1))
+    P = np.vstack([pl.points_mm, pv.points_mm])
+    E = np.column_stack([_surface(P[:, :2]), 0.005 * (P[:, 1] - 500), 1e-5 * P[:, 0] ** 2])
+    E = E + 0.2 * rng.standard_normal(E.shape)
+    comps = gp_components(P, E, mean="linear", kernel="se_iso", restarts=1, seed=3)
+    s = comps.summary()
+    assert set(s) == {"x", "y", "z"}
+    for c in s.values():
+        assert {"length_scale_mm", "signal_sd_um", "noise_sd_um", "log_marginal_likelihood",
+                "loo_rms_um"} <= set(c)
+    json.dumps(s)
+    g = plate_grid((-200, 200), (-200, 200), 11, origin_mm=(600, 500, 100))
+    mean, sd = predict_grid(comps, g.points_mm)
+    assert mean.shape == sd.shape == (121, 3) and np.all(sd >= 0)
+    assert g.surface(mean[:, 0]).shape == (11, 11)
+    # at the measured points the posterior mean follows the data to about the noise
+    m_obs, _ = predict_grid(comps, P)
+    assert np.sqrt(np.mean((m_obs - E) ** 2)) < 0.3
+    b = box_grid((400, 300, 100), (800, 700, 350), (3, 4, 5))
+    assert b.points_mm.shape == (60, 3) and b.shape == (5, 4, 3)
+    mb, sb = predict_grid(comps, b.points_mm)
+    assert np.all(np.isfinite(mb)) and np.all(sb > 0)
+
+
+def test_components_over_kinematic_residuals(rng):
+    """Residuals of a (here: linear-in-coordinates) model with its design matrix as the
+    GP basis, per component as cmm_core.cli passes it; on a grid without the basis the
+    GP part alone (discrepancy) is returned, with the basis the full prediction."""
+    P = rng.uniform(0, 400, (40, 2))
+    J = np.column_stack([np.ones(40), P / 400])
+    E = np.column_stack([np.sin(P[:, 0] / 80), np.cos(P[:, 1] / 70)])
+    E = E - J @ np.linalg.lstsq(J, E, rcond=None)[0] + 0.05 * rng.standard_normal(E.shape)
+    comps = gp_components(P, E, basis=[J, J], restarts=1)
+    assert comps.mean == "basis" and comps.names == ("x", "y")
+    assert comps["x"].mean == "matrix" and comps.summary()["x"]["mean_coefficients"] is None
+    G = plate_grid((0, 400), (0, 400), 6).points_mm
+    Jg = np.column_stack([np.ones(len(G)), G / 400])
+    m_gp, s_gp = predict_grid(comps, G)
+    m_full, s_full = predict_grid(comps, G, basis_grid=[Jg, Jg])
+    beta = np.array([r.mean_coefficients for r in comps.results]).T
+    np.testing.assert_allclose(m_full - m_gp, Jg @ beta, atol=1e-9)
+    assert np.all(s_full >= s_gp - 1e-12)  # coefficient uncertainty adds variance
+
+
+def test_appendix3_workflow():
+    """Thesis appendix 3 (figures 5.4-5.6): 3×3 plate, zero mean then eq. 5.11 mean, on
+    the 21×21 grid over 400..600 mm (step 10 mm as the thesis's z grid)."""
+    a = appendix3_workflow(seed=0)
+    assert a.points_mm.shape == (9, 2)
+    assert a.grid.axes_mm[0][1] - a.grid.axes_mm[0][0] == pytest.approx(10.0)
+    for arr in (a.mean_zero_um, a.sd_zero_um, a.mean_quadratic_um, a.sd_quadratic_um,
+                a.difference_um):
+        assert arr.shape == (21, 21, 3) and np.all(np.isfinite(arr))
+    assert a.quadratic["x"].mean_terms == ("1", "x1", "x1^2")
+    for comp in (a.zero, a.quadratic):
+        for r in comp.results:
+            assert r.success and np.isfinite(r.log_marginal_likelihood)
+    # balls are grid nodes 0, 10, 20 along each axis; with zero mean the latent posterior
+    # variance at a measured point is at most (1/σ_f² + 1/σ_n²)⁻¹ < σ_n², and it grows
+    # between the balls
+    balls = a.sd_zero_um[::10, ::10].reshape(9, 3)
+    for c, r in enumerate(a.zero.results):
+        assert np.all(balls[:, c] <= r.noise_sd_um * (1 + 1e-9))
+    np.testing.assert_allclose(a.difference_um,
+                               np.abs(a.mean_zero_um - a.mean_quadratic_um))
+
+
+def test_thesis_data_components(thesis):
+    """Thesis table 6.1 (BP111) minus the certificate, in plate coordinates: the deviations
+    are a few µm (table 6.8), so the GPs' LOO RMS must be finite and at that level."""
+    cert = thesis.certificate.xyz_mm
+    E = (thesis.plate_frame_table("BP111") - cert) * 1e3
+    ok = np.all(np.isfinite(E), axis=1)
+    comps = gp_components(cert[ok, :2], E[ok], mean="zero", restarts=1)
+    for r in comps.results:
+        assert np.isfinite(r.loo_rms_um) and r.loo_rms_um < 20
+    mean, sd = predict_grid(comps, plate_grid((0, 400), (0, 400), 9).points_mm)
+    assert np.all(np.isfinite(mean)) and np.all(np.isfinite(sd))
+
+
+def test_paths_from_file():
+    assert (ROOT / "cmm_core" / "gp.py").exists()
