@@ -453,6 +453,17 @@ class FitResult:
         return self.covariance[s, s]
 
     @property
+    def birge_ratio(self) -> float:
+        """sqrt(χ²/dof): how much larger the scatter is than the stated repeatability."""
+        return float(np.sqrt(self.chi2_dof))
+
+    @property
+    def u_inflated(self) -> np.ndarray:
+        """Uncertainties scaled by the Birge ratio when it exceeds 1: the honest figure
+        when the model does not explain the data to the stated noise."""
+        return self.u * max(1.0, self.birge_ratio)
+
+    @property
     def identifiable(self) -> bool:
         """True when the data determine every parameter."""
         return not self.unidentifiable
@@ -655,6 +666,10 @@ def _message(status, it, rms, chi2_dof, combos):
             "max_iterations": f"Stopped after {it} iterations without converging",
             "failed": "No step reduced the misfit"}[status]
     msg = f"{head}: RMS {rms:.3f} µm, χ²/dof {chi2_dof:.2f}."
+    if chi2_dof > 2:
+        msg += (f" The scatter is {np.sqrt(chi2_dof):.1f} times the stated repeatability: "
+                "the model misses something (see Compare and diagnose), and uncertainties "
+                "based on σ alone are too small by that factor.")
     if combos:
         msg += (f" The data cannot determine {len(combos)} parameter combination(s); they "
                 "are held at the minimum-norm solution and reported as unidentifiable: "

@@ -18,7 +18,7 @@ def breakdown(result: FitResult, by: str) -> pd.DataFrame:
     """RMS per axis (µm), χ² and its share of the total, grouped by ``position``,
     ``probe`` or ``ball``; largest share first."""
     rf = result.residuals_frame()
-    chi = (rf[["rx_um", "ry_um", "rz_um"]] ** 2).sum(1) / result.sigma_um**2
+    chi = (rf[["rx_um", "ry_um", "rz_um"]] ** 2).sum(axis=1) / result.sigma_um**2
     rf = rf.assign(chi2=chi)
     g = rf.groupby(by, sort=False)
     out = pd.DataFrame({
