@@ -93,6 +93,33 @@ class Simulation:
                                                     "config": self.config}, indent=1))
 
 
+_EFFECT_KEYS = {"plate_thermal": {"cte_per_K", "temp_C"}, "plate_sag": {"uu", "uv", "vv"},
+                "probe_offset": None, "drift": None}
+
+
+def _check_config(cfg):
+    """Unknown keys are errors, never silently ignored (a typo would hide an effect)."""
+    unknown = set(cfg) - set(DEFAULT_CONFIG)
+    if unknown:
+        raise ValueError(f"simulation config: unknown key(s) {sorted(unknown)}; expected "
+                         f"some of {sorted(DEFAULT_CONFIG)}.")
+    for sect in ("plate", "kinematic"):
+        extra = set(cfg.get(sect) or {}) - set(DEFAULT_CONFIG[sect])
+        if extra:
+            raise ValueError(f"simulation config: unknown key(s) {sorted(extra)} in "
+                             f"'{sect}'; expected some of {sorted(DEFAULT_CONFIG[sect])}.")
+    for name, body in (cfg.get("effects") or {}).items():
+        if name not in _EFFECT_KEYS:
+            raise ValueError(f"simulation config: unknown effect {name!r}; expected one of "
+                             f"{sorted(_EFFECT_KEYS)}.")
+        allowed = _EFFECT_KEYS[name]
+        if allowed is not None and set(body) - allowed:
+            raise ValueError(f"simulation config: effect {name!r} takes {sorted(allowed)}, "
+                             f"found {sorted(set(body) - allowed)}.")
+    if not float(cfg.get("noise_um", 0.5)) >= 0:
+        raise ValueError("simulation config: noise_um must be >= 0.")
+
+
 def _merge(base, over):
     out = copy.deepcopy(base)
     for k, v in (over or {}).items():
@@ -115,6 +142,7 @@ def _visit_order(rows, cols, how, rng):
 
 def simulate(config: dict | None = None) -> Simulation:
     """Simulate a virtual CMM measuring a ball plate (see the module docstring)."""
+    _check_config(config or {})
     cfg = _merge(DEFAULT_CONFIG, config)
     rng = np.random.default_rng(cfg["seed"])
     setup_raw = copy.deepcopy(cfg["setup"] or thesis_machine_setup())

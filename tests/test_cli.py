@@ -66,3 +66,10 @@ def test_bad_input_exits_nonzero_with_one_line(args, needle):
     p = run(*args, check=False)
     assert p.returncode == 2
     assert len(p.stderr.strip().splitlines()) == 1 and needle in p.stderr
+
+
+def test_simulate_rejects_unknown_keys(tmp_path):
+    cfg = tmp_path / "c.json"
+    cfg.write_text(json.dumps({"effects": {"plate_sagg": {"uu": 1}}}))
+    p = run("simulate", cfg, "--out", tmp_path / "o", check=False)
+    assert p.returncode == 2 and "unknown effect 'plate_sagg'" in p.stderr
