@@ -134,7 +134,7 @@ def refractive_index_sensitivities(t_C: float, p_Pa: float, rh_percent: float,
                                    wavelength_nm: float = 632.99) -> dict[str, float]:
     """Partial derivatives of n (central differences): the a_i of thesis eq. 3.20-3.25.
 
-    Returns ``{"dn_dt_per_K", "dn_dp_per_Pa", "dn_drh_per_percent"}`` (about -9.3e-7 /K,
+    Returns ``{"dn_dt_per_K", "dn_dp_per_Pa", "dn_drh_per_percent"}`` (about -9.6e-7 /K,
     +2.7e-9 /Pa and -8.5e-9 /%RH at 20 °C, 101325 Pa, 50 %RH, 633 nm).
     """
     def n(t, p, r):

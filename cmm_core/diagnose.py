@@ -280,6 +280,50 @@ def kinematic_basis(result: FitResult):
     return out
 
 
+@dataclass(frozen=True)
+class Discrepancy:
+    """GP over a fit's residuals with the model's own design matrix as explicit basis.
+
+    Attributes
+    ----------
+    amplitude_um : dict
+        Signal standard deviation of each component's GP (x, y, z), µm.
+    length_scale_mm : dict
+        Length scale(s) of each component's GP, mm.
+    noise_sd_um : dict
+        Fitted noise standard deviation per component, µm.
+    rms_amplitude_um : float
+        sqrt(mean of the squared amplitudes): one number for the history chart.
+    components : object
+        The fitted ``gp_cmm.GPComponents`` (for surfaces).
+    """
+
+    amplitude_um: dict
+    length_scale_mm: dict
+    noise_sd_um: dict
+    rms_amplitude_um: float
+    components: object = field(repr=False)
+
+
+def discrepancy_gp(result: FitResult, *, kernel: str = "se_iso", restarts: int = 2,
+                   seed: int = 0) -> Discrepancy:
+    """Structure left in the residuals: one GP per component over the machine
+    coordinates of the observations, with :func:`kinematic_basis` as explicit basis
+    (marginalised, R&W §2.7) so the GP cannot absorb what the model already explains. Its
+    amplitude shrinks towards zero (the noise takes over) when the missing effect is added.
+    """
+    from .gp_cmm import gp_components
+
+    o = result.problem.obs
+    comps = gp_components(o.r_mm - o.p_mm, result.residuals_um, kernel=kernel,
+                          basis=kinematic_basis(result), restarts=restarts, seed=seed)
+    amp = {c: float(comps[c].signal_sd_um) for c in comps.names}
+    ls = {c: [float(v) for v in comps[c].length_scale_mm] for c in comps.names}
+    noise = {c: float(comps[c].noise_sd_um) for c in comps.names}
+    return Discrepancy(amp, ls, noise, float(np.sqrt(np.mean(np.square(list(amp.values()))))),
+                       comps)
+
+
 def history_entry(result: FitResult, gp_amplitude_um=None) -> dict:
     """One row of the add-and-watch history."""
     return {"model": result.spec, "rms_um": result.rms_um, "chi2_dof": result.chi2_dof,

@@ -33,6 +33,7 @@ from itertools import combinations_with_replacement
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg import lapack
 from scipy.optimize import minimize
 from scipy.spatial.distance import cdist
 
@@ -168,7 +169,14 @@ class _Problem:
 
     def projected(self, st):
         """P = K⁻¹ - K⁻¹H A⁻¹ Hᵀ K⁻¹ (R&W §2.7); P = K⁻¹ without a basis."""
-        P = sla.cho_solve((st["L"], True), np.eye(self.n), check_finite=False)
+        # K⁻¹ from the Cholesky factor by LAPACK potri (about a third of the flops of
+        # cho_solve with the identity); it fills the lower triangle only
+        inv, info = lapack.dpotri(st["L"], lower=1)
+        if info == 0:
+            P = np.tril(inv)
+            P += np.tril(inv, -1).T
+        else:
+            P = sla.cho_solve((st["L"], True), np.eye(self.n), check_finite=False)
         if self.m:
             W = sla.solve_triangular(st["LA"], st["KiQ"].T, lower=True, check_finite=False)
             P -= W.T @ W

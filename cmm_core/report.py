@@ -17,6 +17,7 @@ from plotly.subplots import make_subplots
 
 from . import __version__
 from . import kinematics as kin
+from .fit import rigid_fit
 
 UM = 1e-3
 AXIS_COLOURS = {"x": "#1f77b4", "y": "#2ca02c", "z": "#d62728"}
@@ -70,21 +71,28 @@ def fig_error_functions(result, names=None, cols: int = 3):
     rows = int(np.ceil(len(names) / cols))
     fig = make_subplots(rows=rows, cols=cols, subplot_titles=names,
                         vertical_spacing=min(0.08, 0.6 / max(rows, 1)))
+    traces, trows, tcols, axes = [], [], [], {}
     for i, name in enumerate(names):
         r, c = i // cols + 1, i % cols + 1
         u, val, band = error_function_curves(result, name)
         colour = AXIS_COLOURS["xyz"[kin.axis_of(name)]]
         if np.isfinite(band).all():
-            fig.add_trace(go.Scatter(x=np.r_[u, u[::-1]], y=np.r_[val + band, (val - band)[::-1]],
+            traces.append(go.Scatter(x=np.r_[u, u[::-1]], y=np.r_[val + band, (val - band)[::-1]],
                                      fill="toself", fillcolor="rgba(120,120,120,0.25)",
                                      line={"width": 0}, hoverinfo="skip", showlegend=i == 0,
-                                     name="95 % band (k = 2)"), row=r, col=c)
-        fig.add_trace(go.Scatter(x=u, y=val, mode="lines", line={"color": colour},
+                                     name="95 % band (k = 2)"))
+            trows.append(r)
+            tcols.append(c)
+        traces.append(go.Scatter(x=u, y=val, mode="lines", line={"color": colour},
                                  name=name, showlegend=False,
-                                 hovertemplate=f"{name}: %{{y:.3f}}<extra></extra>"),
-                      row=r, col=c)
-        fig.update_xaxes(title_text=f"{'xyz'[kin.axis_of(name)]} (mm)", row=r, col=c)
-        fig.update_yaxes(title_text=FUNCTION_UNITS[name[0]], row=r, col=c)
+                                 hovertemplate=f"{name}: %{{y:.3f}}<extra></extra>"))
+        trows.append(r)
+        tcols.append(c)
+        n = "" if i == 0 else str(i + 1)
+        axes[f"xaxis{n}"] = {"title": {"text": f"{'xyz'[kin.axis_of(name)]} (mm)"}}
+        axes[f"yaxis{n}"] = {"title": {"text": FUNCTION_UNITS[name[0]]}}
+    fig.add_traces(traces, rows=trows, cols=tcols)
+    fig.update_layout(axes)
     return _layout(fig, "Fitted error functions with 95 % bands", height=260 * rows)
 
 
@@ -96,7 +104,8 @@ def deviations_plate_frame(result, position: str, probe=None) -> pd.DataFrame:
     """Measured and model-predicted deviations from the (fitted) plate, plate frame, µm.
 
     The fitted placement of the position maps the reported points back to the plate frame;
-    the model-predicted reported point is ``r - residual``.
+    the model-predicted reported point is ``r - residual``. The rigid motion that best aligns
+    the measured points with the nominal ones is removed from both (only the shape shows).
     """
     obs = result.problem.obs
     st = result.state
@@ -114,6 +123,12 @@ def deviations_plate_frame(result, position: str, probe=None) -> pd.DataFrame:
     c = plate[obs.ball[sel]]
     meas = (r - tr) @ R - c
     pred = (r - d * UM - tr) @ R - c
+    # Show the shape, not where the plate sits: remove the rigid motion that best aligns the
+    # measured points with the nominal ones (the same motion is applied to the prediction).
+    if len(c) >= 3:
+        R2, t2 = rigid_fit(c + meas, c)
+        meas = (c + meas) @ R2.T + t2 - c
+        pred = (c + pred) @ R2.T + t2 - c
     out = pd.DataFrame({"ball": t["ball"].to_numpy()[sel], "probe": t["probe"].to_numpy()[sel],
                         "u_mm": c[:, 0], "v_mm": c[:, 1], "w_mm": c[:, 2]})
     for i, a in enumerate("uvw"):
@@ -172,19 +187,24 @@ def fig_pattern(table: pd.DataFrame, values_um, title: str, height: int = 330):
     positions = list(dict.fromkeys(table["position"]))
     palette = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b",
                "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"]
+    traces, tcols = [], []
     for j, pos in enumerate(positions):
         sel = (table["position"] == pos).to_numpy()
         for a in range(3):
-            fig.add_trace(go.Scatter(x=idx[sel], y=values_um[sel, a], mode="markers",
+            traces.append(go.Scatter(x=idx[sel], y=values_um[sel, a], mode="markers",
                                      marker={"size": 5, "color": palette[j % len(palette)]},
                                      name=str(pos), legendgroup=str(pos), showlegend=a == 0,
                                      text=labels[sel],
-                                     hovertemplate="%{text}: %{y:.3f} µm<extra></extra>"),
-                          row=1, col=a + 1)
-    for a in range(3):
-        fig.update_xaxes(title_text="observation (by position)", row=1, col=a + 1)
+                                     hovertemplate="%{text}: %{y:.3f} µm<extra></extra>"))
+            tcols.append(a + 1)
+    fig.add_traces(traces, rows=[1] * len(traces), cols=tcols)
+    fig.update_layout({f"xaxis{'' if a == 0 else a + 1}": {
+        "title": {"text": "observation (by position)"}} for a in range(3)})
     fig.update_yaxes(title_text="µm", row=1, col=1)
-    return _layout(fig, title, height=height)
+    _layout(fig, title, height=height)
+    fig.update_layout(legend={"orientation": "h", "y": 1.12, "x": 1, "xanchor": "right"},
+                      margin={"t": 90})
+    return fig
 
 
 def fig_residual_map(result, component: str = "norm"):
@@ -263,18 +283,19 @@ def fig_placements(dataset, certificate_xyz=None):
     return _layout(fig, "Plate placements in the machine volume (mm)", height=520)
 
 
-def fig_surface_grid(xg, yg, values, *, title: str, unit: str, points=None, colorscale="RdBu_r"):
-    """A heatmap of a quantity over an XY grid (mm) with the measured points on top."""
+def fig_surface_grid(xg, yg, values, *, title: str, unit: str, points=None, colorscale="RdBu_r",
+                     xlabel: str = "X (mm)", ylabel: str = "Y (mm)"):
+    """A heatmap of a quantity over a grid (mm) with the measured points on top."""
     fig = go.Figure(go.Heatmap(x=xg, y=yg, z=values, colorscale=colorscale,
                                colorbar={"title": {"text": unit}},
-                               hovertemplate="X %{x:.0f} mm<br>Y %{y:.0f} mm<br>%{z:.3f} "
+                               hovertemplate="%{x:.0f} mm, %{y:.0f} mm<br>%{z:.3f} "
                                              + unit + "<extra></extra>"))
     if points is not None and len(points):
         fig.add_trace(go.Scatter(x=points[:, 0], y=points[:, 1], mode="markers",
                                  name="measured points",
                                  marker={"size": 5, "color": "black", "symbol": "x"}))
-    fig.update_xaxes(title_text="X (mm)")
-    fig.update_yaxes(title_text="Y (mm)", scaleanchor="x", scaleratio=1)
+    fig.update_xaxes(title_text=xlabel)
+    fig.update_yaxes(title_text=ylabel, scaleanchor="x", scaleratio=1)
     return _layout(fig, title, height=420)
 
 
