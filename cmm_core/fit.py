@@ -587,7 +587,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     status, it = "max_iterations", 0
     d, r, J = weighted_residual(prob, state, sigma_um, True)
     cost = r @ r
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 - `it` reports the iteration count
         step, cov, rank, null = _solve(J, r, C, rank_rtol)
         lam, accepted = 1.0, False
         for _ in range(12):

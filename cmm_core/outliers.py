@@ -78,7 +78,7 @@ def detect_outliers(data: Dataset, *, k: float = 5.0, floor_um: float = 10.0,
     for g, ((pos, probe), sub) in enumerate(groups):
         pl = data.setup.positions[pos]
         local = (sub[["mx_mm", "my_mm", "mz_mm"]].to_numpy() - pl.origin_mm) @ pl.rotation
-        for b, row, src, r in zip(sub["ball"], local, sub["source"], sub["row"], strict=True):
+        for b, row in zip(sub["ball"], local, strict=True):
             tables[g, bidx[b]] = row
         meta.append((pos, probe, dict(zip(sub["ball"], zip(sub["source"], sub["row"],
                                                              strict=True), strict=True))))

@@ -202,8 +202,8 @@ def fig_pattern(table: pd.DataFrame, values_um, title: str, height: int = 330):
         "title": {"text": "observation (by position)"}} for a in range(3)})
     fig.update_yaxes(title_text="µm", row=1, col=1)
     _layout(fig, title, height=height)
-    fig.update_layout(legend={"orientation": "h", "y": 1.12, "x": 1, "xanchor": "right"},
-                      margin={"t": 90})
+    fig.update_layout(legend={"orientation": "h", "y": -0.32, "x": 0},
+                      margin={"t": 60, "b": 90})
     return fig
 
 

@@ -266,9 +266,34 @@ def test_gaussian_process_fit_and_chapter7_comparison():
     assert {"kin_z", "thesis_pct_kin"} <= set(cols)
     if not any(b.key == "fit_gp" for b in at.button):
         pytest.skip("cmm_core.gp_cmm not available")
-    at.button(key="fit_gp").click()
+    at.number_input(key="w_gp_restarts").set_value(0)  # fastest: one optimisation each
     at.run()
+    at.button(key="fit_gp").click()
+    at.run(timeout=300)
     _ok(at)
     hyp = _frame(at, "LOO RMS (µm)")
     assert list(hyp["component"]) == ["x", "y", "z"]
     assert {"gp_minus_meas_um", "gp_z", "thesis_pct_gp"} <= set(_frame(at, "gp_z").columns)
+
+
+def test_uncertainty_monte_carlo_budget_and_mpe():
+    at = _new()
+    at.switch_page("pages/uncertainty.py")
+    at.run()
+    _ok(at)
+    u = _frame(at, "u_x (µm)")
+    assert u["u_x (µm)"].iloc[1] > 0  # U2
+    at.button(key="run_mc").click()
+    at.run()
+    _ok(at)
+    ratio = next(m for m in at.metric if m.label.startswith("Monte Carlo u"))
+    assert 0.8 < float(ratio.value) < 1.2
+    if not any(b.key == "run_budget_mc" for b in at.button):
+        pytest.skip("cmm_core.budget not available")
+    assert any(m.label == "k" for m in at.metric)
+    at.number_input(key="w_b_trials").set_value(50_000)
+    at.button(key="run_budget_mc").click()
+    at.run()
+    _ok(at)
+    assert any("Monte Carlo (50000 trials" in x.value for x in at.success)
+    assert "decision" in _frame(at, "decision").columns

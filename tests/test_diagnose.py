@@ -1,7 +1,6 @@
 """Hidden-effect suite: each catalogue effect hidden from the baseline is named first and
 adding it brings χ²/dof into [0.75, 1.3]; with nothing hidden the verdict is null."""
 
-import numpy as np
 import pytest
 
 from cmm_core.diagnose import diagnose

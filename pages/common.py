@@ -1,0 +1,502 @@
+"""Shared app helpers: session state, cached core wrappers, the sidebar, safe calls.
+
+Pages only gather inputs, call the core through the thin cached wrappers here, and draw.
+Canonical session state lives under plain keys (``spec``, ``order`` ...); widgets use keys
+prefixed ``w_`` and are re-initialised from the canonical state whenever a page renders
+them, so values survive page switches.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+from contextlib import contextmanager, nullcontext  # noqa: F401 - pages use C.nullcontext
+
+import numpy as np
+import pandas as pd
+import streamlit as st
+
+from cmm_core import report as rep  # noqa: F401 - pages use C.rep
+from cmm_core.dataset import THESIS_DIR, THESIS_POSITIONS, load_dataset
+from cmm_core.effects import parse_spec
+from cmm_core.fit import fit as core_fit
+from cmm_core.io import DataError
+from cmm_core.outliers import detect_outliers
+
+DEFAULTS = {
+    "spec": "kinematic21",
+    "order": 2,
+    "plate": "auto",
+    "sigma_um": 0.5,
+    "positions": None,
+    "probes": None,
+    "exclusions": [],
+    "history": [],
+    "magnification": 2000.0,
+    "diag_on": False,
+}
+PLATE_CHOICES = {"auto": "default (certificate fixed if given, else self-calibrated)",
+                 "fixed": "certificate fixed", "prior": "certificate as prior",
+                 "free": "self-calibrated (free)"}
+
+
+# ---------------------------------------------------------------------------------------
+# Optional core modules (landing concurrently): import lazily, None when absent
+# ---------------------------------------------------------------------------------------
+
+def optional(module: str, *names):
+    """Import ``cmm_core.<module>`` and return the named attributes, or None if absent."""
+    try:
+        mod = __import__(f"cmm_core.{module}", fromlist=list(names) or ["_"])
+    except ImportError:
+        return None
+    if not names:
+        return mod
+    try:
+        return tuple(getattr(mod, n) for n in names) if len(names) != 1 else getattr(
+            mod, names[0])
+    except AttributeError:
+        return None
+
+
+def not_available(what: str):
+    st.info(f"{what} is not available yet: the core module is still being written. "
+            "This section fills in as soon as it lands.")
+
+
+# ---------------------------------------------------------------------------------------
+# Errors never become tracebacks
+# ---------------------------------------------------------------------------------------
+
+def describe_error(exc: Exception) -> str:
+    if isinstance(exc, DataError):
+        return str(exc)
+    if isinstance(exc, (ValueError, KeyError)):
+        return str(exc).strip("'\"")
+    return f"{type(exc).__name__}: {exc}"
+
+
+def safe(fn, *args, what: str = "", **kwargs):
+    """Call a core function; on any exception show ``st.error`` and return None."""
+    try:
+        return fn(*args, **kwargs)
+    except Exception as exc:  # noqa: BLE001 - every failure becomes a message
+        st.error(f"{what + ': ' if what else ''}{describe_error(exc)}")
+        return None
+
+
+@contextmanager
+def guarded(what: str):
+    """``with guarded("Drawing"):`` shows a message instead of a traceback."""
+    try:
+        yield
+    except Exception as exc:  # noqa: BLE001 - script control exceptions are BaseException
+        st.error(f"{what}: {describe_error(exc)}")
+
+
+# ---------------------------------------------------------------------------------------
+# Dataset sources (always kept as file content so a project file can restore them)
+# ---------------------------------------------------------------------------------------
+
+def thesis_files() -> dict:
+    meas = [(f"{p}.csv", (THESIS_DIR / f"{p}.csv").read_text()) for p in THESIS_POSITIONS]
+    return {"name": "thesis tables 6.1-6.6", "kind": "thesis", "measurements": meas,
+            "setup": (THESIS_DIR / "setup.json").read_text(),
+            "certificate": ("certificate.csv", (THESIS_DIR / "certificate.csv").read_text())}
+
+
+def files_key(files: dict) -> str:
+    h = hashlib.sha1()
+    h.update(files["name"].encode())
+    for n, c in files["measurements"]:
+        h.update(n.encode() + b"\0" + c.encode() + b"\0")
+    h.update(files["setup"].encode())
+    if files.get("certificate"):
+        h.update(b"cert" + files["certificate"][1].encode())
+    return h.hexdigest()[:16]
+
+
+@st.cache_data(show_spinner=False, max_entries=8)
+def _load(key: str, _files: dict):
+    f = _files
+    meas = [(io.BytesIO(c.encode()), n) for n, c in f["measurements"]]
+    cert = f.get("certificate")
+    cert = (io.BytesIO(cert[1].encode()), cert[0]) if cert else None
+    return load_dataset(meas, io.BytesIO(f["setup"].encode()), cert, name=f["name"])
+
+
+def set_dataset(files: dict, *, reset_model: bool = True):
+    """Make ``files`` the current dataset (raises DataError when it does not load)."""
+    key = files_key(files)
+    _load(key, files)  # validate first: a bad upload keeps the old dataset
+    st.session_state["ds_files"] = files
+    st.session_state["ds_key"] = key
+    if reset_model:
+        for k in ("positions", "probes", "exclusions", "history", "diag_on"):
+            st.session_state[k] = DEFAULTS[k] if not isinstance(DEFAULTS[k], list) else []
+        st.session_state["spec"] = DEFAULTS["spec"]
+        reset_widgets()
+    return key
+
+
+def reset_widgets():
+    for k in list(st.session_state.keys()):
+        if str(k).startswith("w_"):
+            del st.session_state[k]
+
+
+def init_state():
+    """Defaults on first run; the thesis data loaded so a first-time user sees a model."""
+    for k, v in DEFAULTS.items():
+        if k not in st.session_state:
+            st.session_state[k] = list(v) if isinstance(v, list) else v
+    if "ds_files" not in st.session_state:
+        set_dataset(thesis_files())
+
+
+def sync_from_widgets():
+    """Copy widget values (already updated before this run) into the canonical state, so
+    the sidebar, drawn first, shows the settings the page is about to use."""
+    s = st.session_state
+    for k in ("order", "spec", "plate", "sigma_um", "magnification"):
+        if "w_" + k in s:
+            s[k] = s["w_" + k]
+    try:
+        ds = dataset()
+    except Exception:  # noqa: BLE001
+        return
+    for k, allv in (("positions", ds.positions), ("probes", ds.probes)):
+        if "w_" + k in s:
+            sel = list(s["w_" + k])
+            s[k] = None if set(sel) == set(allv) else sel
+
+
+def page_start():
+    """Every page calls this first: state defaults, widget sync, the sidebar."""
+    init_state()
+    sync_from_widgets()
+    sidebar()
+
+
+def toggle_exclusion(trip, widget_key):
+    """Checkbox callback: include or exclude one observation."""
+    s = st.session_state
+    cur = [tuple(e) for e in s["exclusions"] if tuple(e) != tuple(trip)]
+    if s.get(widget_key):
+        cur.append(tuple(trip))
+    s["exclusions"] = sorted(cur)
+
+
+def set_exclusions(trips, on: bool):
+    """Button callback: exclude (or include) all the given observations."""
+    s = st.session_state
+    trips = {tuple(t) for t in trips}
+    cur = {tuple(e) for e in s["exclusions"]}
+    s["exclusions"] = sorted(cur | trips if on else cur - trips)
+    for t in trips:
+        s.pop(f"w_ex_{t[0]}_{t[1]}_{t[2]}", None)
+
+
+def dataset():
+    s = st.session_state
+    return _load(s["ds_key"], s["ds_files"])
+
+
+# ---------------------------------------------------------------------------------------
+# Cached core wrappers (hashable inputs; the dataset travels as an unhashed argument)
+# ---------------------------------------------------------------------------------------
+
+@st.cache_data(show_spinner=False, max_entries=256)
+def cached_fit(key, spec, order, plate, sigma_um, positions, probes, exclude, _ds):
+    return core_fit(_ds, spec, order=order, plate=None if plate == "auto" else plate,
+                    sigma_um=sigma_um, positions=None if positions is None else list(positions),
+                    probes=None if probes is None else list(probes), exclude=exclude)
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
+def cached_outliers(key, _ds):
+    return detect_outliers(_ds)
+
+
+def fit_args(spec=None) -> tuple:
+    s = st.session_state
+    pos = tuple(s["positions"]) if s["positions"] is not None else None
+    prb = tuple(s["probes"]) if s["probes"] is not None else None
+    return (s["ds_key"], spec or s["spec"], int(s["order"]), s["plate"], float(s["sigma_um"]),
+            pos, prb, tuple(tuple(e) for e in s["exclusions"]))
+
+
+def current_fit(spec=None, *, show_error=True):
+    """The fit of the current (or a given) model, or None with a message."""
+    args = fit_args(spec)
+    try:
+        return cached_fit(*args, dataset())
+    except Exception as exc:  # noqa: BLE001
+        if show_error:
+            st.error(f"The fit failed: {describe_error(exc)}")
+        return None
+
+
+@st.cache_data(show_spinner=False, max_entries=64)
+def cached_uncertainty(args, n_random, seed, _result):
+    from cmm_core.uncertainty import evaluate
+    return evaluate(_result, n_random=n_random, seed=seed)
+
+
+@st.cache_resource(show_spinner=False, max_entries=64)
+def cached_gp_discrepancy(args, _result):
+    """Largest GP amplitude (µm) of the residuals the model leaves: the core's
+    ``diagnose.discrepancy_gp`` when present, else an ADAPTER: one GP per residual component
+    over the machine coordinates with the kinematic design as explicit basis
+    (``gp_cmm.gp_components(..., basis=diagnose.kinematic_basis(result))``), amplitude =
+    the largest fitted signal standard deviation."""
+    fn = optional("diagnose", "discrepancy_gp")
+    if fn is not None:
+        return _gp_amplitude(fn(_result))
+    comps_fn = optional("gp_cmm", "gp_components")
+    basis_fn = optional("diagnose", "kinematic_basis")
+    if comps_fn is None or basis_fn is None:
+        return None
+    obs = _result.problem.obs
+    comps = comps_fn(obs.r_mm, _result.residuals_um, basis=basis_fn(_result), restarts=1)
+    amps = [v.get("signal_sd_um") for v in comps.summary().values()]
+    amps = [float(a) for a in amps if a is not None]
+    return max(amps) if amps else None
+
+
+def _gp_amplitude(out) -> float | None:
+    """Largest GP amplitude (µm) from a discrepancy_gp result dict, tolerant of its layout."""
+    if out is None:
+        return None
+    if hasattr(out, "rms_amplitude_um"):
+        return float(out.rms_amplitude_um)
+    if isinstance(out, (int, float)):
+        return float(out)
+    vals = []
+
+    def walk(o):
+        if isinstance(o, dict):
+            for k, v in o.items():
+                if isinstance(v, (int, float)) and "amp" in str(k).lower():
+                    vals.append(float(v))
+                else:
+                    walk(v)
+    walk(out)
+    return max(vals) if vals else None
+
+
+# ---------------------------------------------------------------------------------------
+# Diagnosis (core diagnose when present; ADAPTER otherwise: refit with each candidate)
+# ---------------------------------------------------------------------------------------
+
+def run_diagnosis(progress=None):
+    """Ranked candidates for the current model as a list of dicts (best first).
+
+    Each dict: effect, title, explanation, aliases, separate_by, rms_um, chi2_dof,
+    delta_chi2, delta_bic, p_value, n_params, significant, signature_um (n, 3).
+    """
+    from scipy import stats
+
+    from cmm_core.effects import catalogue_entry
+
+    base = current_fit()
+    if base is None:
+        return None, None
+    args = fit_args()
+    core = optional("diagnose", "diagnose")
+    if core is not None:
+        out = _cached_core_diagnosis(args, dataset())
+        if out is not None:
+            return base, out
+    model = parse_spec(base.spec, default_order=int(st.session_state["order"]))
+    cands = model.candidates()
+    rows = []
+    for i, tok in enumerate(cands):
+        if progress is not None:
+            progress.progress((i + 1) / len(cands), text=f"refitting with {tok} "
+                              f"({i + 1}/{len(cands)})")
+        try:
+            spec = model.with_token(tok).to_string()
+            r = cached_fit(*fit_args(spec), dataset())
+        except Exception:  # noqa: BLE001 - a candidate that cannot be fitted is skipped
+            continue
+        if r.status == "failed":
+            continue
+        dchi = base.chi2 - r.chi2
+        dk = max(r.rank - base.rank, 0)
+        p = float(stats.chi2.sf(dchi, dk)) if dk > 0 and dchi > 0 else 1.0
+        e = catalogue_entry(tok)
+        sig = base.residuals_um - r.residuals_um if len(r.residuals_um) == len(
+            base.residuals_um) else np.zeros_like(base.residuals_um)
+        rows.append({"effect": tok, "title": e.title, "explanation": e.explanation,
+                     "aliases": e.confused_with, "separate_by": e.separate_by,
+                     "rms_um": r.rms_um, "chi2_dof": r.chi2_dof, "delta_chi2": dchi,
+                     "delta_bic": r.bic - base.bic, "p_value": p, "n_params": dk,
+                     "significant": bool(r.bic - base.bic < -6 and p < 0.01 and dk > 0
+                                         and not r.unidentifiable),
+                     "signature_um": sig, "unidentifiable": list(r.unidentifiable)})
+    rows.sort(key=lambda c: c["delta_bic"])
+    return base, rows
+
+
+@st.cache_data(show_spinner="Running the diagnosis…", max_entries=32)
+def _cached_core_diagnosis(args, _ds):
+    fn = optional("diagnose", "diagnose")
+    key, spec, order, plate, sigma, pos, prb, excl = args
+    try:
+        d = fn(_ds, baseline=spec, order=order, plate=None if plate == "auto" else plate,
+               sigma_um=sigma, exclude=excl, positions=None if pos is None else list(pos),
+               probes=None if prb is None else list(prb))
+    except TypeError:
+        return None
+    rows = []
+    for c in d.candidates:
+        rows.append({"effect": c.effect, "title": c.title, "explanation": c.explanation,
+                     "aliases": ", ".join(c.aliases) if isinstance(c.aliases, (list, tuple))
+                     else str(c.aliases), "separate_by": c.separate_by,
+                     "rms_um": c.rms_um, "chi2_dof": c.chi2_dof, "delta_chi2": c.delta_chi2,
+                     "delta_bic": c.delta_bic, "p_value": c.p_value, "n_params": c.n_params,
+                     "significant": bool(c.significant),
+                     "signature_um": np.asarray(c.signature_um, float),
+                     "unidentifiable": []})
+    return rows
+
+
+def history_rows() -> list:
+    """The diagnosis history with each step's fit quality (computed from cached fits)."""
+    s = st.session_state
+    if not s["history"]:
+        s["history"] = [{"spec": s["spec"], "change": "baseline"}]
+    out = []
+    for h in s["history"]:
+        r = current_fit(h["spec"], show_error=False)
+        gp = None
+        if r is not None and s.get("hist_gp"):
+            try:
+                gp = cached_gp_discrepancy(fit_args(h["spec"]), r)
+            except Exception:  # noqa: BLE001
+                gp = None
+        out.append({"spec": h["spec"], "change": h["change"],
+                    "rms_um": None if r is None else round(r.rms_um, 4),
+                    "chi2_dof": None if r is None else round(r.chi2_dof, 3),
+                    "bic": None if r is None else round(r.bic, 1),
+                    "n_params": None if r is None else r.rank,
+                    "gp_amplitude_um": None if gp is None else round(gp, 3)})
+    return out
+
+
+def apply_change(token: str):
+    """Button callback: apply a model token (add/remove an effect) and record it."""
+    s = st.session_state
+    if not s["history"]:
+        s["history"] = [{"spec": s["spec"], "change": "baseline"}]
+    try:
+        new = parse_spec(s["spec"], default_order=int(s["order"])).with_token(token).to_string()
+    except ValueError as exc:
+        s["flash"] = ("error", str(exc))
+        return
+    s["spec"] = new
+    s["history"] = [*s["history"], {"spec": new, "change": token}]
+    s.pop("w_spec", None)
+    s["flash"] = ("success", f"Model is now {new}")
+
+
+def apply_selected(widget_key: str):
+    """Button callback: apply the token currently chosen in a selectbox."""
+    tok = st.session_state.get(widget_key)
+    if tok:
+        apply_change(tok)
+
+
+def undo_change():
+    s = st.session_state
+    if len(s["history"]) > 1:
+        s["history"] = s["history"][:-1]
+        s["spec"] = s["history"][-1]["spec"]
+        s.pop("w_spec", None)
+
+
+def flash():
+    """Show the one-off message of the last action in a slot that is always present, so the
+    elements below keep their place (a tab set below would otherwise reset)."""
+    slot = st.container()
+    msg = st.session_state.pop("flash", None)
+    if msg:
+        getattr(slot, msg[0])(msg[1])
+
+
+# ---------------------------------------------------------------------------------------
+# Widgets bound to canonical state
+# ---------------------------------------------------------------------------------------
+
+def bind(state_key: str, widget_fn, label: str, **kwargs):
+    """A widget (``w_<state_key>``) initialised from and written back to the state."""
+    wk = "w_" + state_key
+    if wk not in st.session_state:
+        st.session_state[wk] = st.session_state[state_key]
+    val = widget_fn(label, key=wk, **kwargs)
+    st.session_state[state_key] = val
+    return val
+
+
+# ---------------------------------------------------------------------------------------
+# Sidebar and page header
+# ---------------------------------------------------------------------------------------
+
+def sidebar():
+    s = st.session_state
+    sb = st.sidebar
+    sb.markdown("### Current analysis")
+    try:
+        ds = dataset()
+    except Exception as exc:  # noqa: BLE001
+        sb.error(describe_error(exc))
+        return
+    sb.markdown(f"**Dataset:** {ds.name}  \n{len(ds.meas)} points, {len(ds.positions)} "
+                f"positions, {len(ds.probes)} probes"
+                + ("" if ds.certificate is not None else ", no certificate"))
+    sb.markdown(f"**Model:** `{s['spec']}`  \norder {s['order']}, plate {s['plate']}, "
+                f"σ = {s['sigma_um']:g} µm")
+    r = current_fit(show_error=False)
+    if r is None:
+        sb.warning("No fit for these settings.")
+    else:
+        c1, c2 = sb.columns(2)
+        c1.metric("RMS (µm)", f"{r.rms_um:.3f}")
+        c2.metric("χ²/dof", f"{r.chi2_dof:.2f}")
+        sb.caption(f"{r.status}; {r.n_obs} observations; rank {r.rank}"
+                   + (f"; {len(r.unidentifiable)} undetermined" if r.unidentifiable else ""))
+    n_ex = len(s["exclusions"])
+    try:
+        flagged = cached_outliers(s["ds_key"], ds).exclusions
+    except Exception:  # noqa: BLE001
+        flagged = []
+    if n_ex:
+        sb.caption(f"{n_ex} observation(s) excluded as outliers.")
+    pending = [f for f in flagged if tuple(f) not in {tuple(e) for e in s["exclusions"]}]
+    if pending:
+        sb.warning(f"{len(pending)} flagged outlier(s) still in the fit (see Data).")
+
+
+def frame_download(df: pd.DataFrame) -> pd.DataFrame:
+    return df
+
+
+def json_text(obj) -> str:
+    return json.dumps(obj, indent=1, default=str)
+
+
+# ---------------------------------------------------------------------------------------
+# Figures: plotly figure construction is slow (validation), so built figures are cached
+# (cache_resource: shared objects, not copied; Streamlit only serialises them).
+# ---------------------------------------------------------------------------------------
+
+@st.cache_resource(show_spinner=False, max_entries=256)
+def _cached_figure(kind: str, key: tuple, _builder, _args):
+    return _builder(*_args)
+
+
+def figure(kind: str, key: tuple, builder, *args):
+    """``builder(*args)``, cached under ``(kind, key)``; key must identify the inputs."""
+    return _cached_figure(kind, key, builder, args)

@@ -1,0 +1,289 @@
+"""Data page: load the thesis tables, upload CSVs, simulate, restore a project; validate."""
+
+import io
+import json
+import tempfile
+from pathlib import Path
+
+import pandas as pd
+import streamlit as st
+
+from cmm_core import io as cio
+from pages import common as C
+
+C.page_start()
+st.title("Data")
+st.caption("Ball-plate measurements, setup and certificate. Files are in mm; the screen "
+           "shows µm.")
+C.flash()
+
+
+def _problem_rows(exc):
+    return {"file": getattr(exc, "file", None) or "", "row": getattr(exc, "row", None),
+            "column": getattr(exc, "column", None) or "",
+            "problem": getattr(exc, "detail", str(exc)), "hint": getattr(exc, "hint", "") or ""}
+
+
+def _validate_upload(meas_files, setup_file, cert_file, use_thesis):
+    """Check every file on its own, then together; return (files dict or None, problems)."""
+    problems = []
+    meas = []
+    for f in meas_files:
+        data = f.getvalue()
+        try:
+            cio.read_measurements(io.BytesIO(data), name=f.name)
+            meas.append((f.name, data.decode("utf-8-sig")))
+        except cio.DataError as exc:
+            problems.append(_problem_rows(exc))
+        except Exception as exc:  # noqa: BLE001
+            problems.append({"file": f.name, "row": None, "column": "",
+                             "problem": C.describe_error(exc), "hint": ""})
+    thesis = C.thesis_files()
+    setup_text, cert = None, None
+    if setup_file is not None:
+        try:
+            setup_text = setup_file.getvalue().decode("utf-8-sig")
+            cio.read_setup(io.StringIO(setup_text), name=setup_file.name)
+        except (cio.DataError, UnicodeDecodeError) as exc:
+            problems.append(_problem_rows(exc) if isinstance(exc, cio.DataError) else
+                            {"file": setup_file.name, "row": None, "column": "",
+                             "problem": "is not UTF-8 text.", "hint": ""})
+    elif use_thesis:
+        setup_text = thesis["setup"]
+    else:
+        problems.append({"file": "setup.json", "row": None, "column": "",
+                         "problem": "no setup given.",
+                         "hint": "upload a setup JSON or tick 'use the thesis setup'."})
+    if cert_file is not None:
+        try:
+            text = cert_file.getvalue().decode("utf-8-sig")
+            cio.read_certificate(io.StringIO(text), name=cert_file.name)
+            cert = (cert_file.name, text)
+        except (cio.DataError, UnicodeDecodeError) as exc:
+            problems.append(_problem_rows(exc) if isinstance(exc, cio.DataError) else
+                            {"file": cert_file.name, "row": None, "column": "",
+                             "problem": "is not UTF-8 text.", "hint": ""})
+    elif use_thesis:
+        cert = thesis["certificate"]
+    if not meas_files:
+        problems.append({"file": "", "row": None, "column": "",
+                         "problem": "no measurement file given.",
+                         "hint": "upload one long-form CSV or one thesis-form CSV per position."})
+    if problems:
+        return None, problems
+    files = {"name": ", ".join(n for n, _ in meas)[:60], "kind": "upload",
+             "measurements": meas, "setup": setup_text, "certificate": cert}
+    try:
+        C._load(C.files_key(files), files)
+    except cio.DataError as exc:
+        return None, [_problem_rows(exc)]
+    except Exception as exc:  # noqa: BLE001
+        return None, [{"file": "", "row": None, "column": "", "problem": C.describe_error(exc),
+                       "hint": ""}]
+    return files, []
+
+
+tab_thesis, tab_upload, tab_sim, tab_proj = st.tabs(
+    ["Thesis sample", "Upload CSVs", "Simulate a virtual CMM", "Project file"])
+
+with tab_thesis:
+    st.write("The six ball-plate tables of thesis chapter 6 (tables 6.1-6.6) with the appendix 5 "
+             "certificate, exactly as printed (including the values that look wrong).")
+    if st.button("Load thesis tables", key="load_thesis"):
+        C.set_dataset(C.thesis_files())
+        st.session_state["flash"] = ("success", "Loaded the thesis tables.")
+        st.rerun()
+
+with tab_upload:
+    st.write("Long form: `position,probe,ball,x_mm,y_mm,z_mm[,time_min,temp_C,repeat]` in one "
+             "file, or thesis form `ball,x_mm,y_mm,z_mm`, one file per position (named by the "
+             "position). Plus the setup JSON and, optionally, the certificate.")
+    up_meas = st.file_uploader("Measurement CSV file(s)", type=["csv", "txt"],
+                               accept_multiple_files=True, key="up_meas")
+    c1, c2 = st.columns(2)
+    up_setup = c1.file_uploader("Setup (JSON)", type=["json"], key="up_setup")
+    up_cert = c2.file_uploader("Certificate (CSV, optional)", type=["csv", "txt"],
+                               key="up_cert")
+    use_thesis = st.checkbox("Use the thesis setup and certificate for files not uploaded",
+                             value=True, key="use_thesis_setup")
+    if st.button("Load uploaded files", key="load_upload", type="primary"):
+        files, problems = _validate_upload(up_meas or [], up_setup, up_cert, use_thesis)
+        if problems:
+            st.error(f"Validation found {len(problems)} problem(s); the current dataset is "
+                     "unchanged.")
+            st.dataframe(pd.DataFrame(problems), hide_index=True, key="upload_problems")
+        else:
+            C.set_dataset(files)
+            st.session_state["flash"] = ("success", f"Loaded {len(files['measurements'])} "
+                                         "uploaded file(s).")
+            st.rerun()
+
+with tab_sim:
+    st.write("A virtual CMM with known errors measuring the thesis placements: choose the "
+             "noise, the plate form, hidden effects and the measurement order; the truth is "
+             "kept for comparison.")
+    c1, c2, c3, c4 = st.columns(4)
+    seed = c1.number_input("Seed", 0, 10_000, 0, key="sim_seed")
+    noise = c2.number_input("Noise σ (µm)", 0.0, 10.0, 0.5, 0.1, key="sim_noise")
+    rnd_um = c3.number_input("Translational errors (µm, 1σ)", 0.0, 50.0, 1.0, key="sim_rum")
+    rnd_urad = c4.number_input("Rotational errors (µrad, 1σ)", 0.0, 50.0, 1.0, key="sim_rurad")
+    c1, c2, c3, c4 = st.columns(4)
+    form = c1.number_input("Plate form (µm, 1σ)", 0.0, 20.0, 2.0, key="sim_form")
+    order = c2.selectbox("Measurement order", ["row", "serpentine", "random"], key="sim_order")
+    korder = c3.selectbox("Polynomial order of the true errors", [1, 2, 3, 4, 5], index=1,
+                          key="sim_korder")
+    interleave = c4.checkbox("Probes interleaved", key="sim_interleave")
+    st.markdown("**Hidden effects**")
+    e1, e2, e3, e4 = st.columns(4)
+    eff = {}
+    if e1.checkbox("Plate thermal expansion", key="sim_thermal"):
+        eff["plate_thermal"] = {"cte_per_K": 11.5e-6}
+    if e2.checkbox("Plate sag", key="sim_sag"):
+        eff["plate_sag"] = {"uu": e2.number_input("sag uu (µm)", -20.0, 20.0, 3.0,
+                                                  key="sim_sag_uu"), "uv": 0.0,
+                            "vv": e2.number_input("sag vv (µm)", -20.0, 20.0, 3.0,
+                                                  key="sim_sag_vv")}
+    if e3.checkbox("Probe offset errors", key="sim_probe"):
+        eff["probe_offset"] = {"sd_um": e3.number_input("sd (µm)", 0.0, 20.0, 2.0,
+                                                        key="sim_probe_sd")}
+    if e4.checkbox("Drift", key="sim_drift"):
+        eff["drift"] = {"sd_um_per_h": e4.number_input("sd (µm/h)", 0.0, 50.0, 2.0,
+                                                       key="sim_drift_sd")}
+    if st.button("Simulate", key="simulate", type="primary"):
+        from cmm_core.simulate import simulate
+
+        cfg = {"seed": int(seed), "noise_um": float(noise), "order": order,
+               "probes_interleaved": bool(interleave),
+               "plate": {"form_um": float(form)},
+               "kinematic": {"order": int(korder), "random_um": float(rnd_um),
+                             "random_urad": float(rnd_urad)},
+               "effects": eff}
+        sim = C.safe(simulate, cfg, what="Simulation")
+        if sim is not None:
+            with tempfile.TemporaryDirectory() as tmp:
+                sim.write(tmp)
+                p = Path(tmp)
+                files = {"name": f"simulated (seed {int(seed)})", "kind": "simulated",
+                         "measurements": [("measurements.csv",
+                                           (p / "measurements.csv").read_text())],
+                         "setup": (p / "setup.json").read_text(),
+                         "certificate": ("certificate.csv", (p / "certificate.csv").read_text())}
+            ok = C.safe(C.set_dataset, files, what="Loading the simulation")
+            if ok is not None:
+                st.session_state["sim_truth"] = {"key": C.files_key(files),
+                                                 "truth": sim.truth, "config": cfg}
+                st.session_state["flash"] = ("success", "Simulated dataset loaded. The true "
+                                             "parameters are on the Kinematic model page.")
+                st.rerun()
+
+with tab_proj:
+    st.write("A project file (JSON, from *Compensate and export*) restores the dataset, model, "
+             "exclusions and diagnosis history.")
+    up_proj = st.file_uploader("Project file (JSON)", type=["json"], key="up_project")
+    if st.button("Restore project", key="restore_project", disabled=up_proj is None):
+        from cmm_core.export import project_from_json
+
+        doc = C.safe(project_from_json, up_proj.getvalue(), up_proj.name,
+                     what="Reading the project")
+        if doc is not None:
+            files = {"name": doc["dataset_name"], "kind": "project",
+                     "measurements": doc["measurements"], "setup": doc["setup"],
+                     "certificate": doc["certificate"]}
+            try:
+                C.set_dataset(files)
+            except Exception as exc:  # noqa: BLE001
+                st.error(f"The project's dataset does not load: {C.describe_error(exc)}")
+            else:
+                m = doc["model"]
+                s = st.session_state
+                for k in ("spec", "order", "plate", "sigma_um", "positions", "probes"):
+                    if k in m:
+                        s[k] = m[k]
+                s["exclusions"] = [list(e) for e in doc["exclusions"]]
+                s["history"] = [{"spec": h.get("spec", s["spec"]),
+                                 "change": h.get("change", "")} for h in doc["history"]
+                                if isinstance(h, dict)]
+                C.reset_widgets()
+                s["flash"] = ("success", f"Restored project '{doc['dataset_name']}'.")
+                st.rerun()
+
+# ---------------------------------------------------------------------------------------
+# The current dataset: validation report
+# ---------------------------------------------------------------------------------------
+ds = C.safe(C.dataset, what="Loading the dataset")
+if ds is None:
+    st.stop()
+s = st.session_state
+st.header(f"Current dataset: {ds.name}")
+m = ds.meas
+c1, c2, c3, c4 = st.columns(4)
+c1.metric("Probed ball centres", len(m))
+c2.metric("Positions", len(ds.positions))
+c3.metric("Probes", len(ds.probes))
+c4.metric("Certificate", "yes" if ds.certificate is not None else "no")
+
+st.subheader("Validation report")
+counts = (m.groupby(["position", "probe"], sort=False).agg(
+    balls=("ball", "nunique"), points=("ball", "size"), source=("source", "first"))
+    .reset_index())
+span = m.groupby("position", sort=False)[["mx_mm", "my_mm", "mz_mm"]].agg(
+    lambda v: v.max() - v.min())
+counts = counts.merge(span.rename(columns=lambda c: f"span_{c[1]}_mm").reset_index(),
+                      on="position")
+st.dataframe(counts, hide_index=True, key="validation_counts")
+problems = []
+for pos, probe, miss in cio.missing_balls(m, ds.certificate):
+    problems.append(f"{pos}/{probe}: missing ball(s) {', '.join(map(str, miss))}")
+big = span.max(axis=1)
+for pos, v in big.items():
+    if v < 50:
+        problems.append(f"{pos}: the balls span only {v:.1f} mm; check the units (mm).")
+if problems:
+    for p in problems:
+        st.warning(p)
+else:
+    st.success("Units look like mm; every position has every ball of the certificate; no "
+               "duplicates.")
+
+st.subheader("Outliers (robust median/MAD across positions)")
+rep = C.safe(C.cached_outliers, s["ds_key"], ds, what="Outlier detection")
+if rep is not None:
+    st.caption(f"Reference: {rep.reference}. Robust σ per axis: "
+               + ", ".join(f"{a} {v:.2f} µm" for a, v in rep.scale_um.items())
+               + "; threshold: " + ", ".join(f"{a} {v:.1f} µm"
+                                             for a, v in rep.threshold_um.items()) + ".")
+    if not rep.outliers:
+        st.success("No coordinate is flagged.")
+    else:
+        st.warning(f"{len(rep.outliers)} coordinate(s) flagged. They stay in the fit until you "
+                   "tick them; nothing is dropped silently.")
+        current = {tuple(e) for e in s["exclusions"]}
+        flagged = rep.exclusions
+        bcols = st.columns([1, 1, 4])
+        bcols[0].button("Exclude all flagged", key="exclude_all", on_click=C.set_exclusions,
+                        args=(flagged, True))
+        bcols[1].button("Include all", key="include_all", on_click=C.set_exclusions,
+                        args=(flagged, False))
+        by_obs = {}
+        for o in rep.outliers:
+            by_obs.setdefault((o["position"], o["probe"], o["ball"]), []).append(o)
+        for trip, os_ in by_obs.items():
+            wk = f"w_ex_{trip[0]}_{trip[1]}_{trip[2]}"
+            if wk not in s:
+                s[wk] = trip in current
+            detail = "; ".join(f"{o['axis']} {o['deviation_um']:+.1f} µm (z {o['robust_z']:+.1f})"
+                               for o in os_)
+            src = os_[0]
+            label = (f"Exclude {trip[0]} probe {trip[1]} ball {trip[2]}: {detail} "
+                     f"[{src['source']}, row {src['row']}]")
+            st.checkbox(label, key=wk, on_change=C.toggle_exclusion, args=(trip, wk))
+
+st.subheader("Placements in the machine volume")
+with C.guarded("3D view"):
+    st.plotly_chart(C.figure("placements", (s["ds_key"],), C.rep.fig_placements, ds),
+                    key="fig_placements")
+
+with st.expander("Measurements (as read, mm)"):
+    st.dataframe(m, hide_index=True, key="meas_table")
+with st.expander("Setup (JSON)"):
+    st.code(json.dumps(ds.setup.raw, indent=1), language="json")

@@ -1,0 +1,166 @@
+"""Compare and diagnose: where the model fails, which effect is missing, add it, watch."""
+
+import numpy as np
+import pandas as pd
+import streamlit as st
+
+from cmm_core.effects import parse_spec
+from pages import common as C
+
+C.page_start()
+st.title("Compare and diagnose")
+st.caption("The model against the measurements: where it fails, which physical effect the "
+           "residuals point to, and what adding it does to RMS, χ²/dof, BIC and the GP "
+           "discrepancy.")
+C.flash()
+ds = C.safe(C.dataset, what="Loading the dataset")
+if ds is None:
+    st.stop()
+s = st.session_state
+r = C.current_fit()
+if r is None:
+    st.stop()
+
+c = st.columns(4)
+c[0].metric("Model", r.spec if len(r.spec) < 28 else r.spec[:25] + "…")
+c[1].metric("RMS residual", f"{r.rms_um:.3f} µm")
+c[2].metric("χ²/dof", f"{r.chi2_dof:.2f}")
+c[3].metric("BIC", f"{r.bic:.1f}")
+
+st.subheader("Where the model fails")
+t_pat, t_map, t_tab, t_time = st.tabs(["Residual pattern", "Residual map (3D)",
+                                       "Per position and probe", "Against time"])
+with t_pat, C.guarded("Residual pattern"):
+    st.plotly_chart(C.figure("pattern", C.fit_args(), C.rep.fig_pattern, r.table,
+                             r.residuals_um, "Residuals per observation (µm)"),
+                    key="diag_resid")
+with t_map, C.guarded("Residual map"):
+    comp = st.radio("Component", ["norm", "x", "y", "z"], horizontal=True, key="w_map_comp")
+    st.plotly_chart(C.figure("resmap", (C.fit_args(), comp), C.rep.fig_residual_map, r, comp),
+                    key="diag_map")
+with t_tab, C.guarded("Residual table"):
+    res_mod = C.optional("residuals")
+    if res_mod is not None and hasattr(res_mod, "breakdown"):
+        by = st.radio("Group by", ["position", "probe", "ball"], horizontal=True,
+                      key="w_breakdown_by")
+        st.dataframe(res_mod.breakdown(r, by), hide_index=True, key="diag_breakdown")
+        st.caption("RMS per axis in µm; χ² against σ and its share of the total.")
+        if hasattr(res_mod, "position_trends") and ds.certificate is not None:
+            st.markdown("**Each position against the certificate** (own scale and "
+                        "out-of-plane bowl)")
+            st.dataframe(res_mod.position_trends(ds, exclude=C.fit_args()[-1]),
+                         hide_index=True, key="diag_trends")
+    else:
+        st.dataframe(C.rep.residual_summary(r), hide_index=True, key="diag_resid_summary")
+        st.caption("RMS of the residual components in µm.")
+with t_time, C.guarded("Residuals against time"):
+    rf = r.residuals_frame()
+    if "time_min" in rf and rf["time_min"].notna().all():
+        import plotly.express as px
+
+        long = rf.melt(id_vars=["position", "probe", "ball", "time_min"],
+                       value_vars=["rx_um", "ry_um", "rz_um"], var_name="axis",
+                       value_name="residual_um")
+        fig = px.scatter(long, x="time_min", y="residual_um", color="position",
+                         facet_col="axis", labels={"time_min": "time (min)",
+                                                   "residual_um": "residual (µm)"})
+        st.plotly_chart(fig, key="diag_time")
+    else:
+        st.info("No time_min column: the measurement order is the row order of the files "
+                "(the drift effect assumes one minute per ball).")
+
+st.subheader("Which effect is missing?")
+cols = st.columns([1, 1, 4])
+if cols[0].button("Run the diagnosis", key="run_diagnosis", type="primary"):
+    s["diag_on"] = True
+if cols[1].button("Hide", key="hide_diagnosis"):
+    s["diag_on"] = False
+
+if s["diag_on"]:
+    bar = st.progress(0.0, text="Scoring candidate effects…")
+    base, cands = C.run_diagnosis(bar)
+    bar.empty()
+    if cands is None:
+        st.stop()
+    if not cands:
+        st.info("No candidate effect left to try.")
+    else:
+        best = cands[0]
+        if best["significant"]:
+            st.success(f"Most likely missing: **{best['title']}** (`{best['effect']}`): "
+                       f"ΔBIC {best['delta_bic']:.1f}, p = {best['p_value']:.2g}.")
+        else:
+            st.info("No candidate is significant: either the data are explained to noise "
+                    "(χ²/dof near 1) or the misfit has a cause outside the catalogue "
+                    "(check the outliers on the Data page and the residual map).")
+        table = pd.DataFrame([{k: v for k, v in c_.items() if k not in (
+            "signature_um", "explanation", "unidentifiable")} for c_ in cands])
+        st.dataframe(table, hide_index=True, key="diag_table",
+                     column_config={"rms_um": st.column_config.NumberColumn("RMS (µm)",
+                                                                            format="%.3f"),
+                                    "chi2_dof": st.column_config.NumberColumn("χ²/dof",
+                                                                              format="%.2f"),
+                                    "delta_bic": st.column_config.NumberColumn("ΔBIC",
+                                                                               format="%.1f"),
+                                    "delta_chi2": st.column_config.NumberColumn(
+                                        "Δχ²", format="%.1f"),
+                                    "p_value": st.column_config.NumberColumn("p",
+                                                                             format="%.2g")})
+        n_show = st.slider("Candidates to show in detail", 1, min(10, len(cands)),
+                           min(3, len(cands)), key="w_n_show")
+        for i, c_ in enumerate(cands[:n_show]):
+            with st.container(border=True):
+                h1, h2 = st.columns([5, 1])
+                h1.markdown(f"**{i + 1}. {c_['title']}** (`{c_['effect']}`): RMS "
+                            f"{c_['rms_um']:.3f} µm, χ²/dof {c_['chi2_dof']:.2f}, ΔBIC "
+                            f"{c_['delta_bic']:.1f}, p = {c_['p_value']:.2g}"
+                            + (" — significant" if c_["significant"] else ""))
+                h2.button("Add this effect", key=f"add_{c_['effect']}",
+                          on_click=C.apply_change, args=(c_["effect"],), type="primary"
+                          if c_["significant"] else "secondary")
+                st.write(c_["explanation"])
+                aliases = c_["aliases"]
+                if aliases:
+                    st.caption(f"Aliases with this data: {aliases}. To separate them: "
+                               f"{c_['separate_by']}")
+                else:
+                    st.caption(f"To confirm it: {c_['separate_by']}")
+                if st.toggle("Show residuals beside its signature", value=i == 0,
+                             key=f"w_sig_{c_['effect']}"):
+                    f1, f2 = st.columns(2)
+                    f1.plotly_chart(C.figure("pattern_small", C.fit_args(), C.rep.fig_pattern,
+                                             base.table, base.residuals_um,
+                                             "Residual pattern (µm)", 300),
+                                    key=f"sig_res_{c_['effect']}")
+                    f2.plotly_chart(C.figure("signature", (C.fit_args(), c_["effect"]),
+                                             C.rep.fig_pattern, base.table, c_["signature_um"],
+                                             f"Signature of {c_['effect']} (µm)", 300),
+                                    key=f"sig_{c_['effect']}")
+
+st.subheader("History")
+st.checkbox("Also compute the GP discrepancy amplitude of each step (a GP over the "
+            "residuals with the kinematic model as basis; slow: up to minutes per step on "
+            "150 points)", key="hist_gp")
+with st.spinner("Fitting the GP discrepancy…") if s.get("hist_gp") else C.nullcontext():
+    hist = C.history_rows()
+c1, c2 = st.columns([3, 2])
+with c1, C.guarded("History chart"):
+    st.plotly_chart(C.figure("history", tuple(tuple(sorted(h.items())) for h in hist),
+                             C.rep.fig_history, hist), key="diag_history")
+with c2:
+    st.dataframe(pd.DataFrame(hist), hide_index=True, key="history_table")
+    if all(h["gp_amplitude_um"] is None for h in hist):
+        st.caption("GP discrepancy amplitude (µm): tick the box above to compute it.")
+    model = parse_spec(s["spec"], default_order=int(s["order"]))
+    removable = [f"-{e}" for e in model.effects] + [f"-{n}" for n, _ in model.active]
+    rm = st.selectbox("Remove from the model", removable, key="w_remove") if removable else None
+    b1, b2 = st.columns(2)
+    b1.button("Remove", key="remove_effect", disabled=rm is None, on_click=C.apply_selected,
+              args=("w_remove",))
+    b2.button("Undo last step", key="undo_step", disabled=len(s["history"]) < 2,
+              on_click=C.undo_change)
+
+with st.expander("Residual vectors at the worst observations"):
+    rf = r.residuals_frame()
+    rf["norm_um"] = np.linalg.norm(r.residuals_um, axis=1)
+    st.dataframe(rf.nlargest(15, "norm_um"), hide_index=True, key="diag_worst")

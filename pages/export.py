@@ -1,0 +1,161 @@
+"""Compensate and export: correct points; download results, report and project file."""
+
+import io
+
+import numpy as np
+import pandas as pd
+import streamlit as st
+
+from cmm_core import export as ex
+from cmm_core import report as rep
+from pages import common as C
+
+C.page_start()
+st.title("Compensate and export")
+ds = C.safe(C.dataset, what="Loading the dataset")
+if ds is None:
+    st.stop()
+s = st.session_state
+r = C.current_fit()
+if r is None:
+    st.stop()
+args = C.fit_args()
+obs = r.problem.obs
+
+st.subheader("Correct measured points")
+st.write("Upload reported tip centres `probe,x_mm,y_mm,z_mm` (machine axes, mm; extra columns "
+         "are kept). Each gets the corrected point `xc_mm, yc_mm, zc_mm` (reported + error) "
+         "and the standard uncertainty of the correction in µm.")
+up = st.file_uploader("Points to correct (CSV)", type=["csv", "txt"], key="up_points")
+use_example = st.checkbox("Use example points (the measured ball centres of this dataset)",
+                          value=up is None, key="w_points_example")
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
+def corrected(args, content_key, _points, _r):
+    return ex.compensate_points(_r, _points)
+
+
+points = None
+if up is not None and not use_example:
+    points = C.safe(ex.read_points, io.BytesIO(up.getvalue()), up.name, what="Points file")
+    ckey = (up.name, len(up.getvalue()), hash(up.getvalue()))
+elif use_example:
+    t = r.table
+    points = pd.DataFrame({"probe": t["probe"].astype(str), "x_mm": t["mx_mm"],
+                           "y_mm": t["my_mm"], "z_mm": t["mz_mm"],
+                           "position": t["position"], "ball": t["ball"]}).head(50)
+    ckey = "example"
+corr = None
+if points is not None:
+    corr = C.safe(corrected, args, ckey, points, r, what="Compensation")
+if corr is not None:
+    view = corr.copy()
+    for a in "xyz":
+        view[f"e{a}_um"] = (view[f"{a}c_mm"] - view[f"{a}_mm"]) * 1e3
+    st.dataframe(view, hide_index=True, key="corrected_table",
+                 column_config={c: st.column_config.NumberColumn(format="%.5f")
+                                for c in view.columns if c.endswith("_mm")}
+                 | {c: st.column_config.NumberColumn(format="%.3f")
+                    for c in view.columns if c.endswith("_um")})
+    st.download_button("Download corrected points (CSV)",
+                       ex.safe_csv(corr, float_format="%.6f"), "corrected_points.csv",
+                       "text/csv", key="dl_corrected", on_click="ignore")
+
+st.subheader("Downloads")
+c1, c2, c3 = st.columns(3)
+c1.download_button("Fitted parameters with uncertainties (CSV)", ex.parameters_csv(r),
+                   "parameters.csv", "text/csv", key="dl_parameters", on_click="ignore")
+c2.download_button("Residuals (CSV)", ex.residuals_csv(r), "residuals.csv", "text/csv",
+                   key="dl_residuals", on_click="ignore")
+
+with st.container(border=True):
+    st.markdown("**Error-map grid** (ISG-style compensation table: machine coordinates with "
+                "e_x, e_y, e_z and their standard uncertainties in µm)")
+    g1, g2 = st.columns(2)
+    step = g1.number_input("Grid step (mm)", 10.0, 500.0, 100.0, step=10.0, key="w_grid_step")
+    gprobe = g2.selectbox("Probe", obs.probes, key="w_grid_probe")
+
+    @st.cache_data(show_spinner="Computing the grid…", max_entries=16)
+    def grid_csv(args, step, probe, _r):
+        g = ex.error_map_grid(_r, step_mm=step, probe=probe)
+        return ex.error_map_csv(_r, g, probe), len(g)
+
+    out = C.safe(grid_csv, args, float(step), gprobe, r, what="Error map")
+    if out is not None:
+        text, n_nodes = out
+        st.caption(f"{n_nodes} grid nodes over the working volume "
+                   f"{' × '.join(f'{v:g}' for v in obs.range_mm)} mm.")
+        st.download_button("Download error-map grid (CSV)", text, "error_map.csv", "text/csv",
+                           key="dl_grid", on_click="ignore")
+
+
+def _history_for_export():
+    return C.history_rows()
+
+
+@st.cache_data(show_spinner=False, max_entries=8)
+def report_html(args, hist_key, mag, diag_key, _ds, _r, _hist, _excl, _diag):
+    from cmm_core.uncertainty import evaluate
+
+    try:
+        unc = evaluate(_r)
+    except Exception:  # noqa: BLE001 - the report still has everything else
+        unc = None
+    return rep.build_report(_ds, _r, exclusions=_excl, history=_hist, uncertainty=unc,
+                            diagnosis=_diag, magnification=mag)
+
+
+hist = _history_for_export()
+hist_key = tuple((h["spec"], h["change"]) for h in hist)
+excl = [tuple(e) for e in s["exclusions"]]
+mag = float(s["magnification"])
+diag_df = None
+if s["diag_on"]:  # the diagnosis the user ran goes into the report (cached: no recompute)
+    _, _rows = C.run_diagnosis()
+    if _rows:
+        diag_df = pd.DataFrame([{k: v for k, v in c_.items() if k not in (
+            "signature_um", "explanation", "unidentifiable")} for c_ in _rows])
+
+
+def _report_bytes():
+    # runs on a separate thread when clicked: only local values, no session state
+    return report_html(args, hist_key, mag, diag_df is not None, ds, r, hist, excl,
+                       diag_df).encode("utf-8")
+
+
+c3.download_button("HTML report (self-contained)", _report_bytes, "cmm_report.html",
+                   "text/html", key="dl_report", on_click="ignore",
+                   help="Summary, figures (plotly embedded inline, no network needed), "
+                        "parameter and residual tables.")
+
+
+_files = s["ds_files"]
+_model = {"spec": s["spec"], "order": int(s["order"]), "plate": s["plate"],
+          "sigma_um": float(s["sigma_um"]), "positions": s["positions"], "probes": s["probes"]}
+
+
+def _project_text():
+    # runs on a separate thread when clicked: only local values, no session state
+    return ex.project_to_json(
+        dataset_name=_files["name"], measurements=_files["measurements"],
+        setup=_files["setup"], certificate=_files.get("certificate"), model=_model,
+        exclusions=excl, history=hist)
+
+
+model_mod = C.optional("compensate", "model_to_dict")
+if model_mod is not None:
+    import json
+
+    c3.download_button("Fitted model (JSON, for `cmm_core compensate`)",
+                       lambda: json.dumps(model_mod(r), indent=1), "cmm_model.json",
+                       "application/json", key="dl_model", on_click="ignore")
+c1.download_button("Project file (JSON)", _project_text, "cmm_project.json",
+                   "application/json", key="dl_project", on_click="ignore",
+                   help="Restores the dataset, model, exclusions and history on the Data page.")
+c2.caption(f"Model `{r.spec}`, RMS {r.rms_um:.3f} µm, {r.n_obs} observations, "
+           f"{len(excl)} excluded. CSV files are safe to open in a spreadsheet (text cells "
+           "that could be formulas are prefixed with an apostrophe).")
+if np.isnan(r.u).any():
+    st.warning("Some parameters are not determined by the data: their uncertainties are "
+               "empty in the exports.")

@@ -1,0 +1,228 @@
+"""Gaussian process page: GP surfaces beside the kinematic model, and the chapter 7
+comparison (kinematic vs GP vs measurement) done honestly."""
+
+import numpy as np
+import pandas as pd
+import streamlit as st
+
+from pages import common as C
+
+C.page_start()
+st.title("Gaussian process")
+st.caption("A GP over the measured errors at the ball centres (thesis chapter 5): zero mean, "
+           "quadratic mean (eq. 5.11) or the kinematic model as mean; squared-exponential "
+           "kernel, isotropic or ARD.")
+ds = C.safe(C.dataset, what="Loading the dataset")
+if ds is None:
+    st.stop()
+s = st.session_state
+r = C.current_fit()
+if r is None:
+    st.stop()
+UM = 1e-3
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
+def measured_errors(args, _ds):
+    """Measured error at every observation: minus the residual of a rigid-placement-only
+    fit (µm, machine axes), with the points (tip centres, mm) and placements removed."""
+    key, spec, order, plate, sigma, pos, prb, excl = args
+    rig = C.cached_fit(key, "rigid", order, plate, sigma, pos, prb, excl, _ds)
+    obs = rig.problem.obs
+    return obs.r_mm, -rig.residuals_um, rig.table[["position", "probe", "ball"]]
+
+
+@st.cache_data(show_spinner=False, max_entries=32)
+def kinematic_at_observations(args, _r):
+    """Kinematic error predicted at the observations in the same rigid-aligned sense as the
+    measured error (measured + residual), with its standard uncertainty."""
+    from cmm_core.uncertainty import error_at
+
+    obs = _r.problem.obs
+    u = np.full(_r.residuals_um.shape, np.nan)
+    for i, q in enumerate(obs.probes):
+        sel = obs.probe == i
+        _, u[sel] = error_at(_r, obs.r_mm[sel] - obs.p_mm[sel], q)
+    return u
+
+
+@st.cache_resource(show_spinner=False, max_entries=48)
+def fit_gp_component(args, mean, kernel, restarts, comp, _points, _values):
+    """One component's GP (cached per component so a progress bar can show between them
+    and a changed input cancels the rest)."""
+    fn = C.optional("gp_cmm", "gp_components")
+    return fn(_points, np.asarray(_values, float)[:, None], mean=mean, kernel=kernel,
+              seed=comp, restarts=restarts)
+
+
+@st.cache_resource(show_spinner=False, max_entries=128)
+def gp_predict(args, mean, kernel, comp, grid_key, _comp, _grid):
+    fn = C.optional("gp_cmm", "predict_grid")
+    m, sd = fn(_comp, _grid)
+    return np.asarray(m, float)[:, 0], np.asarray(sd, float)[:, 0]
+
+
+def fit_gp_all(args, mean, kernel, restarts, points, target):
+    """The three component GPs with a progress bar."""
+    bar = st.progress(0.0, text="Fitting the GP (hyperparameters by marginal likelihood)…")
+    comps = []
+    for c_ in range(3):
+        bar.progress(c_ / 3, text=f"Fitting the GP for e{'xyz'[c_]} ({c_ + 1}/3)…")
+        comps.append(fit_gp_component(args, mean, kernel, restarts, c_, points,
+                                      target[:, c_]))
+    bar.empty()
+    return comps
+
+
+def predict_all(args, mean, kernel, grid_key, comps, grid):
+    out = [gp_predict(args, mean, kernel, c_, grid_key, comps[c_], grid) for c_ in range(3)]
+    return np.column_stack([o[0] for o in out]), np.column_stack([o[1] for o in out])
+
+
+args = C.fit_args()
+pts, err, meta = measured_errors(args, ds)
+u_kin = kinematic_at_observations(args, r)
+# rows of the kinematic fit and the rigid fit are the same selection, same order
+pred_kin = err + r.residuals_um
+
+c1, c2, c3, c4, c5 = st.columns([3, 2, 2, 2, 1])
+MEANS = {"zero": "zero", "thesis_quadratic": "quadratic (eq. 5.11)",
+         "kinematic": "kinematic model"}
+mean_choice = c1.radio("GP mean", list(MEANS), horizontal=True, key="w_gp_mean",
+                       format_func=MEANS.get)
+kernel = c2.radio("Kernel", ["se_iso", "se_ard"], horizontal=True, key="w_gp_kernel",
+                  format_func={"se_iso": "SE isotropic", "se_ard": "SE ARD"}.get)
+position = c3.selectbox("Plate position (surface plane)", r.problem.obs.positions,
+                        key="w_gp_position")
+comp = c4.radio("Component", ["x", "y", "z"], horizontal=True, key="w_gp_comp")
+restarts = int(c5.number_input("Restarts", 0, 10, 1, key="w_gp_restarts",
+                               help="Random restarts of the hyperparameter optimisation per "
+                                    "component (more: slower, less risk of a local optimum)."))
+a = "xyz".index(comp)
+
+# Grid over the plate plane of the chosen position (plate u, v -> machine coordinates).
+obs = r.problem.obs
+k = obs.positions.index(position)
+R, t = r.state["R"][k], r.state["t"][k]
+plate = r.state.get("c", obs.plate0_mm)
+n = 21
+uu = np.linspace(plate[:, 0].min(), plate[:, 0].max(), n)
+vv = np.linspace(plate[:, 1].min(), plate[:, 1].max(), n)
+U, V = np.meshgrid(uu, vv)
+grid_plate = np.column_stack([U.ravel(), V.ravel(), np.zeros(U.size)])
+grid_m = grid_plate @ R.T + t
+sel = (meta["position"] == position).to_numpy()
+probe_k = str(meta["probe"][sel].iloc[0])
+pk = obs.p_mm[sel][0]
+from cmm_core.uncertainty import error_at  # noqa: E402
+
+e_kin_grid, u_kin_grid = error_at(r, grid_m - pk, probe_k)
+# remove the part the placement absorbs: align the kinematic surface like the data
+e_at_obs, _ = error_at(r, obs.r_mm[sel] - pk, probe_k)
+offset = np.mean(pred_kin[sel] - e_at_obs, axis=0)
+e_kin_grid = e_kin_grid + offset
+pts_plate = (pts[sel] - t) @ R
+
+gp_mod = C.optional("gp_cmm", "gp_components", "predict_grid")
+cols = st.columns(3)
+with cols[0], C.guarded("Kinematic surface"):
+    st.plotly_chart(C.rep.fig_surface_grid(uu, vv, e_kin_grid[:, a].reshape(n, n),
+                                           title=f"Kinematic model e{comp} (µm)", unit="µm",
+                                           points=pts_plate, xlabel="plate u (mm)", ylabel="plate v (mm)"),
+                    key="gp_kin_surface")
+gp_mean_obs = gp_sd_obs = None
+if gp_mod is not None and not s.get("gp_on"):
+    with cols[1]:
+        st.info("Fitting the GP optimises its hyperparameters by marginal likelihood for each "
+                "error component; it can take several seconds. Once fitted, it refits "
+                "whenever an input changes (changing an input again cancels the fit).")
+        if st.button("Fit the GP", key="fit_gp", type="primary"):
+            s["gp_on"] = True
+            st.rerun()
+if gp_mod is None:
+    for c_ in cols[1:]:
+        with c_:
+            C.not_available("The Gaussian process (cmm_core.gp_cmm)")
+elif s.get("gp_on"):
+    with C.guarded("Gaussian process"):
+        target = err - pred_kin if mean_choice == "kinematic" else err
+        gmean = "zero" if mean_choice == "kinematic" else mean_choice
+        comps = fit_gp_all(args, gmean, kernel, restarts, pts, target)
+        gkey = (gmean, kernel, restarts)
+        gm, gsd = predict_all(args, gkey, kernel, f"{position}-{n}", comps, grid_m)
+        om, osd = predict_all(args, gkey, kernel, "obs", comps, pts)
+        if mean_choice == "kinematic":
+            gm = gm + e_kin_grid
+            om = om + pred_kin
+        gp_mean_obs, gp_sd_obs = om, osd
+        with cols[1]:
+            st.plotly_chart(C.rep.fig_surface_grid(uu, vv, gm[:, a].reshape(n, n),
+                                                   title=f"GP mean e{comp} (µm)", unit="µm",
+                                                   points=pts_plate, xlabel="plate u (mm)", ylabel="plate v (mm)"), key="gp_mean_surface")
+        with cols[2]:
+            st.plotly_chart(C.rep.fig_surface_grid(uu, vv, gsd[:, a].reshape(n, n),
+                                                   title=f"GP standard deviation e{comp} (µm)",
+                                                   unit="µm", points=pts_plate,
+                                                   colorscale="Viridis", xlabel="plate u (mm)",
+                                                   ylabel="plate v (mm)"), key="gp_sd_surface")
+        summ_gp = {"xyz"[i]: c_.summary()["x"] for i, c_ in enumerate(comps)}
+        hyp = pd.DataFrame([{"component": c_, "length scale (mm)": str(v.get(
+            "length_scale_mm")), "signal sd (µm)": v.get("signal_sd_um"),
+            "noise sd (µm)": v.get("noise_sd_um"), "log marginal likelihood":
+            v.get("log_marginal_likelihood"), "LOO RMS (µm)": v.get("loo_rms_um"),
+            "status": v.get("status")} for c_, v in summ_gp.items()])
+        st.markdown("**Fitted hyperparameters** (one GP per error component, machine "
+                    "coordinates)")
+        st.dataframe(hyp, hide_index=True, key="gp_hyper")
+st.caption("Plate plane of the chosen position (plate u and v in mm); × marks the measured "
+           "ball centres. Errors in µm, in the rigid-aligned "
+           "sense (the placement of the plate absorbs translations and rotations).")
+
+st.subheader("Kinematic vs GP vs measurement (thesis chapter 7)")
+sigma = float(s["sigma_um"])
+rows = pd.DataFrame({"position": meta["position"].to_numpy(), "probe": meta["probe"].to_numpy(),
+                     "ball": meta["ball"].to_numpy()})
+rows["measured_um"] = err[:, a]
+rows["kinematic_um"] = pred_kin[:, a]
+rows["kin_minus_meas_um"] = pred_kin[:, a] - err[:, a]
+rows["kin_z"] = rows["kin_minus_meas_um"] / np.sqrt(u_kin[:, a] ** 2 + sigma**2)
+if gp_mean_obs is not None:
+    rows["gp_um"] = gp_mean_obs[:, a]
+    rows["gp_minus_meas_um"] = gp_mean_obs[:, a] - err[:, a]
+    rows["gp_z"] = rows["gp_minus_meas_um"] / np.sqrt(gp_sd_obs[:, a] ** 2 + sigma**2)
+# Thesis eq. 7.1: |model - measurement| / measurement x 100 %, with the measurement taken
+# as the ball coordinate (mm) in the plate frame. Shown only beside the honest numbers.
+plate_pts = np.einsum("nji,nj->ni", r.state["R"][obs.pos], pts - r.state["t"][obs.pos])
+coord = np.abs(plate_pts[:, a])
+with np.errstate(divide="ignore", invalid="ignore"):
+    pct = np.where(coord > 1.0, np.abs(rows["kin_minus_meas_um"]) * UM / coord * 100, np.nan)
+rows["thesis_pct_kin"] = pct
+if gp_mean_obs is not None:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rows["thesis_pct_gp"] = np.where(coord > 1.0, np.abs(rows["gp_minus_meas_um"]) * UM
+                                         / coord * 100, np.nan)
+summ = {"kinematic: RMS difference (µm)": float(np.sqrt(np.mean(rows["kin_minus_meas_um"]**2))),
+        "kinematic: RMS normalised (z)": float(np.sqrt(np.mean(rows["kin_z"] ** 2)))}
+if gp_mean_obs is not None:
+    summ["GP: RMS difference (µm)"] = float(np.sqrt(np.mean(rows["gp_minus_meas_um"] ** 2)))
+    summ["GP: RMS normalised (z)"] = float(np.sqrt(np.mean(rows["gp_z"] ** 2)))
+mc = st.columns(len(summ))
+for c_, (lab, v) in zip(mc, summ.items(), strict=True):
+    c_.metric(lab, f"{v:.3f}")
+only = st.checkbox("Only the chosen position", value=True, key="w_gp_only_pos")
+st.dataframe(rows[rows["position"] == position] if only else rows, hide_index=True,
+             key="ch7_table",
+             column_config={c_: st.column_config.NumberColumn(format="%.3f")
+                            for c_ in rows.columns if c_.endswith(("_um", "_z"))} | {
+                 "thesis_pct_kin": st.column_config.NumberColumn(
+                     "thesis eq. 7.1 % (kinematic)", format="%.5f"),
+                 "thesis_pct_gp": st.column_config.NumberColumn(
+                     "thesis eq. 7.1 % (GP)", format="%.5f")})
+st.caption(
+    f"Component {comp}. Differences are in µm and in units of their standard uncertainty "
+    f"(z = difference / √(u_model² + σ²), σ = {sigma:g} µm); |z| ≲ 2 is agreement. The "
+    "columns labelled *thesis eq. 7.1 %* reproduce the thesis's 'percentage error' only for "
+    "comparison: it divides a micrometre difference by the ball's coordinate (≈ 0.5 m), so "
+    "any model scores a few thousandths of a percent; it is not a measure of model quality. "
+    "The GP is evaluated at its own training points here, which flatters it; the LOO RMS "
+    "(CLI `gp`) is the fair comparison.")

@@ -1,0 +1,137 @@
+"""Kinematic model page: choose the model, see the fitted error functions and deviations."""
+
+import numpy as np
+import pandas as pd
+import streamlit as st
+
+from cmm_core.effects import GROUPS, PHYSICAL, parse_spec
+from cmm_core.kinematics import ERROR_NAMES
+from pages import common as C
+
+C.page_start()
+st.title("Kinematic model")
+st.caption("The 21-error local kinematic model of a moving-bridge FXYZ CMM (thesis eq. 4.13), "
+           "Chebyshev polynomials over each axis stroke, fitted by Gauss-Newton with the rigid "
+           "placement of every position.")
+C.flash()
+ds = C.safe(C.dataset, what="Loading the dataset")
+if ds is None:
+    st.stop()
+s = st.session_state
+
+with st.container(border=True):
+    c1, c2, c3 = st.columns([3, 3, 2])
+    pos_all, prb_all = ds.positions, ds.probes
+    if s["positions"] is not None and not set(s["positions"]) <= set(pos_all):
+        s["positions"] = None
+    if s["probes"] is not None and not set(s["probes"]) <= set(prb_all):
+        s["probes"] = None
+    if "w_positions" not in s:
+        s["w_positions"] = list(s["positions"] or pos_all)
+    if "w_probes" not in s:
+        s["w_probes"] = list(s["probes"] or prb_all)
+    sel_pos = c1.multiselect("Positions", pos_all, key="w_positions")
+    sel_prb = c2.multiselect("Probes", prb_all, key="w_probes")
+    s["positions"] = None if set(sel_pos) == set(pos_all) else list(sel_pos)
+    s["probes"] = None if set(sel_prb) == set(prb_all) else list(sel_prb)
+    C.bind("order", c3.selectbox, "Polynomial order", options=[1, 2, 3, 4, 5],
+           help="Default Chebyshev order of every error function (straightness has no linear "
+                "term, so order 2 is quadratic).")
+    c1, c2, c3 = st.columns([4, 3, 1])
+    spec_txt = C.bind("spec", c1.text_input, "Model (effect list)",
+                      help="Comma-separated, applied left to right: the 21 names (dxx … syz), "
+                           "groups " + ", ".join(GROUPS) + ", name:order, -name to remove, "
+                           "physical effects " + ", ".join(PHYSICAL) + ". Examples: "
+                           "`kinematic21,-sxy`, `translational,squareness`, "
+                           "`kinematic21,plate_sag`.")
+    C.bind("plate", c2.selectbox, "Plate geometry", options=list(C.PLATE_CHOICES),
+           format_func=C.PLATE_CHOICES.get)
+    C.bind("sigma_um", c3.number_input, "σ (µm)", min_value=0.01, max_value=100.0,
+           step=0.1, help="Measurement repeatability: weights, χ² and uncertainties.")
+    try:
+        model = parse_spec(spec_txt, default_order=int(s["order"]))
+        st.caption(f"{len(model.active)} error functions; effects: "
+                   f"{', '.join(model.effects) or 'none'}; canonical `{model.to_string()}`")
+    except ValueError as exc:
+        st.error(f"Model: {exc}")
+        st.stop()
+
+if not sel_pos or not sel_prb:
+    st.warning("Choose at least one position and one probe.")
+    st.stop()
+r = C.current_fit()
+if r is None:
+    st.stop()
+
+c = st.columns(6)
+c[0].metric("RMS residual", f"{r.rms_um:.3f} µm")
+c[1].metric("χ²/dof", f"{r.chi2_dof:.2f}")
+c[2].metric("BIC", f"{r.bic:.1f}")
+c[3].metric("Observations", r.n_obs)
+c[4].metric("Parameters (rank)", r.rank)
+c[5].metric("Iterations", r.iterations)
+(st.success if r.status == "converged" else st.warning)(r.message)
+
+st.subheader("Identifiability")
+if r.unidentifiable:
+    st.warning(f"The data cannot determine {len(r.null_combinations)} parameter "
+               "combination(s). They are reported, not silently zeroed:")
+    st.dataframe(pd.DataFrame({"undetermined combination": r.null_combinations}),
+                 hide_index=True, key="null_combos")
+    st.caption("Parameters involved: " + ", ".join(r.unidentifiable))
+else:
+    st.success(f"Every parameter is determined by the data (numerical rank {r.rank}, "
+               f"relative tolerance {r.rank_rtol:g} on the singular values).")
+
+truth = s.get("sim_truth")
+tabs = st.tabs(["Error functions", "Deviation plots", "Parameters", "Residuals"])
+with tabs[0], C.guarded("Error functions"):
+    present = [n for n, o in r.terms.orders if o > 0]
+    show = st.multiselect("Show", present, default=present)
+    st.plotly_chart(C.figure("errfun", (C.fit_args(), tuple(show)), C.rep.fig_error_functions,
+                             r, show), key="fig_errfun")
+    st.caption("Translational errors in µm, rotations in µrad, squareness as an angle in "
+               "µrad; grey bands: 95 % (k = 2) from the parameter covariance.")
+
+with tabs[1], C.guarded("Deviation plots"):
+    c1, c2 = st.columns([1, 3])
+    pos_fit = r.problem.obs.positions
+    position = c1.selectbox("Position", pos_fit, key="w_dev_position")
+    C.bind("magnification", c2.slider, "Magnification", min_value=100.0, max_value=10000.0,
+           step=100.0)
+    st.plotly_chart(C.figure("deviation", (C.fit_args(), position, float(s["magnification"])),
+                             C.rep.fig_deviation, r, position, float(s["magnification"])),
+                    key="fig_deviation")
+    st.caption("Plate frame, mm: nominal ball centres (certificate or fitted plate), measured "
+               "points and the points the model predicts, deviations magnified (thesis "
+               "figures 4.8-4.10).")
+
+with tabs[2], C.guarded("Parameter table"):
+    pf = r.parameters_frame()
+    pf["determined"] = ~pf["parameter"].isin(r.unidentifiable)
+    pf["U (k=2)"] = 2 * pf["u"]
+    if truth and truth.get("key") == s["ds_key"]:
+        pf["true (simulation)"] = pf["parameter"].map(truth["truth"])
+    blocks = st.multiselect("Blocks", list(dict.fromkeys(pf["block"])),
+                            default=[b for b in dict.fromkeys(pf["block"])
+                                     if b not in ("rotation", "translation")],
+                            )
+    st.dataframe(pf[pf["block"].isin(blocks)], hide_index=True, key="param_table",
+                 column_config={"value": st.column_config.NumberColumn(format="%.4f"),
+                                "u": st.column_config.NumberColumn("u (k=1)", format="%.4f"),
+                                "U (k=2)": st.column_config.NumberColumn(format="%.4f")})
+    st.caption("Units per row: µm (translational, placement translation, plate), µrad "
+               "(rotations, squareness, placement rotation).")
+
+with tabs[3], C.guarded("Residuals"):
+    st.plotly_chart(C.figure("pattern", C.fit_args(), C.rep.fig_pattern, r.table,
+                             r.residuals_um, "Residuals per observation (µm)"),
+                    key="fig_resid")
+    st.dataframe(C.rep.residual_summary(r), hide_index=True, key="resid_summary")
+    rf = r.residuals_frame()
+    worst = rf.assign(norm_um=np.linalg.norm(r.residuals_um, axis=1)).nlargest(10, "norm_um")
+    st.caption("Largest residuals (µm), with the file and row each came from:")
+    st.dataframe(worst, hide_index=True, key="resid_worst")
+
+with st.expander("The 21 error names"):
+    st.write(", ".join(ERROR_NAMES))

@@ -1,0 +1,270 @@
+"""Uncertainty page: U1/U2/U3, uncertainty maps, Monte Carlo check, budget and MPE."""
+
+import numpy as np
+import pandas as pd
+import streamlit as st
+
+from cmm_core import kinematics as kin
+from pages import common as C
+
+C.page_start()
+st.title("Uncertainty")
+st.caption("Standard uncertainties (k = 1) unless marked U (k = 2). The rigid-body freedoms "
+           "are removed, as in the thesis (a rigid motion of the workpiece is not a CMM "
+           "error).")
+ds = C.safe(C.dataset, what="Loading the dataset")
+if ds is None:
+    st.stop()
+s = st.session_state
+r = C.current_fit()
+if r is None:
+    st.stop()
+args = C.fit_args()
+
+st.subheader("U1, U2, U3 (thesis tables 4.1-4.3)")
+c1, c2 = st.columns(2)
+n_random = c1.number_input("Random points", 20, 2000, 200, step=20, key="w_u_npts")
+seed = c2.number_input("Seed", 0, 10_000, 0, key="w_u_seed")
+summary = C.safe(C.cached_uncertainty, args, int(n_random), int(seed), r,
+                 what="Uncertainty evaluation")
+if summary is not None:
+    rows = []
+    for lab, desc in (("U1_um", "U1: ball-centre coordinates"),
+                      ("U2_um", "U2: CMM error in the evaluated region"),
+                      ("U3_um", "U3: CMM error in the whole working volume")):
+        v = getattr(summary, lab)
+        rows.append({"quantity": desc, **({f"u_{a} (µm)": v[a] for a in "xyz"} if v else
+                                          {f"u_{a} (µm)": None for a in "xyz"})})
+    st.dataframe(pd.DataFrame(rows), hide_index=True, key="u_table",
+                 column_config={f"u_{a} (µm)": st.column_config.NumberColumn(format="%.4f")
+                                for a in "xyz"})
+    st.caption(summary.message)
+
+st.subheader("Uncertainty map")
+obs = r.problem.obs
+rng = np.asarray(obs.range_mm, float)
+c1, c2, c3, c4 = st.columns(4)
+zval = c1.slider("Z of the XY plane (mm)", 0.0, float(rng[2]), float(round(rng[2] / 2)),
+                 step=10.0, key="w_u_z")
+probe = c2.selectbox("Probe", obs.probes, key="w_u_probe")
+comp = c3.radio("Component", ["x", "y", "z"], horizontal=True, key="w_u_comp")
+show = c4.radio("Show", ["U (k=2)", "error e"], horizontal=True, key="w_u_show")
+
+
+@st.cache_data(show_spinner=False, max_entries=64)
+def error_grid(args, z, probe, n, _r):
+    from cmm_core.uncertainty import error_at
+
+    xs = np.linspace(0, _r.problem.obs.range_mm[0], n)
+    ys = np.linspace(0, _r.problem.obs.range_mm[1], n)
+    X, Y = np.meshgrid(xs, ys)
+    pts = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, z)])
+    e, u = error_at(_r, pts, probe)
+    return xs, ys, e, u
+
+
+with C.guarded("Uncertainty map"):
+    n = 31
+    xs, ys, e, u = error_grid(args, float(zval), probe, n, r)
+    a = "xyz".index(comp)
+    x_meas = obs.r_mm - obs.p_mm
+    near = np.abs(x_meas[:, 2] - zval) < 60
+    if show.startswith("U"):
+        vals, title = 2 * u[:, a], f"Expanded uncertainty U(e{comp}), k = 2, at Z = {zval:g} mm"
+        scale = "Viridis"
+    else:
+        vals, title = e[:, a], f"Error e{comp} at Z = {zval:g} mm (probe {probe})"
+        scale = "RdBu_r"
+    if np.isnan(vals).all():
+        st.warning("The uncertainty is unbounded: the data do not determine every model "
+                   "parameter (see the Kinematic model page).")
+    else:
+        st.plotly_chart(C.rep.fig_surface_grid(xs, ys, vals.reshape(n, n), title=title,
+                                               unit="µm", points=x_meas[near],
+                                               colorscale=scale), key="u_map")
+        st.caption("Scale readings in mm; × marks measured points within 60 mm of the plane. "
+                   "The error is zero at the axis origins by convention.")
+
+st.subheader("Monte Carlo check of the propagated uncertainty")
+c1, c2 = st.columns([1, 3])
+trials = c1.number_input("Trials", 100, 20000, 1000, step=100, key="w_mc_trials")
+run_mc = c1.button("Run Monte Carlo", key="run_mc")
+mc_key = (args, int(trials), probe)
+if run_mc:
+    cov = r.kinematic_cov
+    if r.unidentifiable:
+        st.warning("Not run: the data do not determine every parameter.")
+    else:
+        rs = np.random.default_rng(1)
+        pts = np.column_stack([rs.uniform(0, rng[0], 40), rs.uniform(0, rng[1], 40),
+                               rs.uniform(0, rng[2], 40)])
+        from cmm_core.uncertainty import error_at
+
+        _, u_lin = error_at(r, pts, probe)
+        p = np.broadcast_to(r.problem.obs.p_mm[r.problem.obs.probes.index(probe) ==
+                                               r.problem.obs.probe][0], pts.shape)
+        w, Q = np.linalg.eigh((cov + cov.T) / 2)
+        L = Q * np.sqrt(np.clip(w, 0, None))
+        coef0 = r.kinematic_coef
+        bar = st.progress(0.0, text="Monte Carlo…")
+        chunk = max(int(trials) // 20, 1)
+        acc = np.zeros(pts.shape)
+        acc2 = np.zeros(pts.shape)
+        done = 0
+        while done < trials:
+            m = min(chunk, int(trials) - done)
+            for _ in range(m):
+                cf = coef0 + L @ rs.standard_normal(len(coef0))
+                ei = kin.error(r.terms, cf, pts, p)
+                acc += ei
+                acc2 += ei**2
+            done += m
+            bar.progress(done / trials, text=f"Monte Carlo: {done}/{int(trials)} trials")
+        bar.empty()
+        mean = acc / done
+        u_mc = np.sqrt(np.clip(acc2 / done - mean**2, 0, None))
+        s["mc_result"] = (mc_key, u_lin, u_mc)
+res = s.get("mc_result")
+if res is not None and res[0] == mc_key:
+    _, u_lin, u_mc = res
+    ratio = u_mc / np.where(u_lin > 0, u_lin, np.nan)
+    c2.metric("Monte Carlo u / propagated u (median over 40 points × 3 axes)",
+              f"{np.nanmedian(ratio):.3f}")
+    c2.caption(f"Range {np.nanmin(ratio):.3f}-{np.nanmax(ratio):.3f}. Near 1: the linear "
+               "propagation (GUM) holds; the model is nearly linear in its parameters.")
+else:
+    c2.caption("Samples the kinematic coefficients from their covariance and compares the "
+               "spread of the error at 40 random points with the propagated uncertainty. "
+               "Changing any input cancels a running check.")
+
+st.subheader("Ball-plate calibration budget (thesis eq. 3.14-3.29)")
+budget = C.optional("budget")
+gum = C.optional("gum")
+air = C.optional("air")
+if budget is None or gum is None or not hasattr(budget, "ballplate_budget"):
+    C.not_available("The GUM budget (cmm_core.budget, cmm_core.gum)")
+else:
+    with C.guarded("Budget"):
+        recs = {r.position: r for r in (*budget.THESIS_ENVIRONMENT,
+                                        budget.average_environment())}
+        c = st.columns(5)
+        rec = c[0].selectbox("Environment record", list(recs), index=len(recs) - 1,
+                             key="w_b_record", help="Temperatures and humidities written "
+                             "above thesis tables 6.1-6.6, or their average.")
+        base = budget.inputs_from_record(recs[rec])
+        length = c[1].number_input("Length L (mm)", 1.0, 2000.0, float(base.length_mm),
+                                   key="w_b_length")
+        s_lx = c[2].number_input("Repeatability s (µm)", 0.0, 50.0, float(base.s_lx_um),
+                                 key="w_b_s")
+        n_rep = c[3].number_input("Repeats n", 2, 100, int(base.n_repeats), key="w_b_n")
+        p_cov = c[4].selectbox("Coverage probability", [0.95, 0.9545, 0.99], key="w_b_p")
+        c = st.columns(4)
+        p_pa = c[0].number_input("Air pressure (Pa)", 60000.0, 120000.0, float(base.p_Pa),
+                                 key="w_b_p_pa")
+        align = c[1].number_input("Plate misalignment (µm)", 0.0, 500.0,
+                                  float(base.alignment_mm * 1e3), key="w_b_align")
+        cte = c[2].number_input("Plate CTE (1e-6/K)", 0.0, 30.0, float(base.cte_per_K * 1e6),
+                                key="w_b_cte")
+        air_on = c[3].checkbox("Include air refractive index terms", value=base.include_air,
+                               key="w_b_air")
+        from dataclasses import replace
+
+        inp = replace(base, length_mm=float(length), s_lx_um=float(s_lx),
+                      n_repeats=int(n_rep), p_Pa=float(p_pa), alignment_mm=align * 1e-3,
+                      cte_per_K=cte * 1e-6, include_air=bool(air_on))
+        b = budget.ballplate_budget(inp, coverage_probability=float(p_cov))
+        g = b.gum
+        m = st.columns(4)
+        m[0].metric("u_c (µm)", f"{g.u_c:.4f}")
+        m[1].metric("ν_eff (Welch-Satterthwaite)", "∞" if not np.isfinite(g.nu_eff)
+                    else f"{g.nu_eff:.1f}")
+        m[2].metric("k", f"{g.k:.3f}")
+        m[3].metric(f"U (µm, p = {p_cov})", f"{g.U:.4f}")
+        st.dataframe(pd.DataFrame(b.table()), hide_index=True, key="budget_table",
+                     column_config={"share": st.column_config.ProgressColumn(
+                         "variance share", min_value=0.0, max_value=1.0, format="%.3f")})
+        st.caption("u in the unit of each input, c in µm per unit, u_y = |c|·u in µm. Values "
+                   "not printed in the thesis are documented assumptions (see "
+                   "cmm_core.budget).")
+        mc1, mc2 = st.columns([1, 3])
+        bt = mc1.number_input("Monte Carlo trials", 10_000, 5_000_000, 200_000, step=50_000,
+                              key="w_b_trials")
+        if mc1.button("Run GUM-S1 Monte Carlo", key="run_budget_mc"):
+            bar = mc2.progress(0.0, text="Monte Carlo (JCGM 101)…")
+
+            def _progress(frac):
+                bar.progress(min(max(float(frac), 0.0), 1.0),
+                             text=f"Monte Carlo (JCGM 101): {100 * frac:.0f} %")
+
+            res = gum.monte_carlo(b.contributions, trials=int(bt),
+                                  coverage_probability=float(p_cov), seed=1,
+                                  progress=_progress)
+            bar.empty()
+            s["budget_mc"] = ((rec, length, s_lx, n_rep, p_cov, p_pa, align, cte, air_on, bt),
+                              res)
+        mcr = s.get("budget_mc")
+        if mcr is not None and mcr[0] == (rec, length, s_lx, n_rep, p_cov, p_pa, align, cte,
+                                          air_on, bt):
+            res = mcr[1]
+            lo, hi = res.interval_shortest
+            mc2.success(f"Monte Carlo ({res.trials} trials, {res.status}): u = {res.u:.4f} µm, "
+                        f"shortest {100 * p_cov:g} % interval [{lo:.4f}, {hi:.4f}] µm "
+                        f"(half-width {(hi - lo) / 2:.4f} µm vs GUM U = {g.U:.4f} µm).")
+        with st.expander("U(L) over the plate's lengths"):
+            import plotly.graph_objects as go
+
+            ld = budget.budget_vs_length(inp, coverage_probability=float(p_cov))
+            fig = go.Figure()
+            fig.add_scatter(x=ld.length_mm, y=ld.U_um, mode="markers+lines",
+                            name="budget U(L)")
+            fig.add_scatter(x=ld.length_mm, y=ld.cmm_spec_U_um, mode="lines",
+                            name="CMM specification √(0.52² + (1.4e-3 L)²)")
+            fig.add_scatter(x=ld.length_mm, y=ld.plate_spec_U_um, mode="lines",
+                            name="plate certificate √(0.26² + (1.9e-3 L)²)")
+            fig.update_layout(xaxis_title="L (mm)", yaxis_title="U (µm, k from ν_eff)",
+                              template="plotly_white", height=360,
+                              legend={"orientation": "h", "y": -0.25})
+            st.plotly_chart(fig, key="budget_UL")
+            st.caption(f"Least-squares fit U(L)² ≈ a² + (b·L)²: a = {ld.fit_a_um:.3f} µm, "
+                       f"b = {ld.fit_b_per_mm * 1e3:.3f} µm/m.")
+if air is not None and hasattr(air, "refractive_index_edlen"):
+    with st.expander("Refractive index of air (modified Edlén, Birch and Downs 1994)"):
+        c = st.columns(4)
+        tC = c[0].number_input("T (°C)", 0.0, 40.0, 20.0, key="w_air_t")
+        pPa = c[1].number_input("p (Pa)", 60000.0, 120000.0, 101325.0, key="w_air_p")
+        rh = c[2].number_input("RH (%)", 0.0, 100.0, 50.0, key="w_air_rh")
+        lam = c[3].number_input("λ (nm)", 300.0, 1700.0, 632.99, key="w_air_l")
+        n_air = C.safe(air.refractive_index_edlen, tC, pPa, rh, lam, what="Edlén")
+        if n_air is not None:
+            st.metric("n − 1", f"{float(n_air) - 1:.6e}")
+
+st.subheader("MPE check (0.6 µm + L/600)")
+mpe = C.optional("mpe", "mpe_check")
+if mpe is None:
+    C.not_available("The MPE check (cmm_core.mpe)")
+elif ds.certificate is None or len(ds.certificate.balls) != 25:
+    st.info("The MPE check needs a certificate of a 5 × 5 ball plate.")
+else:
+    with C.guarded("MPE check"):
+        tables, skipped = {}, []
+        for (pos, prb), _ in ds.meas.groupby(["position", "probe"], sort=False):
+            tab = ds.plate_frame_table(pos, prb)
+            if np.isfinite(tab).all():
+                tables[f"{pos}/{prb}"] = tab
+            else:
+                skipped.append(f"{pos}/{prb}")
+        out = mpe(tables, ds.certificate.xyz_mm)
+        cnt = out.counts
+        m = st.columns(len(cnt) + 1)
+        for c_, (k_, v) in zip(m, cnt.items(), strict=False):
+            c_.metric(k_, v)
+        m[-1].metric("max |E| (µm)", f"{out.max_abs_error_um():.2f}")
+        st.dataframe(pd.DataFrame(out.rows()), hide_index=True, key="mpe_table",
+                     column_config={"error_um": st.column_config.NumberColumn(format="%.2f"),
+                                    "U_um": st.column_config.NumberColumn(format="%.2f"),
+                                    "mpe_um": st.column_config.NumberColumn(format="%.2f")})
+        st.caption("Length errors E = measured − certificate length for every ball pair on a "
+                   "row, column or diagonal, per position and probe (outliers included: they "
+                   "are real readings). ISO 14253-1: conforms when |E| + U ≤ MPE, does not "
+                   "conform when |E| − U > MPE, otherwise inconclusive."
+                   + (f" Skipped (missing balls): {', '.join(skipped)}." if skipped else ""))
