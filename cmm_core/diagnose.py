@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from ._blas import single_blas_thread
 from .effects import catalogue_entry, parse_spec
 from .fit import FitResult, Problem, _solve, fit, weighted_residual
 
@@ -165,10 +166,11 @@ def _stats(base: FitResult, dchi2, dk, chi2_new):
     return dbic, float(stats.f.sf(F, dk, dof_new)), dof_new
 
 
+@single_blas_thread
 def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
              sigma_um: float = 0.5, exclude=(), positions=None, probes=None,
              candidates=None, alpha: float = 0.01, confirm: int = 3,
-             alias_corr: float = 0.9) -> Diagnosis:
+             alias_corr: float = 0.9, progress=None) -> Diagnosis:
     """Rank the catalogue effects missing from ``baseline`` (see module docstring).
 
     Parameters
@@ -184,13 +186,22 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
         How many of the best scored candidates are confirmed by a full refit.
     alias_corr : float
         Signature correlation above which two candidates are reported as aliases.
+    progress : callable, optional
+        ``progress(fraction, text)`` is called as candidates are scored and confirmed
+        (for a progress bar); exceptions it raises propagate.
     """
+    def report(frac, text):
+        if progress is not None:
+            progress(float(min(max(frac, 0.0), 1.0)), text)
+
     base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um, exclude=exclude,
                positions=positions, probes=probes)
     tokens = candidates if candidates is not None else parse_spec(
         base.spec, default_order=order).candidates()
     skipped, scored = {}, []
-    for tok in tokens:
+    n_steps = len(tokens) + confirm
+    for i, tok in enumerate(tokens):
+        report(i / n_steps, f"scoring {tok} ({i + 1}/{len(tokens)})")
         why = _needs_met(tok, base)
         if why:
             skipped[tok] = why
@@ -198,9 +209,10 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
         dchi2, dk, sig, chi2_new = score(base, tok)
         scored.append([tok, dchi2, dk, sig, chi2_new, False, None])
     scored.sort(key=lambda s: _stats(base, s[1], s[2], s[4])[0])
-    for s in scored[:confirm]:
+    for j, s in enumerate(scored[:confirm]):
         if s[2] <= 0:
             continue
+        report((len(tokens) + j) / n_steps, f"confirming {s[0]} by a full refit")
         ref = fit(base.problem.obs, parse_spec(base.spec, default_order=order).with_token(s[0]),
                   plate=base.plate, sigma_um=sigma_um, rank_rtol=base.rank_rtol)
         s[1], s[2], s[4], s[5], s[6] = base.chi2 - ref.chi2, ref.rank - base.rank, ref.chi2, \
@@ -221,6 +233,7 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
     out = _with_aliases(out, alias_corr)
     verdict = out[0].effect if out and out[0].significant else None
     msg = _conclusion(base, out, verdict)
+    report(1.0, "done")
     return Diagnosis(base, out, verdict, skipped, msg)
 
 
@@ -287,13 +300,19 @@ class Discrepancy:
     Attributes
     ----------
     amplitude_um : dict
-        Signal standard deviation of each component's GP (x, y, z), µm.
+        Signal standard deviation (hyperparameter) of each component's GP (x, y, z), µm.
+        Poorly determined when the length scale runs to the size of the machine; use
+        ``structure_um`` to compare models.
     length_scale_mm : dict
         Length scale(s) of each component's GP, mm.
     noise_sd_um : dict
         Fitted noise standard deviation per component, µm.
+    structure_um : dict
+        RMS over the observations of the GP's posterior mean of the discrepancy (the
+        part of the residual the GP attributes to smooth structure rather than noise), µm.
     rms_amplitude_um : float
-        sqrt(mean of the squared amplitudes): one number for the history chart.
+        sqrt(mean over components of ``structure_um`` squared): the one number of the
+        add-and-watch history; it falls towards zero when the missing effect is added.
     components : object
         The fitted ``gp_cmm.GPComponents`` (for surfaces).
     """
@@ -301,10 +320,12 @@ class Discrepancy:
     amplitude_um: dict
     length_scale_mm: dict
     noise_sd_um: dict
+    structure_um: dict
     rms_amplitude_um: float
     components: object = field(repr=False)
 
 
+@single_blas_thread
 def discrepancy_gp(result: FitResult, *, kernel: str = "se_iso", restarts: int = 2,
                    seed: int = 0) -> Discrepancy:
     """Structure left in the residuals: one GP per component over the machine
@@ -320,8 +341,11 @@ def discrepancy_gp(result: FitResult, *, kernel: str = "se_iso", restarts: int =
     amp = {c: float(comps[c].signal_sd_um) for c in comps.names}
     ls = {c: [float(v) for v in comps[c].length_scale_mm] for c in comps.names}
     noise = {c: float(comps[c].noise_sd_um) for c in comps.names}
-    return Discrepancy(amp, ls, noise, float(np.sqrt(np.mean(np.square(list(amp.values()))))),
-                       comps)
+    X = o.r_mm - o.p_mm
+    struct = {c: float(np.sqrt(np.mean(comps[c].predict(X, include_mean=False)[0] ** 2)))
+              for c in comps.names}
+    return Discrepancy(amp, ls, noise, struct,
+                       float(np.sqrt(np.mean(np.square(list(struct.values()))))), comps)
 
 
 def history_entry(result: FitResult, gp_amplitude_um=None) -> dict:

@@ -24,6 +24,7 @@ import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
 from . import kinematics as kin
+from ._blas import single_blas_thread
 from .dataset import Dataset
 from .effects import ModelSpec, parse_spec
 
@@ -537,6 +538,7 @@ def _describe_null(null, labels, limit=6):
     return combos, names
 
 
+@single_blas_thread
 def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, order: int = 2,
         plate: str | None = None, sigma_um: float = 0.5, positions=None, probes=None,
         exclude=(), rank_rtol: float = 1e-4, max_iter: int = 30, tol: float = 1e-9) -> FitResult:

@@ -37,6 +37,8 @@ from scipy.linalg import lapack
 from scipy.optimize import minimize
 from scipy.spatial.distance import cdist
 
+from ._blas import single_blas_thread
+
 __all__ = ["GPResult", "fit_gp", "log_marginal_likelihood", "polynomial_basis", "MEANS", "KERNELS"]
 
 MEANS = ("zero", "constant", "linear", "quadratic", "thesis_quadratic")
@@ -528,6 +530,7 @@ def _theta_from(hyper: dict, ctx, nl, theta):
     return theta
 
 
+@single_blas_thread
 def log_marginal_likelihood(X, y, hyperparameters: dict, *, mean="zero",
                             kernel: str = "se_iso"):
     """Log marginal likelihood and its gradient at given hyperparameters.
@@ -565,6 +568,7 @@ def log_marginal_likelihood(X, y, hyperparameters: dict, *, mean="zero",
 _BOUND_FACTORS = {"length": (1e-3, 1e3), "signal": (1e-3, 1e2), "noise": (1e-4, 1e1)}
 
 
+@single_blas_thread
 def fit_gp(X, y, *, mean="zero", kernel: str = "se_iso", restarts: int = 3, seed=0,
            bounds: dict | None = None, initial: dict | None = None,
            optimize: bool = True) -> GPResult:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._blas import single_blas_thread
 from .gp import GPResult, fit_gp
 
 __all__ = ["GPComponents", "Grid", "gp_components", "predict_grid", "plate_grid", "box_grid",
@@ -77,6 +78,7 @@ def _per_component(basis, k, n):
     return [basis] * k
 
 
+@single_blas_thread
 def gp_components(points_mm, errors_um, *, mean="zero", kernel: str = "se_iso", basis=None,
                   restarts: int = 3, seed=0, bounds: dict | None = None) -> GPComponents:
     """Fit one GP per error component.
@@ -131,6 +133,7 @@ def gp_components(points_mm, errors_um, *, mean="zero", kernel: str = "se_iso", 
                         kernel=kernel, n=P.shape[0], input_dim=P.shape[1])
 
 
+@single_blas_thread
 def predict_grid(components: GPComponents, grid_points_mm, *, basis_grid=None):
     """Mean and standard deviation of each component's GP at grid points.
 

@@ -42,30 +42,6 @@ PLATE_CHOICES = {"auto": "default (certificate fixed if given, else self-calibra
 
 
 # ---------------------------------------------------------------------------------------
-# Optional core modules (landing concurrently): import lazily, None when absent
-# ---------------------------------------------------------------------------------------
-
-def optional(module: str, *names):
-    """Import ``cmm_core.<module>`` and return the named attributes, or None if absent."""
-    try:
-        mod = __import__(f"cmm_core.{module}", fromlist=list(names) or ["_"])
-    except ImportError:
-        return None
-    if not names:
-        return mod
-    try:
-        return tuple(getattr(mod, n) for n in names) if len(names) != 1 else getattr(
-            mod, names[0])
-    except AttributeError:
-        return None
-
-
-def not_available(what: str):
-    st.info(f"{what} is not available yet: the core module is still being written. "
-            "This section fills in as soon as it lands.")
-
-
-# ---------------------------------------------------------------------------------------
 # Errors never become tracebacks
 # ---------------------------------------------------------------------------------------
 
@@ -245,122 +221,57 @@ def cached_uncertainty(args, n_random, seed, _result):
 
 
 @st.cache_resource(show_spinner=False, max_entries=64)
-def cached_gp_discrepancy(args, _result):
-    """Largest GP amplitude (µm) of the residuals the model leaves: the core's
-    ``diagnose.discrepancy_gp`` when present, else an ADAPTER: one GP per residual component
-    over the machine coordinates with the kinematic design as explicit basis
-    (``gp_cmm.gp_components(..., basis=diagnose.kinematic_basis(result))``), amplitude =
-    the largest fitted signal standard deviation."""
-    fn = optional("diagnose", "discrepancy_gp")
-    if fn is not None:
-        return _gp_amplitude(fn(_result))
-    comps_fn = optional("gp_cmm", "gp_components")
-    basis_fn = optional("diagnose", "kinematic_basis")
-    if comps_fn is None or basis_fn is None:
-        return None
-    obs = _result.problem.obs
-    comps = comps_fn(obs.r_mm, _result.residuals_um, basis=basis_fn(_result), restarts=1)
-    amps = [v.get("signal_sd_um") for v in comps.summary().values()]
-    amps = [float(a) for a in amps if a is not None]
-    return max(amps) if amps else None
+def cached_gp_discrepancy(args, _result) -> float:
+    """GP discrepancy of a fit (µm): the structure a GP over its residuals finds, with the
+    model's own design matrix as basis (``diagnose.discrepancy_gp``)."""
+    from cmm_core.diagnose import discrepancy_gp
 
-
-def _gp_amplitude(out) -> float | None:
-    """Largest GP amplitude (µm) from a discrepancy_gp result dict, tolerant of its layout."""
-    if out is None:
-        return None
-    if hasattr(out, "rms_amplitude_um"):
-        return float(out.rms_amplitude_um)
-    if isinstance(out, (int, float)):
-        return float(out)
-    vals = []
-
-    def walk(o):
-        if isinstance(o, dict):
-            for k, v in o.items():
-                if isinstance(v, (int, float)) and "amp" in str(k).lower():
-                    vals.append(float(v))
-                else:
-                    walk(v)
-    walk(out)
-    return max(vals) if vals else None
+    return float(discrepancy_gp(_result, restarts=1).rms_amplitude_um)
 
 
 # ---------------------------------------------------------------------------------------
-# Diagnosis (core diagnose when present; ADAPTER otherwise: refit with each candidate)
+# Diagnosis (cmm_core.diagnose: score test, refit of the best, ΔBIC, F-test, aliases)
 # ---------------------------------------------------------------------------------------
 
-def run_diagnosis(progress=None):
-    """Ranked candidates for the current model as a list of dicts (best first).
+def run_diagnosis(show_progress: bool = False):
+    """The current fit, its ranked candidates as a list of dicts (best first) and the
+    core's plain-language conclusion (with aliases and skipped candidates).
 
     Each dict: effect, title, explanation, aliases, separate_by, rms_um, chi2_dof,
-    delta_chi2, delta_bic, p_value, n_params, significant, signature_um (n, 3).
+    delta_chi2, delta_bic, p_value, n_params, significant, confirmed, signature_um (n, 3).
+    With ``show_progress`` a progress bar follows the scoring of the candidates.
     """
-    from scipy import stats
-
-    from cmm_core.effects import catalogue_entry
-
     base = current_fit()
     if base is None:
-        return None, None
-    args = fit_args()
-    core = optional("diagnose", "diagnose")
-    if core is not None:
-        out = _cached_core_diagnosis(args, dataset())
-        if out is not None:
-            return base, out
-    model = parse_spec(base.spec, default_order=int(st.session_state["order"]))
-    cands = model.candidates()
-    rows = []
-    for i, tok in enumerate(cands):
-        if progress is not None:
-            progress.progress((i + 1) / len(cands), text=f"refitting with {tok} "
-                              f"({i + 1}/{len(cands)})")
-        try:
-            spec = model.with_token(tok).to_string()
-            r = cached_fit(*fit_args(spec), dataset())
-        except Exception:  # noqa: BLE001 - a candidate that cannot be fitted is skipped
-            continue
-        if r.status == "failed":
-            continue
-        dchi = base.chi2 - r.chi2
-        dk = max(r.rank - base.rank, 0)
-        p = float(stats.chi2.sf(dchi, dk)) if dk > 0 and dchi > 0 else 1.0
-        e = catalogue_entry(tok)
-        sig = base.residuals_um - r.residuals_um if len(r.residuals_um) == len(
-            base.residuals_um) else np.zeros_like(base.residuals_um)
-        rows.append({"effect": tok, "title": e.title, "explanation": e.explanation,
-                     "aliases": e.confused_with, "separate_by": e.separate_by,
-                     "rms_um": r.rms_um, "chi2_dof": r.chi2_dof, "delta_chi2": dchi,
-                     "delta_bic": r.bic - base.bic, "p_value": p, "n_params": dk,
-                     "significant": bool(r.bic - base.bic < -6 and p < 0.01 and dk > 0
-                                         and not r.unidentifiable),
-                     "signature_um": sig, "unidentifiable": list(r.unidentifiable)})
-    rows.sort(key=lambda c: c["delta_bic"])
-    return base, rows
+        return None, None, ""
+    return (base, *_cached_core_diagnosis(fit_args(), dataset(), show_progress))
 
 
 @st.cache_data(show_spinner="Running the diagnosis…", max_entries=32)
-def _cached_core_diagnosis(args, _ds):
-    fn = optional("diagnose", "diagnose")
+def _cached_core_diagnosis(args, _ds, _show_progress=False):
+    from cmm_core.diagnose import diagnose
+
     key, spec, order, plate, sigma, pos, prb, excl = args
-    try:
-        d = fn(_ds, baseline=spec, order=order, plate=None if plate == "auto" else plate,
-               sigma_um=sigma, exclude=excl, positions=None if pos is None else list(pos),
-               probes=None if prb is None else list(prb))
-    except TypeError:
-        return None
-    rows = []
-    for c in d.candidates:
-        rows.append({"effect": c.effect, "title": c.title, "explanation": c.explanation,
-                     "aliases": ", ".join(c.aliases) if isinstance(c.aliases, (list, tuple))
-                     else str(c.aliases), "separate_by": c.separate_by,
-                     "rms_um": c.rms_um, "chi2_dof": c.chi2_dof, "delta_chi2": c.delta_chi2,
-                     "delta_bic": c.delta_bic, "p_value": c.p_value, "n_params": c.n_params,
-                     "significant": bool(c.significant),
-                     "signature_um": np.asarray(c.signature_um, float),
-                     "unidentifiable": []})
-    return rows
+    # created inside the cached function so that a cache replay can recreate it
+    bar = st.progress(0.0, text="Scoring candidate effects…") if _show_progress else None
+
+    def report(frac, text):
+        if bar is not None:
+            bar.progress(frac, text=text)
+
+    d = diagnose(_ds, baseline=spec, order=order, plate=None if plate == "auto" else plate,
+                 sigma_um=sigma, exclude=excl, positions=None if pos is None else list(pos),
+                 probes=None if prb is None else list(prb), progress=report)
+    rows = [{"effect": c.effect, "title": c.title, "explanation": c.explanation,
+             "aliases": ", ".join(c.aliases), "separate_by": c.separate_by,
+             "rms_um": c.rms_um, "chi2_dof": c.chi2_dof, "delta_chi2": c.delta_chi2,
+             "delta_bic": c.delta_bic, "p_value": c.p_value, "n_params": c.n_params,
+             "significant": bool(c.significant), "confirmed": bool(c.confirmed),
+             "signature_um": np.asarray(c.signature_um, float)} for c in d.candidates]
+    skipped = "".join(f" Not tried: {k} ({v})." for k, v in d.skipped.items())
+    if bar is not None:
+        bar.empty()
+    return rows, d.message + skipped
 
 
 def history_rows() -> list:

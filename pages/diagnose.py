@@ -4,6 +4,7 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
+from cmm_core import residuals as res_mod
 from cmm_core.effects import parse_spec
 from pages import common as C
 
@@ -39,20 +40,15 @@ with t_map, C.guarded("Residual map"):
     st.plotly_chart(C.figure("resmap", (C.fit_args(), comp), C.rep.fig_residual_map, r, comp),
                     key="diag_map")
 with t_tab, C.guarded("Residual table"):
-    res_mod = C.optional("residuals")
-    if res_mod is not None and hasattr(res_mod, "breakdown"):
-        by = st.radio("Group by", ["position", "probe", "ball"], horizontal=True,
-                      key="w_breakdown_by")
-        st.dataframe(res_mod.breakdown(r, by), hide_index=True, key="diag_breakdown")
-        st.caption("RMS per axis in µm; χ² against σ and its share of the total.")
-        if hasattr(res_mod, "position_trends") and ds.certificate is not None:
-            st.markdown("**Each position against the certificate** (own scale and "
-                        "out-of-plane bowl)")
-            st.dataframe(res_mod.position_trends(ds, exclude=C.fit_args()[-1]),
-                         hide_index=True, key="diag_trends")
-    else:
-        st.dataframe(C.rep.residual_summary(r), hide_index=True, key="diag_resid_summary")
-        st.caption("RMS of the residual components in µm.")
+    by = st.radio("Group by", ["position", "probe", "ball"], horizontal=True,
+                  key="w_breakdown_by")
+    st.dataframe(res_mod.breakdown(r, by), hide_index=True, key="diag_breakdown")
+    st.caption("RMS per axis in µm; χ² against σ and its share of the total.")
+    if ds.certificate is not None:
+        st.markdown("**Each position against the certificate** (own scale and "
+                    "out-of-plane bowl)")
+        st.dataframe(res_mod.position_trends(ds, exclude=C.fit_args()[-1]),
+                     hide_index=True, key="diag_trends")
 with t_time, C.guarded("Residuals against time"):
     rf = r.residuals_frame()
     if "time_min" in rf and rf["time_min"].notna().all():
@@ -77,9 +73,7 @@ if cols[1].button("Hide", key="hide_diagnosis"):
     s["diag_on"] = False
 
 if s["diag_on"]:
-    bar = st.progress(0.0, text="Scoring candidate effects…")
-    base, cands = C.run_diagnosis(bar)
-    bar.empty()
+    base, cands, conclusion = C.run_diagnosis(show_progress=True)
     if cands is None:
         st.stop()
     if not cands:
@@ -93,8 +87,9 @@ if s["diag_on"]:
             st.info("No candidate is significant: either the data are explained to noise "
                     "(χ²/dof near 1) or the misfit has a cause outside the catalogue "
                     "(check the outliers on the Data page and the residual map).")
+        st.caption(conclusion)
         table = pd.DataFrame([{k: v for k, v in c_.items() if k not in (
-            "signature_um", "explanation", "unidentifiable")} for c_ in cands])
+            "signature_um", "explanation")} for c_ in cands])
         st.dataframe(table, hide_index=True, key="diag_table",
                      column_config={"rms_um": st.column_config.NumberColumn("RMS (µm)",
                                                                             format="%.3f"),

@@ -1,6 +1,7 @@
 """Compensate and export: correct points; download results, report and project file."""
 
 import io
+import json
 
 import numpy as np
 import pandas as pd
@@ -8,6 +9,7 @@ import streamlit as st
 
 from cmm_core import export as ex
 from cmm_core import report as rep
+from cmm_core.compensate import model_to_dict
 from pages import common as C
 
 C.page_start()
@@ -112,10 +114,10 @@ excl = [tuple(e) for e in s["exclusions"]]
 mag = float(s["magnification"])
 diag_df = None
 if s["diag_on"]:  # the diagnosis the user ran goes into the report (cached: no recompute)
-    _, _rows = C.run_diagnosis()
+    _, _rows, _ = C.run_diagnosis()
     if _rows:
         diag_df = pd.DataFrame([{k: v for k, v in c_.items() if k not in (
-            "signature_um", "explanation", "unidentifiable")} for c_ in _rows])
+            "signature_um", "explanation")} for c_ in _rows])
 
 
 def _report_bytes():
@@ -143,13 +145,9 @@ def _project_text():
         exclusions=excl, history=hist)
 
 
-model_mod = C.optional("compensate", "model_to_dict")
-if model_mod is not None:
-    import json
-
-    c3.download_button("Fitted model (JSON, for `cmm_core compensate`)",
-                       lambda: json.dumps(model_mod(r), indent=1), "cmm_model.json",
-                       "application/json", key="dl_model", on_click="ignore")
+c3.download_button("Fitted model (JSON, for `cmm_core compensate`)",
+                   lambda: json.dumps(model_to_dict(r), indent=1), "cmm_model.json",
+                   "application/json", key="dl_model", on_click="ignore")
 c1.download_button("Project file (JSON)", _project_text, "cmm_project.json",
                    "application/json", key="dl_project", on_click="ignore",
                    help="Restores the dataset, model, exclusions and history on the Data page.")

@@ -5,6 +5,7 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
+from cmm_core.gp_cmm import gp_components, predict_grid
 from pages import common as C
 
 C.page_start()
@@ -50,15 +51,13 @@ def kinematic_at_observations(args, _r):
 def fit_gp_component(args, mean, kernel, restarts, comp, _points, _values):
     """One component's GP (cached per component so a progress bar can show between them
     and a changed input cancels the rest)."""
-    fn = C.optional("gp_cmm", "gp_components")
-    return fn(_points, np.asarray(_values, float)[:, None], mean=mean, kernel=kernel,
+    return gp_components(_points, np.asarray(_values, float)[:, None], mean=mean, kernel=kernel,
               seed=comp, restarts=restarts)
 
 
 @st.cache_resource(show_spinner=False, max_entries=128)
 def gp_predict(args, mean, kernel, comp, grid_key, _comp, _grid):
-    fn = C.optional("gp_cmm", "predict_grid")
-    m, sd = fn(_comp, _grid)
+    m, sd = predict_grid(_comp, _grid)
     return np.asarray(m, float)[:, 0], np.asarray(sd, float)[:, 0]
 
 
@@ -123,7 +122,6 @@ offset = np.mean(pred_kin[sel] - e_at_obs, axis=0)
 e_kin_grid = e_kin_grid + offset
 pts_plate = (pts[sel] - t) @ R
 
-gp_mod = C.optional("gp_cmm", "gp_components", "predict_grid")
 cols = st.columns(3)
 with cols[0], C.guarded("Kinematic surface"):
     st.plotly_chart(C.rep.fig_surface_grid(uu, vv, e_kin_grid[:, a].reshape(n, n),
@@ -131,7 +129,7 @@ with cols[0], C.guarded("Kinematic surface"):
                                            points=pts_plate, xlabel="plate u (mm)", ylabel="plate v (mm)"),
                     key="gp_kin_surface")
 gp_mean_obs = gp_sd_obs = None
-if gp_mod is not None and not s.get("gp_on"):
+if not s.get("gp_on"):
     with cols[1]:
         st.info("Fitting the GP optimises its hyperparameters by marginal likelihood for each "
                 "error component; it can take several seconds. Once fitted, it refits "
@@ -139,11 +137,7 @@ if gp_mod is not None and not s.get("gp_on"):
         if st.button("Fit the GP", key="fit_gp", type="primary"):
             s["gp_on"] = True
             st.rerun()
-if gp_mod is None:
-    for c_ in cols[1:]:
-        with c_:
-            C.not_available("The Gaussian process (cmm_core.gp_cmm)")
-elif s.get("gp_on"):
+if s.get("gp_on"):
     with C.guarded("Gaussian process"):
         target = err - pred_kin if mean_choice == "kinematic" else err
         gmean = "zero" if mean_choice == "kinematic" else mean_choice

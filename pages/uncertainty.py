@@ -4,7 +4,9 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
+from cmm_core import air, budget, gum
 from cmm_core import kinematics as kin
+from cmm_core.mpe import mpe_check as mpe
 from pages import common as C
 
 C.page_start()
@@ -138,111 +140,101 @@ else:
                "Changing any input cancels a running check.")
 
 st.subheader("Ball-plate calibration budget (thesis eq. 3.14-3.29)")
-budget = C.optional("budget")
-gum = C.optional("gum")
-air = C.optional("air")
-if budget is None or gum is None or not hasattr(budget, "ballplate_budget"):
-    C.not_available("The GUM budget (cmm_core.budget, cmm_core.gum)")
-else:
-    with C.guarded("Budget"):
-        recs = {r.position: r for r in (*budget.THESIS_ENVIRONMENT,
-                                        budget.average_environment())}
-        c = st.columns(5)
-        rec = c[0].selectbox("Environment record", list(recs), index=len(recs) - 1,
-                             key="w_b_record", help="Temperatures and humidities written "
-                             "above thesis tables 6.1-6.6, or their average.")
-        base = budget.inputs_from_record(recs[rec])
-        length = c[1].number_input("Length L (mm)", 1.0, 2000.0, float(base.length_mm),
-                                   key="w_b_length")
-        s_lx = c[2].number_input("Repeatability s (µm)", 0.0, 50.0, float(base.s_lx_um),
-                                 key="w_b_s")
-        n_rep = c[3].number_input("Repeats n", 2, 100, int(base.n_repeats), key="w_b_n")
-        p_cov = c[4].selectbox("Coverage probability", [0.95, 0.9545, 0.99], key="w_b_p")
-        c = st.columns(4)
-        p_pa = c[0].number_input("Air pressure (Pa)", 60000.0, 120000.0, float(base.p_Pa),
-                                 key="w_b_p_pa")
-        align = c[1].number_input("Plate misalignment (µm)", 0.0, 500.0,
-                                  float(base.alignment_mm * 1e3), key="w_b_align")
-        cte = c[2].number_input("Plate CTE (1e-6/K)", 0.0, 30.0, float(base.cte_per_K * 1e6),
-                                key="w_b_cte")
-        air_on = c[3].checkbox("Include air refractive index terms", value=base.include_air,
-                               key="w_b_air")
-        from dataclasses import replace
+with C.guarded("Budget"):
+    recs = {r.position: r for r in (*budget.THESIS_ENVIRONMENT,
+                                    budget.average_environment())}
+    c = st.columns(5)
+    rec = c[0].selectbox("Environment record", list(recs), index=len(recs) - 1,
+                         key="w_b_record", help="Temperatures and humidities written "
+                         "above thesis tables 6.1-6.6, or their average.")
+    base = budget.inputs_from_record(recs[rec])
+    length = c[1].number_input("Length L (mm)", 1.0, 2000.0, float(base.length_mm),
+                               key="w_b_length")
+    s_lx = c[2].number_input("Repeatability s (µm)", 0.0, 50.0, float(base.s_lx_um),
+                             key="w_b_s")
+    n_rep = c[3].number_input("Repeats n", 2, 100, int(base.n_repeats), key="w_b_n")
+    p_cov = c[4].selectbox("Coverage probability", [0.95, 0.9545, 0.99], key="w_b_p")
+    c = st.columns(4)
+    p_pa = c[0].number_input("Air pressure (Pa)", 60000.0, 120000.0, float(base.p_Pa),
+                             key="w_b_p_pa")
+    align = c[1].number_input("Plate misalignment (µm)", 0.0, 500.0,
+                              float(base.alignment_mm * 1e3), key="w_b_align")
+    cte = c[2].number_input("Plate CTE (1e-6/K)", 0.0, 30.0, float(base.cte_per_K * 1e6),
+                            key="w_b_cte")
+    air_on = c[3].checkbox("Include air refractive index terms", value=base.include_air,
+                           key="w_b_air")
+    from dataclasses import replace
 
-        inp = replace(base, length_mm=float(length), s_lx_um=float(s_lx),
-                      n_repeats=int(n_rep), p_Pa=float(p_pa), alignment_mm=align * 1e-3,
-                      cte_per_K=cte * 1e-6, include_air=bool(air_on))
-        b = budget.ballplate_budget(inp, coverage_probability=float(p_cov))
-        g = b.gum
-        m = st.columns(4)
-        m[0].metric("u_c (µm)", f"{g.u_c:.4f}")
-        m[1].metric("ν_eff (Welch-Satterthwaite)", "∞" if not np.isfinite(g.nu_eff)
-                    else f"{g.nu_eff:.1f}")
-        m[2].metric("k", f"{g.k:.3f}")
-        m[3].metric(f"U (µm, p = {p_cov})", f"{g.U:.4f}")
-        st.dataframe(pd.DataFrame(b.table()), hide_index=True, key="budget_table",
-                     column_config={"share": st.column_config.ProgressColumn(
-                         "variance share", min_value=0.0, max_value=1.0, format="%.3f")})
-        st.caption("u in the unit of each input, c in µm per unit, u_y = |c|·u in µm. Values "
-                   "not printed in the thesis are documented assumptions (see "
-                   "cmm_core.budget).")
-        mc1, mc2 = st.columns([1, 3])
-        bt = mc1.number_input("Monte Carlo trials", 10_000, 5_000_000, 200_000, step=50_000,
-                              key="w_b_trials")
-        if mc1.button("Run GUM-S1 Monte Carlo", key="run_budget_mc"):
-            bar = mc2.progress(0.0, text="Monte Carlo (JCGM 101)…")
+    inp = replace(base, length_mm=float(length), s_lx_um=float(s_lx),
+                  n_repeats=int(n_rep), p_Pa=float(p_pa), alignment_mm=align * 1e-3,
+                  cte_per_K=cte * 1e-6, include_air=bool(air_on))
+    b = budget.ballplate_budget(inp, coverage_probability=float(p_cov))
+    g = b.gum
+    m = st.columns(4)
+    m[0].metric("u_c (µm)", f"{g.u_c:.4f}")
+    m[1].metric("ν_eff (Welch-Satterthwaite)", "∞" if not np.isfinite(g.nu_eff)
+                else f"{g.nu_eff:.1f}")
+    m[2].metric("k", f"{g.k:.3f}")
+    m[3].metric(f"U (µm, p = {p_cov})", f"{g.U:.4f}")
+    st.dataframe(pd.DataFrame(b.table()), hide_index=True, key="budget_table",
+                 column_config={"share": st.column_config.ProgressColumn(
+                     "variance share", min_value=0.0, max_value=1.0, format="%.3f")})
+    st.caption("u in the unit of each input, c in µm per unit, u_y = |c|·u in µm. Values "
+               "not printed in the thesis are documented assumptions (see "
+               "cmm_core.budget).")
+    mc1, mc2 = st.columns([1, 3])
+    bt = mc1.number_input("Monte Carlo trials", 10_000, 5_000_000, 200_000, step=50_000,
+                          key="w_b_trials")
+    if mc1.button("Run GUM-S1 Monte Carlo", key="run_budget_mc"):
+        bar = mc2.progress(0.0, text="Monte Carlo (JCGM 101)…")
 
-            def _progress(frac):
-                bar.progress(min(max(float(frac), 0.0), 1.0),
-                             text=f"Monte Carlo (JCGM 101): {100 * frac:.0f} %")
+        def _progress(frac):
+            bar.progress(min(max(float(frac), 0.0), 1.0),
+                         text=f"Monte Carlo (JCGM 101): {100 * frac:.0f} %")
 
-            res = gum.monte_carlo(b.contributions, trials=int(bt),
-                                  coverage_probability=float(p_cov), seed=1,
-                                  progress=_progress)
-            bar.empty()
-            s["budget_mc"] = ((rec, length, s_lx, n_rep, p_cov, p_pa, align, cte, air_on, bt),
-                              res)
-        mcr = s.get("budget_mc")
-        if mcr is not None and mcr[0] == (rec, length, s_lx, n_rep, p_cov, p_pa, align, cte,
-                                          air_on, bt):
-            res = mcr[1]
-            lo, hi = res.interval_shortest
-            mc2.success(f"Monte Carlo ({res.trials} trials, {res.status}): u = {res.u:.4f} µm, "
-                        f"shortest {100 * p_cov:g} % interval [{lo:.4f}, {hi:.4f}] µm "
-                        f"(half-width {(hi - lo) / 2:.4f} µm vs GUM U = {g.U:.4f} µm).")
-        with st.expander("U(L) over the plate's lengths"):
-            import plotly.graph_objects as go
+        res = gum.monte_carlo(b.contributions, trials=int(bt),
+                              coverage_probability=float(p_cov), seed=1,
+                              progress=_progress)
+        bar.empty()
+        s["budget_mc"] = ((rec, length, s_lx, n_rep, p_cov, p_pa, align, cte, air_on, bt),
+                          res)
+    mcr = s.get("budget_mc")
+    if mcr is not None and mcr[0] == (rec, length, s_lx, n_rep, p_cov, p_pa, align, cte,
+                                      air_on, bt):
+        res = mcr[1]
+        lo, hi = res.interval_shortest
+        mc2.success(f"Monte Carlo ({res.trials} trials, {res.status}): u = {res.u:.4f} µm, "
+                    f"shortest {100 * p_cov:g} % interval [{lo:.4f}, {hi:.4f}] µm "
+                    f"(half-width {(hi - lo) / 2:.4f} µm vs GUM U = {g.U:.4f} µm).")
+    with st.expander("U(L) over the plate's lengths"):
+        import plotly.graph_objects as go
 
-            ld = budget.budget_vs_length(inp, coverage_probability=float(p_cov))
-            fig = go.Figure()
-            fig.add_scatter(x=ld.length_mm, y=ld.U_um, mode="markers+lines",
-                            name="budget U(L)")
-            fig.add_scatter(x=ld.length_mm, y=ld.cmm_spec_U_um, mode="lines",
-                            name="CMM specification √(0.52² + (1.4e-3 L)²)")
-            fig.add_scatter(x=ld.length_mm, y=ld.plate_spec_U_um, mode="lines",
-                            name="plate certificate √(0.26² + (1.9e-3 L)²)")
-            fig.update_layout(xaxis_title="L (mm)", yaxis_title="U (µm, k from ν_eff)",
-                              template="plotly_white", height=360,
-                              legend={"orientation": "h", "y": -0.25})
-            st.plotly_chart(fig, key="budget_UL")
-            st.caption(f"Least-squares fit U(L)² ≈ a² + (b·L)²: a = {ld.fit_a_um:.3f} µm, "
-                       f"b = {ld.fit_b_per_mm * 1e3:.3f} µm/m.")
-if air is not None and hasattr(air, "refractive_index_edlen"):
-    with st.expander("Refractive index of air (modified Edlén, Birch and Downs 1994)"):
-        c = st.columns(4)
-        tC = c[0].number_input("T (°C)", 0.0, 40.0, 20.0, key="w_air_t")
-        pPa = c[1].number_input("p (Pa)", 60000.0, 120000.0, 101325.0, key="w_air_p")
-        rh = c[2].number_input("RH (%)", 0.0, 100.0, 50.0, key="w_air_rh")
-        lam = c[3].number_input("λ (nm)", 300.0, 1700.0, 632.99, key="w_air_l")
-        n_air = C.safe(air.refractive_index_edlen, tC, pPa, rh, lam, what="Edlén")
-        if n_air is not None:
-            st.metric("n − 1", f"{float(n_air) - 1:.6e}")
+        ld = budget.budget_vs_length(inp, coverage_probability=float(p_cov))
+        fig = go.Figure()
+        fig.add_scatter(x=ld.length_mm, y=ld.U_um, mode="markers+lines",
+                        name="budget U(L)")
+        fig.add_scatter(x=ld.length_mm, y=ld.cmm_spec_U_um, mode="lines",
+                        name="CMM specification √(0.52² + (1.4e-3 L)²)")
+        fig.add_scatter(x=ld.length_mm, y=ld.plate_spec_U_um, mode="lines",
+                        name="plate certificate √(0.26² + (1.9e-3 L)²)")
+        fig.update_layout(xaxis_title="L (mm)", yaxis_title="U (µm, k from ν_eff)",
+                          template="plotly_white", height=360,
+                          legend={"orientation": "h", "y": -0.25})
+        st.plotly_chart(fig, key="budget_UL")
+        st.caption(f"Least-squares fit U(L)² ≈ a² + (b·L)²: a = {ld.fit_a_um:.3f} µm, "
+                   f"b = {ld.fit_b_per_mm * 1e3:.3f} µm/m.")
+with st.expander("Refractive index of air (modified Edlén, Birch and Downs 1994)"):
+    c = st.columns(4)
+    tC = c[0].number_input("T (°C)", 0.0, 40.0, 20.0, key="w_air_t")
+    pPa = c[1].number_input("p (Pa)", 60000.0, 120000.0, 101325.0, key="w_air_p")
+    rh = c[2].number_input("RH (%)", 0.0, 100.0, 50.0, key="w_air_rh")
+    lam = c[3].number_input("λ (nm)", 300.0, 1700.0, 632.99, key="w_air_l")
+    n_air = C.safe(air.refractive_index_edlen, tC, pPa, rh, lam, what="Edlén")
+    if n_air is not None:
+        st.metric("n − 1", f"{float(n_air) - 1:.6e}")
 
 st.subheader("MPE check (0.6 µm + L/600)")
-mpe = C.optional("mpe", "mpe_check")
-if mpe is None:
-    C.not_available("The MPE check (cmm_core.mpe)")
-elif ds.certificate is None or len(ds.certificate.balls) != 25:
+if ds.certificate is None or len(ds.certificate.balls) != 25:
     st.info("The MPE check needs a certificate of a 5 × 5 ball plate.")
 else:
     with C.guarded("MPE check"):
