@@ -267,6 +267,7 @@ def _cached_core_diagnosis(args, _ds, _show_progress=False):
              "rms_um": c.rms_um, "chi2_dof": c.chi2_dof, "delta_chi2": c.delta_chi2,
              "delta_bic": c.delta_bic, "p_value": c.p_value, "n_params": c.n_params,
              "significant": bool(c.significant), "confirmed": bool(c.confirmed),
+             "detectable_above": c.detectable_text(),
              "signature_um": np.asarray(c.signature_um, float)} for c in d.candidates]
     skipped = "".join(f" Not tried: {k} ({v})." for k, v in d.skipped.items())
     if bar is not None:

@@ -114,6 +114,10 @@ if s["diag_on"]:
                           on_click=C.apply_change, args=(c_["effect"],), type="primary"
                           if c_["significant"] else "secondary")
                 st.write(c_["explanation"])
+                st.caption(f"This data set would see it above: {c_['detectable_above']} "
+                           "(80 % probability at the test's level). A smaller effect may be "
+                           "present and go unseen: a longer stylus, more placements or "
+                           "repeats lower these limits.")
                 aliases = c_["aliases"]
                 if aliases:
                     st.caption(f"Aliases with this data: {aliases}. To separate them: "
