@@ -58,7 +58,8 @@ class Candidate:
     detectable : dict
         ``{label: (unit, size)}``: the size of each added parameter (µm, µrad, ...) above
         which this data set finds it with 80 % probability at the test's level, from its
-        standard uncertainty in the augmented fit (``inf``: not determined). Tells what the
+        standard uncertainty in the augmented fit scaled by the residual scatter left
+        (``inf``: not determined). Tells what the
         design can and cannot see, e.g. rotations of the ram with short styli.
     """
 
@@ -250,10 +251,14 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
     out = []
     n_rows = base.dof + base.rank
     # Size at which a parameter alone is found with 80 % probability at the Bonferroni
-    # level: |θ| = u (z_{1-α/2n} + z_{0.8}) (normal approximation of the score test).
+    # level: |θ| = u s (z_{1-α/2n} + z_{0.8}), s² = χ²/ν left (normal approximation of
+    # the F-test).
     k_detect = float(stats.norm.isf(alpha / (2 * n_try)) + stats.norm.isf(0.2))
     for tok, dchi2, dk, sig, chi2_new, confirmed, ref, u_new in scored:
         dbic, p, dof_new = _stats(base, dchi2, dk, chi2_new)
+        # the F-test measures the reduction against the residual scatter left, so the
+        # limit grows with it (e.g. the thesis data scatter 6.7 times the stated σ)
+        scale = float(np.sqrt(chi2_new / dof_new))
         e = catalogue_entry(tok)
         # Unconfirmed candidates: RMS from the one-step χ² (prior rows are few).
         rms = ref.rms_um if ref is not None else float(
@@ -261,7 +266,7 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
         out.append(Candidate(tok, e.title, e.explanation, e.needs, e.separate_by, rms,
                              chi2_new / dof_new, float(dchi2), int(dk), float(dbic), p,
                              bool(dk > 0 and p < alpha / n_try and dbic < 0), confirmed, sig,
-                             detectable={lab: (unit, k_detect * ui)
+                             detectable={lab: (unit, k_detect * scale * ui)
                                          for lab, (unit, ui) in u_new.items()}))
     out.sort(key=lambda c: (not c.significant, c.delta_bic))
     out = _with_aliases(out, alias_corr)
