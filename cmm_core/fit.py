@@ -594,7 +594,8 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
         lam, accepted = 1.0, False
         for _ in range(12):
             trial = prob.update(state, lam * step)
-            _, rt, _ = weighted_residual(prob, trial, sigma_um, False)
+            # the full step is nearly always accepted: evaluate its Jacobian at once
+            dt, rt, Jt = weighted_residual(prob, trial, sigma_um, lam == 1.0)
             if rt @ rt <= cost * (1 + 1e-12) or lam < 1e-3:
                 accepted = rt @ rt <= cost * (1 + 1e-12)
                 break
@@ -604,7 +605,9 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
             break
         state = trial
         new_cost = rt @ rt
-        d, r, J = weighted_residual(prob, state, sigma_um, True)
+        if Jt is None:
+            dt, rt, Jt = weighted_residual(prob, state, sigma_um, True)
+        d, r, J = dt, rt, Jt
         done = cost - new_cost <= tol * max(cost, 1.0)
         cost = new_cost
         if done:
