@@ -9,26 +9,16 @@ Run: ``.venv/bin/python bench/diagnose.py``.
 """
 
 import sys
-import time
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from _timing import median_time  # noqa: E402
 
 from cmm_core.diagnose import diagnose  # noqa: E402
 from cmm_core.effects import parse_spec  # noqa: E402
 from cmm_core.fit import fit  # noqa: E402
 from cmm_core.simulate import simulate  # noqa: E402
-
-
-def median_time(f, repeats):
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = f()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times)), out
 
 
 def refit_all(data, baseline, tokens):

@@ -7,7 +7,6 @@ Run: ``.venv/bin/python bench/fit.py``.
 """
 
 import sys
-import time
 import tracemalloc
 from pathlib import Path
 
@@ -16,20 +15,13 @@ from scipy.optimize import least_squares
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _timing import median_time  # noqa: E402
+
 from cmm_core.dataset import thesis_dataset  # noqa: E402
 from cmm_core.effects import parse_spec  # noqa: E402
 from cmm_core.fit import Problem, fit, select  # noqa: E402
 from cmm_core.outliers import detect_outliers  # noqa: E402
 from cmm_core.simulate import simulate  # noqa: E402
-
-
-def median_time(f, repeats):
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        f()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times))
 
 
 def peer(data, exclude=()):
@@ -54,8 +46,8 @@ def peer(data, exclude=()):
 
 
 def report(name, data, repeats, exclude=()):
-    ours = median_time(lambda: fit(data, "kinematic21", exclude=exclude), repeats)
-    theirs = median_time(lambda: peer(data, exclude), max(1, repeats // 3))
+    ours, _ = median_time(lambda: fit(data, "kinematic21", exclude=exclude), repeats)
+    theirs, _ = median_time(lambda: peer(data, exclude), max(1, repeats // 3))
     tracemalloc.start()
     fit(data, "kinematic21", exclude=exclude)
     peak = tracemalloc.get_traced_memory()[1] / 1e6

@@ -7,12 +7,13 @@ Run: ``.venv/bin/python bench/gum_mc.py``.
 """
 
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from _timing import median_time  # noqa: E402
 
 from cmm_core.gum import Contribution, coverage_intervals, monte_carlo  # noqa: E402
 
@@ -26,13 +27,6 @@ BUDGET = [
 ]
 
 
-def median_time(f, repeats=REPEATS):
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        f()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times))
 
 
 def ours(seed=1):
@@ -51,8 +45,8 @@ def naive(seed=1):
 def main():
     ours()
     naive()
-    t_ours = median_time(ours)
-    t_naive = median_time(naive)
+    t_ours, _ = median_time(ours, REPEATS)
+    t_naive, _ = median_time(naive, REPEATS)
     r = ours()
     print(f"monte_carlo, {M:.0e} trials, {len(BUDGET)} inputs: median {t_ours:.3f} s "
           f"over {REPEATS} runs (u = {r.u:.4f}, shortest 95 % interval "

@@ -203,6 +203,23 @@ def fit_args(spec=None) -> tuple:
             pos, prb, tuple(tuple(e) for e in s["exclusions"]))
 
 
+def require_dataset():
+    """The current dataset, or stop the page with the loading error shown."""
+    ds = safe(dataset, what="Loading the dataset")
+    if ds is None:
+        st.stop()
+    return ds
+
+
+def require_fit():
+    """``(dataset, fit of the current model)``, or stop the page with the error shown."""
+    ds = require_dataset()
+    r = current_fit()
+    if r is None:
+        st.stop()
+    return ds, r
+
+
 def current_fit(spec=None, *, show_error=True):
     """The fit of the current (or a given) model, or None with a message."""
     args = fit_args(spec)

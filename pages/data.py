@@ -24,6 +24,20 @@ def _problem_rows(exc):
             "problem": getattr(exc, "detail", str(exc)), "hint": getattr(exc, "hint", "") or ""}
 
 
+def _checked_text(upload, reader, problems):
+    """The uploaded file's text if ``reader`` accepts it, else None with the problem noted."""
+    try:
+        text = upload.getvalue().decode("utf-8-sig")
+        reader(io.StringIO(text), name=upload.name)
+        return text
+    except cio.DataError as exc:
+        problems.append(_problem_rows(exc))
+    except UnicodeDecodeError:
+        problems.append({"file": upload.name, "row": None, "column": "",
+                         "problem": "is not UTF-8 text.", "hint": "save it as UTF-8 CSV/JSON."})
+    return None
+
+
 def _validate_upload(meas_files, setup_file, cert_file, use_thesis):
     """Check every file on its own, then together; return (files dict or None, problems)."""
     problems = []
@@ -41,13 +55,7 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis):
     thesis = C.thesis_files()
     setup_text, cert = None, None
     if setup_file is not None:
-        try:
-            setup_text = setup_file.getvalue().decode("utf-8-sig")
-            cio.read_setup(io.StringIO(setup_text), name=setup_file.name)
-        except (cio.DataError, UnicodeDecodeError) as exc:
-            problems.append(_problem_rows(exc) if isinstance(exc, cio.DataError) else
-                            {"file": setup_file.name, "row": None, "column": "",
-                             "problem": "is not UTF-8 text.", "hint": ""})
+        setup_text = _checked_text(setup_file, cio.read_setup, problems)
     elif use_thesis:
         setup_text = thesis["setup"]
     else:
@@ -55,14 +63,8 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis):
                          "problem": "no setup given.",
                          "hint": "upload a setup JSON or tick 'use the thesis setup'."})
     if cert_file is not None:
-        try:
-            text = cert_file.getvalue().decode("utf-8-sig")
-            cio.read_certificate(io.StringIO(text), name=cert_file.name)
-            cert = (cert_file.name, text)
-        except (cio.DataError, UnicodeDecodeError) as exc:
-            problems.append(_problem_rows(exc) if isinstance(exc, cio.DataError) else
-                            {"file": cert_file.name, "row": None, "column": "",
-                             "problem": "is not UTF-8 text.", "hint": ""})
+        text = _checked_text(cert_file, cio.read_certificate, problems)
+        cert = None if text is None else (cert_file.name, text)
     elif use_thesis:
         cert = thesis["certificate"]
     if not meas_files:
@@ -210,9 +212,7 @@ with tab_proj:
 # ---------------------------------------------------------------------------------------
 # The current dataset: validation report
 # ---------------------------------------------------------------------------------------
-ds = C.safe(C.dataset, what="Loading the dataset")
-if ds is None:
-    st.stop()
+ds = C.require_dataset()
 s = st.session_state
 st.header(f"Current dataset: {ds.name}")
 m = ds.meas

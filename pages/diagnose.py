@@ -14,13 +14,8 @@ st.caption("The model against the measurements: where it fails, which physical e
            "residuals point to, and what adding it does to RMS, χ²/dof, BIC and the GP "
            "discrepancy.")
 C.flash()
-ds = C.safe(C.dataset, what="Loading the dataset")
-if ds is None:
-    st.stop()
+ds, r = C.require_fit()
 s = st.session_state
-r = C.current_fit()
-if r is None:
-    st.stop()
 
 c = st.columns(4)
 c[0].metric("Model", r.spec if len(r.spec) < 28 else r.spec[:25] + "…")

@@ -14,13 +14,8 @@ from pages import common as C
 
 C.page_start()
 st.title("Compensate and export")
-ds = C.safe(C.dataset, what="Loading the dataset")
-if ds is None:
-    st.stop()
+ds, r = C.require_fit()
 s = st.session_state
-r = C.current_fit()
-if r is None:
-    st.stop()
 args = C.fit_args()
 obs = r.problem.obs
 

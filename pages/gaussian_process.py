@@ -13,13 +13,8 @@ st.title("Gaussian process")
 st.caption("A GP over the measured errors at the ball centres (thesis chapter 5): zero mean, "
            "quadratic mean (eq. 5.11) or the kinematic model as mean; squared-exponential "
            "kernel, isotropic or ARD.")
-ds = C.safe(C.dataset, what="Loading the dataset")
-if ds is None:
-    st.stop()
+ds, r = C.require_fit()
 s = st.session_state
-r = C.current_fit()
-if r is None:
-    st.stop()
 UM = 1e-3
 
 

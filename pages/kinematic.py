@@ -14,9 +14,7 @@ st.caption("The 21-error local kinematic model of a moving-bridge FXYZ CMM (thes
            "Chebyshev polynomials over each axis stroke, fitted by Gauss-Newton with the rigid "
            "placement of every position.")
 C.flash()
-ds = C.safe(C.dataset, what="Loading the dataset")
-if ds is None:
-    st.stop()
+ds = C.require_dataset()
 s = st.session_state
 
 with st.container(border=True):

@@ -14,13 +14,8 @@ st.title("Uncertainty")
 st.caption("Standard uncertainties (k = 1) unless marked U (k = 2). The rigid-body freedoms "
            "are removed, as in the thesis (a rigid motion of the workpiece is not a CMM "
            "error).")
-ds = C.safe(C.dataset, what="Loading the dataset")
-if ds is None:
-    st.stop()
+ds, r = C.require_fit()
 s = st.session_state
-r = C.current_fit()
-if r is None:
-    st.stop()
 args = C.fit_args()
 
 st.subheader("U1, U2, U3 (thesis tables 4.1-4.3)")
