@@ -74,6 +74,7 @@ def model_to_dict(model: Model | FitResult) -> dict:
     m = model_from_result(model) if isinstance(model, FitResult) else model
     return {"format": "cmm-error-lab model 1", "spec": m.spec,
             "orders": [list(o) for o in m.terms.orders], "range_mm": list(m.terms.range_mm),
+            "periods": [list(o) for o in m.terms.periods],
             "labels": m.terms.labels, "coef": m.coef.tolist(), "cov": m.cov.tolist(),
             "probes_mm": {k: list(map(float, v)) for k, v in m.probes_mm.items()},
             "undetermined": m.undetermined, "summary": m.summary}
@@ -83,7 +84,8 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
     """Rebuild a model from :func:`model_to_dict` output, checking its shape."""
     try:
         terms = kin.KinematicTerms(tuple((str(n), int(o)) for n, o in d["orders"]),
-                                   tuple(float(x) for x in d["range_mm"]))
+                                   tuple(float(x) for x in d["range_mm"]),
+                                   tuple((str(n), float(p)) for n, p in d.get("periods", [])))
         coef = np.asarray(d["coef"], float)
         cov = np.asarray(d["cov"], float)
         probes = {str(k): np.asarray(v, float) for k, v in d["probes_mm"].items()}

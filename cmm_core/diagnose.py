@@ -21,11 +21,17 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy import optimize, stats
 
+from . import kinematics as kin
 from ._blas import single_blas_thread
-from .effects import catalogue_entry, parse_spec
+from .effects import PERIODIC, catalogue_entry, parse_spec
 from .fit import FitResult, Problem, _solve, fit, weighted_residual
+
+PERIOD_SCAN = (40.0, 36)
+"""Periodic scale errors: shortest period scanned (mm) and the number of periods, spaced
+geometrically up to the span of the balls along the axis (longer periods are what a
+higher polynomial order describes)."""
 
 
 @dataclass(frozen=True)
@@ -155,6 +161,10 @@ def _needs_met(token, base: FitResult):
         return "needs at least two probes"
     if name == "drift" and np.ptp(o.hours) == 0:
         return "needs measurement times"
+    if name in PERIODIC:
+        a = "xyz".index(name[-1])
+        if np.ptp((o.r_mm - o.p_mm)[:, a]) < 2 * PERIOD_SCAN[0]:
+            return f"the balls hardly move along {name[-1]}"
     return None
 
 
@@ -186,14 +196,58 @@ def score(base: FitResult, token: str):
     return base.chi2 - chi2_new, rank - base.rank, sig, chi2_new, u_new
 
 
-def _stats(base: FitResult, dchi2, dk, chi2_new):
+def scan_period(base: FitResult, token: str):
+    """Best period of a periodic scale error (``periodic_x`` ...) for this residual.
+
+    Score test for every period of the scan: the χ² reduction of adding the two periodic
+    columns (sine, cosine) after projecting out the baseline's Jacobian, so that only what
+    the baseline cannot already explain counts. Returns ``(token with period, periods mm,
+    Δχ² per period, alias tokens)``: the best period is refined between its grid
+    neighbours; aliases are other local maxima within 80 % of the best (periods the ball
+    spacing cannot tell apart from it).
+    """
+    a = "xyz".index(token[-1])
+    _, r, J = weighted_residual(base.problem, base.state, base.sigma_um, True)
+    U, sv, _ = np.linalg.svd(J.toarray(), full_matrices=False)
+    U = U[:, sv > base.rank_rtol * sv.max()]
+    u = (base.problem.obs.r_mm - base.problem.obs.p_mm)[:, a]
+    n = u.size
+    periods = np.geomspace(PERIOD_SCAN[0], max(np.ptp(u), 2 * PERIOD_SCAN[0]), PERIOD_SCAN[1])
+
+    def gain(lam):
+        X = np.zeros((r.size, 2))
+        X[a: 3 * n: 3] = kin.periodic_basis(u, lam) / base.sigma_um
+        X -= U @ (U.T @ X)
+        q, rr = np.linalg.qr(X)
+        if abs(rr[-1, -1]) <= 1e-9 * abs(rr[0, 0]):
+            return 0.0  # this period is indistinguishable from the baseline
+        return float(np.sum((q.T @ r) ** 2))
+
+    gains = np.array([gain(lam) for lam in periods])
+    i = int(np.argmax(gains))
+    lo, hi = periods[max(i - 1, 0)], periods[min(i + 1, periods.size - 1)]
+    best = optimize.minimize_scalar(lambda lam: -gain(lam), bounds=(lo, hi),
+                                    method="bounded", options={"xatol": 0.5}).x
+    # other periods that explain nearly as much: aliases of the ball spacing
+    peaks = [j for j in range(periods.size) if gains[j] >= 0.8 * gains[i]
+             and gains[j] >= gains[max(j - 1, 0)] and gains[j] >= gains[min(j + 1, periods.size - 1)]
+             and abs(np.log(periods[j] / best)) > 0.1]
+    aliases = [f"{token}:{periods[j]:.0f}" for j in peaks]
+    return f"{token}:{best:.0f}", periods, gains, aliases
+
+
+def _stats(base: FitResult, dchi2, dk, chi2_new, n_scan=1):
+    """ΔBIC, F-test p-value and residual dof of adding ``dk`` parameters. A candidate
+    chosen as the best of ``n_scan`` (a scanned period) pays for the choice: one more
+    parameter in the BIC and a Bonferroni factor ``n_scan`` on p (conservative: the
+    scanned periods are correlated)."""
     n_rows = base.dof + base.rank
     dof_new = max(n_rows - base.rank - dk, 1)
-    dbic = -dchi2 + dk * np.log(n_rows)
+    dbic = -dchi2 + (dk + (n_scan > 1)) * np.log(n_rows)
     if dk <= 0 or dchi2 <= 0:
         return dbic, 1.0, dof_new
     F = (dchi2 / dk) / max(chi2_new / dof_new, 1e-300)
-    return dbic, float(stats.f.sf(F, dk, dof_new)), dof_new
+    return dbic, min(1.0, n_scan * float(stats.f.sf(F, dk, dof_new))), dof_new
 
 
 @single_blas_thread
@@ -236,9 +290,14 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
         if why:
             skipped[tok] = why
             continue
+        n_scan, period_aliases = 1, []
+        if tok in PERIODIC:
+            tok, periods, _, period_aliases = scan_period(base, tok)
+            n_scan = periods.size
         dchi2, dk, sig, chi2_new, u_new = score(base, tok)
-        scored.append([tok, dchi2, dk, sig, chi2_new, False, None, u_new])
-    scored.sort(key=lambda s: _stats(base, s[1], s[2], s[4])[0])
+        scored.append([tok, dchi2, dk, sig, chi2_new, False, None, u_new, n_scan,
+                       period_aliases])
+    scored.sort(key=lambda s: _stats(base, s[1], s[2], s[4], s[8])[0])
     for j, s in enumerate(scored[:confirm]):
         if s[2] <= 0:
             continue
@@ -254,8 +313,10 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
     # level: |θ| = u s (z_{1-α/2n} + z_{0.8}), s² = χ²/ν left (normal approximation of
     # the F-test).
     k_detect = float(stats.norm.isf(alpha / (2 * n_try)) + stats.norm.isf(0.2))
-    for tok, dchi2, dk, sig, chi2_new, confirmed, ref, u_new in scored:
-        dbic, p, dof_new = _stats(base, dchi2, dk, chi2_new)
+    extra_aliases = {}
+    for tok, dchi2, dk, sig, chi2_new, confirmed, ref, u_new, n_scan, p_al in scored:
+        extra_aliases[tok] = p_al
+        dbic, p, dof_new = _stats(base, dchi2, dk, chi2_new, n_scan)
         # the F-test measures the reduction against the residual scatter left, so the
         # limit grows with it (e.g. the thesis data scatter 6.7 times the stated σ)
         scale = float(np.sqrt(chi2_new / dof_new))
@@ -269,14 +330,14 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
                              detectable={lab: (unit, k_detect * scale * ui)
                                          for lab, (unit, ui) in u_new.items()}))
     out.sort(key=lambda c: (not c.significant, c.delta_bic))
-    out = _with_aliases(out, alias_corr)
+    out = _with_aliases(out, alias_corr, extra_aliases)
     verdict = out[0].effect if out and out[0].significant else None
     msg = _conclusion(base, out, verdict)
     report(1.0, "done")
     return Diagnosis(base, out, verdict, skipped, msg)
 
 
-def _with_aliases(cands, threshold):
+def _with_aliases(cands, threshold, extra=None):
     sigs = [c.signature_um.ravel() for c in cands]
     norms = [np.linalg.norm(s) for s in sigs]
     res = []
@@ -288,6 +349,7 @@ def _with_aliases(cands, threshold):
                     corr = abs(sigs[i] @ sigs[j]) / (norms[i] * norms[j])
                     if corr > threshold:
                         al.append(o.effect)
+        al += (extra or {}).get(c.effect, [])
         res.append(Candidate(**{**c.__dict__, "aliases": al}))
     return res
 

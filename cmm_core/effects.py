@@ -3,7 +3,7 @@
 A model is a comma-separated effect list applied left to right: names of the 21 errors,
 groups (``kinematic21``, ``translational``, ``rotational``, ``squareness``), ``name:order``
 and ``-name``; plus the physical effects ``plate_thermal``, ``plate_sag``, ``probe_offset``
-and ``drift``. Rigid placement of each position is always in the model.
+and ``drift``, and periodic scale errors ``periodic_x:PERIOD_MM`` (and ``_y``, ``_z``). Rigid placement of each position is always in the model.
 """
 
 from __future__ import annotations
@@ -19,6 +19,9 @@ GROUPS = {
     "squareness": SQUARENESS,
 }
 PHYSICAL = ("plate_thermal", "plate_sag", "probe_offset", "drift")
+PERIODIC = {"periodic_x": "dxx", "periodic_y": "dyy", "periodic_z": "dzz"}
+"""Periodic scale error tokens (``periodic_x:200``: period 200 mm) and the positioning
+function each one adds to."""
 MAX_ORDER = 5
 
 _AXIS = {"x": "X", "y": "Y", "z": "Z"}
@@ -124,11 +127,30 @@ _PHYSICAL = {
 }
 
 
+def _periodic_effect(name: str, period: str) -> Effect:
+    ax = _AXIS[name[-1]]
+    per = f"a period of {period} mm" if period else "a period found by scanning"
+    return Effect(name if not period else f"{name}:{period}",
+                  f"{ax} periodic scale error" + (f" ({period} mm)" if period else ""),
+                  f"the {ax} reading is off by a sine wave along {ax} with {per}: a lead "
+                  "screw, rack or pinion, or a scale's own periodic error. A polynomial "
+                  "cannot follow it once the period is shorter than about a third of the "
+                  "stroke.",
+                  f"balls at several phases of the period along {ax}: placements shifted "
+                  "along the axis by a fraction of the ball pitch.",
+                  f"higher orders of the {ax} positioning error (long periods) and aliasing "
+                  "of periods shorter than twice the ball spacing.",
+                  f"a second placement shifted along {ax} by a quarter of the period.")
+
+
 def catalogue_entry(name: str) -> Effect:
-    """Catalogue entry for an effect name (``dyz``, ``dyz:3`` or a physical effect)."""
+    """Catalogue entry for an effect name (``dyz``, ``dyz:3``, ``periodic_x:200`` or a
+    physical effect)."""
     base, _, order = name.partition(":")
     if base in _PHYSICAL:
         return _PHYSICAL[base]
+    if base in PERIODIC:
+        return _periodic_effect(base, order)
     if base in ERROR_NAMES:
         e = _kinematic_effect(base)
         if order:
@@ -152,11 +174,14 @@ class ModelSpec:
         Physical effects present, in ``PHYSICAL`` order.
     default_order : int
         Order used for functions named without ``:order``.
+    periods : tuple of (str, float)
+        ``(positioning function, period mm)`` of the periodic scale errors present.
     """
 
     orders: tuple
     effects: tuple
     default_order: int = 2
+    periods: tuple = ()
 
     def order(self, name: str) -> int:
         """Order of one error function (0 when absent)."""
@@ -177,6 +202,8 @@ class ModelSpec:
         else:
             tokens += [n if o == self.default_order else f"{n}:{o}" for n, o in self.active]
         tokens += list(self.effects)
+        inv = {v: k for k, v in PERIODIC.items()}
+        tokens += [f"{inv[n]}:{p:g}" for n, p in self.periods]
         return ",".join(tokens) if tokens else "rigid"
 
     def with_token(self, token: str) -> ModelSpec:
@@ -193,6 +220,9 @@ class ModelSpec:
             elif n not in SQUARENESS and o < MAX_ORDER:
                 out.append(f"{n}:{o + 1}")
         out += [e for e in PHYSICAL if e not in self.effects]
+        # without a period: diagnose scans the period (``diagnose.PERIOD_SCAN``)
+        have = {n for n, _ in self.periods}
+        out += [t for t, n in PERIODIC.items() if n not in have]
         return out
 
 
@@ -204,7 +234,7 @@ def parse_spec(spec: str, *, default_order: int = 2) -> ModelSpec:
     if not 1 <= default_order <= MAX_ORDER:
         raise ValueError(f"order must be 1-{MAX_ORDER}, got {default_order}.")
     orders = dict.fromkeys(ERROR_NAMES, 0)
-    effects = set()
+    effects, periods = set(), {}
     for raw in str(spec).split(","):
         tok = raw.strip()
         if not tok or tok == "rigid":
@@ -212,6 +242,19 @@ def parse_spec(spec: str, *, default_order: int = 2) -> ModelSpec:
         remove = tok.startswith("-")
         tok = tok.lstrip("-+").strip()
         base, _, ordtxt = tok.partition(":")
+        if base in PERIODIC:
+            if remove:
+                periods.pop(PERIODIC[base], None)
+                continue
+            try:
+                period = float(ordtxt)
+            except ValueError:
+                period = float("nan")
+            if not 1.0 <= period <= 1e5:
+                raise ValueError(f"model token {raw.strip()!r}: give the period in mm after "
+                                 f"':', e.g. {base}:200 (1 to 100000 mm).")
+            periods[PERIODIC[base]] = period
+            continue
         order = default_order
         if ordtxt:
             try:
@@ -232,4 +275,5 @@ def parse_spec(spec: str, *, default_order: int = 2) -> ModelSpec:
         for n in names:
             orders[n] = 0 if remove else order
     return ModelSpec(tuple(orders.items()), tuple(e for e in PHYSICAL if e in effects),
-                     default_order)
+                     default_order, tuple((n, periods[n]) for n in PERIODIC.values()
+                                          if n in periods))

@@ -207,7 +207,7 @@ class Problem:
 
     def __init__(self, obs: Observations, spec: ModelSpec, plate: str):
         self.obs, self.spec, self.plate = obs, spec, plate
-        self.terms = kin.KinematicTerms(spec.active, tuple(obs.range_mm))
+        self.terms = kin.KinematicTerms(spec.active, tuple(obs.range_mm), spec.periods)
         L = _Layout()
         B, P, Q = len(obs.balls), len(obs.positions), len(obs.probes)
         if plate != "fixed":

@@ -83,6 +83,13 @@ def basis(name: str, u_mm: np.ndarray, order: int, stroke_mm: float) -> np.ndarr
     return V[:, 1:] - (-1.0) ** np.arange(1, order + 1)
 
 
+def periodic_basis(u_mm: np.ndarray, period_mm: float) -> np.ndarray:
+    """Periodic positioning term ``sin(2πu/λ)``, ``cos(2πu/λ) - 1``: zero at the axis
+    origin like every function, shape ``(n, 2)`` (coefficients in µm)."""
+    a = 2 * np.pi * np.asarray(u_mm, dtype=float) / float(period_mm)
+    return np.column_stack([np.sin(a), np.cos(a) - 1.0])
+
+
 @dataclass(frozen=True)
 class KinematicTerms:
     """Which of the 21 error functions are in a model, and at which order.
@@ -93,17 +100,34 @@ class KinematicTerms:
         ``(name, order)`` for every function present, in ``ERROR_NAMES`` order.
     range_mm : tuple of float
         Axis strokes (x, y, z) in mm over which the Chebyshev series are defined.
+    periods : tuple of (str, float)
+        ``(positioning function, period mm)``: a periodic scale error added to ``dxx``,
+        ``dyy`` or ``dzz`` (two coefficients, sine and cosine, µm), e.g. from a lead screw
+        or a rack. Empty by default.
     """
 
     orders: tuple
     range_mm: tuple
+    periods: tuple = ()
+
+    @property
+    def functions(self) -> tuple:
+        """``(name, order)`` of every function with coefficients (order 0 when a
+        positioning function carries only its periodic term), ``ERROR_NAMES`` order."""
+        od, per = dict(self.orders), dict(self.periods)
+        return tuple((n, od.get(n, 0)) for n in ERROR_NAMES if od.get(n, 0) > 0 or n in per)
+
+    def n_of(self, name: str) -> int:
+        """Number of coefficients of one function (polynomial and periodic)."""
+        return (n_coefficients(name, dict(self.orders).get(name, 0))
+                + 2 * (name in dict(self.periods)))
 
     @property
     def slices(self) -> dict:
         """Coefficient slice of each function in the kinematic coefficient vector."""
         out, i = {}, 0
-        for name, order in self.orders:
-            k = n_coefficients(name, order)
+        for name, _ in self.functions:
+            k = self.n_of(name)
             out[name] = slice(i, i + k)
             i += k
         return out
@@ -111,18 +135,21 @@ class KinematicTerms:
     @property
     def n(self) -> int:
         """Total number of kinematic coefficients."""
-        return sum(n_coefficients(nm, o) for nm, o in self.orders)
+        return sum(self.n_of(nm) for nm, _ in self.functions)
 
     @property
     def labels(self) -> list:
-        """One label per coefficient, e.g. ``dxx[1]`` (Chebyshev degree in brackets)."""
-        out = []
-        for name, order in self.orders:
+        """One label per coefficient, e.g. ``dxx[1]`` (Chebyshev degree in brackets),
+        ``dxx[sin200]`` / ``dxx[cos200]`` for a periodic term of period 200 mm."""
+        out, per = [], dict(self.periods)
+        for name, order in self.functions:
             if name in SQUARENESS:
                 out.append(name)
                 continue
             first = 2 if name in STRAIGHTNESS else 1
             out += [f"{name}[{j}]" for j in range(first, order + 1)]
+            if name in per:
+                out += [f"{name}[sin{per[name]:g}]", f"{name}[cos{per[name]:g}]"]
         return out
 
     def unit(self, label: str) -> str:
@@ -131,8 +158,12 @@ class KinematicTerms:
 
     def design(self, name: str, u_mm: np.ndarray) -> np.ndarray:
         """Basis matrix of one function at axis coordinates ``u_mm``."""
-        order = dict(self.orders)[name]
-        return basis(name, u_mm, order, self.range_mm[axis_of(name)])
+        order = dict(self.orders).get(name, 0)
+        D = basis(name, u_mm, order, self.range_mm[axis_of(name)])
+        per = dict(self.periods)
+        if name in per:
+            D = np.hstack([D, periodic_basis(u_mm, per[name])])
+        return D
 
 
 def _rot_x(a):
@@ -172,7 +203,8 @@ class _Evaluation:
     def __init__(self, terms: KinematicTerms, coef: np.ndarray, xyz_mm: np.ndarray):
         n = xyz_mm.shape[0]
         sl = terms.slices
-        self.designs = {nm: terms.design(nm, xyz_mm[:, axis_of(nm)]) for nm, _ in terms.orders}
+        self.designs = {nm: terms.design(nm, xyz_mm[:, axis_of(nm)])
+                        for nm, _ in terms.functions}
         self.values = {}
         for name in ERROR_NAMES:
             if name in sl:
@@ -236,7 +268,7 @@ def _forward(terms, coef, x_mm, p_mm, want_jac=False):
     RxRy = Rx @ Ry
     sl = terms.slices
     eye = np.eye(3)
-    for name, _ in terms.orders:
+    for name, _ in terms.functions:
         D = ev.designs[name]
         s = sl[name]
         if name in SQUARENESS:

@@ -63,7 +63,7 @@ def error_function_curves(result, name: str, n: int = 61):
 
 def fig_error_functions(result, names=None, cols: int = 3):
     """Fitted error functions with 95 % bands (k = 2), one panel per function."""
-    present = [n for n, o in result.terms.orders if o > 0]
+    present = [n for n, _ in result.terms.functions]
     names = [n for n in (names or present) if n in present]
     if not names:
         fig = go.Figure()

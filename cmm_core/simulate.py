@@ -10,7 +10,8 @@ Configuration keys (all optional; see ``DEFAULT_CONFIG``): ``seed``, ``setup`` (
 dict in the SPEC format, frame ``machine``; default the thesis placements),
 ``probes_per_position``, ``plate`` (``rows, cols, pitch_mm, form_um, certificate_u_um``),
 ``kinematic`` (``spec``, ``order``, ``coefficients`` by label, ``random_um``,
-``random_urad``), ``noise_um``, ``effects`` (``plate_thermal``: ``cte_per_K`` and
+``random_urad``; the spec may carry periodic scale errors, e.g.
+``"kinematic21,periodic_x:180"`` with coefficients ``dxx[sin180]``, ``dxx[cos180]``), ``noise_um``, ``effects`` (``plate_thermal``: ``cte_per_K`` and
 ``temp_C`` per position [start, finish]; ``plate_sag``: ``uu, uv, vv`` µm;
 ``probe_offset``: per-probe vectors in µm or ``sd_um``; ``drift``: per-position vectors in
 µm/h or ``sd_um_per_h``), ``order`` (``row``, ``serpentine``, ``random``),
@@ -165,7 +166,7 @@ def simulate(config: dict | None = None) -> Simulation:
 
     km = cfg["kinematic"]
     spec = parse_spec(km["spec"], default_order=int(km["order"]))
-    terms = kin.KinematicTerms(spec.active, tuple(setup.range_mm))
+    terms = kin.KinematicTerms(spec.active, tuple(setup.range_mm), spec.periods)
     coef = np.zeros(terms.n)
     for i, lab in enumerate(terms.labels):
         sd = km["random_um"] if terms.unit(lab) == "um" else km["random_urad"]

@@ -151,14 +151,23 @@ with tab_sim:
     if e4.checkbox("Drift", key="sim_drift"):
         eff["drift"] = {"sd_um_per_h": e4.number_input("sd (µm/h)", 0.0, 50.0, 2.0,
                                                        key="sim_drift_sd")}
+    kin_cfg = {"order": int(korder), "random_um": float(rnd_um),
+               "random_urad": float(rnd_urad)}
+    p1, p2, p3, _ = st.columns(4)
+    if p1.checkbox("Periodic X scale error", key="sim_periodic",
+                   help="A sine wave along X (lead screw, rack): not in the default model, "
+                        "so the diagnosis has to find it and its period."):
+        per = int(p2.number_input("period (mm)", 20, 1200, 180, key="sim_per_mm"))
+        amp = float(p3.number_input("amplitude (µm)", 0.0, 20.0, 1.0, key="sim_per_um"))
+        kin_cfg.update(spec=f"kinematic21,periodic_x:{per}",
+                       coefficients={f"dxx[sin{per}]": amp, f"dxx[cos{per}]": 0.0})
     if st.button("Simulate", key="simulate", type="primary"):
         from cmm_core.simulate import simulate
 
         cfg = {"seed": int(seed), "noise_um": float(noise), "order": order,
                "probes_interleaved": bool(interleave),
                "plate": {"form_um": float(form)},
-               "kinematic": {"order": int(korder), "random_um": float(rnd_um),
-                             "random_urad": float(rnd_urad)},
+               "kinematic": kin_cfg,
                "effects": eff}
         sim = C.safe(simulate, cfg, what="Simulation")
         if sim is not None:

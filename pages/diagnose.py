@@ -5,7 +5,7 @@ import pandas as pd
 import streamlit as st
 
 from cmm_core import residuals as res_mod
-from cmm_core.effects import parse_spec
+from cmm_core.effects import PERIODIC, parse_spec
 from pages import common as C
 
 C.page_start()
@@ -146,7 +146,8 @@ with c2:
     if all(h["gp_amplitude_um"] is None for h in hist):
         st.caption("GP discrepancy amplitude (µm): tick the box above to compute it.")
     model = parse_spec(s["spec"], default_order=int(s["order"]))
-    removable = [f"-{e}" for e in model.effects] + [f"-{n}" for n, _ in model.active]
+    removable = ([f"-{e}" for e in model.effects] + [f"-{n}" for n, _ in model.active]
+                 + [f"-{t}" for t, fn in PERIODIC.items() if fn in dict(model.periods)])
     rm = st.selectbox("Remove from the model", removable, key="w_remove") if removable else None
     b1, b2 = st.columns(2)
     b1.button("Remove", key="remove_effect", disabled=rm is None, on_click=C.apply_selected,

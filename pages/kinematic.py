@@ -84,7 +84,7 @@ else:
 truth = s.get("sim_truth")
 tabs = st.tabs(["Error functions", "Deviation plots", "Parameters", "Residuals"])
 with tabs[0], C.guarded("Error functions"):
-    present = [n for n, o in r.terms.orders if o > 0]
+    present = [n for n, _ in r.terms.functions]
     show = st.multiselect("Show", present, default=present)
     st.plotly_chart(C.figure("errfun", (C.fit_args(), tuple(show)), C.rep.fig_error_functions,
                              r, show), key="fig_errfun")

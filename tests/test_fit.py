@@ -129,9 +129,11 @@ def test_monte_carlo_coverage_of_stated_uncertainties():
     assert 0.8 <= np.mean(z**2) <= 1.2
 
 
-def test_compensation_brings_length_errors_to_noise():
-    sim = simulate({"seed": 3, "kinematic": {"random_um": 3, "random_urad": 3}, **EXACT_PLATE})
-    r = fit(sim.dataset)
+@pytest.mark.parametrize("spec", ["kinematic21", "kinematic21,periodic_x:180"])
+def test_compensation_brings_length_errors_to_noise(spec):
+    sim = simulate({"seed": 3, "kinematic": {"spec": spec, "random_um": 3, "random_urad": 3},
+                    **EXACT_PLATE})
+    r = fit(sim.dataset, spec)
     model = model_from_dict(model_to_dict(r))  # through the saved form
     pts = sim.dataset.meas[["position", "probe", "ball", "mx_mm", "my_mm", "mz_mm"]].rename(
         columns={"mx_mm": "x_mm", "my_mm": "y_mm", "mz_mm": "z_mm"})

@@ -9,15 +9,17 @@ from cmm_core.effects import parse_spec
 RANGE = (1200.0, 1000.0, 700.0)
 
 
-def _terms(order):
-    return kin.KinematicTerms(parse_spec("kinematic21", default_order=order).active, RANGE)
+def _terms(order, spec="kinematic21"):
+    m = parse_spec(spec, default_order=order)
+    return kin.KinematicTerms(m.active, RANGE, m.periods)
 
 
 @pytest.mark.parametrize("order", [1, 2, 3, 5])
 @pytest.mark.parametrize("seed", [0, 1])
-def test_jacobian_matches_central_differences(order, seed):
+@pytest.mark.parametrize("spec", ["kinematic21", "kinematic21,-dyy,periodic_x:150,periodic_y:90"])
+def test_jacobian_matches_central_differences(order, seed, spec):
     rng = np.random.default_rng(seed)
-    terms = _terms(order)
+    terms = _terms(order, spec)
     # Large coefficients (50 µm, 50 µrad) so that rotation nonlinearity is exercised.
     coef = rng.normal(0, 50, terms.n)
     x = rng.uniform(0, 1, (20, 3)) * RANGE
@@ -72,3 +74,18 @@ def test_invert_reaches_the_target(rng):
     p = rng.normal(0, 80, (50, 3))
     x = kin.invert(terms, coef, s, p)
     assert np.abs(kin.model_point(terms, coef, x, p) - s).max() < 1e-10
+
+
+def test_periodic_scale_error_acts_along_its_axis():
+    """periodic_x:200 adds s·sin(2πx/200) + c·(cos(2πx/200) - 1) µm to x (zero at the
+    origin), with labels by period; dyy absent still carries its periodic term."""
+    terms = _terms(2, "kinematic21,-dyy,periodic_x:200,periodic_y:50")
+    assert "dxx[sin200]" in terms.labels and "dyy[cos50]" in terms.labels
+    assert not any(lab.startswith("dyy[1") for lab in terms.labels)
+    coef = np.zeros(terms.n)
+    coef[terms.labels.index("dxx[sin200]")] = 2.0
+    coef[terms.labels.index("dxx[cos200]")] = 1.0
+    x = np.array([[0.0, 10.0, 10.0], [50.0, 10.0, 10.0], [100.0, 10.0, 10.0]])
+    e = kin.error(terms, coef, x, np.zeros((3, 3)))
+    np.testing.assert_allclose(e[:, 0], [0.0, 2.0 - 1.0, 0.0 - 2.0], atol=1e-9)
+    np.testing.assert_allclose(e[:, 1:], 0.0, atol=1e-9)
