@@ -290,8 +290,6 @@ def test_gaussian_process_fit_and_chapter7_comparison():
     _ok(at)
     cols = _frame(at, "kin_minus_meas_um").columns
     assert {"kin_z", "thesis_pct_kin"} <= set(cols)
-    if not any(b.key == "fit_gp" for b in at.button):
-        pytest.skip("cmm_core.gp_cmm not available")
     at.number_input(key="w_gp_restarts").set_value(0)  # fastest: one optimisation each
     at.run()
     at.button(key="fit_gp").click()
@@ -299,7 +297,14 @@ def test_gaussian_process_fit_and_chapter7_comparison():
     _ok(at)
     hyp = _frame(at, "LOO RMS (µm)")
     assert list(hyp["component"]) == ["x", "y", "z"]
-    assert {"gp_minus_meas_um", "gp_z", "thesis_pct_gp"} <= set(_frame(at, "gp_z").columns)
+    assert {"gp_minus_meas_um", "gp_z", "thesis_pct_gp", "gp_loo_minus_meas_um"} <= set(
+        _frame(at, "gp_z").columns)
+    # the page's leave-one-out RMS of component x is the core's closed-form LOO RMS
+    metric = {m.label: m.value for m in at.metric}
+    loo_page = float(metric["GP leave-one-out: RMS difference (µm)"])
+    assert loo_page == pytest.approx(float(hyp.iloc[0]["LOO RMS (µm)"]), abs=1.5e-3)
+    # predicting a ball from the others is harder than refitting it
+    assert loo_page > float(metric["GP: RMS difference (µm)"])
 
 
 def test_uncertainty_monte_carlo_budget_and_mpe():
