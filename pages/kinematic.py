@@ -108,6 +108,15 @@ with tabs[2], C.guarded("Parameter table"):
     pf = r.parameters_frame()
     pf["determined"] = ~pf["parameter"].isin(r.unidentifiable)
     pf["U (k=2)"] = 2 * pf["u"]
+    birge = r.birge_ratio
+    if birge > 1.05:
+        # the scatter exceeds the stated σ: scale u by √(χ²/dof) (Birge 1932), the
+        # figure to quote until the missing effect is found
+        pf["u, Birge-scaled"] = pf["u"] * birge
+        st.info(f"Birge ratio √(χ²/dof) = {birge:.2f}: the residuals scatter {birge:.2f} "
+                "times the stated σ, so u from σ alone is too small. The column *u, "
+                "Birge-scaled* is the honest standard uncertainty until the model explains "
+                "the data (see Compare and diagnose).")
     if truth and truth.get("key") == s["ds_key"]:
         pf["true (simulation)"] = pf["parameter"].map(truth["truth"])
     blocks = st.multiselect("Blocks", list(dict.fromkeys(pf["block"])),
@@ -117,7 +126,9 @@ with tabs[2], C.guarded("Parameter table"):
     st.dataframe(pf[pf["block"].isin(blocks)], hide_index=True, key="param_table",
                  column_config={"value": st.column_config.NumberColumn(format="%.4f"),
                                 "u": st.column_config.NumberColumn("u (k=1)", format="%.4f"),
-                                "U (k=2)": st.column_config.NumberColumn(format="%.4f")})
+                                "U (k=2)": st.column_config.NumberColumn(format="%.4f"),
+                                "u, Birge-scaled": st.column_config.NumberColumn(
+                                    format="%.4f")})
     st.caption("Units per row: µm (translational, placement translation, plate), µrad "
                "(rotations, squareness, placement rotation).")
 

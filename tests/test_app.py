@@ -77,7 +77,11 @@ def test_kinematic_page_elements_and_order_change():
     at.run()
     _ok(at)
     assert len(at.get("plotly_chart")) >= 3  # error functions, deviations, residuals
-    assert "u" in _frame(at, "parameter").columns
+    pf = _frame(at, "parameter")
+    # thesis data scatter ~6 σ (outliers included here): Birge-scaled u shown beside u
+    chi2_dof = float({m.label: m.value for m in at.metric}["χ²/dof"])
+    ratio = (pf["u, Birge-scaled"] / pf["u"]).dropna()
+    assert ratio.to_numpy() == pytest.approx(chi2_dof ** 0.5, rel=0.01)
     assert at.slider(key="w_magnification").value == 2000.0
     rms2 = _sidebar_rms(at)
     at.selectbox(key="w_order").set_value(3)
