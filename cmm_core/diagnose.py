@@ -25,7 +25,7 @@ from scipy import optimize, stats
 
 from . import kinematics as kin
 from ._blas import single_blas_thread
-from .effects import PERIODIC, catalogue_entry, parse_spec
+from .effects import PERIODIC, catalogue_entry
 from .fit import FitResult, Problem, _solve, fit, weighted_residual
 
 PERIOD_SCAN = (40.0, 36)
@@ -175,7 +175,7 @@ def score(base: FitResult, token: str):
     added parameter label to ``(unit, standard uncertainty)`` in the augmented model: how
     well this data set determines the effect on top of the baseline.
     """
-    spec = parse_spec(base.spec).with_token(token)
+    spec = base.problem.spec.with_token(token)
     prob = Problem(base.problem.obs, spec, base.plate)
     st = _augmented_state(base, prob)
     d, r, J = weighted_residual(prob, st, base.sigma_um, True)
@@ -280,8 +280,7 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
 
     base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um, exclude=exclude,
                positions=positions, probes=probes)
-    tokens = candidates if candidates is not None else parse_spec(
-        base.spec, default_order=order).candidates()
+    tokens = candidates if candidates is not None else base.problem.spec.candidates()
     skipped, scored = {}, []
     n_steps = len(tokens) + confirm
     for i, tok in enumerate(tokens):
@@ -302,7 +301,7 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
         if s[2] <= 0:
             continue
         report((len(tokens) + j) / n_steps, f"confirming {s[0]} by a full refit")
-        ref = fit(base.problem.obs, parse_spec(base.spec, default_order=order).with_token(s[0]),
+        ref = fit(base.problem.obs, base.problem.spec.with_token(s[0]),
                   plate=base.plate, sigma_um=sigma_um, rank_rtol=base.rank_rtol)
         s[1], s[2], s[4], s[5], s[6] = base.chi2 - ref.chi2, ref.rank - base.rank, ref.chi2, \
             True, ref

@@ -192,15 +192,33 @@ class ModelSpec:
         """``(name, order)`` for the functions present."""
         return tuple((n, o) for n, o in self.orders if o > 0)
 
-    def to_string(self) -> str:
-        """Canonical spec string that parses back to this model."""
-        tokens = []
+    def to_string(self, explicit: bool = False) -> str:
+        """Canonical spec string that parses back to this model.
+
+        By default orders are written relative to this model's own default order, so that
+        a reader parsing with another default order (the app's order selector) re-orders
+        the model. ``explicit=True`` writes them relative to the SPEC's default order 2
+        ("kinematic21" at order 3 becomes "kinematic21:3"): the form for reports, files
+        and the CLI, read back with the SPEC's default order.
+        """
+        o_ref = self.default_order if not explicit else 2
+        o_mod = self.default_order
         act = dict(self.active)
-        if set(act) == set(ERROR_NAMES):
-            tokens.append("kinematic21")
-            tokens += [f"{n}:{o}" for n, o in self.active if o != self.default_order]
+        # squareness is one constant whatever its order: never worth an ":o"
+        same = {n: n in SQUARENESS or o == o_mod for n, o in act.items()}
+        tokens = []
+        if len(act) > len(ERROR_NAMES) // 2:  # "kinematic21,-sxy" rather than 20 names
+            tokens.append("kinematic21" if o_mod == o_ref else f"kinematic21:{o_mod}")
+            gone = [n for n in ERROR_NAMES if n not in act]
+            for g in ("translational", "rotational", "squareness"):
+                if set(GROUPS[g]) <= set(gone):
+                    tokens.append(f"-{g}")
+                    gone = [n for n in gone if n not in GROUPS[g]]
+            tokens += [f"-{n}" for n in gone]
+            tokens += [n if o == o_ref else f"{n}:{o}" for n, o in act.items() if not same[n]]
         else:
-            tokens += [n if o == self.default_order else f"{n}:{o}" for n, o in self.active]
+            tokens += [n if o == o_ref or n in SQUARENESS else f"{n}:{o}"
+                       for n, o in act.items()]
         tokens += list(self.effects)
         inv = {v: k for k, v in PERIODIC.items()}
         tokens += [f"{inv[n]}:{p:g}" for n, p in self.periods]

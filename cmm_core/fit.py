@@ -625,7 +625,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     bic = chi2 + rank * np.log(n_rows)
     rms = float(np.sqrt(np.mean(d**2)))
     msg = _message(status, it, rms, chi2 / max(dof, 1), combos)
-    return FitResult(status, msg, it, spec.to_string(), plate, sigma_um, list(L.labels),
+    return FitResult(status, msg, it, spec.to_string(explicit=True), plate, sigma_um, list(L.labels),
                      list(L.units), list(L.groups), values, u, cov, d, obs.table, rms, chi2,
                      int(dof), chi2 / max(dof, 1), float(bic), rank, rank_rtol, unident, combos,
                      prob.n_obs, prob, state)

@@ -185,3 +185,16 @@ def test_period_below_the_ball_spacing_is_reported_with_its_alias():
                if t.startswith("periodic_x:")]
     assert any(abs(p - 60) < 3 for p in periods), periods
     assert "cannot be told apart" in d.message and "quarter of the period" in d.message
+
+
+@pytest.mark.parametrize("order", [1, 3])
+def test_candidates_are_scored_against_the_baseline_at_its_own_order(order):
+    """Regression: at order 3 the candidates were once scored against an order-2 copy of
+    the baseline, so adding a parameter "raised" χ² by hundreds. Adding parameters can only
+    lower χ² (Δχ² >= 0 up to round-off), and a hidden sag is still named first."""
+    sim = simulate({"seed": 4, "kinematic": {"order": order},
+                    "effects": {"plate_sag": {"uu": -2.0, "uv": 0.5, "vv": -1.5}}})
+    d = diagnose(sim.dataset, "kinematic21", order=order)
+    assert d.baseline.spec == f"kinematic21:{order}"
+    assert min(c.delta_chi2 for c in d.candidates) > -1e-6 * d.baseline.chi2
+    assert d.verdict == "plate_sag"

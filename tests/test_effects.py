@@ -3,18 +3,19 @@
 import pytest
 
 from cmm_core.effects import catalogue_entry, parse_spec
-from cmm_core.kinematics import ERROR_NAMES, ROTATIONAL
+from cmm_core.kinematics import ROTATIONAL, SQUARENESS
 
 
 @pytest.mark.parametrize("spec,expected", [
     ("kinematic21", "kinematic21"),
-    ("kinematic21,-sxy", ",".join(n for n in ERROR_NAMES if n != "sxy")),
-    ("translational,squareness", "dxx,dxy,dxz,dyx,dyy,dyz,dzx,dzy,dzz,sxy,sxz,syz"),
+    ("kinematic21,-sxy", "kinematic21,-sxy"),
+    ("translational,squareness", "kinematic21,-rotational"),
+    ("translational", "dxx,dxy,dxz,dyx,dyy,dyz,dzx,dzy,dzz"),
     ("kinematic21,plate_sag", "kinematic21,plate_sag"),
     ("kinematic21,dyz:3", "kinematic21,dyz:3"),
     ("dyz:3,-dyz,dyz", "dyz"),  # tokens apply left to right
-    ("kinematic21,-rotational,rxx", ",".join(
-        n for n in ERROR_NAMES if n not in ROTATIONAL or n == "rxx")),
+    ("kinematic21,-rotational,rxx", "kinematic21," + ",".join(
+        f"-{n}" for n in ROTATIONAL if n != "rxx")),
     ("kinematic21,periodic_x:180,-periodic_x,periodic_y:95", "kinematic21,periodic_y:95"),
     ("rigid", "rigid"),
     ("", "rigid"),
@@ -23,6 +24,27 @@ def test_spec_grammar_and_round_trip(spec, expected):
     m = parse_spec(spec)
     assert m.to_string() == expected
     assert parse_spec(m.to_string()) == m
+
+
+def _orders(m):
+    """Orders that change the model (squareness is one constant at any order)."""
+    return {n: (1 if n in SQUARENESS else o) for n, o in m.active}
+
+
+@pytest.mark.parametrize("order", [1, 2, 3, 5])
+@pytest.mark.parametrize("spec", ["kinematic21", "kinematic21,dyz:2,-sxy,plate_sag",
+                                  "translational,squareness", "dxx,rzz:4", "rigid"])
+def test_explicit_string_reads_back_at_the_spec_default_order(spec, order):
+    """Reports and the CLI write orders relative to the SPEC's default 2, so that
+    "kinematic21" fitted at order 3 is never read back as order 2; the plain string
+    keeps the model's own default so that the app's order selector re-orders it."""
+    m = parse_spec(spec, default_order=order)
+    text = m.to_string(explicit=True)
+    back = parse_spec(text)
+    assert _orders(back) == _orders(m) and back.effects == m.effects, text
+    assert _orders(parse_spec(m.to_string(), default_order=order)) == _orders(m)
+    if order != 2 and m.active:
+        assert f":{order}" in text
 
 
 @pytest.mark.parametrize("spec,needle", [
