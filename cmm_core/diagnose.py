@@ -12,8 +12,15 @@ candidate gets:
 - aliases: other candidates whose signatures are nearly the same pattern with this data.
 
 A candidate is significant when ``p < alpha / n_candidates`` (Bonferroni over the
-candidates tried) and ``delta_bic < 0``; the verdict is the best significant candidate, or
-None: the data are explained to noise.
+candidates tried: the false-alarm rate of the verdict is at most ``alpha``). Significant
+candidates are ranked by ΔBIC, then the best is checked against the other significant ones
+by nested F-tests on full refits (an encompassing test): when the best is no longer needed
+once another is in the model, but the other is still needed with the best in, the other
+is the better explanation and is promoted. This guards against a small flexible effect (a
+periodic error whose period the ball spacing aliases) taking the credit for part of a
+larger one (drift of every position), which ΔBIC alone, with its ``ln N`` per parameter,
+would prefer. Pairs where neither is needed once the other is in are reported as aliases.
+The verdict is the best significant candidate, or None: the data are explained to noise.
 """
 
 from __future__ import annotations
@@ -113,7 +120,8 @@ class Diagnosis:
     ----------
     baseline : FitResult
     candidates : list of Candidate
-        Best first (most negative ΔBIC among significant, then by ΔBIC).
+        Best first: significant ones by ΔBIC (after the nested-test check of the best),
+        then the rest by ΔBIC.
     verdict : str or None
         Best significant effect, or None when the data are explained to noise.
     skipped : dict
@@ -325,15 +333,71 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
             np.sqrt(max(chi2_new, 0) / n_rows) * sigma_um)
         out.append(Candidate(tok, e.title, e.explanation, e.needs, e.separate_by, rms,
                              chi2_new / dof_new, float(dchi2), int(dk), float(dbic), p,
-                             bool(dk > 0 and p < alpha / n_try and dbic < 0), confirmed, sig,
+                             bool(dk > 0 and p < alpha / n_try), confirmed, sig,
                              detectable={lab: (unit, k_detect * scale * ui)
                                          for lab, (unit, ui) in u_new.items()}))
     out.sort(key=lambda c: (not c.significant, c.delta_bic))
     out = _with_aliases(out, alias_corr, extra_aliases)
+    note = ""
+    if out and out[0].significant:
+        report(0.99, "nested tests of the best candidates")
+        out, note = _encompassing(base, out, alpha / n_try, {s[0]: s[6] for s in scored})
     verdict = out[0].effect if out and out[0].significant else None
-    msg = _conclusion(base, out, verdict)
+    msg = _conclusion(base, out, verdict) + note
     report(1.0, "done")
     return Diagnosis(base, out, verdict, skipped, msg)
+
+
+def _nested_p(small: FitResult, big: FitResult) -> float:
+    """F-test p-value of the parameters ``big`` adds to ``small`` (both full fits)."""
+    dk, dchi2 = big.rank - small.rank, small.chi2 - big.chi2
+    if dk <= 0 or dchi2 <= 0:
+        return 1.0
+    return float(stats.f.sf((dchi2 / dk) / max(big.chi2 / max(big.dof, 1), 1e-300),
+                            dk, max(big.dof, 1)))
+
+
+def _encompassing(base: FitResult, cands, level, refits, max_rivals=3):
+    """Nested F-tests between the best candidate A and the next significant ones B.
+
+    Fits base+A, base+B and base+A+B. If A adds nothing at ``level`` once B is in while B
+    still adds something once A is in, B explains A's evidence and more: B goes first,
+    (the message says why). If neither adds anything given the other, they are aliases.
+    Returns the reordered candidates and a sentence for the message.
+    """
+    def refit(spec):
+        return fit(base.problem.obs, spec, plate=base.plate, sigma_um=base.sigma_um,
+                   rank_rtol=base.rank_rtol)
+
+    a = cands[0]
+    spec_a = base.problem.spec.with_token(a.effect)
+    fa = refits.get(a.effect) or refit(spec_a)
+    rivals = sorted((c for c in cands[1:] if c.significant and c.n_params > 0),
+                    key=lambda c: c.p_value)[:max_rivals]
+    promoted, mutual = None, []
+    for b in rivals:
+        fb = refits.get(b.effect) or refit(base.problem.spec.with_token(b.effect))
+        fab = refit(spec_a.with_token(b.effect))
+        p_a_given_b, p_b_given_a = _nested_p(fb, fab), _nested_p(fa, fab)
+        if p_a_given_b >= level and p_b_given_a < level and promoted is None:
+            promoted = (b, p_a_given_b, p_b_given_a)
+        elif p_a_given_b >= level and p_b_given_a >= level:
+            mutual.append(b.effect)
+    out = list(cands)
+    note = ""
+    if promoted is not None:
+        b, pab, pba = promoted
+        out.remove(b)
+        out = [b, *out]
+        note = (f" Nested tests: {a.effect} adds nothing once {b.effect} is in the model "
+                f"(p = {pab:.2g}), while {b.effect} is still needed with {a.effect} in "
+                f"(p = {pba:.2g}): {b.effect} explains the same misfit and more, although "
+                f"its ΔBIC ({b.delta_bic:.1f}, for {b.n_params} parameters) is weaker than "
+                f"{a.effect}'s ({a.delta_bic:.1f}).")
+    elif mutual:
+        out[0] = Candidate(**{**a.__dict__, "aliases": list(dict.fromkeys(
+            [*a.aliases, *mutual]))})
+    return out, note
 
 
 def _with_aliases(cands, threshold, extra=None):

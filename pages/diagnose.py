@@ -133,8 +133,8 @@ if s["diag_on"]:
 
 st.subheader("History")
 st.checkbox("Also compute the GP discrepancy amplitude of each step (a GP over the "
-            "residuals with the kinematic model as basis; slow: up to minutes per step on "
-            "150 points)", key="hist_gp")
+            "residuals with the model's own design matrix as basis; about a second per "
+            "step on the thesis data)", key="hist_gp")
 with st.spinner("Fitting the GP discrepancy…") if s.get("hist_gp") else C.nullcontext():
     hist = C.history_rows()
 c1, c2 = st.columns([3, 2])
