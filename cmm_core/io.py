@@ -288,47 +288,78 @@ def read_setup(source, *, name="setup.json") -> Setup:
     if frame not in ("machine", "plate"):
         raise DataError(f"frame must be 'machine' or 'plate', found {frame!r}.", file=name,
                         column="frame")
-    rng = np.asarray(raw.get("machine", {}).get("range_mm", [1200, 1000, 700]), float)
-    if rng.shape != (3,) or (rng <= 0).any():
+    machine = _json_object(raw, "machine", name)
+    rng = _vector(machine.get("range_mm", [1200, 1000, 700]), name, "machine.range_mm",
+                  "three positive lengths (mm)")
+    if (rng <= 0).any():
         raise DataError(f"machine.range_mm must be three positive lengths, found {rng}.",
                         file=name, column="machine.range_mm")
-    probes = {}
-    for pname, vec in raw.get("probes", {}).items():
-        v = np.asarray(vec, float)
-        if v.shape != (3,):
-            raise DataError(f"probe {pname!r} must be a vector of 3 numbers (mm), found {vec}.",
-                            file=name, column=f"probes.{pname}")
-        probes[str(pname)] = v
+    probes = {str(pname): _vector(vec, name, f"probes.{pname}", "a vector of 3 numbers (mm)")
+              for pname, vec in _json_object(raw, "probes", name).items()}
     positions = {}
-    for pos, spec in raw.get("positions", {}).items():
+    for pos, spec in _json_object(raw, "positions", name).items():
         key = f"positions.{pos}"
-        try:
-            origin = np.asarray(spec["origin_mm"], float)
-            u = np.asarray(spec.get("u_axis", [1, 0, 0]), float)
-            v = np.asarray(spec.get("v_axis", [0, 1, 0]), float)
-        except (KeyError, TypeError, ValueError) as exc:
-            raise DataError(f"position needs origin_mm, u_axis and v_axis as 3-vectors ({exc}).",
-                            file=name, column=key) from exc
-        if origin.shape != (3,) or u.shape != (3,) or v.shape != (3,):
-            raise DataError("origin_mm, u_axis and v_axis must have 3 numbers each.",
+        if not isinstance(spec, dict):
+            raise DataError(f"expected an object with origin_mm, u_axis, v_axis, found "
+                            f"{type(spec).__name__} {spec!r}.", file=name, column=key)
+        if "origin_mm" not in spec:
+            raise DataError("position needs origin_mm (and u_axis, v_axis) as 3-vectors.",
                             file=name, column=key)
+        origin = _vector(spec["origin_mm"], name, key + ".origin_mm", "3 numbers (mm)")
+        u = _vector(spec.get("u_axis", [1, 0, 0]), name, key + ".u_axis", "3 numbers")
+        v = _vector(spec.get("v_axis", [0, 1, 0]), name, key + ".v_axis", "3 numbers")
+        if np.linalg.norm(u) < 1e-12:
+            raise DataError("u_axis is the zero vector.", file=name, column=key + ".u_axis")
         u = u / np.linalg.norm(u)
         v = v - u * (u @ v)
         if np.linalg.norm(v) < 1e-6:
-            raise DataError("u_axis and v_axis are parallel.", file=name, column=key)
+            raise DataError("u_axis and v_axis are parallel (or v_axis is zero).", file=name,
+                            column=key)
         v = v / np.linalg.norm(v)
         probe = spec.get("probe")
         if probe is not None and str(probe) not in probes:
             raise DataError(f"probe {probe!r} is not among the probes {sorted(probes)}.",
                             file=name, column=key + ".probe")
+        records = {}
+        for rec in ("temp_C", "rh_percent"):
+            val = spec.get(rec, ())
+            val = [val] if isinstance(val, int | float) else val
+            try:
+                records[rec] = tuple(float(t) for t in val)
+            except (TypeError, ValueError):
+                raise DataError(f"{rec} must be a number or a list of numbers, found {val!r}.",
+                                file=name, column=f"{key}.{rec}") from None
         positions[str(pos)] = Placement(origin, np.column_stack([u, v, np.cross(u, v)]),
                                         None if probe is None else str(probe),
-                                        tuple(spec.get("temp_C", ())),
-                                        tuple(spec.get("rh_percent", ())))
+                                        records["temp_C"], records["rh_percent"])
     if not positions:
         raise DataError("no positions defined.", file=name, column="positions")
-    cte = float(raw.get("plate", {}).get("cte_per_K", 11.5e-6))
+    cte = _json_object(raw, "plate", name).get("cte_per_K", 11.5e-6)
+    if isinstance(cte, bool) or not isinstance(cte, int | float) or not np.isfinite(cte):
+        raise DataError(f"plate.cte_per_K must be a number (1/K, e.g. 11.5e-6), found {cte!r}.",
+                        file=name, column="plate.cte_per_K")
+    cte = float(cte)
     return Setup(frame, rng, positions, probes, cte, raw)
+
+
+def _json_object(raw: dict, key: str, name) -> dict:
+    """``raw[key]`` when it is a JSON object (``{}`` when absent), else a DataError."""
+    val = raw.get(key, {})
+    if not isinstance(val, dict):
+        raise DataError(f"expected a JSON object for {key!r}, found {type(val).__name__} "
+                        f"{val!r}.", file=name, column=key)
+    return val
+
+
+def _vector(val, name, column, expected) -> np.ndarray:
+    """A length-3 float vector from JSON, or a DataError saying what was expected."""
+    try:
+        v = np.asarray(val, float)
+    except (TypeError, ValueError):
+        v = None
+    if v is None or v.shape != (3,) or not np.isfinite(v).all():
+        raise DataError(f"must be {expected}, found {val!r}.", file=name, column=column)
+    return v
 
 
 def read_certificate(source, *, name=None) -> Certificate:

@@ -35,6 +35,9 @@ def _checked_text(upload, reader, problems):
     except UnicodeDecodeError:
         problems.append({"file": upload.name, "row": None, "column": "",
                          "problem": "is not UTF-8 text.", "hint": "save it as UTF-8 CSV/JSON."})
+    except Exception as exc:  # noqa: BLE001 - a message, never a traceback
+        problems.append({"file": upload.name, "row": None, "column": "",
+                         "problem": C.describe_error(exc), "hint": ""})
     return None
 
 

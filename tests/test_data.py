@@ -1,5 +1,8 @@
 """Data I/O, validation messages, thesis table 6.8 and outlier flags."""
 
+import io
+import json
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -111,3 +114,28 @@ def test_certificate_ball_16_x_contradicted_by_all_positions(thesis):
     sus = {(s["ball"], s["axis"]): s["deviation_um"] for s in rep.certificate_suspects}
     assert set(sus) == {(16, "x")}
     assert -25 < sus[(16, "x")] < -15
+
+
+_GOOD_POS = {"origin_mm": [0, 0, 0], "u_axis": [1, 0, 0], "v_axis": [0, 1, 0]}
+
+
+@pytest.mark.parametrize("raw, column, needle", [
+    ({"positions": 1}, "positions", "expected a JSON object"),
+    ({"positions": {"H": [1, 2, 3]}}, "positions.H", "expected an object"),
+    ({"positions": {"H": {**_GOOD_POS, "origin_mm": ["a", 0, 0]}}}, "positions.H.origin_mm",
+     "3 numbers"),
+    ({"positions": {"H": {**_GOOD_POS, "u_axis": [0, 0, 0]}}}, "positions.H.u_axis", "zero"),
+    ({"positions": {"H": {**_GOOD_POS, "temp_C": "warm"}}}, "positions.H.temp_C", "numbers"),
+    ({"positions": {"H": _GOOD_POS}, "probes": {"1": "long"}}, "probes.1", "3 numbers"),
+    ({"positions": {"H": _GOOD_POS}, "probes": [0, 0, -150]}, "probes", "JSON object"),
+    ({"positions": {"H": _GOOD_POS}, "machine": {"range_mm": [1200, 1000]}},
+     "machine.range_mm", "three positive"),
+    ({"positions": {"H": _GOOD_POS}, "plate": {"cte_per_K": "steel"}}, "plate.cte_per_K",
+     "must be a number"),
+])
+def test_malformed_setup_names_the_field_and_what_was_expected(raw, column, needle):
+    """Every structural mistake in a setup JSON is a DataError naming the field (found by
+    the browser review: a non-object `positions` used to raise AttributeError)."""
+    with pytest.raises(DataError, match=needle) as exc:
+        read_setup(io.BytesIO(json.dumps(raw).encode()), name="setup.json")
+    assert exc.value.column == column and exc.value.file == "setup.json"
