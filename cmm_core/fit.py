@@ -506,33 +506,47 @@ def _normal_equations(J, d, chunk=30000):
     return N, g
 
 
+class _Normal:
+    """Constrained, column-scaled normal equations of one linearisation (thesis appendix 2:
+    QR null space of the constraints), eigen-decomposed once so that steps for several
+    Levenberg-Marquardt dampings cost a matrix-vector product each."""
+
+    def __init__(self, J, d, C, rank_rtol):
+        n = J.shape[1]
+        N0, g0 = _normal_equations(J, d)
+        norms = np.sqrt(np.clip(np.diag(N0), 0, None))
+        self.S = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
+        if C.shape[0]:
+            Q, _ = sla.qr((C * self.S).T)
+            self.Z = Q[:, np.linalg.matrix_rank(C * self.S):]
+        else:
+            self.Z = np.eye(n)
+        Nr = self.Z.T @ (self.S[:, None] * N0 * self.S[None, :]) @ self.Z
+        lam, V = np.linalg.eigh((Nr + Nr.T) / 2)
+        lam = np.clip(lam, 0, None)
+        sv = np.sqrt(lam)
+        keep = sv > rank_rtol * sv.max() if sv.max() > 0 else np.zeros_like(sv, bool)
+        self.lam, self.Vk = lam[keep], V[:, keep]
+        self.null = self.Z @ V[:, ~keep]  # in scaled parameter space
+        self.rank = int(keep.sum())
+        self.proj_g = self.Vk.T @ (self.Z.T @ (self.S * g0))
+
+    def step(self, mu=0.0):
+        """Minimum-norm step; ``mu`` > 0 damps it (scaled space, where JᵀJ has unit
+        diagonal): the poorly determined directions shrink first."""
+        return -(self.S * (self.Z @ (self.Vk @ (self.proj_g / (self.lam + mu)))))
+
+    def cov(self):
+        ZV = self.Z @ self.Vk
+        return (self.S[:, None] * ((ZV / self.lam) @ ZV.T)) * self.S[None, :]
+
+
 def _solve(J, d, C, rank_rtol):
     """Minimum-norm Gauss-Newton step under constraints C x = 0 (QR null space, thesis
     appendix 2), with column scaling and an eigen-decomposition of the reduced normal
     matrix for the numerical rank. Returns step, covariance, rank, null vectors."""
-    n = J.shape[1]
-    N0, g0 = _normal_equations(J, d)
-    norms = np.sqrt(np.clip(np.diag(N0), 0, None))
-    S = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
-    if C.shape[0]:
-        Q, _ = sla.qr((C * S).T)
-        rc = np.linalg.matrix_rank(C * S)
-        Z = Q[:, rc:]
-    else:
-        Z = np.eye(n)
-    N = S[:, None] * N0 * S[None, :]
-    g = S * g0
-    Nr = Z.T @ N @ Z
-    lam, V = np.linalg.eigh((Nr + Nr.T) / 2)
-    lam = np.clip(lam, 0, None)
-    sv = np.sqrt(lam)
-    keep = sv > rank_rtol * sv.max() if sv.max() > 0 else np.zeros_like(sv, bool)
-    Vk = V[:, keep]
-    inv = Vk / lam[keep]
-    step = -(S * (Z @ (inv @ (Vk.T @ (Z.T @ g)))))
-    cov = (S[:, None] * (Z @ inv @ Vk.T @ Z.T)) * S[None, :]
-    null = Z @ V[:, ~keep]  # in scaled parameter space
-    return step, cov, int(keep.sum()), null
+    ne = _Normal(J, d, C, rank_rtol)
+    return ne.step(), ne.cov(), ne.rank, ne.null
 
 
 def _describe_null(null, labels, limit=6):
@@ -549,7 +563,7 @@ def _describe_null(null, labels, limit=6):
 @single_blas_thread
 def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, order: int = 2,
         plate: str | None = None, sigma_um: float = 0.5, positions=None, probes=None,
-        exclude=(), rank_rtol: float = 1e-4, max_iter: int = 30, tol: float = 1e-9) -> FitResult:
+        exclude=(), rank_rtol: float = 1e-4, max_iter: int = 100, tol: float = 1e-9) -> FitResult:
     """Fit a model to ball-plate measurements by Gauss-Newton (thesis §4.5.1).
 
     Parameters
@@ -597,20 +611,35 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     status, it = "max_iterations", 0
     d, r, J = weighted_residual(prob, state, sigma_um, True)
     cost = r @ r
+    # Gauss-Newton with Levenberg-Marquardt damping on rejection: a line search along the
+    # full step fails when nearly undetermined directions (a single placement) ask for
+    # rotations of radians, where the linearisation no longer holds.
+    mu = 0.0
+    # Which combinations the data determine is a property of the design, decided at the
+    # nominal linearisation and then frozen: re-deciding it as the state moves let weakly
+    # coupled directions (sv 1e-5 of the largest for a single placement) become
+    # "determined" through the nonlinearity of radian-sized rotations, and the fit slid
+    # along that valley without converging.
+    ne = _Normal(J, r, C, rank_rtol)
+    null0 = ne.null
+    C_run = np.vstack([C, (null0 / ne.S[:, None]).T]) if null0.shape[1] else C
     for it in range(1, max_iter + 1):  # noqa: B007 - `it` reports the iteration count
-        step, cov, rank, null = _solve(J, r, C, rank_rtol)
-        lam, accepted = 1.0, False
-        for _ in range(12):
-            trial = prob.update(state, lam * step)
-            # the full step is nearly always accepted: evaluate its Jacobian at once
-            dt, rt, Jt = weighted_residual(prob, trial, sigma_um, lam == 1.0)
-            if rt @ rt <= cost * (1 + 1e-12) or lam < 1e-3:
-                accepted = rt @ rt <= cost * (1 + 1e-12)
+        if it > 1 or null0.shape[1]:
+            ne = _Normal(J, r, C_run, rank_rtol)
+        accepted = False
+        for attempt in range(16):
+            trial = prob.update(state, ne.step(mu))
+            # the undamped step is nearly always accepted: evaluate its Jacobian at once
+            dt, rt, Jt = weighted_residual(prob, trial, sigma_um, attempt == 0)
+            if rt @ rt <= cost * (1 + 1e-12):
+                accepted = True
                 break
-            lam /= 2
+            mu = max(10 * mu, 1e-6)
         if not accepted:
-            status = "converged" if abs(lam) < 1e-3 and cost < np.inf else "failed"
+            # no damping lowers the cost: the linearisation's minimum is where we stand
+            status = "converged" if cost < np.inf else "failed"
             break
+        mu = mu / 10 if mu > 1e-6 else 0.0
         state = trial
         new_cost = rt @ rt
         if Jt is None:
@@ -621,7 +650,9 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
         if done:
             status = "converged"
             break
-    step, cov, rank, null = _solve(J, r, C, rank_rtol)
+    ne = _Normal(J, r, C_run, rank_rtol)
+    cov, rank = ne.cov(), ne.rank
+    null = np.hstack([null0, ne.null]) if null0.shape[1] else ne.null
     u = np.sqrt(np.clip(np.diag(cov), 0, None))
     combos, names = _describe_null(null, L.labels)
     unident = [lab for lab in L.labels if lab in names]
@@ -633,6 +664,16 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     bic = chi2 + rank * np.log(n_rows)
     rms = float(np.sqrt(np.mean(d**2)))
     msg = _message(status, it, rms, chi2 / max(dof, 1), combos)
+    kin_block = L.blocks["kinematic"]
+    wild = [(L.labels[i], values[i], L.units[i]) for i in range(kin_block.start, kin_block.stop)
+            if abs(values[i]) > IMPLAUSIBLE]
+    if wild:
+        lab, val, unit = max(wild, key=lambda w: abs(w[1]))
+        msg += (f" {len(wild)} kinematic parameter(s) reach physically implausible sizes "
+                f"(largest {lab} = {val:.3g} {unit.replace('um', 'µm').replace('urad', 'µrad')}"
+                "): the data determine them only weakly and the misfit drives them. Trust "
+                "neither them nor the error map built from them; add placements or remove "
+                "those functions.")
     return FitResult(status, msg, it, spec.to_string(explicit=True), plate, sigma_um, list(L.labels),
                      list(L.units), list(L.groups), values, u, cov, d, obs.table, rms, chi2,
                      int(dof), chi2 / max(dof, 1), float(bic), rank, rank_rtol, unident, combos,
@@ -672,6 +713,12 @@ def _report_values(prob, state):
     v[L["rotation"]] = rot.ravel()
     v[L["translation"]] = ((state["t"] - o.t0_mm) / UM).ravel()
     return v
+
+
+IMPLAUSIBLE = 1000.0
+"""Size (µm or µrad) beyond which a fitted kinematic coefficient is not a CMM error: a
+machine whose straightness or rotation errors reach a millimetre or a milliradian is
+broken, so such values mean the data barely determine that function."""
 
 
 def _message(status, it, rms, chi2_dof, combos):
