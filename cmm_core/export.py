@@ -25,6 +25,8 @@ import numpy as np
 import pandas as pd
 
 from . import __version__
+from .effects import MAX_ORDER, parse_spec
+from .fit import PLATE_MODES
 from .io import DataError
 
 PROJECT_FORMAT = "cmm-error-lab-project"
@@ -248,6 +250,49 @@ def project_to_json(*, dataset_name: str, measurements: list, setup: str,
     return json.dumps(_clean(doc), indent=1, allow_nan=False)
 
 
+def _checked_model(model, name) -> dict:
+    """The project's model block with every field checked against what the app accepts
+    (a bad field would otherwise break every page of the restored session)."""
+    if not isinstance(model, dict):
+        raise DataError("model must be an object.", file=name, column="model")
+    out = {}
+
+    def bad(key, expected):
+        return DataError(f"{key} must be {expected}, found {model[key]!r}.", file=name,
+                         column=f"model.{key}")
+
+    if "order" in model:
+        o = model["order"]
+        if isinstance(o, bool) or not isinstance(o, int) or not 1 <= o <= MAX_ORDER:
+            raise bad("order", f"a whole number 1-{MAX_ORDER}")
+        out["order"] = o
+    if "spec" in model:
+        if not isinstance(model["spec"], str):
+            raise bad("spec", "a model spec string such as \"kinematic21,plate_sag\"")
+        try:
+            parse_spec(model["spec"], default_order=out.get("order", 2))
+        except ValueError as exc:
+            raise DataError(str(exc), file=name, column="model.spec") from exc
+        out["spec"] = model["spec"]
+    if "plate" in model:
+        if model["plate"] not in ("auto", *PLATE_MODES):
+            raise bad("plate", f"one of auto, {', '.join(PLATE_MODES)}")
+        out["plate"] = model["plate"]
+    if "sigma_um" in model:
+        v = model["sigma_um"]
+        if isinstance(v, bool) or not isinstance(v, int | float) or not 0 < v < 1e4:
+            raise bad("sigma_um", "a positive repeatability in µm")
+        out["sigma_um"] = float(v)
+    for key in ("positions", "probes"):
+        if key in model:
+            v = model[key]
+            if v is not None and (not isinstance(v, list) or not v
+                                  or not all(isinstance(x, str | int) for x in v)):
+                raise bad(key, "null (all) or a non-empty list of names")
+            out[key] = None if v is None else [str(x) for x in v]
+    return out
+
+
 def project_from_json(text, name="project.json") -> dict:
     """Parse and check a project file; returns the document with tuples restored.
 
@@ -266,7 +311,11 @@ def project_from_json(text, name="project.json") -> dict:
     if not isinstance(doc, dict) or doc.get("format") != PROJECT_FORMAT:
         raise DataError(f"is not a CMM error lab project (expected \"format\": "
                         f"\"{PROJECT_FORMAT}\").", file=name)
-    if doc.get("version", 0) > PROJECT_VERSION:
+    version = doc.get("version", 0)
+    if isinstance(version, bool) or not isinstance(version, int | float):
+        raise DataError(f"version must be a number, found {version!r}.", file=name,
+                        column="version")
+    if version > PROJECT_VERSION:
         raise DataError(f"was written by a newer version (project version "
                         f"{doc.get('version')}).", file=name)
     ds = doc.get("dataset")
@@ -288,9 +337,7 @@ def project_from_json(text, name="project.json") -> dict:
     setup = ds["setup"]
     if isinstance(setup, dict):
         setup = json.dumps(setup)
-    model = doc.get("model") or {}
-    if not isinstance(model, dict):
-        raise DataError("model must be an object.", file=name, column="model")
+    model = _checked_model(doc.get("model") or {}, name)
     try:
         excl = [(str(p), str(q), int(b)) for p, q, b in doc.get("exclusions", [])]
     except (TypeError, ValueError) as exc:

@@ -78,10 +78,14 @@ if s["diag_on"]:
         if best["significant"]:
             st.success(f"Most likely missing: **{best['title']}** (`{best['effect']}`): "
                        f"ΔBIC {best['delta_bic']:.1f}, p = {best['p_value']:.2g}.")
+        elif base.chi2_dof < 1.5:
+            st.info(f"No candidate is significant and χ²/dof is {base.chi2_dof:.2f}: the "
+                    "data are explained to noise by this model.")
         else:
-            st.info("No candidate is significant: either the data are explained to noise "
-                    "(χ²/dof near 1) or the misfit has a cause outside the catalogue "
-                    "(check the outliers on the Data page and the residual map).")
+            st.warning(f"No catalogue effect explains a significant part of the misfit, yet "
+                       f"χ²/dof is {base.chi2_dof:.1f}: the cause lies outside the catalogue "
+                       "or the stated repeatability σ is too small (check the outliers on "
+                       "the Data page and the residual map).")
         st.caption(conclusion)
         table = pd.DataFrame([{k: v for k, v in c_.items() if k not in (
             "signature_um", "explanation")} for c_ in cands])
@@ -96,8 +100,8 @@ if s["diag_on"]:
                                         "Δχ²", format="%.1f"),
                                     "p_value": st.column_config.NumberColumn("p",
                                                                              format="%.2g")})
-        n_show = st.slider("Candidates to show in detail", 1, min(10, len(cands)),
-                           min(3, len(cands)), key="w_n_show")
+        n_show = (st.slider("Candidates to show in detail", 1, min(10, len(cands)),
+                            min(3, len(cands)), key="w_n_show") if len(cands) > 1 else 1)
         for i, c_ in enumerate(cands[:n_show]):
             with st.container(border=True):
                 h1, h2 = st.columns([5, 1])
@@ -105,9 +109,14 @@ if s["diag_on"]:
                             f"{c_['rms_um']:.3f} µm, χ²/dof {c_['chi2_dof']:.2f}, ΔBIC "
                             f"{c_['delta_bic']:.1f}, p = {c_['p_value']:.2g}"
                             + (" — significant" if c_["significant"] else ""))
+                # an effect the data cannot determine on top of this model adds only
+                # undetermined parameters: nothing to add
                 h2.button("Add this effect", key=f"add_{c_['effect']}",
                           on_click=C.apply_change, args=(c_["effect"],), type="primary"
-                          if c_["significant"] else "secondary")
+                          if c_["significant"] else "secondary",
+                          disabled=c_["n_params"] == 0,
+                          help="The data cannot determine it on top of this model."
+                          if c_["n_params"] == 0 else None)
                 st.write(c_["explanation"])
                 st.caption(f"This data set would see it above: {c_['detectable_above']} "
                            "(80 % probability at the test's level). A smaller effect may be "

@@ -43,11 +43,13 @@ def kinematic_at_observations(args, _r):
 
 
 @st.cache_resource(show_spinner=False, max_entries=48)
-def fit_gp_component(args, mean, kernel, restarts, comp, _points, _values):
+def fit_gp_component(args, target, mean, kernel, restarts, comp, _points, _values):
     """One component's GP (cached per component so a progress bar can show between them
-    and a changed input cancels the rest)."""
+    and a changed input cancels the rest). ``target`` names what ``_values`` holds
+    (``measured`` errors or ``kinematic`` residuals): the values are not hashed, so the
+    name must be part of the key."""
     return gp_components(_points, np.asarray(_values, float)[:, None], mean=mean, kernel=kernel,
-              seed=comp, restarts=restarts)
+                         seed=comp, restarts=restarts)
 
 
 @st.cache_resource(show_spinner=False, max_entries=128)
@@ -56,13 +58,19 @@ def gp_predict(args, mean, kernel, comp, grid_key, _comp, _grid):
     return np.asarray(m, float)[:, 0], np.asarray(sd, float)[:, 0]
 
 
-def fit_gp_all(args, mean, kernel, restarts, points, target):
+def _fmt_lengths(v) -> str:
+    """Length scale(s) in mm to 4 significant digits (one per input for ARD)."""
+    vals = np.atleast_1d(np.asarray(v if v is not None else np.nan, float))
+    return " / ".join(f"{x:.4g}" for x in vals)
+
+
+def fit_gp_all(args, target_name, mean, kernel, restarts, points, target):
     """The three component GPs with a progress bar."""
     bar = st.progress(0.0, text="Fitting the GP (hyperparameters by marginal likelihood)…")
     comps = []
     for c_ in range(3):
         bar.progress(c_ / 3, text=f"Fitting the GP for e{'xyz'[c_]} ({c_ + 1}/3)…")
-        comps.append(fit_gp_component(args, mean, kernel, restarts, c_, points,
+        comps.append(fit_gp_component(args, target_name, mean, kernel, restarts, c_, points,
                                       target[:, c_]))
     bar.empty()
     return comps
@@ -136,8 +144,9 @@ if s.get("gp_on"):
     with C.guarded("Gaussian process"):
         target = err - pred_kin if mean_choice == "kinematic" else err
         gmean = "zero" if mean_choice == "kinematic" else mean_choice
-        comps = fit_gp_all(args, gmean, kernel, restarts, pts, target)
-        gkey = (gmean, kernel, restarts)
+        target_name = "kinematic residuals" if mean_choice == "kinematic" else "measured"
+        comps = fit_gp_all(args, target_name, gmean, kernel, restarts, pts, target)
+        gkey = (mean_choice, kernel, restarts)
         gm, gsd = predict_all(args, gkey, kernel, f"{position}-{n}", comps, grid_m)
         om, osd = predict_all(args, gkey, kernel, "obs", comps, pts)
         # leave-one-out predictions (R&W eq. 5.12): each ball predicted without itself
@@ -159,14 +168,16 @@ if s.get("gp_on"):
                                                    colorscale="Viridis", xlabel="plate u (mm)",
                                                    ylabel="plate v (mm)"), key="gp_sd_surface")
         summ_gp = {"xyz"[i]: c_.summary()["x"] for i, c_ in enumerate(comps)}
-        hyp = pd.DataFrame([{"component": c_, "length scale (mm)": str(v.get(
+        hyp = pd.DataFrame([{"component": c_, "length scale (mm)": _fmt_lengths(v.get(
             "length_scale_mm")), "signal sd (µm)": v.get("signal_sd_um"),
             "noise sd (µm)": v.get("noise_sd_um"), "log marginal likelihood":
             v.get("log_marginal_likelihood"), "LOO RMS (µm)": v.get("loo_rms_um"),
             "status": v.get("status")} for c_, v in summ_gp.items()])
         st.markdown("**Fitted hyperparameters** (one GP per error component, machine "
                     "coordinates)")
-        st.dataframe(hyp, hide_index=True, key="gp_hyper")
+        st.dataframe(hyp, hide_index=True, key="gp_hyper", column_config={
+            c_: st.column_config.NumberColumn(format="%.3f") for c_ in
+            ("signal sd (µm)", "noise sd (µm)", "log marginal likelihood", "LOO RMS (µm)")})
 st.caption("Plate plane of the chosen position (plate u and v in mm); × marks the measured "
            "ball centres. Errors in µm, in the rigid-aligned "
            "sense (the placement of the plate absorbs translations and rotations).")

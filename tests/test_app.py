@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytest.importorskip("streamlit")
@@ -309,6 +310,25 @@ def test_gaussian_process_fit_and_chapter7_comparison():
     assert loo_page == pytest.approx(float(hyp.iloc[0]["LOO RMS (µm)"]), abs=1.5e-3)
     # predicting a ball from the others is harder than refitting it
     assert loo_page > float(metric["GP: RMS difference (µm)"])
+
+
+def test_gp_with_the_kinematic_mean_is_a_different_gp():
+    """Found by the browser review: the GP over the kinematic residuals shared the cache
+    entry of the zero-mean GP over the measured errors (the values were not part of the
+    key), so both showed the same hyperparameters."""
+    at = _new()
+    at.switch_page("pages/gaussian_process.py")
+    at.run()
+    at.number_input(key="w_gp_restarts").set_value(0)
+    at.run()
+    at.button(key="fit_gp").click()
+    at.run(timeout=300)
+    zero = _frame(at, "LOO RMS (µm)")
+    at.radio(key="w_gp_mean").set_value("kinematic")
+    at.run(timeout=300)
+    _ok(at)
+    kin = _frame(at, "LOO RMS (µm)")
+    assert not np.allclose(zero["log marginal likelihood"], kin["log marginal likelihood"])
 
 
 def test_uncertainty_monte_carlo_budget_and_mpe():

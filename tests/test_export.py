@@ -1,6 +1,7 @@
 """Exports: spreadsheet safety, the error-map grid, compensation, project files, report."""
 
 import io
+import json
 
 import numpy as np
 import pandas as pd
@@ -151,3 +152,29 @@ def test_report_is_self_contained(result):
     for text in ("Fitted error functions", "Deviations, BP111", "Residuals",
                  "Fitted parameters", "BP112/2 ball 7", "kinematic21", "µm"):
         assert text in html
+
+
+@pytest.mark.parametrize("field, value, needle", [
+    ("order", "two", "whole number 1-5"),
+    ("order", 99, "whole number 1-5"),
+    ("spec", "kinematic21,wobble", "unknown model token"),
+    ("plate", "wobbly", "one of auto, fixed"),
+    ("sigma_um", "x", "positive repeatability"),
+    ("sigma_um", -1, "positive repeatability"),
+    ("positions", "BP111", "list of names"),
+])
+def test_bad_model_fields_in_a_project_are_named(field, value, needle):
+    """Found by the browser review: a project with "order": "two" broke every page of the
+    restored session. Each model field is checked where the file is read."""
+    model = {"spec": "kinematic21", "order": 2, "plate": "auto", "sigma_um": 0.5,
+             "positions": None, "probes": None, field: value}
+    with pytest.raises(DataError, match=needle) as exc:
+        export.project_from_json(_thesis_project(model=model))
+    assert exc.value.column == f"model.{field}"
+
+
+def test_project_version_must_be_a_number():
+    doc = json.loads(_thesis_project())
+    doc["version"] = "2"
+    with pytest.raises(DataError, match="version must be a number"):
+        export.project_from_json(json.dumps(doc))
