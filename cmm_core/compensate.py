@@ -66,7 +66,9 @@ def model_from_result(result: FitResult) -> Model:
                  result.kinematic_cov.copy(), probes,
                  any(lab in kin_labels for lab in result.unidentifiable),
                  {"rms_um": result.rms_um, "chi2_dof": result.chi2_dof, "n_obs": result.n_obs,
-                  "plate": result.plate, "sigma_um": result.sigma_um})
+                  "plate": result.plate, "sigma_um": result.sigma_um,
+                  "region_mm": [np.min(obs.r_mm - obs.p_mm, axis=0).tolist(),
+                                np.max(obs.r_mm - obs.p_mm, axis=0).tolist()]})
 
 
 def model_to_dict(model: Model | FitResult) -> dict:
@@ -97,6 +99,25 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
                         f"covariance, found {coef.shape} and {cov.shape}.", file=name)
     return Model(d.get("spec", ""), terms, coef, cov, probes, bool(d.get("undetermined")),
                  d.get("summary", {}))
+
+
+def _extrapolation_note(m: Model, x_mm: np.ndarray) -> np.ndarray:
+    """Per point: "" inside the region the fit measured (box of its scale readings),
+    else why the correction is an extrapolation. A polynomial fitted over part of a
+    stroke is not evidence about the rest, and outside the machine's range it is not even
+    defined; the uncertainty, propagated from the coefficients, does not show that."""
+    rng = np.asarray(m.terms.range_mm, float)
+    note = np.full(len(x_mm), "", dtype=object)
+    region = m.summary.get("region_mm") if isinstance(m.summary, dict) else None
+    if region is not None:
+        lo, hi = np.asarray(region[0], float), np.asarray(region[1], float)
+        outside = ((x_mm < lo - 1.0) | (x_mm > hi + 1.0)).any(axis=1)
+        note[outside] = "outside the measured region"
+    # styli put scale readings a little beyond the strokes (the thesis layout: z = -50 mm),
+    # so only a gross excursion (a quarter of the stroke) says units or frame are wrong
+    beyond = ((x_mm < -0.25 * rng) | (x_mm > 1.25 * rng)).any(axis=1)
+    note[beyond] = "outside the machine's range"
+    return note
 
 
 def save_model(model: Model | FitResult, path) -> None:
@@ -155,4 +176,5 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
     out["xc_mm"], out["yc_mm"], out["zc_mm"] = (r + e_um * kin.UM).T
     out["ex_um"], out["ey_um"], out["ez_um"] = e_um.T
     out["u_x_um"], out["u_y_um"], out["u_z_um"] = u.T
+    out["extrapolated"] = _extrapolation_note(m, x)
     return out

@@ -162,40 +162,11 @@ def read_points(source, name="points.csv") -> pd.DataFrame:
 
 
 def compensate_points(result, points: pd.DataFrame) -> pd.DataFrame:
-    """Corrected tip centres ``xc_mm, yc_mm, zc_mm`` and ``u_x_um, u_y_um, u_z_um``.
+    """Corrected tip centres ``xc_mm, yc_mm, zc_mm``, errors and ``u_x_um, u_y_um,
+    u_z_um`` (``compensate.compensate``), with an ``extrapolated`` note per point."""
+    from .compensate import compensate
 
-    Uses ``cmm_core.compensate.compensate`` when it is available. ADAPTER otherwise: the
-    reported tip ``r`` with probe ``q`` is corrected to ``r + e(r - p_q, p_q)`` with the
-    error and its standard uncertainty from ``uncertainty.error_at``.
-    """
-    try:
-        from .compensate import compensate as core_compensate
-    except ImportError:
-        core_compensate = None
-    if core_compensate is not None:
-        return core_compensate(result, points)
-    from .uncertainty import error_at
-
-    obs = result.problem.obs
-    setup_probes = {q: obs.p_mm[obs.probe == i][0] for i, q in enumerate(obs.probes)}
-    df = points.copy()
-    if "probe" not in df.columns:
-        df["probe"] = obs.probes[0]
-    unknown = sorted(set(df["probe"].astype(str)) - set(setup_probes))
-    if unknown:
-        raise DataError(f"probe(s) {', '.join(unknown)} were not in the fit (known: "
-                        f"{', '.join(obs.probes)}).", column="probe")
-    r = df[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
-    e = np.full(r.shape, np.nan)
-    u = np.full(r.shape, np.nan)
-    for q in dict.fromkeys(df["probe"].astype(str)):
-        sel = (df["probe"].astype(str) == q).to_numpy()
-        ei, ui = error_at(result, r[sel] - setup_probes[q], q)
-        e[sel], u[sel] = ei, ui
-    c = r + e * 1e-3
-    df["xc_mm"], df["yc_mm"], df["zc_mm"] = c.T
-    df["u_x_um"], df["u_y_um"], df["u_z_um"] = u.T
-    return df
+    return compensate(result, points)
 
 
 # ---------------------------------------------------------------------------------------

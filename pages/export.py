@@ -3,7 +3,6 @@
 import io
 import json
 
-import numpy as np
 import pandas as pd
 import streamlit as st
 
@@ -55,6 +54,15 @@ if corr is not None:
                                 for c in view.columns if c.endswith("_mm")}
                  | {c: st.column_config.NumberColumn(format="%.3f")
                     for c in view.columns if c.endswith("_um")})
+    n_ext = int((corr["extrapolated"] != "").sum())
+    if n_ext:
+        st.warning(f"{n_ext} of {len(corr)} point(s) lie outside the region the fit measured "
+                   "(see the 'extrapolated' column): their corrections extrapolate the "
+                   "polynomials and their uncertainties do not show it.")
+    if r.unidentifiable:
+        st.warning("The model has parameters the data do not determine: the corrections "
+                   "use an arbitrary (minimum-norm) choice for them and carry no "
+                   "uncertainty. Add placements on the Kinematic model page first.")
     st.download_button("Download corrected points (CSV)",
                        ex.safe_csv(corr, float_format="%.6f"), "corrected_points.csv",
                        "text/csv", key="dl_corrected", on_click="ignore")
@@ -149,6 +157,6 @@ c1.download_button("Project file (JSON)", _project_text, "cmm_project.json",
 c2.caption(f"Model `{r.spec}`, RMS {r.rms_um:.3f} µm, {r.n_obs} observations, "
            f"{len(excl)} excluded. CSV files are safe to open in a spreadsheet (text cells "
            "that could be formulas are prefixed with an apostrophe).")
-if np.isnan(r.u).any():
+if r.unidentifiable:
     st.warning("Some parameters are not determined by the data: their uncertainties are "
                "empty in the exports.")

@@ -175,3 +175,22 @@ def test_single_location_fits_converge_with_the_design_null_space(thesis, positi
     kin_idx = [i for i, g in enumerate(r.groups) if g == "kinematic"]
     if any(abs(r.values[i]) > 1000 for i in kin_idx):
         assert "implausible" in r.message
+
+
+def test_compensation_flags_points_outside_the_measured_region():
+    """Found by the browser review: x = 5000 mm on a 1200 mm machine was corrected by
+    -2.5 mm without a word. Points outside the fitted region are flagged, and beyond the
+    machine's range flagged as such; points among the balls are not."""
+    import pandas as pd
+
+    sim = simulate({"seed": 2})
+    r = fit(sim.dataset, "kinematic21")
+    t = r.table.head(3)
+    inside = pd.DataFrame({"probe": t["probe"].astype(str), "x_mm": t["mx_mm"],
+                           "y_mm": t["my_mm"], "z_mm": t["mz_mm"]})
+    far = pd.DataFrame({"probe": ["1", "1"], "x_mm": [5000.0, 1150.0],
+                        "y_mm": [300.0, 950.0], "z_mm": [0.0, -100.0]})
+    out = compensate(r, pd.concat([inside, far], ignore_index=True))
+    assert list(out["extrapolated"][:3]) == ["", "", ""]
+    assert out["extrapolated"][3] == "outside the machine's range"
+    assert out["extrapolated"][4] == "outside the measured region"
