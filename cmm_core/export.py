@@ -86,6 +86,10 @@ def residuals_csv(result) -> str:
     return safe_csv(result.residuals_frame(), float_format="%.4f")
 
 
+MAX_GRID_NODES = 100_000
+"""Largest error-map grid (nodes); 100 000 nodes take a few seconds with uncertainties."""
+
+
 def error_map_grid(result, *, step_mm=(100.0, 100.0, 100.0), lower_mm=None, upper_mm=None,
                    probe=None) -> pd.DataFrame:
     """Error map on a regular grid of scale readings: an ISG-style compensation table.
@@ -120,6 +124,14 @@ def error_map_grid(result, *, step_mm=(100.0, 100.0, 100.0), lower_mm=None, uppe
         if n > 200:
             raise ValueError(f"grid has {n} nodes along {'xyz'[a]}; use a coarser step.")
         axes.append(lo[a] + step[a] * np.arange(max(n, 1)))
+    n_nodes = math.prod(len(ax) for ax in axes)
+    if n_nodes > MAX_GRID_NODES:
+        # the uncertainty at every node costs a Jacobian row: keep it to seconds
+        vol = float(np.prod(np.maximum(hi - lo, 1e-9)))
+        hint = (vol / MAX_GRID_NODES) ** (1 / 3)
+        raise ValueError(f"the grid would have {n_nodes:,} nodes (limit "
+                         f"{MAX_GRID_NODES:,}); use a step of about {math.ceil(hint):d} mm or "
+                         "more, or a smaller box.")
     Z, Y, X = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
     pts = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
     e, u = error_at(result, pts, probe)

@@ -207,7 +207,9 @@ class _Evaluation:
                         for nm, _ in terms.functions}
         self.values = {}
         for name in ERROR_NAMES:
-            if name in sl:
+            if name in sl and coef.ndim == 2:  # one coefficient set per point (Monte Carlo)
+                self.values[name] = np.einsum("nk,nk->n", self.designs[name], coef[:, sl[name]])
+            elif name in sl:
                 self.values[name] = self.designs[name] @ coef[sl[name]]
             else:
                 self.values[name] = np.zeros(n)
@@ -235,6 +237,9 @@ def model_point(terms: KinematicTerms, coef, x_mm, p_mm):
         Kinematic coefficients (µm, µrad).
     x_mm, p_mm : arrays (n, 3)
         Scale readings and probe offsets in mm, machine axes.
+
+    ``coef`` may also be ``(n, terms.n)``: one coefficient set per point, which evaluates
+    many draws of the coefficients at once (Monte Carlo).
     """
     return _forward(terms, np.asarray(coef, float), np.asarray(x_mm, float),
                     np.asarray(p_mm, float))[0]

@@ -5,15 +5,16 @@ import pandas as pd
 import streamlit as st
 
 from cmm_core import air, budget, gum
-from cmm_core import kinematics as kin
 from cmm_core.mpe import mpe_check as mpe
 from pages import common as C
 
 C.page_start()
 st.title("Uncertainty")
-st.caption("Standard uncertainties (k = 1) unless marked U (k = 2). The rigid-body freedoms "
-           "are removed, as in the thesis (a rigid motion of the workpiece is not a CMM "
-           "error).")
+st.caption("Standard uncertainties (k = 1) unless marked U (k = 2). U1-U3 remove the "
+           "rigid-body freedoms, as the thesis does (a rigid motion of the workpiece is not a "
+           "CMM error); the map below does not: it is the uncertainty of the error at each "
+           "point as a correction would use it, which includes the poorly fixed origin and "
+           "orientation of the machine frame.")
 ds, r = C.require_fit()
 s = st.session_state
 args = C.fit_args()
@@ -67,7 +68,8 @@ with C.guarded("Uncertainty map"):
     x_meas = obs.r_mm - obs.p_mm
     near = np.abs(x_meas[:, 2] - zval) < 60
     if show.startswith("U"):
-        vals, title = 2 * u[:, a], f"Expanded uncertainty U(e{comp}), k = 2, at Z = {zval:g} mm"
+        vals, title = 2 * u[:, a], (f"Expanded uncertainty U(e{comp}), k = 2, at Z = "
+                                    f"{zval:g} mm (rigid-body freedoms not removed)")
         scale = "Viridis"
     else:
         vals, title = e[:, a], f"Error e{comp} at Z = {zval:g} mm (probe {probe})"
@@ -84,42 +86,22 @@ with C.guarded("Uncertainty map"):
 
 st.subheader("Monte Carlo check of the propagated uncertainty")
 c1, c2 = st.columns([1, 3])
-trials = c1.number_input("Trials", 100, 20000, 1000, step=100, key="w_mc_trials")
+trials = c1.number_input("Trials", 100, 200000, 1000, step=100, key="w_mc_trials")
 run_mc = c1.button("Run Monte Carlo", key="run_mc")
 mc_key = (args, int(trials), probe)
 if run_mc:
-    cov = r.kinematic_cov
     if r.unidentifiable:
         st.warning("Not run: the data do not determine every parameter.")
     else:
         rs = np.random.default_rng(1)
         pts = np.column_stack([rs.uniform(0, rng[0], 40), rs.uniform(0, rng[1], 40),
                                rs.uniform(0, rng[2], 40)])
-        from cmm_core.uncertainty import error_at
+        from cmm_core.uncertainty import monte_carlo_error
 
-        _, u_lin = error_at(r, pts, probe)
-        p = np.broadcast_to(r.problem.obs.p_mm[r.problem.obs.probes.index(probe) ==
-                                               r.problem.obs.probe][0], pts.shape)
-        w, Q = np.linalg.eigh((cov + cov.T) / 2)
-        L = Q * np.sqrt(np.clip(w, 0, None))
-        coef0 = r.kinematic_coef
         bar = st.progress(0.0, text="Monte Carlo…")
-        chunk = max(int(trials) // 20, 1)
-        acc = np.zeros(pts.shape)
-        acc2 = np.zeros(pts.shape)
-        done = 0
-        while done < trials:
-            m = min(chunk, int(trials) - done)
-            for _ in range(m):
-                cf = coef0 + L @ rs.standard_normal(len(coef0))
-                ei = kin.error(r.terms, cf, pts, p)
-                acc += ei
-                acc2 += ei**2
-            done += m
-            bar.progress(done / trials, text=f"Monte Carlo: {done}/{int(trials)} trials")
+        _, u_mc, u_lin = monte_carlo_error(r, pts, probe, trials=int(trials),
+                                           progress=lambda f, t: bar.progress(f, text=t))
         bar.empty()
-        mean = acc / done
-        u_mc = np.sqrt(np.clip(acc2 / done - mean**2, 0, None))
         s["mc_result"] = (mc_key, u_lin, u_mc)
 res = s.get("mc_result")
 if res is not None and res[0] == mc_key:
@@ -223,7 +205,8 @@ with st.expander("Refractive index of air (modified Edlén, Birch and Downs 1994
     tC = c[0].number_input("T (°C)", 0.0, 40.0, 20.0, key="w_air_t")
     pPa = c[1].number_input("p (Pa)", 60000.0, 120000.0, 101325.0, key="w_air_p")
     rh = c[2].number_input("RH (%)", 0.0, 100.0, 50.0, key="w_air_rh")
-    lam = c[3].number_input("λ (nm)", 300.0, 1700.0, 632.99, key="w_air_l")
+    lam = c[3].number_input("λ (nm)", 350.0, 1100.0, 632.99, key="w_air_l",
+                            help="Vacuum wavelength; the Edlén equation holds 350-1100 nm.")
     n_air = C.safe(air.refractive_index_edlen, tC, pPa, rh, lam, what="Edlén")
     if n_air is not None:
         st.metric("n − 1", f"{float(n_air) - 1:.6e}")

@@ -178,3 +178,11 @@ def test_project_version_must_be_a_number():
     doc["version"] = "2"
     with pytest.raises(DataError, match="version must be a number"):
         export.project_from_json(json.dumps(doc))
+
+
+def test_error_map_grid_refuses_a_grid_too_fine_to_compute_quickly(result):
+    """Found by the browser review: a 10 mm step (867 691 nodes) blocked the page for
+    28 s. The limit names the node count and a step that fits."""
+    with pytest.raises(ValueError, match=r"867,691 nodes.*step of about \d+ mm"):
+        export.error_map_grid(result, step_mm=10.0)
+    assert len(export.error_map_grid(result, step_mm=50.0)) <= export.MAX_GRID_NODES
