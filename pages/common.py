@@ -394,8 +394,11 @@ def sidebar():
         c1, c2 = sb.columns(2)
         c1.metric("RMS (µm)", f"{r.rms_um:.3f}")
         c2.metric("χ²/dof", f"{r.chi2_dof:.2f}")
-        sb.caption(f"{r.status}; {r.n_obs} observations; rank {r.rank}"
-                   + (f"; {len(r.unidentifiable)} undetermined" if r.unidentifiable else ""))
+        status = {"converged": "converged", "max_iterations": "NOT converged",
+                  "failed": "fit failed"}.get(r.status, r.status)
+        sb.caption(f"{status}; {r.n_obs} observations; rank {r.rank}"
+                   + (f"; {len(r.null_combinations)} undetermined combination(s) of "
+                      f"{len(r.unidentifiable)} parameters" if r.unidentifiable else ""))
     n_ex = len(s["exclusions"])
     try:
         flagged = cached_outliers(s["ds_key"], ds).exclusions

@@ -105,6 +105,11 @@ with tabs[1], C.guarded("Deviation plots"):
                "points and the points the model predicts, deviations magnified (thesis "
                "figures 4.8-4.10).")
 
+def _adopt_scatter(sigma_um):
+    # the widget key must change with the value, before the widget is drawn again
+    s["sigma_um"] = s["w_sigma_um"] = float(min(max(sigma_um, 0.01), 100.0))
+
+
 with tabs[2], C.guarded("Parameter table"):
     pf = r.parameters_frame()
     pf["determined"] = ~pf["parameter"].isin(r.unidentifiable)
@@ -117,7 +122,12 @@ with tabs[2], C.guarded("Parameter table"):
         st.info(f"Birge ratio √(χ²/dof) = {birge:.2f}: the residuals scatter {birge:.2f} "
                 "times the stated σ, so u from σ alone is too small. The column *u, "
                 "Birge-scaled* is the honest standard uncertainty until the model explains "
-                "the data (see Compare and diagnose).")
+                "the data (see Compare and diagnose). The bands, maps, U1-U3 and exports "
+                "use σ; to carry the scaling everywhere, adopt the observed scatter as σ.")
+        st.button(f"Use the observed scatter as σ ({s['sigma_um'] * birge:.3g} µm)",
+                  key="adopt_scatter", on_click=_adopt_scatter, args=(s["sigma_um"] * birge,),
+                  help="Sets σ to σ·√(χ²/dof): every uncertainty on every page and in the "
+                       "exports is then Birge-scaled, and χ²/dof becomes 1.")
     if truth and truth.get("key") == s["ds_key"]:
         pf["true (simulation)"] = pf["parameter"].map(truth["truth"])
     blocks = st.multiselect("Blocks", list(dict.fromkeys(pf["block"])),

@@ -101,6 +101,24 @@ def test_kinematic_page_elements_and_order_change():
     assert at.selectbox(key="w_order").value == 3
 
 
+def test_adopting_the_observed_scatter_scales_every_uncertainty():
+    """The Birge button sets σ to σ·√(χ²/dof): the fit is the same (uniform weights), so
+    χ²/dof becomes 1 and every u grows by the Birge ratio."""
+    at = _new()
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    before = _frame(at, "parameter").set_index("parameter")
+    birge = float({m.label: m.value for m in at.metric}["χ²/dof"]) ** 0.5
+    at.button(key="adopt_scatter").click()
+    at.run()
+    _ok(at)
+    after = _frame(at, "parameter").set_index("parameter")
+    assert float({m.label: m.value for m in at.metric}["χ²/dof"]) == pytest.approx(1.0,
+                                                                                    abs=0.01)
+    ratio = (after["u"] / before["u"]).dropna()
+    assert ratio.to_numpy() == pytest.approx(birge, rel=0.01)
+
+
 def test_bad_model_spec_is_a_message_not_a_traceback():
     at = _new()
     at.switch_page("pages/kinematic.py")
