@@ -284,9 +284,19 @@ def fig_placements(dataset, certificate_xyz=None):
 
 
 def fig_surface_grid(xg, yg, values, *, title: str, unit: str, points=None, colorscale="RdBu_r",
-                     xlabel: str = "X (mm)", ylabel: str = "Y (mm)"):
-    """A heatmap of a quantity over a grid (mm) with the measured points on top."""
-    fig = go.Figure(go.Heatmap(x=xg, y=yg, z=values, colorscale=colorscale,
+                     xlabel: str = "X (mm)", ylabel: str = "Y (mm)", zrange=None):
+    """A heatmap of a quantity over a grid (mm) with the measured points on top.
+
+    A diverging colour scale (the default, for signed errors) is centred on zero so white
+    means no error; ``zrange`` = (min, max) fixes the scale so that maps drawn side by
+    side (kinematic model, GP, measurement) can be compared by colour.
+    """
+    scale = {}
+    if zrange is not None:
+        scale = {"zmin": float(zrange[0]), "zmax": float(zrange[1])}
+    elif isinstance(colorscale, str) and colorscale.startswith("RdBu"):
+        scale = {"zmid": 0.0}
+    fig = go.Figure(go.Heatmap(x=xg, y=yg, z=values, colorscale=colorscale, **scale,
                                colorbar={"title": {"text": unit}},
                                hovertemplate="%{x:.0f} mm, %{y:.0f} mm<br>%{z:.3f} "
                                              + unit + "<extra></extra>"))

@@ -125,11 +125,14 @@ offset = np.mean(pred_kin[sel] - e_at_obs, axis=0)
 e_kin_grid = e_kin_grid + offset
 pts_plate = (pts[sel] - t) @ R
 
+# one symmetric colour range for the model and GP mean maps: compare them by colour
+zlim = float(np.nanmax(np.abs(np.concatenate([e_kin_grid[:, a], err[sel, a]])))) or 1.0
 cols = st.columns(3)
 with cols[0], C.guarded("Kinematic surface"):
     st.plotly_chart(C.rep.fig_surface_grid(uu, vv, e_kin_grid[:, a].reshape(n, n),
                                            title=f"Kinematic model e{comp} (µm)", unit="µm",
-                                           points=pts_plate, xlabel="plate u (mm)", ylabel="plate v (mm)"),
+                                           points=pts_plate, xlabel="plate u (mm)",
+                                           ylabel="plate v (mm)", zrange=(-zlim, zlim)),
                     key="gp_kin_surface")
 gp_mean_obs = gp_sd_obs = loo = loo_sd = None
 if not s.get("gp_on"):
@@ -160,7 +163,9 @@ if s.get("gp_on"):
         with cols[1]:
             st.plotly_chart(C.rep.fig_surface_grid(uu, vv, gm[:, a].reshape(n, n),
                                                    title=f"GP mean e{comp} (µm)", unit="µm",
-                                                   points=pts_plate, xlabel="plate u (mm)", ylabel="plate v (mm)"), key="gp_mean_surface")
+                                                   points=pts_plate, xlabel="plate u (mm)",
+                                                   ylabel="plate v (mm)",
+                                                   zrange=(-zlim, zlim)), key="gp_mean_surface")
         with cols[2]:
             st.plotly_chart(C.rep.fig_surface_grid(uu, vv, gsd[:, a].reshape(n, n),
                                                    title=f"GP standard deviation e{comp} (µm)",
