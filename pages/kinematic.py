@@ -134,7 +134,9 @@ with tabs[2], C.guarded("Parameter table"):
                             default=[b for b in dict.fromkeys(pf["block"])
                                      if b not in ("rotation", "translation")],
                             )
-    st.dataframe(pf[pf["block"].isin(blocks)], hide_index=True, key="param_table",
+    view = pf[pf["block"].isin(blocks)].assign(unit=lambda d: d["unit"].map(
+        lambda u: u.replace("urad", "µrad").replace("um", "µm")))
+    st.dataframe(view, hide_index=True, key="param_table",
                  column_config={"value": st.column_config.NumberColumn(format="%.4f"),
                                 "u": st.column_config.NumberColumn("u (k=1)", format="%.4f"),
                                 "U (k=2)": st.column_config.NumberColumn(format="%.4f"),
