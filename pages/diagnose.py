@@ -87,10 +87,15 @@ if s["diag_on"]:
                        "or the stated repeatability σ is too small (check the outliers on "
                        "the Data page and the residual map).")
         st.caption(conclusion)
-        table = pd.DataFrame([{k: v for k, v in c_.items() if k not in (
-            "signature_um", "explanation")} for c_ in cands])
+        cols_shown = ["effect", "title", "rms_um", "chi2_dof", "delta_chi2", "n_params",
+                      "delta_bic", "p_value", "significant", "confirmed", "aliases"]
+        table = pd.DataFrame([{k: c_.get(k) for k in cols_shown} for c_ in cands])
         st.dataframe(table, hide_index=True, key="diag_table",
-                     column_config={"rms_um": st.column_config.NumberColumn("RMS (µm)",
+                     column_config={"effect": "Effect", "title": "What it is",
+                                    "n_params": st.column_config.NumberColumn("Parameters"),
+                                    "significant": "Significant", "confirmed": st.column_config
+                                    .CheckboxColumn("Refit", help="numbers from a full refit"),
+                                    "aliases": "Aliases","rms_um": st.column_config.NumberColumn("RMS (µm)",
                                                                             format="%.3f"),
                                     "chi2_dof": st.column_config.NumberColumn("χ²/dof",
                                                                               format="%.2f"),
