@@ -1,14 +1,21 @@
 """Reading and validating measurements, setups and certificates (SPEC "Data formats").
 
 Every problem is reported as a :class:`DataError` naming the file, row and column and what
-was expected, with a hint at the fix. Row numbers are 1-based data rows as a spreadsheet
-shows them (the header is row 1, so the first data row is row 2).
+was expected, with a hint at the fix. Row numbers are the rows a spreadsheet shows (the
+header is row 1, so the first data row is row 2; blank lines count as rows).
+
+Measurement and certificate files are checked completely before anything is raised: the
+error carries every cell-level problem of the file in ``DataError.problems`` (at most
+:data:`MAX_PROBLEMS`, with the full count in ``DataError.n_problems``), while ``str(exc)``
+stays one line, the first problem plus "(and N more problems)".
 """
 
 from __future__ import annotations
 
+import csv
 import io as _io
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,14 +26,33 @@ LONG_COLUMNS = ("position", "probe", "ball", "x_mm", "y_mm", "z_mm")
 OPTIONAL_COLUMNS = ("time_min", "temp_C", "repeat")
 THESIS_COLUMNS = ("ball", "x_mm", "y_mm", "z_mm")
 MAX_BYTES = 50 * 1024 * 1024
+MAX_PROBLEMS = 50
+MIN_CERTIFICATE_BALLS = 3
+_NAN_WORDS = {"nan", "+nan", "-nan"}
+_DELIM_NAMES = {",": "comma", ";": "semicolon", "\t": "tab"}
+# A number written with a decimal comma ("-1,25", "3,5e-2"); only rewritten in files whose
+# columns are not separated by commas, where the comma cannot be a column separator.
+_DECIMAL_COMMA = re.compile(r"^(\s*[+-]?\d*),(\d+(?:[eE][+-]?\d+)?\s*)$")
 
 
 class DataError(ValueError):
-    """Bad input: the message names file, row, column, what was expected and a fix."""
+    """Bad input: the message names file, row, column, what was expected and a fix.
+
+    Attributes
+    ----------
+    detail, file, row, column, hint
+        The parts of the (first) problem.
+    problems : list of DataError
+        Every problem found (``[self]`` for a single one), capped at :data:`MAX_PROBLEMS`.
+    n_problems : int
+        How many problems were found, including those beyond the cap.
+    """
 
     def __init__(self, message, *, file=None, row=None, column=None, hint=None):
         self.file, self.row, self.column, self.hint = file, row, column, hint
         self.detail = message
+        self.problems = [self]
+        self.n_problems = 1
         where = [str(file)] if file else []
         if row is not None:
             where.append(f"row {row}")
@@ -36,6 +62,79 @@ class DataError(ValueError):
         if hint:
             text += f" Hint: {hint}"
         super().__init__(text)
+
+    @classmethod
+    def collect(cls, problems, total=None) -> DataError:
+        """One error reporting several ``problems`` (DataErrors), the first in its message.
+
+        ``total`` is the number found when ``problems`` holds only the first of them.
+        """
+        first = problems[0]
+        err = cls(first.detail, file=first.file, row=first.row, column=first.column,
+                  hint=first.hint)
+        err.problems = list(problems[:MAX_PROBLEMS])
+        err.n_problems = max(total or 0, len(problems))
+        more = err.n_problems - 1
+        if more:
+            err.args = (f"{err.args[0]} (and {more} more problem{'s' * (more > 1)})",)
+        return err
+
+
+class _Problems:
+    """Problems found in one file (or, for :func:`resolve`, in rows of several files),
+    collected so the user can fix them all in one go.
+
+    Each check keeps its first :data:`MAX_PROBLEMS` cells and counts the rest: enough to
+    list the first :data:`MAX_PROBLEMS` of the file by row, without building millions of
+    errors for a file that is wrong throughout.
+
+    Parameters
+    ----------
+    name : str or None
+        File name for messages.
+    rows : array of int
+        File row of each data row.
+    columns : sequence of str
+        The file's columns, to list problems of one row in column order.
+    files : array of str, optional
+        File name of each row, when the rows come from several files.
+    """
+
+    def __init__(self, name, rows, columns=(), files=None):
+        self.name, self.rows, self.columns = name, np.asarray(rows), list(columns)
+        self.files = files
+        self.found, self.total = [], 0
+
+    def file(self, i):
+        """File name of data row ``i``."""
+        return self.name if self.files is None else self.files[i]
+
+    def where(self, j, i):
+        """'row N' of data row ``j``, with its file when that differs from row ``i``'s."""
+        row = f"row {self.rows[j]}"
+        return row if self.file(j) == self.file(i) else f"{self.file(j)}, {row}"
+
+    def add(self, mask, column, message, hint=None):
+        """Report every True entry of ``mask``; ``message(i)`` words the problem of row i."""
+        idx = np.flatnonzero(np.asarray(mask))
+        self.total += len(idx)
+        for i in idx[:MAX_PROBLEMS]:
+            self.found.append(DataError(message(i), file=self.file(i),
+                                        row=int(self.rows[i]), column=column, hint=hint))
+
+    def add_file(self, message, column=None, hint=None):
+        """Report a problem of the file as a whole (no row)."""
+        self.total += 1
+        self.found.append(DataError(message, file=self.name, column=column, hint=hint))
+
+    def raise_if_any(self, sort=True):
+        """Raise one :class:`DataError` listing the problems (by row when ``sort``)."""
+        if not self.found:
+            return
+        if sort:
+            order = {c: k for k, c in enumerate(self.columns)}
+            self.found.sort(key=lambda e: (e.row or 0, order.get(e.column, len(order))))
+        raise DataError.collect(self.found, self.total)
 
 
 @dataclass(frozen=True)
@@ -117,8 +216,8 @@ class Certificate:
     u_um: np.ndarray | None = None
 
 
-def _read_csv(source, name):
-    """Read a CSV from a path, bytes or file-like object into strings (nothing coerced)."""
+def _read_bytes(source, name):
+    """The raw bytes of a path, bytes or file-like object, refusing oversized files."""
     if isinstance(source, (str, Path)):
         path = Path(source)
         name = name or path.name
@@ -138,6 +237,62 @@ def _read_csv(source, name):
     if len(data) > MAX_BYTES:
         raise DataError(f"file is {len(data) / 1e6:.0f} MB; the limit is "
                         f"{MAX_BYTES / 1e6:.0f} MB.", file=name)
+    return data, name
+
+
+def _delimiter(header: str) -> str:
+    """The column separator of a file, judged from its header line.
+
+    Column names never contain commas, so a header without commas but with semicolons or
+    tabs (a spreadsheet export in a locale with decimal commas) names its separator
+    unambiguously; ``csv.Sniffer`` is not used because it guesses from the data rows, where
+    decimal commas and spaces mislead it.
+    """
+    if "," in header:
+        return ","
+    counts = {d: header.count(d) for d in (";", "\t")}
+    best = max(counts, key=counts.get)
+    return best if counts[best] else ","
+
+
+def _field_count_error(text, delim, name, first_row, exc) -> DataError:
+    """A tokenizer failure as a DataError naming every row with too many fields."""
+    reader = csv.reader(_io.StringIO(text), delimiter=delim, skipinitialspace=True)
+    header = next(reader, [])
+    bad, rows = [], []
+    for rec in reader:
+        if len(rec) > len(header):
+            bad.append(len(rec))
+            rows.append(reader.line_num + first_row - 1)
+    hint = ("a decimal comma (1,5) splits a number into two fields: use a point as "
+            "decimal separator, or quote cells that contain commas." if delim == "," else
+            f"remove the extra {_DELIM_NAMES[delim]}s or quote cells that contain them.")
+    if not bad:  # the csv module and pandas disagree: fall back on pandas' line number
+        line = re.search(r"line (\d+)", str(exc))
+        return DataError(f"is not a valid CSV table ({exc}).", file=name, hint=hint,
+                         row=int(line.group(1)) + first_row - 1 if line else None)
+    found = _Problems(name, rows)
+    found.add(np.ones(len(bad), bool), None, lambda i: f"expected {len(header)} fields "
+              f"({','.join(header)}), found {bad[i]}.", hint=hint)
+    return DataError.collect(found.found, found.total)
+
+
+def _read_csv(source, name):
+    """Read a CSV from a path, bytes or file-like object into strings (nothing coerced).
+
+    The separator is taken from the header line (see :func:`_delimiter`); in a file
+    separated by semicolons or tabs, numbers written with a decimal comma are read as
+    decimals. Blank lines are dropped but keep their place in the row numbering.
+
+    Returns
+    -------
+    df : DataFrame of str
+        ``df.attrs`` holds ``delimiter``, ``decimal_comma`` (whether any cell was
+        rewritten) and, when blank lines moved the numbering, ``rows`` (the file row of
+        each data row; see :func:`_file_rows`).
+    name : str
+    """
+    data, name = _read_bytes(source, name)
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -145,43 +300,173 @@ def _read_csv(source, name):
                         hint="export the table as CSV (UTF-8).") from exc
     if not text.strip():
         raise DataError("file is empty.", file=name)
+    # Leading blank lines would be taken for the header; drop them but count them.
+    body = text.lstrip("\r\n\t ")
+    first_row = text[:len(text) - len(body)].count("\n") + 1
+    text = body
+    delim = _delimiter(text.splitlines()[0])
     try:
-        df = pd.read_csv(_io.StringIO(text), dtype=str, skipinitialspace=True)
-    except (pd.errors.ParserError, ValueError) as exc:
+        df = pd.read_csv(_io.StringIO(text), dtype=str, sep=delim, skipinitialspace=True,
+                         keep_default_na=False, skip_blank_lines=False)
+    except pd.errors.ParserError as exc:
+        raise _field_count_error(text, delim, name, first_row, exc) from exc
+    except ValueError as exc:
         raise DataError(f"is not a valid CSV table ({exc}).", file=name) from exc
     df.columns = [str(c).strip() for c in df.columns]
+    rows = np.arange(len(df)) + first_row + 1
+    blank = (df.apply(lambda s: s.str.strip()) == "").all(axis=1).to_numpy()
+    df = df[~blank].reset_index(drop=True)
+    decimal_comma = False
+    if delim != ",":
+        for col in df.columns.difference(["position", "probe"]):
+            fixed = df[col].str.replace(_DECIMAL_COMMA, r"\1.\2", regex=True)
+            decimal_comma |= bool((fixed != df[col]).any())
+            df[col] = fixed
+    df.attrs.update(delimiter=delim, decimal_comma=decimal_comma)
+    if blank.any() or first_row != 1:
+        df.attrs["rows"] = rows[~blank]
     return df, name
 
 
-def _numeric(df, column, name, *, integer=False, allow_missing=False):
-    raw = df[column]
-    vals = pd.to_numeric(raw.str.strip() if raw.dtype == object else raw, errors="coerce")
-    bad = vals.isna() & ~(allow_missing & raw.isna())
-    if bad.any():
-        i = int(np.flatnonzero(bad.to_numpy())[0])
-        raise DataError(f"expected a number, found {raw.iloc[i]!r}.", file=name, row=i + 2,
-                        column=column, hint="use a point as decimal separator and no units.")
-    arr = vals.to_numpy(dtype=float)
+def _file_rows(df) -> np.ndarray:
+    """File row of each data row of a :func:`_read_csv` frame (header = row 1)."""
+    rows = df.attrs.get("rows")
+    return np.arange(2, len(df) + 2) if rows is None else np.asarray(rows)
+
+
+def _numeric(df, column, name, *, integer=False, allow_missing=False, problems=None):
+    """The cells of ``column`` as numbers, every unreadable cell reported with its row.
+
+    Parameters
+    ----------
+    df : DataFrame
+        As read by :func:`_read_csv`.
+    column, name : str
+        Column to convert; file name for messages.
+    integer : bool
+        Cells must be whole numbers (ball numbers).
+    allow_missing : bool
+        Empty cells are NaN rather than problems.
+    problems : _Problems, optional
+        Collector for the problems. Without one, the problems of this column are raised
+        here as one :class:`DataError`.
+
+    Returns
+    -------
+    ndarray
+        Floats, NaN where a cell was reported; ints for ``integer`` when raising here.
+    """
+    own = problems is None
+    if own:
+        problems = _Problems(name, _file_rows(df), df.columns)
+    text = df[column].fillna("").astype(str).str.strip()
+    vals = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float, copy=True)
+    blank = (text == "").to_numpy()
+    word = text.str.lower().isin(_NAN_WORDS).to_numpy()
+    nonfinite = word | np.isinf(vals)
+    nonnum = np.isnan(vals) & ~blank & ~word
+    problems.add(blank & (not allow_missing), column,
+                 lambda i: "expected a number, found an empty cell.",
+                 hint="fill in the value or delete the row.")
+    problems.add(nonnum, column, lambda i: f"expected a number, found {text.iat[i]!r}.",
+                 hint="use a point as decimal separator and no units.")
+    problems.add(nonfinite, column, lambda i: f"found {text.iat[i]!r}, which is not a "
+                 "finite number; expected a measured value.",
+                 hint="write the measured value or delete the row.")
+    vals[nonfinite] = np.nan
     if integer:
-        frac = np.abs(arr - np.round(arr)) > 0
-        if frac.any():
-            i = int(np.flatnonzero(frac)[0])
-            raise DataError(f"expected a whole ball number, found {raw.iloc[i]!r}.",
-                            file=name, row=i + 2, column=column)
-        return np.round(arr).astype(int)
-    return arr
+        frac = np.isfinite(vals) & (vals != np.round(vals))
+        problems.add(frac, column, lambda i: f"expected a whole ball number, found "
+                     f"{text.iat[i]!r}.")
+        vals[frac] = np.nan
+    if not own:
+        return vals
+    problems.raise_if_any()
+    return vals.astype(int) if integer and not np.isnan(vals).any() else vals
+
+
+def _ball_numbers(df, name, problems):
+    """Ball numbers (floats, NaN where reported): whole numbers from 1."""
+    balls = _numeric(df, "ball", name, integer=True, problems=problems)
+    problems.add(balls < 1, "ball",
+                 lambda i: f"expected ball numbers from 1, found {balls[i]:.0f}.")
+    balls[balls < 1] = np.nan
+    return balls
+
+
+def _names(df, column, problems):
+    """Stripped names of ``column``; empty cells reported."""
+    names = df[column].fillna("").astype(str).str.strip()
+    problems.add((names == "").to_numpy(), column,
+                 lambda i: f"expected a {column} name, found an empty cell.")
+    return names
 
 
 def _require(df, columns, name, form):
     missing = [c for c in columns if c not in df.columns]
-    if missing:
-        raise DataError(f"missing column(s) {', '.join(missing)}; expected {form} columns "
-                        f"{','.join(columns)}, found {','.join(df.columns)}.", file=name,
-                        hint="see SPEC 'Data formats' for the column names (lengths in mm).")
+    if not missing:
+        return
+    if len(df.columns) == 1:
+        # One column named like "ball x_mm y_mm": the separator is neither comma,
+        # semicolon nor tab, so listing missing columns would only confuse.
+        raise DataError(f"found a single column {df.columns[0]!r}; expected {form} columns "
+                        f"{','.join(columns)} separated by commas.", file=name, row=1,
+                        hint="save the table as CSV with commas (or semicolons or tabs) "
+                             "between the columns.")
+    raise DataError(f"missing column(s) {', '.join(missing)}; expected {form} columns "
+                    f"{','.join(columns)}, found {','.join(df.columns)}.", file=name,
+                    hint="see SPEC 'Data formats' for the column names (lengths in mm).")
+
+
+def _require_rows(df, name, what):
+    """A file with a header but no data would load as an empty dataset: refuse it."""
+    if len(df) == 0:
+        raise DataError(f"has no data rows; expected a header followed by one row per "
+                        f"{what}.", file=name,
+                        hint="export the measured values, not only the column names.")
+
+
+def _check_duplicates(out, key, found, hint=None):
+    """Report every row whose ``key`` values repeat an earlier row (unreadable rows skipped)."""
+    # Thesis-form probes are all None until resolve() fills them: not "unreadable".
+    ok = out[[k for k in key if k != "probe"]].notna().all(axis=1).to_numpy()
+    idx = np.flatnonzero(ok)
+    sub = out.iloc[idx][key]
+    first = sub.assign(_i=idx).groupby(key, dropna=False, sort=False)["_i"].transform("min")
+    first = first.to_numpy()
+    again = np.zeros(len(out), bool)
+    again[idx[first != idx]] = True
+    first_of = np.zeros(len(out), int)
+    first_of[idx] = first
+
+    def message(i):
+        r = out.iloc[i]
+        what = f"ball {r['ball']:.0f}"
+        if "position" in key:
+            what += f" of position {r['position']}"
+        if "probe" in key and r["probe"] is not None and r["probe"] == r["probe"]:
+            what += f" with probe {r['probe']}"
+        return f"{what} appears twice (also in {found.where(first_of[i], i)})."
+
+    found.add(again, "ball", message, hint=hint)
+
+
+def _check_units(xyz, found):
+    """Coordinates that look like metres or µm: a ball plate spans hundreds of mm."""
+    ok = np.isfinite(xyz).all(axis=1)
+    span = np.ptp(xyz[ok], axis=0).max() if ok.any() else 0.0
+    if ok.sum() >= 4 and span < 2.0:
+        found.add_file(f"coordinates span only {span:.3g} in every axis; they look like "
+                       "metres, not mm.", column="x_mm",
+                       hint="multiply by 1000 (files are in mm).")
+    big = np.isfinite(xyz) & (np.abs(np.nan_to_num(xyz)) > 1e5)
+    for j, col in enumerate(("x_mm", "y_mm", "z_mm")):
+        found.add(big[:, j], col, lambda i, j=j: f"value {xyz[i, j]:g} mm is beyond any "
+                  "CMM's range; it looks like µm.", hint="divide by 1000 (files are in mm).")
 
 
 def read_measurements(source, *, name=None, position=None) -> pd.DataFrame:
-    """Read one measurement CSV in long or thesis form.
+    """Read one measurement CSV in long or thesis form, checking every cell.
 
     Parameters
     ----------
@@ -195,52 +480,38 @@ def read_measurements(source, *, name=None, position=None) -> pd.DataFrame:
     -------
     DataFrame with columns ``position, probe, ball, x_mm, y_mm, z_mm`` and, when given,
     ``time_min, temp_C, repeat``; plus ``source`` (file name) and ``row`` (file row).
-    Probes are ``None`` for thesis-form files (the setup names them).
+    Probes are ``None`` for thesis-form files (the setup names them). ``attrs`` tells the
+    ``delimiter`` used and whether decimal commas were read (``decimal_comma``).
+
+    Raises
+    ------
+    DataError
+        With every problem of the file in ``problems`` (see the module docstring).
     """
     df, name = _read_csv(source, name)
-    if "position" in df.columns:
-        _require(df, LONG_COLUMNS, name, "long-form")
-        out = pd.DataFrame({"position": df["position"].str.strip(),
-                            "probe": df["probe"].str.strip()})
-        for col, label in (("position", "position"), ("probe", "probe")):
-            empty = out[col].isna() | (out[col] == "")
-            if empty.any():
-                i = int(np.flatnonzero(empty.to_numpy())[0])
-                raise DataError(f"expected a {label} name, found an empty cell.", file=name,
-                                row=i + 2, column=col)
+    long = "position" in df.columns
+    _require(df, LONG_COLUMNS if long else THESIS_COLUMNS, name,
+             "long-form" if long else "thesis-form")
+    _require_rows(df, name, "probed ball")
+    found = _Problems(name, _file_rows(df), df.columns)
+    if long:
+        out = pd.DataFrame({c: _names(df, c, found) for c in ("position", "probe")})
     else:
-        _require(df, THESIS_COLUMNS, name, "thesis-form")
         pos = position or Path(name).stem
         out = pd.DataFrame({"position": [pos] * len(df), "probe": [None] * len(df)})
-    out["ball"] = _numeric(df, "ball", name, integer=True)
-    for col in ("x_mm", "y_mm", "z_mm"):
-        out[col] = _numeric(df, col, name)
-    for col in OPTIONAL_COLUMNS:
-        if col in df.columns:
-            out[col] = _numeric(df, col, name)
-    if (out["ball"] < 1).any():
-        i = int(np.flatnonzero((out["ball"] < 1).to_numpy())[0])
-        raise DataError(f"expected ball numbers from 1, found {out['ball'].iloc[i]}.",
-                        file=name, row=i + 2, column="ball")
+    out["ball"] = _ball_numbers(df, name, found)
+    for col in ("x_mm", "y_mm", "z_mm") + tuple(c for c in OPTIONAL_COLUMNS if c in df):
+        out[col] = _numeric(df, col, name, problems=found)
+    key = ["position", "probe", "ball"] + (["repeat"] if "repeat" in out else [])
+    _check_duplicates(out, key, found,
+                      hint="add a 'repeat' column for repeated measurements.")
+    _check_units(out[["x_mm", "y_mm", "z_mm"]].to_numpy(), found)
+    found.raise_if_any()
+    out["ball"] = out["ball"].astype(int)
     out["source"] = name
-    out["row"] = np.arange(2, len(out) + 2)
-    _check_units(out, name)
+    out["row"] = found.rows
+    out.attrs = {k: df.attrs[k] for k in ("delimiter", "decimal_comma")}
     return out
-
-
-def _check_units(df, name):
-    """Coordinates that look like metres: a ball plate spans hundreds of mm."""
-    xyz = df[["x_mm", "y_mm", "z_mm"]].to_numpy()
-    if len(df) >= 4 and np.ptp(xyz, axis=0).max() < 2.0:
-        raise DataError(f"coordinates span only {np.ptp(xyz, axis=0).max():.3g} in every "
-                        "axis; they look like metres, not mm.", file=name,
-                        column="x_mm", hint="multiply by 1000 (files are in mm).")
-    big = np.abs(xyz) > 1e5
-    if big.any():
-        i, j = np.argwhere(big)[0]
-        raise DataError(f"value {xyz[i, j]} mm is beyond any CMM's range; it looks like µm.",
-                        file=name, row=int(i) + 2, column=("x_mm", "y_mm", "z_mm")[j],
-                        hint="divide by 1000 (files are in mm).")
 
 
 def read_measurement_files(sources) -> pd.DataFrame:
@@ -363,67 +634,99 @@ def _vector(val, name, column, expected) -> np.ndarray:
 
 
 def read_certificate(source, *, name=None) -> Certificate:
-    """Read a certificate CSV ``ball,x_mm,y_mm,z_mm[,u_x_um,u_y_um,u_z_um]``."""
+    """Read a certificate CSV ``ball,x_mm,y_mm,z_mm[,u_x_um,u_y_um,u_z_um]``.
+
+    Every cell is checked (see :func:`read_measurements`); the certificate must then give
+    at least three balls that do not lie on one line, the least that defines a plate frame.
+    """
     df, name = _read_csv(source, name)
     _require(df, THESIS_COLUMNS, name, "certificate")
-    balls = _numeric(df, "ball", name, integer=True)
-    xyz = np.column_stack([_numeric(df, c, name) for c in ("x_mm", "y_mm", "z_mm")])
-    dup = pd.Series(balls).duplicated()
-    if dup.any():
-        i = int(np.flatnonzero(dup.to_numpy())[0])
-        raise DataError(f"ball {balls[i]} appears twice.", file=name, row=i + 2, column="ball")
-    u = None
-    if all(c in df.columns for c in ("u_x_um", "u_y_um", "u_z_um")):
-        u = np.column_stack([_numeric(df, c, name) for c in ("u_x_um", "u_y_um", "u_z_um")])
-        if (u <= 0).any():
-            i, j = np.argwhere(u <= 0)[0]
-            raise DataError("uncertainties must be positive.", file=name, row=int(i) + 2,
-                            column=("u_x_um", "u_y_um", "u_z_um")[j])
+    _require_rows(df, name, "calibrated ball")
+    found = _Problems(name, _file_rows(df), df.columns)
+    balls = _ball_numbers(df, name, found)
+    xyz = np.column_stack([_numeric(df, c, name, problems=found)
+                           for c in ("x_mm", "y_mm", "z_mm")])
+    _check_duplicates(pd.DataFrame({"ball": balls}), ["ball"], found)
+    _check_units(xyz, found)
+    u = _uncertainties(df, name, found)
+    found.raise_if_any()
+    _check_plate_frame(xyz, name)
+    balls = balls.astype(int)
     order = np.argsort(balls)
     return Certificate(balls[order], xyz[order], None if u is None else u[order])
+
+
+def _uncertainties(df, name, found):
+    """The u_x_um, u_y_um, u_z_um columns (positive µm), or None when the file has none."""
+    cols = ("u_x_um", "u_y_um", "u_z_um")
+    present = [c for c in cols if c in df.columns]
+    if not present:
+        return None
+    if len(present) < 3:
+        # Dropping the given ones silently would fit as if there were no uncertainties.
+        found.add_file(f"has {', '.join(present)} but not "
+                       f"{', '.join(c for c in cols if c not in present)}; expected all "
+                       "three uncertainty columns or none.", column=present[0])
+        return None
+    u = np.column_stack([_numeric(df, c, name, problems=found) for c in cols])
+    for j, col in enumerate(cols):
+        found.add(u[:, j] <= 0, col, lambda i, j=j: f"expected a positive uncertainty "
+                  f"(µm), found {u[i, j]:g}.")
+    return u
+
+
+def _check_plate_frame(xyz, name):
+    """A plate frame needs three balls off one line (origin, x direction, xy plane)."""
+    n = len(xyz)
+    if n < MIN_CERTIFICATE_BALLS:
+        raise DataError(f"has {n} ball{'s' * (n != 1)}; expected at least "
+                        f"{MIN_CERTIFICATE_BALLS} (a plate frame needs 3 non-collinear "
+                        "balls).", file=name, column="ball",
+                        hint="give the calibrated centres of all balls of the plate.")
+    sv = np.linalg.svd(xyz - xyz.mean(axis=0), compute_uv=False)
+    if sv[1] <= 1e-6 * max(sv[0], 1.0):
+        raise DataError("all balls lie on one line; expected at least 3 non-collinear "
+                        "balls to define the plate frame.", file=name, column="x_mm",
+                        hint="check the coordinates, or give more balls of the plate.")
 
 
 def resolve(meas: pd.DataFrame, setup: Setup, certificate: Certificate | None = None):
     """Attach probes from the setup, check names and balls, map to machine coordinates.
 
     Returns a copy of ``meas`` with the probe filled in and columns ``mx_mm, my_mm,
-    mz_mm`` (machine-frame tip centres) added. Raises :class:`DataError` naming the file and
-    row of the first problem.
+    mz_mm`` (machine-frame tip centres) added. Raises one :class:`DataError` listing every
+    problem (an unknown position or probe once per file, duplicates and balls missing from
+    the certificate once per row), each naming its file and row.
     """
     df = meas.copy()
-    for i, r in enumerate(df.itertuples()):
-        if r.position not in setup.positions:
-            raise DataError(f"position {r.position!r} is not in the setup (known: "
-                            f"{', '.join(setup.positions)}).", file=r.source, row=r.row,
-                            column="position", hint="add it to setup.json or rename the file.")
-        if r.probe is None or (isinstance(r.probe, float) and np.isnan(r.probe)):
-            probe = setup.positions[r.position].probe
-            if probe is None:
-                raise DataError(f"no probe column and the setup names no probe for position "
-                                f"{r.position!r}.", file=r.source, row=r.row,
-                                hint="add \"probe\" to the position in setup.json.")
-            df.iat[i, df.columns.get_loc("probe")] = probe
-    unknown = ~df["probe"].isin(list(setup.probes))
-    if unknown.any():
-        r = df[unknown].iloc[0]
-        raise DataError(f"probe {r.probe!r} is not in the setup (known: "
-                        f"{', '.join(setup.probes)}).", file=r.source, row=r.row,
-                        column="probe", hint="add its offset to setup.json 'probes'.")
+    found = _Problems(None, df["row"].to_numpy(), files=df["source"].to_numpy())
+    known_pos = df["position"].isin(list(setup.positions)).to_numpy()
+    found.add(_first_per(df, ~known_pos, ["source", "position"]), "position",
+              lambda i: f"position {df['position'].iat[i]!r} is not in the setup (known: "
+              f"{', '.join(setup.positions)}).",
+              hint="add it to setup.json or rename the file.")
+    default = df["position"].map(lambda p: setup.positions[p].probe
+                                 if p in setup.positions else None)
+    no_probe = df["probe"].isna().to_numpy()
+    if no_probe.any():
+        df["probe"] = df["probe"].astype(object).where(~no_probe, default)
+    orphan = no_probe & known_pos & df["probe"].isna().to_numpy()
+    found.add(_first_per(df, orphan, ["source", "position"]), None,
+              lambda i: "no probe column and the setup names no probe for position "
+              f"{df['position'].iat[i]!r}.",
+              hint="add \"probe\" to the position in setup.json.")
+    unknown = (df["probe"].notna() & ~df["probe"].isin(list(setup.probes))).to_numpy()
+    found.add(_first_per(df, unknown, ["source", "probe"]), "probe",
+              lambda i: f"probe {df['probe'].iat[i]!r} is not in the setup (known: "
+              f"{', '.join(setup.probes)}).", hint="add its offset to setup.json 'probes'.")
     key = ["position", "probe", "ball"] + (["repeat"] if "repeat" in df.columns else [])
-    dup = df.duplicated(key)
-    if dup.any():
-        r = df[dup].iloc[0]
-        raise DataError(f"ball {r.ball} of position {r.position} with probe {r.probe} appears "
-                        "twice.", file=r.source, row=r.row, column="ball",
-                        hint="add a 'repeat' column for repeated measurements.")
+    _check_duplicates(df, key, found,
+                      hint="add a 'repeat' column for repeated measurements.")
     if certificate is not None:
-        known = set(certificate.balls.tolist())
-        extra = ~df["ball"].isin(known)
-        if extra.any():
-            r = df[extra].iloc[0]
-            raise DataError(f"ball {r.ball} is not on the certificate (balls "
-                            f"{certificate.balls.min()}-{certificate.balls.max()}).",
-                            file=r.source, row=r.row, column="ball")
+        extra = (~df["ball"].isin(set(certificate.balls.tolist()))).to_numpy()
+        found.add(extra, "ball", lambda i: f"ball {df['ball'].iat[i]} is not on the "
+                  f"certificate (balls {certificate.balls.min()}-{certificate.balls.max()}).")
+    found.raise_if_any(sort=False)
     xyz = df[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
     if setup.frame == "plate":
         m = np.empty_like(xyz)
@@ -433,6 +736,16 @@ def resolve(meas: pd.DataFrame, setup: Setup, certificate: Certificate | None = 
         xyz = m
     df["mx_mm"], df["my_mm"], df["mz_mm"] = xyz.T
     return df
+
+
+def _first_per(df, mask, key) -> np.ndarray:
+    """``mask`` reduced to the first masked row of each ``key`` group: a wrong name is one
+    problem, however many rows repeat it."""
+    idx = np.flatnonzero(mask)
+    first = ~df.iloc[idx][key].astype(str).duplicated().to_numpy()
+    out = np.zeros(len(df), bool)
+    out[idx[first]] = True
+    return out
 
 
 def missing_balls(meas: pd.DataFrame, certificate: Certificate | None) -> list:

@@ -18,43 +18,99 @@ st.caption("Ball-plate measurements, setup and certificate. Files are in mm; the
 C.flash()
 
 
-def _problem_rows(exc):
-    return {"file": getattr(exc, "file", None) or "", "row": getattr(exc, "row", None),
-            "column": getattr(exc, "column", None) or "",
-            "problem": getattr(exc, "detail", str(exc)), "hint": getattr(exc, "hint", "") or ""}
+MAX_SHOWN = cio.MAX_PROBLEMS  # rows of the upload problem table
+
+
+def _problem(file, problem, hint="", row=None, column="", more=0):
+    """One row of the upload problem table; ``more`` counts problems a note row stands for."""
+    return {"file": file or "", "row": row, "column": column or "", "problem": problem,
+            "hint": hint or "", "_more": more}
+
+
+def _count(problems):
+    """Problems in a report: listed rows plus those the note rows say are not listed."""
+    return sum(p["_more"] or 1 for p in problems)
+
+
+def _problem_rows(exc, file=""):
+    """Every problem an exception carries, as rows of the upload problem table.
+
+    A :class:`cio.DataError` lists all problems of its file (capped by the core); when it
+    found more than it lists, a last row says how many are not shown.
+    """
+    if not isinstance(exc, cio.DataError):
+        return [_problem(file, C.describe_error(exc))]
+    rows = [_problem(p.file, p.detail, p.hint, p.row, p.column) for p in exc.problems]
+    hidden = exc.n_problems - len(exc.problems)
+    if hidden > 0:
+        rows.append(_problem(exc.file, f"... and {hidden} more problem(s) not listed.",
+                             "fix these and load again to see the rest.", more=hidden))
+    return rows
+
+
+def _capped(problems):
+    """At most MAX_SHOWN rows (several bad files could list 50 each), plus a note."""
+    if len(problems) <= MAX_SHOWN:
+        return problems
+    rest = problems[MAX_SHOWN:]
+    note = _problem("", f"... and {_count(rest)} more problem(s) not listed.",
+                    "fix the problems listed and load again.", more=_count(rest))
+    return problems[:MAX_SHOWN] + [note]
+
+
+def _read_note(name, attrs):
+    """Say how a file not separated by commas was read, so nothing happens unseen."""
+    delim = attrs.get("delimiter", ",")
+    if delim == ",":
+        return None
+    kind = {";": "semicolon", "\t": "tab"}.get(delim, repr(delim))
+    comma = " with decimal commas" if attrs.get("decimal_comma") else ""
+    return f"{name} was read as {kind}-separated{comma}."
 
 
 def _checked_text(upload, reader, problems):
-    """The uploaded file's text if ``reader`` accepts it, else None with the problem noted."""
+    """The uploaded file's text if ``reader`` accepts it, else None with the problems noted."""
     try:
         text = upload.getvalue().decode("utf-8-sig")
         reader(io.StringIO(text), name=upload.name)
         return text
-    except cio.DataError as exc:
-        problems.append(_problem_rows(exc))
     except UnicodeDecodeError:
-        problems.append({"file": upload.name, "row": None, "column": "",
-                         "problem": "is not UTF-8 text.", "hint": "save it as UTF-8 CSV/JSON."})
+        problems.append(_problem(upload.name, "is not UTF-8 text.",
+                                 "save it as UTF-8 CSV/JSON."))
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback
-        problems.append({"file": upload.name, "row": None, "column": "",
-                         "problem": C.describe_error(exc), "hint": ""})
+        problems.extend(_problem_rows(exc, upload.name))
     return None
 
 
-def _validate_upload(meas_files, setup_file, cert_file, use_thesis):
-    """Check every file on its own, then together; return (files dict or None, problems)."""
-    problems = []
+def _checked_measurements(meas_files, problems, notes):
+    """(name, text) of every measurement file that reads; problems of the others noted."""
     meas = []
     for f in meas_files:
         data = f.getvalue()
         try:
-            cio.read_measurements(io.BytesIO(data), name=f.name)
+            df = cio.read_measurements(io.BytesIO(data), name=f.name)
             meas.append((f.name, data.decode("utf-8-sig")))
-        except cio.DataError as exc:
-            problems.append(_problem_rows(exc))
-        except Exception as exc:  # noqa: BLE001
-            problems.append({"file": f.name, "row": None, "column": "",
-                             "problem": C.describe_error(exc), "hint": ""})
+        except Exception as exc:  # noqa: BLE001 - a message, never a traceback
+            problems.extend(_problem_rows(exc, f.name))
+        else:
+            notes.append(_read_note(f.name, df.attrs))
+    return meas
+
+
+def _validate_upload(meas_files, setup_file, cert_file, use_thesis):
+    """Check every file on its own, then together.
+
+    Returns
+    -------
+    files : dict or None
+        The dataset files when everything loads.
+    problems : list of dict
+        Rows of the problem table (every problem of every file, capped).
+    notes : list of str
+        How files not separated by commas were read.
+    """
+    problems, notes = [], []
+    meas = _checked_measurements(meas_files, problems, notes)
     thesis = C.thesis_files()
     setup_text, cert = None, None
     if setup_file is not None:
@@ -62,30 +118,45 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis):
     elif use_thesis:
         setup_text = thesis["setup"]
     else:
-        problems.append({"file": "setup.json", "row": None, "column": "",
-                         "problem": "no setup given.",
-                         "hint": "upload a setup JSON or tick 'use the thesis setup'."})
+        problems.append(_problem("setup.json", "no setup given.",
+                                 "upload a setup JSON or tick 'use the thesis setup'."))
     if cert_file is not None:
         text = _checked_text(cert_file, cio.read_certificate, problems)
         cert = None if text is None else (cert_file.name, text)
     elif use_thesis:
         cert = thesis["certificate"]
     if not meas_files:
-        problems.append({"file": "", "row": None, "column": "",
-                         "problem": "no measurement file given.",
-                         "hint": "upload one long-form CSV or one thesis-form CSV per position."})
+        problems.append(_problem("", "no measurement file given.", "upload one long-form "
+                                 "CSV or one thesis-form CSV per position."))
     if problems:
-        return None, problems
+        return None, _capped(problems), notes
     files = {"name": ", ".join(n for n, _ in meas)[:60], "kind": "upload",
              "measurements": meas, "setup": setup_text, "certificate": cert}
     try:
         C._load(C.files_key(files), files)
-    except cio.DataError as exc:
-        return None, [_problem_rows(exc)]
-    except Exception as exc:  # noqa: BLE001
-        return None, [{"file": "", "row": None, "column": "", "problem": C.describe_error(exc),
-                       "hint": ""}]
-    return files, []
+    except Exception as exc:  # noqa: BLE001 - a message, never a traceback
+        return None, _capped(_problem_rows(exc)), notes
+    return files, [], [n for n in notes if n]
+
+
+def _loaded(message):
+    """After any successful load: the old upload report no longer applies."""
+    st.session_state.pop("upload_report", None)
+    st.session_state["flash"] = ("success", message)
+    st.rerun()
+
+
+def _show_upload_report():
+    """The last failed upload's problems, kept until the next load attempt or success
+    (a table drawn only in the run of the button click vanished at the next interaction)."""
+    report = st.session_state.get("upload_report")
+    if not report:
+        return
+    st.error(f"Validation found {report['count']} problem(s); the current dataset is "
+             "unchanged.")
+    table = pd.DataFrame(report["problems"]).drop(columns="_more")
+    table["row"] = table["row"].astype("Int64")  # whole row numbers, blank when none
+    st.dataframe(table, hide_index=True, key="upload_problems")
 
 
 tab_thesis, tab_upload, tab_sim, tab_proj = st.tabs(
@@ -96,8 +167,7 @@ with tab_thesis:
              "certificate, exactly as printed (including the values that look wrong).")
     if st.button("Load thesis tables", key="load_thesis"):
         C.set_dataset(C.thesis_files())
-        st.session_state["flash"] = ("success", "Loaded the thesis tables.")
-        st.rerun()
+        _loaded("Loaded the thesis tables.")
 
 with tab_upload:
     st.write("Long form: `position,probe,ball,x_mm,y_mm,z_mm[,time_min,temp_C,repeat]` in one "
@@ -112,16 +182,17 @@ with tab_upload:
     use_thesis = st.checkbox("Use the thesis setup and certificate for files not uploaded",
                              value=True, key="use_thesis_setup")
     if st.button("Load uploaded files", key="load_upload", type="primary"):
-        files, problems = _validate_upload(up_meas or [], up_setup, up_cert, use_thesis)
+        st.session_state.pop("upload_report", None)
+        files, problems, notes = _validate_upload(up_meas or [], up_setup, up_cert,
+                                                  use_thesis)
         if problems:
-            st.error(f"Validation found {len(problems)} problem(s); the current dataset is "
-                     "unchanged.")
-            st.dataframe(pd.DataFrame(problems), hide_index=True, key="upload_problems")
+            st.session_state["upload_report"] = {"problems": problems,
+                                                 "count": _count(problems)}
         else:
             C.set_dataset(files)
-            st.session_state["flash"] = ("success", f"Loaded {len(files['measurements'])} "
-                                         "uploaded file(s).")
-            st.rerun()
+            _loaded(" ".join([f"Loaded {len(files['measurements'])} uploaded file(s)."]
+                             + notes))
+    _show_upload_report()
 
 with tab_sim:
     st.write("A virtual CMM with known errors measuring the thesis placements: choose the "
@@ -186,9 +257,8 @@ with tab_sim:
             if ok is not None:
                 st.session_state["sim_truth"] = {"key": C.files_key(files),
                                                  "truth": sim.truth, "config": cfg}
-                st.session_state["flash"] = ("success", "Simulated dataset loaded. The true "
-                                             "parameters are on the Kinematic model page.")
-                st.rerun()
+                _loaded("Simulated dataset loaded. The true parameters are on the Kinematic "
+                        "model page.")
 
 with tab_proj:
     st.write("A project file (JSON, from *Compensate and export*) restores the dataset, model, "
@@ -218,8 +288,7 @@ with tab_proj:
                                  "change": h.get("change", "")} for h in doc["history"]
                                 if isinstance(h, dict)]
                 C.reset_widgets()
-                s["flash"] = ("success", f"Restored project '{doc['dataset_name']}'.")
-                st.rerun()
+                _loaded(f"Restored project '{doc['dataset_name']}'.")
 
 # ---------------------------------------------------------------------------------------
 # The current dataset: validation report
@@ -283,8 +352,9 @@ if rep is not None:
             wk = f"w_ex_{trip[0]}_{trip[1]}_{trip[2]}"
             if wk not in s:
                 s[wk] = trip in current
-            detail = "; ".join(f"{o['axis']} {o['deviation_um']:+.1f} µm (z {o['robust_z']:+.1f})"
-                               for o in os_)
+            # "robust score", not "z": next to an axis letter, z reads as the z axis.
+            detail = "; ".join(f"{o['axis']} {o['deviation_um']:+.1f} µm (robust score "
+                               f"{o['robust_z']:+.1f})" for o in os_)
             src = os_[0]
             label = (f"Exclude {trip[0]} probe {trip[1]} ball {trip[2]}: {detail} "
                      f"[{src['source']}, row {src['row']}]")

@@ -139,3 +139,163 @@ def test_malformed_setup_names_the_field_and_what_was_expected(raw, column, need
     with pytest.raises(DataError, match=needle) as exc:
         read_setup(io.BytesIO(json.dumps(raw).encode()), name="setup.json")
     assert exc.value.column == column and exc.value.file == "setup.json"
+
+
+# ---------------------------------------------------------------------------------------
+# Browser review of uploads: defects 1-5
+# ---------------------------------------------------------------------------------------
+
+_HEADER = "ball,x_mm,y_mm,z_mm\n"
+_PLATE = "1,0,0,0\n2,133,0,0\n3,266,0,0\n4,0,133,0\n"
+
+
+def _err(reader, text, name="BP9.csv"):
+    with pytest.raises(DataError) as exc:
+        reader(io.BytesIO(text.encode()), name=name)
+    return exc.value
+
+
+def test_header_only_files_and_short_certificates_are_rejected():
+    """Defect 1: a header-only measurement CSV loaded as a 0-point dataset that the Data
+    page called valid; a header-only certificate, or one with fewer than 3 balls (or all on
+    one line), cannot define a plate frame."""
+    for head in (_HEADER, "position,probe,ball,x_mm,y_mm,z_mm\n", _HEADER + "\n,,,\n"):
+        err = _err(read_measurements, head)
+        assert "BP9.csv" in str(err) and "has no data rows" in str(err)
+    assert "has no data rows" in str(_err(read_certificate, _HEADER, "cert.csv"))
+    err = _err(read_certificate, _HEADER + "1,0,0,0\n2,133,0,0\n", "cert.csv")
+    assert "has 2 balls; expected at least 3" in str(err) and "non-collinear" in str(err)
+    err = _err(read_certificate, _HEADER + "1,0,0,0\n2,133,0,0\n3,266,0,0\n", "cert.csv")
+    assert "on one line" in str(err)
+    assert len(read_certificate(io.BytesIO((_HEADER + _PLATE).encode())).balls) == 4
+
+
+def test_every_cell_problem_of_a_file_is_reported_with_row_and_column():
+    """Defect 2: only the first problem per file was reported. All cell-level problems
+    (non-numbers, blanks, non-finite values, duplicate balls, µm/metres) are listed with row
+    and column, and str(exc) stays one line: the first problem plus '(and N more ...)'."""
+    text = _HEADER + "1,0,0,0\n2,abc,0,\n2,133,inf,0\n4,0,133,2e6\n"
+    err = _err(read_measurements, text)
+    got = [(p.row, p.column) for p in err.problems]
+    assert got == [(3, "x_mm"), (3, "z_mm"), (4, "ball"), (4, "y_mm"), (5, "z_mm")]
+    assert all(p.file == "BP9.csv" for p in err.problems) and err.n_problems == 5
+    assert "\n" not in str(err) and str(err).endswith("(and 4 more problems)")
+    assert str(err).startswith("BP9.csv, row 3, column 'x_mm': expected a number")
+    metres = _err(read_measurements, _HEADER + "1,0,0,0\n2,0.133,0,0\n3,0.266,0,x\n"
+                  "4,0,0.133,0\n5,0,0.266,0\n")
+    assert [p.column for p in metres.problems] == ["x_mm", "z_mm"]
+    assert "look like metres" in metres.problems[0].detail
+    # A file wrong throughout: the list is capped, the count is not.
+    many = _err(read_measurements, _HEADER + "".join(f"{i},x,0,0\n" for i in range(1, 81)))
+    assert many.n_problems == 80 and len(many.problems) == 50
+    assert [p.row for p in many.problems] == list(range(2, 52))
+    assert "(and 79 more problems)" in str(many)
+    cert = _err(read_certificate, _HEADER + _PLATE + "2,1,1,1\n3,,0,0\n", "cert.csv")
+    assert [(p.row, p.column) for p in cert.problems] == [(6, "ball"), (7, "ball"),
+                                                          (7, "x_mm")]
+    assert "also in row 3" in cert.problems[0].detail
+
+
+def test_setup_problems_of_all_files_are_reported_together(tmp_path):
+    """Defect 2 (across files): an unknown position is one problem per file, not one per
+    row, and the other files' problems are listed as well."""
+    rows = (THESIS / "BP111.csv").read_text()
+    files = [_write(tmp_path, "X1.csv", rows), _write(tmp_path, "X2.csv", rows)]
+    with pytest.raises(DataError) as exc:
+        load_dataset(files, THESIS / "setup.json")
+    assert [(p.file, p.row, p.column) for p in exc.value.problems] == [
+        ("X1.csv", 2, "position"), ("X2.csv", 2, "position")]
+    assert "(and 1 more problem)" in str(exc.value)
+
+
+@pytest.mark.parametrize("text, row, column, needle, forbidden", [
+    (_HEADER + "1,0,0,0\n2,,0,0\n", 3, "x_mm", "found an empty cell", "nan"),
+    (_HEADER + "1,0,0,0\n2,inf,0,0\n", 3, "x_mm", "'inf', which is not a finite number",
+     "µm"),
+    (_HEADER + "1,0,0,0\n2,0,-inf,0\n", 3, "y_mm", "not a finite number", "µm"),
+    (_HEADER + "1,0,0,0\n2,0,0,nan\n", 3, "z_mm", "'nan', which is not a finite number",
+     "µm"),
+    (_HEADER + "1,0,0,0\n2,133,5,0,0\n", 3, None, "expected 4 fields", "Error tokenizing"),
+    ("ball x_mm y_mm z_mm\n1 0 0 0\n", 1, None, "found a single column", "missing column"),
+])
+def test_messages_say_what_is_wrong(text, row, column, needle, forbidden):
+    """Defect 3: a blank cell read 'found nan'; inf/nan were 'looks like µm'; a decimal
+    comma gave the raw pandas tokenizer error without a row; a file with another separator
+    reported missing columns."""
+    err = _err(read_measurements, text)
+    assert (err.row, err.column) == (row, column)
+    assert needle in str(err) and forbidden not in str(err)
+
+
+def test_decimal_comma_rows_and_semicolon_files():
+    """Defect 3: every row split by a decimal comma is named, with a hint; files separated
+    by semicolons (decimal commas) or tabs are read, and say which separator was used."""
+    err = _err(read_measurements, _HEADER + "1,0,0,0\n2,133,5,0,0\n3,266,0,0\n4,0,1,5,0\n")
+    assert [p.row for p in err.problems] == [3, 5] and "decimal comma" in err.hint
+    semi = "ball;x_mm;y_mm;z_mm\n1;0;0;0\n2;133,25;0;0\n3;266;0;-1,5e-3\n4;0;133;0\n"
+    df = read_measurements(io.BytesIO(semi.encode()), name="BP9.csv")
+    assert df.attrs == {"delimiter": ";", "decimal_comma": True}
+    assert df["x_mm"].tolist() == [0, 133.25, 266, 0] and df["z_mm"][2] == -1.5e-3
+    tab = read_measurements(io.BytesIO(_PLATE.join([_HEADER, ""]).replace(",", "\t")
+                                       .encode()), name="BP9.csv")
+    assert tab.attrs["delimiter"] == "\t" and len(tab) == 4
+    # Blank lines keep their place in the row numbering (a spreadsheet shows them).
+    err = _err(read_measurements, "\n" + _HEADER + "1,0,0,0\n\n2,x,0,0\n")
+    assert err.row == 5
+
+
+def _upload_app():
+    """The app on the Data page, with a 'Load uploaded files' helper."""
+    from streamlit.testing.v1 import AppTest
+
+    at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
+    at.run()
+    return at
+
+
+def _upload(at, files):
+    at.file_uploader(key="up_meas").set_value(
+        [(n, t.encode(), "text/csv") for n, t in files])
+    at.button(key="load_upload").click()
+    at.run()
+    assert not at.exception
+
+
+def _problem_table(at):
+    tables = [d.value for d in at.dataframe if "hint" in d.value.columns]
+    return tables[0] if tables else None
+
+
+def test_upload_report_lists_every_problem_and_stays_until_the_next_load():
+    """Defects 2 and 4: the Data page's problem table lists every problem of every file
+    (with row and column), and it no longer disappears at the next interaction: it stays
+    until the next load attempt, and a successful load removes it."""
+    pytest.importorskip("streamlit")
+    at = _upload_app()
+    bad = _HEADER + "1,0,0,0\n2,abc,0,\n3,266,inf,0\n4,0,133,0\n"
+    _upload(at, [("BP111.csv", bad), ("BP112.csv", _HEADER)])
+    table = _problem_table(at)
+    assert table is not None
+    assert list(zip(table["file"], table["column"], strict=True)) == [
+        ("BP111.csv", "x_mm"), ("BP111.csv", "z_mm"), ("BP111.csv", "y_mm"), ("BP112.csv", "")]
+    assert table["row"].iloc[:3].tolist() == [3, 3, 4] and pd.isna(table["row"].iloc[3])
+    assert table["problem"].iloc[-1].startswith("has no data rows")
+    assert any("4 problem(s)" in e.value for e in at.error)
+    at.checkbox(key="use_thesis_setup").uncheck().run()  # any other interaction
+    assert _problem_table(at) is not None and len(_problem_table(at)) == 4
+    good = (THESIS / "BP111.csv").read_text()
+    _upload(at, [("BP111.csv", good)])
+    assert _problem_table(at) is not None  # no setup now: a new report replaces the old
+    assert list(_problem_table(at)["problem"]) == ["no setup given."]
+    at.checkbox(key="use_thesis_setup").check().run()
+    _upload(at, [("BP111.csv", good)])
+    assert _problem_table(at) is None and not at.error
+
+
+def test_outlier_labels_say_robust_score_not_z():
+    """Defect 5: outlier labels read 'x +98.8 µm (z +126.1)', where z (a robust z-score)
+    is easily taken for the z axis."""
+    pytest.importorskip("streamlit")
+    at = _upload_app()
+    labels = [c.label for c in at.checkbox if c.label.startswith("Exclude ")]
+    assert labels and all("robust score" in lab and "(z " not in lab for lab in labels)
