@@ -187,7 +187,16 @@ def score(base: FitResult, token: str):
     prob = Problem(base.problem.obs, spec, base.plate)
     st = _augmented_state(base, prob)
     d, r, J = weighted_residual(prob, st, base.sigma_um, True)
-    step, cov, rank, null = _solve(J, r, prob.constraints(), base.rank_rtol)
+    # what the baseline's design could not determine stays held, or the candidate would
+    # be credited with (and counted for) those directions too
+    C = prob.constraints()
+    if base.design_null.size:
+        col = {lab: i for i, lab in enumerate(prob.layout.labels)}
+        held = np.zeros((base.design_null.shape[0], prob.layout.n))
+        for j, lab in enumerate(base.labels):
+            held[:, col[lab]] = base.design_null[:, j]
+        C = np.vstack([C, held])
+    step, cov, rank, null = _solve(J, r, C, base.rank_rtol)
     r_new = r + J @ step
     chi2_new = float(r_new @ r_new)
     n = prob.n_obs
@@ -420,6 +429,10 @@ def _with_aliases(cands, threshold, extra=None):
 def _conclusion(base, cands, verdict):
     head = (f"Baseline {base.spec}: RMS {base.rms_um:.2f} µm, χ²/dof {base.chi2_dof:.2f} "
             f"against σ = {base.sigma_um} µm.")
+    if base.null_combinations:
+        head += (f" This design leaves {len(base.null_combinations)} combination(s) of the "
+                 "baseline undetermined; candidates are judged only on what it can see, "
+                 "and more placements would change the picture.")
     if verdict is None:
         return head + (" No candidate effect explains a significant part of the remaining "
                        "misfit: the data are explained to noise by this model."

@@ -411,6 +411,10 @@ class FitResult:
         The problem (layout, observations, kinematic terms) for prediction.
     state : dict
         Final plate coordinates, placements and parameter vector.
+    design_null : ndarray (k, n_params)
+        Rows ``N`` of the constraints ``N x = 0`` that hold the combinations this design
+        cannot determine (decided at the nominal linearisation); an augmented model scored
+        from this fit keeps them (``diagnose.score``).
     """
 
     status: str
@@ -439,6 +443,7 @@ class FitResult:
     n_obs: int
     problem: Problem = field(repr=False)
     state: dict = field(repr=False)
+    design_null: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
 
     @property
     def terms(self) -> kin.KinematicTerms:
@@ -677,7 +682,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     return FitResult(status, msg, it, spec.to_string(explicit=True), plate, sigma_um, list(L.labels),
                      list(L.units), list(L.groups), values, u, cov, d, obs.table, rms, chi2,
                      int(dof), chi2 / max(dof, 1), float(bic), rank, rank_rtol, unident, combos,
-                     prob.n_obs, prob, state)
+                     prob.n_obs, prob, state, C_run[C.shape[0]:])
 
 
 def weighted_residual(prob: Problem, state, sigma_um: float, want_jac: bool):

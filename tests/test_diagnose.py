@@ -213,3 +213,16 @@ def test_nested_tests_promote_the_effect_that_explains_the_misfit_and_more():
     assert d.verdict == "drift", [(c.effect, round(c.delta_bic, 1)) for c in d.candidates[:3]]
     assert "Nested tests" in d.message and "periodic_y" in d.message
     assert 0.75 <= fit(sim.dataset, "kinematic21,plate_thermal,drift").chi2_dof <= 1.3
+
+
+def test_candidates_on_an_undetermined_baseline_count_only_their_own_parameters(thesis):
+    """A single placement leaves combinations of kinematic21 undetermined. A candidate
+    scored from it keeps them held: adding one Chebyshev term adds one parameter, not
+    the baseline's undetermined directions as well (found by the browser review:
+    rxy:3 was credited with 5)."""
+    d = diagnose(thesis, "kinematic21", positions=["BP111"],
+                 candidates=["rxy:3", "dzx:3", "dxx:3"])
+    assert d.baseline.null_combinations and "undetermined" in d.message
+    # one Chebyshev term each: at most one parameter (0 when the design cannot see it)
+    n = {c.effect: c.n_params for c in d.candidates}
+    assert max(n.values()) == 1 and n["rxy:3"] == 1, n
