@@ -165,7 +165,18 @@ def fig_deviation(result, position: str, magnification: float = 2000.0, probe=No
         ys = np.column_stack([v, y, np.full_like(v, np.nan)]).ravel()
         fig.add_trace(go.Scatter(x=xs, y=ys, mode="lines", showlegend=False,
                                  line={"color": colour, "width": 1}, hoverinfo="skip"))
-    fig.update_xaxes(title_text=f"plate u (mm); deviations ×{magnification:g}")
+    # scale key: a bar about a tenth of the plate long, labelled with the deviation it means
+    span = float(max(np.ptp(u), np.ptp(v), 1.0))
+    raw = 0.1 * span / m
+    bar_um = float(min((k * 10 ** e for e in range(-2, 4) for k in (1, 2, 5)),
+                       key=lambda b: abs(np.log(b / raw))))
+    y_bar = float(v.min()) - 0.08 * span
+    fig.add_trace(go.Scatter(x=[u.min(), u.min() + bar_um * m], y=[y_bar, y_bar],
+                             mode="lines+text", line={"color": "black", "width": 3},
+                             text=["", f"{bar_um:g} µm"], textposition="middle right",
+                             name=f"scale: {bar_um:g} µm deviation", hoverinfo="skip"))
+    fig.update_xaxes(title_text=f"plate u (mm); deviations ×{magnification:g}",
+                     constrain="domain")
     fig.update_yaxes(title_text=f"plate v (mm); deviations ×{magnification:g}",
                      scaleanchor="x", scaleratio=1)
     return _layout(fig, f"{position}: nominal vs measured vs predicted "
@@ -304,7 +315,8 @@ def fig_surface_grid(xg, yg, values, *, title: str, unit: str, points=None, colo
         fig.add_trace(go.Scatter(x=points[:, 0], y=points[:, 1], mode="markers",
                                  name="measured points",
                                  marker={"size": 5, "color": "black", "symbol": "x"}))
-    fig.update_xaxes(title_text=xlabel)
+    # equal scales without padding the x range: shrink the plot area instead
+    fig.update_xaxes(title_text=xlabel, constrain="domain")
     fig.update_yaxes(title_text=ylabel, scaleanchor="x", scaleratio=1)
     return _layout(fig, title, height=420)
 
