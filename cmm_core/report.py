@@ -180,7 +180,7 @@ def fig_deviation(result, position: str, magnification: float = 2000.0, probe=No
     fig.update_yaxes(title_text=f"plate v (mm); deviations ×{magnification:g}",
                      scaleanchor="x", scaleratio=1)
     return _layout(fig, f"{position}: nominal vs measured vs predicted "
-                        f"(magnification ×{magnification:g})", height=480)
+                        f"(magnification ×{magnification:g})", height=600)
 
 
 # ---------------------------------------------------------------------------------------

@@ -97,7 +97,7 @@ with tabs[1], C.guarded("Deviation plots"):
     pos_fit = r.problem.obs.positions
     position = c1.selectbox("Position", pos_fit, key="w_dev_position")
     C.bind("magnification", c2.slider, "Magnification", min_value=100.0, max_value=10000.0,
-           step=100.0)
+           step=100.0, format="×%.0f")
     st.plotly_chart(C.figure("deviation", (C.fit_args(), position, float(s["magnification"])),
                              C.rep.fig_deviation, r, position, float(s["magnification"])),
                     key="fig_deviation")
