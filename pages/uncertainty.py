@@ -31,11 +31,16 @@ if summary is not None:
                       ("U2_um", "U2: CMM error in the evaluated region"),
                       ("U3_um", "U3: CMM error in the whole working volume")):
         v = getattr(summary, lab)
-        rows.append({"quantity": desc, **({f"u_{a} (µm)": v[a] for a in "xyz"} if v else
-                                          {f"u_{a} (µm)": None for a in "xyz"})})
-    st.dataframe(pd.DataFrame(rows), hide_index=True, key="u_table",
-                 column_config={f"u_{a} (µm)": st.column_config.NumberColumn(format="%.4f")
-                                for a in "xyz"})
+        if v:  # a quantity not evaluated is left out; the caption below says why
+            rows.append({"quantity": desc, **{f"u_{a} (µm)": v[a] for a in "xyz"}})
+    if rows:
+        st.dataframe(pd.DataFrame(rows), hide_index=True, key="u_table",
+                     column_config={f"u_{a} (µm)": st.column_config.NumberColumn(
+                         format="%.4f") for a in "xyz"})
+    else:
+        # numbers that do not exist are not shown as "None": say why instead
+        st.warning("U1-U3 are not evaluated: the data do not determine every parameter, so "
+                   "the uncertainties are unbounded.")
     st.caption(summary.message)
 
 st.subheader("Uncertainty map")
