@@ -5,9 +5,13 @@ model and plots without touching anything. The sidebar states the dataset, the m
 the fit quality on every page.
 """
 
+from pathlib import Path
+
 import streamlit as st
 
 from pages import common
+
+ROOT = Path(__file__).resolve().parent
 
 st.set_page_config(page_title="CMM error lab", page_icon=":material/straighten:", layout="wide")
 common.init_state()
@@ -21,6 +25,10 @@ PAGES = [
     st.Page("pages/export.py", title="Compensate and export", icon=":material/download:", url_path="export"),
 ]
 page = st.navigation(PAGES)
+st.session_state["_via_app"] = True  # pages check it (common.page_start)
+deep_link = st.session_state.pop("_deep_link", None)
+if deep_link and deep_link != "data.py" and (ROOT / "pages" / deep_link).is_file():
+    st.switch_page(f"pages/{deep_link}")
 st.sidebar.title("CMM error lab")
 page.run()
 

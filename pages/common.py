@@ -11,7 +11,9 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import sys
 from contextlib import contextmanager, nullcontext  # noqa: F401 - pages use C.nullcontext
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -150,6 +152,13 @@ def sync_from_widgets():
 
 def page_start():
     """Every page calls this first: state defaults, widget sync, the sidebar."""
+    if not st.session_state.get("_via_app"):
+        # Opened by a deep link before app.py ever ran on this server, Streamlit runs the
+        # page from its automatic pages/ list, without app.py's navigation and layout:
+        # go through app.py, which installs them and then opens the page asked for.
+        st.session_state["_deep_link"] = Path(sys._getframe(1).f_globals.get(
+            "__file__", "data.py")).name
+        st.switch_page("app.py")
     init_state()
     sync_from_widgets()
     sidebar()

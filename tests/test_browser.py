@@ -105,6 +105,20 @@ def _goto(pg, title):
     expect(pg.locator("h1", has_text=title).first).to_be_visible()
 
 
+def test_deep_link_on_a_fresh_server_opens_the_page_inside_the_app(page, server):
+    """Runs first, before anything opened "/": Streamlit then runs a deep-linked page from
+    its automatic pages/ list, without app.py (found by the browser review). The page
+    goes through app.py and lands where it was asked, with the app's navigation."""
+    page.goto(server + "/kinematic")
+    expect(page.locator("h1", has_text="Kinematic model").first).to_be_visible(
+        timeout=90_000)
+    _idle(page)
+    nav = page.locator('[data-testid="stSidebarNav"] a')
+    expect(nav.filter(has_text="Compare and diagnose")).to_be_visible()
+    assert not any("common" in t for t in nav.all_inner_texts())
+    _no_exception(page)
+
+
 def test_first_load_shows_the_thesis_model(page, server):
     page.goto(server)
     expect(page.get_by_text("Current analysis")).to_be_visible(timeout=90_000)
