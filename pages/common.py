@@ -394,7 +394,7 @@ def sidebar():
     sb.markdown(f"**Dataset:** {ds.name}  \n{len(ds.meas)} points, {len(ds.positions)} "
                 f"positions, {len(ds.probes)} probes"
                 + ("" if ds.certificate is not None else ", no certificate"))
-    sb.markdown(f"**Model:** `{s['spec']}`  \norder {s['order']}, plate {s['plate']}, "
+    sb.markdown(f"**Model:** `{s['spec'] or 'rigid'}`  \norder {s['order']}, plate {s['plate']}, "
                 f"σ = {s['sigma_um']:g} µm")
     r = current_fit(show_error=False)
     if r is None:
@@ -409,15 +409,22 @@ def sidebar():
                    + (f"; {len(r.null_combinations)} undetermined combination(s) of "
                       f"{len(r.unidentifiable)} parameters" if r.unidentifiable else ""))
     n_ex = len(s["exclusions"])
-    try:
-        flagged = cached_outliers(s["ds_key"], ds).exclusions
-    except Exception:  # noqa: BLE001
-        flagged = []
     if n_ex:
         sb.caption(f"{n_ex} observation(s) excluded as outliers.")
-    pending = [f for f in flagged if tuple(f) not in {tuple(e) for e in s["exclusions"]}]
+    pending = pending_outliers(ds)
     if pending:
         sb.warning(f"{len(pending)} flagged outlier(s) still in the fit (see Data).")
+
+
+def pending_outliers(ds) -> list:
+    """Flagged outliers (position, probe, ball) that are still in the fit."""
+    s = st.session_state
+    try:
+        flagged = cached_outliers(s["ds_key"], ds).exclusions
+    except Exception:  # noqa: BLE001 - the flags are advice; the Data page shows errors
+        return []
+    done = {tuple(e) for e in s["exclusions"]}
+    return [tuple(f) for f in flagged if tuple(f) not in done]
 
 
 def frame_download(df: pd.DataFrame) -> pd.DataFrame:

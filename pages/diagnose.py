@@ -61,6 +61,14 @@ with t_time, C.guarded("Residuals against time"):
                 "(the drift effect assumes one minute per ball).")
 
 st.subheader("Which effect is missing?")
+pending = C.pending_outliers(ds)
+if pending:
+    w1, w2 = st.columns([4, 1])
+    w1.warning(f"{len(pending)} flagged outlier(s) are still in the fit: one blunder of tens "
+               "of µm can hide a real effect or pose as one. Exclude them first (the Data "
+               "page lists them).")
+    w2.button("Exclude the flagged outliers", key="diag_exclude_outliers",
+              on_click=C.set_exclusions, args=(pending, True))
 cols = st.columns([1, 1, 4])
 if cols[0].button("Run the diagnosis", key="run_diagnosis", type="primary"):
     s["diag_on"] = True
