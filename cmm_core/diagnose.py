@@ -378,10 +378,28 @@ def _encompassing(base: FitResult, cands, level, refits, max_rivals=3):
         return fit(base.problem.obs, spec, plate=base.plate, sigma_um=base.sigma_um,
                    rank_rtol=base.rank_rtol)
 
-    a = cands[0]
+    out, note = list(cands), ""
+    a = out[0]
+    # Occam for orders: "dzz:4" must beat "dzz:3" by a significant nested test, or the
+    # lower order (a near tie on ΔBIC) is the better-founded name
+    name, _, k = a.effect.partition(":")
+    if k.isdigit():
+        lower = next((c for c in out if c.effect == f"{name}:{int(k) - 1}" and c.significant),
+                     None)
+        if lower is not None:
+            fa = refits.get(a.effect) or refit(base.problem.spec.with_token(a.effect))
+            fl = refits.get(lower.effect) or refit(base.problem.spec.with_token(lower.effect))
+            refits = {**refits, a.effect: fa, lower.effect: fl}
+            p_extra = _nested_p(fl, fa)
+            if p_extra >= level:
+                out.remove(lower)
+                out.insert(0, lower)
+                note = (f" Order {k} adds nothing significant to order {int(k) - 1} "
+                        f"(p = {p_extra:.2g}): {lower.effect} is named.")
+                a = lower
     spec_a = base.problem.spec.with_token(a.effect)
     fa = refits.get(a.effect) or refit(spec_a)
-    rivals = sorted((c for c in cands[1:] if c.significant and c.n_params > 0),
+    rivals = sorted((c for c in out[1:] if c.significant and c.n_params > 0),
                     key=lambda c: c.p_value)[:max_rivals]
     promoted, mutual = None, []
     for b in rivals:
@@ -392,13 +410,11 @@ def _encompassing(base: FitResult, cands, level, refits, max_rivals=3):
             promoted = (b, p_a_given_b, p_b_given_a)
         elif p_a_given_b >= level and p_b_given_a >= level:
             mutual.append(b.effect)
-    out = list(cands)
-    note = ""
     if promoted is not None:
         b, pab, pba = promoted
         out.remove(b)
         out = [b, *out]
-        note = (f" Nested tests: {a.effect} adds nothing once {b.effect} is in the model "
+        note += (f" Nested tests: {a.effect} adds nothing once {b.effect} is in the model "
                 f"(p = {pab:.2g}), while {b.effect} is still needed with {a.effect} in "
                 f"(p = {pba:.2g}): {b.effect} explains the same misfit and more, although "
                 f"its ΔBIC ({b.delta_bic:.1f}, for {b.n_params} parameters) is weaker than "

@@ -229,14 +229,19 @@ class ModelSpec:
         return parse_spec(self.to_string() + "," + token, default_order=self.default_order)
 
     def candidates(self) -> list:
-        """Tokens not yet in the model: absent errors, the next order of each present
-        function (up to ``MAX_ORDER``) and absent physical effects."""
+        """Tokens not yet in the model: absent errors, the next two orders of each present
+        function (up to ``MAX_ORDER``) and absent physical effects.
+
+        Two orders, because a function whose true shape is two degrees above the model
+        (an order-4 bow on an order-2 model) is only partly followed by the next order:
+        offered both, the ranking names the one the data support (ΔBIC charges the extra
+        coefficient; when the next order explains as much, it wins)."""
         out = []
         for n, o in self.orders:
             if o == 0:
                 out.append(n)
-            elif n not in SQUARENESS and o < MAX_ORDER:
-                out.append(f"{n}:{o + 1}")
+            elif n not in SQUARENESS:
+                out += [f"{n}:{k}" for k in range(o + 1, min(o + 2, MAX_ORDER) + 1)]
         out += [e for e in PHYSICAL if e not in self.effects]
         # without a period: diagnose scans the period (``diagnose.PERIOD_SCAN``)
         have = {n for n, _ in self.periods}

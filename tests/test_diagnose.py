@@ -23,6 +23,9 @@ HIDDEN = {
             "kinematic21,-rxy"),
     "dyz:3": ({"kinematic": {"spec": "kinematic21,dyz:3", "coefficients": {"dyz[3]": 2.0}}},
               "kinematic21"),
+    # two orders above the model: offered as a candidate of its own (effects.candidates)
+    "dyz:4": ({"kinematic": {"spec": "kinematic21,dyz:4", "coefficients": {"dyz[4]": 3.0}}},
+              "kinematic21"),
 }
 
 
@@ -226,3 +229,14 @@ def test_candidates_on_an_undetermined_baseline_count_only_their_own_parameters(
     # one Chebyshev term each: at most one parameter (0 when the design cannot see it)
     n = {c.effect: c.n_params for c in d.candidates}
     assert max(n.values()) == 1 and n["rxy:3"] == 1, n
+
+
+def test_a_higher_order_must_beat_the_next_one_by_a_nested_test():
+    """Seed 1002 (stress run): hidden dzz[3] only. dzz:4 wins ΔBIC by 0.9 (a near tie:
+    the extra coefficient takes 7.7 of χ² by chance); the nested F-test of order 4 against
+    order 3 is not significant, so order 3 is named."""
+    sim = simulate({"seed": 1002, "kinematic": {"spec": "kinematic21,dzz:3",
+                                                "coefficients": {"dzz[3]": 1.5}}})
+    d = diagnose(sim.dataset, "kinematic21")
+    assert d.verdict == "dzz:3", [(c.effect, round(c.delta_bic, 1)) for c in d.candidates[:3]]
+    assert "Order 4 adds nothing significant to order 3" in d.message

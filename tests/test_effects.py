@@ -62,7 +62,10 @@ def test_bad_tokens_say_what_was_expected(spec, needle):
 def test_candidates_are_every_missing_token_and_each_has_a_catalogue_entry():
     m = parse_spec("kinematic21,-sxy,plate_sag")
     cands = m.candidates()
-    assert "sxy" in cands and "plate_sag" not in cands and "dxx:3" in cands
+    assert "sxy" in cands and "plate_sag" not in cands and {"dxx:3", "dxx:4"} <= set(cands)
+    assert "dxx:5" in parse_spec("kinematic21", default_order=4).candidates()
+    assert not any(c.startswith("dxx:6") for c in
+                   parse_spec("kinematic21", default_order=4).candidates())
     assert {"plate_thermal", "probe_offset", "drift"} <= set(cands)
     assert {"periodic_x", "periodic_y", "periodic_z"} <= set(cands)
     for tok in cands + ["periodic_x:180"]:
