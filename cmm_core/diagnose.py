@@ -169,6 +169,8 @@ def _needs_met(token, base: FitResult):
         return "needs at least two probes"
     if name == "drift" and np.ptp(o.hours) == 0:
         return "needs measurement times"
+    if name == "backlash" and not (np.ptp(o.approach, axis=0) == 2).any():
+        return "every ball was approached from the same side along each axis"
     if name in PERIODIC:
         a = "xyz".index(name[-1])
         if np.ptp((o.r_mm - o.p_mm)[:, a]) < 2 * PERIOD_SCAN[0]:
@@ -463,6 +465,11 @@ def _conclusion(base, cands, verdict):
     if best.aliases:
         text += (f" With this data it cannot be told apart from {', '.join(best.aliases)}; "
                  f"to separate them: {best.separate_by}")
+    if best.chi2_dof > 1.3:
+        text += (f" With it the fit still has χ²/dof = {best.chi2_dof:.2f}: more is missing. "
+                 "Add it and run the diagnosis again (effects are found one at a time); if "
+                 "nothing significant is left, look at the residual maps for an effect "
+                 "outside the catalogue or a wrong σ.")
     return head + text
 
 

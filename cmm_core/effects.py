@@ -3,7 +3,7 @@
 A model is a comma-separated effect list applied left to right: names of the 21 errors,
 groups (``kinematic21``, ``translational``, ``rotational``, ``squareness``), ``name:order``
 and ``-name``; plus the physical effects ``plate_thermal``, ``plate_sag``, ``probe_offset``
-and ``drift``, and periodic scale errors ``periodic_x:PERIOD_MM`` (and ``_y``, ``_z``). Rigid placement of each position is always in the model.
+``drift`` and ``backlash``, and periodic scale errors ``periodic_x:PERIOD_MM`` (and ``_y``, ``_z``). Rigid placement of each position is always in the model.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ GROUPS = {
     "rotational": ROTATIONAL,
     "squareness": SQUARENESS,
 }
-PHYSICAL = ("plate_thermal", "plate_sag", "probe_offset", "drift")
+PHYSICAL = ("plate_thermal", "plate_sag", "probe_offset", "drift", "backlash")
 PERIODIC = {"periodic_x": "dxx", "periodic_y": "dyy", "periodic_z": "dzz"}
 """Periodic scale error tokens (``periodic_x:200``: period 200 mm) and the positioning
 function each one adds to."""
@@ -124,6 +124,17 @@ _PHYSICAL = {
         "a positioning or straightness error when the balls are measured row by row "
         "(time follows x and y), and a probe step when probes are measured in blocks.",
         "a serpentine or random measurement order, or repeating the first ball at the end."),
+    "backlash": Effect(
+        "backlash", "backlash (reversal error)",
+        "an axis reads differently depending on the direction it last moved in (play in the "
+        "drive, friction hysteresis of the carriage): balls approached from opposite sides "
+        "along an axis differ by the reversal span, whatever their position.",
+        "a known measurement order (time_min or the file's row order) that reaches balls "
+        "from both directions along an axis: serpentine or random order.",
+        "drift and straightness when the direction alternates row by row (serpentine), and "
+        "the placement when every ball is approached from the same side.",
+        "the same balls in two orders (row-by-row and serpentine), or one ball approached "
+        "from both sides."),
 }
 
 

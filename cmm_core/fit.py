@@ -66,6 +66,10 @@ class Observations:
     R0, t0_mm : ndarray (P, 3, 3), (P, 3)
         Nominal placements from the setup.
     range_mm : ndarray (3,)
+    has_certificate : bool
+    approach : ndarray (n, 3)
+        Direction of the last move of each axis before the point (+1, -1; 0 before the
+        axis first moved), from the measurement order of the whole file (``backlash``).
     """
 
     table: pd.DataFrame
@@ -87,6 +91,37 @@ class Observations:
     t0_mm: np.ndarray
     range_mm: np.ndarray
     has_certificate: bool
+    approach: np.ndarray
+
+
+def approach_directions(ram_mm, time_min=None, *, min_move_mm=0.5):
+    """Direction from which each axis last moved before each point (backlash state).
+
+    Parameters
+    ----------
+    ram_mm : ndarray (n, 3)
+        Scale readings (tip centre minus probe offset) in file order, mm.
+    time_min : ndarray (n,), optional
+        Measurement times; without them the file order is the measurement order (SPEC).
+    min_move_mm : float
+        Smaller steps (noise, a ball repeated in place) leave an axis's state unchanged.
+
+    Returns
+    -------
+    ndarray (n, 3)
+        +1 or -1 per axis, 0 until the axis has first moved.
+    """
+    n = len(ram_mm)
+    order = np.arange(n) if time_min is None else np.argsort(time_min, kind="stable")
+    step = np.diff(ram_mm[order], axis=0)
+    sign = np.where(np.abs(step) > min_move_mm, np.sign(step), 0.0)
+    sign = np.vstack([np.zeros((1, 3)), sign])
+    # an axis keeps the direction of its last real move: forward-fill the non-zero signs
+    idx = np.where(sign != 0, np.arange(n)[:, None], 0)
+    np.maximum.accumulate(idx, axis=0, out=idx)
+    out = np.empty((n, 3))
+    out[order] = np.take_along_axis(sign, idx, axis=0)
+    return out
 
 
 def select(data: Dataset, *, positions=None, probes=None, exclude=()) -> Observations:
@@ -105,6 +140,12 @@ def select(data: Dataset, *, positions=None, probes=None, exclude=()) -> Observa
         keep &= ~np.array([(p, q, int(b)) in ex for p, q, b in
                            zip(df["position"], df["probe"], df["ball"], strict=True)])
     t = df[keep].reset_index(drop=True)
+    # backlash state follows every move the machine made, excluded balls included
+    has_time = "time_min" in df and df["time_min"].notna().all()
+    ram_all = df[["mx_mm", "my_mm", "mz_mm"]].to_numpy(float) - np.array(
+        [data.setup.probes[q] for q in df["probe"]], float)
+    approach = approach_directions(
+        ram_all, df["time_min"].to_numpy(float) if has_time else None)[keep]
     if len(t) == 0:
         raise ValueError("no observations left after the selection; choose at least one "
                          "position and probe.")
@@ -154,7 +195,7 @@ def select(data: Dataset, *, positions=None, probes=None, exclude=()) -> Observa
     horiz = np.array([setup.positions[p].horizontal for p in positions])
     return Observations(t, r, pnom[prb], pos, prb, ball, positions, probes, balls, plate0, cu,
                         dT, bool(has_temp), hours, horiz, R0, t0, setup.range_mm,
-                        cert is not None)
+                        cert is not None, approach)
 
 
 def plate_effect_basis(plate_mm):
@@ -223,6 +264,8 @@ class Problem:
             L.add("plate_sag", ["plate_sag.uu", "plate_sag.uv", "plate_sag.vv"], "um")
         if "drift" in spec.effects:
             L.add("drift", [f"{p}.drift_{a}" for p in obs.positions for a in "xyz"], "um/h")
+        if "backlash" in spec.effects:
+            L.add("backlash", [f"backlash.{a}" for a in "xyz"], "um")
         self.layout = L
         self.plate_centre, self.sag_basis = plate_effect_basis(obs.plate0_mm)
         self.n_obs = len(obs.r_mm)
@@ -266,6 +309,9 @@ class Problem:
         d = (xs - placed) / UM
         if "drift" in blk:
             d -= x[blk["drift"]].reshape(-1, 3)[o.pos] * o.hours[:, None]
+        if "backlash" in blk:
+            # a reading approached from + is short by half the reversal span
+            d += x[blk["backlash"]] * o.approach / 2
         if not want_jac:
             return d, None
         cols, vals = [], []
@@ -305,6 +351,9 @@ class Problem:
         if "drift" in blk:
             put(blk["drift"].start + 3 * o.pos[:, None] + np.arange(3),
                 -np.eye(3)[None] * o.hours[:, None, None])
+        if "backlash" in blk:
+            put(np.broadcast_to(blk["backlash"].start + np.arange(3), (n, 3)),
+                np.eye(3)[None] * (o.approach / 2)[:, None, :])
         # fill one preallocated (n, 3, k) array per CSR field: concatenating broadcast
         # blocks would copy the dense kinematic block twice (10^5 points: 0.5 s a call)
         k = sum(c.shape[2] for c in cols)

@@ -14,7 +14,7 @@ dict in the SPEC format, frame ``machine``; default the thesis placements),
 ``"kinematic21,periodic_x:180"`` with coefficients ``dxx[sin180]``, ``dxx[cos180]``), ``noise_um``, ``effects`` (``plate_thermal``: ``cte_per_K`` and
 ``temp_C`` per position [start, finish]; ``plate_sag``: ``uu, uv, vv`` µm;
 ``probe_offset``: per-probe vectors in µm or ``sd_um``; ``drift``: per-position vectors in
-µm/h or ``sd_um_per_h``), ``order`` (``row``, ``serpentine``, ``random``),
+µm/h or ``sd_um_per_h``; ``backlash``: reversal span ``x_um, y_um, z_um``), ``order`` (``row``, ``serpentine``, ``random``),
 ``probes_interleaved``, ``minutes_per_ball``, ``repeats``.
 """
 
@@ -31,7 +31,7 @@ import pandas as pd
 from . import kinematics as kin
 from .dataset import THESIS_DIR, Dataset
 from .effects import parse_spec
-from .fit import plate_effect_basis
+from .fit import approach_directions, plate_effect_basis
 from .io import Certificate, read_setup, resolve, write_certificate, write_long_csv
 
 DEFAULT_CONFIG = {
@@ -95,7 +95,7 @@ class Simulation:
 
 
 _EFFECT_KEYS = {"plate_thermal": {"cte_per_K", "temp_C"}, "plate_sag": {"uu", "uv", "vv"},
-                "probe_offset": None, "drift": None}
+                "probe_offset": None, "drift": None, "backlash": {"x_um", "y_um", "z_um"}}
 
 
 def _check_config(cfg):
@@ -239,6 +239,11 @@ def simulate(config: dict | None = None) -> Simulation:
     pnom = np.array([setup.probes[q] for q in df["probe"]])
     ptrue = pnom + np.array([probe_err[q] for q in df["probe"]]) * 1e-3
     x = kin.invert(terms, coef, s, ptrue)
+    if "backlash" in eff:
+        # rows are in time order: the reading is short by half the span along the last move
+        span = np.array([eff["backlash"].get(f"{a}_um", 0.0) for a in "xyz"], float)
+        x = x - approach_directions(x) * span / 2 * 1e-3
+        truth.update({f"backlash.{a}": float(v) for a, v in zip("xyz", span, strict=True)})
     r = x + pnom + rng.normal(0, cfg["noise_um"], x.shape) * 1e-3
     df["x_mm"], df["y_mm"], df["z_mm"] = r.T
     df = df.drop(columns="_dt_min")

@@ -227,7 +227,13 @@ with tab_sim:
                                                        key="sim_drift_sd")}
     kin_cfg = {"order": int(korder), "random_um": float(rnd_um),
                "random_urad": float(rnd_urad)}
-    p1, p2, p3, _ = st.columns(4)
+    p1, p2, p3, p4 = st.columns(4)
+    if p4.checkbox("Backlash", key="sim_backlash",
+                   help="Reversal error: each axis reads short by half the span in the "
+                        "direction it last moved. Visible with serpentine or random order."):
+        span = float(p4.number_input("reversal span X, Y, Z (µm)", 0.0, 20.0, 1.5,
+                                     key="sim_backlash_um"))
+        eff["backlash"] = {"x_um": span, "y_um": span, "z_um": span}
     if p1.checkbox("Periodic X scale error", key="sim_periodic",
                    help="A sine wave along X (lead screw, rack): not in the default model, "
                         "so the diagnosis has to find it and its period."):

@@ -23,6 +23,9 @@ HIDDEN = {
             "kinematic21,-rxy"),
     "dyz:3": ({"kinematic": {"spec": "kinematic21,dyz:3", "coefficients": {"dyz[3]": 2.0}}},
               "kinematic21"),
+    # reversal span of 1.5 µm in X and Y, balls visited in serpentine order
+    "backlash": ({"effects": {"backlash": {"x_um": 1.5, "y_um": 1.5, "z_um": 0.0}},
+                  "order": "serpentine"}, "kinematic21"),
     # two orders above the model: offered as a candidate of its own (effects.candidates)
     "dyz:4": ({"kinematic": {"spec": "kinematic21,dyz:4", "coefficients": {"dyz[4]": 3.0}}},
               "kinematic21"),
@@ -240,3 +243,20 @@ def test_a_higher_order_must_beat_the_next_one_by_a_nested_test():
     d = diagnose(sim.dataset, "kinematic21")
     assert d.verdict == "dzz:3", [(c.effect, round(c.delta_bic, 1)) for c in d.candidates[:3]]
     assert "Order 4 adds nothing significant to order 3" in d.message
+
+
+def test_two_hidden_effects_are_found_one_at_a_time():
+    """Plate sag and backlash hidden together: the first diagnosis names one and says that
+    more is missing; with it added the second names the other, and with both the data are
+    explained to noise (the add-and-watch loop of the diagnosis page)."""
+    sim = simulate({"seed": 21, "order": "serpentine",
+                    "effects": {"plate_sag": {"uu": -4.0, "uv": 0.5, "vv": -3.0},
+                                "backlash": {"x_um": 2.0, "y_um": 2.0}}})
+    hidden = {"plate_sag", "backlash"}
+    first = diagnose(sim.dataset, "kinematic21")
+    assert first.verdict in hidden and "more is missing" in first.message
+    second = diagnose(sim.dataset, f"kinematic21,{first.verdict}")
+    assert second.verdict == (hidden - {first.verdict}).pop()
+    both = fit(sim.dataset, "kinematic21,plate_sag,backlash")
+    assert 0.75 <= both.chi2_dof <= 1.3 < first.candidates[0].chi2_dof
+    assert diagnose(sim.dataset, "kinematic21,plate_sag,backlash").verdict is None
