@@ -209,8 +209,8 @@ def fig_pattern(table: pd.DataFrame, values_um, title: str, height: int = 330):
                                      hovertemplate="%{text}: %{y:.3f} µm<extra></extra>"))
             tcols.append(a + 1)
     fig.add_traces(traces, rows=[1] * len(traces), cols=tcols)
-    fig.update_layout({f"xaxis{'' if a == 0 else a + 1}": {
-        "title": {"text": "observation (by position)"}} for a in range(3)})
+    # one axis title under the middle panel: three would overlap in a half-width column
+    fig.update_xaxes(title_text="observation (grouped by position)", row=1, col=2)
     fig.update_yaxes(title_text="µm", row=1, col=1)
     _layout(fig, title, height=height)
     fig.update_layout(legend={"orientation": "h", "y": -0.32, "x": 0},

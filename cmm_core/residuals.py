@@ -48,6 +48,32 @@ def against_coordinates(result: FitResult) -> pd.DataFrame:
     return pd.concat(rows, ignore_index=True)
 
 
+def approach_split(result: FitResult) -> pd.DataFrame:
+    """Mean residual of each axis over the balls approached from + and from − along it.
+
+    A backlash (reversal) error shows as a ``reversal_um`` = mean(−) − mean(+) of the sign
+    of the span (a reading approached from + is short by half of it) but smaller, since
+    the placements and kinematic terms of the fit absorb part of it: this view points at
+    the effect; the ``backlash`` block of a fit estimates the span. The standard
+    uncertainty is Type A, from the scatter within each group.
+    """
+    o = result.problem.obs
+    rows = []
+    for a, comp in enumerate("xyz"):
+        r = result.residuals_um[:, a]
+        plus, minus = r[o.approach[:, a] > 0], r[o.approach[:, a] < 0]
+        row = {"axis": comp, "n_plus": len(plus), "n_minus": len(minus),
+               "mean_plus_um": np.nan, "mean_minus_um": np.nan, "reversal_um": np.nan,
+               "u_reversal_um": np.nan}
+        if len(plus) >= 2 and len(minus) >= 2:
+            row.update(mean_plus_um=plus.mean(), mean_minus_um=minus.mean(),
+                       reversal_um=minus.mean() - plus.mean(),
+                       u_reversal_um=float(np.sqrt(plus.var(ddof=1) / len(plus)
+                                                     + minus.var(ddof=1) / len(minus))))
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def position_trends(data: Dataset, exclude=()) -> pd.DataFrame:
     """Each position's in-plane scale (ppm) and out-of-plane bowl (µm) against the
     certificate, with standard uncertainties from the least-squares scatter.

@@ -25,7 +25,7 @@ c[3].metric("BIC", f"{r.bic:.1f}")
 
 st.subheader("Where the model fails")
 t_pat, t_map, t_tab, t_time = st.tabs(["Residual pattern", "Residual map (3D)",
-                                       "Per position and probe", "Against time"])
+                                       "Per position and probe", "Against time and direction"])
 with t_pat, C.guarded("Residual pattern"):
     st.plotly_chart(C.figure("pattern", C.fit_args(), C.rep.fig_pattern, r.table,
                              r.residuals_um, "Residuals per observation (µm)"),
@@ -59,6 +59,10 @@ with t_time, C.guarded("Residuals against time"):
     else:
         st.info("No time_min column: the measurement order is the row order of the files "
                 "(the drift effect assumes one minute per ball).")
+    st.markdown("**By approach direction**: mean residual of each axis over the balls "
+                "reached moving + and moving − along it (a difference is a reversal error, "
+                "the `backlash` effect)")
+    st.dataframe(res_mod.approach_split(r), hide_index=True, key="diag_approach")
 
 st.subheader("Which effect is missing?")
 pending = C.pending_outliers(ds)

@@ -265,6 +265,32 @@ def test_hidden_periodic_error_found_added_and_error_falls():
     assert _sidebar_rms(at) < 0.55  # the 0.5 µm noise
 
 
+def test_hidden_backlash_seen_by_direction_named_added_and_error_falls():
+    """Backlash of 2 µm, serpentine order: the 'by approach direction' table shows the
+    reversal, the diagnosis names backlash, adding it brings the RMS to the noise."""
+    at = _new()
+    at.selectbox(key="sim_order").set_value("serpentine")
+    at.checkbox(key="sim_backlash").check()
+    at.run()
+    at.number_input(key="sim_backlash_um").set_value(2.0)
+    at.button(key="simulate").click()
+    at.run()
+    at.switch_page("pages/diagnose.py")
+    at.run()
+    _ok(at)
+    split = _frame(at, "reversal_um").set_index("axis")
+    assert split.loc["x", "reversal_um"] > 4 * split.loc["x", "u_reversal_um"]
+    before = _sidebar_rms(at)
+    at.button(key="run_diagnosis").click()
+    at.run()
+    _ok(at)
+    assert str(_frame(at, "delta_bic").iloc[0]["effect"]) == "backlash"
+    at.button(key="add_backlash").click()
+    at.run()
+    _ok(at)
+    assert _sidebar_rms(at) < 0.55 < before  # down to the 0.5 µm noise
+
+
 def test_downloads_present_and_project_roundtrip():
     at = _new()
     at.switch_page("pages/export.py")

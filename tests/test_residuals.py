@@ -5,7 +5,7 @@ import pytest
 
 from cmm_core.fit import fit
 from cmm_core.outliers import detect_outliers
-from cmm_core.residuals import against_coordinates, breakdown, position_trends
+from cmm_core.residuals import against_coordinates, approach_split, breakdown, position_trends
 from cmm_core.simulate import simulate
 
 
@@ -44,3 +44,18 @@ def test_thesis_trends_show_bp111_y_scale_and_horizontal_bowl(thesis):
     assert t.loc["BP111", "scale_v_ppm"] - vertical["scale_v_ppm"].mean() > 2 * t.loc[
         "BP111", "u_scale_v_ppm"]
     assert t.loc["BP111", "bowl_uu_um"] < vertical["bowl_uu_um"].min() - 5
+
+
+def test_approach_split_points_at_a_hidden_reversal_and_clears_once_it_is_fitted():
+    """Spans +3 µm in x, -2 µm in y, none in z, random order: without the backlash block
+    the x and y residuals differ between the two approach directions by more than 4 u
+    with the sign of the span; with it every difference is within 4 u of zero."""
+    sim = simulate({"seed": 2, "order": "random",
+                    "effects": {"backlash": {"x_um": 3.0, "y_um": -2.0, "z_um": 0.0}}})
+    t = approach_split(fit(sim.dataset, "kinematic21")).set_index("axis")
+    assert t.loc["x", "reversal_um"] > 4 * t.loc["x", "u_reversal_um"]
+    assert t.loc["y", "reversal_um"] < -4 * t.loc["y", "u_reversal_um"]
+    assert abs(t.loc["z", "reversal_um"]) < 4 * t.loc["z", "u_reversal_um"]
+    assert (t["n_plus"] + t["n_minus"] <= len(sim.dataset.meas)).all()
+    t2 = approach_split(fit(sim.dataset, "kinematic21,backlash"))
+    assert (t2["reversal_um"].abs() < 4 * t2["u_reversal_um"]).all()
