@@ -3,7 +3,10 @@
 The true tip centre of a reported point ``r`` measured with probe offset ``p`` is
 ``r + e(r - p, p)`` (SPEC conventions). A saved model holds what that needs: the
 kinematic terms and coefficients with their covariance, and the probe offsets (nominal plus
-any fitted offset error).
+any fitted offset error). A model fitted with ``backlash`` also holds the reversal spans:
+each new point is then corrected for the direction from which its axes last moved (its
+file order, or ``time_min``), and an axis whose direction is unknown (before it first
+moves) carries half the span as standard uncertainty instead.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from . import kinematics as kin
-from .fit import FitResult
+from .fit import FitResult, approach_directions
 from .io import DataError, _numeric, _read_csv, _require
 from .uncertainty import propagate_error
 
@@ -40,6 +43,10 @@ class Model:
         points then carry NaN uncertainties.
     summary : dict
         RMS, χ²/dof and provenance for the record.
+    backlash_um : ndarray (3,) or None
+        Reversal span of each axis (µm) when the model was fitted with ``backlash``.
+    cov_with_backlash : ndarray or None
+        Joint covariance of the kinematic coefficients followed by the three spans.
     """
 
     spec: str
@@ -49,6 +56,8 @@ class Model:
     probes_mm: dict
     undetermined: bool
     summary: dict
+    backlash_um: np.ndarray | None = None
+    cov_with_backlash: np.ndarray | None = None
 
 
 def model_from_result(result: FitResult) -> Model:
@@ -62,13 +71,21 @@ def model_from_result(result: FitResult) -> Model:
             p = p + val.reshape(-1, 3)[i] * 1e-3
         probes[q] = p
     kin_labels = set(result.terms.labels)
+    blk = result.problem.layout.blocks
+    backlash = joint = None
+    if "backlash" in blk:
+        idx = np.r_[np.arange(blk["kinematic"].start, blk["kinematic"].stop),
+                    np.arange(blk["backlash"].start, blk["backlash"].stop)]
+        backlash = result.values[blk["backlash"]].copy()
+        joint = result.covariance[np.ix_(idx, idx)].copy()
     return Model(result.spec, result.terms, result.kinematic_coef.copy(),
                  result.kinematic_cov.copy(), probes,
                  any(lab in kin_labels for lab in result.unidentifiable),
                  {"rms_um": result.rms_um, "chi2_dof": result.chi2_dof, "n_obs": result.n_obs,
                   "plate": result.plate, "sigma_um": result.sigma_um,
                   "region_mm": [np.min(obs.r_mm - obs.p_mm, axis=0).tolist(),
-                                np.max(obs.r_mm - obs.p_mm, axis=0).tolist()]})
+                                np.max(obs.r_mm - obs.p_mm, axis=0).tolist()]},
+                 backlash, joint)
 
 
 def model_to_dict(model: Model | FitResult) -> dict:
@@ -79,7 +96,10 @@ def model_to_dict(model: Model | FitResult) -> dict:
             "periods": [list(o) for o in m.terms.periods],
             "labels": m.terms.labels, "coef": m.coef.tolist(), "cov": m.cov.tolist(),
             "probes_mm": {k: list(map(float, v)) for k, v in m.probes_mm.items()},
-            "undetermined": m.undetermined, "summary": m.summary}
+            "undetermined": m.undetermined, "summary": m.summary,
+            **({} if m.backlash_um is None else {
+                "backlash_um": m.backlash_um.tolist(),
+                "cov_with_backlash": m.cov_with_backlash.tolist()})}
 
 
 def model_from_dict(d: dict, *, name: str = "model") -> Model:
@@ -91,14 +111,22 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
         coef = np.asarray(d["coef"], float)
         cov = np.asarray(d["cov"], float)
         probes = {str(k): np.asarray(v, float) for k, v in d["probes_mm"].items()}
+        backlash = joint = None
+        if "backlash_um" in d:
+            backlash = np.asarray(d["backlash_um"], float)
+            joint = np.asarray(d["cov_with_backlash"], float)
     except (KeyError, TypeError, ValueError) as exc:
         raise DataError(f"is not a model file written by 'fit --save' ({exc}).",
                         file=name) from exc
     if coef.shape != (terms.n,) or cov.shape != (terms.n, terms.n):
         raise DataError(f"expected {terms.n} coefficients and a {terms.n}x{terms.n} "
                         f"covariance, found {coef.shape} and {cov.shape}.", file=name)
+    if backlash is not None and (backlash.shape != (3,)
+                                 or joint.shape != (terms.n + 3, terms.n + 3)):
+        raise DataError(f"expected 3 backlash spans and a {terms.n + 3}x{terms.n + 3} joint "
+                        f"covariance, found {backlash.shape} and {joint.shape}.", file=name)
     return Model(d.get("spec", ""), terms, coef, cov, probes, bool(d.get("undetermined")),
-                 d.get("summary", {}))
+                 d.get("summary", {}), backlash, joint)
 
 
 def _extrapolation_note(m: Model, x_mm: np.ndarray) -> np.ndarray:
@@ -150,7 +178,9 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
     """Corrected points ``xc_mm, yc_mm, zc_mm`` with standard uncertainties in µm.
 
     ``points`` needs ``x_mm, y_mm, z_mm`` (reported tip centres, machine frame) and a
-    ``probe`` column unless the model has a single probe.
+    ``probe`` column unless the model has a single probe. With a backlash model the
+    points' order (``time_min``, else the rows) is their measurement order, and the
+    output gets the approach direction of each axis (``approach_x`` ...: +1, -1, 0 unknown).
     """
     m = model_from_result(model) if isinstance(model, FitResult) else model
     name = points.attrs.get("source", "points")
@@ -169,7 +199,18 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
     r = points[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
     p = np.array([m.probes_mm[q] for q in probes]).reshape(-1, 3)
     x = r - p
-    e_um, u = propagate_error(m.terms, m.coef, m.cov, x, p)
+    if m.backlash_um is None:
+        e_um, u = propagate_error(m.terms, m.coef, m.cov, x, p)
+    else:
+        t = points["time_min"].to_numpy(float) if "time_min" in points and \
+            points["time_min"].notna().all() else None
+        d = approach_directions(x, t)
+        # the reversal enters each axis linearly: extra Jacobian columns diag(d/2)
+        e_um, u = propagate_error(m.terms, m.coef, m.cov_with_backlash, x, p,
+                                  extra_jac=np.eye(3)[None] * (d / 2)[:, None, :])
+        e_um = e_um + m.backlash_um * d / 2
+        # direction unknown: the correction is ±span/2 with equal odds, σ = |span|/2
+        u = np.sqrt(u**2 + (d == 0) * (m.backlash_um / 2) ** 2)
     if m.undetermined:
         u[:] = np.nan
     out = points.copy()
@@ -177,4 +218,7 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
     out["ex_um"], out["ey_um"], out["ez_um"] = e_um.T
     out["u_x_um"], out["u_y_um"], out["u_z_um"] = u.T
     out["extrapolated"] = _extrapolation_note(m, x)
+    if m.backlash_um is not None:
+        for a, col in enumerate(("approach_x", "approach_y", "approach_z")):
+            out[col] = d[:, a].astype(int)
     return out

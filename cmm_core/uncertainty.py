@@ -56,12 +56,19 @@ def _probe_vector(result: FitResult, probe):
     return p
 
 
-def propagate_error(terms, coef, cov, x_mm, p_mm):
+def propagate_error(terms, coef, cov, x_mm, p_mm, extra_jac=None):
     """Error ``e(x, p)`` (µm) and its standard uncertainty ``sqrt(diag(J V Jᵀ))`` per
-    component, J the analytic Jacobian of the error with respect to the coefficients."""
+    component, J the analytic Jacobian of the error with respect to the coefficients.
+
+    ``extra_jac`` (m, 3, k) appends the sensitivities of further linear terms (backlash
+    spans) whose coefficients follow the kinematic ones in ``cov``; their contribution to
+    ``e`` is the caller's.
+    """
     xs, J = kin.jacobian(terms, coef, x_mm, p_mm)
     e = (xs - x_mm - p_mm) / kin.UM
     Je = J / kin.UM
+    if extra_jac is not None:
+        Je = np.concatenate([Je, extra_jac], axis=2)
     u = np.sqrt(np.clip(np.einsum("mik,kl,mil->mi", Je, cov, Je), 0, None))
     return e, u
 

@@ -132,10 +132,18 @@ def test_monte_carlo_coverage_of_stated_uncertainties():
     assert 0.8 <= np.mean(z**2) <= 1.2
 
 
-@pytest.mark.parametrize("spec", ["kinematic21", "kinematic21,periodic_x:180"])
-def test_compensation_brings_length_errors_to_noise(spec):
-    sim = simulate({"seed": 3, "kinematic": {"spec": spec, "random_um": 3, "random_urad": 3},
-                    **EXACT_PLATE})
+BACKLASH = {"order": "random", "effects": {"backlash": {"x_um": 3.0, "y_um": 3.0, "z_um": 2.0}}}
+
+
+@pytest.mark.parametrize("spec,extra", [("kinematic21", {}),
+                                        ("kinematic21,periodic_x:180", {}),
+                                        ("kinematic21,backlash", BACKLASH)])
+def test_compensation_brings_length_errors_to_noise(spec, extra):
+    """Corrected ball-pair lengths against the true plate; with a backlash model each
+    point is corrected for the directions its axes last moved in (file order)."""
+    kin_spec = spec.replace(",backlash", "")
+    sim = simulate({"seed": 3, "kinematic": {"spec": kin_spec, "random_um": 3,
+                                             "random_urad": 3}, **EXACT_PLATE, **extra})
     r = fit(sim.dataset, spec)
     model = model_from_dict(model_to_dict(r))  # through the saved form
     pts = sim.dataset.meas[["position", "probe", "ball", "mx_mm", "my_mm", "mz_mm"]].rename(
@@ -155,6 +163,14 @@ def test_compensation_brings_length_errors_to_noise(spec):
     # Noise floor: a length from two points with 0.5 µm noise each has sd 0.5·√2 = 0.71 µm.
     assert rms_before > 2.0
     assert rms_after < 0.71 * 1.15
+    if extra:
+        # the first point: no axis has moved yet, so each correction is ±span/2 unknown
+        assert (out.loc[0, ["approach_x", "approach_y", "approach_z"]] == 0).all()
+        u = out[["u_x_um", "u_y_um"]].to_numpy(float)
+        extra = u[0] ** 2 - np.median(u[1:] ** 2, axis=0)
+        # u² of the first point exceeds the others by (span/2)²; the kinematic part of u
+        # itself varies by a few % from point to point, hence 20 %
+        np.testing.assert_allclose(extra, [1.5**2, 1.5**2], rtol=0.2)
 
 
 def test_prior_rows_weight_the_certificate():
