@@ -22,6 +22,11 @@ st.subheader("Correct measured points")
 st.write("Upload reported tip centres `probe,x_mm,y_mm,z_mm` (machine axes, mm; extra columns "
          "are kept). Each gets the corrected point `xc_mm, yc_mm, zc_mm` (reported + error) "
          "and the standard uncertainty of the correction in µm.")
+if "backlash" in r.problem.layout.blocks:
+    st.caption("This model has backlash: each point is also corrected for the direction its "
+               "axes last moved in, taken from the file's row order (or `time_min`); before "
+               "an axis first moves its direction is unknown and half the span is added to "
+               "the uncertainty (columns `approach_x/y/z`: +1, −1, 0 unknown).")
 up = st.file_uploader("Points to correct (CSV)", type=["csv", "txt"], key="up_points")
 use_example = st.checkbox("Use example points (the measured ball centres of this dataset)",
                           value=up is None, key="w_points_example")
