@@ -299,6 +299,10 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
 
     base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um, exclude=exclude,
                positions=positions, probes=probes)
+    if base.status != "converged":
+        # weakly determined directions (one placement, high orders) can need many steps
+        base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um,
+                   exclude=exclude, positions=positions, probes=probes, max_iter=1000)
     tokens = candidates if candidates is not None else base.problem.spec.candidates()
     skipped, scored = {}, []
     n_steps = len(tokens) + confirm
@@ -315,15 +319,29 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
         dchi2, dk, sig, chi2_new, u_new = score(base, tok)
         scored.append([tok, dchi2, dk, sig, chi2_new, False, None, u_new, n_scan,
                        period_aliases])
-    scored.sort(key=lambda s: _stats(base, s[1], s[2], s[4], s[8])[0])
-    for j, s in enumerate(scored[:confirm]):
-        if s[2] <= 0:
-            continue
+    def rank_key(s):
+        return _stats(base, s[1], s[2], s[4], s[8])[0]
+
+    def refit_candidate(s, j):
         report((len(tokens) + j) / n_steps, f"confirming {s[0]} by a full refit")
         ref = fit(base.problem.obs, base.problem.spec.with_token(s[0]),
                   plate=base.plate, sigma_um=sigma_um, rank_rtol=base.rank_rtol)
         s[1], s[2], s[4], s[5], s[6] = base.chi2 - ref.chi2, ref.rank - base.rank, ref.chi2, \
             True, ref
+
+    scored.sort(key=rank_key)
+    for j, s in enumerate(scored[:confirm]):
+        if s[2] > 0:
+            refit_candidate(s, j)
+    # The score decides the added rank at the baseline's solution, the refit at the
+    # nominal linearisation (the fit's frozen design null space): a refit can take back
+    # parameters the score credited. Whatever ends up first is confirmed too.
+    for j in range(confirm, confirm + 10):
+        scored.sort(key=rank_key)
+        top = next((s for s in scored if s[2] > 0), None)
+        if top is None or top[5] or confirm == 0:
+            break
+        refit_candidate(top, j)
     n_try = max(len(scored), 1)
     out = []
     n_rows = base.dof + base.rank
@@ -352,8 +370,16 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
     note = ""
     if out and out[0].significant:
         report(0.99, "nested tests of the best candidates")
-        out, note = _encompassing(base, out, alpha / n_try, {s[0]: s[6] for s in scored})
+        out, note = _encompassing(base, out, alpha / n_try, {s[0]: s[6] for s in scored},
+                                  alpha)
     verdict = out[0].effect if out and out[0].significant else None
+    if base.status != "converged":
+        # the baseline's own unfinished improvement would be credited to every candidate
+        verdict = None
+        note = (f" The baseline fit did not converge ({base.status}, {base.iterations} "
+                 "iterations): the χ² reductions above include its unfinished improvement, "
+                 "so no effect is named. Simplify the baseline (lower order, fewer functions) "
+                 "or add placements, and diagnose again.")
     msg = _conclusion(base, out, verdict) + note
     report(1.0, "done")
     return Diagnosis(base, out, verdict, skipped, msg)
@@ -368,12 +394,13 @@ def _nested_p(small: FitResult, big: FitResult) -> float:
                             dk, max(big.dof, 1)))
 
 
-def _encompassing(base: FitResult, cands, level, refits, max_rivals=3):
+def _encompassing(base: FitResult, cands, level, refits, alpha=0.01, max_rivals=3):
     """Nested F-tests between the best candidate A and the next significant ones B.
 
-    Fits base+A, base+B and base+A+B. If A adds nothing at ``level`` once B is in while B
-    still adds something once A is in, B explains A's evidence and more: B goes first,
-    (the message says why). If neither adds anything given the other, they are aliases.
+    Fits base+A, base+B and base+A+B. If A adds nothing at ``alpha`` once B is in while B
+    still adds something once A is in (at ``level``), B explains A's evidence and more: B
+    goes first (the message says why). If neither adds anything given the other at
+    ``level``, they are aliases.
     Returns the reordered candidates and a sentence for the message.
     """
     def refit(spec):
@@ -401,14 +428,19 @@ def _encompassing(base: FitResult, cands, level, refits, max_rivals=3):
                 a = lower
     spec_a = base.problem.spec.with_token(a.effect)
     fa = refits.get(a.effect) or refit(spec_a)
-    rivals = sorted((c for c in out[1:] if c.significant and c.n_params > 0),
+    # another order of the same function is not a rival: with_token replaces the order
+    # (the Occam rule above compares orders)
+    rivals = sorted((c for c in out[1:] if c.significant and c.n_params > 0
+                     and c.effect.partition(":")[0] != name),
                     key=lambda c: c.p_value)[:max_rivals]
     promoted, mutual = None, []
     for b in rivals:
         fb = refits.get(b.effect) or refit(base.problem.spec.with_token(b.effect))
         fab = refit(spec_a.with_token(b.effect))
         p_a_given_b, p_b_given_a = _nested_p(fb, fab), _nested_p(fa, fab)
-        if p_a_given_b >= level and p_b_given_a < level and promoted is None:
+        # "A adds nothing given B" at the plain level: promoting B on weak evidence
+        # against A would trade a well-supported name for a bigger model
+        if p_a_given_b >= alpha and p_b_given_a < level and promoted is None:
             promoted = (b, p_a_given_b, p_b_given_a)
         elif p_a_given_b >= level and p_b_given_a >= level:
             mutual.append(b.effect)
@@ -451,6 +483,8 @@ def _conclusion(base, cands, verdict):
         head += (f" This design leaves {len(base.null_combinations)} combination(s) of the "
                  "baseline undetermined; candidates are judged only on what it can see, "
                  "and more placements would change the picture.")
+    if base.status != "converged":
+        return head
     if verdict is None:
         return head + (" No candidate effect explains a significant part of the remaining "
                        "misfit: the data are explained to noise by this model."
