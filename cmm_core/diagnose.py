@@ -302,7 +302,7 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
     if base.status != "converged":
         # weakly determined directions (one placement, high orders) can need many steps
         base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um,
-                   exclude=exclude, positions=positions, probes=probes, max_iter=1000)
+                   exclude=exclude, positions=positions, probes=probes, max_iter=2000)
     tokens = candidates if candidates is not None else base.problem.spec.candidates()
     skipped, scored = {}, []
     n_steps = len(tokens) + confirm

@@ -617,7 +617,7 @@ def _describe_null(null, labels, limit=6):
 @single_blas_thread
 def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, order: int = 2,
         plate: str | None = None, sigma_um: float = 0.5, positions=None, probes=None,
-        exclude=(), rank_rtol: float = 1e-4, max_iter: int = 100, tol: float = 1e-9) -> FitResult:
+        exclude=(), rank_rtol: float = 1e-4, max_iter: int = 500, tol: float = 1e-9) -> FitResult:
     """Fit a model to ball-plate measurements by Gauss-Newton (thesis §4.5.1).
 
     Parameters
