@@ -33,7 +33,7 @@ from scipy import optimize, stats
 from . import kinematics as kin
 from ._blas import single_blas_thread
 from .effects import PERIODIC, catalogue_entry
-from .fit import FitResult, Problem, _solve, fit, weighted_residual
+from .fit import FitResult, Problem, _Normal, _solve, fit, weighted_residual
 
 PERIOD_SCAN = (40.0, 36)
 """Periodic scale errors: shortest period scanned (mm) and the number of periods, spaced
@@ -198,6 +198,13 @@ def score(base: FitResult, token: str):
         for j, lab in enumerate(base.labels):
             held[:, col[lab]] = base.design_null[:, j]
         C = np.vstack([C, held])
+    # ... and what the candidate adds is decided at the nominal linearisation, as its
+    # refit decides it (fit's frozen design null): at the baseline's solution the
+    # nonlinearity of fitted rotations lends weakly coupled columns a small, spurious rank
+    _, r0, J0 = weighted_residual(prob, prob.initial_state(), base.sigma_um, True)
+    ne0 = _Normal(J0, r0, C, base.rank_rtol)
+    if ne0.null.shape[1]:
+        C = np.vstack([C, (ne0.null / ne0.S[:, None]).T])
     step, cov, rank, null = _solve(J, r, C, base.rank_rtol)
     r_new = r + J @ step
     chi2_new = float(r_new @ r_new)
