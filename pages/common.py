@@ -9,6 +9,7 @@ them, so values survive page switches.
 from __future__ import annotations
 
 import hashlib
+import inspect
 import io
 import json
 import sys
@@ -448,3 +449,14 @@ def _cached_figure(kind: str, key: tuple, _builder, _args):
 def figure(kind: str, key: tuple, builder, *args):
     """``builder(*args)``, cached under ``(kind, key)``; key must identify the inputs."""
     return _cached_figure(kind, key, builder, args)
+
+
+_DF_PLACEHOLDER = "placeholder" in inspect.signature(st.dataframe).parameters
+
+
+def dataframe(data, **kwargs):
+    """``st.dataframe`` showing missing values as "—" rather than "None" (a metrologist
+    reads "None" as a value), where this Streamlit has the ``placeholder`` option."""
+    if _DF_PLACEHOLDER:
+        kwargs.setdefault("placeholder", "—")
+    return st.dataframe(data, **kwargs)

@@ -156,7 +156,7 @@ def _show_upload_report():
              "unchanged.")
     table = pd.DataFrame(report["problems"]).drop(columns="_more")
     table["row"] = table["row"].astype("Int64")  # whole row numbers, blank when none
-    st.dataframe(table, hide_index=True, key="upload_problems")
+    C.dataframe(table, hide_index=True, key="upload_problems")
 
 
 tab_thesis, tab_upload, tab_sim, tab_proj = st.tabs(
@@ -317,7 +317,7 @@ span = m.groupby("position", sort=False)[["mx_mm", "my_mm", "mz_mm"]].agg(
     lambda v: v.max() - v.min())
 counts = counts.merge(span.rename(columns=lambda c: f"span_{c[1]}_mm").reset_index(),
                       on="position")
-st.dataframe(counts, hide_index=True, key="validation_counts")
+C.dataframe(counts, hide_index=True, key="validation_counts")
 problems = []
 for pos, probe, miss in cio.missing_balls(m, ds.certificate):
     problems.append(f"{pos}/{probe}: missing ball(s) {', '.join(map(str, miss))}")
@@ -372,6 +372,6 @@ with C.guarded("3D view"):
                     key="fig_placements")
 
 with st.expander("Measurements (as read, mm)"):
-    st.dataframe(m, hide_index=True, key="meas_table")
+    C.dataframe(m, hide_index=True, key="meas_table")
 with st.expander("Setup (JSON)"):
     st.code(json.dumps(ds.setup.raw, indent=1), language="json")

@@ -37,12 +37,12 @@ with t_map, C.guarded("Residual map"):
 with t_tab, C.guarded("Residual table"):
     by = st.radio("Group by", ["position", "probe", "ball"], horizontal=True,
                   key="w_breakdown_by")
-    st.dataframe(res_mod.breakdown(r, by), hide_index=True, key="diag_breakdown")
+    C.dataframe(res_mod.breakdown(r, by), hide_index=True, key="diag_breakdown")
     st.caption("RMS per axis in µm; χ² against σ and its share of the total.")
     if ds.certificate is not None:
         st.markdown("**Each position against the certificate** (own scale and "
                     "out-of-plane bowl)")
-        st.dataframe(res_mod.position_trends(ds, exclude=C.fit_args()[-1]),
+        C.dataframe(res_mod.position_trends(ds, exclude=C.fit_args()[-1]),
                      hide_index=True, key="diag_trends")
 with t_time, C.guarded("Residuals against time"):
     rf = r.residuals_frame()
@@ -62,7 +62,7 @@ with t_time, C.guarded("Residuals against time"):
     st.markdown("**By approach direction**: mean residual of each axis over the balls "
                 "reached moving + and moving − along it (a difference is a reversal error, "
                 "the `backlash` effect)")
-    st.dataframe(res_mod.approach_split(r), hide_index=True, key="diag_approach")
+    C.dataframe(res_mod.approach_split(r), hide_index=True, key="diag_approach")
 
 st.subheader("Which effect is missing?")
 pending = C.pending_outliers(ds)
@@ -102,7 +102,7 @@ if s["diag_on"]:
         cols_shown = ["effect", "title", "rms_um", "chi2_dof", "delta_chi2", "n_params",
                       "delta_bic", "p_value", "significant", "confirmed", "aliases"]
         table = pd.DataFrame([{k: c_.get(k) for k in cols_shown} for c_ in cands])
-        st.dataframe(table, hide_index=True, key="diag_table",
+        C.dataframe(table, hide_index=True, key="diag_table",
                      column_config={"effect": "Effect", "title": "What it is",
                                     "n_params": st.column_config.NumberColumn("Parameters"),
                                     "significant": "Significant", "confirmed": st.column_config
@@ -168,7 +168,7 @@ with c1, C.guarded("History chart"):
     st.plotly_chart(C.figure("history", tuple(tuple(sorted(h.items())) for h in hist),
                              C.rep.fig_history, hist), key="diag_history")
 with c2:
-    st.dataframe(pd.DataFrame(hist), hide_index=True, key="history_table")
+    C.dataframe(pd.DataFrame(hist), hide_index=True, key="history_table")
     if all(h["gp_amplitude_um"] is None for h in hist):
         st.caption("GP discrepancy amplitude (µm): tick the box above to compute it.")
     model = parse_spec(s["spec"], default_order=int(s["order"]))
@@ -184,4 +184,4 @@ with c2:
 with st.expander("Residual vectors at the worst observations"):
     rf = r.residuals_frame()
     rf["norm_um"] = np.linalg.norm(r.residuals_um, axis=1)
-    st.dataframe(rf.nlargest(15, "norm_um"), hide_index=True, key="diag_worst")
+    C.dataframe(rf.nlargest(15, "norm_um"), hide_index=True, key="diag_worst")

@@ -54,7 +54,7 @@ if corr is not None:
     view = corr.copy()
     for a in "xyz":
         view[f"e{a}_um"] = (view[f"{a}c_mm"] - view[f"{a}_mm"]) * 1e3
-    st.dataframe(view, hide_index=True, key="corrected_table",
+    C.dataframe(view, hide_index=True, key="corrected_table",
                  column_config={c: st.column_config.NumberColumn(format="%.5f")
                                 for c in view.columns if c.endswith("_mm")}
                  | {c: st.column_config.NumberColumn(format="%.3f")

@@ -180,7 +180,7 @@ if s.get("gp_on"):
             "status": v.get("status")} for c_, v in summ_gp.items()])
         st.markdown("**Fitted hyperparameters** (one GP per error component, machine "
                     "coordinates)")
-        st.dataframe(hyp, hide_index=True, key="gp_hyper", column_config={
+        C.dataframe(hyp, hide_index=True, key="gp_hyper", column_config={
             c_: st.column_config.NumberColumn(format="%.3f") for c_ in
             ("signal sd (µm)", "noise sd (µm)", "log marginal likelihood", "LOO RMS (µm)")})
 st.caption("Plate plane of the chosen position (plate u and v in mm); × marks the measured "
@@ -224,7 +224,7 @@ mc = st.columns(len(summ))
 for c_, (lab, v) in zip(mc, summ.items(), strict=True):
     c_.metric(lab, f"{v:.3f}")
 only = st.checkbox("Only the chosen position", value=True, key="w_gp_only_pos")
-st.dataframe(rows[rows["position"] == position] if only else rows, hide_index=True,
+C.dataframe(rows[rows["position"] == position] if only else rows, hide_index=True,
              key="ch7_table",
              column_config={c_: st.column_config.NumberColumn(format="%.3f")
                             for c_ in rows.columns if c_.endswith(("_um", "_z"))} | {

@@ -75,7 +75,7 @@ st.subheader("Identifiability")
 if r.unidentifiable:
     st.warning(f"The data cannot determine {len(r.null_combinations)} parameter "
                "combination(s). They are reported, not silently zeroed:")
-    st.dataframe(pd.DataFrame({"undetermined combination": r.null_combinations}),
+    C.dataframe(pd.DataFrame({"undetermined combination": r.null_combinations}),
                  hide_index=True, key="null_combos")
     st.caption("Parameters involved: " + ", ".join(r.unidentifiable))
 else:
@@ -136,7 +136,7 @@ with tabs[2], C.guarded("Parameter table"):
                             )
     view = pf[pf["block"].isin(blocks)].assign(unit=lambda d: d["unit"].map(
         lambda u: u.replace("urad", "µrad").replace("um", "µm")))
-    st.dataframe(view, hide_index=True, key="param_table",
+    C.dataframe(view, hide_index=True, key="param_table",
                  column_config={"value": st.column_config.NumberColumn(format="%.4f"),
                                 "u": st.column_config.NumberColumn("u (k=1)", format="%.4f"),
                                 "U (k=2)": st.column_config.NumberColumn(format="%.4f"),
@@ -149,11 +149,11 @@ with tabs[3], C.guarded("Residuals"):
     st.plotly_chart(C.figure("pattern", C.fit_args(), C.rep.fig_pattern, r.table,
                              r.residuals_um, "Residuals per observation (µm)"),
                     key="fig_resid")
-    st.dataframe(C.rep.residual_summary(r), hide_index=True, key="resid_summary")
+    C.dataframe(C.rep.residual_summary(r), hide_index=True, key="resid_summary")
     rf = r.residuals_frame()
     worst = rf.assign(norm_um=np.linalg.norm(r.residuals_um, axis=1)).nlargest(10, "norm_um")
     st.caption("Largest residuals (µm), with the file and row each came from:")
-    st.dataframe(worst, hide_index=True, key="resid_worst")
+    C.dataframe(worst, hide_index=True, key="resid_worst")
 
 with st.expander("The 21 error names"):
     st.write(", ".join(ERROR_NAMES))

@@ -34,7 +34,7 @@ if summary is not None:
         if v:  # a quantity not evaluated is left out; the caption below says why
             rows.append({"quantity": desc, **{f"u_{a} (µm)": v[a] for a in "xyz"}})
     if rows:
-        st.dataframe(pd.DataFrame(rows), hide_index=True, key="u_table",
+        C.dataframe(pd.DataFrame(rows), hide_index=True, key="u_table",
                      column_config={f"u_{a} (µm)": st.column_config.NumberColumn(
                          format="%.4f") for a in "xyz"})
     else:
@@ -158,7 +158,7 @@ with C.guarded("Budget"):
                 else f"{g.nu_eff:.1f}")
     m[2].metric("k", f"{g.k:.3f}")
     m[3].metric(f"U (µm, p = {p_cov})", f"{g.U:.4f}")
-    st.dataframe(pd.DataFrame(b.table()), hide_index=True, key="budget_table",
+    C.dataframe(pd.DataFrame(b.table()), hide_index=True, key="budget_table",
                  column_config={"share": st.column_config.ProgressColumn(
                      "variance share", min_value=0.0, max_value=1.0, format="%.3f")})
     st.caption("u in the unit of each input, c in µm per unit, u_y = |c|·u in µm. Values "
@@ -234,7 +234,7 @@ else:
         for c_, (k_, v) in zip(m, cnt.items(), strict=False):
             c_.metric(k_, v)
         m[-1].metric("max |E| (µm)", f"{out.max_abs_error_um():.2f}")
-        st.dataframe(pd.DataFrame(out.rows()), hide_index=True, key="mpe_table",
+        C.dataframe(pd.DataFrame(out.rows()), hide_index=True, key="mpe_table",
                      column_config={"error_um": st.column_config.NumberColumn(format="%.2f"),
                                     "U_um": st.column_config.NumberColumn(format="%.2f"),
                                     "mpe_um": st.column_config.NumberColumn(format="%.2f")})
