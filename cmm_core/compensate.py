@@ -20,7 +20,7 @@ import pandas as pd
 
 from . import kinematics as kin
 from .fit import FitResult, approach_directions
-from .io import DataError, _numeric, _read_csv, _require
+from .io import DataError, _file_rows, _numeric, _read_csv, _require
 from .uncertainty import propagate_error
 
 
@@ -191,10 +191,11 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
     else:
         raise DataError(f"missing column 'probe'; the model has probes "
                         f"{', '.join(m.probes_mm)}.", file=name, column="probe")
+    file_rows = _file_rows(points)
     for i, q in enumerate(probes):
         if q not in m.probes_mm:
             raise DataError(f"probe {q!r} is not in the model (known: "
-                            f"{', '.join(m.probes_mm)}).", file=name, row=i + 2,
+                            f"{', '.join(m.probes_mm)}).", file=name, row=int(file_rows[i]),
                             column="probe")
     r = points[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
     p = np.array([m.probes_mm[q] for q in probes]).reshape(-1, 3)

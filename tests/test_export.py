@@ -95,6 +95,15 @@ def test_read_points_reports_row_and_column():
         export.read_points(b"a,b\n1,2\n", "pts.csv")
 
 
+def test_unknown_probe_is_reported_at_its_file_row_past_blank_lines(result):
+    """Header row 1, a point on row 2, two blank lines, the bad probe on row 5."""
+    pts = export.read_points(b"probe,x_mm,y_mm,z_mm\n1,400,300,100\n\n\n9,400,300,100\n",
+                             "pts.csv")
+    with pytest.raises(DataError) as exc:
+        export.compensate_points(result, pts)
+    assert exc.value.row == 5 and exc.value.column == "probe" and "'9'" in str(exc.value)
+
+
 def _thesis_project(**kw):
     args = dict(dataset_name="thesis",
                 measurements=[(f"{p}.csv", (THESIS_DIR / f"{p}.csv").read_text())
