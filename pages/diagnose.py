@@ -49,12 +49,12 @@ with t_time, C.guarded("Residuals against time"):
     if "time_min" in rf and rf["time_min"].notna().all():
         import plotly.express as px
 
-        long = rf.melt(id_vars=["position", "probe", "ball", "time_min"],
-                       value_vars=["rx_um", "ry_um", "rz_um"], var_name="axis",
-                       value_name="residual_um")
+        long = rf.rename(columns={"rx_um": "x", "ry_um": "y", "rz_um": "z"}).melt(
+            id_vars=["position", "probe", "ball", "time_min"], value_vars=["x", "y", "z"],
+            var_name="component", value_name="residual_um")
         fig = px.scatter(long, x="time_min", y="residual_um", color="position",
-                         facet_col="axis", labels={"time_min": "time (min)",
-                                                   "residual_um": "residual (µm)"})
+                         facet_col="component", labels={"time_min": "time (min)",
+                                                        "residual_um": "residual (µm)"})
         st.plotly_chart(fig, key="diag_time")
     else:
         st.info("No time_min column: the measurement order is the row order of the files "
@@ -62,7 +62,10 @@ with t_time, C.guarded("Residuals against time"):
     st.markdown("**By approach direction**: mean residual of each axis over the balls "
                 "reached moving + and moving − along it (a difference is a reversal error, "
                 "the `backlash` effect)")
-    C.dataframe(res_mod.approach_split(r), hide_index=True, key="diag_approach")
+    C.dataframe(res_mod.approach_split(r), hide_index=True, key="diag_approach",
+                column_config={c_: st.column_config.NumberColumn(format="%.3f") for c_ in
+                               ("mean_plus_um", "mean_minus_um", "reversal_um",
+                                "u_reversal_um")})
 
 st.subheader("Which effect is missing?")
 pending = C.pending_outliers(ds)
