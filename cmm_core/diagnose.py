@@ -21,6 +21,12 @@ periodic error whose period the ball spacing aliases) taking the credit for part
 larger one (drift of every position), which ΔBIC alone, with its ``ln N`` per parameter,
 would prefer. Pairs where neither is needed once the other is in are reported as aliases.
 The verdict is the best significant candidate, or None: the data are explained to noise.
+
+Guards: which parameters a candidate adds is decided at the nominal linearisation, as its
+refit decides it (``fit``'s frozen design null space); whatever ranks first is confirmed
+by a refit; a higher order must beat the next lower one by a nested F-test (Occam); and a
+baseline that does not converge names no effect, since its own unfinished descent would
+be credited to every candidate.
 """
 
 from __future__ import annotations
