@@ -326,6 +326,8 @@ def fig_surface_grid(xg, yg, values, *, title: str, unit: str, points=None, colo
 # ---------------------------------------------------------------------------------------
 
 def _table_html(df: pd.DataFrame, floatfmt="{:.4g}") -> str:
+    # None in an object column (a value never computed) prints as "None" unless made NaN
+    df = df.astype(object).where(df.notna(), np.nan).infer_objects()
     return df.to_html(index=False, border=0, classes="tbl", na_rep="—",
                       float_format=lambda v: floatfmt.format(v), escape=True)
 

@@ -134,6 +134,21 @@ def init_state():
         set_dataset(thesis_files())
 
 
+KEEP_PREFIXES = ("sim_", "w_gp_")
+KEEP_KEYS = ("hist_gp",)
+
+
+def keep_widget_state():
+    """Keep the simulator form, the GP page's choices and the history's GP option when
+    the user visits another page: Streamlit drops a widget's state once a run does not
+    draw it; writing the value back through the Session State API keeps it (Streamlit's
+    documented remedy; the duplication warning it would raise is off in config.toml)."""
+    s = st.session_state
+    for k in list(s.keys()):
+        if k.startswith(KEEP_PREFIXES) or k in KEEP_KEYS:
+            s[k] = s[k]
+
+
 def sync_from_widgets():
     """Copy widget values (already updated before this run) into the canonical state, so
     the sidebar, drawn first, shows the settings the page is about to use."""
@@ -161,6 +176,7 @@ def page_start():
             "__file__", "data.py")).name
         st.switch_page("app.py")
     init_state()
+    keep_widget_state()
     sync_from_widgets()
     sidebar()
 

@@ -22,14 +22,23 @@ st.subheader("Correct measured points")
 st.write("Upload reported tip centres `probe,x_mm,y_mm,z_mm` (machine axes, mm; extra columns "
          "are kept). Each gets the corrected point `xc_mm, yc_mm, zc_mm` (reported + error) "
          "and the standard uncertainty of the correction in µm.")
+st.caption("Which uncertainty to quote: `u_x/y/z_um` here is the standard uncertainty "
+           "(k = 1) of each point's correction in machine coordinates. It includes a common "
+           "translation and rotation of all corrected points, which a ball plate fixes only "
+           "through the error functions' zero at the axis origins, so it grows away from "
+           "them. For lengths, distances and form measured with the corrected machine that "
+           "common part cancels: quote U2/U3 of the Uncertainty page, which remove it.")
 if "backlash" in r.problem.layout.blocks:
     st.caption("This model has backlash: each point is also corrected for the direction its "
                "axes last moved in, taken from the file's row order (or `time_min`); before "
                "an axis first moves its direction is unknown and half the span is added to "
                "the uncertainty (columns `approach_x/y/z`: +1, −1, 0 unknown).")
 up = st.file_uploader("Points to correct (CSV)", type=["csv", "txt"], key="up_points")
-use_example = st.checkbox("Use example points (the measured ball centres of this dataset)",
-                          value=up is None, key="w_points_example")
+# an uploaded file always wins: correcting the example instead would let a user download
+# corrections of points they did not ask for
+use_example = up is None and st.checkbox(
+    "Use example points (the measured ball centres of this dataset) until a file is "
+    "uploaded", value=True, key="w_points_example")
 
 
 @st.cache_data(show_spinner=False, max_entries=16)
@@ -38,7 +47,7 @@ def corrected(args, content_key, _points, _r):
 
 
 points = None
-if up is not None and not use_example:
+if up is not None:
     points = C.safe(ex.read_points, io.BytesIO(up.getvalue()), up.name, what="Points file")
     ckey = (up.name, len(up.getvalue()), hash(up.getvalue()))
 elif use_example:

@@ -239,6 +239,25 @@ def test_simulate_a_virtual_cmm():
     assert "true (simulation)" in cols
 
 
+def test_simulator_settings_survive_a_visit_to_another_page():
+    """Acceptance finding: the hidden-effect boxes reset when the user left the Data page,
+    so a second simulation silently carried (or lost) effects."""
+    at = _new()
+    at.selectbox(key="sim_order").set_value("serpentine")
+    at.checkbox(key="sim_backlash").check()
+    at.run()
+    at.number_input(key="sim_backlash_um").set_value(2.5)
+    at.run()
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    at.switch_page("pages/data.py")
+    at.run()
+    _ok(at)
+    assert at.checkbox(key="sim_backlash").value
+    assert at.number_input(key="sim_backlash_um").value == 2.5
+    assert at.selectbox(key="sim_order").value == "serpentine"
+
+
 def test_hidden_periodic_error_found_added_and_error_falls():
     """The heart of the product on an effect the default model lacks: simulate a 2 µm
     periodic X scale error, diagnose, add the named effect, watch RMS fall to the noise."""

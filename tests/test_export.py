@@ -161,6 +161,7 @@ def test_report_is_self_contained(result):
     for text in ("Fitted error functions", "Deviations, BP111", "Residuals",
                  "Fitted parameters", "BP112/2 ball 7", "kinematic21", "µm"):
         assert text in html
+    assert "<td>None</td>" not in html  # a value never computed is a dash
 
 
 @pytest.mark.parametrize("field, value, needle", [
