@@ -506,9 +506,18 @@ def _conclusion(base, cands, verdict):
                        "look at the residual maps for blunders or an effect not in the "
                        "catalogue.")
     best = cands[0]
-    text = (f" Most likely missing: {best.title} ({best.effect}): adding it lowers χ² by "
+    name = best.title if best.title.startswith(best.effect) else (
+        f"{best.title} ({best.effect})")
+    expl = best.explanation[:1].upper() + best.explanation[1:]
+    text = (f" Most likely missing: {name}: adding it lowers χ² by "
             f"{best.delta_chi2:.1f} for {best.n_params} parameter(s), ΔBIC "
-            f"{best.delta_bic:.1f}, p = {best.p_value:.2g}. {best.explanation}")
+            f"{best.delta_bic:.1f}, p = {best.p_value:.2g}. {expl}")
+    if best.delta_bic > 0:
+        text += (f" Its ΔBIC is positive: BIC charges ln N = "
+                 f"{np.log(base.dof + base.rank):.1f} per parameter and would rather not add "
+                 f"{best.n_params}, while the F-test finds the χ² they remove too large for "
+                 "noise (the verdict follows the test). Expect BIC to rise a little when it "
+                 f"is added while RMS and χ²/dof fall; to confirm it: {best.separate_by}")
     if best.aliases:
         text += (f" With this data it cannot be told apart from {', '.join(best.aliases)}; "
                  f"to separate them: {best.separate_by}")

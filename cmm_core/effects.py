@@ -123,7 +123,8 @@ _PHYSICAL = {
         "time_min (or a known measurement order) with balls measured in a varied order.",
         "a positioning or straightness error when the balls are measured row by row "
         "(time follows x and y), and a probe step when probes are measured in blocks.",
-        "a serpentine or random measurement order, or repeating the first ball at the end."),
+        "repeating the first ball at the end of each position (and a serpentine or random "
+        "order, if the balls were measured row by row)."),
     "backlash": Effect(
         "backlash", "backlash (reversal error)",
         "an axis reads differently depending on the direction it last moved in (play in the "
@@ -165,10 +166,17 @@ def catalogue_entry(name: str) -> Effect:
     if base in ERROR_NAMES:
         e = _kinematic_effect(base)
         if order:
+            ax = _AXIS[base[1]]
+            # a higher order competes with the neighbouring orders and with long-period
+            # errors along the same axis, not with what the function itself is confused with
             return Effect(name, f"{e.title}, order {order}",
                           f"{e.explanation} The current polynomial is too stiff: a "
                           f"higher-order term (Chebyshev degree {order}) bends it.",
-                          e.needs, e.confused_with, e.separate_by)
+                          e.needs,
+                          f"the neighbouring orders of {base} and a periodic error along "
+                          f"{ax} of a long period.",
+                          f"balls at more positions along {ax}: a placement shifted along "
+                          f"{ax} by part of the ball pitch, or a plate with a finer pitch.")
         return e
     raise KeyError(name)
 

@@ -148,6 +148,13 @@ def error_map_csv(result, grid: pd.DataFrame, probe=None) -> str:
             f"probe {probe or obs.probes[0]}; grid: scale readings in mm, x fastest",
             "ex,ey,ez: error in um (true minus reported; add to correct); u_*: standard "
             "uncertainty in um (k=1)"]
+    lab, val, u = result.block("backlash")
+    if len(lab):
+        # a position-only table cannot hold a direction-dependent error: say so
+        head.append("NOT in this table: backlash (reversal span, um, depends on the direction "
+                    "each axis last moved): " + "; ".join(
+                        f"{a} {v:.3f} +- {ui:.3f}" for a, v, ui in
+                        zip("xyz", val, u, strict=True)))
     return safe_csv(grid, float_format="%.5f", header_lines=head)
 
 

@@ -255,6 +255,8 @@ def fig_history(history: list):
     if not history:
         return _layout(fig, "Diagnosis history (empty)", height=320)
     steps = [f"{i}: {h.get('change') or h.get('spec')}" for i, h in enumerate(history)]
+    # tick labels name the change of each step (shortened), the hover gives it in full
+    ticks = [str(h.get("change") or h.get("spec") or i)[:14] for i, h in enumerate(history)]
     for c, key in enumerate(("rms_um", "chi2_dof", "bic", "gp_amplitude_um"), start=1):
         y = [h.get(key) for h in history]
         y = [np.nan if v is None else v for v in y]
@@ -262,9 +264,13 @@ def fig_history(history: list):
                                  text=steps, showlegend=False,
                                  hovertemplate="%{text}<br>%{y:.4g}<extra></extra>"),
                       row=1, col=c)
-        fig.update_xaxes(title_text="step", tickmode="array",
-                         tickvals=list(range(len(history))), row=1, col=c)
-    return _layout(fig, "Diagnosis history: fit quality as effects are added", height=340)
+        fig.update_xaxes(tickmode="array", tickvals=list(range(len(history))),
+                         ticktext=ticks, tickangle=-30, row=1, col=c)
+        if not np.isfinite(np.asarray(y, float)).any():
+            fig.update_yaxes(showticklabels=False, row=1, col=c)
+            fig.add_annotation(text="not computed", showarrow=False, row=1, col=c,
+                               x=(len(history) - 1) / 2, y=0.5, yref=f"y{c} domain")
+    return _layout(fig, "Diagnosis history: fit quality as effects are added", height=360)
 
 
 def fig_placements(dataset, certificate_xyz=None):

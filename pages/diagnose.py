@@ -55,6 +55,7 @@ with t_time, C.guarded("Residuals against time"):
         fig = px.scatter(long, x="time_min", y="residual_um", color="position",
                          facet_col="component", labels={"time_min": "time (min)",
                                                         "residual_um": "residual (µm)"})
+        fig.for_each_annotation(lambda a: a.update(text=a.text.split("=")[-1]))
         st.plotly_chart(fig, key="diag_time")
     else:
         st.info("No time_min column: the measurement order is the row order of the files "

@@ -71,6 +71,19 @@ def test_error_map_grid_matches_the_model(result):
     assert np.allclose(back["ez_um"], g["ez_um"], atol=1e-5)
     with pytest.raises(ValueError):
         export.error_map_grid(result, step_mm=0.1)
+    assert "backlash" not in text
+
+
+def test_error_map_header_says_a_fitted_backlash_is_not_in_the_table():
+    from cmm_core.simulate import simulate
+
+    sim = simulate({"seed": 4, "order": "serpentine",
+                    "effects": {"backlash": {"x_um": 2.0, "y_um": 1.0}}})
+    r = fit(sim.dataset, "kinematic21,backlash")
+    text = export.error_map_csv(r, export.error_map_grid(r, step_mm=400))
+    line = next(x for x in text.splitlines() if x.startswith("# NOT in this table: backlash"))
+    x_span, u_span = (float(v) for v in line.split("x ")[1].split(";")[0].split(" +- "))
+    assert abs(x_span - 2.0) < 3 * u_span  # the fitted span, with its uncertainty
 
 
 def test_compensation_adds_the_error(result):
