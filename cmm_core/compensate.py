@@ -142,8 +142,10 @@ def _extrapolation_note(m: Model, x_mm: np.ndarray) -> np.ndarray:
         outside = ((x_mm < lo - 1.0) | (x_mm > hi + 1.0)).any(axis=1)
         note[outside] = "outside the measured region"
     # styli put scale readings a little beyond the strokes (the thesis layout: z = -50 mm),
-    # so only a gross excursion (a quarter of the stroke) says units or frame are wrong
-    beyond = ((x_mm < -0.25 * rng) | (x_mm > 1.25 * rng)).any(axis=1)
+    # so only an excursion of more than a stylus length (100 mm, or 5 % of a longer stroke)
+    # says the point is off the machine, or units or frame are wrong
+    tol = np.maximum(0.05 * rng, 100.0)
+    beyond = ((x_mm < -tol) | (x_mm > rng + tol)).any(axis=1)
     note[beyond] = "outside the machine's range"
     return note
 
@@ -198,6 +200,11 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
                             f"{', '.join(m.probes_mm)}).", file=name, row=int(file_rows[i]),
                             column="probe")
     r = points[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+    rng = np.asarray(m.terms.range_mm, float)
+    if len(r) and rng.max() >= 100 and np.nanmax(np.abs(r)) <= 2.0:
+        raise DataError(f"every coordinate is within 2 mm of the origin of a "
+                        f"{rng.max():.0f} mm machine: the points look like metres.",
+                        file=name, column="x_mm", hint="write the points in mm.")
     p = np.array([m.probes_mm[q] for q in probes]).reshape(-1, 3)
     x = r - p
     if m.backlash_um is None:

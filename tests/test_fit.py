@@ -8,6 +8,7 @@ import pytest
 from cmm_core import kinematics as kin
 from cmm_core.compensate import compensate, model_from_dict, model_to_dict
 from cmm_core.fit import approach_directions, fit, weighted_residual
+from cmm_core.io import DataError
 from cmm_core.outliers import detect_outliers
 from cmm_core.simulate import simulate
 from cmm_core.uncertainty import error_at, evaluate, rigid_body_projector
@@ -207,12 +208,18 @@ def test_compensation_flags_points_outside_the_measured_region():
     t = r.table.head(3)
     inside = pd.DataFrame({"probe": t["probe"].astype(str), "x_mm": t["mx_mm"],
                            "y_mm": t["my_mm"], "z_mm": t["mz_mm"]})
-    far = pd.DataFrame({"probe": ["1", "1"], "x_mm": [5000.0, 1150.0],
-                        "y_mm": [300.0, 950.0], "z_mm": [0.0, -100.0]})
+    far = pd.DataFrame({"probe": ["1", "1", "1"], "x_mm": [5000.0, 1150.0, 1500.0],
+                        "y_mm": [300.0, 950.0, 300.0], "z_mm": [0.0, -20.0, 0.0]})
     out = compensate(r, pd.concat([inside, far], ignore_index=True))
     assert list(out["extrapolated"][:3]) == ["", "", ""]
     assert out["extrapolated"][3] == "outside the machine's range"
     assert out["extrapolated"][4] == "outside the measured region"
+    # acceptance finding: 300 mm past a 1200 mm stroke is off the machine, not just
+    # outside the region
+    assert out["extrapolated"][5] == "outside the machine's range"
+    metres = pd.DataFrame({"probe": ["1"], "x_mm": [0.4], "y_mm": [0.3], "z_mm": [0.1]})
+    with pytest.raises(DataError, match="look like metres"):
+        compensate(r, metres)
 
 
 def test_monte_carlo_error_matches_a_loop_over_draws_and_the_propagated_u():
