@@ -231,9 +231,9 @@ with tab_sim:
     if p4.checkbox("Backlash", key="sim_backlash",
                    help="Reversal error: each axis reads short by half the span in the "
                         "direction it last moved. Visible with serpentine or random order."):
-        span = float(p4.number_input("reversal span X, Y, Z (µm)", 0.0, 20.0, 1.5,
-                                     key="sim_backlash_um"))
-        eff["backlash"] = {"x_um": span, "y_um": span, "z_um": span}
+        eff["backlash"] = {f"{a}_um": float(p4.number_input(
+            f"reversal span {a.upper()} (µm)", -20.0, 20.0, 1.5, key=f"sim_backlash_{a}"))
+            for a in "xyz"}
     if p1.checkbox("Periodic X scale error", key="sim_periodic",
                    help="A sine wave along X (lead screw, rack): not in the default model, "
                         "so the diagnosis has to find it and its period."):

@@ -158,9 +158,14 @@ with C.guarded("Budget"):
                 else f"{g.nu_eff:.1f}")
     m[2].metric("k", f"{g.k:.3f}")
     m[3].metric(f"U (µm, p = {p_cov})", f"{g.U:.4f}")
-    C.dataframe(pd.DataFrame(b.table()), hide_index=True, key="budget_table",
-                 column_config={"share": st.column_config.ProgressColumn(
-                     "variance share", min_value=0.0, max_value=1.0, format="%.3f")})
+    btab = pd.DataFrame(b.table())
+    if "dof" in btab:
+        # infinite degrees of freedom (Type B): the symbol, not "Infinity"
+        btab["dof"] = [("∞" if not np.isfinite(v) else f"{v:g}") if isinstance(v, (int, float))
+                       else v for v in btab["dof"]]
+    C.dataframe(btab, hide_index=True, key="budget_table",
+                column_config={"share": st.column_config.ProgressColumn(
+                    "variance share", min_value=0.0, max_value=1.0, format="%.3f")})
     st.caption("u in the unit of each input, c in µm per unit, u_y = |c|·u in µm. Values "
                "not printed in the thesis are documented assumptions (see "
                "cmm_core.budget).")
@@ -235,7 +240,8 @@ else:
             c_.metric(k_, v)
         m[-1].metric("max |E| (µm)", f"{out.max_abs_error_um():.2f}")
         C.dataframe(pd.DataFrame(out.rows()), hide_index=True, key="mpe_table",
-                     column_config={"error_um": st.column_config.NumberColumn(format="%.2f"),
+                     column_config={"length_mm": st.column_config.NumberColumn(format="%.3f"),
+                                    "error_um": st.column_config.NumberColumn(format="%.2f"),
                                     "U_um": st.column_config.NumberColumn(format="%.2f"),
                                     "mpe_um": st.column_config.NumberColumn(format="%.2f")})
         st.caption("Length errors E = measured − certificate length for every ball pair on a "

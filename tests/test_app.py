@@ -246,7 +246,7 @@ def test_simulator_settings_survive_a_visit_to_another_page():
     at.selectbox(key="sim_order").set_value("serpentine")
     at.checkbox(key="sim_backlash").check()
     at.run()
-    at.number_input(key="sim_backlash_um").set_value(2.5)
+    at.number_input(key="sim_backlash_y").set_value(2.5)
     at.run()
     at.switch_page("pages/kinematic.py")
     at.run()
@@ -254,7 +254,7 @@ def test_simulator_settings_survive_a_visit_to_another_page():
     at.run()
     _ok(at)
     assert at.checkbox(key="sim_backlash").value
-    assert at.number_input(key="sim_backlash_um").value == 2.5
+    assert at.number_input(key="sim_backlash_y").value == 2.5
     assert at.selectbox(key="sim_order").value == "serpentine"
 
 
@@ -291,7 +291,8 @@ def test_hidden_backlash_seen_by_direction_named_added_and_error_falls():
     at.selectbox(key="sim_order").set_value("serpentine")
     at.checkbox(key="sim_backlash").check()
     at.run()
-    at.number_input(key="sim_backlash_um").set_value(2.0)
+    for a in "xyz":
+        at.number_input(key=f"sim_backlash_{a}").set_value(2.0)
     at.button(key="simulate").click()
     at.run()
     at.switch_page("pages/diagnose.py")
