@@ -130,6 +130,8 @@ with tabs[2], C.guarded("Parameter table"):
                        "exports is then Birge-scaled, and χ²/dof becomes 1.")
     if truth and truth.get("key") == s["ds_key"]:
         pf["true (simulation)"] = pf["parameter"].map(truth["truth"])
+        # the check a metrologist makes first: |z| < 2-3 for nearly every parameter
+        pf["(value − true)/u"] = (pf["value"] - pf["true (simulation)"]) / pf["u"]
     blocks = st.multiselect("Blocks", list(dict.fromkeys(pf["block"])),
                             default=[b for b in dict.fromkeys(pf["block"])
                                      if b not in ("rotation", "translation")],
@@ -140,6 +142,8 @@ with tabs[2], C.guarded("Parameter table"):
                  column_config={"value": st.column_config.NumberColumn(format="%.4f"),
                                 "u": st.column_config.NumberColumn("u (k=1)", format="%.4f"),
                                 "U (k=2)": st.column_config.NumberColumn(format="%.4f"),
+                                "(value − true)/u": st.column_config.NumberColumn(
+                                    format="%.2f"),
                                 "u, Birge-scaled": st.column_config.NumberColumn(
                                     format="%.4f")})
     st.caption("Units per row: µm (translational, placement translation, plate), µrad "

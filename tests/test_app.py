@@ -235,8 +235,23 @@ def test_simulate_a_virtual_cmm():
     at.switch_page("pages/kinematic.py")
     at.run()
     _ok(at)
-    cols = _frame(at, "parameter").columns
-    assert "true (simulation)" in cols
+    assert "true (simulation)" in _frame(at, "parameter").columns
+
+
+def test_without_a_hidden_effect_the_fit_matches_the_truth_within_its_uncertainty():
+    """The (value − true)/u column: nothing hidden, so every kinematic parameter's z-score
+    is within 4 (about 60 of them: the chance of one beyond 4 is 0.4 %). With a hidden
+    effect this column is where the bias shows first."""
+    at = _new()
+    at.button(key="simulate").click()
+    at.run()
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    _ok(at)
+    table = _frame(at, "parameter")
+    z = table.loc[table["block"] == "kinematic", "(value − true)/u"].dropna()
+    assert len(z) > 20 and (z.abs() < 4).all(), z.abs().max()
+    assert 0.7 < float(np.sqrt(np.mean(z**2))) < 1.3  # χ²₆₀/60 in [0.5, 1.7]: > 4 sd wide
 
 
 def test_simulator_settings_survive_a_visit_to_another_page():
