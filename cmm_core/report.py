@@ -248,6 +248,27 @@ def residual_summary(result) -> pd.DataFrame:
 # History, placements
 # ---------------------------------------------------------------------------------------
 
+def fig_signature_scatter(residuals_um, signature_um, title: str, height: int = 300):
+    """Residual against a candidate's signature, per component, with the 1:1 line: an
+    effect that explains the misfit puts the points along the line (their scatter about it
+    is the noise); one that does not leaves a cloud around zero."""
+    r = np.asarray(residuals_um, float)
+    sg = np.asarray(signature_um, float)
+    fig = make_subplots(rows=1, cols=3, subplot_titles=("x", "y", "z"), shared_yaxes=True)
+    lim = float(np.nanmax(np.abs(sg))) or 1.0
+    for a in range(3):
+        fig.add_trace(go.Scatter(x=sg[:, a], y=r[:, a], mode="markers", showlegend=False,
+                                 marker={"size": 4, "opacity": 0.6},
+                                 hovertemplate="signature %{x:.3f} µm<br>residual %{y:.3f} "
+                                               "µm<extra></extra>"), row=1, col=a + 1)
+        fig.add_trace(go.Scatter(x=[-lim, lim], y=[-lim, lim], mode="lines", showlegend=False,
+                                 line={"color": "#888", "dash": "dash"}, hoverinfo="skip"),
+                      row=1, col=a + 1)
+    fig.update_xaxes(title_text="signature (µm)", row=1, col=2)
+    fig.update_yaxes(title_text="residual (µm)", row=1, col=1)
+    return _layout(fig, title, height=height)
+
+
 def fig_history(history: list):
     """RMS, χ²/dof, BIC and GP discrepancy amplitude as effects are added or removed."""
     fig = make_subplots(rows=1, cols=4, subplot_titles=("RMS (µm)", "χ²/dof", "BIC",

@@ -138,7 +138,7 @@ if s["diag_on"]:
                           disabled=c_["n_params"] == 0,
                           help="The data cannot determine it on top of this model."
                           if c_["n_params"] == 0 else None)
-                st.write(c_["explanation"])
+                st.write(c_["explanation"][:1].upper() + c_["explanation"][1:])
                 st.caption(f"This data set would see it above: {c_['detectable_above']} "
                            "(80 % probability at the test's level). A smaller effect may be "
                            "present and go unseen: a longer stylus, more placements or "
@@ -160,6 +160,18 @@ if s["diag_on"]:
                                              C.rep.fig_pattern, base.table, c_["signature_um"],
                                              f"Signature of {c_['effect']} (µm)", 300),
                                     key=f"sig_{c_['effect']}")
+                    sv, rv = np.ravel(c_["signature_um"]), np.ravel(base.residuals_um)
+                    den = float(np.linalg.norm(sv) * np.linalg.norm(rv))
+                    corr = float(sv @ rv) / den if den > 0 else 0.0
+                    st.plotly_chart(C.figure("sig_scatter", (C.fit_args(), c_["effect"]),
+                                             C.rep.fig_signature_scatter, base.residuals_um,
+                                             c_["signature_um"],
+                                             "Residual against the signature: along the "
+                                             "dashed line where the effect explains it", 280),
+                                    key=f"sig_sc_{c_['effect']}")
+                    st.caption(f"Correlation of residual and signature r = {corr:.2f}: the "
+                               f"effect accounts for {100 * corr**2:.0f} % of the residual "
+                               "sum of squares; the rest is what remains after adding it.")
 
 st.subheader("History")
 st.checkbox("Also compute the GP discrepancy amplitude of each step (a GP over the "
