@@ -61,8 +61,40 @@ def error_function_curves(result, name: str, n: int = 61):
     return u, val, 2.0 * sd
 
 
-def fig_error_functions(result, names=None, cols: int = 3):
-    """Fitted error functions with 95 % bands (k = 2), one panel per function."""
+def true_function_curve(truth: dict, name: str, u_mm, range_mm):
+    """A simulation's true error function along its axis (µm or µrad), from the truth's
+    coefficient labels (``dyz[3]``, ``dxx[sin180]``); None when the truth has none."""
+    if name in kin.SQUARENESS:
+        return None if name not in truth else np.full(len(u_mm), float(truth[name]))
+    poly, per = {}, {}
+    for lab, v in truth.items():
+        base, _, rest = lab.partition("[")
+        if base != name or not rest.endswith("]"):
+            continue
+        k = rest[:-1]
+        if k.isdigit():
+            poly[int(k)] = float(v)
+        elif k[:3] in ("sin", "cos"):
+            per.setdefault(float(k[3:]), {})[k[:3]] = float(v)
+    if not poly and not per:
+        return None
+    stroke = float(range_mm[kin.axis_of(name)])
+    val = np.zeros(len(u_mm))
+    if poly:
+        order = max(poly)
+        first = 2 if name in kin.STRAIGHTNESS else 1
+        coef = np.array([poly.get(j, 0.0) for j in range(first, order + 1)])
+        val += kin.basis(name, np.asarray(u_mm, float), order, stroke) @ coef
+    for period, sc in per.items():
+        val += kin.periodic_basis(np.asarray(u_mm, float), period) @ np.array(
+            [sc.get("sin", 0.0), sc.get("cos", 0.0)])
+    return val
+
+
+def fig_error_functions(result, names=None, cols: int = 3, truth=None):
+    """Fitted error functions with 95 % bands (k = 2), one panel per function; the span of
+    the measured scale readings shaded, and a simulation's true functions dashed when
+    ``truth`` (label -> value) is given."""
     present = [n for n, _ in result.terms.functions]
     names = [n for n in (names or present) if n in present]
     if not names:
@@ -88,6 +120,20 @@ def fig_error_functions(result, names=None, cols: int = 3):
                                  hovertemplate=f"{name}: %{{y:.3f}}<extra></extra>"))
         trows.append(r)
         tcols.append(c)
+        true = None if truth is None else true_function_curve(truth, name, u,
+                                                              result.terms.range_mm)
+        if true is not None:
+            traces.append(go.Scatter(x=u, y=true, mode="lines", name="true (simulation)",
+                                     line={"color": "#222", "dash": "dash", "width": 1},
+                                     showlegend=not any(t.name == "true (simulation)"
+                                                        for t in traces),
+                                     hovertemplate=f"true {name}: %{{y:.3f}}<extra></extra>"))
+            trows.append(r)
+            tcols.append(c)
+        ax = kin.axis_of(name)
+        x_meas = result.problem.obs.r_mm[:, ax] - result.problem.obs.p_mm[:, ax]
+        fig.add_vrect(x0=float(x_meas.min()), x1=float(x_meas.max()), row=r, col=c,
+                      fillcolor="rgba(31,119,180,0.07)", line_width=0, layer="below")
         n = "" if i == 0 else str(i + 1)
         axes[f"xaxis{n}"] = {"title": {"text": f"{'xyz'[kin.axis_of(name)]} (mm)"}}
         axes[f"yaxis{n}"] = {"title": {"text": FUNCTION_UNITS[name[0]]}}

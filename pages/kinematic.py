@@ -87,10 +87,14 @@ tabs = st.tabs(["Error functions", "Deviation plots", "Parameters", "Residuals"]
 with tabs[0], C.guarded("Error functions"):
     present = [n for n, _ in r.terms.functions]
     show = st.multiselect("Show", present, default=present)
-    st.plotly_chart(C.figure("errfun", (C.fit_args(), tuple(show)), C.rep.fig_error_functions,
-                             r, show), key="fig_errfun")
+    true_now = truth["truth"] if truth and truth.get("key") == s["ds_key"] else None
+    st.plotly_chart(C.figure("errfun", (C.fit_args(), tuple(show), true_now is not None),
+                             C.rep.fig_error_functions, r, show, 3, true_now),
+                    key="fig_errfun")
     st.caption("Translational errors in µm, rotations in µrad, squareness as an angle in "
-               "µrad; grey bands: 95 % (k = 2) from the parameter covariance.")
+               "µrad; grey bands: 95 % (k = 2) from the parameter covariance; the blue tint "
+               "spans the measured scale readings (outside it the curve extrapolates)"
+               + ("; dashed: the simulation's true function." if true_now else "."))
 
 with tabs[1], C.guarded("Deviation plots"):
     c1, c2 = st.columns([1, 3])

@@ -209,3 +209,23 @@ def test_error_map_grid_refuses_a_grid_too_fine_to_compute_quickly(result):
     with pytest.raises(ValueError, match=r"867,691 nodes.*step of about \d+ mm"):
         export.error_map_grid(result, step_mm=10.0)
     assert len(export.error_map_grid(result, step_mm=50.0)) <= export.MAX_GRID_NODES
+
+
+@pytest.mark.parametrize("spec", ["kinematic21", "kinematic21,dyz:3,periodic_x:180"])
+def test_true_function_curve_reads_the_coefficient_labels(spec):
+    """Fed the fit's own coefficients as 'truth', the dashed true curves coincide with the
+    fitted ones (same basis reached from the labels), including straightness (no linear
+    term), squareness (a constant angle) and a periodic term."""
+    from cmm_core.simulate import simulate
+
+    sim = simulate({"seed": 5, "kinematic": {"spec": spec}})
+    r = fit(sim.dataset, spec)
+    truth = dict(zip(r.terms.labels, r.kinematic_coef, strict=True))
+    for name in ("dxx", "dyz", "sxy", "rzz"):
+        u, val, _ = report.error_function_curves(r, name)
+        np.testing.assert_allclose(report.true_function_curve(truth, name, u,
+                                                              r.terms.range_mm), val,
+                                   atol=1e-12)
+    assert report.true_function_curve(truth, "nonexistent", u, r.terms.range_mm) is None
+    fig = report.fig_error_functions(r, truth=sim.truth)
+    assert any(t.name == "true (simulation)" for t in fig.data)
