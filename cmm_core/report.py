@@ -362,9 +362,12 @@ def fig_placements(dataset, certificate_xyz=None):
             text=g["probe"].astype(str).radd("probe ") + ", ball " + g["ball"].astype(str),
             hovertemplate="%{text}<br>(%{x:.1f}, %{y:.1f}, %{z:.1f}) mm<extra>"
                           + str(pos) + "</extra>"))
+    # the camera a little further out than plotly's default, or the near corner of the
+    # volume and its tick labels are clipped
     fig.update_layout(scene={"xaxis_title": "X (mm)", "yaxis_title": "Y (mm)",
-                             "zaxis_title": "Z (mm)", "aspectmode": "data"})
-    return _layout(fig, "Plate placements in the machine volume (mm)", height=520)
+                             "zaxis_title": "Z (mm)", "aspectmode": "data",
+                             "camera": {"eye": {"x": 1.6, "y": 1.6, "z": 1.0}}})
+    return _layout(fig, "Plate placements in the machine volume (mm)", height=560)
 
 
 def fig_surface_grid(xg, yg, values, *, title: str, unit: str, points=None, colorscale="RdBu_r",
