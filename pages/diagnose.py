@@ -179,12 +179,20 @@ st.checkbox("Also compute the GP discrepancy amplitude of each step (a GP over t
             "step on the thesis data)", key="hist_gp")
 with st.spinner("Fitting the GP discrepancy…") if s.get("hist_gp") else C.nullcontext():
     hist = C.history_rows()
-c1, c2 = st.columns([3, 2])
-with c1, C.guarded("History chart"):
+with C.guarded("History chart"):
     st.plotly_chart(C.figure("history", tuple(tuple(sorted(h.items())) for h in hist),
                              C.rep.fig_history, hist), key="diag_history")
+c1, c2 = st.columns([3, 1])
+with c1:
+    C.dataframe(pd.DataFrame(hist), hide_index=True, key="history_table",
+                column_config={"rms_um": st.column_config.NumberColumn("RMS (µm)",
+                                                                       format="%.3f"),
+                               "chi2_dof": st.column_config.NumberColumn("χ²/dof",
+                                                                         format="%.2f"),
+                               "bic": st.column_config.NumberColumn("BIC", format="%.1f"),
+                               "gp_amplitude_um": st.column_config.NumberColumn(
+                                   "GP discrepancy (µm)", format="%.3f")})
 with c2:
-    C.dataframe(pd.DataFrame(hist), hide_index=True, key="history_table")
     if all(h["gp_amplitude_um"] is None for h in hist):
         st.caption("GP discrepancy amplitude (µm): tick the box above to compute it.")
     model = parse_spec(s["spec"], default_order=int(s["order"]))
