@@ -78,9 +78,11 @@ def model_from_result(result: FitResult) -> Model:
                     np.arange(blk["backlash"].start, blk["backlash"].stop)]
         backlash = result.values[blk["backlash"]].copy()
         joint = result.covariance[np.ix_(idx, idx)].copy()
+    # an undetermined span would be applied as if known: it makes the model undetermined
+    used = kin_labels | {f"backlash.{a}" for a in "xyz"}
     return Model(result.spec, result.terms, result.kinematic_coef.copy(),
                  result.kinematic_cov.copy(), probes,
-                 any(lab in kin_labels for lab in result.unidentifiable),
+                 any(lab in used for lab in result.unidentifiable),
                  {"rms_um": result.rms_um, "chi2_dof": result.chi2_dof, "n_obs": result.n_obs,
                   "plate": result.plate, "sigma_um": result.sigma_um,
                   "region_mm": [np.min(obs.r_mm - obs.p_mm, axis=0).tolist(),
@@ -121,6 +123,10 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
     if coef.shape != (terms.n,) or cov.shape != (terms.n, terms.n):
         raise DataError(f"expected {terms.n} coefficients and a {terms.n}x{terms.n} "
                         f"covariance, found {coef.shape} and {cov.shape}.", file=name)
+    if backlash is None and "backlash" in str(d.get("spec", "")).split(","):
+        raise DataError("the model's spec has backlash but the file holds no backlash spans "
+                        "(written by an older version).", file=name,
+                        hint="refit and save the model again.")
     if backlash is not None and (backlash.shape != (3,)
                                  or joint.shape != (terms.n + 3, terms.n + 3)):
         raise DataError(f"expected 3 backlash spans and a {terms.n + 3}x{terms.n + 3} joint "

@@ -312,10 +312,13 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
 
     base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um, exclude=exclude,
                positions=positions, probes=probes)
+    max_iter = 500  # fit's default; raised with the baseline's below
     if base.status != "converged":
-        # weakly determined directions (one placement, high orders) can need many steps
+        # weakly determined directions (one placement, high orders) can need many steps;
+        # the candidates' refits get the same budget
+        max_iter = 2000
         base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um,
-                   exclude=exclude, positions=positions, probes=probes, max_iter=2000)
+                   exclude=exclude, positions=positions, probes=probes, max_iter=max_iter)
     tokens = candidates if candidates is not None else base.problem.spec.candidates()
     skipped, scored = {}, []
     n_steps = len(tokens) + confirm
@@ -338,7 +341,8 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
     def refit_candidate(s, j):
         report((len(tokens) + j) / n_steps, f"confirming {s[0]} by a full refit")
         ref = fit(base.problem.obs, base.problem.spec.with_token(s[0]),
-                  plate=base.plate, sigma_um=sigma_um, rank_rtol=base.rank_rtol)
+                  plate=base.plate, sigma_um=sigma_um, rank_rtol=base.rank_rtol,
+                  max_iter=max_iter)
         s[1], s[2], s[4], s[5], s[6] = base.chi2 - ref.chi2, ref.rank - base.rank, ref.chi2, \
             True, ref
 
@@ -349,13 +353,19 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
     # The score decides the added rank at the baseline's solution, the refit at the
     # nominal linearisation (the fit's frozen design null space): a refit can take back
     # parameters the score credited. Whatever ends up first is confirmed too.
+    n_try = max(len(scored), 1)
+
+    def final_key(s):
+        # the final order: significant first, then ΔBIC (as ``out.sort`` below)
+        dbic, p, _ = _stats(base, s[1], s[2], s[4], s[8])
+        return (not (s[2] > 0 and p < alpha / n_try), dbic)
+
     for j in range(confirm, confirm + 10):
-        scored.sort(key=rank_key)
+        scored.sort(key=final_key)
         top = next((s for s in scored if s[2] > 0), None)
         if top is None or top[5] or confirm == 0:
             break
         refit_candidate(top, j)
-    n_try = max(len(scored), 1)
     out = []
     n_rows = base.dof + base.rank
     # Size at which a parameter alone is found with 80 % probability at the Bonferroni
@@ -384,7 +394,7 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
     if out and out[0].significant:
         report(0.99, "nested tests of the best candidates")
         out, note = _encompassing(base, out, alpha / n_try, {s[0]: s[6] for s in scored},
-                                  alpha)
+                                  alpha, max_iter=max_iter)
     verdict = out[0].effect if out and out[0].significant else None
     if base.status != "converged":
         # the baseline's own unfinished improvement would be credited to every candidate
@@ -407,7 +417,8 @@ def _nested_p(small: FitResult, big: FitResult) -> float:
                             dk, max(big.dof, 1)))
 
 
-def _encompassing(base: FitResult, cands, level, refits, alpha=0.01, max_rivals=3):
+def _encompassing(base: FitResult, cands, level, refits, alpha=0.01, max_rivals=3,
+                  max_iter=500):
     """Nested F-tests between the best candidate A and the next significant ones B.
 
     Fits base+A, base+B and base+A+B. If A adds nothing at ``alpha`` once B is in while B
@@ -418,7 +429,7 @@ def _encompassing(base: FitResult, cands, level, refits, alpha=0.01, max_rivals=
     """
     def refit(spec):
         return fit(base.problem.obs, spec, plate=base.plate, sigma_um=base.sigma_um,
-                   rank_rtol=base.rank_rtol)
+                   rank_rtol=base.rank_rtol, max_iter=max_iter)
 
     out, note = list(cands), ""
     a = out[0]

@@ -103,7 +103,7 @@ def fig_error_functions(result, names=None, cols: int = 3, truth=None):
     rows = int(np.ceil(len(names) / cols))
     fig = make_subplots(rows=rows, cols=cols, subplot_titles=names,
                         vertical_spacing=min(0.08, 0.6 / max(rows, 1)))
-    traces, trows, tcols, axes = [], [], [], {}
+    traces, trows, tcols, axes, spans = [], [], [], {}, []
     for i, name in enumerate(names):
         r, c = i // cols + 1, i % cols + 1
         u, val, band = error_function_curves(result, name)
@@ -132,12 +132,15 @@ def fig_error_functions(result, names=None, cols: int = 3, truth=None):
             tcols.append(c)
         ax = kin.axis_of(name)
         x_meas = result.problem.obs.r_mm[:, ax] - result.problem.obs.p_mm[:, ax]
-        fig.add_vrect(x0=float(x_meas.min()), x1=float(x_meas.max()), row=r, col=c,
-                      fillcolor="rgba(31,119,180,0.07)", line_width=0, layer="below")
+        spans.append((float(x_meas.min()), float(x_meas.max()), r, c))
         n = "" if i == 0 else str(i + 1)
         axes[f"xaxis{n}"] = {"title": {"text": f"{'xyz'[kin.axis_of(name)]} (mm)"}}
         axes[f"yaxis{n}"] = {"title": {"text": FUNCTION_UNITS[name[0]]}}
     fig.add_traces(traces, rows=trows, cols=tcols)
+    # after the traces: plotly skips shapes on subplots that are still empty
+    for x0, x1, r, c in spans:
+        fig.add_vrect(x0=x0, x1=x1, row=r, col=c, fillcolor="rgba(31,119,180,0.07)",
+                      line_width=0, layer="below")
     fig.update_layout(axes)
     return _layout(fig, "Fitted error functions with 95 % bands", height=260 * rows)
 
@@ -336,7 +339,8 @@ def fig_history(history: list):
         if not np.isfinite(np.asarray(y, float)).any():
             fig.update_yaxes(showticklabels=False, row=1, col=c)
             fig.add_annotation(text="not computed", showarrow=False, row=1, col=c,
-                               x=(len(history) - 1) / 2, y=0.5, yref=f"y{c} domain")
+                               x=(len(history) - 1) / 2, y=0.5,
+                               yref="y domain" if c == 1 else f"y{c} domain")
     return _layout(fig, "Diagnosis history: fit quality as effects are added", height=360)
 
 

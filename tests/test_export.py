@@ -229,3 +229,15 @@ def test_true_function_curve_reads_the_coefficient_labels(spec):
     assert report.true_function_curve(truth, "nonexistent", u, r.terms.range_mm) is None
     fig = report.fig_error_functions(r, truth=sim.truth)
     assert any(t.name == "true (simulation)" for t in fig.data)
+
+
+def test_error_functions_shade_the_measured_span_and_history_survives_empty_columns(result):
+    """Review findings: the shading was added before the traces, which plotly skips; an
+    all-empty first history column made an invalid axis reference."""
+    fig = report.fig_error_functions(result)
+    assert len(fig.layout.shapes) == len(result.terms.functions)
+    x0 = min(s.x0 for s in fig.layout.shapes if s.xref == "x")
+    assert x0 > 0  # dxx: the balls start well inside the X stroke
+    hist = [{"change": "baseline", "rms_um": None, "chi2_dof": None, "bic": None,
+             "gp_amplitude_um": None}]
+    assert "not computed" in [a.text for a in report.fig_history(hist).layout.annotations]

@@ -274,3 +274,35 @@ def test_backlash_spans_are_recovered_with_calibrated_uncertainties(order):
         z += [(v - sim.truth[lab]) / ui for lab, v, ui in zip(labs, vals, u, strict=True)]
     z = np.array(z)
     assert 0.6 <= np.sqrt(np.mean(z**2)) <= 1.5 and np.abs(z).max() < 4, z.round(2)
+
+
+def test_an_undetermined_backlash_span_makes_the_model_undetermined():
+    """Review finding: every ball approached from + along z leaves the z span equal to a
+    placement shift; the model used to apply it as if known. Now the saved model is
+    undetermined and corrected points carry no finite uncertainty."""
+    import pandas as pd
+
+    from cmm_core.compensate import model_from_result
+    from cmm_core.fit import select
+
+    sim = simulate({"seed": 2, "order": "serpentine",
+                    "effects": {"backlash": {"x_um": 3.0, "y_um": -2.0}}})
+    obs = select(sim.dataset)
+    obs.approach[:, 2] = 1.0  # probing always from above
+    r = fit(obs, "kinematic21,backlash")
+    assert "backlash.z" in r.unidentifiable
+    m = model_from_result(r)
+    assert m.undetermined
+    pts = pd.DataFrame({"probe": ["1", "1"], "x_mm": [400.0, 500.0], "y_mm": [300.0, 400.0],
+                        "z_mm": [0.0, -50.0]})
+    assert compensate(m, pts)[["u_x_um", "u_y_um", "u_z_um"]].isna().all().all()
+
+
+def test_a_model_file_with_backlash_in_its_spec_but_no_spans_is_refused():
+    sim = simulate({"seed": 2, "order": "serpentine",
+                    "effects": {"backlash": {"x_um": 3.0}}})
+    d = model_to_dict(fit(sim.dataset, "kinematic21,backlash"))
+    for k in ("backlash_um", "cov_with_backlash"):
+        d.pop(k)
+    with pytest.raises(DataError, match="no backlash spans"):
+        model_from_dict(d)
