@@ -142,8 +142,9 @@ def select(data: Dataset, *, positions=None, probes=None, exclude=()) -> Observa
     t = df[keep].reset_index(drop=True)
     # backlash state follows every move the machine made, excluded balls included
     has_time = "time_min" in df and df["time_min"].notna().all()
+    codes, names = pd.factorize(df["probe"])
     ram_all = df[["mx_mm", "my_mm", "mz_mm"]].to_numpy(float) - np.array(
-        [data.setup.probes[q] for q in df["probe"]], float)
+        [data.setup.probes[q] for q in names], float).reshape(-1, 3)[codes]
     approach = approach_directions(
         ram_all, df["time_min"].to_numpy(float) if has_time else None)[keep]
     if len(t) == 0:
