@@ -278,7 +278,7 @@ def parse_spec(spec: str, *, default_order: int = 2) -> ModelSpec:
     orders = dict.fromkeys(ERROR_NAMES, 0)
     effects, periods = set(), {}
     for raw in str(spec).split(","):
-        tok = raw.strip()
+        tok = raw.strip().lower()  # "Kinematic21", "DYZ:3" read as the SPEC names
         if not tok or tok == "rigid":
             continue
         remove = tok.startswith("-")

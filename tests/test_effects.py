@@ -19,6 +19,7 @@ from cmm_core.kinematics import ROTATIONAL, SQUARENESS
     ("kinematic21,periodic_x:180,-periodic_x,periodic_y:95", "kinematic21,periodic_y:95"),
     ("rigid", "rigid"),
     ("", "rigid"),
+    (" Kinematic21, DYZ:3 ,Backlash", "kinematic21,dyz:3,backlash"),  # case and spaces
 ])
 def test_spec_grammar_and_round_trip(spec, expected):
     m = parse_spec(spec)
