@@ -281,7 +281,8 @@ def run_diagnosis(show_progress: bool = False):
     core's plain-language conclusion (with aliases and skipped candidates).
 
     Each dict: effect, title, explanation, aliases, separate_by, rms_um, chi2_dof,
-    delta_chi2, delta_bic, p_value, n_params, significant, confirmed, signature_um (n, 3).
+    delta_chi2, delta_bic, p_value, n_params, significant, confirmed, is_verdict (the
+    core's verdict: none when the baseline did not converge), signature_um (n, 3).
     With ``show_progress`` a progress bar follows the scoring of the candidates.
     """
     base = current_fit()
@@ -310,6 +311,7 @@ def _cached_core_diagnosis(args, _ds, _show_progress=False):
              "rms_um": c.rms_um, "chi2_dof": c.chi2_dof, "delta_chi2": c.delta_chi2,
              "delta_bic": c.delta_bic, "p_value": c.p_value, "n_params": c.n_params,
              "significant": bool(c.significant), "confirmed": bool(c.confirmed),
+             "is_verdict": c.effect == d.verdict,
              "detectable_above": c.detectable_text(),
              "signature_um": np.asarray(c.signature_um, float)} for c in d.candidates]
     skipped = "".join(f" Not tried: {k} ({v})." for k, v in d.skipped.items())

@@ -91,7 +91,9 @@ if s["diag_on"]:
         st.info("No candidate effect left to try.")
     else:
         best = cands[0]
-        if best["significant"]:
+        if best["significant"] and not best["is_verdict"]:
+            st.warning("No effect is named: the baseline fit did not converge (see below).")
+        elif best["is_verdict"]:
             st.success(f"Most likely missing: **{best['title']}** (`{best['effect']}`): "
                        f"ΔBIC {best['delta_bic']:.1f}, p = {best['p_value']:.2g}.")
         elif base.chi2_dof < 1.5:
