@@ -117,14 +117,23 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis):
         setup_text = _checked_text(setup_file, cio.read_setup, problems)
     elif use_thesis:
         setup_text = thesis["setup"]
+        notes.append("The thesis setup (the placements of chapter 6) stands in for the "
+                     "setup not uploaded.")
     else:
         problems.append(_problem("setup.json", "no setup given.",
                                  "upload a setup JSON or tick 'use the thesis setup'."))
     if cert_file is not None:
         text = _checked_text(cert_file, cio.read_certificate, problems)
         cert = None if text is None else (cert_file.name, text)
-    elif use_thesis:
+    elif use_thesis and setup_file is None:
+        # the thesis certificate only belongs with the thesis plate and placements: with a
+        # setup of their own the user measured another plate
         cert = thesis["certificate"]
+        notes.append("The thesis certificate (appendix 5) stands in for the certificate "
+                     "not uploaded.")
+    else:
+        notes.append("No certificate: the plate geometry is fitted from the positions "
+                     "(self-calibration, plate free).")
     if not meas_files:
         problems.append(_problem("", "no measurement file given.", "upload one long-form "
                                  "CSV or one thesis-form CSV per position."))
@@ -179,8 +188,11 @@ with tab_upload:
     up_setup = c1.file_uploader("Setup (JSON)", type=["json"], key="up_setup")
     up_cert = c2.file_uploader("Certificate (CSV, optional)", type=["csv", "txt"],
                                key="up_cert")
-    use_thesis = st.checkbox("Use the thesis setup and certificate for files not uploaded",
-                             value=True, key="use_thesis_setup")
+    use_thesis = st.checkbox("Use the thesis setup for a setup not uploaded (and the thesis "
+                             "certificate with it)", value=True, key="use_thesis_setup",
+                             help="With a setup of your own, the thesis certificate is never "
+                                  "used: your plate is another plate. Without a certificate "
+                                  "the plate is self-calibrated.")
     if st.button("Load uploaded files", key="load_upload", type="primary"):
         st.session_state.pop("upload_report", None)
         files, problems, notes = _validate_upload(up_meas or [], up_setup, up_cert,

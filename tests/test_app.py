@@ -224,6 +224,26 @@ def test_upload_long_form_csv_and_a_malformed_one():
     assert any("long.csv" in m.value for m in at.sidebar.markdown)  # unchanged
 
 
+def test_upload_with_its_own_setup_never_borrows_the_thesis_certificate(tmp_path):
+    """Acceptance finding: measurements and setup of another plate, no certificate: the
+    thesis certificate stood in silently and the fit was 20 times the noise. Now the plate
+    is self-calibrated and the load message says so."""
+    from cmm_core.simulate import simulate
+
+    simulate({"seed": 5}).write(tmp_path)
+    at = _new()
+    at.file_uploader(key="up_meas").set_value(
+        [("measurements.csv", (tmp_path / "measurements.csv").read_bytes(), "text/csv")])
+    at.file_uploader(key="up_setup").set_value(
+        [("setup.json", (tmp_path / "setup.json").read_bytes(), "application/json")])
+    at.button(key="load_upload").click()
+    at.run()
+    _ok(at)
+    assert any("No certificate" in m.value for m in at.success)
+    assert {m.label: m.value for m in at.metric}["Certificate"] == "no"
+    assert _sidebar_rms(at) < 1.0  # the simulated 0.5 µm noise, not a wrong plate
+
+
 def test_simulate_a_virtual_cmm():
     at = _new()
     at.checkbox(key="sim_sag").check()
