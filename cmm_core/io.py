@@ -13,6 +13,7 @@ stays one line, the first problem plus "(and N more problems)".
 from __future__ import annotations
 
 import csv
+import difflib
 import io as _io
 import json
 import re
@@ -415,6 +416,7 @@ def _require(df, columns, name, form):
                              "between the columns.")
     raise DataError(f"missing column(s) {', '.join(missing)}; expected {form} columns "
                     f"{','.join(columns)}, found {','.join(df.columns)}.", file=name,
+                    row=1, column=missing[0],
                     hint="see SPEC 'Data formats' for the column names (lengths in mm).")
 
 
@@ -490,6 +492,13 @@ def read_measurements(source, *, name=None, position=None) -> pd.DataFrame:
     """
     df, name = _read_csv(source, name)
     long = "position" in df.columns
+    for c in df.columns:
+        # extra columns are kept, but "tempC" for temp_C would silently drop the record
+        guess = _typo(str(c), LONG_COLUMNS + OPTIONAL_COLUMNS)
+        if guess is not None:
+            raise DataError(f"unknown column {c!r}; did you mean {guess!r}?", file=name,
+                            row=1, column=str(c),
+                            hint="rename the column (SPEC 'Data formats').")
     _require(df, LONG_COLUMNS if long else THESIS_COLUMNS, name,
              "long-form" if long else "thesis-form")
     _require_rows(df, name, "probed ball")
@@ -552,6 +561,10 @@ def read_setup(source, *, name="setup.json") -> Setup:
                             file=name) from exc
     if not isinstance(raw, dict):
         raise DataError("expected a JSON object.", file=name)
+    _check_keys(raw, SETUP_KEYS[""], name, "")
+    for sub in ("machine", "plate"):
+        if isinstance(raw.get(sub), dict):
+            _check_keys(raw[sub], SETUP_KEYS[sub], name, sub)
     units = raw.get("units", "mm")
     if units != "mm":
         raise DataError(f"units must be 'mm', found {units!r}.", file=name, column="units")
@@ -573,6 +586,7 @@ def read_setup(source, *, name="setup.json") -> Setup:
         if not isinstance(spec, dict):
             raise DataError(f"expected an object with origin_mm, u_axis, v_axis, found "
                             f"{type(spec).__name__} {spec!r}.", file=name, column=key)
+        _check_keys(spec, SETUP_KEYS["position"], name, key)
         if "origin_mm" not in spec:
             raise DataError("position needs origin_mm (and u_axis, v_axis) as 3-vectors.",
                             file=name, column=key)
@@ -611,6 +625,36 @@ def read_setup(source, *, name="setup.json") -> Setup:
                         file=name, column="plate.cte_per_K")
     cte = float(cte)
     return Setup(frame, rng, positions, probes, cte, raw)
+
+
+SETUP_KEYS = {
+    "": ("units", "frame", "machine", "positions", "probes", "plate"),
+    "machine": ("layout", "range_mm"),
+    "plate": ("cte_per_K", "balls", "pitch_mm"),
+    "position": ("origin_mm", "u_axis", "v_axis", "probe", "temp_C", "rh_percent"),
+}
+"""Keys the setup reader uses, per object; other keys are free (notes, names), but one
+that looks like a misspelt known key is refused (it would silently leave a default)."""
+
+
+def _typo(key: str, known, cutoff: float = 0.85):
+    """The known key ``key`` most likely misspells (case, a dropped letter), or None."""
+    if key in known:
+        return None
+    low = {k.lower(): k for k in known}
+    if key.lower() in low:
+        return low[key.lower()]
+    close = difflib.get_close_matches(key.lower(), list(low), n=1, cutoff=cutoff)
+    return low[close[0]] if close else None
+
+
+def _check_keys(obj: dict, known, name, where: str):
+    for k in obj:
+        guess = _typo(str(k), known)
+        if guess is not None:
+            raise DataError(f"unknown key {k!r}; did you mean {guess!r}? (A misspelt key "
+                            "would silently leave its default.)", file=name,
+                            column=f"{where}.{k}" if where else str(k))
 
 
 def _json_object(raw: dict, key: str, name) -> dict:

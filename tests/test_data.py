@@ -299,3 +299,32 @@ def test_outlier_labels_say_robust_score_not_z():
     at = _upload_app()
     labels = [c.label for c in at.checkbox if c.label.startswith("Exclude ")]
     assert labels and all("robust score" in lab and "(z " not in lab for lab in labels)
+
+
+@pytest.mark.parametrize("path, typo, meant", [
+    ((), "frme", "frame"),
+    (("plate",), "cte_per_k", "cte_per_K"),
+    (("positions", "BP211"), "v_axs", "v_axis"),
+    (("machine",), "range_MM", "range_mm"),
+])
+def test_a_misspelt_setup_key_is_refused_with_the_key_it_resembles(path, typo, meant):
+    """Acceptance finding: 'v_axs' and 'cte_per_k' loaded silently with the defaults."""
+    raw = json.loads((THESIS / "setup.json").read_text())
+    obj = raw
+    for k in path:
+        obj = obj[k]
+    obj[typo] = obj.pop(meant, 1)
+    with pytest.raises(DataError) as exc:
+        read_setup(raw)
+    assert f"did you mean {meant!r}" in str(exc.value) and exc.value.column.endswith(typo)
+
+
+def test_free_notes_in_a_setup_are_kept_and_a_misspelt_column_is_refused():
+    raw = json.loads((THESIS / "setup.json").read_text())
+    raw["operator"] = "J. Smith"
+    raw["plate"]["serial"] = "BP-123"
+    assert read_setup(raw).positions  # descriptive keys are free
+    text = "position,probe,ball,x_mm,y_mm,z_mm,tempC\nBP111,1,1,0,0,0,20.1\n"
+    with pytest.raises(DataError) as exc:
+        read_measurements(io.BytesIO(text.encode()), name="m.csv")
+    assert "did you mean 'temp_C'" in str(exc.value) and exc.value.column == "tempC"
