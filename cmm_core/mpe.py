@@ -42,6 +42,18 @@ def uncertainty_um(length_mm, a_um: float = 0.52, b_per_mm: float = 1.4e-3) -> n
     return np.sqrt(a_um**2 + (b_per_mm * L) ** 2)
 
 
+def conformity_uncertainty_um(length_mm, sigma_um: float, a_um: float = 0.26,
+                        b_per_mm: float = 1.9e-3) -> np.ndarray:
+    """Expanded (k = 2) uncertainty of a length error E = L_measured − L_certificate from
+    the test itself: the plate's calibrated length, U = sqrt(a² + (b L)²) µm (k = 2, thesis
+    appendix 1 plate specification), and the repeatability of the two probed centres
+    (σ per coordinate, so σ√2 on their distance). ISO 14253-1 asks for the uncertainty of
+    the measurement that decides conformity, not the machine's own specification."""
+    L = np.asarray(length_mm, float)
+    u_plate = np.sqrt(a_um**2 + (b_per_mm * L) ** 2) / 2
+    return 2 * np.sqrt(u_plate**2 + 2 * float(sigma_um) ** 2)
+
+
 def decide(error_um, U_um, mpe_limit_um) -> np.ndarray:
     """ISO 14253-1 decision per length: 'conforms', 'does not conform' or 'inconclusive'."""
     e = np.abs(np.asarray(error_um, float))

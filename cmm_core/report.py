@@ -318,6 +318,36 @@ def fig_signature_scatter(residuals_um, signature_um, title: str, height: int = 
     return _layout(fig, title, height=height)
 
 
+def fig_mpe(result, title: str = "Length errors against the MPE (0.6 µm + L/600)"):
+    """Length errors E (µm) against the certificate length L (mm): each with its ±U bar
+    (k = 2), coloured by its ISO 14253-1 decision, between the ±MPE(L) lines."""
+    colours = {"conforms": "#2ca02c", "inconclusive": "#ff7f0e",
+               "does not conform": "#d62728"}
+    fig = go.Figure()
+    L = np.asarray(result.length_mm, float)
+    order = np.argsort(L)
+    for sign in (1, -1):
+        fig.add_trace(go.Scatter(x=L[order], y=sign * np.asarray(result.mpe_um)[order],
+                                 mode="lines", line={"color": "#444", "dash": "dash"},
+                                 name="±MPE", showlegend=sign == 1, hoverinfo="skip"))
+    for dec, colour in colours.items():
+        sel = np.asarray(result.decision) == dec
+        if not sel.any():
+            continue
+        text = [f"{p}: balls {a}-{b} ({d})" for p, a, b, d in zip(
+            np.asarray(result.position)[sel], np.asarray(result.ball_a)[sel],
+            np.asarray(result.ball_b)[sel], np.asarray(result.direction)[sel], strict=True)]
+        fig.add_trace(go.Scatter(
+            x=L[sel], y=np.asarray(result.error_um)[sel], mode="markers", name=dec,
+            marker={"color": colour, "size": 5},
+            error_y={"type": "data", "array": np.asarray(result.U_um)[sel], "thickness": 1,
+                     "width": 0, "color": colour},
+            text=text, hovertemplate="%{text}<br>L %{x:.1f} mm, E %{y:.2f} µm<extra></extra>"))
+    fig.update_xaxes(title_text="certificate length L (mm)")
+    fig.update_yaxes(title_text="length error E (µm)")
+    return _layout(fig, title, height=420)
+
+
 def fig_history(history: list):
     """RMS, χ²/dof, BIC and GP discrepancy amplitude as effects are added or removed."""
     fig = make_subplots(rows=1, cols=4, subplot_titles=("RMS (µm)", "χ²/dof", "BIC",

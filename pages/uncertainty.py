@@ -5,6 +5,7 @@ import pandas as pd
 import streamlit as st
 
 from cmm_core import air, budget, gum
+from cmm_core.mpe import conformity_uncertainty_um
 from cmm_core.mpe import mpe_check as mpe
 from pages import common as C
 
@@ -233,12 +234,26 @@ else:
                 tables[f"{pos}/{prb}"] = tab
             else:
                 skipped.append(f"{pos}/{prb}")
-        out = mpe(tables, ds.certificate.xyz_mm)
+        U_SOURCES = {"test": "the test: plate certificate and repeatability σ",
+                     "cmm_spec": "the CMM specification U(L) (thesis §6.2)"}
+        u_src = st.radio("Uncertainty U of each length error", list(U_SOURCES),
+                         format_func=U_SOURCES.get, horizontal=True, key="w_mpe_u",
+                         help="ISO 14253-1 decides with the uncertainty of the test: the "
+                              "plate's calibrated lengths (√(0.26² + (1.9e-3 L)²) µm, k = 2, "
+                              "thesis appendix 1) and the repeatability of the two probed "
+                              "centres. The thesis's CMM specification is offered for "
+                              "comparison.")
+        sig = float(s["sigma_um"])
+        out = mpe(tables, ds.certificate.xyz_mm,
+                  uncertainty=(lambda L: conformity_uncertainty_um(L, sig)) if u_src == "test"
+                  else None)
         cnt = out.counts
         m = st.columns(len(cnt) + 1)
         for c_, (k_, v) in zip(m, cnt.items(), strict=False):
             c_.metric(k_, v)
         m[-1].metric("max |E| (µm)", f"{out.max_abs_error_um():.2f}")
+        st.plotly_chart(C.figure("mpe", (C.fit_args(), u_src, sig), C.rep.fig_mpe, out),
+                        key="fig_mpe")
         C.dataframe(pd.DataFrame(out.rows()), hide_index=True, key="mpe_table",
                      column_config={"length_mm": st.column_config.NumberColumn(format="%.3f"),
                                     "error_um": st.column_config.NumberColumn(format="%.2f"),
@@ -247,5 +262,6 @@ else:
         st.caption("Length errors E = measured − certificate length for every ball pair on a "
                    "row, column or diagonal, per position and probe (outliers included: they "
                    "are real readings). ISO 14253-1: conforms when |E| + U ≤ MPE, does not "
-                   "conform when |E| − U > MPE, otherwise inconclusive."
+                   "conform when |E| − U > MPE, otherwise inconclusive. U (k = 2) is from "
+                   + U_SOURCES[u_src] + (f" (σ = {sig:g} µm)." if u_src == "test" else ".")
                    + (f" Skipped (missing balls): {', '.join(skipped)}." if skipped else ""))

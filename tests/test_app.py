@@ -481,4 +481,16 @@ def test_uncertainty_monte_carlo_budget_and_mpe():
     at.run()
     _ok(at)
     assert any("Monte Carlo (50000 trials" in x.value for x in at.success)
-    assert "decision" in _frame(at, "decision").columns
+    table = _frame(at, "decision")
+    assert "decision" in table.columns
+    # U of the decision is the test's by default (plate certificate + σ), named in the
+    # caption; the CMM specification is the alternative (acceptance finding)
+    from cmm_core.mpe import conformity_uncertainty_um, uncertainty_um
+
+    np.testing.assert_allclose(table["U_um"], conformity_uncertainty_um(table["length_mm"], 0.5))
+    assert any("plate certificate" in c.value for c in at.caption)
+    assert any(p.key == "fig_mpe" for p in at.get("plotly_chart"))
+    at.radio(key="w_mpe_u").set_value("cmm_spec")
+    at.run()
+    table = _frame(at, "decision")
+    np.testing.assert_allclose(table["U_um"], uncertainty_um(table["length_mm"]))

@@ -194,3 +194,12 @@ def test_mpe_validation():
         mpe_check({}, cert)
     same = mpe_check({"cert": cert}, cert)
     assert same.counts["conforms"] == 160 and same.max_abs_error_um() == 0.0
+
+
+def test_conformity_uncertainty_of_a_length_error_by_hand():
+    """L = 532 mm, σ = 0.5 µm: plate U = √(0.26² + (1.9e-3·532)²) = 1.0437 µm (k = 2), so
+    u = √((1.0437/2)² + 2·0.5²) = 0.8789 µm and U = 1.758 µm."""
+    from cmm_core.mpe import conformity_uncertainty_um
+
+    assert float(conformity_uncertainty_um(532.0, 0.5)) == pytest.approx(1.7578, abs=5e-4)
+    assert float(conformity_uncertainty_um(0.0, 0.0)) == pytest.approx(0.26)
