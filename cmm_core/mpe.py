@@ -220,3 +220,35 @@ def mpe_check(tables: Mapping[str, np.ndarray], certificate, *, n: int = 5,
                      direction=cat["d"], length_mm=cat["L"], error_um=cat["e"],
                      U_um=np.asarray(cat["U"], float), mpe_um=cat["m"], decision=dec,
                      counts=counts, counts_by_position=by_pos)
+
+
+U_SOURCES = {"test": "the test: plate certificate and repeatability σ",
+             "cmm_spec": "the CMM specification U(L) (thesis §6.2)"}
+"""Where the U of the conformity decision comes from (see :func:`check_dataset`)."""
+
+
+def check_dataset(dataset, *, u_source: str = "test", sigma_um: float = 0.5):
+    """MPE check of every position and probe of a dataset against its 5 x 5 certificate.
+
+    ``u_source`` picks U (``U_SOURCES``): ``"test"`` (:func:`conformity_uncertainty_um`
+    with ``sigma_um``) or ``"cmm_spec"`` (:func:`uncertainty_um`). Returns ``(result,
+    skipped)``: None when there is no 25-ball certificate or no complete table, and the
+    position/probe groups left out for missing balls.
+    """
+    if u_source not in U_SOURCES:
+        raise ValueError(f"u_source must be one of {sorted(U_SOURCES)}, got {u_source!r}.")
+    cert = dataset.certificate
+    if cert is None or len(cert.balls) != 25:
+        return None, []
+    tables, skipped = {}, []
+    for (pos, prb), _ in dataset.meas.groupby(["position", "probe"], sort=False):
+        tab = dataset.plate_frame_table(pos, prb)
+        if np.isfinite(tab).all():
+            tables[f"{pos}/{prb}"] = tab
+        else:
+            skipped.append(f"{pos}/{prb}")
+    if not tables:
+        return None, skipped
+    sig = float(sigma_um)
+    unc = (lambda L: conformity_uncertainty_um(L, sig)) if u_source == "test" else None
+    return mpe_check(tables, cert.xyz_mm, uncertainty=unc), skipped

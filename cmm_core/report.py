@@ -452,7 +452,8 @@ table.tbl td,table.tbl th{border:1px solid #ddd;padding:2px 6px;text-align:right
 
 
 def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None,
-                 diagnosis=None, magnification: float = 2000.0, extra_sections=()) -> str:
+                 diagnosis=None, magnification: float = 2000.0, extra_sections=(),
+                 diagnosis_conclusion: str = "", mpe=None) -> str:
     """A self-contained HTML report of a fit: summary, figures and tables.
 
     Parameters
@@ -466,6 +467,10 @@ def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None
     diagnosis : DataFrame, optional
         Ranked candidate effects.
     extra_sections : iterable of (heading, html) pairs, optional
+    diagnosis_conclusion : str
+        The diagnosis's plain-language verdict, printed above its table.
+    mpe : MpeResult, optional
+        The MPE check (``cmm_core.mpe.mpe_check``): plot, counts and the rule used.
 
     Returns
     -------
@@ -488,6 +493,9 @@ def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None
     now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     summary = [("Dataset", dataset.name), ("Positions", ", ".join(map(str, dataset.positions))),
                ("Probes", ", ".join(map(str, dataset.probes))),
+               ("Certificate", "yes" if dataset.certificate is not None else
+                "none (plate self-calibrated)"),
+               ("Setup frame", dataset.setup.frame),
                ("Model", result.spec), ("Plate geometry", result.plate),
                ("Repeatability σ", f"{result.sigma_um:g} µm"),
                ("Observations", str(result.n_obs)), ("Status", result.status),
@@ -525,12 +533,28 @@ def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None
                 _table_html(pd.DataFrame(rows_u)),
                 f"<p class='note'>{html.escape(uncertainty.message)}</p>")
     if diagnosis is not None and len(diagnosis):
-        section("Diagnosis: candidate effects, best first", _table_html(diagnosis))
+        keep = [c for c in ("effect", "title", "rms_um", "chi2_dof", "delta_chi2", "n_params",
+                            "delta_bic", "p_value", "significant", "aliases")
+                if c in diagnosis]
+        section("Diagnosis: candidate effects, best first",
+                f"<p>{html.escape(diagnosis_conclusion)}</p>" if diagnosis_conclusion else "",
+                _table_html(diagnosis[keep].head(10) if keep else diagnosis.head(10)),
+                f"<p class='note'>The 10 best of {len(diagnosis)} candidates.</p>")
+    if mpe is not None:
+        counts = pd.DataFrame([{"decision": k, "lengths": v} for k, v in mpe.counts.items()])
+        section("MPE check (0.6 µm + L/600, ISO 14253-1 decision rule)",
+                fig_html(fig_mpe(mpe)), _table_html(counts),
+                "<p class='note'>Conforms when |E| + U ≤ MPE, does not conform when |E| − U "
+                "> MPE, otherwise inconclusive; U (k = 2) as chosen on the Uncertainty page "
+                "(by default the test's: plate certificate and repeatability).</p>")
     if history:
         hist = pd.DataFrame(history)
         section("Diagnosis history", fig_html(fig_history(list(history))), _table_html(hist))
     pf = result.parameters_frame()
     pf["identifiable"] = ~pf["parameter"].isin(result.unidentifiable)
+    if "unit" in pf:
+        pf["unit"] = pf["unit"].map(lambda u: str(u).replace("urad", "µrad").replace(
+            "um", "µm"))
     section("Fitted parameters (value and standard uncertainty)", _table_html(pf))
     for heading, body in extra_sections:
         section(heading, body)

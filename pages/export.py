@@ -114,33 +114,40 @@ def _history_for_export():
 
 
 @st.cache_data(show_spinner=False, max_entries=8)
-def report_html(args, hist_key, mag, diag_key, _ds, _r, _hist, _excl, _diag):
+def report_html(args, hist_key, mag, diag_key, mpe_key, _ds, _r, _hist, _excl, _diag,
+                _conclusion):
+    from cmm_core.mpe import check_dataset
     from cmm_core.uncertainty import evaluate
 
     try:
         unc = evaluate(_r)
     except Exception:  # noqa: BLE001 - the report still has everything else
         unc = None
+    mpe_res, _ = check_dataset(_ds, u_source=mpe_key, sigma_um=_r.sigma_um)
     return rep.build_report(_ds, _r, exclusions=_excl, history=_hist, uncertainty=unc,
-                            diagnosis=_diag, magnification=mag)
+                            diagnosis=_diag, magnification=mag,
+                            diagnosis_conclusion=_conclusion, mpe=mpe_res)
 
 
 hist = _history_for_export()
 hist_key = tuple((h["spec"], h["change"]) for h in hist)
 excl = [tuple(e) for e in s["exclusions"]]
 mag = float(s["magnification"])
-diag_df = None
+diag_df, diag_text = None, ""
 if s["diag_on"]:  # the diagnosis the user ran goes into the report (cached: no recompute)
-    _, _rows, _ = C.run_diagnosis()
+    _, _rows, diag_text = C.run_diagnosis()
     if _rows:
         diag_df = pd.DataFrame([{k: v for k, v in c_.items() if k not in (
             "signature_um", "explanation")} for c_ in _rows])
 
 
+mpe_u = s.get("w_mpe_u", "test")  # the MPE uncertainty chosen on the Uncertainty page
+
+
 def _report_bytes():
     # runs on a separate thread when clicked: only local values, no session state
-    return report_html(args, hist_key, mag, diag_df is not None, ds, r, hist, excl,
-                       diag_df).encode("utf-8")
+    return report_html(args, hist_key, mag, diag_df is not None, mpe_u, ds, r, hist, excl,
+                       diag_df, diag_text).encode("utf-8")
 
 
 c3.download_button("HTML report (self-contained)", _report_bytes, "cmm_report.html",

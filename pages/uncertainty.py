@@ -5,8 +5,7 @@ import pandas as pd
 import streamlit as st
 
 from cmm_core import air, budget, gum
-from cmm_core.mpe import conformity_uncertainty_um
-from cmm_core.mpe import mpe_check as mpe
+from cmm_core import mpe as mpe_mod
 from pages import common as C
 
 C.page_start()
@@ -222,31 +221,10 @@ with st.expander("Refractive index of air (modified Edlén, Birch and Downs 1994
     if n_air is not None:
         st.metric("n − 1", f"{float(n_air) - 1:.6e}")
 
-st.subheader("MPE check (0.6 µm + L/600)")
-if ds.certificate is None or len(ds.certificate.balls) != 25:
-    st.info("The MPE check needs a certificate of a 5 × 5 ball plate.")
-else:
-    with C.guarded("MPE check"):
-        tables, skipped = {}, []
-        for (pos, prb), _ in ds.meas.groupby(["position", "probe"], sort=False):
-            tab = ds.plate_frame_table(pos, prb)
-            if np.isfinite(tab).all():
-                tables[f"{pos}/{prb}"] = tab
-            else:
-                skipped.append(f"{pos}/{prb}")
-        U_SOURCES = {"test": "the test: plate certificate and repeatability σ",
-                     "cmm_spec": "the CMM specification U(L) (thesis §6.2)"}
-        u_src = st.radio("Uncertainty U of each length error", list(U_SOURCES),
-                         format_func=U_SOURCES.get, horizontal=True, key="w_mpe_u",
-                         help="ISO 14253-1 decides with the uncertainty of the test: the "
-                              "plate's calibrated lengths (√(0.26² + (1.9e-3 L)²) µm, k = 2, "
-                              "thesis appendix 1) and the repeatability of the two probed "
-                              "centres. The thesis's CMM specification is offered for "
-                              "comparison.")
-        sig = float(s["sigma_um"])
-        out = mpe(tables, ds.certificate.xyz_mm,
-                  uncertainty=(lambda L: conformity_uncertainty_um(L, sig)) if u_src == "test"
-                  else None)
+
+def show_mpe(out, skipped, u_src, sig):
+    """Counts, plot, table and caption of an MPE check."""
+    with C.guarded("MPE plot and table"):
         cnt = out.counts
         m = st.columns(len(cnt) + 1)
         for c_, (k_, v) in zip(m, cnt.items(), strict=False):
@@ -263,5 +241,28 @@ else:
                    "row, column or diagonal, per position and probe (outliers included: they "
                    "are real readings). ISO 14253-1: conforms when |E| + U ≤ MPE, does not "
                    "conform when |E| − U > MPE, otherwise inconclusive. U (k = 2) is from "
-                   + U_SOURCES[u_src] + (f" (σ = {sig:g} µm)." if u_src == "test" else ".")
+                   + mpe_mod.U_SOURCES[u_src]
+                   + (f" (σ = {sig:g} µm)." if u_src == "test" else ".")
                    + (f" Skipped (missing balls): {', '.join(skipped)}." if skipped else ""))
+
+
+st.subheader("MPE check (0.6 µm + L/600)")
+if ds.certificate is None or len(ds.certificate.balls) != 25:
+    st.info("The MPE check needs a certificate of a 5 × 5 ball plate.")
+else:
+    out, skipped = None, []
+    with C.guarded("MPE check"):
+        U_SOURCES = mpe_mod.U_SOURCES
+        u_src = st.radio("Uncertainty U of each length error", list(U_SOURCES),
+                         format_func=U_SOURCES.get, horizontal=True, key="w_mpe_u",
+                         help="ISO 14253-1 decides with the uncertainty of the test: the "
+                              "plate's calibrated lengths (√(0.26² + (1.9e-3 L)²) µm, k = 2, "
+                              "thesis appendix 1) and the repeatability of the two probed "
+                              "centres. The thesis's CMM specification is offered for "
+                              "comparison.")
+        sig = float(s["sigma_um"])
+        out, skipped = mpe_mod.check_dataset(ds, u_source=u_src, sigma_um=sig)
+    if out is None:
+        st.info("No position has every ball measured: nothing to check.")
+    else:
+        show_mpe(out, skipped, u_src, sig)

@@ -175,6 +175,24 @@ def test_report_is_self_contained(result):
                  "Fitted parameters", "BP112/2 ball 7", "kinematic21", "µm"):
         assert text in html
     assert "<td>None</td>" not in html  # a value never computed is a dash
+    assert "<td>um</td>" not in html and "µm" in html  # units as on screen
+
+
+def test_report_carries_the_mpe_check_and_the_diagnosis_verdict(result):
+    """Acceptance finding: a report to file needs the conformity result and the verdict
+    in words, not only a table of 43 candidates."""
+    from cmm_core.mpe import check_dataset
+
+    ds = thesis_dataset()
+    check, skipped = check_dataset(ds, sigma_um=0.5)
+    assert check is not None and not skipped
+    diag = pd.DataFrame([{"effect": f"e{i}", "title": "t", "explanation": "long text",
+                          "delta_bic": float(i)} for i in range(43)])
+    html = report.build_report(ds, result, diagnosis=diag, mpe=check,
+                               diagnosis_conclusion="Most likely missing: plate sag.")
+    assert "MPE check" in html and "Most likely missing: plate sag." in html
+    assert "The 10 best of 43 candidates" in html and "long text" not in html
+    assert "Certificate" in html
 
 
 @pytest.mark.parametrize("field, value, needle", [
