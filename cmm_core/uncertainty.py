@@ -157,6 +157,27 @@ def error_covariance(result: FitResult, x_mm, probe=None):
     return Je @ result.kinematic_cov @ Je.T
 
 
+def aligned_error_u(result: FitResult) -> np.ndarray:
+    """Standard uncertainty (µm, (n, 3)) of the kinematic error at each observation with
+    each position's rigid-body part removed: the uncertainty of the error as the plate
+    sees it after its placement is fitted (as U1-U3 remove it), the one to compare a
+    rigid-aligned measured error with. NaN when the model is undetermined."""
+    obs = result.problem.obs
+    u = np.full(obs.r_mm.shape, np.nan)
+    if _undetermined(result, "kinematic") or _undetermined(result, "probe_offset"):
+        return u
+    for k in range(len(obs.positions)):
+        idx = np.flatnonzero(obs.pos == k)
+        x, p = obs.r_mm[idx] - obs.p_mm[idx], obs.p_mm[idx]
+        _, J = kin.jacobian(result.terms, result.kinematic_coef, x, p)
+        Je = (J / kin.UM).reshape(-1, J.shape[2])
+        P = rigid_body_projector(obs.r_mm[idx])
+        PJ = P @ Je
+        V = np.einsum("ik,kl,il->i", PJ, result.kinematic_cov, PJ)
+        u[idx] = np.sqrt(np.clip(V, 0, None)).reshape(-1, 3)
+    return u
+
+
 @dataclass(frozen=True)
 class UncertaintySummary:
     """U1, U2, U3 of thesis tables 4.1-4.3 (average standard uncertainties per axis, µm).

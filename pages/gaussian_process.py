@@ -30,16 +30,12 @@ def measured_errors(args, _ds):
 
 @st.cache_data(show_spinner=False, max_entries=32)
 def kinematic_at_observations(args, _r):
-    """Kinematic error predicted at the observations in the same rigid-aligned sense as the
-    measured error (measured + residual), with its standard uncertainty."""
-    from cmm_core.uncertainty import error_at
+    """Standard uncertainty of the kinematic error at the observations in the same
+    rigid-aligned sense as the measured error (each position's placement removed: the
+    absolute uncertainty, which grows away from the axis origins, does not apply)."""
+    from cmm_core.uncertainty import aligned_error_u
 
-    obs = _r.problem.obs
-    u = np.full(_r.residuals_um.shape, np.nan)
-    for i, q in enumerate(obs.probes):
-        sel = obs.probe == i
-        _, u[sel] = error_at(_r, obs.r_mm[sel] - obs.p_mm[sel], q)
-    return u
+    return aligned_error_u(_r)
 
 
 @st.cache_resource(show_spinner=False, max_entries=48)
@@ -185,7 +181,11 @@ if s.get("gp_on"):
             ("signal sd (µm)", "noise sd (µm)", "log marginal likelihood", "LOO RMS (µm)")})
 st.caption("Plate plane of the chosen position (plate u and v in mm); × marks the measured "
            "ball centres. Errors in µm, in the rigid-aligned "
-           "sense (the placement of the plate absorbs translations and rotations).")
+           "sense (the placement of the plate absorbs translations and rotations). The GP's "
+           "inputs are the tip coordinates only: two styli measuring the same ball get the "
+           "same prediction, so a stylus-dependent error (rotations seen through the probe "
+           "offset, a probe offset error) shows up in its noise level; the kinematic model, "
+           "which knows each stylus's offset, separates it.")
 
 st.subheader("Kinematic vs GP vs measurement (thesis chapter 7)")
 sigma = float(s["sigma_um"])
@@ -234,7 +234,9 @@ C.dataframe(rows[rows["position"] == position] if only else rows, hide_index=Tru
                      "thesis eq. 7.1 % (GP)", format="%.5f")})
 st.caption(
     f"Component {comp}. Differences are in µm and in units of their standard uncertainty "
-    f"(z = difference / √(u_model² + σ²), σ = {sigma:g} µm); |z| ≲ 2 is agreement. The "
+    f"(z = difference / √(u_model² + σ²), σ = {sigma:g} µm; u_model of the kinematic model "
+    "with each placement's rigid part removed, as the differences are); |z| ≲ 2 is "
+    "agreement. The "
     "columns labelled *thesis eq. 7.1 %* reproduce the thesis's 'percentage error' only for "
     "comparison: it divides a micrometre difference by the ball's coordinate (≈ 0.5 m), so "
     "any model scores a few thousandths of a percent; it is not a measure of model quality. "
