@@ -292,9 +292,20 @@ with tab_proj:
                      "measurements": doc["measurements"], "setup": doc["setup"],
                      "certificate": doc["certificate"]}
             try:
+                new_ds = C._load(C.files_key(files), files)
+                have = set(zip(new_ds.meas["position"].astype(str),
+                               new_ds.meas["probe"].astype(str),
+                               new_ds.meas["ball"].astype(int), strict=True))
+                unknown = [e for e in doc["exclusions"] if tuple(e) not in have]
+                if unknown:
+                    raise ValueError(
+                        f"{up_proj.name}, column 'exclusions': the project excludes "
+                        "observations its data do not have: " + "; ".join(
+                            f"{p} probe {q} ball {b}" for p, q, b in unknown[:10])
+                        + ". Remove them from the file or restore it with its own data.")
                 C.set_dataset(files)
             except Exception as exc:  # noqa: BLE001
-                st.error(f"The project's dataset does not load: {C.describe_error(exc)}")
+                st.error(f"The project does not restore: {C.describe_error(exc)}")
             else:
                 m = doc["model"]
                 s = st.session_state
@@ -377,6 +388,14 @@ if rep is not None:
             label = (f"Exclude {trip[0]} probe {trip[1]} ball {trip[2]}: {detail} "
                      f"[{src['source']}, row {src['row']}]")
             st.checkbox(label, key=wk, on_change=C.toggle_exclusion, args=(trip, wk))
+    # exclusions a project restored that the detector does not flag: shown, never hidden
+    others = sorted({tuple(e) for e in s["exclusions"]} - {tuple(t) for t in rep.exclusions})
+    if others:
+        o1, o2 = st.columns([4, 1])
+        o1.info("Also excluded (restored, not flagged by the detector): "
+                + "; ".join(f"{p} probe {q} ball {b}" for p, q, b in others) + ".")
+        o2.button("Include them again", key="include_unflagged", on_click=C.set_exclusions,
+                  args=(others, False))
 
 st.subheader("Placements in the machine volume")
 with C.guarded("3D view"):

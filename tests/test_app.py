@@ -382,6 +382,42 @@ def test_downloads_present_and_project_roundtrip():
     assert len(_frame(at, "change")) == 2
 
 
+def _thesis_project_text(exclusions):
+    return export.project_to_json(
+        dataset_name="restored thesis",
+        measurements=[(f"{p}.csv", (THESIS / f"{p}.csv").read_text())
+                      for p in ("BP111", "BP112", "BP211", "BP212", "BP311", "BP312")],
+        setup=(THESIS / "setup.json").read_text(),
+        certificate=("certificate.csv", (THESIS / "certificate.csv").read_text()),
+        model={"spec": "kinematic21", "order": 2, "plate": "fixed", "sigma_um": 0.5,
+               "positions": None, "probes": None},
+        exclusions=exclusions, history=[])
+
+
+def test_project_exclusions_are_checked_and_unflagged_ones_shown():
+    """Acceptance finding: an exclusion of a ball the data do not have restored silently,
+    and one the detector does not flag could be neither seen nor undone."""
+    at = _new()
+    at.file_uploader(key="up_project").set_value(
+        ("p.json", _thesis_project_text([("BP999", "1", 3)]).encode(), "application/json"))
+    at.run()
+    at.button(key="restore_project").click()
+    at.run()
+    assert not at.exception
+    assert any("BP999 probe 1 ball 3" in e.value for e in at.error)
+    assert any("thesis tables" in m.value for m in at.sidebar.markdown)  # nothing lost
+    at.file_uploader(key="up_project").set_value(
+        ("p.json", _thesis_project_text([("BP111", "1", 17)]).encode(), "application/json"))
+    at.run()
+    at.button(key="restore_project").click()
+    at.run()
+    _ok(at)
+    assert any("BP111 probe 1 ball 17" in i.value for i in at.info)
+    at.button(key="include_unflagged").click()
+    at.run()
+    assert at.session_state["exclusions"] == []
+
+
 def test_bad_project_file_is_a_message():
     at = _new()
     at.file_uploader(key="up_project").set_value(("p.json", b"{not json", "application/json"))
