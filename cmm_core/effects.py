@@ -313,7 +313,8 @@ def parse_spec(spec: str, *, default_order: int = 2) -> ModelSpec:
         if names is None:
             known = ", ".join(list(GROUPS) + list(PHYSICAL))
             raise ValueError(f"unknown model token {raw.strip()!r}; expected one of the 21 "
-                             f"error names (dxx ... syz) or {known}.")
+                             f"error names (dxx ... syz), name:order (dyz:3), {known}, "
+                             "or periodic_x:PERIOD_MM (and _y, _z).")
         for n in names:
             orders[n] = 0 if remove else order
     return ModelSpec(tuple(orders.items()), tuple(e for e in PHYSICAL if e in effects),
