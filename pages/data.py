@@ -84,9 +84,15 @@ def _checked_text(upload, reader, problems):
 
 def _checked_measurements(meas_files, problems, notes):
     """(name, text) of every measurement file that reads; problems of the others noted."""
-    meas = []
+    meas, seen = [], {}
     for f in meas_files:
         data = f.getvalue()
+        if data in seen:
+            # one line, not one "appears twice" per ball of the combined table
+            problems.append(_problem(f.name, f"has the same content as {seen[data]}: the "
+                                     "file was uploaded twice.", "remove one of them."))
+            continue
+        seen[data] = f.name
         try:
             df = cio.read_measurements(io.BytesIO(data), name=f.name)
             meas.append((f.name, data.decode("utf-8-sig")))

@@ -244,6 +244,18 @@ def test_upload_with_its_own_setup_never_borrows_the_thesis_certificate(tmp_path
     assert _sidebar_rms(at) < 1.0  # the simulated 0.5 µm noise, not a wrong plate
 
 
+def test_the_same_file_uploaded_twice_is_one_problem():
+    at = _new()
+    data = (THESIS / "BP111.csv").read_bytes()
+    at.file_uploader(key="up_meas").set_value([("BP111.csv", data, "text/csv"),
+                                               ("BP111 (1).csv", data, "text/csv")])
+    at.button(key="load_upload").click()
+    at.run()
+    assert not at.exception
+    probs = _frame(at, "hint")
+    assert len(probs) == 1 and "uploaded twice" in probs.iloc[0]["problem"]
+
+
 def test_simulate_a_virtual_cmm():
     at = _new()
     at.checkbox(key="sim_sag").check()
