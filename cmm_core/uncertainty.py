@@ -30,6 +30,12 @@ def rigid_body_projector(points_mm: np.ndarray) -> np.ndarray:
     ``P = I - G G⁺`` with G the 6 rigid-body motion fields at the points (rotations about
     the centroid); ``P V Pᵀ`` is the covariance the thesis's ``xux2uzsp`` returns.
     """
+    Q = _rigid_basis(points_mm)
+    return np.eye(Q.shape[0]) - Q @ Q.T
+
+
+def _rigid_basis(points_mm: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (3m × 6) of the rigid-body motion fields at the points."""
     c = np.asarray(points_mm, float) - np.mean(points_mm, 0)
     m = len(c)
     G = np.zeros((3 * m, 6))
@@ -40,7 +46,7 @@ def rigid_body_projector(points_mm: np.ndarray) -> np.ndarray:
     G[0::3, 4], G[1::3, 4], G[2::3, 4] = c[:, 2], 0, -c[:, 0]
     G[0::3, 5], G[1::3, 5], G[2::3, 5] = -c[:, 1], c[:, 0], 0
     Q, _ = np.linalg.qr(G)
-    return np.eye(3 * m) - Q @ Q.T
+    return Q
 
 
 def _probe_vector(result: FitResult, probe):
@@ -168,14 +174,30 @@ def aligned_error_u(result: FitResult) -> np.ndarray:
         return u
     for k in range(len(obs.positions)):
         idx = np.flatnonzero(obs.pos == k)
-        x, p = obs.r_mm[idx] - obs.p_mm[idx], obs.p_mm[idx]
-        _, J = kin.jacobian(result.terms, result.kinematic_coef, x, p)
-        Je = (J / kin.UM).reshape(-1, J.shape[2])
-        P = rigid_body_projector(obs.r_mm[idx])
-        PJ = P @ Je
-        V = np.einsum("ik,kl,il->i", PJ, result.kinematic_cov, PJ)
-        u[idx] = np.sqrt(np.clip(V, 0, None)).reshape(-1, 3)
+        u[idx] = _rigid_removed_u(result, obs.r_mm[idx] - obs.p_mm[idx], obs.p_mm[idx],
+                                  obs.r_mm[idx])
     return u
+
+
+def rigid_removed_error_u(result: FitResult, x_mm, probe=None) -> np.ndarray:
+    """Standard uncertainty (µm) of the error at scale readings ``x_mm`` (one probe) with
+    the rigid-body part of the whole point set removed: the uncertainty of the error's
+    shape over those points (lengths, flatness), for maps. NaN when undetermined."""
+    x = np.atleast_2d(np.asarray(x_mm, float))
+    if _undetermined(result, "kinematic") or _undetermined(result, "probe_offset"):
+        return np.full(x.shape, np.nan)
+    p = np.broadcast_to(_probe_vector(result, probe), x.shape)
+    return _rigid_removed_u(result, x, p, x + p)
+
+
+def _rigid_removed_u(result, x, p, points):
+    """sqrt(diag(P J V Jᵀ Pᵀ)) without forming the 3m × 3m projector P = I − Q Qᵀ."""
+    _, J = kin.jacobian(result.terms, result.kinematic_coef, x, p)
+    Je = (J / kin.UM).reshape(-1, J.shape[2])
+    Q = _rigid_basis(points)
+    PJ = Je - Q @ (Q.T @ Je)
+    V = np.einsum("ik,kl,il->i", PJ, result.kinematic_cov, PJ)
+    return np.sqrt(np.clip(V, 0, None)).reshape(-1, 3)
 
 
 @dataclass(frozen=True)

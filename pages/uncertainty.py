@@ -51,7 +51,13 @@ zval = c1.slider("Z of the XY plane (mm)", 0.0, float(rng[2]), float(round(rng[2
                  step=10.0, key="w_u_z")
 probe = c2.selectbox("Probe", obs.probes, key="w_u_probe")
 comp = c3.radio("Component", ["x", "y", "z"], horizontal=True, key="w_u_comp")
-show = c4.radio("Show", ["U (k=2)", "error e"], horizontal=True, key="w_u_show")
+SHOW = {"shape": "U (k=2), rigid part removed", "absolute": "U (k=2), absolute",
+        "error": "error e"}
+show = c4.radio("Show", list(SHOW), format_func=SHOW.get, key="w_u_show",
+                help="Rigid part removed: the uncertainty of the error's shape over the plane "
+                     "(what lengths and form measured there carry, as U2/U3). Absolute: "
+                     "also the common translation and rotation, fixed only through the "
+                     "error functions' zero at the axis origins.")
 
 
 @st.cache_data(show_spinner=False, max_entries=64)
@@ -62,19 +68,25 @@ def error_grid(args, z, probe, n, _r):
     ys = np.linspace(0, _r.problem.obs.range_mm[1], n)
     X, Y = np.meshgrid(xs, ys)
     pts = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, z)])
+    from cmm_core.uncertainty import rigid_removed_error_u
+
     e, u = error_at(_r, pts, probe)
-    return xs, ys, e, u
+    return xs, ys, e, u, rigid_removed_error_u(_r, pts, probe)
 
 
 with C.guarded("Uncertainty map"):
     n = 31
-    xs, ys, e, u = error_grid(args, float(zval), probe, n, r)
+    xs, ys, e, u, u_shape = error_grid(args, float(zval), probe, n, r)
     a = "xyz".index(comp)
     x_meas = obs.r_mm - obs.p_mm
     near = np.abs(x_meas[:, 2] - zval) < 60
-    if show.startswith("U"):
+    if show == "shape":
+        vals, title = 2 * u_shape[:, a], (f"Expanded uncertainty U(e{comp}), k = 2, at Z = "
+                                          f"{zval:g} mm, rigid part of the plane removed")
+        scale = "Viridis"
+    elif show == "absolute":
         vals, title = 2 * u[:, a], (f"Expanded uncertainty U(e{comp}), k = 2, at Z = "
-                                    f"{zval:g} mm (rigid-body freedoms not removed)")
+                                    f"{zval:g} mm (absolute: rigid-body freedoms included)")
         scale = "Viridis"
     else:
         vals, title = e[:, a], f"Error e{comp} at Z = {zval:g} mm (probe {probe})"

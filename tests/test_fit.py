@@ -339,3 +339,25 @@ def test_aligned_error_u_matches_a_monte_carlo_with_the_placement_refitted():
     from cmm_core.uncertainty import error_at
     _, u_abs = error_at(r, x, obs.probes[obs.probe[idx[0]]])
     assert np.median(u[idx]) < 0.5 * np.median(u_abs)
+
+
+def test_rigid_removed_map_u_equals_the_projected_covariance():
+    """The map's fast path (Q Qᵀ never formed) against P V Pᵀ with the explicit projector
+    (the thesis's xux2uzsp form) on a small grid; and it is the smaller of the two."""
+    from cmm_core.uncertainty import (
+        error_at,
+        error_covariance,
+        rigid_body_projector,
+        rigid_removed_error_u,
+    )
+
+    r = fit(simulate({"seed": 4}).dataset, "kinematic21")
+    X, Y = np.meshgrid(np.linspace(100, 1100, 6), np.linspace(100, 900, 5))
+    pts = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, 250.0)])
+    p = r.problem.obs.p_mm[r.problem.obs.probe == 0][0]
+    P = rigid_body_projector(pts + p)
+    want = np.sqrt(np.diag(P @ error_covariance(r, pts) @ P.T)).reshape(-1, 3)
+    got = rigid_removed_error_u(r, pts)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
+    _, u_abs = error_at(r, pts)
+    assert np.median(got) < np.median(u_abs)
