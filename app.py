@@ -15,7 +15,6 @@ ROOT = Path(__file__).resolve().parent
 
 st.set_page_config(page_title="CMM error lab", page_icon=":material/straighten:", layout="wide")
 common.init_state()
-common.keep_widget_state()  # before st.navigation, which drops the last page's widgets
 
 PAGES = [
     st.Page("pages/data.py", title="Data", icon=":material/dataset:", url_path="data", default=True),

@@ -213,6 +213,7 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
                         file=name, column="x_mm", hint="write the points in mm.")
     p = np.array([m.probes_mm[q] for q in probes]).reshape(-1, 3)
     x = r - p
+    d = None  # approach directions, with a backlash model
     if m.backlash_um is None:
         e_um, u = propagate_error(m.terms, m.coef, m.cov, x, p)
     else:
@@ -232,7 +233,7 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
     out["ex_um"], out["ey_um"], out["ez_um"] = e_um.T
     out["u_x_um"], out["u_y_um"], out["u_z_um"] = u.T
     out["extrapolated"] = _extrapolation_note(m, x)
-    if m.backlash_um is not None:
+    if d is not None:
         for a, col in enumerate(("approach_x", "approach_y", "approach_z")):
             out[col] = d[:, a].astype(int)
     return out

@@ -310,15 +310,12 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
         if progress is not None:
             progress(float(min(max(frac, 0.0), 1.0)), text)
 
+    # weakly determined directions (one placement, high orders) can need many steps: the
+    # baseline gets a large budget (a converged fit stops early), and the candidates'
+    # refits the same one when the baseline needed more than fit's default
     base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um, exclude=exclude,
-               positions=positions, probes=probes)
-    max_iter = 500  # fit's default; raised with the baseline's below
-    if base.status != "converged":
-        # weakly determined directions (one placement, high orders) can need many steps;
-        # the candidates' refits get the same budget
-        max_iter = 2000
-        base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um,
-                   exclude=exclude, positions=positions, probes=probes, max_iter=max_iter)
+               positions=positions, probes=probes, max_iter=2000)
+    max_iter = 500 if base.iterations <= 500 else 2000
     tokens = candidates if candidates is not None else base.problem.spec.candidates()
     skipped, scored = {}, []
     n_steps = len(tokens) + confirm
@@ -340,9 +337,7 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
 
     def refit_candidate(s, j):
         report((len(tokens) + j) / n_steps, f"confirming {s[0]} by a full refit")
-        ref = fit(base.problem.obs, base.problem.spec.with_token(s[0]),
-                  plate=base.plate, sigma_um=sigma_um, rank_rtol=base.rank_rtol,
-                  max_iter=max_iter)
+        ref = _refit(base, base.problem.spec.with_token(s[0]), max_iter)
         s[1], s[2], s[4], s[5], s[6] = base.chi2 - ref.chi2, ref.rank - base.rank, ref.chi2, \
             True, ref
 
@@ -350,9 +345,8 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
     for j, s in enumerate(scored[:confirm]):
         if s[2] > 0:
             refit_candidate(s, j)
-    # The score decides the added rank at the baseline's solution, the refit at the
-    # nominal linearisation (the fit's frozen design null space): a refit can take back
-    # parameters the score credited. Whatever ends up first is confirmed too.
+    # A refit can still change a candidate's Δχ² and rank (nonlinearity, iterations), and
+    # so the order: whatever ends up first is confirmed too.
     n_try = max(len(scored), 1)
 
     def final_key(s):
@@ -408,6 +402,12 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
     return Diagnosis(base, out, verdict, skipped, msg)
 
 
+def _refit(base: FitResult, spec, max_iter: int) -> FitResult:
+    """Full fit of another model on the baseline's observations, plate and settings."""
+    return fit(base.problem.obs, spec, plate=base.plate, sigma_um=base.sigma_um,
+               rank_rtol=base.rank_rtol, max_iter=max_iter)
+
+
 def _nested_p(small: FitResult, big: FitResult) -> float:
     """F-test p-value of the parameters ``big`` adds to ``small`` (both full fits)."""
     dk, dchi2 = big.rank - small.rank, small.chi2 - big.chi2
@@ -428,8 +428,7 @@ def _encompassing(base: FitResult, cands, level, refits, alpha=0.01, max_rivals=
     Returns the reordered candidates and a sentence for the message.
     """
     def refit(spec):
-        return fit(base.problem.obs, spec, plate=base.plate, sigma_um=base.sigma_um,
-                   rank_rtol=base.rank_rtol, max_iter=max_iter)
+        return _refit(base, spec, max_iter)
 
     out, note = list(cands), ""
     a = out[0]

@@ -158,9 +158,14 @@ def error_covariance(result: FitResult, x_mm, probe=None):
     """Full covariance (3m × 3m, µm²) of the error at the points, for maps and U2/U3."""
     x = np.atleast_2d(np.asarray(x_mm, float))
     p = np.broadcast_to(_probe_vector(result, probe), x.shape)
-    _, J = kin.jacobian(result.terms, result.kinematic_coef, x, p)
-    Je = (J / kin.UM).reshape(-1, J.shape[2])
+    Je = _error_jacobian(result, x, p)
     return Je @ result.kinematic_cov @ Je.T
+
+
+def _error_jacobian(result: FitResult, x, p) -> np.ndarray:
+    """(3m, k) derivative of the error (µm) at the points wrt the kinematic coefficients."""
+    _, J = kin.jacobian(result.terms, result.kinematic_coef, x, p)
+    return (J / kin.UM).reshape(-1, J.shape[2])
 
 
 def aligned_error_u(result: FitResult) -> np.ndarray:
@@ -192,8 +197,7 @@ def rigid_removed_error_u(result: FitResult, x_mm, probe=None) -> np.ndarray:
 
 def _rigid_removed_u(result, x, p, points):
     """sqrt(diag(P J V Jᵀ Pᵀ)) without forming the 3m × 3m projector P = I − Q Qᵀ."""
-    _, J = kin.jacobian(result.terms, result.kinematic_coef, x, p)
-    Je = (J / kin.UM).reshape(-1, J.shape[2])
+    Je = _error_jacobian(result, x, p)
     Q = _rigid_basis(points)
     PJ = Je - Q @ (Q.T @ Je)
     V = np.einsum("ik,kl,il->i", PJ, result.kinematic_cov, PJ)

@@ -135,12 +135,13 @@ def init_state():
 
 
 KEEP_PREFIXES = ("sim_", "w_gp_")
-KEEP_KEYS = ("hist_gp",)
+KEEP_KEYS = ("hist_gp", "w_mpe_u")  # the report reads the MPE choice from any page
 
 
 def keep_widget_state():
-    """Keep the simulator form, the GP page's choices and the history's GP option when
-    the user visits another page: Streamlit drops a widget's state once a run does not
+    """Keep the simulator form, the GP page's choices, the history's GP option and the
+    MPE uncertainty choice when the user visits another page (every page calls this
+    first, through ``page_start``): Streamlit drops a widget's state once a run does not
     draw it; writing the value back through the Session State API keeps it (Streamlit's
     documented remedy; the duplication warning it would raise is off in config.toml)."""
     s = st.session_state
