@@ -184,6 +184,43 @@ def aligned_error_u(result: FitResult) -> np.ndarray:
     return u
 
 
+def residual_u(result: FitResult, *, chunk: int = 30000) -> np.ndarray:
+    """Standard uncertainty (µm, (n, 3)) of the model's prediction minus the measurement at
+    each fitted observation: the residual's ``σ √(1 − h_ii)``.
+
+    The model's rigid-aligned prediction minus the rigid-aligned measured error at a ball
+    the model was fitted to *is* the fit's residual (the placements of the rigid fit are
+    a subset of the full model's parameters). Prediction and measurement share that
+    ball's noise, so the difference varies less than either: its variance is
+    ``σ² − var(fit)``, ``var(fit) = J_i V J_iᵀ`` with the full Jacobian row (placements,
+    plate and effects included) and the full covariance. Combining them as
+    ``√(u_model² + σ²)`` treats them as independent, which holds only for a measurement
+    the fit did not use, and made nominal 95 % intervals cover about 97 % (96.3 % with
+    the plate fixed, 97.1 % with it free, over simulated data sets). With this, they
+    cover 95 % (``tests/test_coverage.py``).
+
+    Parameters
+    ----------
+    result : FitResult
+    chunk : int
+        Jacobian rows made dense at a time (memory).
+
+    Returns
+    -------
+    ndarray (n, 3)
+        ``σ √(1 − h_ii)`` per residual component, in the fit's observation order.
+    """
+    _, J = result.problem.residual(result.state, True)
+    cov = np.nan_to_num(result.covariance)
+    var_fit = np.empty(J.shape[0])
+    for i in range(0, J.shape[0], chunk):
+        A = J[i:i + chunk]
+        A = A.toarray() if hasattr(A, "toarray") else np.asarray(A)
+        var_fit[i:i + chunk] = np.einsum("ik,ik->i", A @ cov, A)
+    u2 = result.sigma_um**2 - var_fit
+    return np.sqrt(np.clip(u2, 0, None)).reshape(-1, 3)
+
+
 def rigid_removed_error_u(result: FitResult, x_mm, probe=None) -> np.ndarray:
     """Standard uncertainty (µm) of the error at scale readings ``x_mm`` (one probe) with
     the rigid-body part of the whole point set removed: the uncertainty of the error's
