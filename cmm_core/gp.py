@@ -28,7 +28,7 @@ Only numpy and scipy are used.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from itertools import combinations_with_replacement
 
 import numpy as np
@@ -36,6 +36,7 @@ import scipy.linalg as sla
 from scipy.linalg import lapack
 from scipy.optimize import minimize
 from scipy.spatial.distance import cdist
+from scipy.stats import norm
 
 from ._blas import single_blas_thread
 
@@ -51,6 +52,13 @@ _JITTER_START = 1e-10  # relative to the mean diagonal of K
 _JITTER_MAX = 1e-4
 _RANK_RTOL = 1e-9  # basis columns with pivoted-QR |R_jj| below this times |R_00| are dropped
 _CHUNK = 4096  # prediction points per block
+_MAX_INPUTS = 6  # ram position and probe offset
+_SAME_POINT = 1e-3  # inputs closer than this times the input extent are one location
+_ALT_MAX_LENGTH = 10.0  # next-best optimum: length scales up to this times the extent
+# collapsed: the closest distinct points are more than this many length scales apart
+# (correlation below exp(-2) = 0.14). Not 1: the thesis appendix 3 plate (pitch 100 mm)
+# has its optimum at 87 mm, neighbours correlated by 0.52, a working GP.
+_COLLAPSE_SPACINGS = 2.0
 
 
 # --------------------------------------------------------------------------- basis
@@ -102,40 +110,48 @@ class _Problem:
     orthonormal ``Q`` of a pivoted QR of the column-normalised user basis.
     """
 
-    def __init__(self, Xs, ys, Q, ard):
-        self.Xs, self.ys, self.Q, self.ard = Xs, ys, Q, ard
+    def __init__(self, Xs, ys, Q, groups, noise_groups=None):
+        self.Xs, self.ys, self.Q = Xs, ys, Q
+        # noise group of each point (one noise variance per group)
+        self.noise_groups = (np.zeros(len(ys), dtype=int) if noise_groups is None
+                             else np.asarray(noise_groups, dtype=int))
+        self.n_noise = int(self.noise_groups.max()) + 1
+        self.groups = np.asarray(groups, dtype=int)
         self.n, self.d = Xs.shape
         self.m = Q.shape[1]
-        if ard:
-            self.D2 = np.stack([cdist(Xs[:, [i]], Xs[:, [i]], "sqeuclidean")
-                                for i in range(self.d)])
-        else:
-            self.D2 = cdist(Xs, Xs, "sqeuclidean")
+        self.n_groups = int(self.groups.max()) + 1
+        # squared distances per length-scale group (G, n, n)
+        self.D2 = np.stack([cdist(Xs[:, self.groups == g], Xs[:, self.groups == g],
+                                  "sqeuclidean") for g in range(self.n_groups)])
         self.n_jitter = 0
         self.n_eval = 0
 
     def n_length(self):
-        return self.d if self.ard else 1
+        return self.n_groups
 
     def kernel(self, log_l, sf2):
-        if self.ard:
+        if self.n_groups > 1:
             K = np.tensordot(0.5 / np.exp(2 * log_l), self.D2, axes=1)
         else:
-            K = self.D2 * (0.5 / np.exp(2 * log_l[0]))
+            K = self.D2[0] * (0.5 / np.exp(2 * log_l[0]))
         np.negative(K, out=K)
         np.exp(K, out=K)
         K *= sf2
         return K
 
+    def scaled_d2(self, log_l):
+        """Σ_g D2_g / l_g²: squared distances in units of the length scales."""
+        return np.tensordot(1.0 / np.exp(2 * np.asarray(log_l)), self.D2, axes=1)
+
     def factor(self, theta):
         """Cholesky factor of K_y (jitter only if it fails) and the basis quantities."""
         nl = self.n_length()
-        log_l, sf2, sn2 = theta[:nl], np.exp(2 * theta[nl]), np.exp(2 * theta[nl + 1])
+        log_l, sf2, sn2 = theta[:nl], np.exp(2 * theta[nl]), np.exp(2 * theta[nl + 1:])
         Kf = self.kernel(log_l, sf2)
         Ky = Kf.copy()
-        Ky.flat[:: self.n + 1] += sn2
+        Ky.flat[:: self.n + 1] += sn2[self.noise_groups]
         jitter = 0.0
-        scale = sf2 + sn2
+        scale = sf2 + sn2.max()
         while True:
             try:
                 L, _ = sla.cho_factor(Ky, lower=True, check_finite=False)
@@ -199,13 +215,11 @@ class _Problem:
         MK = M * st["Kf"]
         nl = self.n_length()
         g = np.empty_like(theta)
-        if self.ard:
-            for i in range(self.d):
-                g[i] = -0.5 * np.vdot(MK, self.D2[i]) / np.exp(2 * st["log_l"][i])
-        else:
-            g[0] = -0.5 * np.vdot(MK, self.D2) / np.exp(2 * st["log_l"][0])
+        for i in range(nl):
+            g[i] = -0.5 * np.vdot(MK, self.D2[i]) / np.exp(2 * st["log_l"][i])
         g[nl] = -MK.sum()
-        g[nl + 1] = -st["sn2"] * np.trace(M)
+        g[nl + 1:] = -st["sn2"] * np.bincount(self.noise_groups, weights=np.diag(M),
+                                              minlength=self.n_noise)
         return -st["lml"], -g
 
 
@@ -231,8 +245,11 @@ class GPResult:
     signal_sd_um : float
         Signal standard deviation σ_f (units of y): k(x, x) = σ_f².
     noise_sd_um : float
-        Noise standard deviation σ_n of the Gaussian likelihood (units of y). Predictive
-        variances from ``predict`` are of the latent function and exclude it.
+        Noise standard deviation σ_n of the Gaussian likelihood (units of y); with noise
+        groups, the RMS over the points of their groups' values. Predictive variances from
+        ``predict`` are of the latent function and exclude it.
+    noise_sd_by_group_um : tuple of float
+        σ_n of each noise group (one value without ``noise_groups``).
     log_marginal_likelihood : float
         log p(y | X, θ) at the reported hyperparameters. With a basis it is R&W eq. 2.45
         without the terms that diverge with the vague prior (the log|B| term), for the basis
@@ -256,12 +273,16 @@ class GPResult:
         RMS of y - loo_mean over the points with a finite LOO prediction.
     loo_log_predictive : float
         Leave-one-out log predictive probability Σ log p(y_i | X, y_-i, θ) (R&W eq. 5.11).
+    loo_z : ndarray (n,)
+        Standardised leave-one-out residual (y_i - loo_mean_i) / loo_sd_i (``nan`` where
+        there is no LOO prediction); N(0, 1) when the GP's uncertainty is right.
     status : str
         ``"converged"``, ``"not_converged"`` (best start did not satisfy L-BFGS-B's
-        convergence test; the best point found is reported) or ``"fixed"`` (no
-        optimisation asked for).
+        convergence test; the best point found is reported), ``"degenerate"`` (the best
+        optimum is a collapsed or bounded length scale, see ``degenerate_reason`` and
+        ``alternative``) or ``"fixed"`` (no optimisation asked for).
     success : bool
-        ``status != "not_converged"``.
+        ``status`` is ``"converged"`` or ``"fixed"``.
     message : str
         Optimiser message, hyperparameters at their bounds and any jitter, in words.
     n_evaluations : int
@@ -276,6 +297,19 @@ class GPResult:
         Number of factorisations during the fit that needed jitter.
     bounds : dict
         Bounds on the hyperparameters, data units: ``{name: (low, high)}``.
+    groups : tuple of int
+        Length-scale group of each input (``length_scale_mm`` has one value per group).
+    degenerate : bool
+        The hyperparameters are degenerate (see ``fit_gp``, Notes); also set for fixed
+        hyperparameters, whose status stays ``"fixed"``.
+    degenerate_reason : str
+        Why, in words ("" when not degenerate).
+    smallest_spacing_mm : float
+        Smallest distance between distinct training inputs (points closer than 1e-3 of
+        the input extent count as one location), units of X.
+    alternative : GPResult or None
+        For a degenerate fit, the next-best optimum that is not degenerate (or the optimum
+        with the length scales kept above the smallest spacing); None otherwise.
     """
 
     mean: str
@@ -285,6 +319,7 @@ class GPResult:
     length_scale_mm: tuple
     signal_sd_um: float
     noise_sd_um: float
+    noise_sd_by_group_um: tuple
     log_marginal_likelihood: float
     mean_terms: tuple
     basis_dropped: tuple
@@ -302,14 +337,22 @@ class GPResult:
     jitter_um2: float
     n_jitter_events: int
     bounds: dict
+    loo_z: np.ndarray
+    groups: tuple
     _state: dict = field(repr=False)
+    degenerate: bool = False
+    degenerate_reason: str = ""
+    smallest_spacing_mm: float = float("nan")
+    alternative: GPResult | None = None
 
     @property
     def hyperparameters(self) -> dict:
         """Readable hyperparameters: ``length_scale_mm``, ``signal_sd_um``, ``noise_sd_um``."""
         ls = self.length_scale_mm
-        return {"length_scale_mm": ls[0] if self.kernel == "se_iso" else list(ls),
-                "signal_sd_um": self.signal_sd_um, "noise_sd_um": self.noise_sd_um}
+        return {"length_scale_mm": ls[0] if len(ls) == 1 else list(ls),
+                "signal_sd_um": self.signal_sd_um,
+                "noise_sd_um": (self.noise_sd_um if len(self.noise_sd_by_group_um) == 1
+                                else list(self.noise_sd_by_group_um))}
 
     def summary(self) -> dict:
         """JSON-ready summary: hyperparameters, log marginal likelihood, LOO RMS, status."""
@@ -324,7 +367,33 @@ class GPResult:
                                       if self.mean in MEANS else None),
                 "basis_dropped": list(self.basis_dropped), "kernel": self.kernel,
                 "status": self.status, "message": self.message,
-                "jitter_um2": float(self.jitter_um2)}
+                "jitter_um2": float(self.jitter_um2),
+                "loo_coverage_95": float(self.loo_coverage(0.95)),
+                "degenerate": bool(self.degenerate),
+                "degenerate_reason": self.degenerate_reason,
+                "smallest_spacing_mm": float(self.smallest_spacing_mm),
+                "alternative": (None if self.alternative is None
+                                else self.alternative.summary())}
+
+    def loo_coverage(self, level: float = 0.95) -> float:
+        """Fraction of the points inside their leave-one-out central ``level`` interval.
+
+        Parameters
+        ----------
+        level : float
+            Probability content of the interval, e.g. 0.95 for loo_mean ± 1.96 loo_sd.
+
+        Returns
+        -------
+        float
+            Covered fraction over the points with a LOO prediction (``nan`` if none):
+            close to ``level`` when the GP's predictive uncertainty is right.
+        """
+        z = np.asarray(self.loo_z, float)
+        z = z[np.isfinite(z)]
+        if not z.size:
+            return float("nan")
+        return float(np.mean(np.abs(z) <= norm.ppf(0.5 + level / 2)))
 
     def predict(self, X_new, H_new=None, *, include_mean: bool = True):
         """Predictive mean and variance of the latent function at ``X_new``.
@@ -404,9 +473,10 @@ def _as_inputs(X, name):
     X = np.asarray(X, dtype=float)
     if X.ndim == 1:
         X = X[:, None]
-    if X.ndim != 2 or X.shape[1] not in (1, 2, 3):
+    if X.ndim != 2 or not 1 <= X.shape[1] <= _MAX_INPUTS:
         raise ValueError(f"{name} has shape {np.shape(X)}, expected (n,) or (n, d) with "
-                         "d = 1, 2 or 3 input coordinates")
+                         f"d = 1 to {_MAX_INPUTS} input coordinates (3 machine coordinates, "
+                         "3 more for the probe offset)")
     if not np.all(np.isfinite(X)):
         raise ValueError(f"{name} contains NaN or inf values: expected finite coordinates")
     return X
@@ -443,7 +513,30 @@ class _Context:
     """Standardised data and basis shared by ``fit_gp`` and ``log_marginal_likelihood``."""
 
 
-def _prepare(X, y, mean, kernel):
+def _resolve_groups(groups, kernel, d):
+    """Length-scale group of each input: one group (se_iso), one per input (se_ard), or
+    as given (labels 0..G-1, every label used)."""
+    if groups is None:
+        return np.zeros(d, dtype=int) if kernel == "se_iso" else np.arange(d)
+    g = np.asarray(groups)
+    if g.shape != (d,) or not np.issubdtype(g.dtype, np.integer) or g.min() != 0 \
+            or set(g.tolist()) != set(range(int(g.max()) + 1)):
+        raise ValueError(f"groups = {list(np.atleast_1d(groups))}: expected one integer "
+                         f"label per input ({d}), labels 0, 1, ... each used at least once")
+    return g.astype(int)
+
+
+def _resolve_noise_groups(noise_groups, n):
+    g = np.asarray(noise_groups)
+    if g.shape != (n,) or not np.issubdtype(g.dtype, np.integer) or g.min() != 0 \
+            or set(g.tolist()) != set(range(int(g.max()) + 1)):
+        raise ValueError(f"noise_groups has shape {g.shape} and labels "
+                         f"{sorted(set(np.ravel(g).tolist()))[:8]}: expected one integer label "
+                         f"per point ({n}), labels 0, 1, ... each used at least once")
+    return g.astype(int)
+
+
+def _prepare(X, y, mean, kernel, groups=None, noise_groups=None):
     X = _as_inputs(X, "X")
     y = np.asarray(y, dtype=float)
     if y.ndim == 2 and y.shape[1] == 1:
@@ -456,6 +549,7 @@ def _prepare(X, y, mean, kernel):
     if kernel not in KERNELS:
         raise ValueError(f"kernel {kernel!r} is unknown: expected one of {KERNELS}")
     n, d = X.shape
+    groups = _resolve_groups(groups, kernel, d)
     label, H, names, basis_fn = _resolve_mean(mean, X)
     if not np.all(np.isfinite(H)):
         raise ValueError("the mean's basis contains NaN or inf values at the training points")
@@ -498,8 +592,10 @@ def _prepare(X, y, mean, kernel):
     ctx.__dict__.update(n=n, d=d, m=m, m_user=m_user, label=label, names=names,
                         basis_fn=basis_fn, keep=keep, Q=Q, R=R, col_keep=col_keep,
                         dropped=dropped, extent=extent, x_scale=x_scale, y_scale=y_scale,
-                        centre=centre, Xs=Xs, X=X, y=y)
-    ctx.prob = _Problem(Xs, y / y_scale, Q, kernel == "se_ard")
+                        centre=centre, Xs=Xs, X=X, y=y, groups=groups, kernel=kernel)
+    if noise_groups is not None:
+        noise_groups = _resolve_noise_groups(noise_groups, n)
+    ctx.prob = _Problem(Xs, y / y_scale, Q, groups, noise_groups)
     # log ML in data units = standardised value + offset (undo y scaling and basis scaling)
     logdetR = float(np.log(np.abs(np.diag(R))).sum()) if m else 0.0
     ctx.lml_offset = -(n - m) * np.log(y_scale) - logdetR - float(np.log(col_keep).sum())
@@ -512,6 +608,7 @@ _HYPER = ("length_scale_mm", "signal_sd_um", "noise_sd_um")
 def _theta_from(hyper: dict, ctx, nl, theta):
     """Standardised log hyperparameters from readable ones (data units)."""
     theta = np.array(theta, dtype=float)
+    nn = ctx.prob.n_noise
     units = {"signal_sd_um": ctx.y_scale, "noise_sd_um": ctx.y_scale}
     for k, v in hyper.items():
         if k not in _HYPER:
@@ -523,24 +620,30 @@ def _theta_from(hyper: dict, ctx, nl, theta):
             if v.size not in (1, nl):
                 raise ValueError(f"length_scale_mm has {v.size} values, expected 1 or {nl}")
             theta[:nl] = np.log(v / ctx.x_scale)
+        elif k == "noise_sd_um":
+            if v.size not in (1, nn):
+                raise ValueError(f"noise_sd_um has {v.size} values, expected 1 or {nn} (one "
+                                 "per noise group)")
+            theta[nl + 1:] = np.log(v / units[k])
         else:
             if v.size != 1:
                 raise ValueError(f"{k} has {v.size} values, expected 1")
-            theta[nl + (k == "noise_sd_um")] = np.log(v[0] / units[k])
+            theta[nl] = np.log(v[0] / units[k])
     return theta
 
 
 @single_blas_thread
 def log_marginal_likelihood(X, y, hyperparameters: dict, *, mean="zero",
-                            kernel: str = "se_iso"):
+                            kernel: str = "se_iso", groups=None, noise_groups=None):
     """Log marginal likelihood and its gradient at given hyperparameters.
 
     Parameters
     ----------
-    X, y, mean, kernel
+    X, y, mean, kernel, groups, noise_groups
         As for ``fit_gp``.
     hyperparameters : dict
-        ``length_scale_mm`` (one value, or one per input for ``se_ard``), ``signal_sd_um``,
+        ``length_scale_mm`` (one value, or one per length-scale group: per input for
+        ``se_ard``), ``signal_sd_um``, ``noise_sd_um`` (one value, or one per noise group),
         ``noise_sd_um``, all required.
 
     Returns
@@ -555,9 +658,9 @@ def log_marginal_likelihood(X, y, hyperparameters: dict, *, mean="zero",
     missing = [k for k in _HYPER if k not in hyperparameters]
     if missing:
         raise ValueError(f"hyperparameters lack {missing}: expected all of {_HYPER}")
-    ctx = _prepare(X, y, mean, kernel)
-    nl = ctx.d if kernel == "se_ard" else 1
-    theta = _theta_from(hyperparameters, ctx, nl, np.zeros(nl + 2))
+    ctx = _prepare(X, y, mean, kernel, groups, noise_groups)
+    nl = ctx.prob.n_length()
+    theta = _theta_from(hyperparameters, ctx, nl, np.zeros(nl + 1 + ctx.prob.n_noise))
     val, grad = ctx.prob.objective(theta)
     if val >= 1e24:
         raise ValueError("the covariance matrix is not positive definite even with jitter at "
@@ -571,13 +674,15 @@ _BOUND_FACTORS = {"length": (1e-3, 1e3), "signal": (1e-3, 1e2), "noise": (1e-4, 
 @single_blas_thread
 def fit_gp(X, y, *, mean="zero", kernel: str = "se_iso", restarts: int = 3, seed=0,
            bounds: dict | None = None, initial: dict | None = None,
-           optimize: bool = True) -> GPResult:
+           optimize: bool = True, groups=None, discrete_groups=(),
+           noise_groups=None) -> GPResult:
     """Fit a GP regression model by maximising the marginal likelihood.
 
     Parameters
     ----------
-    X : array_like (n,) or (n, d), d = 1, 2 or 3
-        Inputs (mm for CMM coordinates).
+    X : array_like (n,) or (n, d), d = 1 to 6
+        Inputs (mm for CMM coordinates; 3 machine coordinates and, optionally, the 3
+        components of the probe offset).
     y : array_like (n,)
         Observations (µm for CMM errors).
     mean : str, callable or array_like (n, m)
@@ -604,26 +709,55 @@ def fit_gp(X, y, *, mean="zero", kernel: str = "se_iso", restarts: int = 3, seed
         are used as they are.
     optimize : bool
         ``False`` evaluates the model at ``initial`` (status ``"fixed"``).
+    groups : sequence of int, optional
+        Length-scale group of each input column: the inputs of one group share a length
+        scale, k = σ_f² exp(-½ Σ_g |x_g - x'_g|² / l_g²) (a product of SE kernels, one per
+        group). Default: one group (``se_iso``) or one per input (``se_ard``); given, it
+        overrides ``kernel``'s. ``(0, 0, 0, 1, 1, 1)`` gives the ram position and the probe
+        offset one length scale each.
+    discrete_groups : sequence of int
+        Groups whose inputs take a few discrete values (the probe offset). A length scale
+        of such a group at either bound is a legitimate limit (short: the values are
+        independent; long: the input does not matter), not a degenerate fit.
+    noise_groups : array_like of int (n,), optional
+        Noise group of each point (labels 0, 1, ...): one noise standard deviation per
+        group, e.g. per stylus, whose repeatabilities differ (K_y = K + diag(σ_n,g(i)²)).
+        Default: one noise level for all points.
 
     Returns
     -------
     GPResult
-        Never raises on non-convergence: see ``status`` and ``message``.
+        Never raises on non-convergence or a degenerate optimum: see ``status``,
+        ``degenerate_reason`` and ``alternative``.
 
     Raises
     ------
     ValueError
         Bad shapes, non-finite values, unknown mean or kernel, or too few points.
+
+    Notes
+    -----
+    A fit is *degenerate* (status ``"degenerate"``) when the likelihood's best optimum is
+    (a) collapsed: no two distinct training points (farther apart than 1e-3 of the input
+    extent) lie within two length scales of each other, so neighbours are correlated by
+    less than exp(-2) = 0.14 and the GP is close to white noise (for ``se_iso``: the
+    length scale is below half the data's smallest spacing; the spacing itself would
+    flag working fits such as thesis appendix 3's, 87 mm on a 100 mm pitch), (b) a length
+    scale of a continuous group at its lower bound, or every continuous length scale at its
+    upper bound (the data show no correlation length; one ARD input at its upper bound
+    only says that input does not matter), or (c) σ_f at its lower bound (no signal). The
+    next-best optimum is then offered as ``alternative``: the best start that is not
+    degenerate, or else the optimum with the continuous length scales between half the
+    smallest spacing and 10 × the input extent (itself flagged if still degenerate).
     """
-    ctx = _prepare(X, y, mean, kernel)
-    n, d, m, m_user = ctx.n, ctx.d, ctx.m, ctx.m_user
-    label, names, basis_fn, keep = ctx.label, ctx.names, ctx.basis_fn, ctx.keep
-    R, col_keep, dropped = ctx.R, ctx.col_keep, ctx.dropped
-    extent, x_scale, y_scale, centre, Xs = (ctx.extent, ctx.x_scale, ctx.y_scale, ctx.centre,
-                                            ctx.Xs)
-    y = ctx.y
-    ard = kernel == "se_ard"
-    nl = d if ard else 1
+    ctx = _prepare(X, y, mean, kernel, groups, noise_groups)
+    prob = ctx.prob
+    nl, nn = prob.n_length(), prob.n_noise
+    discrete = {int(g) for g in np.atleast_1d(discrete_groups)}
+    if not discrete <= set(range(nl)):
+        raise ValueError(f"discrete_groups = {sorted(discrete)}: expected labels among the "
+                         f"length-scale groups 0..{nl - 1}")
+    x_scale, y_scale, extent = ctx.x_scale, ctx.y_scale, ctx.extent
     bnd = {"length_scale_mm": tuple(f * extent for f in _BOUND_FACTORS["length"]),
            "signal_sd_um": tuple(f * y_scale for f in _BOUND_FACTORS["signal"]),
            "noise_sd_um": tuple(f * y_scale for f in _BOUND_FACTORS["noise"])}
@@ -634,56 +768,148 @@ def fit_gp(X, y, *, mean="zero", kernel: str = "se_iso", restarts: int = 3, seed
         if not 0 < lo <= hi:
             raise ValueError(f"bounds[{k!r}] = {v}: expected 0 < low <= high")
         bnd[k] = (lo, hi)
-    units = {"length_scale_mm": x_scale, "signal_sd_um": y_scale, "noise_sd_um": y_scale}
     lb = np.array([np.log(bnd["length_scale_mm"][0] / x_scale)] * nl
-                  + [np.log(bnd[k][0] / units[k]) for k in ("signal_sd_um", "noise_sd_um")])
+                  + [np.log(bnd["signal_sd_um"][0] / y_scale)]
+                  + [np.log(bnd["noise_sd_um"][0] / y_scale)] * nn)
     ub = np.array([np.log(bnd["length_scale_mm"][1] / x_scale)] * nl
-                  + [np.log(bnd[k][1] / units[k]) for k in ("signal_sd_um", "noise_sd_um")])
+                  + [np.log(bnd["signal_sd_um"][1] / y_scale)]
+                  + [np.log(bnd["noise_sd_um"][1] / y_scale)] * nn)
 
     # default start: length 0.3 extent, σ_f = RMS, σ_n = 0.3 RMS (standardised units)
-    theta0 = _theta_from(initial or {}, ctx, nl, np.array([np.log(0.3)] * nl + [0.0, np.log(0.3)]))
+    theta0 = _theta_from(initial or {}, ctx, nl,
+                         np.array([np.log(0.3)] * nl + [0.0] + [np.log(0.3)] * nn))
     if optimize:
         theta0 = np.clip(theta0, lb, ub)
 
-    prob = ctx.prob
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     starts = [theta0]
-    box_lo = np.array([np.log(0.05)] * nl + [np.log(0.2), np.log(0.01)])
-    box_hi = np.array([np.log(3.0)] * nl + [np.log(3.0), np.log(1.0)])
+    box_lo = np.array([np.log(0.05)] * nl + [np.log(0.2)] + [np.log(0.01)] * nn)
+    box_hi = np.array([np.log(3.0)] * nl + [np.log(3.0)] + [np.log(1.0)] * nn)
     for _ in range(max(int(restarts), 0) if optimize else 0):
         starts.append(np.clip(rng.uniform(box_lo, box_hi), lb, ub))
 
-    best, best_val, best_res, start_lml = None, np.inf, None, []
-    if optimize:
-        for t0 in starts:
-            res = minimize(prob.objective, t0, jac=True, method="L-BFGS-B",
-                           bounds=list(zip(lb, ub, strict=True)))
-            val = float(res.fun)
-            start_lml.append(-val if val < 1e24 else np.nan)
-            if val < best_val:
-                best, best_val, best_res = res.x, val, res
-        if best is None:
-            best, best_res = theta0, None
-        status = "converged" if best_res is not None and best_res.success else "not_converged"
-        msg = [best_res.message if best_res is not None else
-               "the likelihood could not be evaluated at any start"]
-    else:
-        best, status, msg = theta0, "fixed", ["hyperparameters fixed at the values given"]
+    spacing_s, far = _spacing(prob)
+    cont = [g for g in range(nl) if g not in discrete]
 
+    def degeneracy(theta, lo, hi):
+        return _degeneracy(prob, theta, lo, hi, far, spacing_s, x_scale, cont)
+
+    def optimise(lo, hi, points):
+        runs = []
+        for t0 in points:
+            res = minimize(prob.objective, np.clip(t0, lo, hi), jac=True, method="L-BFGS-B",
+                           bounds=list(zip(lo, hi, strict=True)))
+            runs.append(res)
+        return runs
+
+    def outcome(runs):
+        ok = [r for r in runs if float(r.fun) < 1e24]
+        if not ok:
+            return theta0, "not_converged", ["the likelihood could not be evaluated at any "
+                                             "start"]
+        b = min(ok, key=lambda r: float(r.fun))
+        m0 = b.message.decode() if isinstance(b.message, bytes) else str(b.message)
+        return b.x, "converged" if b.success else "not_converged", [m0]
+
+    if not optimize:
+        res = _result(ctx, theta0, "fixed", ["hyperparameters fixed at the values given"],
+                      lb, ub, bnd, (), optimized=False)
+        return replace(res, **degeneracy(theta0, lb, ub))
+    runs = optimise(lb, ub, starts)
+    start_lml = tuple(-float(r.fun) if float(r.fun) < 1e24 else np.nan for r in runs)
+    best, status, msg = outcome(runs)
+    deg = degeneracy(best, lb, ub)
+    if not deg["degenerate"]:
+        return replace(_result(ctx, best, status, msg, lb, ub, bnd, start_lml), **deg)
+
+    # degenerate: the next-best optimum, among the starts or with the length scales kept
+    # between the smallest spacing and _ALT_MAX_LENGTH × the extent
+    order = sorted((r for r in runs if float(r.fun) < 1e24), key=lambda r: float(r.fun))
+    alt_runs = [r for r in order if not degeneracy(r.x, lb, ub)["degenerate"]][:1]
+    alt_lb, alt_ub, how = lb, ub, "the best start that is not degenerate"
+    if not alt_runs and np.isfinite(spacing_s):
+        alt_lb, alt_ub = lb.copy(), ub.copy()
+        for g in cont:
+            alt_lb[g] = max(lb[g], np.log(spacing_s / _COLLAPSE_SPACINGS * (1 + 1e-6)))
+            alt_ub[g] = max(alt_lb[g], min(ub[g], np.log(_ALT_MAX_LENGTH)))
+        alt_runs = optimise(alt_lb, alt_ub, starts)
+        how = (f"length scale(s) kept between half the smallest spacing "
+               f"{spacing_s * x_scale / _COLLAPSE_SPACINGS:.3g} mm and {_ALT_MAX_LENGTH:g} × the input extent "
+               f"({np.exp(alt_ub[cont[0]]) * x_scale:.3g} mm)" if cont else "")
+    alternative = None
+    if alt_runs:
+        a_theta, a_status, a_msg = outcome(alt_runs)
+        alternative = _result(ctx, a_theta, a_status, [f"next-best optimum ({how})"] + a_msg,
+                              alt_lb, alt_ub, bnd, ())
+        alternative = replace(alternative, **degeneracy(a_theta, lb, ub))
+    res = _result(ctx, best, "degenerate", [f"degenerate fit: {deg['degenerate_reason']}"]
+                  + msg, lb, ub, bnd, start_lml)
+    return replace(res, alternative=alternative, **deg)
+
+
+def _spacing(prob):
+    """Smallest distance between distinct training locations (standardised units; points
+    closer than ``_SAME_POINT`` are one location) and the mask of distinct pairs."""
+    d2 = prob.D2.sum(axis=0)
+    far = d2 > _SAME_POINT**2
+    return (float(np.sqrt(d2[far].min())) if far.any() else float("nan")), far
+
+
+def _degeneracy(prob, theta, lb, ub, far, spacing_s, x_scale, cont) -> dict:
+    """``degenerate``, ``degenerate_reason`` and ``smallest_spacing_mm`` at ``theta``."""
+    nl = prob.n_length()
+    reasons = []
+    lengths = np.exp(theta[:nl]) * x_scale
+    spacing_mm = spacing_s * x_scale
+    if far.any():
+        nearest = float(np.sqrt(prob.scaled_d2(theta[:nl])[far].min()))
+        if nearest > _COLLAPSE_SPACINGS * (1 + 1e-6):
+            if nl == 1:
+                reasons.append(f"the length scale {lengths[0]:.3g} mm is below half the "
+                               f"smallest spacing {spacing_mm:.3g} mm between distinct points")
+            else:
+                reasons.append(f"the length scales {', '.join(f'{v:.3g}' for v in lengths)} "
+                               "mm leave no two distinct points within two length scales of "
+                               f"each other (smallest spacing {spacing_mm:.3g} mm)")
+            reasons[-1] += (f": neighbouring points are correlated by less than "
+                            f"{np.exp(-0.5 * _COLLAPSE_SPACINGS**2):.2f}, the GP is (close "
+                            "to) white noise and predicts nothing between them")
+    low = [g for g in cont if ub[g] > lb[g] and theta[g] - lb[g] < 1e-6]
+    high = [g for g in cont if ub[g] > lb[g] and ub[g] - theta[g] < 1e-6]
+    if low:
+        reasons.append("length scale " + ", ".join(f"{lengths[g]:.3g}" for g in low)
+                       + " mm at its lower bound")
+    if cont and len(high) == len(cont):
+        reasons.append("length scale " + ", ".join(f"{lengths[g]:.3g}" for g in high)
+                       + " mm at its upper bound: the data show no correlation length")
+    if ub[nl] > lb[nl] and theta[nl] - lb[nl] < 1e-6:
+        reasons.append("signal sd at its lower bound: the GP carries no signal")
+    return {"degenerate": bool(reasons), "degenerate_reason": "; ".join(reasons),
+            "smallest_spacing_mm": float(spacing_mm)}
+
+
+def _result(ctx, best, status, msg, lb, ub, bnd, start_lml, *, optimized=True) -> GPResult:
+    """The GPResult at the log hyperparameters ``best`` (standardised units)."""
+    prob = ctx.prob
+    n, d, m, m_user, nl = ctx.n, ctx.d, ctx.m, ctx.m_user, prob.n_length()
+    x_scale, y_scale, y = ctx.x_scale, ctx.y_scale, ctx.y
+    R, col_keep = ctx.R, ctx.col_keep
+    units = {"length_scale_mm": x_scale, "signal_sd_um": y_scale, "noise_sd_um": y_scale}
+    nn = prob.n_noise
     st = prob.factor(best)
     if st is None:
         raise ValueError("the covariance matrix is not positive definite even with jitter at "
                          "the given hyperparameters (increase noise_sd_um)")
-    if isinstance(msg[0], bytes):
-        msg[0] = msg[0].decode()
-    msg[0] = str(msg[0])
+    msg = list(msg)
 
     # readable hyperparameters and bound notes
     length = np.exp(best[:nl]) * x_scale
-    sf, sn = np.exp(best[nl]) * y_scale, np.exp(best[nl + 1]) * y_scale
-    if optimize:
+    sf, sn = np.exp(best[nl]) * y_scale, np.exp(best[nl + 1:]) * y_scale
+    # one noise level: that; several: the RMS over the points
+    sn_all = float(sn[0]) if nn == 1 else float(np.sqrt(np.mean(sn[prob.noise_groups] ** 2)))
+    if optimized:
         for name, i in [("length_scale_mm", j) for j in range(nl)] + [
-                ("signal_sd_um", nl), ("noise_sd_um", nl + 1)]:
+                ("signal_sd_um", nl)] + [("noise_sd_um", nl + 1 + j) for j in range(nn)]:
             if ub[i] - lb[i] > 0 and (best[i] - lb[i] < 1e-6 or ub[i] - best[i] < 1e-6):
                 side = "lower" if best[i] - lb[i] < 1e-6 else "upper"
                 msg.append(f"{name} at its {side} bound {np.exp((lb if side == 'lower' else ub)[i]) * units[name]:.3g}")
@@ -716,24 +942,28 @@ def fit_gp(X, y, *, mean="zero", kernel: str = "se_iso", restarts: int = 3, seed
     loo_rms = float(np.sqrt(np.mean(loo_res**2))) if ok.any() else float("nan")
     loo_lp = float(np.sum(-0.5 * np.log(loo_var[ok] * y_scale**2)
                           - loo_res**2 / (2 * loo_var[ok] * y_scale**2) - 0.5 * _LOG2PI))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        loo_z = np.where(ok, (y - loo_mu_u) / loo_sd_u, np.nan)
     if not ok.all():
         msg.append(f"{int((~ok).sum())} point(s) without a leave-one-out prediction "
                    "(a basis coefficient rests on them alone)")
 
-    state = {"Xs": Xs, "centre": centre, "x_scale": x_scale, "y_scale": y_scale,
-             "length_s": np.exp(best[:nl]) if ard else np.exp(best[0]),
+    state = {"Xs": ctx.Xs, "centre": ctx.centre, "x_scale": x_scale, "y_scale": y_scale,
+             "length_s": np.exp(best[:nl])[prob.groups],
              "sf2": st["sf2"], "L": st["L"], "alpha": st["alpha"], "beta": st["beta"],
-             "m": m, "m_user": m_user, "keep": keep, "col_norm": col_keep, "R": R,
-             "KiQ": st.get("KiQ"), "LA": st.get("LA"), "basis_fn": basis_fn}
+             "m": m, "m_user": m_user, "keep": ctx.keep, "col_norm": col_keep, "R": R,
+             "KiQ": st.get("KiQ"), "LA": st.get("LA"), "basis_fn": ctx.basis_fn}
     return GPResult(
-        mean=label, kernel=kernel, n=n, input_dim=d,
+        mean=ctx.label, kernel=ctx.kernel, n=n, input_dim=d,
         length_scale_mm=tuple(float(v) for v in length),
-        signal_sd_um=float(sf), noise_sd_um=float(sn), log_marginal_likelihood=float(lml),
-        mean_terms=tuple(names[j] for j in keep), basis_dropped=dropped,
+        signal_sd_um=float(sf), noise_sd_um=sn_all, log_marginal_likelihood=float(lml),
+        noise_sd_by_group_um=tuple(float(v) for v in sn),
+        mean_terms=tuple(ctx.names[j] for j in ctx.keep), basis_dropped=ctx.dropped,
         mean_coefficients=coef, mean_coefficients_cov=coef_cov,
         loo_mean_um=loo_mu_u, loo_sd_um=loo_sd_u, loo_rms_um=loo_rms,
-        loo_log_predictive=loo_lp, status=status, success=status != "not_converged",
+        loo_log_predictive=loo_lp, loo_z=loo_z, status=status,
+        success=status in ("converged", "fixed"),
         message="; ".join(msg), n_evaluations=prob.n_eval,
         start_log_ml=tuple(float(v + ctx.lml_offset) for v in start_lml),
         jitter_um2=float(st["jitter"] * y_scale**2), n_jitter_events=prob.n_jitter,
-        bounds=bnd, _state=state)
+        bounds=bnd, groups=tuple(int(g) for g in prob.groups), _state=state)

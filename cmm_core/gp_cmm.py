@@ -7,6 +7,11 @@ standard-deviation surfaces (thesis figures 5.4-5.6). The same functions model t
 residuals of a kinematic fit, with the kinematic design matrix as the GP's explicit basis
 (``basis=``) so that the GP describes only what the kinematic model leaves unexplained.
 
+Where the points were measured with several probes (``probe_mm=``), each GP has the ram
+position (tip minus probe offset) and the probe offset as separate inputs, with one
+length scale for each: a stylus-dependent error (an angular error seen through the
+offset, a probe offset error) is then part of the GP rather than of its noise.
+
 ``appendix3_workflow`` reproduces the thesis's appendix 3 script (3×3 plate, zero mean,
 then the quadratic mean ``meanMylinear_2D``, prediction on a 21×21 grid, difference of the
 two means) in data units, with the source's defects corrected and listed in its docstring.
@@ -19,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._blas import single_blas_thread
-from .gp import GPResult, fit_gp
+from .gp import GPResult, fit_gp, polynomial_basis
 
 __all__ = ["GPComponents", "Grid", "gp_components", "predict_grid", "plate_grid", "box_grid",
            "Appendix3Result", "appendix3_workflow"]
@@ -45,7 +50,16 @@ class GPComponents:
     n : int
         Number of points.
     input_dim : int
-        Input coordinates per point (2 for plate coordinates, 3 for machine coordinates).
+        Coordinates per point (2 for plate coordinates, 3 for machine coordinates); the GP
+        inputs are these plus 3 probe-offset components when ``probe_input``.
+    probe_input : bool
+        The GPs' inputs are the ram position and the probe offset (several probes), not
+        the points alone.
+    noise_per_probe : bool
+        One noise level per probe (``GPResult.noise_sd_by_group_um``, in the order of
+        ``probe_offsets_mm``).
+    probe_offsets_mm : ndarray (P, 3) or None
+        The distinct probe offsets (mm), sorted, when ``probe_input``.
     """
 
     names: tuple
@@ -54,6 +68,9 @@ class GPComponents:
     kernel: str
     n: int
     input_dim: int
+    probe_input: bool = False
+    noise_per_probe: bool = False
+    probe_offsets_mm: np.ndarray | None = None
 
     def __getitem__(self, name: str) -> GPResult:
         if name not in self.names:
@@ -63,7 +80,13 @@ class GPComponents:
     def summary(self) -> dict:
         """JSON-ready ``{component: {hyperparameters, log_marginal_likelihood,
         loo_rms_um, status, ...}}`` (see ``GPResult.summary``)."""
-        return {c: r.summary() for c, r in zip(self.names, self.results, strict=True)}
+        return {c: {**r.summary(), "probe_input": self.probe_input}
+                for c, r in zip(self.names, self.results, strict=True)}
+
+    def loo_coverage(self, level: float = 0.95) -> dict:
+        """Leave-one-out coverage of each component's central ``level`` interval,
+        ``{component: fraction}`` (see ``GPResult.loo_coverage``)."""
+        return {c: r.loo_coverage(level) for c, r in zip(self.names, self.results, strict=True)}
 
 
 def _per_component(basis, k, n):
@@ -78,9 +101,33 @@ def _per_component(basis, k, n):
     return [basis] * k
 
 
+def _inputs(P, probe_mm):
+    """GP inputs (n, d), whether the probe offset is one of them, the index of each point's
+    probe among the distinct offsets (None with one probe), and those offsets."""
+    if probe_mm is None:
+        return P, False, None, None
+    Q = np.asarray(probe_mm, dtype=float)
+    if Q.ndim == 1:
+        Q = np.broadcast_to(Q, P.shape)
+    if Q.shape != P.shape or P.shape[1] != 3:
+        raise ValueError(f"probe_mm has shape {np.shape(probe_mm)}, expected ({len(P)}, 3): "
+                         "the probe offset (mm, machine axes) of each 3-D point")
+    uniq, index = np.unique(Q, axis=0, return_inverse=True)
+    if len(uniq) < 2:
+        return P, False, None, None
+    return np.column_stack([P - Q, Q]), True, index.ravel(), uniq
+
+
+def _groups(kernel, probe_input):
+    if not probe_input:
+        return None, ()
+    return ((0, 0, 0, 1, 1, 1), (1,)) if kernel == "se_iso" else ((0, 1, 2, 3, 3, 3), (3,))
+
+
 @single_blas_thread
 def gp_components(points_mm, errors_um, *, mean="zero", kernel: str = "se_iso", basis=None,
-                  restarts: int = 3, seed=0, bounds: dict | None = None) -> GPComponents:
+                  restarts: int = 3, seed=0, bounds: dict | None = None,
+                  probe_mm=None, noise_per_probe: bool = True) -> GPComponents:
     """Fit one GP per error component.
 
     Parameters
@@ -103,6 +150,17 @@ def gp_components(points_mm, errors_um, *, mean="zero", kernel: str = "se_iso", 
         Seed of ``np.random.default_rng``; component c uses ``seed + c``.
     bounds : dict, optional
         Hyperparameter bounds in mm / µm (see ``fit_gp``).
+    probe_mm : array_like (n, 3) or (3,), optional
+        Probe offset of each point (mm, machine axes), with ``points_mm`` the tip centres.
+        With two or more different offsets the inputs are the ram position
+        ``points_mm - probe_mm`` (one length scale, or one per axis for ``se_ard``) and the
+        offset (one length scale of its own; at either bound it means independent or
+        irrelevant probes, not a degenerate fit); a polynomial mean is then a polynomial
+        of the ram position. With one offset, or None, the inputs are ``points_mm``.
+    noise_per_probe : bool
+        With the probe offset as input, one noise level per probe (styli differ in
+        repeatability; on the thesis data one placement, BP112, is much noisier than
+        the others and a common noise level leaves its points outside their intervals).
 
     Returns
     -------
@@ -123,18 +181,36 @@ def gp_components(points_mm, errors_um, *, mean="zero", kernel: str = "se_iso", 
                          "(append the polynomial columns to the basis to combine them)")
     k = E.shape[1]
     bases = _per_component(basis, k, P.shape[0])
+    X, probe_input, probe_index, offsets = _inputs(P, probe_mm)
+    groups, discrete = _groups(kernel, probe_input)
+    noise_groups = probe_index if noise_per_probe else None
     results = []
     for c in range(k):
         mc = bases[c] if bases[c] is not None else (mean or "zero")
-        results.append(fit_gp(P, E[:, c], mean=mc, kernel=kernel, restarts=restarts,
-                              seed=int(seed) + c, bounds=bounds))
+        if probe_input and isinstance(mc, str) and mc != "zero":
+            mc = _ram_polynomial(mc)
+        results.append(fit_gp(X, E[:, c], mean=mc, kernel=kernel, restarts=restarts,
+                              seed=int(seed) + c, bounds=bounds, groups=groups,
+                              discrete_groups=discrete, noise_groups=noise_groups))
     return GPComponents(names=COMPONENTS[:k], results=tuple(results),
                         mean="basis" if basis is not None else (mean or "zero"),
-                        kernel=kernel, n=P.shape[0], input_dim=P.shape[1])
+                        kernel=kernel, n=P.shape[0], input_dim=P.shape[1],
+                        probe_input=probe_input,
+                        noise_per_probe=noise_groups is not None, probe_offsets_mm=offsets)
+
+
+def _ram_polynomial(kind):
+    """A built-in polynomial mean of the ram position (the first three inputs)."""
+    polynomial_basis(np.zeros((1, 3)), kind)  # unknown names raise here, with the hint
+
+    def h(X):
+        return polynomial_basis(np.asarray(X)[:, :3], kind)[0]
+    return h
 
 
 @single_blas_thread
-def predict_grid(components: GPComponents, grid_points_mm, *, basis_grid=None):
+def predict_grid(components: GPComponents, grid_points_mm, *, basis_grid=None,
+                 probe_mm=None):
     """Mean and standard deviation of each component's GP at grid points.
 
     Parameters
@@ -146,6 +222,10 @@ def predict_grid(components: GPComponents, grid_points_mm, *, basis_grid=None):
         The explicit basis at the grid points, when the GPs were fitted with a design
         matrix. Without it such components give the GP part alone (the discrepancy from the
         parametric model, conditional on its fitted coefficients): see ``GPResult.predict``.
+    probe_mm : array_like (3,) or (m, 3), optional
+        The probe offset the prediction is for (mm), required when the GPs have the probe
+        offset as input (``components.probe_input``): the error of the tip at
+        ``grid_points_mm`` measured with that stylus.
 
     Returns
     -------
@@ -157,6 +237,12 @@ def predict_grid(components: GPComponents, grid_points_mm, *, basis_grid=None):
     if G.ndim != 2 or G.shape[1] != components.input_dim:
         raise ValueError(f"grid_points_mm has shape {G.shape}, expected (m, "
                          f"{components.input_dim}) like the points the GPs were fitted on")
+    if components.probe_input:
+        if probe_mm is None:
+            raise ValueError("these GPs have the probe offset as input: pass probe_mm, the "
+                             "stylus offset (mm) to predict for")
+        Q = np.broadcast_to(np.asarray(probe_mm, dtype=float), G.shape)
+        G = np.column_stack([G - Q, Q])
     k = len(components.results)
     hb = _per_component(basis_grid, k, len(G))
     mean = np.empty((len(G), k))

@@ -255,7 +255,10 @@ def test_thesis_quadratic_is_eq_5_11():
 
 @pytest.mark.parametrize("call,match", [
     (lambda: fit_gp(np.zeros((5, 2)) + np.arange(5)[:, None], np.zeros(4)), "expected"),
-    (lambda: fit_gp(np.zeros((5, 4)), np.zeros(5)), "d = 1, 2 or 3"),
+    (lambda: fit_gp(np.zeros((5, 7)), np.zeros(5)), "d = 1 to 6"),
+    (lambda: fit_gp(np.arange(10.0).reshape(5, 2), np.zeros(5), groups=(0, 2)), "labels"),
+    (lambda: fit_gp(np.arange(10.0).reshape(5, 2), np.arange(5.0), groups=(0, 1),
+                    discrete_groups=(2,)), "discrete_groups"),
     (lambda: fit_gp(np.arange(5.0), [0, 1, np.nan, 2, 3]), "NaN"),
     (lambda: fit_gp(np.arange(5.0), np.arange(5.0), kernel="matern"), "expected one of"),
     (lambda: fit_gp(np.arange(5.0), np.arange(5.0), mean="cubic"), "expected one of"),
@@ -363,3 +366,165 @@ def test_thesis_data_components(thesis):
 
 def test_paths_from_file():
     assert (ROOT / "cmm_core" / "gp.py").exists()
+
+
+# ----------------------------------------------------------------- length-scale and noise groups
+
+def test_grouped_length_scales_and_noise_groups_match_sklearn(rng):
+    """Ram position and probe offset with one length scale each, and one noise level per
+    probe: at fixed hyperparameters the model equals scikit-learn's anisotropic RBF with
+    the lengths repeated within a group and a per-point noise variance (``alpha``)."""
+    sk = pytest.importorskip("sklearn.gaussian_process")
+    kernels = pytest.importorskip("sklearn.gaussian_process.kernels")
+    probes = np.array([[0, 0, 50], [0, 0, -50], [50, 0, 0.0]])
+    which = rng.integers(0, 3, 45)
+    which[:3] = (0, 1, 2)
+    X = np.column_stack([rng.uniform(0, 500, (45, 3)), probes[which]])
+    y = _surface(X) + 0.01 * X[:, 3] + 0.2 * rng.standard_normal(45)
+    hyp = {"length_scale_mm": [140.0, 60.0], "signal_sd_um": 2.0,
+           "noise_sd_um": [0.2, 0.5, 0.3]}
+    groups = (0, 0, 0, 1, 1, 1)
+    ours = fit_gp(X, y, groups=groups, noise_groups=which, initial=hyp, optimize=False)
+    lml, _ = log_marginal_likelihood(X, y, hyp, groups=groups, noise_groups=which)
+    ls = [140.0] * 3 + [60.0] * 3
+    alpha = np.array([0.2, 0.5, 0.3])[which] ** 2
+    ref = sk.GaussianProcessRegressor(kernels.ConstantKernel(4.0) * kernels.RBF(ls),
+                                      alpha=alpha, optimizer=None).fit(X, y)
+    assert ours.log_marginal_likelihood == pytest.approx(ref.log_marginal_likelihood_value_,
+                                                         abs=1e-8)
+    assert lml == pytest.approx(ours.log_marginal_likelihood, abs=1e-10)
+    Xt = np.column_stack([rng.uniform(0, 500, (10, 3)), probes[rng.integers(0, 3, 10)]])
+    mu, var = ours.predict(Xt)
+    mu_ref, sd_ref = ref.predict(Xt, return_std=True)  # alpha is not added at new points
+    np.testing.assert_allclose(mu, mu_ref, atol=1e-8)
+    np.testing.assert_allclose(var, sd_ref**2, atol=1e-8)
+    assert ours.noise_sd_by_group_um == pytest.approx((0.2, 0.5, 0.3))
+    assert ours.hyperparameters["noise_sd_um"] == pytest.approx([0.2, 0.5, 0.3])
+
+
+def test_gradient_with_groups_matches_finite_differences(rng):
+    """∂ log p/∂ log θ for two length-scale groups and three noise groups, against
+    central differences (step 1e-5 in log θ, 1e-5 relative)."""
+    X = np.column_stack([rng.uniform(0, 500, (40, 3)),
+                         np.repeat([[0, 0, 50], [0, 0, -50], [0, 50, 0.0]], [14, 13, 13], 0)])
+    noise = np.repeat([0, 1, 2], [14, 13, 13])
+    y = _surface(X) + 0.3 * rng.standard_normal(40)
+    hyp = {"length_scale_mm": [150.0, 80.0], "signal_sd_um": 2.5,
+           "noise_sd_um": [0.4, 0.7, 0.3]}
+    kw = {"groups": (0, 0, 0, 1, 1, 1), "noise_groups": noise, "mean": "linear"}
+    _, g = log_marginal_likelihood(X, y, hyp, **kw)
+    flat = [("length_scale_mm", 0), ("length_scale_mm", 1), ("signal_sd_um", None),
+            ("noise_sd_um", 0), ("noise_sd_um", 1), ("noise_sd_um", 2)]
+    h = 1e-5
+    for j, (k, i) in enumerate(flat):
+        vals = []
+        for sgn in (+1, -1):
+            hp = {kk: (list(v) if isinstance(v, list) else v) for kk, v in hyp.items()}
+            if i is None:
+                hp[k] = hp[k] * np.exp(sgn * h)
+            else:
+                hp[k][i] = hp[k][i] * np.exp(sgn * h)
+            vals.append(log_marginal_likelihood(X, y, hp, **kw)[0])
+        assert g[j] == pytest.approx((vals[0] - vals[1]) / (2 * h), rel=1e-5, abs=1e-7)
+
+
+def test_loo_z_and_coverage_with_noise_groups_match_refits(rng):
+    """The standardised LOO residuals with per-group noise against brute-force refits
+    (hyperparameters fixed), and the coverage is the share of |z| <= 1.96."""
+    X = rng.uniform(0, 400, (24, 2))
+    noise = np.repeat([0, 1], 12)
+    y = _surface(X) + np.where(noise == 1, 1.0, 0.2) * rng.standard_normal(24)
+    hyp = {"length_scale_mm": 90.0, "signal_sd_um": 2.0, "noise_sd_um": [0.2, 1.0]}
+    res = fit_gp(X, y, noise_groups=noise, initial=hyp, optimize=False)
+    for i in range(len(y)):
+        keep = np.arange(len(y)) != i
+        r_i = fit_gp(X[keep], y[keep], noise_groups=noise[keep], initial=hyp, optimize=False)
+        mu, var = r_i.predict(X[[i]])
+        z = (y[i] - mu[0]) / np.sqrt(var[0] + [0.2, 1.0][noise[i]] ** 2)
+        assert res.loo_z[i] == pytest.approx(z, abs=1e-8)
+    assert res.loo_coverage(0.95) == pytest.approx(np.mean(np.abs(res.loo_z) <= 1.959964))
+
+
+# ----------------------------------------------------------------- degenerate fits (issue 11.6)
+
+def test_collapsed_length_scale_is_degenerate_with_the_next_best_offered(rng):
+    """A checkerboard (neighbours anti-correlated, which no SE kernel can say) on a 100 mm
+    grid: the likelihood's best length scale runs to its lower bound (the GP is white
+    noise). The fit is reported as degenerate, never as converged, and the next-best
+    optimum is offered, with a length scale above half the spacing and a lower
+    likelihood."""
+    g = np.arange(0.0, 600.0, 100.0)
+    X = np.array([(a, b) for a in g for b in g])
+    y = (-1.0) ** (X.sum(axis=1) / 100) + 0.1 * rng.standard_normal(len(X))
+    res = fit_gp(X, y, restarts=2, seed=0)
+    assert res.status == "degenerate" and not res.success and res.degenerate
+    assert res.smallest_spacing_mm == pytest.approx(100.0)
+    assert res.length_scale_mm[0] < 50.0
+    assert "white noise" in res.degenerate_reason and "degenerate" in res.message
+    alt = res.alternative
+    assert alt is not None and alt.alternative is None
+    assert alt.length_scale_mm[0] >= 50.0
+    # it has no signal either (σ_f at its bound): flagged too, so a page can say so
+    assert alt.degenerate and "no signal" in alt.degenerate_reason
+    assert alt.log_marginal_likelihood <= res.log_marginal_likelihood + 1e-9
+    assert "next-best" in alt.message
+    assert res.summary()["alternative"]["length_scale_mm"] == alt.length_scale_mm[0]
+
+
+def test_thesis_collapsed_gp_is_not_reported_converged(thesis):
+    """Issue 11: on the thesis data the Y-error GP over tip coordinates collapsed to
+    0.6 mm (the lower bound) against a 133 mm pitch and was reported as converged."""
+    from cmm_core.fit import fit
+
+    ex = [("BP112", "2", 7), ("BP112", "2", 10), ("BP312", "6", 16)]
+    rig = fit(thesis, "rigid", exclude=ex)
+    r = gp_components(rig.problem.obs.r_mm, -rig.residuals_um[:, [1]], restarts=1).results[0]
+    assert r.length_scale_mm[0] < 1.0
+    assert r.status == "degenerate" and "lower bound" in r.degenerate_reason
+    # 17 mm: the closest distinct tip positions (balls of different placements); tips
+    # closer than 0.6 mm (one ball seen by two placements) count as one location
+    assert 15 < r.smallest_spacing_mm < 20
+    assert r.alternative is not None and r.alternative.length_scale_mm[0] > 8
+
+
+def test_smooth_fits_are_not_degenerate(data2d):
+    """A smooth surface sampled at random: an interior optimum, status converged."""
+    X, y = data2d
+    res = fit_gp(X, y, restarts=1)
+    assert res.status == "converged" and not res.degenerate and res.alternative is None
+
+
+def test_thesis_probe_input_loo_coverage_per_component(thesis):
+    """Issue 16: with the probe offset as input (ram position and offset, one length
+    scale each, one noise level per stylus) the GPs' 95 % leave-one-out intervals cover
+    95 ± 2 % of the thesis points in every component (tip coordinates alone: x 93.9,
+    z 93.2 % with the y GP collapsed). 147 points: one point is 0.7 %."""
+    from cmm_core.fit import fit
+
+    ex = [("BP112", "2", 7), ("BP112", "2", 10), ("BP312", "6", 16)]
+    rig = fit(thesis, "rigid", exclude=ex)
+    o = rig.problem.obs
+    comps = gp_components(o.r_mm, -rig.residuals_um, restarts=1, probe_mm=o.p_mm)
+    assert comps.probe_input and comps.noise_per_probe
+    assert comps.input_dim == 3 and comps.results[0].input_dim == 6
+    cov = comps.loo_coverage(0.95)
+    assert all(0.93 <= v <= 0.97 for v in cov.values()), cov
+    assert not any(r.degenerate for r in comps.results)
+    # the styli's noise levels differ several-fold (why one level left points outside);
+    # BP112 (probe 2, offset (0, 0, -50)) is the noisiest in x
+    k = [tuple(p) for p in comps.probe_offsets_mm].index((0.0, 0.0, -50.0))
+    for r in comps.results:
+        assert len(r.noise_sd_by_group_um) == 6
+        assert max(r.noise_sd_by_group_um) > 3 * min(r.noise_sd_by_group_um)
+    assert max(comps["x"].noise_sd_by_group_um) == comps["x"].noise_sd_by_group_um[k]
+    # predictions need the stylus; with it they are finite
+    with pytest.raises(ValueError, match="probe_mm"):
+        predict_grid(comps, o.r_mm[:5])
+    mean, sd = predict_grid(comps, o.r_mm[:5], probe_mm=o.p_mm[:5])
+    assert np.all(np.isfinite(mean)) and np.all(sd > 0)
+
+
+def test_one_probe_keeps_tip_inputs(rng):
+    X = rng.uniform(0, 500, (30, 3))
+    comps = gp_components(X, _surface(X)[:, None], probe_mm=[0, 0, 50], restarts=0)
+    assert not comps.probe_input and comps.results[0].input_dim == 3
