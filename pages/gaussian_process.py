@@ -1,6 +1,8 @@
 """Gaussian process page: GP surfaces beside the kinematic model, and the chapter 7
 comparison (kinematic vs GP vs measurement) done honestly."""
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 import streamlit as st
@@ -39,19 +41,33 @@ def kinematic_at_observations(args, _r):
 
 
 @st.cache_resource(show_spinner=False, max_entries=48)
-def fit_gp_component(args, target, mean, kernel, restarts, comp, _points, _values):
+def fit_gp_component(args, target, mean, kernel, restarts, comp, probe_input, _points,
+                     _values, _probe):
     """One component's GP (cached per component so a progress bar can show between them
     and a changed input cancels the rest). ``target`` names what ``_values`` holds
     (``measured`` errors or ``kinematic`` residuals): the values are not hashed, so the
-    name must be part of the key."""
+    name must be part of the key. With ``probe_input`` the inputs are the ram position
+    and the probe offset ``_probe`` (one noise level per stylus)."""
     return gp_components(_points, np.asarray(_values, float)[:, None], mean=mean, kernel=kernel,
-                         seed=comp, restarts=restarts)
+                         seed=comp, restarts=restarts,
+                         probe_mm=_probe if probe_input else None)
 
 
 @st.cache_resource(show_spinner=False, max_entries=128)
-def gp_predict(args, mean, kernel, comp, grid_key, _comp, _grid):
-    m, sd = predict_grid(_comp, _grid)
+def gp_predict(args, mean, kernel, comp, grid_key, _comp, _grid, _probe):
+    m, sd = predict_grid(_comp, _grid, probe_mm=_probe if _comp.probe_input else None)
     return np.asarray(m, float)[:, 0], np.asarray(sd, float)[:, 0]
+
+
+def _probe_names(comp, obs) -> list:
+    """Names of the styli in the order of the GP's noise groups (sorted offsets)."""
+    if not comp.noise_per_probe or comp.probe_offsets_mm is None:
+        return []
+    names = []
+    for off in comp.probe_offsets_mm:
+        hit = np.flatnonzero(np.all(np.isclose(obs.p_mm, off), axis=1))
+        names.append(str(obs.probes[obs.probe[hit[0]]]) if hit.size else "?")
+    return names
 
 
 def _fmt_lengths(v) -> str:
@@ -60,20 +76,21 @@ def _fmt_lengths(v) -> str:
     return " / ".join(f"{x:.4g}" for x in vals)
 
 
-def fit_gp_all(args, target_name, mean, kernel, restarts, points, target):
+def fit_gp_all(args, target_name, mean, kernel, restarts, probe_input, points, target, probe):
     """The three component GPs with a progress bar."""
     bar = st.progress(0.0, text="Fitting the GP (hyperparameters by marginal likelihood)…")
     comps = []
     for c_ in range(3):
         bar.progress(c_ / 3, text=f"Fitting the GP for e{'xyz'[c_]} ({c_ + 1}/3)…")
-        comps.append(fit_gp_component(args, target_name, mean, kernel, restarts, c_, points,
-                                      target[:, c_]))
+        comps.append(fit_gp_component(args, target_name, mean, kernel, restarts, c_,
+                                      probe_input, points, target[:, c_], probe))
     bar.empty()
     return comps
 
 
-def predict_all(args, mean, kernel, grid_key, comps, grid):
-    out = [gp_predict(args, mean, kernel, c_, grid_key, comps[c_], grid) for c_ in range(3)]
+def predict_all(args, mean, kernel, grid_key, comps, grid, probe):
+    out = [gp_predict(args, mean, kernel, c_, grid_key, comps[c_], grid, probe)
+           for c_ in range(3)]
     return np.column_stack([o[0] for o in out]), np.column_stack([o[1] for o in out])
 
 
@@ -97,6 +114,15 @@ restarts = int(c5.number_input("Restarts", 0, 10, 1, key="w_gp_restarts",
                                help="Random restarts of the hyperparameter optimisation per "
                                     "component (more: slower, less risk of a local optimum)."))
 a = "xyz".index(comp)
+several_probes = len(np.unique(r.problem.obs.p_mm, axis=0)) > 1
+probe_input = st.checkbox(
+    "Probe offset as input (ram position and stylus offset, one noise level per stylus)",
+    value=several_probes, key="w_gp_probe", disabled=not several_probes,
+    help="With several styli, a stylus-dependent error (an angular error seen through the "
+         "offset, a probe offset error) is part of the GP rather than of its noise, and each "
+         "stylus gets its own repeatability. Off: the inputs are the tip coordinates only."
+         + ("" if several_probes else " These data carry one stylus: nothing to add."))
+probe_input = bool(probe_input and several_probes)
 
 # Grid over the plate plane of the chosen position (plate u, v -> machine coordinates).
 obs = r.problem.obs
@@ -131,6 +157,7 @@ with cols[0], C.guarded("Kinematic surface"):
                                            ylabel="plate v (mm)", zrange=(-zlim, zlim)),
                     key="gp_kin_surface")
 gp_mean_obs = gp_sd_obs = loo = loo_sd = None
+coverage = {}
 if not s.get("gp_on"):
     with cols[1]:
         st.info("Fitting the GP optimises its hyperparameters by marginal likelihood for each "
@@ -144,10 +171,32 @@ if s.get("gp_on"):
         target = err - pred_kin if mean_choice == "kinematic" else err
         gmean = "zero" if mean_choice == "kinematic" else mean_choice
         target_name = "kinematic residuals" if mean_choice == "kinematic" else "measured"
-        comps = fit_gp_all(args, target_name, gmean, kernel, restarts, pts, target)
-        gkey = (mean_choice, kernel, restarts)
-        gm, gsd = predict_all(args, gkey, kernel, f"{position}-{n}", comps, grid_m)
-        om, osd = predict_all(args, gkey, kernel, "obs", comps, pts)
+        comps = fit_gp_all(args, target_name, gmean, kernel, restarts, probe_input, pts, target,
+                           obs.p_mm)
+        # a degenerate optimum (issue 11): said so, with the next-best optimum offered
+        degen = [(c_, cp.results[0]) for c_, cp in zip("xyz", comps, strict=True)
+                 if cp.results[0].degenerate]
+        use_alt = False
+        if degen:
+            st.warning("**Degenerate GP fit** for "
+                       + "; ".join(f"e{c_}: {g.degenerate_reason}" for c_, g in degen)
+                       + ". The likelihood's best optimum is not a usable error model; "
+                       "the next-best optimum is "
+                       + "; ".join(f"e{c_}: length scale {_fmt_lengths(g.alternative.length_scale_mm)} mm, "
+                                   f"log marginal likelihood lower by "
+                                   f"{g.log_marginal_likelihood - g.alternative.log_marginal_likelihood:.2f}"
+                                   + (f" (itself degenerate: {g.alternative.degenerate_reason})"
+                                      if g.alternative.degenerate else "")
+                                   for c_, g in degen if g.alternative is not None) + ".")
+            use_alt = st.checkbox("Use the next-best optimum for the degenerate component(s)",
+                                  key="w_gp_use_alt")
+        if use_alt:
+            comps = [replace(cp, results=(cp.results[0].alternative,))
+                     if cp.results[0].degenerate and cp.results[0].alternative is not None
+                     else cp for cp in comps]
+        gkey = (mean_choice, kernel, restarts, probe_input, use_alt)
+        gm, gsd = predict_all(args, gkey, kernel, f"{position}-{n}", comps, grid_m, pk)
+        om, osd = predict_all(args, gkey, kernel, "obs", comps, pts, obs.p_mm)
         # leave-one-out predictions (R&W eq. 5.12): each ball predicted without itself
         loo = np.column_stack([c_.results[0].loo_mean_um for c_ in comps])
         loo_sd = np.column_stack([c_.results[0].loo_sd_um for c_ in comps])
@@ -168,24 +217,69 @@ if s.get("gp_on"):
                                                    unit="µm", points=pts_plate,
                                                    colorscale="Viridis", xlabel="plate u (mm)",
                                                    ylabel="plate v (mm)"), key="gp_sd_surface")
-        summ_gp = {"xyz"[i]: c_.summary()["x"] for i, c_ in enumerate(comps)}
-        hyp = pd.DataFrame([{"component": c_, "length scale (mm)": _fmt_lengths(v.get(
-            "length_scale_mm")), "signal sd (µm)": v.get("signal_sd_um"),
-            "noise sd (µm)": v.get("noise_sd_um"), "log marginal likelihood":
-            v.get("log_marginal_likelihood"), "LOO RMS (µm)": v.get("loo_rms_um"),
-            "status": v.get("status")} for c_, v in summ_gp.items()])
-        st.markdown("**Fitted hyperparameters** (one GP per error component, machine "
-                    "coordinates)")
+        coverage = {"xyz"[i]: 100 * c_.results[0].loo_coverage(0.95)
+                    for i, c_ in enumerate(comps)}
+        probe_names = _probe_names(comps[0], obs)
+        hyp = pd.DataFrame([{
+            "component": "xyz"[i],
+            "length scale (mm)": _fmt_lengths(g.length_scale_mm),
+            "signal sd (µm)": g.signal_sd_um,
+            "noise sd (µm)": g.noise_sd_um,
+            "noise sd per stylus (µm)": ", ".join(
+                f"{p}: {v:.2f}" for p, v in zip(probe_names, g.noise_sd_by_group_um,
+                                                  strict=True)) if probe_names else "—",
+            "log marginal likelihood": g.log_marginal_likelihood,
+            "LOO RMS (µm)": g.loo_rms_um,
+            "LOO 95 % coverage (%)": coverage["xyz"[i]],
+            "status": g.status if not (use_alt and g.message.startswith("next-best"))
+            else "next-best optimum"}
+            for i, g in enumerate(c_.results[0] for c_ in comps)])
+        st.markdown("**Fitted hyperparameters** (one GP per error component; inputs: "
+                    + ("ram position (one length scale, or one per axis for ARD) and stylus "
+                       "offset (one length scale)" if probe_input else
+                       "tip coordinates") + ")")
         C.dataframe(hyp, hide_index=True, key="gp_hyper", column_config={
             c_: st.column_config.NumberColumn(format="%.3f") for c_ in
-            ("signal sd (µm)", "noise sd (µm)", "log marginal likelihood", "LOO RMS (µm)")})
+            ("signal sd (µm)", "noise sd (µm)", "log marginal likelihood", "LOO RMS (µm)")}
+            | {"LOO 95 % coverage (%)": st.column_config.NumberColumn(format="%.1f")})
+        cov_cols = st.columns(3)
+        for col, (c_, v) in zip(cov_cols, coverage.items(), strict=True):
+            col.metric(f"e{c_}: LOO 95 % coverage", f"{v:.1f} %",
+                       help="Share of the points inside the 95 % interval of their "
+                            "leave-one-out prediction (each predicted from all the others, "
+                            "noise included). 95 % when the GP's uncertainty is right.")
+        n_pts = len(pts)
+        tol = 2.0
+        off = {c_: v for c_, v in coverage.items() if abs(v - 95) > tol}
+        if off:
+            st.warning(
+                "Leave-one-out coverage outside 95 ± 2 % for "
+                + ", ".join(f"e{c_} ({v:.1f} %)" for c_, v in off.items())
+                + f" ({n_pts} points, one point = {100 / n_pts:.1f} %). "
+                + ("Below: the GP's intervals are too narrow here: errors that jump between "
+                   "placements or styli in a way its inputs do not carry, blunders still in "
+                   "the data (see Data), or a noise level that differs between styli"
+                   + ("" if probe_input else " (tick 'Probe offset as input')") + ". "
+                   if any(v < 95 for v in off.values()) else "")
+                + ("Above: the intervals are wider than the scatter needs (a noise level "
+                   "shared by styli of different repeatability, or a degenerate fit)."
+                   if any(v > 95 for v in off.values()) else ""))
+        else:
+            st.caption(f"Leave-one-out 95 % coverage within 95 ± 2 % in every component "
+                       f"({n_pts} points, one point = {100 / n_pts:.1f} %): the GP's "
+                       "uncertainty is consistent with the points it has not seen.")
 st.caption("Plate plane of the chosen position (plate u and v in mm); × marks the measured "
            "ball centres. Errors in µm, in the rigid-aligned "
-           "sense (the placement of the plate absorbs translations and rotations). The GP's "
-           "inputs are the tip coordinates only: two styli measuring the same ball get the "
-           "same prediction, so a stylus-dependent error (rotations seen through the probe "
-           "offset, a probe offset error) shows up in its noise level; the kinematic model, "
-           "which knows each stylus's offset, separates it.")
+           "sense (the placement of the plate absorbs translations and rotations). "
+           + (f"The GP's inputs are the ram position and the stylus offset, so a "
+              "stylus-dependent error (rotations seen through the probe offset, a probe "
+              "offset error) is part of the GP, and each stylus has its own noise level; "
+              f"the surfaces are for the stylus of {position} (probe {probe_k})."
+              if probe_input else
+              "The GP's inputs are the tip coordinates only: two styli measuring the same "
+              "ball get the same prediction, so a stylus-dependent error (rotations seen "
+              "through the probe offset, a probe offset error) shows up in its noise level; "
+              "the kinematic model, which knows each stylus's offset, separates it."))
 
 st.subheader("Kinematic vs GP vs measurement (thesis chapter 7)")
 sigma = float(s["sigma_um"])

@@ -464,6 +464,43 @@ def test_gaussian_process_fit_and_chapter7_comparison():
     assert loo_page > float(metric["GP: RMS difference (µm)"])
 
 
+def test_gp_probe_input_coverage_and_degenerate_fit_offered():
+    """Issue 16: with several styli the GP takes the probe offset as input and shows its
+    leave-one-out 95 % coverage per component (thesis data, blunders excluded: within
+    95 ± 2 %). Issue 11: over tip coordinates alone the e_y GP collapses (length scale
+    0.6 mm against a 133 mm pitch); the page says so and offers the next-best optimum."""
+    at = _new()
+    at.button(key="exclude_all").click()
+    at.run()
+    at.switch_page("pages/gaussian_process.py")
+    at.run()
+    assert at.checkbox(key="w_gp_probe").value is True
+    at.button(key="fit_gp").click()
+    at.run(timeout=300)
+    _ok(at)
+    hyp = _frame(at, "LOO 95 % coverage (%)")
+    assert all(93.0 <= v <= 97.0 for v in hyp["LOO 95 % coverage (%)"]), hyp
+    assert "converged" in set(hyp["status"]) and "degenerate" not in set(hyp["status"])
+    assert hyp["noise sd per stylus (µm)"].str.contains("2:").all()
+    metric = {m.label: m.value for m in at.metric}
+    for c in "xyz":
+        assert 93.0 <= float(metric[f"e{c}: LOO 95 % coverage"].rstrip(" %")) <= 97.0
+    assert not any("Degenerate" in w.value for w in at.warning)
+    at.checkbox(key="w_gp_probe").uncheck()
+    at.run(timeout=300)
+    _ok(at)
+    warn = [w.value for w in at.warning if "Degenerate GP fit" in w.value]
+    assert warn and "ey" in warn[0] and "lower bound" in warn[0]
+    hyp = _frame(at, "LOO 95 % coverage (%)")
+    assert hyp.set_index("component").loc["y", "status"] == "degenerate"
+    at.checkbox(key="w_gp_use_alt").check()
+    at.run(timeout=300)
+    _ok(at)
+    hyp = _frame(at, "LOO 95 % coverage (%)").set_index("component")
+    assert hyp.loc["y", "status"] == "next-best optimum"
+    assert float(hyp.loc["y", "length scale (mm)"]) > 8.0
+
+
 def test_gp_with_the_kinematic_mean_is_a_different_gp():
     """Found by the browser review: the GP over the kinematic residuals shared the cache
     entry of the zero-mean GP over the measured errors (the values were not part of the
