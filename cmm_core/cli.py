@@ -36,19 +36,45 @@ def _jsonable(o):
     return o
 
 
+_MEAS_HELP = ("measurement CSV file(s), coordinates in mm: one long-form file "
+              "(position,probe,ball,x_mm,y_mm,z_mm[,time_min,temp_C,repeat]) or one "
+              "thesis-form file per position (ball,x_mm,y_mm,z_mm, named after the position); "
+              "see docs/formats.md")
+_SETUP_HELP = ("setup JSON: machine layout and range, each position's placement (mm) and "
+               "stylus, the probe offsets (mm); required (docs/formats.md#setup)")
+_CERT_HELP = ("plate certificate CSV (ball,x_mm,y_mm,z_mm[,u_x_um,u_y_um,u_z_um]), mm and "
+              "µm; default: none, the plate geometry is then fitted (self-calibration)")
+_ORDER_HELP = ("polynomial order of each error function along its axis (1 = linear; "
+               "default: %(default)s)")
+_PLATE_HELP = ("plate geometry: 'fixed' to the certificate, the certificate as a 'prior' "
+               "with its uncertainties, or 'free' (self-calibrated). Default: fixed with a "
+               "certificate, free without")
+
+
 def _fit_args(p, *, baseline=False):
-    p.add_argument("meas", nargs="+", help="one long-form CSV or thesis-form CSVs")
-    p.add_argument("--setup", required=True)
-    p.add_argument("--certificate")
+    p.add_argument("meas", nargs="+", metavar="MEAS.csv", help=_MEAS_HELP)
+    p.add_argument("--setup", required=True, metavar="SETUP.json", help=_SETUP_HELP)
+    p.add_argument("--certificate", metavar="CERT.csv", help=_CERT_HELP)
     if baseline:
-        p.add_argument("--baseline", default="kinematic21")
+        p.add_argument("--baseline", default="kinematic21", metavar="SPEC",
+                       help="model the diagnosis starts from, as a model spec "
+                            "(docs/formats.md#model-specs), e.g. 'kinematic21,-sxy' "
+                            "(default: %(default)s, the 21 errors)")
     else:
-        p.add_argument("--model", default="kinematic21")
-    p.add_argument("--order", type=int, default=2)
-    p.add_argument("--plate", choices=("fixed", "prior", "free"))
-    p.add_argument("--sigma-um", type=float, default=0.5)
+        p.add_argument("--model", default="kinematic21", metavar="SPEC",
+                       help="model to fit, as a model spec (docs/formats.md#model-specs), "
+                            "e.g. 'kinematic21,plate_sag' or 'translational,squareness' "
+                            "(default: %(default)s, the 21 errors)")
+    p.add_argument("--order", type=int, default=2, metavar="N", help=_ORDER_HELP)
+    p.add_argument("--plate", choices=("fixed", "prior", "free"), help=_PLATE_HELP)
+    p.add_argument("--sigma-um", type=float, default=0.5, metavar="UM",
+                   help="repeatability of one probed coordinate, standard deviation in µm: "
+                        "weights the fit and scales every uncertainty (default: "
+                        "%(default)s µm)")
     p.add_argument("--keep-outliers", action="store_true",
-                   help="fit every observation even if flagged as an outlier")
+                   help="fit every observation, also those the robust median/MAD check "
+                        "flags as outliers (default: flagged observations are excluded and "
+                        "listed in the JSON)")
 
 
 def cmd_simulate(args):
@@ -131,8 +157,11 @@ def cmd_gp(args):
 
         basis = kinematic_basis(r)
     comps = gp_components(obs.r_mm, r.residuals_um, mean="zero" if basis is not None
-                          else args.mean, kernel=args.kernel, basis=basis)
-    return {"mean": args.mean, "kernel": args.kernel, "components": comps.summary()}
+                          else args.mean, kernel=args.kernel, basis=basis,
+                          probe_mm=obs.p_mm if args.inputs == "probe" else None)
+    return {"mean": args.mean, "kernel": args.kernel,
+            "inputs": "ram position and probe offset" if comps.probe_input else "tip",
+            "loo_coverage_95": comps.loo_coverage(0.95), "components": comps.summary()}
 
 
 def cmd_budget(args):
@@ -155,41 +184,79 @@ def cmd_air(args):
 def build_parser():
     """Argument parser with one sub-command per SPEC command."""
     ap = argparse.ArgumentParser(prog="python -m cmm_core", description="CMM error lab")
-    ap.add_argument("--json", help="write the JSON result to this file instead of stdout")
+    ap.add_argument("--json", metavar="FILE",
+                    help="write the JSON result to FILE instead of stdout (default: stdout)")
     sub = ap.add_subparsers(dest="command", required=True)
     p = sub.add_parser("simulate", help="simulate a virtual CMM")
-    p.add_argument("config")
-    p.add_argument("--out", required=True)
+    p.add_argument("config", metavar="CONFIG.json",
+                   help="simulation config: seed, noise_um (µm), measurement order, plate "
+                        "form, true kinematic errors and hidden effects "
+                        "(docs/formats.md#simulation-config; example: "
+                        "sample_data/simulated/config.json)")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="directory to write measurements.csv, setup.json, certificate.csv "
+                        "and truth.json into (created if missing; required)")
     p.set_defaults(func=cmd_simulate)
     p = sub.add_parser("fit", help="fit the kinematic model")
     _fit_args(p)
-    p.add_argument("--save", help="write the fitted model (for compensate)")
+    p.add_argument("--save", metavar="MODEL.json",
+                   help="write the fitted model to this JSON file, for 'compensate' "
+                        "(default: not saved)")
     p.set_defaults(func=cmd_fit)
     p = sub.add_parser("diagnose", help="rank the effects missing from a baseline model")
     _fit_args(p, baseline=True)
     p.set_defaults(func=cmd_diagnose)
     p = sub.add_parser("compensate", help="correct points with a saved model")
-    p.add_argument("model")
-    p.add_argument("points")
-    p.add_argument("--out", required=True)
+    p.add_argument("model", metavar="MODEL.json",
+                   help="fitted model written by 'fit --save'")
+    p.add_argument("points", metavar="POINTS.csv",
+                   help="points to correct: x_mm,y_mm,z_mm (reported tip centres, mm, "
+                        "machine frame) and probe (the stylus name, needed unless the "
+                        "model has one stylus); other columns are kept")
+    p.add_argument("--out", required=True, metavar="CORRECTED.csv",
+                   help="output CSV: the input columns plus corrected coordinates "
+                        "xc_mm,yc_mm,zc_mm (mm) and the corrections and their standard "
+                        "uncertainties (µm); required")
     p.set_defaults(func=cmd_compensate)
     p = sub.add_parser("gp", help="Gaussian-process model of the errors")
-    p.add_argument("meas", nargs="+")
-    p.add_argument("--setup", required=True)
-    p.add_argument("--certificate")
-    p.add_argument("--mean", choices=("zero", "quadratic", "kinematic"), default="zero")
-    p.add_argument("--kernel", choices=("se_iso", "se_ard"), default="se_iso")
-    p.add_argument("--order", type=int, default=2)
-    p.add_argument("--plate", choices=("fixed", "prior", "free"))
+    p.add_argument("meas", nargs="+", metavar="MEAS.csv", help=_MEAS_HELP)
+    p.add_argument("--setup", required=True, metavar="SETUP.json", help=_SETUP_HELP)
+    p.add_argument("--certificate", metavar="CERT.csv", help=_CERT_HELP)
+    p.add_argument("--mean", choices=("zero", "quadratic", "kinematic"), default="zero",
+                   help="GP mean: 'zero' (the GP models the rigid-aligned errors), "
+                        "'quadratic' (full quadratic in the ram position, coefficients "
+                        "marginalised) or 'kinematic' (the GP models what the fitted "
+                        "kinematic model leaves; default: %(default)s)")
+    p.add_argument("--kernel", choices=("se_iso", "se_ard"), default="se_iso",
+                   help="squared-exponential covariance with one length scale (se_iso) or "
+                        "one per machine axis (se_ard); length scales in mm "
+                        "(default: %(default)s)")
+    p.add_argument("--inputs", choices=("probe", "tip"), default="probe",
+                   help="GP inputs: 'probe' = the ram position and the stylus offset (mm), "
+                        "one noise level per stylus, when the data carry several styli; "
+                        "'tip' = the tip coordinates only (default: %(default)s)")
+    p.add_argument("--order", type=int, default=2, metavar="N",
+                   help="polynomial order of the kinematic model for --mean kinematic "
+                        "(default: %(default)s)")
+    p.add_argument("--plate", choices=("fixed", "prior", "free"), help=_PLATE_HELP)
     p.set_defaults(func=cmd_gp)
     p = sub.add_parser("budget", help="GUM uncertainty budget")
-    p.add_argument("budget")
+    p.add_argument("budget", metavar="BUDGET.json",
+                   help="uncertainty budget: measurand, inputs with their values, standard "
+                        "uncertainties, distributions and units, sensitivities or a model "
+                        "expression (docs/formats.md#uncertainty-budget; example: "
+                        "sample_data/budget/ballplate_budget.json)")
     p.set_defaults(func=cmd_budget)
     p = sub.add_parser("air", help="refractive index of air (modified Edlén)")
-    p.add_argument("--t-C", type=float, required=True, dest="t_C")
-    p.add_argument("--p-Pa", type=float, required=True, dest="p_Pa")
-    p.add_argument("--rh-percent", type=float, required=True, dest="rh_percent")
-    p.add_argument("--wavelength-nm", type=float, required=True, dest="wavelength_nm")
+    p.add_argument("--t-C", type=float, required=True, dest="t_C", metavar="DEG_C",
+                   help="air temperature in °C (required)")
+    p.add_argument("--p-Pa", type=float, required=True, dest="p_Pa", metavar="PA",
+                   help="air pressure in Pa, e.g. 101325 (required)")
+    p.add_argument("--rh-percent", type=float, required=True, dest="rh_percent",
+                   metavar="PERCENT", help="relative humidity in %% (required)")
+    p.add_argument("--wavelength-nm", type=float, required=True, dest="wavelength_nm",
+                   metavar="NM", help="vacuum wavelength of the laser in nm, e.g. 632.99 "
+                                      "for a HeNe laser (required)")
     p.set_defaults(func=cmd_air)
     return ap
 
