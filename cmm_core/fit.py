@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 import scipy.linalg as sla
 import scipy.sparse as sp
+from scipy import stats
 from scipy.spatial.transform import Rotation
 
 from . import kinematics as kin
@@ -29,6 +30,8 @@ from .dataset import Dataset
 from .effects import ModelSpec, parse_spec
 
 UM = 1e-3
+CHI2_ALPHA = 0.01
+"""Level of the χ² (model adequacy) test behind ``FitResult.fails_chi2_test``."""
 PLATE_MODES = ("fixed", "prior", "free")
 
 
@@ -522,6 +525,21 @@ class FitResult:
         return float(np.sqrt(self.chi2_dof))
 
     @property
+    def chi2_p_value(self) -> float:
+        """P-value of the χ² test of the model against the stated repeatability:
+        the probability of a χ² at least this large at ``dof`` degrees of freedom when the
+        model is right and σ is true (upper tail)."""
+        return float(stats.chi2.sf(self.chi2, max(self.dof, 1)))
+
+    @property
+    def fails_chi2_test(self) -> bool:
+        """True when χ² is too large for noise at the 1 % level (:data:`CHI2_ALPHA`): the
+        model misses something or σ is understated, and σ-based uncertainties are too small.
+        A fixed threshold on χ²/dof would be too strict for small fits and too lenient for
+        large ones (χ²/dof = 1.31 at 543 dof is 5 standard deviations above 1)."""
+        return self.chi2_p_value < CHI2_ALPHA
+
+    @property
     def u_inflated(self) -> np.ndarray:
         """Uncertainties scaled by the Birge ratio when it exceeds 1: the honest figure
         when the model does not explain the data to the stated noise."""
@@ -566,9 +584,11 @@ class _Normal:
     QR null space of the constraints), eigen-decomposed once so that steps for several
     Levenberg-Marquardt dampings cost a matrix-vector product each."""
 
-    def __init__(self, J, d, C, rank_rtol):
-        n = J.shape[1]
-        N0, g0 = _normal_equations(J, d)
+    def __init__(self, J, d, C, rank_rtol, normal=None):
+        # ``normal=(JᵀJ, Jᵀd)`` when the caller already has them (holdout: the full
+        # problem's normal equations minus one placement's rows)
+        N0, g0 = normal if normal is not None else _normal_equations(J, d)
+        n = N0.shape[0]
         norms = np.sqrt(np.clip(np.diag(N0), 0, None))
         self.S = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
         if C.shape[0]:
@@ -611,8 +631,18 @@ def _describe_null(null, labels, limit=6):
         idx = np.argsort(-np.abs(w))
         big = [i for i in idx if abs(w[i]) >= 0.2][:limit]
         names.update(labels[i] for i in idx if abs(w[i]) >= 0.05)
-        combos.append(" + ".join(f"{w[i]:+.2f}·{labels[i]}" for i in big))
+        combos.append(_signed_sum((w[i], labels[i]) for i in big))
     return combos, names
+
+
+def _signed_sum(terms) -> str:
+    """``0.50·a − 0.77·b``: a linear combination written as a metrologist would."""
+    out = ""
+    for k, (w, lab) in enumerate(terms):
+        sign = "−" if w < 0 else "+"
+        out += (f"{'−' if w < 0 else ''}{abs(w):.2f}·{lab}" if k == 0
+                else f" {sign} {abs(w):.2f}·{lab}")
+    return out
 
 
 @single_blas_thread
@@ -718,7 +748,8 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     dof = n_rows - rank - C.shape[0] * 0
     bic = chi2 + rank * np.log(n_rows)
     rms = float(np.sqrt(np.mean(d**2)))
-    msg = _message(status, it, rms, chi2 / max(dof, 1), combos)
+    msg = _message(status, it, rms, chi2 / max(dof, 1), combos,
+                   float(stats.chi2.sf(chi2, max(dof, 1))), int(dof))
     kin_block = L.blocks["kinematic"]
     wild = [(L.labels[i], values[i], L.units[i]) for i in range(kin_block.start, kin_block.stop)
             if abs(values[i]) > IMPLAUSIBLE]
@@ -735,6 +766,16 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
                      prob.n_obs, prob, state, C_run[C.shape[0]:])
 
 
+def augmented_state(base: FitResult, prob: Problem) -> dict:
+    """A fit's solution expressed in another problem's parameter vector on the same
+    observations (parameters the fit does not have start at zero): the linearisation
+    point from which a candidate effect is scored (``diagnose.score``, ``holdout``)."""
+    st = {k: v.copy() for k, v in base.state.items()}
+    old = dict(zip(base.labels, base.state["x"], strict=True))
+    st["x"] = np.array([old.get(lab, 0.0) for lab in prob.layout.labels])
+    return st
+
+
 def weighted_residual(prob: Problem, state, sigma_um: float, want_jac: bool):
     """Residuals (µm, (n, 3)), the weighted residual vector and its Jacobian.
 
@@ -748,11 +789,14 @@ def weighted_residual(prob: Problem, state, sigma_um: float, want_jac: bool):
     if prob.plate == "prior":
         o, s = prob.obs, prob.layout.blocks["plate"]
         dev = (state["c"] - o.plate0_mm) / UM + state["x"][s].reshape(-1, 3)
-        r = np.concatenate([r, (dev / o.cert_u_um).ravel()])
+        # an infinite certificate u releases that coordinate (certificate_check): no row,
+        # so that it neither counts as an observation nor constrains the plate
+        keep = np.flatnonzero(np.isfinite(o.cert_u_um.ravel()))
+        u = o.cert_u_um.ravel()[keep]
+        r = np.concatenate([r, dev.ravel()[keep] / u])
         if J is not None:
-            Jp = sp.csr_matrix((1.0 / o.cert_u_um.ravel(),
-                                (np.arange(s.stop - s.start), np.arange(s.start, s.stop))),
-                               shape=(s.stop - s.start, prob.layout.n))
+            Jp = sp.csr_matrix((1.0 / u, (np.arange(keep.size), s.start + keep)),
+                               shape=(keep.size, prob.layout.n))
             J = sp.vstack([J, Jp]).tocsr()
     return d, r, J
 
@@ -776,15 +820,16 @@ machine whose straightness or rotation errors reach a millimetre or a milliradia
 broken, so such values mean the data barely determine that function."""
 
 
-def _message(status, it, rms, chi2_dof, combos):
+def _message(status, it, rms, chi2_dof, combos, chi2_p=1.0, dof=0):
     head = {"converged": f"Converged in {it} iterations",
             "max_iterations": f"Stopped after {it} iterations without converging",
             "failed": "No step reduced the misfit"}[status]
     msg = f"{head}: RMS {rms:.3f} µm, χ²/dof {chi2_dof:.2f}."
-    if chi2_dof > 2:
-        msg += (f" The scatter is {np.sqrt(chi2_dof):.1f} times the stated repeatability: "
-                "the model misses something (see Compare and diagnose), and uncertainties "
-                "based on σ alone are too small by that factor.")
+    if chi2_p < CHI2_ALPHA:
+        msg += (f" It fails the χ² test (p = {chi2_p:.2g} at {dof} degrees of freedom): the "
+                f"scatter is {np.sqrt(chi2_dof):.2f} times the stated repeatability, so the "
+                "model misses something or σ is understated (run the diagnosis), and "
+                "uncertainties based on σ alone are too small by that factor.")
     if combos:
         msg += (f" The data cannot determine {len(combos)} parameter combination(s); they "
                 "are held at the minimum-norm solution and reported as unidentifiable: "

@@ -1,0 +1,112 @@
+"""Simulated layouts other than the sample data's, and hidden effects outside the catalogue.
+
+Used by the diagnosis tests and ``bench/power.py``: the product is judged on data it has
+never seen, so its statistics are checked on other pitches, placements, probes and seeds.
+Outside-catalogue effects are added to the simulated readings afterwards (the simulator
+only knows catalogue effects, by design).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cmm_core.dataset import Dataset
+from cmm_core.io import resolve
+from cmm_core.simulate import simulate
+
+_H = {"u_axis": [1, 0, 0], "v_axis": [0, 1, 0]}
+_H90 = {"u_axis": [0, 1, 0], "v_axis": [-1, 0, 0]}
+_XZ = {"u_axis": [1, 0, 0], "v_axis": [0, 0, 1]}
+_YZ = {"u_axis": [0, 1, 0], "v_axis": [0, 0, 1]}
+_D1 = {"u_axis": [0.707106781187, 0.707106781187, 0], "v_axis": [0, 0, 1]}
+_D2 = {"u_axis": [0.707106781187, -0.707106781187, 0], "v_axis": [0, 0, 1]}
+
+LAYOUTS = {
+    # 4 placements of a 5 x 5 plate at 100 mm pitch, five styli
+    "pitch100_4pos": {
+        "plate": {"rows": 5, "cols": 5, "pitch_mm": 100.0},
+        "range_mm": [1000, 800, 600],
+        "positions": {"H0": ({"origin_mm": [250, 200, 50], **_H}, ["A", "B"]),
+                      "H1": ({"origin_mm": [750, 300, 350], **_H90}, ["A", "C"]),
+                      "V1": ({"origin_mm": [300, 500, 100], **_XZ}, ["C", "D"]),
+                      "V2": ({"origin_mm": [600, 150, 100], **_YZ}, ["B", "E"])},
+        "probes": {"A": [0, 0, -120], "B": [60, 0, -120], "C": [0, 60, -120],
+                   "D": [0, -60, -120], "E": [-60, 0, -120]},
+    },
+    # 3 placements of a 6 x 6 plate at 80 mm pitch, one stylus each
+    "pitch80_3pos": {
+        "plate": {"rows": 6, "cols": 6, "pitch_mm": 80.0},
+        "range_mm": [900, 900, 600],
+        "positions": {"H": ({"origin_mm": [250, 250, 80], **_H}, ["1", "4"]),
+                      "D1": ({"origin_mm": [200, 200, 100], **_D1}, ["2", "4"]),
+                      "D2": ({"origin_mm": [200, 650, 100], **_D2}, ["3", "4"])},
+        "probes": {"1": [0, 0, -150], "2": [40, -40, -150], "3": [-40, -40, -150],
+                   "4": [0, 0, -60]},
+    },
+    # 5 placements of a 4 x 4 plate at 150 mm pitch, two styli shared across placements
+    "pitch150_5pos": {
+        "plate": {"rows": 4, "cols": 4, "pitch_mm": 150.0},
+        "range_mm": [1200, 1000, 800],
+        "positions": {"Hlow": ({"origin_mm": [300, 250, 50], **_H}, ["P", "Q"]),
+                      "Hhigh": ({"origin_mm": [400, 300, 450], **_H}, ["P", "Q"]),
+                      "XZ": ({"origin_mm": [350, 600, 100], **_XZ}, ["P", "R"]),
+                      "D1": ({"origin_mm": [300, 150, 150], **_D1}, ["Q", "R"]),
+                      "D2": ({"origin_mm": [350, 800, 150], **_D2}, ["P", "R"])},
+        "probes": {"P": [0, 0, -100], "Q": [0, 80, -100], "R": [80, 0, -100]},
+    },
+}
+
+
+def layout_config(name: str, **extra) -> dict:
+    """Simulator configuration of one layout; ``extra`` keys are merged in."""
+    lay = LAYOUTS[name]
+    setup = {"units": "mm", "frame": "machine",
+             "machine": {"layout": "moving_bridge_fxyz", "range_mm": lay["range_mm"]},
+             "positions": {p: {**geo, "probe": probes[0]}
+                           for p, (geo, probes) in lay["positions"].items()},
+             "probes": lay["probes"]}
+    cfg = {"setup": setup, "plate": dict(lay["plate"]),
+           "probes_per_position": {p: probes for p, (_, probes) in lay["positions"].items()}}
+    for k, v in extra.items():
+        cfg[k] = {**cfg[k], **v} if isinstance(v, dict) and k in cfg else v
+    return cfg
+
+
+def perturb(data: Dataset, delta_mm) -> Dataset:
+    """The dataset with ``delta_mm`` (n, 3) added to every reading (machine frame)."""
+    meas = data.meas.copy()
+    for a, col in enumerate(("x_mm", "y_mm", "z_mm")):
+        meas[col] = meas[col].to_numpy() + delta_mm[:, a]
+    raw = meas.drop(columns=[c for c in ("mx_mm", "my_mm", "mz_mm") if c in meas])
+    return Dataset(resolve(raw, data.setup, data.certificate), data.setup,
+                   data.certificate, data.name)
+
+
+def machine_xyz(data: Dataset) -> np.ndarray:
+    return data.meas[["mx_mm", "my_mm", "mz_mm"]].to_numpy()
+
+
+def placement_scale(data: Dataset, rng, sd_ppm=8.0, axis=0) -> Dataset:
+    """Outside the catalogue: each placement reads lengths along one machine axis with
+    its own scale (a placement-dependent thermal state of the machine's scale)."""
+    xyz = machine_xyz(data)
+    delta = np.zeros_like(xyz)
+    for p in data.positions:
+        sel = (data.meas["position"] == p).to_numpy()
+        s = rng.normal(0, sd_ppm) * 1e-6
+        delta[sel, axis] = s * (xyz[sel, axis] - xyz[sel, axis].mean())
+    return perturb(data, delta)
+
+
+def local_bump(data: Dataset, centre_mm, width_mm=60.0, amp_um=3.0, axis=1) -> Dataset:
+    """Outside the catalogue: a local bump of the positioning error of one axis (a dent
+    in a scale), Gaussian in that axis's coordinate."""
+    xyz = machine_xyz(data)
+    delta = np.zeros_like(xyz)
+    delta[:, axis] = amp_um * 1e-3 * np.exp(-0.5 * ((xyz[:, axis] - centre_mm) / width_mm) ** 2)
+    return perturb(data, delta)
+
+
+def simulated(name: str, seed: int, **extra):
+    """``simulate`` of one layout."""
+    return simulate({**layout_config(name, **extra), "seed": seed})
