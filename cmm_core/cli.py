@@ -242,9 +242,10 @@ def build_parser():
     p.set_defaults(func=cmd_gp)
     p = sub.add_parser("budget", help="GUM uncertainty budget")
     p.add_argument("budget", metavar="BUDGET.json",
-                   help="uncertainty budget: measurand, inputs with their values, standard "
-                        "uncertainties, distributions and units, sensitivities or a model "
-                        "expression (docs/formats.md#uncertainty-budget; example: "
+                   help="uncertainty budget: contributions, each with a standard "
+                        "uncertainty u or a half_width, a distribution, a sensitivity c and "
+                        "optional degrees of freedom; coverage probability and Monte Carlo "
+                        "trials (docs/formats.md#uncertainty-budget; example: "
                         "sample_data/budget/ballplate_budget.json)")
     p.set_defaults(func=cmd_budget)
     p = sub.add_parser("air", help="refractive index of air (modified Edlén)")

@@ -58,8 +58,9 @@ with t_time, C.guarded("Residuals against time"):
         fig.for_each_annotation(lambda a: a.update(text=a.text.split("=")[-1]))
         st.plotly_chart(fig, key="diag_time")
     else:
-        st.info("No time_min column: the measurement order is the row order of the files "
-                "(the drift effect assumes one minute per ball).")
+        st.info("No time_min column: the measurement order is the row order of the files, "
+                "and drift is scored over that order at one minute per row: its µm/h are "
+                "µm per 60 rows, not per hour of clock time.")
     st.markdown("**By approach direction**: mean residual of each axis over the balls "
                 "reached moving + and moving − along it (a difference is a reversal error, "
                 "the `backlash` effect)")

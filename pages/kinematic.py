@@ -151,7 +151,12 @@ with tabs[2], C.guarded("Parameter table"):
                                 "u, Birge-scaled": st.column_config.NumberColumn(
                                     format="%.4f")})
     st.caption("Units per row: µm (translational, placement translation, plate), µrad "
-               "(rotations, squareness, placement rotation).")
+               "(rotations, squareness, placement rotation). `plate_sag.uu`, `.vv` are bowl "
+               "heights at the plate edge (µm, middle of the u and v edges against the "
+               "centre), `.uv` the twist at a corner (µm). `drift` is in µm/h"
+               + ("." if C.dataset().meas.get("time_min", pd.Series([None])).notna().all() else
+                  ": these data have no time_min column, so time is the row order at one "
+                  "minute per row (µm/h = µm per 60 rows)."))
 
 with tabs[3], C.guarded("Residuals"):
     st.plotly_chart(C.figure("pattern", C.fit_args(), C.rep.fig_pattern, r.table,
