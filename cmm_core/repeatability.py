@@ -100,7 +100,17 @@ def uniformity(result: FitResult) -> Uniformity:
     rf = result.residuals_frame()
     z2 = (result.residuals_um / result.sigma_um) ** 2
     per_row = result.dof / max(z2.size, 1)
-    groupings = {"placement": rf["position"].to_numpy(), "probe": rf["probe"].to_numpy()}
+    groupings = {"placement": rf["position"].to_numpy(), "probe": rf["probe"].to_numpy(),
+                 "ball": rf["ball"].to_numpy()}
+    # regions of the machine volume: quarters of each axis's stroke as measured (a local
+    # error of one axis, a placement's own scale, concentrate there)
+    o = result.problem.obs
+    for a, name in enumerate("xyz"):
+        u = (o.r_mm - o.p_mm)[:, a]
+        if np.ptp(u) > 50.0:
+            edges = np.quantile(u, [0.25, 0.5, 0.75])
+            groupings[f"{name} region"] = np.array(
+                [f"{name} quarter {k + 1}" for k in np.searchsorted(edges, u)])
     tests, ratios = {}, []
     for name, key in groupings.items():
         g = pd.DataFrame({"k": key, "c": z2.sum(axis=1)}).groupby("k", sort=False)["c"]
@@ -137,7 +147,7 @@ def from_repeats(table: pd.DataFrame) -> SigmaEstimate | None:
     ss = float(np.sum((xyz - means[g]) ** 2))
     dof = int(3 * np.sum(counts - 1))
     s = float(np.sqrt(ss / dof))
-    return SigmaEstimate(s, s / np.sqrt(2 * dof), dof, "repeats",
+    return SigmaEstimate(s, float(s / np.sqrt(2 * dof)), dof, "repeats",
                          f"{int((counts > 1).sum())} balls measured more than once "
                          f"({dof} degrees of freedom)")
 
@@ -159,7 +169,7 @@ def from_residuals(base: FitResult, tokens) -> SigmaEstimate:
                sigma_um=base.sigma_um, rank_rtol=base.rank_rtol, max_iter=2000)
     best = flex if flex.status == "converged" and flex.dof > 0 else base
     s = best.sigma_um * float(np.sqrt(best.chi2_dof))
-    return SigmaEstimate(s, s / np.sqrt(2 * max(best.dof, 1)), int(best.dof),
+    return SigmaEstimate(s, float(s / np.sqrt(2 * max(best.dof, 1))), int(best.dof),
                          "model residuals",
                          f"residual scatter of {best.spec} ({best.rank} parameters, "
                          f"{best.dof} degrees of freedom)")
