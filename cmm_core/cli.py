@@ -67,14 +67,41 @@ def _fit_args(p, *, baseline=False):
                             "(default: %(default)s, the 21 errors)")
     p.add_argument("--order", type=int, default=2, metavar="N", help=_ORDER_HELP)
     p.add_argument("--plate", choices=("fixed", "prior", "free"), help=_PLATE_HELP)
-    p.add_argument("--sigma-um", type=float, default=0.5, metavar="UM",
+    p.add_argument("--sigma-um", type=_sigma_arg, default=0.5, metavar="UM|auto",
                    help="repeatability of one probed coordinate, standard deviation in µm: "
                         "weights the fit and scales every uncertainty (default: "
-                        "%(default)s µm)")
+                        "%(default)s µm). 'auto' estimates it from the data (repeated "
+                        "balls where the file has a repeat column, else the residuals of "
+                        "the most flexible model the data determine) and reports the "
+                        "estimate with its uncertainty under \"sigma\"")
     p.add_argument("--keep-outliers", action="store_true",
                    help="fit every observation, also those the robust median/MAD check "
                         "flags as outliers (default: flagged observations are excluded and "
                         "listed in the JSON)")
+
+
+def _sigma_arg(text):
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a repeatability in µm (e.g. 0.5) or 'auto', found {text[:40]!r}") from None
+    if not 0 < value < 1e3:
+        raise argparse.ArgumentTypeError(
+            f"expected a repeatability in µm between 0 and 1000, found {value:g}")
+    return value
+
+
+def _sigma(args, data, exclude, spec):
+    """``(σ µm, JSON record)``: the stated value, or the estimate for ``--sigma-um auto``."""
+    if args.sigma_um != "auto":
+        return args.sigma_um, {"value_um": args.sigma_um, "auto": False}
+    from .diagnose import estimate_sigma
+
+    est = estimate_sigma(data, spec, order=args.order, plate=args.plate, exclude=exclude)
+    return est.value_um, {**est.to_dict(), "auto": True}
 
 
 def cmd_simulate(args):
@@ -106,15 +133,19 @@ def cmd_fit(args):
 
     data = _dataset(args)
     outliers, exclude = _exclusions(data, args.keep_outliers)
-    r = fit(data, args.model, order=args.order, plate=args.plate, sigma_um=args.sigma_um,
+    sigma_um, sigma = _sigma(args, data, exclude, args.model)
+    r = fit(data, args.model, order=args.order, plate=args.plate, sigma_um=sigma_um,
             exclude=exclude)
     if args.save:
         save_model(r, args.save)
     return {"model": r.spec, "status": r.status, "message": r.message,
             "n_obs": r.n_obs, "n_params": r.rank, "rms_um": r.rms_um, "chi2_dof": r.chi2_dof,
+            "dof": r.dof, "chi2_p_value": r.chi2_p_value, "fails_chi2_test": r.fails_chi2_test,
+            "birge_ratio": r.birge_ratio, "sigma": sigma,
             "bic": r.bic, "plate": r.plate,
-            "parameters": {lab: {"value": v, "u": u, "unit": un} for lab, v, u, un in
-                           zip(r.labels, r.values, r.u, r.units, strict=True)},
+            "parameters": {lab: {"value": v, "u": u, "u_inflated": ui, "unit": un}
+                           for lab, v, u, ui, un in zip(r.labels, r.values, r.u, r.u_inflated,
+                                                        r.units, strict=True)},
             "unidentifiable": r.unidentifiable, "null_combinations": r.null_combinations,
             "outliers": outliers, "excluded": [list(e) for e in exclude]}
 
@@ -124,9 +155,11 @@ def cmd_diagnose(args):
 
     data = _dataset(args)
     outliers, exclude = _exclusions(data, args.keep_outliers)
+    sigma_um, sigma = _sigma(args, data, exclude, args.baseline)
     d = diagnose(data, args.baseline, order=args.order, plate=args.plate,
-                 sigma_um=args.sigma_um, exclude=exclude)
+                 sigma_um=sigma_um, exclude=exclude)
     out = d.to_dict()
+    out["sigma"] = sigma
     out["outliers"] = outliers
     return out
 
@@ -138,6 +171,10 @@ def cmd_compensate(args):
     pts = read_points(args.points)
     out = compensate(model, pts)
     out.to_csv(args.out, index=False, float_format="%.6f")
+    if not args.allow_extrapolation:
+        from .compensate import refuse_off_machine
+
+        refuse_off_machine(out, pts.attrs.get("source", Path(args.points).name))
     return {"out": str(args.out), "n_points": len(out),
             "max_correction_um": float(np.abs(out[["ex_um", "ey_um", "ez_um"]]).max().max())}
 
@@ -217,6 +254,11 @@ def build_parser():
                    help="output CSV: the input columns plus corrected coordinates "
                         "xc_mm,yc_mm,zc_mm (mm) and the corrections and their standard "
                         "uncertainties (µm); required")
+    p.add_argument("--allow-extrapolation", action="store_true",
+                   help="accept points outside the machine's range (their corrections "
+                        "extrapolate the model and are flagged in the 'extrapolated' "
+                        "column); without it such points make the command fail (exit 2), "
+                        "the flagged output still written")
     p.set_defaults(func=cmd_compensate)
     p = sub.add_parser("gp", help="Gaussian-process model of the errors")
     p.add_argument("meas", nargs="+", metavar="MEAS.csv", help=_MEAS_HELP)
@@ -262,15 +304,44 @@ def build_parser():
     return ap
 
 
+MAX_MESSAGE = 400
+"""Longest error line (characters): a 1 MB cell must not become a 1 MB line."""
+
+
+def _input_name(args):
+    """The one input file of commands that read one (None for several or none): named in
+    messages that do not name a file themselves (simulation config, budget)."""
+    for attr in ("config", "budget"):
+        if isinstance(getattr(args, attr, None), str):
+            return Path(getattr(args, attr)).name
+    return None
+
+
+def _one_line(exc, name) -> str:
+    """An exception as one line of at most :data:`MAX_MESSAGE` characters, naming ``name``
+    when the message does not name a file."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, KeyError):
+        text = f"missing key {text}"
+    if isinstance(exc, OSError) and exc.filename:
+        text = f"{Path(str(exc.filename)).name}: {exc.strerror or text}"
+    if name and name not in text:
+        text = f"{name}: {text}"
+    return text if len(text) <= MAX_MESSAGE else text[:MAX_MESSAGE - 1] + "…"
+
+
 def main(argv=None) -> int:
     """Run the CLI; returns the exit status."""
     args = build_parser().parse_args(argv)
     try:
         out = args.func(args)
-    except (DataError, ValueError, KeyError) as exc:
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        print(f"error: {msg}", file=sys.stderr)
+    except (DataError, ValueError, KeyError, OSError) as exc:
+        print(f"error: {_one_line(exc, _input_name(args))}", file=sys.stderr)
         return 2
+    except Exception as exc:  # noqa: BLE001 - a bug must still end in one line, not a traceback
+        print(f"error: internal error ({_one_line(exc, None)}); please report it with the "
+              "input files.", file=sys.stderr)
+        return 3
     text = json.dumps(_jsonable(out), indent=1)
     if args.json:
         Path(args.json).write_text(text)

@@ -19,8 +19,21 @@ import numpy as np
 import pandas as pd
 
 from . import kinematics as kin
+from .effects import MAX_ORDER
 from .fit import FitResult, approach_directions
-from .io import DataError, _file_rows, _numeric, _read_csv, _require
+from .io import (
+    MAX_PROBE_MM,
+    MAX_STROKE_MM,
+    MIN_STROKE_MM,
+    DataError,
+    _cut,
+    _file_rows,
+    _numeric,
+    _read_csv,
+    _require,
+    _require_rows,
+    read_json,
+)
 from .uncertainty import propagate_error
 
 
@@ -104,8 +117,48 @@ def model_to_dict(model: Model | FitResult) -> dict:
                 "cov_with_backlash": m.cov_with_backlash.tolist()})}
 
 
+MODEL_FORMAT = "cmm-error-lab model 1"
+
+
+def _checked_cov(cov, n, name, column):
+    """A covariance must be finite, symmetric and positive semi-definite: a NaN or a
+    negative variance would give NaN or imaginary uncertainties, silently."""
+    if cov.shape != (n, n):
+        raise DataError(f"expected a {n}x{n} covariance, found shape {cov.shape}.", file=name,
+                        column=column)
+    if not np.isfinite(cov).all():
+        raise DataError("the covariance holds NaN or infinite entries; expected finite "
+                        "numbers.", file=name, column=column,
+                        hint="refit and save the model again (fit --save).")
+    scale = max(float(np.abs(cov).max()), 1e-300)
+    if np.abs(cov - cov.T).max() > 1e-9 * scale:
+        raise DataError("the covariance is not symmetric.", file=name, column=column,
+                        hint="refit and save the model again (fit --save).")
+    if n and (np.diag(cov) < 0).any():
+        k = int(np.flatnonzero(np.diag(cov) < 0)[0])
+        raise DataError(f"entry {k} of the covariance's diagonal is negative "
+                        f"({cov[k, k]:g}); expected variances >= 0.", file=name, column=column)
+    if n and np.linalg.eigvalsh((cov + cov.T) / 2).min() < -1e-8 * scale:
+        raise DataError("the covariance is not positive semi-definite; expected a "
+                        "covariance matrix.", file=name, column=column,
+                        hint="refit and save the model again (fit --save).")
+
+
 def model_from_dict(d: dict, *, name: str = "model") -> Model:
-    """Rebuild a model from :func:`model_to_dict` output, checking its shape."""
+    """Rebuild a model from :func:`model_to_dict` output, checking every field.
+
+    Refused with a :class:`DataError` naming the field: another format, labels that do not
+    follow from the orders (reordered or edited), non-finite coefficients, a covariance
+    that is not a finite positive semi-definite matrix, strokes that are not mm, probe
+    offsets that are not 3-vectors in mm.
+    """
+    if not isinstance(d, dict):
+        raise DataError(f"is not a model file written by 'fit --save' (expected a JSON object, "
+                        f"found {type(d).__name__}).", file=name)
+    if d.get("format") != MODEL_FORMAT:
+        raise DataError(f"is not a model file written by 'fit --save' (expected \"format\": "
+                        f"\"{MODEL_FORMAT}\", found {_cut(d.get('format'))}).", file=name,
+                        column="format")
     try:
         terms = kin.KinematicTerms(tuple((str(n), int(o)) for n, o in d["orders"]),
                                    tuple(float(x) for x in d["range_mm"]),
@@ -117,22 +170,92 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
         if "backlash_um" in d:
             backlash = np.asarray(d["backlash_um"], float)
             joint = np.asarray(d["cov_with_backlash"], float)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise DataError(f"is not a model file written by 'fit --save' ({exc}).",
-                        file=name) from exc
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        raise DataError(f"is not a model file written by 'fit --save' ({_cut(str(exc), 80)}).",
+                        file=name) from None
+    rng = np.asarray(terms.range_mm, float)
+    if rng.shape != (3,) or not np.isfinite(rng).all() or rng.min() < MIN_STROKE_MM \
+            or rng.max() > MAX_STROKE_MM:
+        raise DataError(f"range_mm {_cut(d['range_mm'])} is not three strokes in mm "
+                        f"({MIN_STROKE_MM:g} to {MAX_STROKE_MM:g}).", file=name,
+                        column="range_mm")
+    if any(o < 1 or o > MAX_ORDER for _, o in terms.orders):
+        raise DataError(f"orders must be 1 to {MAX_ORDER}, found {_cut(d['orders'])}.",
+                        file=name, column="orders")
+    if any(not (np.isfinite(p) and p > 0) for _, p in terms.periods):
+        raise DataError(f"periods must be positive lengths (mm), found "
+                        f"{_cut(d.get('periods'))}.", file=name, column="periods")
+    if d.get("labels") != terms.labels:
+        raise DataError(f"labels {_cut(d.get('labels'), 80)} do not match the orders (expected "
+                        f"{_cut(terms.labels, 80)}); the coefficients cannot be assigned.",
+                        file=name, column="labels",
+                        hint="refit and save the model again (fit --save); do not edit it.")
     if coef.shape != (terms.n,) or cov.shape != (terms.n, terms.n):
         raise DataError(f"expected {terms.n} coefficients and a {terms.n}x{terms.n} "
                         f"covariance, found {coef.shape} and {cov.shape}.", file=name)
+    if not np.isfinite(coef).all():
+        k = int(np.flatnonzero(~np.isfinite(coef))[0])
+        raise DataError(f"coefficient {terms.labels[k]} is {coef[k]}; expected a finite "
+                        "number.", file=name, column="coef",
+                        hint="refit and save the model again (fit --save).")
+    _checked_cov(cov, terms.n, name, "cov")
+    if not probes:
+        raise DataError("the model has no probes; expected probes_mm with one offset per "
+                        "stylus.", file=name, column="probes_mm")
+    for q, p in probes.items():
+        if p.shape != (3,) or not np.isfinite(p).all() or np.linalg.norm(p) > MAX_PROBE_MM:
+            raise DataError(f"expected 3 finite numbers (mm), found {_cut(d['probes_mm'][q])}.",
+                            file=name, column=f"probes_mm.{q}")
     if backlash is None and "backlash" in str(d.get("spec", "")).split(","):
         raise DataError("the model's spec has backlash but the file holds no backlash spans "
                         "(written by an older version).", file=name,
                         hint="refit and save the model again.")
-    if backlash is not None and (backlash.shape != (3,)
-                                 or joint.shape != (terms.n + 3, terms.n + 3)):
-        raise DataError(f"expected 3 backlash spans and a {terms.n + 3}x{terms.n + 3} joint "
-                        f"covariance, found {backlash.shape} and {joint.shape}.", file=name)
-    return Model(d.get("spec", ""), terms, coef, cov, probes, bool(d.get("undetermined")),
-                 d.get("summary", {}), backlash, joint)
+    if backlash is not None:
+        if backlash.shape != (3,) or joint.shape != (terms.n + 3, terms.n + 3):
+            raise DataError(f"expected 3 backlash spans and a {terms.n + 3}x{terms.n + 3} "
+                            f"joint covariance, found {backlash.shape} and {joint.shape}.",
+                            file=name)
+        if not np.isfinite(backlash).all():
+            raise DataError("backlash_um must be 3 finite spans (µm).", file=name,
+                            column="backlash_um")
+        _checked_cov(joint, terms.n + 3, name, "cov_with_backlash")
+    summary = d.get("summary", {})
+    if not isinstance(summary, dict):
+        raise DataError("summary must be an object.", file=name, column="summary")
+    region = summary.get("region_mm")
+    if region is not None:
+        reg = np.asarray(region, float) if isinstance(region, list) else None
+        if reg is None or reg.shape != (2, 3) or not np.isfinite(reg).all():
+            raise DataError(f"summary.region_mm must be [[3 numbers], [3 numbers]] (mm), "
+                            f"found {_cut(region)}.", file=name, column="summary.region_mm")
+    if not isinstance(d.get("undetermined", False), bool):
+        raise DataError("undetermined must be true or false.", file=name,
+                        column="undetermined")
+    return Model(str(d.get("spec", "")), terms, coef, cov, probes,
+                 bool(d.get("undetermined")), summary, backlash, joint)
+
+
+OFF_MACHINE = "outside the machine's range"
+
+
+def refuse_off_machine(corrected: pd.DataFrame, name: str = "points") -> None:
+    """Raise a :class:`DataError` when :func:`compensate` flagged points outside the
+    machine's range: their "correction" extrapolates a polynomial far beyond the data
+    (a point 400 m away got a 352 m correction), so a batch run must not pass it on as a
+    result. The CLI calls this unless ``--allow-extrapolation`` is given."""
+    off = (corrected["extrapolated"] == OFF_MACHINE).to_numpy()
+    if off.any():
+        rows = _file_rows(corrected)
+        i = int(np.flatnonzero(off)[0])
+        n = int(off.sum())
+        raise DataError(f"{n} point{'s' * (n > 1)} lie outside the machine's range, where "
+                        "the model is not defined (this one at "
+                        f"{corrected[['x_mm', 'y_mm', 'z_mm']].to_numpy(float)[i].round(1).tolist()}"
+                        " mm); expected points in mm, machine frame.", file=name,
+                        row=int(rows[i]), column="x_mm",
+                        hint="check units and frame; to keep such points anyway, use "
+                             "--allow-extrapolation (they are flagged in the 'extrapolated' "
+                             "column).")
 
 
 def _extrapolation_note(m: Model, x_mm: np.ndarray) -> np.ndarray:
@@ -152,7 +275,7 @@ def _extrapolation_note(m: Model, x_mm: np.ndarray) -> np.ndarray:
     # says the point is off the machine, or units or frame are wrong
     tol = np.maximum(0.05 * rng, 100.0)
     beyond = ((x_mm < -tol) | (x_mm > rng + tol)).any(axis=1)
-    note[beyond] = "outside the machine's range"
+    note[beyond] = OFF_MACHINE
     return note
 
 
@@ -162,19 +285,17 @@ def save_model(model: Model | FitResult, path) -> None:
 
 
 def load_model(path) -> Model:
-    """Read a model JSON file."""
-    p = Path(path)
-    try:
-        d = json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise DataError(f"cannot read a model ({exc}).", file=p.name) from exc
-    return model_from_dict(d, name=p.name)
+    """Read a model JSON file (a path, or bytes / file-like as uploaded), every field
+    checked (:func:`model_from_dict`)."""
+    d, name = read_json(Path(path) if isinstance(path, str) else path)
+    return model_from_dict(d, name=name)
 
 
 def read_points(source, *, name=None) -> pd.DataFrame:
     """Read points to correct: ``x_mm,y_mm,z_mm`` and ``probe`` (plus any other columns)."""
     df, name = _read_csv(source, name)
     _require(df, ("x_mm", "y_mm", "z_mm"), name, "points")
+    _require_rows(df, name, "point to correct")
     out = df.copy()
     for c in ("x_mm", "y_mm", "z_mm"):
         out[c] = _numeric(df, c, name)
@@ -206,6 +327,10 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
                             f"{', '.join(m.probes_mm)}).", file=name, row=int(file_rows[i]),
                             column="probe")
     r = points[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+    if not np.isfinite(r).all():
+        i = int(np.flatnonzero(~np.isfinite(r).all(axis=1))[0])
+        raise DataError("expected finite coordinates (mm), found "
+                        f"{r[i].tolist()}.", file=name, row=int(file_rows[i]), column="x_mm")
     rng = np.asarray(m.terms.range_mm, float)
     if len(r) and rng.max() >= 100 and np.nanmax(np.abs(r)) <= 2.0:
         raise DataError(f"every coordinate is within 2 mm of the origin of a "
