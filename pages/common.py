@@ -82,7 +82,15 @@ def thesis_files() -> dict:
     meas = [(f"{p}.csv", (THESIS_DIR / f"{p}.csv").read_text()) for p in THESIS_POSITIONS]
     return {"name": "thesis tables 6.1-6.6", "kind": "thesis", "measurements": meas,
             "setup": (THESIS_DIR / "setup.json").read_text(),
-            "certificate": ("certificate.csv", (THESIS_DIR / "certificate.csv").read_text())}
+            "certificate": ("certificate.csv", (THESIS_DIR / "certificate.csv").read_text()),
+            "setup_source": "thesis setup (sample_data/thesis/setup.json)",
+            "certificate_source": "thesis certificate (appendix 5)"}
+
+
+# settings a new dataset starts from (the model list, selections and exclusions too)
+RESET_ON_NEW_DATASET = ("spec", "order", "plate", "sigma_um")
+_SETTING_NAMES = {"spec": "model", "order": "order", "plate": "plate geometry",
+                  "sigma_um": "σ (µm)"}
 
 
 def files_key(files: dict) -> str:
@@ -112,9 +120,18 @@ def set_dataset(files: dict, *, reset_model: bool = True):
     st.session_state["ds_files"] = files
     st.session_state["ds_key"] = key
     if reset_model:
+        s = st.session_state
+        changed = [f"{_SETTING_NAMES[k]} {s[k]} → {DEFAULTS[k]}" for k in RESET_ON_NEW_DATASET
+                   if k in s and s[k] != DEFAULTS[k]]
+        if s.get("exclusions"):
+            changed.append(f"{len(s['exclusions'])} exclusion(s) cleared")
+        if s.get("positions") is not None or s.get("probes") is not None:
+            changed.append("position/probe selection → all")
         for k in ("positions", "probes", "exclusions", "history", "diag_on"):
-            st.session_state[k] = DEFAULTS[k] if not isinstance(DEFAULTS[k], list) else []
-        st.session_state["spec"] = DEFAULTS["spec"]
+            s[k] = DEFAULTS[k] if not isinstance(DEFAULTS[k], list) else []
+        for k in RESET_ON_NEW_DATASET:
+            s[k] = DEFAULTS[k]
+        s["reset_note"] = changed
         reset_widgets()
     return key
 
@@ -411,9 +428,16 @@ def sidebar():
     except Exception as exc:  # noqa: BLE001
         sb.error(describe_error(exc))
         return
-    sb.markdown(f"**Dataset:** {ds.name}  \n{len(ds.meas)} points, {len(ds.positions)} "
-                f"positions, {len(ds.probes)} probes"
-                + ("" if ds.certificate is not None else ", no certificate"))
+    n_ex = len(s["exclusions"])
+    sb.markdown(f"**Dataset:** {ds.name}  \n{len(ds.meas)} probed ball centres"
+                + (f" ({n_ex} excluded)" if n_ex else "")
+                + f", {len(ds.positions)} positions, {len(ds.probes)} probes")
+    files = s.get("ds_files", {})
+    sb.caption(f"Setup: {files.get('setup_source', 'setup of the dataset')}.  \n"
+               f"Certificate: {files.get('certificate_source') or _cert_words(ds)}.")
+    if s.get("reset_note"):
+        sb.caption("New dataset, settings reset to its defaults: "
+                   + "; ".join(s["reset_note"]) + ".")
     sb.markdown(f"**Model:** `{s['spec'] or 'rigid'}`  \norder {s['order']}, plate {s['plate']}, "
                 f"σ = {s['sigma_um']:g} µm")
     r = current_fit(show_error=False)
@@ -425,15 +449,20 @@ def sidebar():
         c2.metric("χ²/dof", f"{r.chi2_dof:.2f}")
         status = {"converged": "converged", "max_iterations": "NOT converged",
                   "failed": "fit failed"}.get(r.status, r.status)
-        sb.caption(f"{status}; {r.n_obs} observations; rank {r.rank}"
+        sb.caption(f"{status}; {r.n_obs} observations in the fit; rank {r.rank}"
                    + (f"; {len(r.null_combinations)} undetermined combination(s) of "
                       f"{len(r.unidentifiable)} parameters" if r.unidentifiable else ""))
-    n_ex = len(s["exclusions"])
     if n_ex:
         sb.caption(f"{n_ex} observation(s) excluded as outliers.")
     pending = pending_outliers(ds)
     if pending:
         sb.warning(f"{len(pending)} flagged outlier(s) still in the fit (see Data).")
+
+
+def _cert_words(ds) -> str:
+    if ds.certificate is None:
+        return "none (plate geometry self-calibrated)"
+    return "given with the dataset"
 
 
 def pending_outliers(ds) -> list:

@@ -9,6 +9,7 @@ import pandas as pd
 import streamlit as st
 
 from cmm_core import io as cio
+from cmm_core.dataset import THESIS_POSITIONS
 from pages import common as C
 
 C.page_start()
@@ -103,7 +104,29 @@ def _checked_measurements(meas_files, problems, notes):
     return meas
 
 
-def _validate_upload(meas_files, setup_file, cert_file, use_thesis):
+def _positions_of(meas):
+    """Position names in the measurement files that read (long form: the column; thesis
+    form: the file name)."""
+    out = set()
+    for name, text in meas:
+        try:
+            df = cio.read_measurements(io.StringIO(text), name=name)
+        except Exception:  # noqa: BLE001 - already reported
+            continue
+        out |= set(df["position"].astype(str))
+    return out
+
+
+def _dataset_name(label, meas):
+    """The user's label, else the file names with the upload's number, so that two
+    uploads of files with the same names (measurements.csv) are told apart."""
+    if label and label.strip():
+        return label.strip()[:80]
+    n = st.session_state.get("upload_count", 0) + 1
+    return f"{', '.join(name for name, _ in meas)[:60]} (upload {n})"
+
+
+def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label=""):
     """Check every file on its own, then together.
 
     Returns
@@ -119,25 +142,41 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis):
     meas = _checked_measurements(meas_files, problems, notes)
     thesis = C.thesis_files()
     setup_text, cert = None, None
+    setup_source = cert_source = None
     if setup_file is not None:
         setup_text = _checked_text(setup_file, cio.read_setup, problems)
+        setup_source = f"{setup_file.name} (uploaded)"
     elif use_thesis:
+        missing = sorted(_positions_of(meas) - set(THESIS_POSITIONS))
+        if missing:
+            # the thesis placements cannot place these positions: ask for their setup
+            problems.append(_problem(
+                "setup.json", f"no setup uploaded, and the thesis setup that would stand in "
+                f"does not know position(s) {', '.join(missing[:8])}"
+                + (" ..." if len(missing) > 8 else "") + ", so their placement in the "
+                "machine is unknown.", "upload the setup JSON of these measurements "
+                "(positions, placements and probe offsets: docs/formats.md#setup)."))
         setup_text = thesis["setup"]
+        setup_source = "thesis setup (stand-in: no setup uploaded)"
         notes.append("The thesis setup (the placements of chapter 6) stands in for the "
                      "setup not uploaded.")
     else:
         problems.append(_problem("setup.json", "no setup given.",
-                                 "upload a setup JSON or tick 'use the thesis setup'."))
+                                 "upload a setup JSON (docs/formats.md#setup) or tick 'use "
+                                 "the thesis setup'."))
     if cert_file is not None:
         text = _checked_text(cert_file, cio.read_certificate, problems)
         cert = None if text is None else (cert_file.name, text)
+        cert_source = f"{cert_file.name} (uploaded)"
     elif use_thesis and setup_file is None:
         # the thesis certificate only belongs with the thesis plate and placements: with a
         # setup of their own the user measured another plate
         cert = thesis["certificate"]
+        cert_source = "thesis certificate (stand-in: none uploaded)"
         notes.append("The thesis certificate (appendix 5) stands in for the certificate "
                      "not uploaded.")
     else:
+        cert_source = "none (plate geometry self-calibrated)"
         notes.append("No certificate: the plate geometry is fitted from the positions "
                      "(self-calibration, plate free).")
     if not meas_files:
@@ -145,8 +184,9 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis):
                                  "CSV or one thesis-form CSV per position."))
     if problems:
         return None, _capped(problems), notes
-    files = {"name": ", ".join(n for n, _ in meas)[:60], "kind": "upload",
-             "measurements": meas, "setup": setup_text, "certificate": cert}
+    files = {"name": _dataset_name(label, meas), "kind": "upload",
+             "measurements": meas, "setup": setup_text, "certificate": cert,
+             "setup_source": setup_source, "certificate_source": cert_source}
     try:
         C._load(C.files_key(files), files)
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback
@@ -188,12 +228,20 @@ with tab_upload:
     st.write("Long form: `position,probe,ball,x_mm,y_mm,z_mm[,time_min,temp_C,repeat]` in one "
              "file, or thesis form `ball,x_mm,y_mm,z_mm`, one file per position (named by the "
              "position). Plus the setup JSON and, optionally, the certificate.")
+    # after each successful load the uploaders start empty (new keys): the next upload
+    # replaces the files instead of adding to them
+    gen = st.session_state.get("upload_gen", 0)
+    sfx = "" if gen == 0 else f"_{gen}"
     up_meas = st.file_uploader("Measurement CSV file(s)", type=["csv", "txt"],
-                               accept_multiple_files=True, key="up_meas")
+                               accept_multiple_files=True, key=f"up_meas{sfx}")
     c1, c2 = st.columns(2)
-    up_setup = c1.file_uploader("Setup (JSON)", type=["json"], key="up_setup")
+    up_setup = c1.file_uploader("Setup (JSON)", type=["json"], key=f"up_setup{sfx}")
     up_cert = c2.file_uploader("Certificate (CSV, optional)", type=["csv", "txt"],
-                               key="up_cert")
+                               key=f"up_cert{sfx}")
+    up_label = st.text_input("Dataset name (optional)", key=f"up_label{sfx}",
+                             placeholder="e.g. the folder or job name",
+                             help="Shown in the sidebar, the report and the project file. "
+                                  "Empty: the file names and the upload's number.")
     use_thesis = st.checkbox("Use the thesis setup for a setup not uploaded (and the thesis "
                              "certificate with it)", value=True, key="use_thesis_setup",
                              help="With a setup of your own, the thesis certificate is never "
@@ -202,14 +250,18 @@ with tab_upload:
     if st.button("Load uploaded files", key="load_upload", type="primary"):
         st.session_state.pop("upload_report", None)
         files, problems, notes = _validate_upload(up_meas or [], up_setup, up_cert,
-                                                  use_thesis)
+                                                  use_thesis, up_label)
         if problems:
             st.session_state["upload_report"] = {"problems": problems,
                                                  "count": _count(problems)}
         else:
             C.set_dataset(files)
-            _loaded(" ".join([f"Loaded {len(files['measurements'])} uploaded file(s)."]
-                             + notes))
+            st.session_state["upload_count"] = st.session_state.get("upload_count", 0) + 1
+            st.session_state["upload_gen"] = gen + 1
+            _loaded(" ".join([f"Loaded {len(files['measurements'])} uploaded file(s) as "
+                              f"'{files['name']}'."] + notes
+                             + ["The upload fields are cleared: the next upload replaces "
+                                "these files."]))
     _show_upload_report()
 
 with tab_sim:
@@ -273,6 +325,8 @@ with tab_sim:
                 sim.write(tmp)
                 p = Path(tmp)
                 files = {"name": f"simulated (seed {int(seed)})", "kind": "simulated",
+                         "setup_source": "the simulation's setup (thesis placements)",
+                         "certificate_source": "the simulation's certificate",
                          "measurements": [("measurements.csv",
                                            (p / "measurements.csv").read_text())],
                          "setup": (p / "setup.json").read_text(),
@@ -296,7 +350,10 @@ with tab_proj:
         if doc is not None:
             files = {"name": doc["dataset_name"], "kind": "project",
                      "measurements": doc["measurements"], "setup": doc["setup"],
-                     "certificate": doc["certificate"]}
+                     "certificate": doc["certificate"],
+                     "setup_source": f"from the project file {up_proj.name}",
+                     "certificate_source": (f"from the project file {up_proj.name}"
+                                            if doc["certificate"] else None)}
             try:
                 new_ds = C._load(C.files_key(files), files)
                 have = set(zip(new_ds.meas["position"].astype(str),
@@ -322,6 +379,10 @@ with tab_proj:
                 s["history"] = [{"spec": h.get("spec", s["spec"]),
                                  "change": h.get("change", "")} for h in doc["history"]
                                 if isinstance(h, dict)]
+                if s["history"] and s["history"][-1]["spec"] != s["spec"]:
+                    # the model was edited by hand after the last recorded step
+                    s["history"].append({"spec": s["spec"], "change": "edited by hand"})
+                s["reset_note"] = []  # the project's own settings, not defaults
                 C.reset_widgets()
                 _loaded(f"Restored project '{doc['dataset_name']}'.")
 

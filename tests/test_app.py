@@ -43,6 +43,16 @@ def _frame(at, column):
     raise KeyError(column)
 
 
+def _uploader(at, label):
+    """The file uploader whose label starts with ``label`` (its key changes after every
+    successful load, so that the next upload replaces the files)."""
+    return next(u for u in at.file_uploader if u.label.startswith(label))
+
+
+def _sidebar_text(at) -> str:
+    return " ".join([m.value for m in at.sidebar.markdown] + [c.value for c in at.sidebar.caption])
+
+
 def _sidebar_rms(at) -> float:
     m = {x.label: x.value for x in at.sidebar.metric}
     return float(m["RMS (µm)"])
@@ -213,7 +223,7 @@ def test_upload_long_form_csv_and_a_malformed_one():
     assert any("long.csv" in m.value for m in at.sidebar.markdown)
     # malformed: a unit in a number cell -> a validation row naming file, row and column
     bad = "ball,x_mm,y_mm,z_mm\n1,0,0,0\n2,133.0 mm,0,0\n3,266,0,0\n4,399,0,0\n"
-    at.file_uploader(key="up_meas").set_value([("BP111.csv", bad.encode(), "text/csv")])
+    _uploader(at, "Measurement CSV").set_value([("BP111.csv", bad.encode(), "text/csv")])
     at.button(key="load_upload").click()
     at.run()
     assert not at.exception
@@ -579,3 +589,113 @@ def test_uncertainty_monte_carlo_budget_and_mpe():
     at.run()
     table = _frame(at, "decision")
     np.testing.assert_allclose(table["U_um"], uncertainty_um(table["length_mm"]))
+
+
+# ----------------------------------------------------------------- issue 16: a new user's afternoon
+
+def _sim_upload(at, tmp_path, seed, label=""):
+    """Upload a simulated dataset's measurements.csv and setup.json, optionally named."""
+    from cmm_core.simulate import simulate
+
+    d = tmp_path / f"case{seed}"
+    simulate({"seed": seed}).write(d)
+    _uploader(at, "Measurement CSV").set_value(
+        [("measurements.csv", (d / "measurements.csv").read_bytes(), "text/csv")])
+    _uploader(at, "Setup").set_value(
+        [("setup.json", (d / "setup.json").read_bytes(), "application/json")])
+    if label:
+        next(t for t in at.text_input if t.label.startswith("Dataset name")).input(label)
+    at.button(key="load_upload").click()
+    at.run()
+    _ok(at)
+
+
+def test_a_new_dataset_starts_from_its_defaults_and_the_sidebar_says_what_was_reset():
+    at = _new()
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    at.selectbox(key="w_order").set_value(3)
+    at.run()
+    at.selectbox(key="w_plate").set_value("free")
+    at.run()
+    assert any("order 3, plate free" in m.value for m in at.sidebar.markdown)
+    at.switch_page("pages/data.py")
+    at.run()
+    at.button(key="load_thesis").click()
+    at.run()
+    _ok(at)
+    assert at.session_state["order"] == 2 and at.session_state["plate"] == "auto"
+    assert any("order 2, plate auto" in m.value for m in at.sidebar.markdown)
+    text = _sidebar_text(at)
+    assert "settings reset to its defaults" in text
+    assert "order 3 → 2" in text and "plate geometry free → auto" in text
+
+
+def test_uploads_replace_are_named_and_say_which_setup_and_certificate(tmp_path):
+    """Two cases both named measurements.csv are told apart; after a load the uploaders
+    are empty so the next upload replaces the files; the sidebar says which setup and
+    certificate are in use."""
+    at = _new()
+    assert "thesis setup (sample_data/thesis/setup.json)" in _sidebar_text(at)
+    _sim_upload(at, tmp_path, 1)
+    name1 = next(m.value for m in at.sidebar.markdown if "Dataset:" in m.value)
+    assert "measurements.csv (upload 1)" in name1
+    assert "setup.json (uploaded)" in _sidebar_text(at)
+    assert "none (plate geometry self-calibrated)" in _sidebar_text(at)
+    # the uploaders were replaced by empty ones
+    assert not _uploader(at, "Measurement CSV").value
+    assert _uploader(at, "Setup").value is None
+    _sim_upload(at, tmp_path, 2)
+    name2 = next(m.value for m in at.sidebar.markdown if "Dataset:" in m.value)
+    assert "measurements.csv (upload 2)" in name2 and name1 != name2
+    _sim_upload(at, tmp_path, 3, label="bridge CMM, March")
+    assert any("Dataset:** bridge CMM, March" in m.value for m in at.sidebar.markdown)
+
+
+def test_without_a_setup_the_stand_in_is_named_and_unknown_positions_ask_for_one(tmp_path):
+    at = _new()
+    _uploader(at, "Measurement CSV").set_value(
+        [(f"{p}.csv", (THESIS / f"{p}.csv").read_bytes(), "text/csv") for p in ("BP211",
+                                                                               "BP212")])
+    at.button(key="load_upload").click()
+    at.run()
+    _ok(at)
+    text = _sidebar_text(at)
+    assert "thesis setup (stand-in: no setup uploaded)" in text
+    assert "thesis certificate (stand-in: none uploaded)" in text
+    # positions the thesis setup does not know: the problem says so and asks for a setup
+    from cmm_core.simulate import simulate
+
+    simulate({"seed": 4}).write(tmp_path)
+    long = (tmp_path / "measurements.csv").read_text().replace("BP111,", "H1,")
+    _uploader(at, "Measurement CSV").set_value([("m.csv", long.encode(), "text/csv")])
+    at.button(key="load_upload").click()
+    at.run()
+    assert not at.exception
+    probs = _frame(at, "hint")
+    row = probs[probs["problem"].str.contains("does not know position")].iloc[0]
+    assert "H1" in row["problem"] and "upload the setup JSON" in row["hint"]
+    assert "docs/formats.md" in row["hint"]
+
+
+def test_points_and_observations_agree_after_exclusions():
+    at = _new()
+    at.button(key="exclude_all").click()
+    at.run()
+    md = next(m.value for m in at.sidebar.markdown if "Dataset:" in m.value)
+    assert "150 probed ball centres (3 excluded)" in md
+    assert any("147 observations in the fit" in c.value for c in at.sidebar.caption)
+
+
+def test_sag_is_explained_as_bowl_heights_and_drift_over_row_order():
+    at = _new()
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    at.text_input(key="w_spec").input("kinematic21,plate_sag,drift")
+    at.run()
+    _ok(at)
+    pf = _frame(at, "parameter")
+    assert {"plate_sag.uu", "plate_sag.vv"} <= set(pf["parameter"])
+    cap = " ".join(c.value for c in at.caption)
+    assert "bowl heights at the plate edge" in cap
+    assert "no time_min column" in cap and "row order" in cap
