@@ -157,8 +157,7 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
                         f"found {type(d).__name__}).", file=name)
     if d.get("format") != MODEL_FORMAT:
         raise DataError(f"is not a model file written by 'fit --save' (expected \"format\": "
-                        f"\"{MODEL_FORMAT}\", found {_cut(d.get('format'))}).", file=name,
-                        column="format")
+                        f"\"{MODEL_FORMAT}\", found {_cut(d.get('format'))}).", file=name)
     try:
         terms = kin.KinematicTerms(tuple((str(n), int(o)) for n, o in d["orders"]),
                                    tuple(float(x) for x in d["range_mm"]),
