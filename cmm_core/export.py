@@ -27,7 +27,7 @@ import pandas as pd
 from . import __version__
 from .effects import MAX_ORDER, parse_spec
 from .fit import PLATE_MODES
-from .io import DataError
+from .io import DataError, read_json
 
 PROJECT_FORMAT = "cmm-error-lab-project"
 PROJECT_VERSION = 1
@@ -283,21 +283,36 @@ def _checked_model(model, name) -> dict:
     return out
 
 
+def _check_model_names(model, meas, setup, name):
+    """Positions and probes the project's model names must exist in its own data: a
+    missing one would restore to an empty fit with no reason given."""
+    from .io import read_measurement_files, read_setup
+
+    try:
+        st = read_setup(io.BytesIO(setup.encode()), name="setup")
+        data = read_measurement_files([(io.BytesIO(c.encode()), n) for n, c in meas])
+    except DataError as exc:
+        raise DataError(f"its dataset cannot be read ({exc})", file=name,
+                        column="dataset") from None
+    positions = list(dict.fromkeys(data["position"]))
+    probes = set(data["probe"].dropna()) | {st.positions[p].probe for p in positions
+                                            if p in st.positions and st.positions[p].probe}
+    for key, have in (("positions", positions), ("probes", sorted(probes))):
+        for x in model.get(key) or []:
+            if x not in have:
+                raise DataError(f"model.{key} names {x!r}, which the project's data do not "
+                                f"have (they have {', '.join(map(str, have))}).", file=name,
+                                column=f"model.{key}",
+                                hint=f"remove it from model.{key}, or use null for all.")
+
+
 def project_from_json(text, name="project.json") -> dict:
     """Parse and check a project file; returns the document with tuples restored.
 
     Raises :class:`DataError` naming the field that is wrong.
     """
-    if isinstance(text, bytes):
-        try:
-            text = text.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise DataError("is not UTF-8 text.", file=name) from exc
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise DataError(f"is not valid JSON: {exc.msg} at line {exc.lineno}.",
-                        file=name) from exc
+    # the same reader as every JSON input: BOM tolerated, binary and bad JSON refused
+    doc, _ = read_json(text.encode() if isinstance(text, str) else text, name)
     if not isinstance(doc, dict) or doc.get("format") != PROJECT_FORMAT:
         raise DataError(f"is not a CMM error lab project (expected \"format\": "
                         f"\"{PROJECT_FORMAT}\").", file=name)
@@ -328,6 +343,7 @@ def project_from_json(text, name="project.json") -> dict:
     if isinstance(setup, dict):
         setup = json.dumps(setup)
     model = _checked_model(doc.get("model") or {}, name)
+    _check_model_names(model, meas, setup, name)
     try:
         excl = [(str(p), str(q), int(b)) for p, q, b in doc.get("exclusions", [])]
     except (TypeError, ValueError) as exc:
