@@ -410,3 +410,33 @@ def budget_spec_dict(budget: BallPlateBudget) -> dict:
             "contributions": rows,
             "coverage_probability": budget.gum.coverage_probability,
             "monte_carlo_trials": 200000}
+
+
+def read_budget(source, *, name=None, progress=None) -> dict:
+    """Read and evaluate a budget JSON file (the ``budget`` command's input).
+
+    The file is read like every JSON input (UTF-8 byte-order mark tolerated; binary or
+    invalid JSON refused); every problem of its content is a :class:`~cmm_core.io.DataError`
+    naming the budget file, the field and what was expected.
+
+    Parameters
+    ----------
+    source : path, bytes or file-like
+    name : str, optional
+        File name for messages (default: the path's name).
+    progress : callable, optional
+        Passed to :func:`cmm_core.gum.budget_from_dict`.
+
+    Returns
+    -------
+    dict
+        The GUM (and, when trials are asked for, Monte Carlo) result.
+    """
+    from .gum import budget_from_dict
+    from .io import DataError, read_json
+
+    d, name = read_json(source, name)
+    try:
+        return budget_from_dict(d, progress=progress)
+    except (ValueError, TypeError, KeyError) as exc:
+        raise DataError(str(exc).strip() or type(exc).__name__, file=name) from None
