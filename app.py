@@ -13,7 +13,10 @@ from pages import common
 
 ROOT = Path(__file__).resolve().parent
 
-st.set_page_config(page_title="CMM error lab", page_icon=":material/straighten:", layout="wide")
+# the favicon is a local file, served by Streamlit itself: nothing is fetched from the
+# internet (an emoji or icon name would be, and fails offline)
+st.set_page_config(page_title="CMM error lab", page_icon=str(ROOT / ".streamlit" / "favicon.png"),
+                   layout="wide")
 common.init_state()
 
 PAGES = [

@@ -246,3 +246,39 @@ def test_report_and_project_downloads_then_restore(page):
     after = sidebar.inner_text()
     assert any(tok in after for tok in ("plate_sag", "drift"))
     page.screenshot(path=str(ART / "10_project_restored.png"), full_page=True)
+
+
+def test_offline_favicon_and_full_width_plots(page, server):
+    """Issue 16: the favicon was fetched from the internet (fails offline) and plots used a
+    third to a half of the page. Nothing is requested from outside the app's server, the
+    favicon is the app's own file, and every plot outside a column fills the main area
+    (checked on the screenshot's geometry)."""
+    external = []
+    page.on("request", lambda r: external.append(r.url) if not r.url.startswith(
+        (server, "data:", "blob:", "about:")) else None)
+    page.goto(server + "/kinematic")
+    expect(page.locator("h1", has_text="Kinematic model").first).to_be_visible(
+        timeout=90_000)
+    _idle(page)
+    icon = page.evaluate("() => [...document.querySelectorAll('link[rel*=icon]')]"
+                         ".map(l => l.href)")
+    assert icon and all(h.startswith(server) or h.startswith("data:") for h in icon), icon
+    assert not external, external[:5]
+    # the content width: the main block's vertical block (the container less its padding)
+    main = page.locator('[data-testid="stMainBlockContainer"] > [data-testid="stVerticalBlock"]'
+                        ).first.bounding_box()
+    plots = page.locator(".js-plotly-plot")
+    expect(plots.first).to_be_visible()
+    page.wait_for_timeout(1000)  # plotly lays out after the element appears
+    widths = []
+    for i in range(plots.count()):
+        p = plots.nth(i)
+        in_column = p.evaluate("e => !!e.closest('[data-testid=\"stColumn\"]')")
+        box = p.bounding_box()
+        if box and not in_column:
+            widths.append(box["width"] / main["width"])
+    page.screenshot(path=str(ART / "11_full_width_plots.png"), full_page=True)
+    assert widths and min(widths) > 0.9, (widths, plots.count(), [
+        (plots.nth(i).bounding_box(), plots.nth(i).evaluate(
+            "e => !!e.closest('[data-testid=\"stColumn\"]')")) for i in range(plots.count())])
+    _no_exception(page)
