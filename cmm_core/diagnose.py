@@ -39,6 +39,7 @@ from scipy import optimize, stats
 from . import holdout, repeatability
 from . import kinematics as kin
 from ._blas import single_blas_thread
+from .certificate_check import CertificateCheck, check_certificate
 from .effects import PERIODIC, PHYSICAL, catalogue_entry
 from .fit import (
     FitResult,
@@ -185,6 +186,9 @@ class Diagnosis:
         Whether that misfit is spread evenly (σ) or concentrated (a missing effect).
     where : dict
         Where the baseline's residual lives (``misfit_location``).
+    certificate : certificate_check.CertificateCheck or None
+        The certificate compared with the self-calibrated plate, when the baseline uses a
+        certificate (fixed or prior) and the design can self-calibrate.
     """
 
     baseline: FitResult
@@ -196,6 +200,7 @@ class Diagnosis:
     sigma: repeatability.SigmaEstimate | None = None
     uniformity: repeatability.Uniformity | None = None
     where: dict = field(default_factory=dict)
+    certificate: CertificateCheck | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready result in the ``diagnose`` shape (docs/formats.md)."""
@@ -210,7 +215,8 @@ class Diagnosis:
                     **self.sigma.to_dict(),
                     "uniform": None if self.uniformity is None else self.uniformity.uniform,
                     "uniformity": None if self.uniformity is None else self.uniformity.to_dict()},
-                "where": self.where}
+                "where": self.where,
+                "certificate": None if self.certificate is None else self.certificate.to_dict()}
 
 
 def _needs_met(token, base: FitResult):
@@ -516,9 +522,35 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
                  "so no effect is named. Simplify the baseline (lower order, fewer functions) "
                  "or add placements, and diagnose again.")
     where = misfit_location(base)
+    cert = None
+    if base.plate in ("fixed", "prior") and base.fails_chi2_test:
+        report(0.997, "the certificate against the self-calibrated plate")
+        cert = check_certificate(base.problem.obs, base.spec, sigma_um=base.sigma_um)
     msg = _conclusion(base, out, verdict, sigma, uniform, where) + note
+    top = next((h for h in checks if h.effect == verdict), None)
+    if top is not None and not top.applicable:
+        msg += (f" The leave-one-placement-out check cannot judge {verdict} ({top.reason}): "
+                "an effect that differs from placement to placement, such as each placement's "
+                "own scale or temperature, can look the same; measuring the balls in another "
+                "order tells them apart.")
+    if cert is not None and cert.suspect:
+        msg = cert.message + " " + msg
     report(1.0, "done")
-    return Diagnosis(base, out, verdict, skipped, msg, checks, sigma, uniform, where)
+    return Diagnosis(base, out, verdict, skipped, msg, checks, sigma, uniform, where, cert)
+
+
+def estimate_sigma(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
+                   exclude=(), positions=None, probes=None) -> repeatability.SigmaEstimate:
+    """Repeatability estimated from the data (``--sigma-um auto``): from repeated balls
+    when the data have them, else from the residuals of the most flexible model the
+    diagnosis would try from ``baseline`` (every function one order up, every physical
+    effect whose data are present). The estimate does not depend on the σ assumed for
+    the fit it starts from."""
+    base = fit(data, baseline, order=order, plate=plate, exclude=exclude,
+               positions=positions, probes=probes)
+    tokens = [t for t in base.problem.spec.candidates()
+              if t not in PERIODIC and not _needs_met(t, base)]
+    return repeatability.estimate(base, _flexible_tokens(tokens))
 
 
 OUTSIDE = "outside_catalogue"
@@ -707,7 +739,7 @@ def _where_text(where: dict) -> str:
 def _test_text(base) -> str:
     verdict = "fails" if base.fails_chi2_test else "passes"
     return (f"χ²/dof {base.chi2_dof:.2f} at {base.dof} degrees of freedom against σ = "
-            f"{base.sigma_um:g} µm {verdict} the χ² test (p = {base.chi2_p_value:.2g})")
+            f"{base.sigma_um:.3g} µm {verdict} the χ² test (p = {base.chi2_p_value:.2g})")
 
 
 def _conclusion(base, cands, verdict, sigma=None, uniform=None, where=None):

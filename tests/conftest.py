@@ -19,3 +19,11 @@ def thesis():
     from cmm_core.dataset import thesis_dataset
 
     return thesis_dataset()
+
+
+@pytest.fixture(scope="session")
+def thesis_clean(thesis):
+    """The thesis data and the exclusions of its flagged blunders."""
+    from cmm_core.outliers import detect_outliers
+
+    return thesis, detect_outliers(thesis).exclusions
