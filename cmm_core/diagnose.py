@@ -618,7 +618,9 @@ def misfit_location(base: FitResult) -> dict:
     for by in ("position", "probe", "ball"):
         b = breakdown(base, by)
         if len(b) > 1:
-            out[by] = {"name": str(b.iloc[0][by]), "chi2_share": float(b.iloc[0]["chi2_share"]),
+            v = b.iloc[0][by]
+            out[by] = {"name": str(int(v)) if by == "ball" else str(v),
+                       "chi2_share": float(b.iloc[0]["chi2_share"]),
                        "expected_share": float(b.iloc[0]["n"] / b["n"].sum())}
     z2 = (base.residuals_um / base.sigma_um) ** 2
     shares = z2.sum(axis=0) / max(z2.sum(), 1e-300)

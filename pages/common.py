@@ -301,11 +301,13 @@ def run_diagnosis(show_progress: bool = False):
     Each dict: effect, title, explanation, aliases, separate_by, rms_um, chi2_dof,
     delta_chi2, delta_bic, p_value, n_params, significant, confirmed, is_verdict (the
     core's verdict: none when the baseline did not converge), signature_um (n, 3).
-    With ``show_progress`` a progress bar follows the scoring of the candidates.
+    With ``show_progress`` a progress bar follows the scoring of the candidates. The
+    fourth item holds the verdict, the σ check, the certificate check and where the
+    residual lives (``Diagnosis.to_dict``).
     """
     base = current_fit()
     if base is None:
-        return None, None, ""
+        return None, None, "", {}
     return (base, *_cached_core_diagnosis(fit_args(), dataset(), show_progress))
 
 
@@ -331,11 +333,16 @@ def _cached_core_diagnosis(args, _ds, _show_progress=False):
              "significant": bool(c.significant), "confirmed": bool(c.confirmed),
              "is_verdict": c.effect == d.verdict,
              "detectable_above": c.detectable_text(),
-             "signature_um": np.asarray(c.signature_um, float)} for c in d.candidates]
+             "signature_um": np.asarray(c.signature_um, float),
+             "would_leave_undetermined": list(c.would_leave_undetermined),
+             "holdout": next((h.reason for h in d.holdout if h.effect == c.effect), "")}
+            for c in d.candidates]
     skipped = "".join(f" Not tried: {k} ({v})." for k, v in d.skipped.items())
     if bar is not None:
         bar.empty()
-    return rows, d.message + skipped
+    full = d.to_dict()
+    info = {k: full[k] for k in ("verdict", "sigma_check", "certificate", "where")}
+    return rows, d.message + skipped, info
 
 
 def history_rows() -> list:
@@ -359,6 +366,34 @@ def history_rows() -> list:
                     "n_params": None if r is None else r.rank,
                     "gp_amplitude_um": None if gp is None else round(gp, 3)})
     return out
+
+
+def misfit_banner(r) -> None:
+    """Next to any uncertainty: the fit's χ² test, and when it fails, by how much the
+    σ-based values understate the observed scatter (Birge ratio)."""
+    if r is None:
+        return
+    if r.fails_chi2_test:
+        st.warning(f"The model fails its χ² test: χ²/dof {r.chi2_dof:.2f} at {r.dof} degrees "
+                   f"of freedom (p = {r.chi2_p_value:.2g}). Uncertainties from σ = "
+                   f"{r.sigma_um:.3g} µm alone are too small by the Birge ratio "
+                   f"×{r.birge_ratio:.2f}; the inflated values are shown beside them. Neither "
+                   "is trustworthy until the diagnosis explains the misfit.")
+    else:
+        st.caption(f"χ² test passed: χ²/dof {r.chi2_dof:.2f} at {r.dof} degrees of freedom "
+                   f"(p = {r.chi2_p_value:.2g}); the σ-based uncertainties stand.")
+
+
+def set_sigma(sigma_um: float):
+    """Button callback: use ``sigma_um`` as the repeatability (widget and state)."""
+    s = st.session_state
+    s["sigma_um"] = s["w_sigma_um"] = float(min(max(sigma_um, 0.01), 100.0))
+
+
+def set_plate(mode: str):
+    """Button callback: plate geometry ``fixed``, ``prior`` or ``free``."""
+    s = st.session_state
+    s["plate"] = s["w_plate"] = mode
 
 
 def apply_change(token: str):
@@ -447,6 +482,9 @@ def sidebar():
         c1, c2 = sb.columns(2)
         c1.metric("RMS (µm)", f"{r.rms_um:.3f}")
         c2.metric("χ²/dof", f"{r.chi2_dof:.2f}")
+        if r.fails_chi2_test:
+            sb.warning(f"Fails the χ² test (p = {r.chi2_p_value:.2g}, {r.dof} dof): "
+                       f"uncertainties from σ are too small by ×{r.birge_ratio:.2f}.")
         status = {"converged": "converged", "max_iterations": "NOT converged",
                   "failed": "fit failed"}.get(r.status, r.status)
         sb.caption(f"{status}; {r.n_obs} observations in the fit; rank {r.rank}"

@@ -85,26 +85,58 @@ if cols[1].button("Hide", key="hide_diagnosis"):
     s["diag_on"] = False
 
 if s["diag_on"]:
-    base, cands, conclusion = C.run_diagnosis(show_progress=True)
+    base, cands, conclusion, info = C.run_diagnosis(show_progress=True)
     if cands is None:
         st.stop()
+    cert = info.get("certificate")
+    if cert and cert["suspect"]:
+        with st.container(border=True):
+            st.warning("**The certificate is a suspect.** " + cert["message"])
+            if cert["entries"]:
+                C.dataframe(pd.DataFrame(cert["entries"]), hide_index=True, key="cert_entries",
+                            column_config={"deviation_um": st.column_config.NumberColumn(
+                                "self-calibrated − certificate (µm)", format="%.2f"),
+                                "u_um": st.column_config.NumberColumn("u (µm)", format="%.2f"),
+                                "z": st.column_config.NumberColumn("z", format="%.1f")})
+            fixes = pd.DataFrame([{"plate geometry": k, "χ²/dof": v["chi2_dof"],
+                                   "RMS (µm)": v["rms_um"],
+                                   "χ² test": "fails" if v["fails_chi2_test"] else "passes"}
+                                  for k, v in cert["fixes"].items()])
+            C.dataframe(fixes, hide_index=True, key="cert_fixes",
+                        column_config={"χ²/dof": st.column_config.NumberColumn(format="%.2f"),
+                                       "RMS (µm)": st.column_config.NumberColumn(format="%.3f")})
+            b1, b2 = st.columns(2)
+            b1.button("Use the certificate as a prior", key="cert_prior",
+                      on_click=C.set_plate, args=("prior",))
+            b2.button("Self-calibrate the plate (free)", key="cert_free",
+                      on_click=C.set_plate, args=("free",))
+    sigma = info.get("sigma_check")
     if not cands:
         st.info("No candidate effect left to try.")
     else:
         best = cands[0]
-        if best["significant"] and not best["is_verdict"]:
+        if info.get("verdict") == "outside_catalogue":
+            st.warning("**Outside the catalogue**: the misfit is significant and no catalogue "
+                     "effect explains it (read why below; the residual maps above show where "
+                     "it lives).")
+        elif best["significant"] and not best["is_verdict"] and info.get("verdict") is None:
             st.warning("No effect is named: the baseline fit did not converge (see below).")
         elif best["is_verdict"]:
             st.success(f"Most likely missing: **{best['title']}** (`{best['effect']}`): "
                        f"ΔBIC {best['delta_bic']:.1f}, p = {best['p_value']:.2g}.")
-        elif base.chi2_dof < 1.5:
-            st.info(f"No candidate is significant and χ²/dof is {base.chi2_dof:.2f}: the "
-                    "data are explained to noise by this model.")
+        elif not base.fails_chi2_test:
+            st.info(f"No candidate is significant and the fit passes its χ² test (χ²/dof "
+                    f"{base.chi2_dof:.2f}): the data are explained to noise by this model.")
+        elif sigma and sigma.get("uniform"):
+            st.warning(f"No candidate is significant and the misfit is spread evenly: the "
+                       f"stated σ = {base.sigma_um:.3g} µm looks too small. Estimated from the "
+                       f"data: σ = {sigma['value_um']:.3g} ± {sigma['u_um']:.2g} µm "
+                       f"({sigma['detail']}).")
+            st.button(f"Refit with σ = {sigma['value_um']:.3g} µm", key="adopt_sigma",
+                      on_click=C.set_sigma, args=(sigma["value_um"],), type="primary")
         else:
             st.warning(f"No catalogue effect explains a significant part of the misfit, yet "
-                       f"χ²/dof is {base.chi2_dof:.1f}: the cause lies outside the catalogue "
-                       "or the stated repeatability σ is too small (check the outliers on "
-                       "the Data page and the residual map).")
+                       f"χ²/dof is {base.chi2_dof:.1f}: see the conclusion below.")
         st.caption(conclusion)
         cols_shown = ["effect", "title", "rms_um", "chi2_dof", "delta_chi2", "n_params",
                       "delta_bic", "p_value", "significant", "confirmed", "aliases"]
@@ -141,6 +173,15 @@ if s["diag_on"]:
                           disabled=c_["n_params"] == 0,
                           help="The data cannot determine it on top of this model."
                           if c_["n_params"] == 0 else None)
+                if c_["would_leave_undetermined"]:
+                    st.warning(f"Adding it as is would leave "
+                               f"{len(c_['would_leave_undetermined'])} parameter combination(s) "
+                               "undetermined (U1-U3 then cannot be evaluated): "
+                               + "; ".join(c_["would_leave_undetermined"][:3])
+                               + ". Remove one of the functions named there, add a placement "
+                               "or stylus that exercises them, or use a lower order.")
+                if c_["holdout"]:
+                    st.caption(f"Leave-one-placement-out check: {c_['holdout']}.")
                 st.write(c_["explanation"][:1].upper() + c_["explanation"][1:])
                 st.caption(f"This data set would see it above: {c_['detectable_above']} "
                            "(80 % probability at the test's level). A smaller effect may be "

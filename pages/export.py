@@ -135,7 +135,7 @@ excl = [tuple(e) for e in s["exclusions"]]
 mag = float(s["magnification"])
 diag_df, diag_text = None, ""
 if s["diag_on"]:  # the diagnosis the user ran goes into the report (cached: no recompute)
-    _, _rows, diag_text = C.run_diagnosis()
+    _, _rows, diag_text, _info = C.run_diagnosis()
     if _rows:
         diag_df = pd.DataFrame([{k: v for k, v in c_.items() if k not in (
             "signature_um", "explanation")} for c_ in _rows])

@@ -69,7 +69,7 @@ c[3].metric("Observations", r.n_obs)
 c[4].metric("Parameters (rank)", r.rank)
 c[5].metric("Iterations", r.iterations)
 # green only when the fit converged and explains the data (χ²/dof near 1)
-(st.success if r.status == "converged" and r.chi2_dof < 2 else st.warning)(r.message)
+(st.success if r.status == "converged" and not r.fails_chi2_test else st.warning)(r.message)
 
 st.subheader("Identifiability")
 if r.unidentifiable:

@@ -19,6 +19,7 @@ ds, r = C.require_fit()
 s = st.session_state
 args = C.fit_args()
 
+C.misfit_banner(r)
 st.subheader("U1, U2, U3 (thesis tables 4.1-4.3)")
 c1, c2 = st.columns(2)
 n_random = c1.number_input("Random points", 20, 2000, 200, step=20, key="w_u_npts")
@@ -33,10 +34,12 @@ if summary is not None:
         v = getattr(summary, lab)
         if v:  # a quantity not evaluated is left out; the caption below says why
             rows.append({"quantity": desc, **{f"u_{a} (µm)": v[a] for a in "xyz"}})
+            if r.fails_chi2_test:
+                rows[-1].update({f"u_{a} × Birge (µm)": v[a] * r.birge_ratio for a in "xyz"})
     if rows:
         C.dataframe(pd.DataFrame(rows), hide_index=True, key="u_table",
-                     column_config={f"u_{a} (µm)": st.column_config.NumberColumn(
-                         format="%.4f") for a in "xyz"})
+                     column_config={c_: st.column_config.NumberColumn(format="%.4f")
+                                    for c_ in rows[0] if c_ != "quantity"})
     else:
         # numbers that do not exist are not shown as "None": say why instead
         st.warning("U1-U3 are not evaluated: the data do not determine every parameter, so "
@@ -127,7 +130,11 @@ if res is not None and res[0] == mc_key:
     c2.metric("Monte Carlo u / propagated u (median over 40 points × 3 axes)",
               f"{np.nanmedian(ratio):.3f}")
     c2.caption(f"Range {np.nanmin(ratio):.3f}-{np.nanmax(ratio):.3f}. Near 1: the linear "
-               "propagation (GUM) holds; the model is nearly linear in its parameters.")
+               "propagation (GUM) holds; the model is nearly linear in its parameters. "
+               "This checks linearity only, not whether the model fits: "
+               + ("it fails its χ² test, so both u are too small by about "
+                  f"×{r.birge_ratio:.2f}." if r.fails_chi2_test else
+                  "the fit passes its χ² test."))
 else:
     c2.caption("Samples the kinematic coefficients from their covariance and compares the "
                "spread of the error at 40 random points with the propagated uncertainty. "
