@@ -306,8 +306,9 @@ with tab_sim:
             for a in "xyz"}
     if p1.checkbox("Periodic X scale error", key="sim_periodic",
                    help="A sine wave along X (lead screw, rack): not in the default model, "
-                        "so the diagnosis has to find it and its period."):
-        per = int(p2.number_input("period (mm)", 20, 1200, 180, key="sim_per_mm"))
+                        "so the diagnosis has to find it and its period. The 133 mm ball "
+                        "pitch resolves no period under about 330 mm (2.5 pitches)."):
+        per = int(p2.number_input("period (mm)", 20, 1200, 400, key="sim_per_mm"))
         amp = float(p3.number_input("amplitude (µm)", 0.0, 20.0, 1.0, key="sim_per_um"))
         kin_cfg.update(spec=f"kinematic21,periodic_x:{per}",
                        coefficients={f"dxx[sin{per}]": amp, f"dxx[cos{per}]": 0.0})
