@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from . import kinematics as kin
-from .effects import MAX_ORDER
+from .effects import MAX_ORDER, parse_spec
 from .fit import FitResult, approach_directions
 from .io import (
     MAX_PROBE_MM,
@@ -60,6 +60,8 @@ class Model:
         Reversal span of each axis (µm) when the model was fitted with ``backlash``.
     cov_with_backlash : ndarray or None
         Joint covariance of the kinematic coefficients followed by the three spans.
+    name : str
+        File the model was read from (for messages).
     """
 
     spec: str
@@ -71,6 +73,7 @@ class Model:
     summary: dict
     backlash_um: np.ndarray | None = None
     cov_with_backlash: np.ndarray | None = None
+    name: str = "model"
 
 
 def model_from_result(result: FitResult) -> Model:
@@ -118,6 +121,9 @@ def model_to_dict(model: Model | FitResult) -> dict:
 
 
 MODEL_FORMAT = "cmm-error-lab model 1"
+_MODEL_REQUIRED = ("format", "spec", "orders", "range_mm", "periods", "labels", "coef",
+                   "cov", "probes_mm", "undetermined", "summary")
+_MODEL_OPTIONAL = ("backlash_um", "cov_with_backlash")
 
 
 def _checked_cov(cov, n, name, column):
@@ -155,6 +161,17 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
     if not isinstance(d, dict):
         raise DataError(f"is not a model file written by 'fit --save' (expected a JSON object, "
                         f"found {type(d).__name__}).", file=name)
+    missing = [k for k in _MODEL_REQUIRED if k not in d]
+    extra = sorted(set(map(str, d)) - set(_MODEL_REQUIRED) - set(_MODEL_OPTIONAL))
+    if d.get("format") == MODEL_FORMAT and (missing or extra):
+        # written by the program: a missing or renamed key ("undeterminedx") would
+        # silently take a default (an undetermined model passing as determined)
+        raise DataError(f"{'missing key ' + repr(missing[0]) if missing else ''}"
+                        f"{'; ' if missing and extra else ''}"
+                        f"{'unknown key ' + _cut(extra[0]) if extra else ''}; expected the "
+                        f"keys {', '.join(_MODEL_REQUIRED)}.", file=name,
+                        column=missing[0] if missing else extra[0],
+                        hint="refit and save the model again (fit --save); do not edit it.")
     if d.get("format") != MODEL_FORMAT:
         raise DataError(f"is not a model file written by 'fit --save' (expected \"format\": "
                         f"\"{MODEL_FORMAT}\", found {_cut(d.get('format'))}).", file=name)
@@ -172,6 +189,18 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
         raise DataError(f"is not a model file written by 'fit --save' ({_cut(str(exc), 80)}).",
                         file=name) from None
+    if not isinstance(d["periods"], list) or not isinstance(d["orders"], list):
+        raise DataError("orders and periods must be lists of [function, value] pairs.",
+                        file=name, column="orders" if not isinstance(d["orders"], list)
+                        else "periods")
+    spec = d["spec"]
+    try:
+        if not isinstance(spec, str):
+            raise ValueError(f"expected a model spec string, found {_cut(spec)}")
+        parse_spec(spec)
+    except ValueError as exc:
+        raise DataError(f"spec: {_cut(str(exc), 120)}.", file=name, column="spec",
+                        hint="refit and save the model again (fit --save).") from None
     rng = np.asarray(terms.range_mm, float)
     if rng.shape != (3,) or not np.isfinite(rng).all() or rng.min() < MIN_STROKE_MM \
             or rng.max() > MAX_STROKE_MM:
@@ -230,8 +259,8 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
     if not isinstance(d.get("undetermined", False), bool):
         raise DataError("undetermined must be true or false.", file=name,
                         column="undetermined")
-    return Model(str(d.get("spec", "")), terms, coef, cov, probes,
-                 bool(d.get("undetermined")), summary, backlash, joint)
+    return Model(spec, terms, coef, cov, probes, bool(d.get("undetermined")), summary,
+                 backlash, joint, name)
 
 
 OFF_MACHINE = "outside the machine's range"
@@ -322,7 +351,7 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
     file_rows = _file_rows(points)
     for i, q in enumerate(probes):
         if q not in m.probes_mm:
-            raise DataError(f"probe {q!r} is not in the model (known: "
+            raise DataError(f"probe {_cut(q)} is not in the model {m.name} (known: "
                             f"{', '.join(m.probes_mm)}).", file=name, row=int(file_rows[i]),
                             column="probe")
     r = points[["x_mm", "y_mm", "z_mm"]].to_numpy(float)

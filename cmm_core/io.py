@@ -190,6 +190,8 @@ class Setup:
         Thermal expansion coefficient of the plate.
     raw : dict
         The JSON as read, for round trips.
+    name : str or None
+        File name, for messages.
     """
 
     frame: str
@@ -198,6 +200,7 @@ class Setup:
     probes: dict
     cte_per_K: float = 11.5e-6
     raw: dict = field(default_factory=dict, repr=False)
+    name: str | None = field(default=None, repr=False, compare=False)
 
 
 @dataclass(frozen=True)
@@ -345,6 +348,9 @@ def _read_csv(source, name):
                         hint=(f"a cell is longer than {csv.field_size_limit()} characters: is "
                               "this a CSV table?") if big else
                         "check the quotes in that row.") from None
+    if header is None:  # only quotes and separators
+        raise DataError("has no header line; expected column names such as "
+                        "ball,x_mm,y_mm,z_mm.", file=name, row=1, hint=_COLUMNS_HINT)
     # a separator ending the header line too: drop the nameless columns it made, when empty
     while header and header[-1] == "" and all(r[len(header) - 1].strip() == "" for r in records):
         header.pop()
@@ -743,7 +749,15 @@ def read_setup(source, *, name="setup.json") -> Setup:
                                         records["temp_C"], records["rh_percent"])
     if not positions:
         raise DataError("no positions defined.", file=name, column="positions")
-    cte = _json_object(raw, "plate", name).get("cte_per_K", 11.5e-6)
+    plate = _json_object(raw, "plate", name)
+    for key, lo in (("pitch_mm", 1.0), ("balls", 3)):
+        val = plate.get(key)
+        if val is not None and (isinstance(val, bool) or not isinstance(val, int | float)
+                                or not np.isfinite(val) or val < lo
+                                or (key == "balls" and not float(val).is_integer())):
+            raise DataError(f"plate.{key} must be {'a length >= 1 mm' if key == 'pitch_mm' else 'a whole number >= 3'} "
+                            f"(or absent), found {_cut(val)}.", file=name, column=f"plate.{key}")
+    cte = plate.get("cte_per_K", 11.5e-6)
     if isinstance(cte, bool) or not isinstance(cte, int | float) or not np.isfinite(cte):
         raise DataError(f"plate.cte_per_K must be a number (1/K, e.g. 11.5e-6), found "
                         f"{_cut(cte)}.", file=name, column="plate.cte_per_K")
@@ -754,7 +768,7 @@ def read_setup(source, *, name="setup.json") -> Setup:
                         column="plate.cte_per_K",
                         hint="write it per K, not per MK or %/K: 11.5e-6 for steel.")
     cte = float(cte)
-    return Setup(frame, rng, positions, probes, cte, raw)
+    return Setup(frame, rng, positions, probes, cte, raw, name)
 
 
 LAYOUTS = ("moving_bridge_fxyz",)
@@ -952,7 +966,9 @@ def _check_plate_frame(xyz, name):
                         "balls).", file=name, column="ball",
                         hint="give the calibrated centres of all balls of the plate.")
     sv = np.linalg.svd(xyz - xyz.mean(axis=0), compute_uv=False)
-    if sv[1] <= 1e-6 * max(sv[0], 1.0):
+    # a measured row of balls is off its line by µm: that defines no plate plane, so
+    # "on one line" means within 0.1 % of the plate's size
+    if sv[1] <= 1e-3 * max(sv[0], 1.0):
         raise DataError("all balls lie on one line; expected at least 3 non-collinear "
                         "balls to define the plate frame.", file=name, column="x_mm",
                         hint="check the coordinates, or give more balls of the plate.")
@@ -972,7 +988,7 @@ def resolve(meas: pd.DataFrame, setup: Setup, certificate: Certificate | None = 
     found.add(_first_per(df, ~known_pos, ["source", "position"]), "position",
               lambda i: f"position {_cut(df['position'].iat[i])} is not in the setup (known: "
               f"{', '.join(setup.positions)}).",
-              hint="add it to setup.json or rename the file.")
+              hint=f"add it to {setup.name or 'the setup'} or rename the file.")
     default = df["position"].map(lambda p: setup.positions[p].probe
                                  if p in setup.positions else None)
     no_probe = df["probe"].isna().to_numpy()
@@ -986,7 +1002,8 @@ def resolve(meas: pd.DataFrame, setup: Setup, certificate: Certificate | None = 
     unknown = (df["probe"].notna() & ~df["probe"].isin(list(setup.probes))).to_numpy()
     found.add(_first_per(df, unknown, ["source", "probe"]), "probe",
               lambda i: f"probe {_cut(df['probe'].iat[i])} is not in the setup (known: "
-              f"{', '.join(setup.probes)}).", hint="add its offset to setup.json 'probes'.")
+              f"{', '.join(setup.probes)}).",
+              hint=f"add its offset to 'probes' in {setup.name or 'the setup'}.")
     key = ["position", "probe", "ball"] + (["repeat"] if "repeat" in df.columns else [])
     _check_duplicates(df, key, found,
                       hint="add a 'repeat' column for repeated measurements.")
@@ -1032,7 +1049,7 @@ def _check_certificate_in_machine(df, setup, cert):
 
 _UNIT_RATIOS = ((1 / 25.4, "inches", "multiply by 25.4"), (1e-3, "metres",
                 "multiply by 1000"), (1e3, "µm", "divide by 1000"),
-                (25.4, "mm while the certificate is in inches", "check the certificate"))
+                (25.4, "mm while the certificate is in inches", "check the certificate's units"))
 
 
 def _check_geometry(df, raw_xyz, xyz, setup, cert, found):
@@ -1047,10 +1064,13 @@ def _check_geometry(df, raw_xyz, xyz, setup, cert, found):
     rng = np.asarray(setup.range_mm, float)
     tol = _range_tolerance(rng)
     outside = ((xyz < -tol) | (xyz > rng + tol)).any(axis=1)
-    frame_hint = ("the setup has \"frame\": \"machine\" (the default): if the coordinates "
-                  "are in the plate frame (ball 1 at 0, 0, 0), set \"frame\": \"plate\"."
-                  if setup.frame == "machine" else "the setup has \"frame\": \"plate\": if the "
-                  "coordinates are machine coordinates, set \"frame\": \"machine\".")
+    where = f"the setup {setup.name}" if setup.name else "the setup"
+    frame_hint = (f"{where} has \"frame\": \"machine\""
+                  f"{'' if 'frame' in setup.raw else ' (the default: no frame key)'}: if the "
+                  "coordinates are in the plate frame (ball 1 at 0, 0, 0), set \"frame\": "
+                  "\"plate\"." if setup.frame == "machine" else f"{where} has \"frame\": "
+                  "\"plate\": if the coordinates are machine coordinates, set \"frame\": "
+                  "\"machine\".")
     found.add(outside & _first_rows(df, outside), None,
               lambda i: f"point {np.round(xyz[i], 1).tolist()} mm (machine frame) lies "
               f"outside the machine's range {rng.tolist()} mm.",
@@ -1082,12 +1102,13 @@ def _check_geometry(df, raw_xyz, xyz, setup, cert, found):
         if unit is not None:
             msg = (f"distances between the balls of {where} are {ratio:.4g} times the "
                    f"certificate's: the coordinates look like {unit[1]}.")
-            hint = f"{unit[2]} (files are in mm)."
+            hint = (f"{unit[2]} (files are in mm)" + (f"; certificate {cert.name}."
+                                                      if cert.name else "."))
         elif ratio is not None and abs(ratio - 1) > 0.01:
             msg = (f"distances between the balls of {where} are {ratio:.4g} times the "
                    "certificate's; expected the same plate (within 1 %).")
-            hint = ("check that certificate, units (mm) and ball numbering match the "
-                    "measurement.")
+            hint = (f"check that the certificate {cert.name or ''}, the units (mm) and the "
+                    "ball numbering match the measurement.")
         elif dist > place_tol:
             as_plate = float(np.median(np.linalg.norm(raw_xyz[idx] - plate, axis=1)))
             as_machine = float(np.median(np.linalg.norm(raw_xyz[idx] - expect, axis=1)))

@@ -176,6 +176,15 @@ def _check_config(cfg, name="simulation config"):
     if not isinstance(top["probes_interleaved"], bool):
         raise bad("probes_interleaved", f"expected true or false, found "
                   f"{_cut(top['probes_interleaved'])}.")
+    ppp = cfg.get("probes_per_position")
+    if ppp is not None and not isinstance(ppp, dict):
+        raise bad("probes_per_position", f"expected an object position: [probes], found "
+                  f"{_cut(ppp)}.")
+    for pos, qs in (ppp or {}).items():
+        if not isinstance(qs, list) or not qs or not all(
+                isinstance(q, str | int) and not isinstance(q, bool) for q in qs):
+            raise bad(f"probes_per_position.{pos}", f"expected a non-empty list of probe "
+                      f"names, found {_cut(qs)}.")
     if top["setup"] is not None and not isinstance(top["setup"], dict):
         raise bad("setup", f"expected a setup object (or null for the thesis placements), "
                   f"found {type(top['setup']).__name__} {_cut(top['setup'])}.")
