@@ -1,9 +1,16 @@
-"""One-off: write the committed corpus of nasty inputs (issue 13) and its manifest."""
-import json, pathlib, copy
-import numpy as np
-from cmm_core.simulate import simulate
-from cmm_core.fit import fit
+"""Writes the committed corpus of nasty inputs (issue 13) and its manifest.
+
+Run from the repository root: ``PYTHONPATH=. .venv/bin/python tests/corpus/make_corpus.py``.
+Each file reproduces one defect of the issue (``issue`` in ``manifest.json``);
+``tests/test_hardening.py`` feeds them to the command line.
+"""
+import copy
+import json
+import pathlib
+
 from cmm_core.compensate import model_to_dict
+from cmm_core.fit import fit
+from cmm_core.simulate import simulate
 
 C = pathlib.Path("tests/corpus")
 SIM = pathlib.Path("sample_data/simulated")
@@ -24,20 +31,20 @@ def put(fname, content, kind, needle, note):
 
 lines = meas.splitlines()
 # --- measurement files (long form, with the simulated sample's setup and certificate)
-put("meas_trailing_comma_with_data.csv", "\n".join([lines[0]] + [l + ",7" for l in lines[1:40]]) + "\n",
+put("meas_trailing_comma_with_data.csv", "\n".join([lines[0]] + [ln + ",7" for ln in lines[1:40]]) + "\n",
     "meas", "expected 8 fields", "a trailing field holding data on every row")
 put("meas_bare_cr_extra_field.csv", lines[0] + "\n" + lines[1] + ",\rX\n" + "\n".join(lines[2:30]) + "\n",
     "meas", "row 3", "extra field after a bare carriage return (_csv.Error): a bare CR ends a line, as in universal newlines")
-put("meas_missing_position.csv", "\n".join(",".join(l.split(",")[1:]) for l in lines[:60]) + "\n",
+put("meas_missing_position.csv", "\n".join(",".join(ln.split(",")[1:]) for ln in lines[:60]) + "\n",
     "meas", "missing column(s) position", "missing position column read as thesis form")
 put("meas_huge_cell.csv", lines[0] + "\n" + lines[1].replace("333.999306", "9" * 150_000, 1) + "\n",
     "meas", "", "a 1 MB cell echoed into one 1 MB stderr line")
 put("meas_inches.csv", lines[0] + "\n" + "\n".join(
-    ",".join(f[:3] + [f"{float(v) / 25.4:.6f}" for v in f[3:6]] + f[6:]) for f in (l.split(",") for l in lines[1:51])) + "\n",
+    ",".join(f[:3] + [f"{float(v) / 25.4:.6f}" for v in f[3:6]] + f[6:]) for f in (ln.split(",") for ln in lines[1:51])) + "\n",
     "meas", "look like inches", "coordinates in inches fitted at RMS 27.7 mm, exit 0")
 put("meas_time_renamed.csv", meas.replace("time_min", "time", 1), "meas", "did you mean 'time_min'",
     "time_min renamed time ignored silently")
-put("meas_kelvin.csv", lines[0] + "\n" + "\n".join(l.rsplit(",", 1)[0] + ",293.150000" for l in lines[1:26]) + "\n",
+put("meas_kelvin.csv", lines[0] + "\n" + "\n".join(ln.rsplit(",", 1)[0] + ",293.150000" for ln in lines[1:26]) + "\n",
     "meas", "kelvin", "temperatures in kelvin")
 put("meas_binary.csv", bytes(range(256)) * 4, "meas", "not UTF-8", "binary file")
 put("meas_nul.csv", lines[0] + "\n" + lines[1] + "\x00\n", "meas", "NUL", "NUL bytes")
@@ -46,7 +53,9 @@ put("meas_duplicate_header.csv", lines[0].replace("z_mm", "x_mm") + "\n" + "\n".
 put("meas_unclosed_quote.csv", lines[0] + "\n" + '"BP111,1,1,3,4,5,0,20\n', "meas", "", "unclosed quote")
 # --- setups (machine frame, with the simulated sample)
 def s_mod(f):
-    d = copy.deepcopy(setup); f(d); return d
+    d = copy.deepcopy(setup)
+    f(d)
+    return d
 put("setup_layout_banana.json", s_mod(lambda d: d["machine"].update(layout="banana")), "setup",
     "moving_bridge_fxyz", "machine.layout banana accepted")
 put("setup_u_axis_hyphen.json", s_mod(lambda d: d["positions"]["BP111"].update({"u-axis": d["positions"]["BP111"].pop("u_axis")})),
@@ -74,13 +83,14 @@ put("setup_temp_string.json", s_mod(lambda d: d["positions"]["BP111"].update(tem
 put("setup_origin_strings.json", s_mod(lambda d: d["positions"]["BP111"].update(origin_mm=["334", "234", "0"])),
     "setup", "3 numbers", "numbers as strings accepted")
 # thesis data (plate frame) with the frame key missing: default machine
-t = copy.deepcopy(tsetup); t.pop("frame")
+t = copy.deepcopy(tsetup)
+t.pop("frame")
 put("setup_thesis_no_frame.json", t, "setup_thesis", "frame", "missing frame: 30 unidentifiable parameters")
 # --- certificates
 cl = cert.splitlines()
 put("cert_ball_5m.csv", "\n".join(cl[:8] + [cl[8].split(",")[0] + ",399.0,5000.0,0.0"] + cl[9:]) + "\n",
     "cert", "nearest neighbour", "a ball at y = 5000 mm loads without a word")
-put("cert_metres.csv", cl[0] + "\n" + "\n".join(",".join([f[0]] + [f"{float(v) / 1000:.8f}" for v in f[1:]]) for f in (l.split(",") for l in cl[1:])) + "\n",
+put("cert_metres.csv", cl[0] + "\n" + "\n".join(",".join([f[0]] + [f"{float(v) / 1000:.8f}" for v in f[1:]]) for f in (ln.split(",") for ln in cl[1:])) + "\n",
     "cert", "metres", "certificate in metres")
 put("cert_collinear.csv", cl[0] + "\n" + "\n".join(cl[1:6]) + "\n", "cert", "one line", "collinear balls")
 # --- simulation configs
@@ -100,7 +110,9 @@ r = fit(simulate({"seed": 2}).dataset, "kinematic21")
 good = model_to_dict(r)
 (C / "good_model.json").write_text(json.dumps(good))
 def m_mod(f):
-    d = copy.deepcopy(good); f(d); return d
+    d = copy.deepcopy(good)
+    f(d)
+    return d
 put("model_nan_coef.json", json.dumps(m_mod(lambda d: d["coef"].__setitem__(3, float("nan")))), "model", "finite", "NaN corrections, exit 0")
 put("model_nan_cov.json", json.dumps(m_mod(lambda d: d["cov"][2].__setitem__(2, float("nan")))), "model", "NaN", "NaN covariance")
 put("model_negative_variance.json", m_mod(lambda d: d["cov"][0].__setitem__(0, -1.0)), "model", "negative", "negative variance")
