@@ -259,3 +259,16 @@ def test_error_functions_shade_the_measured_span_and_history_survives_empty_colu
     hist = [{"change": "baseline", "rms_um": None, "chi2_dof": None, "bic": None,
              "gp_amplitude_um": None}]
     assert "not computed" in [a.text for a in report.fig_history(hist).layout.annotations]
+
+
+def test_a_project_naming_a_position_its_data_lack_is_refused():
+    """Issue 13: such a project restored to "No fit for these settings" with no reason."""
+    model = {"spec": "kinematic21", "order": 2, "plate": "auto", "sigma_um": 0.5,
+             "positions": ["BP111", "BP999"], "probes": None}
+    with pytest.raises(DataError, match="'BP999', which the project's data do not have") \
+            as exc:
+        export.project_from_json(_thesis_project(model=model))
+    assert exc.value.column == "model.positions" and exc.value.file == "project.json"
+    # a byte-order mark is read as in CSV files
+    doc = export.project_from_json(b"\xef\xbb\xbf" + _thesis_project().encode())
+    assert doc["dataset_name"] == "thesis"
