@@ -105,14 +105,12 @@ def _sigma(args, data, exclude, spec):
 
 
 def cmd_simulate(args):
+    from .io import read_json
     from .simulate import simulate
 
-    try:
-        cfg = json.loads(Path(args.config).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise DataError(f"cannot read the simulation config ({exc}).",
-                        file=Path(args.config).name) from exc
-    sim = simulate(cfg)
+    # read like every JSON input (a byte-order mark tolerated), refusals name the file
+    cfg, name = read_json(Path(args.config))
+    sim = simulate(cfg, name=name)
     sim.write(args.out)
     return {"out": str(args.out), "n_obs": len(sim.dataset.meas),
             "files": ["measurements.csv", "setup.json", "certificate.csv", "truth.json"]}
@@ -202,14 +200,9 @@ def cmd_gp(args):
 
 
 def cmd_budget(args):
-    from .gum import budget_from_dict
+    from .budget import read_budget
 
-    try:
-        d = json.loads(Path(args.budget).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise DataError(f"cannot read the budget ({exc}).", file=Path(args.budget).name) \
-            from exc
-    return budget_from_dict(d)
+    return read_budget(Path(args.budget))
 
 
 def cmd_air(args):
