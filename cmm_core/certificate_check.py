@@ -94,9 +94,11 @@ def _summary(r: FitResult, release=()) -> dict:
 
 def check_certificate(data, spec: str = "kinematic21", *, order: int = 2,
                       sigma_um: float = 0.5, exclude=(), positions=None,
-                      probes=None) -> CertificateCheck | None:
+                      probes=None, fitted: FitResult | None = None) -> CertificateCheck | None:
     """Test the certificate against the self-calibrated plate (module docstring).
 
+    ``fitted`` is a fit of ``spec`` on the same observations and σ already at hand (the
+    diagnosis's baseline); it is reused for its plate mode instead of fitted again.
     Returns None when there is no certificate or the design cannot self-calibrate the
     plate (the free fit leaves plate coordinates undetermined: one placement, say).
     """
@@ -105,11 +107,15 @@ def check_certificate(data, spec: str = "kinematic21", *, order: int = 2,
     if not obs.has_certificate:
         return None
     kw = {"order": order, "sigma_um": sigma_um}
-    free = fit(obs, spec, plate="free", **kw)
+    have = {fitted.plate: fitted} if fitted is not None else {}
+
+    def fit_plate(mode):
+        return have[mode] if mode in have else fit(obs, spec, plate=mode, **kw)
+
+    free = fit_plate("free")
     if any(lab.startswith("ball") for lab in free.unidentifiable) or free.dof <= 0:
         return None
-    prior = fit(obs, spec, plate="prior", **kw)
-    fixed = fit(obs, spec, plate="fixed", **kw)
+    prior, fixed = fit_plate("prior"), fit_plate("fixed")
     B = len(obs.balls)
     dof = 3 * B - 7
     dchi2 = max(prior.chi2 - free.chi2, 0.0)

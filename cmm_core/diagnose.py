@@ -11,19 +11,29 @@ candidate gets:
 - its signature: the residual pattern its refit removes, to draw beside the residuals;
 - aliases: other candidates whose signatures are nearly the same pattern with this data.
 
-A candidate is significant when ``p < alpha / n_candidates`` (Bonferroni over the
-candidates tried: the false-alarm rate of the verdict is at most ``alpha``). Significant
-candidates are ranked by ΔBIC, then the best is checked against the other significant ones
-by nested F-tests on full refits (an encompassing test): when the best is no longer needed
-once another is in the model, but the other is still needed with the best in, the other
-is the better explanation and is promoted. This guards against a small flexible effect (a
-periodic error whose period the ball spacing aliases) taking the credit for part of a
-larger one (drift of every position), which ΔBIC alone, with its ``ln N`` per parameter,
-would prefer. Pairs where neither is needed once the other is in are reported as aliases.
-The verdict is the best significant candidate, or None: the data are explained to noise.
+A candidate is significant when ``p`` is below its share of ``alpha`` (weighted
+Bonferroni, :data:`PHYSICAL_SHARE`: half for the physical effects and absent functions,
+half for the higher orders and periodic errors; the false-alarm rate of the verdict stays
+at most ``alpha``). Significant candidates are ranked by ΔBIC, then the best is checked
+against the other significant ones by nested F-tests on full refits (an encompassing
+test): when the best is no longer needed once another is in the model, but the other is
+still needed with the best in, the other is the better explanation and is promoted. Pairs
+where neither is needed once the other is in are reported as aliases; a periodic error
+whose signature a significant physical candidate reproduces yields to it.
 
-Guards: which parameters a candidate adds is decided at the nominal linearisation, as its
-refit decides it (``fit``'s frozen design null space); whatever ranks first is confirmed
+The verdict must then pass a leave-one-placement-out check (``holdout``): fitted on the
+other placements, the effect predicts the held-out one. The first significant candidate
+that passes (or that the check cannot judge) is the verdict; when all fail, or when none
+is significant while the baseline fails its χ² test with the misfit concentrated in some
+placements, styli, balls or regions, the verdict is ``"outside_catalogue"`` with where the
+residual lives. With nothing significant and the misfit spread evenly, the verdict is None
+and σ is the suspect (``repeatability``: estimated from repeats or the most flexible
+model). When the baseline uses a certificate and fails its χ² test, the certificate is
+checked against the self-calibrated plate (``certificate_check``).
+
+Guards: no period shorter than :data:`NYQUIST_FACTOR` ball spacings is scanned; which
+parameters a candidate adds is decided at the nominal linearisation, as its refit decides
+it (``fit``'s frozen design null space); whatever ranks first is confirmed
 by a refit; a higher order must beat the next lower one by a nested F-test (Occam); and a
 baseline that does not converge names no effect, since its own unfinished descent would
 be credited to every candidate.
@@ -525,7 +535,8 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
     cert = None
     if base.plate in ("fixed", "prior") and base.fails_chi2_test:
         report(0.997, "the certificate against the self-calibrated plate")
-        cert = check_certificate(base.problem.obs, base.spec, sigma_um=base.sigma_um)
+        cert = check_certificate(base.problem.obs, base.spec, sigma_um=base.sigma_um,
+                                 fitted=base)
     msg = _conclusion(base, out, verdict, sigma, uniform, where) + note
     top = next((h for h in checks if h.effect == verdict), None)
     if top is not None and not top.applicable:

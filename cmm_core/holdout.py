@@ -83,13 +83,13 @@ class HoldoutCheck:
                 "per_placement": self.per_placement, "reason": self.reason}
 
 
-def _effect_columns(base: FitResult, token: str):
+def _effect_columns(base: FitResult, prob: Problem):
     """Baseline residual and the effect's columns with the baseline's projected out.
 
     Returns ``(r, X, pos_of_row)``: weighted residual (m,), effect columns (m, k) in the
     effect's own gauge, and the placement index of every row (-1: certificate prior).
+    ``prob`` is the baseline's problem with the effect added.
     """
-    prob = Problem(base.problem.obs, base.problem.spec.with_token(token), base.plate)
     _, r, J = weighted_residual(prob, augmented_state(base, prob), base.sigma_um, True)
     J = J.toarray()
     old = set(base.labels)
@@ -130,7 +130,7 @@ def check(base: FitResult, token: str) -> HoldoutCheck:
         return HoldoutCheck(token, False, True, float("nan"), float("nan"), {},
                             "its parameters belong to single placements (the drift of each "
                             "position), so no other placement can predict them")
-    r, X, pos_of_row = _effect_columns(base, token)
+    r, X, pos_of_row = _effect_columns(base, prob)
     gain_in = float(r @ r - np.sum((r - X @ _lstsq(X, r)) ** 2))
     per = {}
     for k, name in enumerate(o.positions):
