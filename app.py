@@ -3,6 +3,15 @@
 The thesis ball-plate data are loaded and fitted on first run, so a first-time user sees a
 model and plots without touching anything. The sidebar states the dataset, the model and
 the fit quality on every page.
+
+Navigation. The pages live in ``pages/`` (the design requires that folder), which Streamlit
+also reads as a legacy page list: on a fresh server its first run shows that raw list of
+files in the sidebar until ``st.navigation`` replaces it. ``client.showSidebarNavigation =
+false`` (.streamlit/config.toml) hides every automatic navigation menu, the legacy one
+included, so the app draws its own with ``st.page_link``. Every page has its own URL
+(``/data``, ``/kinematic`` ...): Streamlit serves its default page at ``/`` only, not at
+its ``url_path``, so the default page is a small redirect to the Data page rather than the
+Data page itself (``/data`` then opens it directly instead of "page not found").
 """
 
 from pathlib import Path
@@ -20,18 +29,37 @@ st.set_page_config(page_title="CMM error lab", page_icon=str(ROOT / ".streamlit"
 common.init_state()
 
 PAGES = [
-    st.Page("pages/data.py", title="Data", icon=":material/dataset:", url_path="data", default=True),
-    st.Page("pages/kinematic.py", title="Kinematic model", icon=":material/show_chart:", url_path="kinematic"),
-    st.Page("pages/gaussian_process.py", title="Gaussian process", icon=":material/blur_on:", url_path="gp"),
-    st.Page("pages/diagnose.py", title="Compare and diagnose", icon=":material/troubleshoot:", url_path="diagnose"),
-    st.Page("pages/uncertainty.py", title="Uncertainty", icon=":material/gps_fixed:", url_path="uncertainty"),
-    st.Page("pages/export.py", title="Compensate and export", icon=":material/download:", url_path="export"),
+    st.Page("pages/data.py", title="Data", icon=":material/dataset:", url_path="data"),
+    st.Page("pages/kinematic.py", title="Kinematic model", icon=":material/show_chart:",
+            url_path="kinematic"),
+    st.Page("pages/gaussian_process.py", title="Gaussian process", icon=":material/blur_on:",
+            url_path="gp"),
+    st.Page("pages/diagnose.py", title="Compare and diagnose", icon=":material/troubleshoot:",
+            url_path="diagnose"),
+    st.Page("pages/uncertainty.py", title="Uncertainty", icon=":material/gps_fixed:",
+            url_path="uncertainty"),
+    st.Page("pages/export.py", title="Compensate and export", icon=":material/download:",
+            url_path="export"),
 ]
-page = st.navigation(PAGES)
+
+
+def _home():
+    """The app's root URL opens the Data page (at its own URL, /data)."""
+    st.switch_page(PAGES[0])
+
+
+HOME = st.Page(_home, title="CMM error lab", url_path="home", default=True,
+               visibility="hidden")
+page = st.navigation([HOME, *PAGES], position="hidden")
 st.session_state["_via_app"] = True  # pages check it (common.page_start)
 deep_link = st.session_state.pop("_deep_link", None)
-if deep_link and deep_link != "data.py" and (ROOT / "pages" / deep_link).is_file():
+if deep_link and (ROOT / "pages" / deep_link).is_file():
+    # a deep link opened on a fresh server, before this script ever ran (see
+    # common.page_start): open the page asked for, now inside the app
     st.switch_page(f"pages/{deep_link}")
 st.sidebar.title("CMM error lab")
+with st.sidebar.container(key="app_nav"):
+    for p in PAGES:
+        st.page_link(p, label=p.title, icon=p.icon, width="stretch")
+st.sidebar.divider()
 page.run()
-

@@ -188,8 +188,9 @@ def page_start():
     """Every page calls this first: state defaults, widget sync, the sidebar."""
     if not st.session_state.get("_via_app"):
         # Opened by a deep link before app.py ever ran on this server, Streamlit runs the
-        # page from its automatic pages/ list, without app.py's navigation and layout:
-        # go through app.py, which installs them and then opens the page asked for.
+        # page from its automatic pages/ list, without app.py's navigation and layout
+        # (that list stays hidden: client.showSidebarNavigation = false): go through
+        # app.py, which installs them and then opens the page asked for.
         st.session_state["_deep_link"] = Path(sys._getframe(1).f_globals.get(
             "__file__", "data.py")).name
         st.switch_page("app.py")

@@ -40,8 +40,8 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
-def server():
+def _start_server():
+    """``streamlit run app.py`` on a free port: (process, url) once it answers."""
     port = _free_port()
     env = {**os.environ, "STREAMLIT_BROWSER_GATHER_USAGE_STATS": "false"}
     proc = subprocess.Popen(
@@ -63,7 +63,10 @@ def server():
     else:
         proc.terminate()
         raise RuntimeError("streamlit did not start within 60 s")
-    yield url
+    return proc, url
+
+
+def _stop_server(proc):
     proc.terminate()
     try:
         proc.wait(10)
@@ -72,14 +75,37 @@ def server():
 
 
 @pytest.fixture(scope="module")
+def server():
+    proc, url = _start_server()
+    yield url
+    _stop_server(proc)
+
+
+# Counts every moment Streamlit's automatic navigation menu (the raw list of pages/ files
+# on a fresh server) is in the page: the app draws its own menu, so it must stay 0.
+RAW_NAV_WATCH = """
+window.__rawNav = 0;
+new MutationObserver(() => {
+  if (document.querySelector('[data-testid="stSidebarNav"]')) window.__rawNav += 1;
+}).observe(document, {subtree: true, childList: true});
+"""
+
+
+def _browser_context(pw):
+    browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True,
+                                 args=["--no-sandbox", "--disable-gpu",
+                                       "--disable-background-networking"])
+    ctx = browser.new_context(viewport={"width": 1500, "height": 1800},
+                              accept_downloads=True)
+    ctx.add_init_script(RAW_NAV_WATCH)
+    return browser, ctx
+
+
+@pytest.fixture(scope="module")
 def page(server):
     ART.mkdir(parents=True, exist_ok=True)
     with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True,
-                                     args=["--no-sandbox", "--disable-gpu",
-                                           "--disable-background-networking"])
-        ctx = browser.new_context(viewport={"width": 1500, "height": 1800},
-                                  accept_downloads=True)
+        browser, ctx = _browser_context(pw)
         pg = ctx.new_page()
         pg.set_default_timeout(60_000)
         yield pg
@@ -99,24 +125,63 @@ def _no_exception(pg):
     assert pg.locator('[data-testid="stException"]').count() == 0
 
 
+NAV = ".st-key-app_nav a"  # the app's own page links in the sidebar (app.py)
+
+
 def _goto(pg, title):
-    pg.locator('[data-testid="stSidebarNav"] a', has_text=title).first.click()
+    pg.locator(NAV, has_text=title).first.click()
     _idle(pg)
     expect(pg.locator("h1", has_text=title).first).to_be_visible()
 
 
+def _expect_page(pg, title, path):
+    """The page ``title`` is open at URL ``path`` inside the app: its heading, the app's
+    own navigation (not the raw list of pages/ files, at no moment), no "page not found"
+    dialog, no exception."""
+    expect(pg.locator("h1", has_text=title).first).to_be_visible(timeout=90_000)
+    _idle(pg)
+    assert pg.url.rstrip("/").endswith(path), pg.url
+    nav = pg.locator(NAV)
+    expect(nav.filter(has_text="Compare and diagnose")).to_be_visible()
+    assert nav.all_inner_texts() and not any("common" in t for t in nav.all_inner_texts())
+    assert pg.evaluate("window.__rawNav") == 0
+    assert pg.locator('[data-testid="stSidebarNav"]').count() == 0
+    assert pg.get_by_text("Page not found").count() == 0
+    _no_exception(pg)
+
+
 def test_deep_link_on_a_fresh_server_opens_the_page_inside_the_app(page, server):
     """Runs first, before anything opened "/": Streamlit then runs a deep-linked page from
-    its automatic pages/ list, without app.py (found by the browser review). The page
-    goes through app.py and lands where it was asked, with the app's navigation."""
+    its automatic pages/ list, without app.py, and showed that raw list of files in the
+    sidebar (issue 16). The page lands where it was asked, with the app's navigation,
+    and the raw list never appears. Then, on the warm server, /data (the Data page, which
+    is also what "/" opens) and /diagnose open directly, and "/" lands on /data."""
     page.goto(server + "/kinematic")
-    expect(page.locator("h1", has_text="Kinematic model").first).to_be_visible(
-        timeout=90_000)
-    _idle(page)
-    nav = page.locator('[data-testid="stSidebarNav"] a')
-    expect(nav.filter(has_text="Compare and diagnose")).to_be_visible()
-    assert not any("common" in t for t in nav.all_inner_texts())
-    _no_exception(page)
+    _expect_page(page, "Kinematic model", "/kinematic")
+    page.screenshot(path=str(ART / "00_deep_link_kinematic.png"))
+    for path, title in (("/data", "Data"), ("/diagnose", "Compare and diagnose"),
+                        ("", "Data")):
+        page.goto(server + path)
+        _expect_page(page, title, "/data" if path == "" else path)
+
+
+def test_deep_link_to_data_on_a_fresh_server(page):
+    """/data as the very first request of a fresh server (its own server: the module's
+    has served pages already; the module's browser, in a context of its own)."""
+    proc, url = _start_server()
+    ctx = page.context.browser.new_context(viewport={"width": 1500, "height": 1800})
+    try:
+        ctx.add_init_script(RAW_NAV_WATCH)
+        pg = ctx.new_page()
+        pg.set_default_timeout(60_000)
+        pg.goto(url + "/data")
+        _expect_page(pg, "Data", "/data")
+        expect(pg.get_by_text("thesis tables 6.1-6.6").first).to_be_visible()
+        pg.goto(url + "/diagnose")
+        _expect_page(pg, "Compare and diagnose", "/diagnose")
+    finally:
+        ctx.close()
+        _stop_server(proc)
 
 
 def test_first_load_shows_the_thesis_model(page, server):
