@@ -9,6 +9,7 @@ them, so values survive page switches.
 from __future__ import annotations
 
 import hashlib
+import html
 import inspect
 import io
 import json
@@ -397,13 +398,70 @@ def set_plate(mode: str):
     s["plate"] = s["w_plate"] = mode
 
 
+def spec_tokens(spec: str) -> list:
+    """The tokens of a model spec as the user wrote them (blanks around commas dropped)."""
+    return [t.strip() for t in str(spec or "").split(",") if t.strip()] or ["rigid"]
+
+
+def spec_text(spec: str) -> str:
+    """The spec as written, one blank after each comma: a table cell wraps there rather
+    than inside a name (the blank parses the same)."""
+    return ", ".join(spec_tokens(spec))
+
+
+def spec_expansion(spec: str, order: int | None = None) -> str | None:
+    """The explicit form of ``spec`` (``ModelSpec.to_string``) when it differs from what was
+    written (``translational,squareness`` names nine functions), else None."""
+    try:
+        full = parse_spec(spec, default_order=int(order or st.session_state.get("order", 2)))
+    except ValueError:
+        return None
+    full = full.to_string()
+    return None if spec_tokens(full) == spec_tokens(spec) else full
+
+
+def spec_markup(spec: str, order: int | None = None) -> str:
+    """HTML (for ``st.markdown(..., unsafe_allow_html=True)``): the spec as the user wrote
+    it, breakable after each comma and never inside a name, the full text and its
+    expansion on hover."""
+    toks = spec_tokens(spec)
+    hover = ",".join(toks)
+    full = spec_expansion(spec, order)
+    if full:
+        hover += f"\n= {full}"
+    body = ",<wbr>".join(html.escape(t) for t in toks)
+    return (f'<code class="cmm-spec" title="{html.escape(hover, quote=True)}" '
+            'style="white-space: normal; word-break: normal; overflow-wrap: normal">'
+            f"{body}</code>")
+
+
+def compose_spec(spec: str, token: str, order: int) -> str:
+    """``spec`` with ``token`` applied, in the user's own words: the token is appended
+    (shorthand such as ``translational`` stays as written, it is not expanded into nine
+    names); a token that undoes an earlier one (``-plate_sag`` after ``plate_sag``)
+    removes it instead when the model is the same either way. Raises ValueError for a
+    token the grammar refuses."""
+    toks = [t for t in spec_tokens(spec) if t.lower() != "rigid"]
+    new = ",".join([*toks, token.strip()])
+    target = parse_spec(new, default_order=order)
+    tok = token.strip().lower()
+    undo = tok[1:] if tok.startswith("-") else f"-{tok}"
+    for i in range(len(toks) - 1, -1, -1):
+        if toks[i].lower() == undo:
+            short = ",".join(toks[:i] + toks[i + 1:]) or "rigid"
+            if parse_spec(short, default_order=order) == target:
+                return short
+            break
+    return new
+
+
 def apply_change(token: str):
     """Button callback: apply a model token (add/remove an effect) and record it."""
     s = st.session_state
     if not s["history"]:
         s["history"] = [{"spec": s["spec"], "change": "baseline"}]
     try:
-        new = parse_spec(s["spec"], default_order=int(s["order"])).with_token(token).to_string()
+        new = compose_spec(s["spec"], token, int(s["order"]))
     except ValueError as exc:
         s["flash"] = ("error", str(exc))
         return
@@ -474,8 +532,8 @@ def sidebar():
     if s.get("reset_note"):
         sb.caption("New dataset, settings reset to its defaults: "
                    + "; ".join(s["reset_note"]) + ".")
-    sb.markdown(f"**Model:** `{s['spec'] or 'rigid'}`  \norder {s['order']}, plate {s['plate']}, "
-                f"σ = {s['sigma_um']:g} µm")
+    sb.markdown(f"**Model:** {spec_markup(s['spec'])}  \norder {s['order']}, plate "
+                f"{s['plate']}, σ = {s['sigma_um']:g} µm", unsafe_allow_html=True)
     r = current_fit(show_error=False)
     if r is None:
         sb.warning("No fit for these settings.")

@@ -18,7 +18,8 @@ ds, r = C.require_fit()
 s = st.session_state
 
 c = st.columns(4)
-c[0].metric("Model", r.spec if len(r.spec) < 28 else r.spec[:25] + "…")
+# the model as the user wrote it, wrapped at its commas (a metric would cut it)
+c[0].markdown(f"Model  \n{C.spec_markup(s['spec'])}", unsafe_allow_html=True)
 c[1].metric("RMS residual", f"{r.rms_um:.3f} µm")
 c[2].metric("χ²/dof", f"{r.chi2_dof:.2f}")
 c[3].metric("BIC", f"{r.bic:.1f}")
@@ -228,8 +229,16 @@ with C.guarded("History chart"):
                              C.rep.fig_history, hist), key="diag_history")
 c1, c2 = st.columns([3, 1])
 with c1:
-    C.dataframe(pd.DataFrame(hist), hide_index=True, key="history_table",
-                column_config={"rms_um": st.column_config.NumberColumn("RMS (µm)",
+    # the model of each step as written, wrapped at its commas: rows tall enough for
+    # Streamlit to wrap text (row_height above 4 rem) when a model is long
+    long_spec = max(len(h["spec"]) for h in hist) > 40
+    C.dataframe(pd.DataFrame(hist).assign(spec=[C.spec_text(h["spec"]) for h in hist]),
+                hide_index=True, key="history_table",
+                row_height=72 if long_spec else None,
+                column_config={"spec": st.column_config.TextColumn(
+                                   "model", width="large",
+                                   help="The model of each step as written"),
+                               "rms_um": st.column_config.NumberColumn("RMS (µm)",
                                                                        format="%.3f"),
                                "chi2_dof": st.column_config.NumberColumn("χ²/dof",
                                                                          format="%.2f"),

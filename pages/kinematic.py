@@ -48,8 +48,11 @@ with st.container(border=True):
            step=0.1, help="Measurement repeatability: weights, χ² and uncertainties.")
     try:
         model = parse_spec(spec_txt, default_order=int(s["order"]))
+        full = C.spec_expansion(spec_txt)
         st.caption(f"{len(model.active)} error functions; effects: "
-                   f"{', '.join(model.effects) or 'none'}; canonical `{model.to_string()}`")
+                   f"{', '.join(model.effects) or 'none'}"
+                   + ("; hover the ? for the explicit form" if full else ""),
+                   help=f"Explicit form: {full}" if full else None)
     except ValueError as exc:
         st.error(f"Model: {exc}")
         st.stop()
