@@ -1,27 +1,48 @@
-"""Benchmark: kinematic fit on the six thesis tables and on a dense simulated dataset.
+"""Benchmark: kinematic fit on the six thesis tables and on 10^5 simulated observations.
 
-Prints median wall times, the ratio against scipy.optimize.least_squares solving the same
-problem (same residuals, same analytic sparse Jacobian, no constraints needed for the
-fixed-plate model) in the same run, and the peak traced memory.
-Run: ``.venv/bin/python bench/fit.py``.
+For each dataset: the median wall time of ``cmm_core.fit.fit`` and, in the same run, of
+scipy.optimize.least_squares solving the same problem (same residuals, same analytic sparse
+Jacobian, no constraints needed for the fixed-plate model), their ratio, the peak traced
+memory of one fit (tracemalloc, which sees numpy's allocations) and both χ².
+
+Then the forward model alone on the 10^5 points: ``kinematics.jacobian`` and
+``kinematics.model_point`` against the previous implementation (batched (n, 3, 3) matrix
+products, ``kinematics.py`` at commit ``PREVIOUS``, read with git), with the largest
+difference of their results.
+
+The 10^5-observation dataset is the default simulation with 100 repeats (30,000 rows, the
+simulator's limit) tiled to 100,200 rows, the size of the issue-18 figure (334 repeats):
+the same problem structure (25 balls, 6 positions, 2 probes each) at that size.
+Run: ``.venv/bin/python bench/fit.py`` (``--quick`` skips the least_squares peer on the
+large set, whose lsmr solve takes about a minute).
 """
 
+import argparse
+import dataclasses
+import importlib.util
+import subprocess
 import sys
 import tracemalloc
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 from scipy.optimize import least_squares
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 from _timing import median_time  # noqa: E402
 
+from cmm_core import kinematics as kin  # noqa: E402
 from cmm_core.dataset import thesis_dataset  # noqa: E402
 from cmm_core.effects import parse_spec  # noqa: E402
 from cmm_core.fit import Problem, fit, select  # noqa: E402
 from cmm_core.outliers import detect_outliers  # noqa: E402
 from cmm_core.simulate import simulate  # noqa: E402
+
+PREVIOUS = "08e52a4"  # last commit with the batched-matmul forward model
+N_LARGE = 100_200
 
 
 def peer(data, exclude=()):
@@ -45,23 +66,74 @@ def peer(data, exclude=()):
                          x_scale="jac", tr_solver="exact" if dense else "lsmr")
 
 
-def report(name, data, repeats, exclude=()):
-    ours, _ = median_time(lambda: fit(data, "kinematic21", exclude=exclude), repeats)
-    theirs, _ = median_time(lambda: peer(data, exclude), max(1, repeats // 3))
+def report(name, data, repeats, exclude=(), with_peer=True):
+    fit(data, "kinematic21", exclude=exclude)  # warm-up: first-call page faults, imports
+    ours, r = median_time(lambda: fit(data, "kinematic21", exclude=exclude), repeats)
     tracemalloc.start()
     fit(data, "kinematic21", exclude=exclude)
     peak = tracemalloc.get_traced_memory()[1] / 1e6
     tracemalloc.stop()
-    r = fit(data, "kinematic21", exclude=exclude)
-    p = peer(data, exclude)
-    chi2_peer = float(p.fun @ p.fun)
-    print(f"{name}: n_obs={r.n_obs}  median fit {ours * 1e3:.1f} ms  "
-          f"least_squares {theirs * 1e3:.1f} ms  ratio {ours / theirs:.2f}  "
-          f"peak memory {peak:.0f} MB  chi2 ours {r.chi2:.1f} vs peer {chi2_peer:.1f}")
+    line = f"{name}: n_obs={r.n_obs}  median fit {ours * 1e3:.1f} ms ({repeats} repeats)"
+    if with_peer:
+        theirs, p = median_time(lambda: peer(data, exclude), max(1, repeats // 3))
+        line += (f"  least_squares {theirs * 1e3:.1f} ms  ratio ours/peer {ours / theirs:.2f}"
+                 f"  chi2 ours {r.chi2:.1f} vs peer {float(p.fun @ p.fun):.1f}")
+    print(line + f"  peak memory {peak:.0f} MB", flush=True)
+
+
+def large_dataset():
+    ds = simulate({"seed": 1, "repeats": 100}).dataset
+    reps = -(-N_LARGE // len(ds.meas))
+    meas = pd.concat([ds.meas] * reps, ignore_index=True).iloc[:N_LARGE]
+    return dataclasses.replace(ds, meas=meas)
+
+
+def previous_kinematics():
+    """``kinematics.py`` at ``PREVIOUS`` as a module, or None without git."""
+    try:
+        src = subprocess.run(["git", "show", f"{PREVIOUS}:cmm_core/kinematics.py"], cwd=ROOT,
+                             capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    spec = importlib.util.spec_from_loader("kinematics_previous", loader=None)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # dataclasses look their module up
+    exec(compile(src, "kinematics_previous.py", "exec"), mod.__dict__)
+    return mod
+
+
+def forward_model(data, repeats=5):
+    old = previous_kinematics()
+    if old is None:
+        print("forward model: git unavailable, previous implementation not compared")
+        return
+    obs = select(data)
+    m = parse_spec("kinematic21")
+    terms = kin.KinematicTerms(m.active, tuple(obs.range_mm), m.periods)
+    coef = np.random.default_rng(0).normal(0, 5, terms.n)
+    x, p = obs.r_mm - obs.p_mm, obs.p_mm
+    for label, fn in (("jacobian", "jacobian"), ("model_point", "model_point")):
+        getattr(kin, fn)(terms, coef, x, p)
+        getattr(old, fn)(terms, coef, x, p)
+        t_new, a = median_time(lambda f=fn: getattr(kin, f)(terms, coef, x, p), repeats)
+        t_old, b = median_time(lambda f=fn: getattr(old, f)(terms, coef, x, p), repeats)
+        if fn == "jacobian":
+            diff = (f"max |Δx*| {np.abs(a[0] - b[0]).max():.1e} mm, "
+                    f"max |ΔJ| {np.abs(a[1] - b[1]).max():.1e}")
+        else:
+            diff = f"max |Δx*| {np.abs(a - b).max():.1e} mm"
+        print(f"  {label:<12} n={len(x)}  ours {t_new * 1e3:.1f} ms  previous "
+              f"{t_old * 1e3:.1f} ms  speed-up {t_old / t_new:.2f}×  {diff}", flush=True)
 
 
 if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true",
+                    help="no least_squares peer on the 10^5-observation set")
+    args = ap.parse_args()
     th = thesis_dataset()
     report("thesis six tables", th, 21, detect_outliers(th).exclusions)
-    dense = simulate({"seed": 1, "repeats": 334}).dataset
-    report("simulated dense", dense, 3)
+    big = large_dataset()
+    report("simulated 10^5", big, 3, with_peer=not args.quick)
+    print("forward model on the 10^5 points, kinematic21 order 2:")
+    forward_model(big)

@@ -166,47 +166,77 @@ class KinematicTerms:
         return D
 
 
-def _rot_x(a):
-    c, s = np.cos(a), np.sin(a)
-    z, o = np.zeros_like(a), np.ones_like(a)
-    return np.stack([o, z, z, z, c, -s, z, s, c], -1).reshape(*np.shape(a), 3, 3)
+# Rotations are kept as nine component arrays (3, 3, n), never as a stack of n 3×3
+# matrices: numpy's batched matmul on (n, 3, 3) runs a tiny 3×3 product per point and was
+# 70 % of a 10^5-point fit (bench/fit.py), while a product of component arrays is 27 vector
+# multiply-adds over n. Every quantity below is a (3, n) or (3, 3, n) array.
 
 
-def _rot_y(a):
-    c, s = np.cos(a), np.sin(a)
-    z, o = np.zeros_like(a), np.ones_like(a)
-    return np.stack([c, z, s, z, o, z, -s, z, c], -1).reshape(*np.shape(a), 3, 3)
+def _rot_zyx(a, b, c):
+    """R = Rz(c) Ry(b) Rx(a), exact, in closed form: shape (3, 3, n)."""
+    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    R = np.empty((3, 3) + np.shape(a))
+    R[0, 0], R[0, 1], R[0, 2] = cc * cb, cc * sb * sa - sc * ca, cc * sb * ca + sc * sa
+    R[1, 0], R[1, 1], R[1, 2] = sc * cb, sc * sb * sa + cc * ca, sc * sb * ca - cc * sa
+    R[2, 0], R[2, 1], R[2, 2] = -sb, cb * sa, cb * ca
+    return R
 
 
-def _rot_z(a):
-    c, s = np.cos(a), np.sin(a)
-    z, o = np.zeros_like(a), np.ones_like(a)
-    return np.stack([c, -s, z, s, c, z, z, z, o], -1).reshape(*np.shape(a), 3, 3)
+def _mv(M, v):
+    """Matrix-vector product per point: (3, 3, n) × (3, n) -> (3, n)."""
+    out = M[:, 0] * v[0]
+    out += M[:, 1] * v[1]
+    out += M[:, 2] * v[2]
+    return out
 
 
-def _drot(a, which):
-    """Derivative of an elementary rotation matrix with respect to its angle."""
-    c, s = np.cos(a), np.sin(a)
-    z = np.zeros_like(a)
-    if which == 0:
-        m = [z, z, z, z, -s, -c, z, c, -s]
-    elif which == 1:
-        m = [-s, z, c, z, z, z, -c, z, -s]
-    else:
-        m = [-s, -c, z, c, -s, z, z, z, z]
-    return np.stack(m, -1).reshape(*np.shape(a), 3, 3)
+def _mm(A, B):
+    """Matrix product per point: (3, 3, n) × (3, 3, n) -> (3, 3, n)."""
+    out = np.empty(np.broadcast_shapes(A.shape, B.shape))
+    for k in range(3):
+        out[:, k] = _mv(A, B[:, k])
+    return out
+
+
+def _cross(axis, v):
+    """e_axis × v for a (3, n) array v."""
+    out = np.zeros_like(v)
+    i, j = (axis + 1) % 3, (axis + 2) % 3
+    out[i], out[j] = -v[j], v[i]
+    return out
+
+
+def _dmv(R, ang, comp, v):
+    """(∂R/∂angle_comp) v for R = Rz Ry Rx with angles ``ang`` = (a, b, c).
+
+    ∂(Rz Ry Rx)/∂a = R [e_x]×, ∂/∂c = [e_z]× R and ∂/∂b = Rz [e_y]× Ry Rx (each rotation
+    commutes with the cross product by its own axis), so no derivative matrix is formed.
+    """
+    if comp == 0:
+        return _mv(R, _cross(0, v))
+    if comp == 2:
+        return _cross(2, _mv(R, v))
+    a, b, c = ang
+    ca, sa, cc, sc = np.cos(a), np.sin(a), np.cos(c), np.sin(c)
+    w = np.stack([v[0], ca * v[1] - sa * v[2], sa * v[1] + ca * v[2]])  # Rx v
+    cb, sb = np.cos(b), np.sin(b)
+    w = np.stack([cb * w[0] + sb * w[2], w[1], -sb * w[0] + cb * w[2]])  # Ry Rx v
+    w = _cross(1, w)
+    return np.stack([cc * w[0] - sc * w[1], sc * w[0] + cc * w[1], w[2]])  # Rz (...)
 
 
 class _Evaluation:
-    """Error functions and rotation matrices of one axis at the observation points."""
+    """Error functions and rotation matrices of the three axes at the observation points."""
 
-    def __init__(self, terms: KinematicTerms, coef: np.ndarray, xyz_mm: np.ndarray):
+    def __init__(self, terms: KinematicTerms, coef: np.ndarray, xyz_mm: np.ndarray,
+                 rotations_only: bool = False):
         n = xyz_mm.shape[0]
         sl = terms.slices
+        wanted = ROTATIONAL if rotations_only else ERROR_NAMES
         self.designs = {nm: terms.design(nm, xyz_mm[:, axis_of(nm)])
-                        for nm, _ in terms.functions}
+                        for nm, _ in terms.functions if nm in wanted}
         self.values = {}
-        for name in ERROR_NAMES:
+        for name in wanted:
             if name in sl and coef.ndim == 2:  # one coefficient set per point (Monte Carlo)
                 self.values[name] = np.einsum("nk,nk->n", self.designs[name], coef[:, sl[name]])
             elif name in sl:
@@ -214,17 +244,13 @@ class _Evaluation:
             else:
                 self.values[name] = np.zeros(n)
         v = self.values
-        self.angles = {}
-        self.R = {}
-        for ax in AXES:
-            ang = [v[f"r{ax}x"] * URAD, v[f"r{ax}y"] * URAD, v[f"r{ax}z"] * URAD]
-            self.angles[ax] = ang
-            Rx, Ry, Rz = _rot_x(ang[0]), _rot_y(ang[1]), _rot_z(ang[2])
-            self.R[ax] = (Rz @ Ry @ Rx, (Rx, Ry, Rz))
+        self.angles = {ax: [v[f"r{ax}{c}"] * URAD for c in AXES] for ax in AXES}
+        self.R = {ax: _rot_zyx(*self.angles[ax]) for ax in AXES}
 
 
-def _mv(M, v):
-    return np.einsum("nij,nj->ni", M, v)
+def _to_rows(M):
+    """(3, 3, n) -> (n, 3, 3), contiguous, for the public results."""
+    return np.ascontiguousarray(np.moveaxis(M, -1, 0))
 
 
 def model_point(terms: KinematicTerms, coef, x_mm, p_mm):
@@ -252,53 +278,70 @@ def error(terms: KinematicTerms, coef, x_mm, p_mm):
     return (model_point(terms, coef, x_mm, p_mm) - x_mm - p_mm) / UM
 
 
+# Points per block of ``_forward``: the block's temporaries and its rows of J (a few MB)
+# stay in cache; filling a 10^5-point J in one pass was 3× slower (bench/fit.py).
+_BLOCK = 4096
+
+
 def _forward(terms, coef, x_mm, p_mm, want_jac=False):
+    """x*(x, p) (n, 3) and, if asked, J (n, 3, terms.n), computed by blocks of points."""
+    n = x_mm.shape[0]
+    p_mm = np.broadcast_to(p_mm, (n, 3))
+    xs = np.empty((n, 3))
+    J = np.empty((n, 3, terms.n)) if want_jac else None
+    sl = terms.slices
+    for lo in range(0, n, _BLOCK):
+        b = slice(lo, min(lo + _BLOCK, n))
+        _forward_block(terms, sl, coef[b] if coef.ndim == 2 else coef, x_mm[b], p_mm[b],
+                       xs[b], None if J is None else J[b])
+    return xs, J
+
+
+def _forward_block(terms, sl, coef, x_mm, p_mm, xs_out, J_out):
+    """One block of ``_forward``: fills ``xs_out`` (m, 3) and ``J_out`` (m, 3, terms.n)."""
     ev = _Evaluation(terms, coef, x_mm)
     v = ev.values
-    n = x_mm.shape[0]
     x, y, z = x_mm.T
-    X = np.stack([x + v["dxx"] * UM, v["dxy"] * UM, v["dxz"] * UM], 1)
+    p = p_mm.T
+    X = np.stack([x + v["dxx"] * UM, v["dxy"] * UM, v["dxz"] * UM])
     # Squareness values are already angle x coordinate (µrad mm): see ``basis``.
-    Y = np.stack([v["dyx"] * UM + v["sxy"] * URAD, y + v["dyy"] * UM, v["dyz"] * UM], 1)
+    Y = np.stack([v["dyx"] * UM + v["sxy"] * URAD, y + v["dyy"] * UM, v["dyz"] * UM])
     Z = np.stack([v["dzx"] * UM + v["sxz"] * URAD, v["dzy"] * UM + v["syz"] * URAD,
-                  z + v["dzz"] * UM], 1)
-    Rx, Ry, Rz = ev.R["x"][0], ev.R["y"][0], ev.R["z"][0]
-    A = Z + _mv(Rz, p_mm)
+                  z + v["dzz"] * UM])
+    Rx, Ry, Rz = ev.R["x"], ev.R["y"], ev.R["z"]
+    A = Z + _mv(Rz, p)
     B = Y + _mv(Ry, A)
-    xs = X + _mv(Rx, B)
-    if not want_jac:
-        return xs, None
-    # d x*/d coefficient, mm per unit coefficient: chain rule through the axis stack.
-    J = np.zeros((n, 3, terms.n))
-    RxRy = Rx @ Ry
-    sl = terms.slices
-    eye = np.eye(3)
+    xs_out[:] = (X + _mv(Rx, B)).T
+    if J_out is None:
+        return
+    # d x*/d coefficient, mm per unit coefficient: chain rule through the axis stack. Each
+    # function's columns are (its direction, (3, m)) × (its design, (m, k)); they are
+    # written one (component, coefficient) column at a time, a loop over the m points.
+    RxRy = _mm(Rx, Ry)
     for name, _ in terms.functions:
         D = ev.designs[name]
-        s = sl[name]
+        ax, comp = (None, None) if name in SQUARENESS else (name[1], direction_of(name))
         if name in SQUARENESS:
             k = 0 if name in ("sxy", "sxz") else 1
-            lead = Rx if name == "sxy" else RxRy
-            J[:, :, s] = (lead[:, :, k] * URAD)[:, :, None] * D[:, None, :]
+            col = (Rx if name == "sxy" else RxRy)[:, k] * URAD
+        elif name[0] == "d" and ax == "x":
+            # the x carriage's translations act along the machine axes themselves
+            J_out[:, :, sl[name]] = 0.0
+            np.multiply(D, UM, out=J_out[:, comp, sl[name]])
             continue
-        ax, comp = name[1], direction_of(name)
-        if name[0] == "d":
-            col = {"x": np.broadcast_to(eye[:, comp], (n, 3)), "y": Rx[:, :, comp],
-                   "z": RxRy[:, :, comp]}[ax]
-            J[:, :, s] = (col * UM)[:, :, None] * D[:, None, :]
-            continue
-        ang = ev.angles[ax][comp]
-        Rxe, Rye, Rze = ev.R[ax][1]
-        dR = _drot(ang, comp)
-        dM = {0: Rze @ Rye @ dR, 1: Rze @ dR @ Rxe, 2: dR @ Rye @ Rxe}[comp]
-        if ax == "x":
-            col = _mv(dM, B)
-        elif ax == "y":
-            col = _mv(Rx @ dM, A)
+        elif name[0] == "d":
+            col = (Rx if ax == "y" else RxRy)[:, comp] * UM
         else:
-            col = _mv(RxRy @ dM, p_mm)
-        J[:, :, s] = (col * URAD)[:, :, None] * D[:, None, :]
-    return xs, J
+            if ax == "x":
+                col = _dmv(Rx, ev.angles["x"], comp, B)
+            elif ax == "y":
+                col = _mv(Rx, _dmv(Ry, ev.angles["y"], comp, A))
+            else:
+                col = _mv(RxRy, _dmv(Rz, ev.angles["z"], comp, p))
+            col *= URAD
+        for c in range(3):
+            for j in range(D.shape[1]):
+                np.multiply(col[c], D[:, j], out=J_out[:, c, sl[name].start + j])
 
 
 def jacobian(terms: KinematicTerms, coef, x_mm, p_mm):
@@ -317,8 +360,9 @@ def jacobian(terms: KinematicTerms, coef, x_mm, p_mm):
 
 def probe_jacobian(terms: KinematicTerms, coef, x_mm):
     """``d x* / d p`` = Rx Ry Rz at the scale readings, shape (n, 3, 3)."""
-    ev = _Evaluation(terms, np.asarray(coef, float), np.asarray(x_mm, float))
-    return ev.R["x"][0] @ ev.R["y"][0] @ ev.R["z"][0]
+    ev = _Evaluation(terms, np.asarray(coef, float), np.asarray(x_mm, float),
+                     rotations_only=True)
+    return _to_rows(_mm(_mm(ev.R["x"], ev.R["y"]), ev.R["z"]))
 
 
 def invert(terms: KinematicTerms, coef, s_mm, p_mm, iterations: int = 6):
