@@ -31,7 +31,7 @@ and σ is the suspect (``repeatability``: estimated from repeats or the most fle
 model). When the baseline uses a certificate and fails its χ² test, the certificate is
 checked against the self-calibrated plate (``certificate_check``).
 
-Guards: no period shorter than :data:`NYQUIST_FACTOR` ball spacings is scanned; which
+Guards: no period shorter than ``blocks.periodic.NYQUIST_FACTOR`` ball spacings is scanned; which
 parameters a candidate adds is decided at the nominal linearisation, as its refit decides
 it (``fit``'s frozen design null space); whatever ranks first is confirmed
 by a refit; a higher order must beat the next lower one by a nested F-test (Occam); and a
@@ -49,31 +49,12 @@ from scipy import optimize, stats
 from . import holdout, repeatability
 from . import kinematics as kin
 from ._blas import single_blas_thread
+from .blocks import needs
+from .blocks.periodic import PERIOD_SCAN, shortest_resolvable_period
 from .certificate_check import CertificateCheck, check_certificate
 from .effects import PERIODIC, PHYSICAL, catalogue_entry
-from .fit import (
-    FitResult,
-    Problem,
-    _describe_null,
-    _Normal,
-    _solve,
-    augmented_state,
-    fit,
-    weighted_residual,
-)
-
-PERIOD_SCAN = (40.0, 36)
-"""Periodic scale errors: shortest period scanned (mm) and the number of periods, spaced
-geometrically up to the span of the balls along the axis (longer periods are what a
-higher polynomial order describes). The shortest period is raised to what the ball
-spacing resolves (:func:`shortest_resolvable_period`)."""
-
-NYQUIST_FACTOR = 2.5
-"""A period is scanned only when it is at least this many ball spacings long in every
-placement that moves along the axis. Below two spacings a period is sampled as another
-one (aliasing); just above two, five balls a row cannot tell a sinusoid from anything
-that varies from ball to ball or placement to placement (certificate errors, a
-placement's own scale), so a margin is kept."""
+from .fit import FitResult, Problem, augmented_state, fit, weighted_residual
+from .solver import Normal, describe_null, solve
 
 PHYSICAL_SHARE = 0.5
 """Share of the family-wise false-alarm rate ``alpha`` given to the physical effects and
@@ -230,51 +211,8 @@ class Diagnosis:
 
 
 def _needs_met(token, base: FitResult):
-    o = base.problem.obs
-    name = token.partition(":")[0]
-    if name == "plate_thermal" and not o.has_temp:
-        return "needs plate temperatures (temp_C column or setup records)"
-    if name == "plate_thermal" and np.ptp(o.dT_K) < 1e-6:
-        return "the plate temperature never changes, so expansion is a pure scale error"
-    if name == "plate_sag" and not o.horizontal.any():
-        return "needs at least one horizontal placement"
-    if name == "probe_offset" and len(o.probes) < 2:
-        return "needs at least two probes"
-    if name == "drift" and np.ptp(o.hours) == 0:
-        return "needs measurement times"
-    if name == "backlash" and not (np.ptp(o.approach, axis=0) == 2).any():
-        return "every ball was approached from the same side along each axis"
-    if name in PERIODIC:
-        a = "xyz".index(name[-1])
-        span = np.ptp((o.r_mm - o.p_mm)[:, a])
-        if span < 2 * PERIOD_SCAN[0]:
-            return f"the balls hardly move along {name[-1]}"
-        shortest, spacing = shortest_resolvable_period(o, a)
-        if shortest > 0.8 * span:
-            return (f"the ball spacing along {name[-1]} ({spacing:.0f} mm) resolves no period "
-                    f"shorter than {shortest:.0f} mm, and longer ones up to the "
-                    f"{span:.0f} mm span are what a higher order describes")
-    return None
-
-
-def shortest_resolvable_period(obs, axis: int):
-    """Shortest period (mm) of a periodic error along ``axis`` that the design resolves,
-    and the ball spacing behind it: ``NYQUIST_FACTOR`` times the largest spacing of
-    distinct ball coordinates along the axis in any placement-and-stylus group that
-    moves along it (each placement samples the error on its own grid; a period its grid
-    aliases can be fitted by anything that differs between placements)."""
-    u = (obs.r_mm - obs.p_mm)[:, axis]
-    spacing = 0.0
-    for k in range(len(obs.positions)):
-        for q in range(len(obs.probes)):
-            v = np.sort(u[(obs.pos == k) & (obs.probe == q)])
-            if v.size < 2 or np.ptp(v) < 5.0:
-                continue  # this group does not move along the axis
-            gaps = np.diff(v)
-            gaps = gaps[gaps > 2.0]  # readings of one ball row are one coordinate
-            if gaps.size:
-                spacing = max(spacing, float(np.median(gaps)))
-    return max(NYQUIST_FACTOR * spacing, PERIOD_SCAN[0]), spacing
+    """Why the baseline's data cannot see ``token`` (None: they can); the block says."""
+    return needs(token, base.problem.obs)
 
 
 def score(base: FitResult, token: str):
@@ -303,11 +241,9 @@ def score(base: FitResult, token: str):
     # refit decides it (fit's frozen design null): at the baseline's solution the
     # nonlinearity of fitted rotations lends weakly coupled columns a small, spurious rank
     _, r0, J0 = weighted_residual(prob, prob.initial_state(), base.sigma_um, True)
-    ne0 = _Normal(J0, r0, C, base.rank_rtol)
-    combos = _describe_null(ne0.null, prob.layout.labels)[0] if ne0.null.shape[1] else []
-    if ne0.null.shape[1]:
-        C = np.vstack([C, (ne0.null / ne0.S[:, None]).T])
-    step, cov, rank, null = _solve(J, r, C, base.rank_rtol)
+    ne0 = Normal(J0, r0, C, base.rank_rtol)
+    combos = describe_null(ne0.null, prob.layout.labels)[0] if ne0.null.shape[1] else []
+    step, cov, rank, null = solve(J, r, ne0.freeze_null(C), base.rank_rtol)
     r_new = r + J @ step
     chi2_new = float(r_new @ r_new)
     n = prob.n_obs

@@ -19,17 +19,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy import stats
-from scipy.spatial.transform import Rotation
 
 from . import kinematics as kin
 from ._blas import single_blas_thread
+from .blocks import REGISTRY, Eval
+from .blocks.kinematic import Kinematic
+from .blocks.plate import Plate
 from .dataset import Dataset
 from .effects import ModelSpec, parse_spec
+from .geometry import plate_effect_basis, rigid_fit
+from .solver import Normal, describe_null
+from .units import UM
 
-UM = 1e-3
+__all__ = ["Observations", "Problem", "FitResult", "select", "fit", "weighted_residual",
+           "augmented_state", "approach_directions", "rigid_fit", "plate_effect_basis",
+           "PLATE_MODES", "CHI2_ALPHA"]
 CHI2_ALPHA = 0.01
 """Level of the χ² (model adequacy) test behind ``FitResult.fails_chi2_test``."""
 PLATE_MODES = ("fixed", "prior", "free")
@@ -202,30 +208,6 @@ def select(data: Dataset, *, positions=None, probes=None, exclude=()) -> Observa
                         cert is not None, approach)
 
 
-def plate_effect_basis(plate_mm):
-    """Centre of the plate (thermal expansion is about it) and the sag basis per ball:
-    ``(u², u·v, v²)`` in plate coordinates normalised to [-1, 1] over the plate."""
-    centre = plate_mm.mean(0)
-    half = np.maximum(np.ptp(plate_mm, axis=0) / 2, 1.0)
-    xi = (plate_mm - centre) / half
-    return centre, np.column_stack([xi[:, 0] ** 2, xi[:, 0] * xi[:, 1], xi[:, 1] ** 2])
-
-
-def _skew(v):
-    z = np.zeros(len(v))
-    return np.stack([z, -v[:, 2], v[:, 1], v[:, 2], z, -v[:, 0], -v[:, 1], v[:, 0], z],
-                    1).reshape(-1, 3, 3)
-
-
-def rigid_fit(src, dst):
-    """Rotation R and translation t with ``src @ R.T + t`` closest to dst (Kabsch/SVD)."""
-    cs, cd = src.mean(0), dst.mean(0)
-    U, _, Vt = np.linalg.svd((src - cs).T @ (dst - cd))
-    D = np.diag([1, 1, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return R, cd - R @ cs
-
-
 @dataclass
 class _Layout:
     """Column layout of the parameter vector: block name -> slice, plus labels/units."""
@@ -248,32 +230,30 @@ class _Layout:
 
 
 class Problem:
-    """Parameter layout, residuals and analytic Jacobian of one model on one selection."""
+    """Parameter layout, residuals and analytic Jacobian of one model on one selection.
+
+    The model is the sum of its effect blocks (``cmm_core.blocks``): each lays out its
+    columns, takes part in the probe, plate and reading stages of the residual, writes its
+    Jacobian columns and its gauge constraints.
+    """
 
     def __init__(self, obs: Observations, spec: ModelSpec, plate: str):
         self.obs, self.spec, self.plate = obs, spec, plate
         self.terms = kin.KinematicTerms(spec.active, tuple(obs.range_mm), spec.periods)
-        L = _Layout()
-        B, P, Q = len(obs.balls), len(obs.positions), len(obs.probes)
-        if plate != "fixed":
-            L.add("plate", [f"ball{b}.{a}" for b in obs.balls for a in "xyz"], "um")
-        L.add("rotation", [f"{p}.r{a}" for p in obs.positions for a in "xyz"], "urad")
-        L.add("translation", [f"{p}.t{a}" for p in obs.positions for a in "xyz"], "um")
-        L.add("kinematic", self.terms.labels, [self.terms.unit(x) for x in self.terms.labels])
-        if "probe_offset" in spec.effects:
-            L.add("probe_offset", [f"probe{q}.{a}" for q in obs.probes for a in "xyz"], "um")
-        if "plate_thermal" in spec.effects:
-            L.add("plate_thermal", ["plate_thermal.cte"], "1e-6/K")
-        if "plate_sag" in spec.effects:
-            L.add("plate_sag", ["plate_sag.uu", "plate_sag.uv", "plate_sag.vv"], "um")
-        if "drift" in spec.effects:
-            L.add("drift", [f"{p}.drift_{a}" for p in obs.positions for a in "xyz"], "um/h")
-        if "backlash" in spec.effects:
-            L.add("backlash", [f"backlash.{a}" for a in "xyz"], "um")
-        self.layout = L
         self.plate_centre, self.sag_basis = plate_effect_basis(obs.plate0_mm)
         self.n_obs = len(obs.r_mm)
-        self.B, self.P, self.Q = B, P, Q
+        self.B, self.P, self.Q = len(obs.balls), len(obs.positions), len(obs.probes)
+        self.blocks = [cls(self) for cls in REGISTRY if cls.wanted(spec, plate)]
+        L = _Layout()
+        for b in self.blocks:
+            for name, labels, unit in b.columns(obs):
+                L.add(name, labels, unit)
+        self.layout = L
+        self._kinematic = next(b for b in self.blocks if isinstance(b, Kinematic))
+
+    def block(self, cls):
+        """The block of this class in the model, or None."""
+        return next((b for b in self.blocks if isinstance(b, cls)), None)
 
     # --- state ---------------------------------------------------------------------
     def initial_state(self):
@@ -286,78 +266,46 @@ class Problem:
             R[k], t[k] = rigid_fit(o.plate0_mm[o.ball[sel]], o.r_mm[sel])
         return {"c": o.plate0_mm.copy(), "R": R, "t": t, "x": np.zeros(self.layout.n)}
 
+    def _evaluate(self, state, want_jac):
+        o = self.obs
+        ev = Eval(self, state, want_jac)
+        p = o.p_mm.copy()
+        for b in self.blocks:
+            p = b.probe_stage(ev, p)
+        ev.p_mm = p
+        xs = self._kinematic.model(ev)
+        c = state["c"][o.ball]
+        for b in self.blocks:
+            c = b.plate_stage(ev, c)
+        ev.plate_mm = c
+        ev.Rk = state["R"][o.pos]
+        placed = np.einsum("nij,nj->ni", ev.Rk, c) + state["t"][o.pos]
+        d = (xs - placed) / UM
+        for b in self.blocks:
+            d = b.reading_stage(ev, d)
+        return d, ev
+
     def plate_points(self, state):
         """Plate coordinates of every observation after thermal and sag effects (mm)."""
-        o, x, L = self.obs, state["x"], self.layout.blocks
-        c = state["c"][o.ball]
-        if "plate_thermal" in L:
-            alpha = x[L["plate_thermal"]][0] * 1e-6
-            c = self.plate_centre + (c - self.plate_centre) * (1 + alpha * o.dT_K[:, None])
-        if "plate_sag" in L:
-            w = self.sag_basis[o.ball] @ x[L["plate_sag"]] * UM
-            c = c + np.outer(w * o.horizontal[o.pos], [0, 0, 1])
+        ev = Eval(self, state, False)
+        c = state["c"][self.obs.ball]
+        for b in self.blocks:
+            c = b.plate_stage(ev, c)
         return c
 
     def residual(self, state, want_jac=False):
         """Residuals (n, 3) in µm and, if asked, the sparse Jacobian (3n, N)."""
-        o, x, blk = self.obs, state["x"], self.layout.blocks
-        p = o.p_mm.copy()
-        if "probe_offset" in blk:
-            p = p + x[blk["probe_offset"]].reshape(-1, 3)[o.probe] * UM
-        coef = x[blk["kinematic"]]
-        xs, Jk = kin.jacobian(self.terms, coef, o.r_mm - o.p_mm, p) if want_jac else (
-            kin.model_point(self.terms, coef, o.r_mm - o.p_mm, p), None)
-        cp = self.plate_points(state)
-        Rk = state["R"][o.pos]
-        placed = np.einsum("nij,nj->ni", Rk, cp) + state["t"][o.pos]
-        d = (xs - placed) / UM
-        if "drift" in blk:
-            d -= x[blk["drift"]].reshape(-1, 3)[o.pos] * o.hours[:, None]
-        if "backlash" in blk:
-            # a reading approached from + is short by half the reversal span
-            d += x[blk["backlash"]] * o.approach / 2
+        d, ev = self._evaluate(state, want_jac)
         if not want_jac:
             return d, None
-        cols, vals = [], []
         n = self.n_obs
-
-        def put(block_cols, M):
-            # M: (n, 3, k) derivative of the 3 residual components wrt k columns. Every row
-            # has the same number of entries per block, so CSR is assembled directly.
-            cols.append(np.broadcast_to(block_cols[:, None, :], M.shape))
-            vals.append(M)
-
-        if "plate" in blk:
-            scale = 1.0
-            if "plate_thermal" in blk:
-                scale = 1 + x[blk["plate_thermal"]][0] * 1e-6 * o.dT_K
-            s0 = blk["plate"].start
-            put(s0 + 3 * o.ball[:, None] + np.arange(3), -Rk * np.reshape(scale, (-1, 1, 1)))
-        v = np.einsum("nij,nj->ni", Rk, cp)
-        put(blk["rotation"].start + 3 * o.pos[:, None] + np.arange(3), _skew(v) * UM)
-        put(blk["translation"].start + 3 * o.pos[:, None] + np.arange(3),
-            -np.broadcast_to(np.eye(3), (n, 3, 3)))
-        sk = blk["kinematic"]
-        if sk.stop > sk.start:
-            put(np.broadcast_to(np.arange(sk.start, sk.stop), (n, sk.stop - sk.start)),
-                Jk / UM)
-        if "probe_offset" in blk:
-            Jp = kin.probe_jacobian(self.terms, coef, o.r_mm - o.p_mm)
-            put(blk["probe_offset"].start + 3 * o.probe[:, None] + np.arange(3), Jp)
-        if "plate_thermal" in blk:
-            dc = np.einsum("nij,nj->ni", Rk, (state["c"][o.ball] - self.plate_centre))
-            put(np.full((n, 1), blk["plate_thermal"].start),
-                (-dc * o.dT_K[:, None] * 1e-6 / UM)[:, :, None])
-        if "plate_sag" in blk:
-            nrm = Rk[:, :, 2] * o.horizontal[o.pos][:, None]
-            put(np.broadcast_to(np.arange(blk["plate_sag"].start, blk["plate_sag"].stop),
-                                (n, 3)), -nrm[:, :, None] * self.sag_basis[o.ball][:, None, :])
-        if "drift" in blk:
-            put(blk["drift"].start + 3 * o.pos[:, None] + np.arange(3),
-                -np.eye(3)[None] * o.hours[:, None, None])
-        if "backlash" in blk:
-            put(np.broadcast_to(blk["backlash"].start + np.arange(3), (n, 3)),
-                np.eye(3)[None] * (o.approach / 2)[:, None, :])
+        cols, vals = [], []
+        for b in self.blocks:
+            for block_cols, M in b.jacobian(ev):
+                # M: (n, 3, k) derivative of the 3 residual components wrt k columns. Every
+                # row has the same number of entries per block: CSR is assembled directly
+                cols.append(np.broadcast_to(block_cols[:, None, :], M.shape))
+                vals.append(M)
         # fill one preallocated (n, 3, k) array per CSR field: concatenating broadcast
         # blocks would copy the dense kinematic block twice (10^5 points: 0.5 s a call)
         k = sum(c.shape[2] for c in cols)
@@ -375,41 +323,25 @@ class Problem:
     def constraints(self):
         """Gauge constraints C (rows) on the parameter vector: C x = 0."""
         L, rows = self.layout, []
-        if "plate" in L.blocks:
-            c = self.obs.plate0_mm - self.plate_centre
-            G = np.zeros((3 * self.B, 7))
-            for a in range(3):
-                G[a::3, a] = 1.0  # translations
-            rot = _skew(c)  # columns: small rotations about the centroid
-            for a in range(3):
-                G[:, 3 + a] = -rot[:, :, a].ravel()
-            G[:, 6] = c.ravel()  # isotropic scale: needs an external length reference
-            C = np.zeros((7, L.n))
-            C[:, L.blocks["plate"]] = G.T
-            rows.append(C)
-        if "probe_offset" in L.blocks:
-            C = np.zeros((3, L.n))
-            s = L.blocks["probe_offset"].start
-            for q in range(self.Q):
-                C[:, s + 3 * q: s + 3 * q + 3] = np.eye(3)
+        for b in self.blocks:
+            G = b.constraints()
+            if G is None:
+                continue
+            name = b.columns(self.obs)[0][0]
+            C = np.zeros((G.shape[0], L.n))
+            C[:, L.blocks[name]] = G
             rows.append(C)
         return np.vstack(rows) if rows else np.zeros((0, L.n))
 
     def update(self, state, step):
         """Apply a step: placements are updated multiplicatively so the rotation
-        parameters stay small increments (exact Jacobian at zero)."""
-        blk = self.layout.blocks
+        parameters stay small increments (exact Jacobian at zero), the plate into its
+        coordinates."""
         new = {k: v.copy() for k, v in state.items()}
         new["x"] = state["x"] + step
-        w = new["x"][blk["rotation"]].reshape(-1, 3) * 1e-6
-        tau = new["x"][blk["translation"]].reshape(-1, 3) * UM
-        new["R"] = Rotation.from_rotvec(w).as_matrix() @ state["R"]
-        new["t"] = state["t"] + tau
-        new["x"][blk["rotation"]] = 0.0
-        new["x"][blk["translation"]] = 0.0
-        if "plate" in blk:
-            new["c"] = state["c"] + new["x"][blk["plate"]].reshape(-1, 3) * UM
-            new["x"][blk["plate"]] = 0.0
+        for b in self.blocks:
+            if hasattr(b, "update"):
+                b.update(new)
         return new
 
 
@@ -565,86 +497,6 @@ class FitResult:
         return out
 
 
-def _normal_equations(J, d, chunk=30000):
-    """``JᵀJ`` and ``Jᵀd`` accumulated over dense row chunks (BLAS), far faster than a
-    sparse-sparse product when a dense kinematic block sits in every row."""
-    n = J.shape[1]
-    N = np.zeros((n, n))
-    g = np.zeros(n)
-    for i in range(0, J.shape[0], chunk):
-        A = J[i:i + chunk]
-        A = A.toarray() if sp.issparse(A) else np.asarray(A)
-        N += A.T @ A
-        g += A.T @ d[i:i + chunk]
-    return N, g
-
-
-class _Normal:
-    """Constrained, column-scaled normal equations of one linearisation (thesis appendix 2:
-    QR null space of the constraints), eigen-decomposed once so that steps for several
-    Levenberg-Marquardt dampings cost a matrix-vector product each."""
-
-    def __init__(self, J, d, C, rank_rtol, normal=None):
-        # ``normal=(JᵀJ, Jᵀd)`` when the caller already has them (holdout: the full
-        # problem's normal equations minus one placement's rows)
-        N0, g0 = normal if normal is not None else _normal_equations(J, d)
-        n = N0.shape[0]
-        norms = np.sqrt(np.clip(np.diag(N0), 0, None))
-        self.S = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
-        if C.shape[0]:
-            Q, _ = sla.qr((C * self.S).T)
-            self.Z = Q[:, np.linalg.matrix_rank(C * self.S):]
-        else:
-            self.Z = np.eye(n)
-        Nr = self.Z.T @ (self.S[:, None] * N0 * self.S[None, :]) @ self.Z
-        lam, V = np.linalg.eigh((Nr + Nr.T) / 2)
-        lam = np.clip(lam, 0, None)
-        sv = np.sqrt(lam)
-        keep = sv > rank_rtol * sv.max() if sv.max() > 0 else np.zeros_like(sv, bool)
-        self.lam, self.Vk = lam[keep], V[:, keep]
-        self.null = self.Z @ V[:, ~keep]  # in scaled parameter space
-        self.rank = int(keep.sum())
-        self.proj_g = self.Vk.T @ (self.Z.T @ (self.S * g0))
-
-    def step(self, mu=0.0):
-        """Minimum-norm step; ``mu`` > 0 damps it (scaled space, where JᵀJ has unit
-        diagonal): the poorly determined directions shrink first."""
-        return -(self.S * (self.Z @ (self.Vk @ (self.proj_g / (self.lam + mu)))))
-
-    def cov(self):
-        ZV = self.Z @ self.Vk
-        return (self.S[:, None] * ((ZV / self.lam) @ ZV.T)) * self.S[None, :]
-
-
-def _solve(J, d, C, rank_rtol):
-    """Minimum-norm Gauss-Newton step under constraints C x = 0 (QR null space, thesis
-    appendix 2), with column scaling and an eigen-decomposition of the reduced normal
-    matrix for the numerical rank. Returns step, covariance, rank, null vectors."""
-    ne = _Normal(J, d, C, rank_rtol)
-    return ne.step(), ne.cov(), ne.rank, ne.null
-
-
-def _describe_null(null, labels, limit=6):
-    combos, names = [], set()
-    for j in range(null.shape[1]):
-        w = null[:, j] / np.abs(null[:, j]).max()
-        idx = np.argsort(-np.abs(w))
-        big = [i for i in idx if abs(w[i]) >= 0.2][:limit]
-        names.update(labels[i] for i in idx if abs(w[i]) >= 0.05)
-        combos.append(_signed_sum((w[i], labels[i]) for i in big))
-    return combos, names
-
-
-def _signed_sum(terms) -> str:
-    """``0.50·a − 0.77·b``: a linear combination written as a metrologist would."""
-    out = ""
-    for k, (w, lab) in enumerate(terms):
-        sign = "−" if w < 0 else "+"
-        out += (f"{'−' if w < 0 else ''}{abs(w):.2f}·{lab}" if k == 0
-                else f" {sign} {abs(w):.2f}·{lab}")
-    return out
-
-
 @single_blas_thread
 def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, order: int = 2,
         plate: str | None = None, sigma_um: float = 0.5, positions=None, probes=None,
@@ -705,12 +557,12 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     # coupled directions (sv 1e-5 of the largest for a single placement) become
     # "determined" through the nonlinearity of radian-sized rotations, and the fit slid
     # along that valley without converging.
-    ne = _Normal(J, r, C, rank_rtol)
+    ne = Normal(J, r, C, rank_rtol)
     null0 = ne.null
-    C_run = np.vstack([C, (null0 / ne.S[:, None]).T]) if null0.shape[1] else C
+    C_run = ne.freeze_null(C)
     for it in range(1, max_iter + 1):  # noqa: B007 - `it` reports the iteration count
         if it > 1 or null0.shape[1]:
-            ne = _Normal(J, r, C_run, rank_rtol)
+            ne = Normal(J, r, C_run, rank_rtol)
         accepted = False
         for attempt in range(16):
             trial = prob.update(state, ne.step(mu))
@@ -735,11 +587,11 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
         if done:
             status = "converged"
             break
-    ne = _Normal(J, r, C_run, rank_rtol)
+    ne = Normal(J, r, C_run, rank_rtol)
     cov, rank = ne.cov(), ne.rank
     null = np.hstack([null0, ne.null]) if null0.shape[1] else ne.null
     u = np.sqrt(np.clip(np.diag(cov), 0, None))
-    combos, names = _describe_null(null, L.labels)
+    combos, names = describe_null(null, L.labels)
     unident = [lab for lab in L.labels if lab in names]
     u = np.array([np.nan if lab in names else ui for lab, ui in zip(L.labels, u, strict=True)])
     values = _report_values(prob, state)
@@ -787,30 +639,19 @@ def weighted_residual(prob: Problem, state, sigma_um: float, want_jac: bool):
     if J is not None:
         J = J / sigma_um
     if prob.plate == "prior":
-        o, s = prob.obs, prob.layout.blocks["plate"]
-        dev = (state["c"] - o.plate0_mm) / UM + state["x"][s].reshape(-1, 3)
-        # an infinite certificate u releases that coordinate (certificate_check): no row,
-        # so that it neither counts as an observation nor constrains the plate
-        keep = np.flatnonzero(np.isfinite(o.cert_u_um.ravel()))
-        u = o.cert_u_um.ravel()[keep]
-        r = np.concatenate([r, dev.ravel()[keep] / u])
+        rp, Jp = prob.block(Plate).prior_rows(state, want_jac)
+        r = np.concatenate([r, rp])
         if J is not None:
-            Jp = sp.csr_matrix((1.0 / u, (np.arange(keep.size), s.start + keep)),
-                               shape=(keep.size, prob.layout.n))
             J = sp.vstack([J, Jp]).tocsr()
     return d, r, J
 
 
 def _report_values(prob, state):
     """Parameter values relative to the nominal setup / certificate, in their units."""
-    L, o = prob.layout.blocks, prob.obs
     v = state["x"].copy()
-    if "plate" in L:
-        v[L["plate"]] = ((state["c"] - o.plate0_mm) / UM).ravel()
-    rot = np.array([Rotation.from_matrix(R @ R0.T).as_rotvec() for R, R0 in
-                    zip(state["R"], o.R0, strict=True)]) / 1e-6
-    v[L["rotation"]] = rot.ravel()
-    v[L["translation"]] = ((state["t"] - o.t0_mm) / UM).ravel()
+    for b in prob.blocks:
+        if hasattr(b, "report"):
+            b.report(state, v)
     return v
 
 

@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 
-from .fit import FitResult, Problem, _Normal, augmented_state, weighted_residual
+from .fit import FitResult, Problem, augmented_state, weighted_residual
+from .solver import Normal
 
 PASS_SHARE = 0.25
 """Share of the in-sample gain the held-out gain must reach. A real effect well above its
@@ -104,7 +105,7 @@ def _effect_columns(base: FitResult, prob: Problem):
     if Cn.shape[0]:
         X = X @ sla.null_space(Cn)
     # project out what the baseline explains (its constrained least-squares hat matrix)
-    cov = _Normal(Jb, r, Cb, base.rank_rtol).cov()
+    cov = Normal(Jb, r, Cb, base.rank_rtol).cov()
     X = X - Jb @ (cov @ (Jb.T @ X))
     r = r - Jb @ (cov @ (Jb.T @ r))
     o = prob.obs

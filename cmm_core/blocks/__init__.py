@@ -1,0 +1,39 @@
+"""Effect blocks: one physical effect, one class, one module (``base.Block`` protocol).
+
+The fit (``fit.Problem``) lays out its parameters, evaluates residuals and Jacobians and
+collects gauge constraints by looping over :data:`REGISTRY`; the diagnosis asks
+:func:`needs` whether the data can see an effect. Adding an effect is adding one module
+with its block and listing it here (plus its catalogue text in ``effects``).
+"""
+
+from __future__ import annotations
+
+from ..effects import PERIODIC
+from . import periodic
+from .backlash import Backlash
+from .base import Block, Eval
+from .drift import Drift
+from .kinematic import Kinematic
+from .placement import Placement
+from .plate import Plate
+from .plate_sag import PlateSag
+from .plate_thermal import PlateThermal
+from .probe_offset import ProbeOffset
+
+__all__ = ["REGISTRY", "BY_TOKEN", "Block", "Eval", "needs"]
+
+REGISTRY = (Plate, Placement, Kinematic, ProbeOffset, PlateThermal, PlateSag, Drift,
+            Backlash)
+"""Blocks in parameter-layout order; stages run in this order too (thermal before sag)."""
+
+BY_TOKEN = {b.token: b for b in REGISTRY if b.token}
+
+
+def needs(token: str, obs) -> str | None:
+    """Why ``obs`` cannot determine the effect ``token`` adds (None: they can)."""
+    name = token.partition(":")[0]
+    if name in BY_TOKEN:
+        return BY_TOKEN[name].needs(obs)
+    if name in PERIODIC:
+        return periodic.needs(obs, name)
+    return None

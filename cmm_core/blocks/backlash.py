@@ -1,0 +1,33 @@
+"""Reversal error (backlash) of each axis: a reading approached from + is short by half
+the reversal span, one approached from - long by as much (µm, the full span fitted).
+The approach direction follows every move of the file's measurement order
+(``fit.approach_directions``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Block, shared_cols
+
+
+class Backlash(Block):
+    """Reversal span of each axis (µm)."""
+
+    token = "backlash"
+
+    @staticmethod
+    def needs(obs):
+        if not (np.ptp(obs.approach, axis=0) == 2).any():
+            return "every ball was approached from the same side along each axis"
+        return None
+
+    def columns(self, obs):
+        return [("backlash", [f"backlash.{a}" for a in "xyz"], "um")]
+
+    def reading_stage(self, ev, d):
+        return d + ev.x("backlash") * ev.obs.approach / 2
+
+    def jacobian(self, ev):
+        o = ev.obs
+        return [(shared_cols(ev.start("backlash"), 3, len(o.pos)),
+                 np.eye(3)[None] * (o.approach / 2)[:, None, :])]

@@ -1,0 +1,31 @@
+"""Linear drift of each placement's readings in time (µm/h): thermal drift of the machine
+or the fixture while a placement is measured. Time is the ``time_min`` column, else the
+row order at one minute per probed ball (said so where it is reported)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Block, per_group_cols
+
+
+class Drift(Block):
+    """Drift rate per placement, xyz (µm/h)."""
+
+    token = "drift"
+
+    @staticmethod
+    def needs(obs):
+        return "needs measurement times" if np.ptp(obs.hours) == 0 else None
+
+    def columns(self, obs):
+        return [("drift", [f"{p}.drift_{a}" for p in obs.positions for a in "xyz"], "um/h")]
+
+    def reading_stage(self, ev, d):
+        o = ev.obs
+        return d - ev.x("drift").reshape(-1, 3)[o.pos] * o.hours[:, None]
+
+    def jacobian(self, ev):
+        o = ev.obs
+        return [(per_group_cols(ev.start("drift"), o.pos),
+                 -np.eye(3)[None] * o.hours[:, None, None])]

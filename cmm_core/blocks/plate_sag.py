@@ -1,0 +1,35 @@
+"""Sag of a horizontal plate: a bowl ``w = a·u² + b·u·v + c·v²`` along the plate normal,
+with (u, v) the plate coordinates normalised to [-1, 1] (``geometry.plate_effect_basis``),
+so that each coefficient is the bowl's height at the plate's edge (µm). Vertical
+placements do not sag."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..units import UM
+from .base import Block, shared_cols
+
+
+class PlateSag(Block):
+    """Bowl heights at the plate's edge (µm)."""
+
+    token = "plate_sag"
+
+    @staticmethod
+    def needs(obs):
+        return None if obs.horizontal.any() else "needs at least one horizontal placement"
+
+    def columns(self, obs):
+        return [("plate_sag", ["plate_sag.uu", "plate_sag.uv", "plate_sag.vv"], "um")]
+
+    def plate_stage(self, ev, c):
+        o = ev.obs
+        w = self.problem.sag_basis[o.ball] @ ev.x("plate_sag") * UM
+        return c + np.outer(w * o.horizontal[o.pos], [0, 0, 1])
+
+    def jacobian(self, ev):
+        o = ev.obs
+        nrm = ev.Rk[:, :, 2] * o.horizontal[o.pos][:, None]
+        return [(shared_cols(ev.start("plate_sag"), 3, len(o.pos)),
+                 -nrm[:, :, None] * self.problem.sag_basis[o.ball][:, None, :])]

@@ -1,0 +1,39 @@
+"""Thermal expansion of the plate about its centre: ``c' = c0 + (c - c0)(1 + α ΔT)`` with
+ΔT the plate temperature minus 20 °C (ISO 1) and α (10⁻⁶/K) the fitted expansion
+coefficient; without a certificate at 20 °C it is a uniform scale in every axis."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..units import PPM, UM
+from .base import Block, shared_cols
+
+
+class PlateThermal(Block):
+    """Expansion coefficient of the plate (10⁻⁶/K)."""
+
+    token = "plate_thermal"
+
+    @staticmethod
+    def needs(obs):
+        if not obs.has_temp:
+            return "needs plate temperatures (temp_C column or setup records)"
+        if np.ptp(obs.dT_K) < 1e-6:
+            return "the plate temperature never changes, so expansion is a pure scale error"
+        return None
+
+    def columns(self, obs):
+        return [("plate_thermal", ["plate_thermal.cte"], "1e-6/K")]
+
+    def plate_stage(self, ev, c):
+        alpha = ev.x("plate_thermal")[0] * PPM
+        ev.plate_scale = 1 + alpha * ev.obs.dT_K
+        centre = self.problem.plate_centre
+        return centre + (c - centre) * ev.plate_scale[:, None]
+
+    def jacobian(self, ev):
+        o = ev.obs
+        dc = np.einsum("nij,nj->ni", ev.Rk, ev.state["c"][o.ball] - self.problem.plate_centre)
+        return [(shared_cols(ev.start("plate_thermal"), 1, len(o.pos)),
+                 (-dc * o.dT_K[:, None] * PPM / UM)[:, :, None])]

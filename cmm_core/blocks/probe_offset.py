@@ -1,0 +1,37 @@
+"""Probe offset errors: each stylus's true offset differs from its nominal one by a few
+µm (qualification error). Through the rotation errors a wrong offset moves the corrected
+point (thesis eq. 4.13 with ``p + dp``); with the kinematic model it is also a constant
+shift of the stylus's points, of which only the differences between styli are
+determined (their mean is a placement translation)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import kinematics as kin
+from ..units import UM
+from .base import Block, per_group_cols
+
+
+class ProbeOffset(Block):
+    """Offset error of every stylus, xyz (µm); constrained to sum to zero."""
+
+    token = "probe_offset"
+
+    @staticmethod
+    def needs(obs):
+        return "needs at least two probes" if len(obs.probes) < 2 else None
+
+    def columns(self, obs):
+        return [("probe_offset", [f"probe{q}.{a}" for q in obs.probes for a in "xyz"], "um")]
+
+    def probe_stage(self, ev, p):
+        return p + ev.x("probe_offset").reshape(-1, 3)[ev.obs.probe] * UM
+
+    def jacobian(self, ev):
+        o = ev.obs
+        Jp = kin.probe_jacobian(self.problem.terms, ev.x("kinematic"), o.r_mm - o.p_mm)
+        return [(per_group_cols(ev.start("probe_offset"), o.probe), Jp)]
+
+    def constraints(self):
+        return np.tile(np.eye(3), (1, len(self.problem.obs.probes)))
