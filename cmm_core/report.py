@@ -1,439 +1,47 @@
-"""Figures (Plotly) and the self-contained HTML report.
+"""The self-contained HTML report: one function from an analysis record to one document.
 
-The figure builders are shared by the app and the report so both show the same thing.
-Micrometres on screen, units on every axis. The report embeds plotly.js once, inline (no
-network access is needed to open it).
+:func:`analysis_report` (record -> HTML) is what the app's Export page and
+``python -m cmm_core report`` both call, so the same record gives the same bytes (the
+generation time aside). plotly.js is embedded once, deflate-compressed and decoded in the
+browser (no network needed to open the report); each figure is a div with its data.
+The figure builders live in :mod:`cmm_core.report_figures` and are re-exported here.
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import html
+import json
+import re
+import zlib
 from datetime import UTC, datetime
 
 import numpy as np
 import pandas as pd
-import plotly.graph_objects as go
-from plotly.subplots import make_subplots
+import plotly.io as pio
+from plotly.offline import get_plotlyjs, get_plotlyjs_version
 
 from . import __version__
-from . import kinematics as kin
-from .fit import rigid_fit
+from .report_figures import (  # noqa: F401 - re-exported: pages use rep.fig_*
+    AXIS_COLOURS,
+    FUNCTION_UNITS,
+    UM,
+    deviations_plate_frame,
+    error_function_curves,
+    fig_deviation,
+    fig_error_functions,
+    fig_history,
+    fig_mpe,
+    fig_pattern,
+    fig_placements,
+    fig_residual_map,
+    fig_signature_scatter,
+    fig_surface_grid,
+    residual_summary,
+    true_function_curve,
+)
 
-UM = 1e-3
-AXIS_COLOURS = {"x": "#1f77b4", "y": "#2ca02c", "z": "#d62728"}
-FUNCTION_UNITS = {"d": "µm", "r": "µrad", "s": "µrad"}
-
-
-def _layout(fig, title, height=None):
-    fig.update_layout(title=title, margin={"l": 60, "r": 20, "t": 60, "b": 50},
-                      legend={"orientation": "h", "y": -0.15}, template="plotly_white")
-    if height:
-        fig.update_layout(height=height)
-    return fig
-
-
-# ---------------------------------------------------------------------------------------
-# Error functions
-# ---------------------------------------------------------------------------------------
-
-def error_function_curves(result, name: str, n: int = 61):
-    """``(u_mm, value, u95)`` of one fitted error function along its axis, with the 95 %
-    band half-width (k = 2). Units: µm for d.., µrad for r.. and s.. (squareness angle)."""
-    terms = result.terms
-    axis = kin.axis_of(name)
-    stroke = float(terms.range_mm[axis])
-    u = np.linspace(0.0, stroke, n)
-    sl = terms.slices.get(name)
-    if sl is None or sl.stop == sl.start:
-        return u, np.zeros(n), np.zeros(n)
-    coef = result.kinematic_coef[sl]
-    V = result.kinematic_cov[sl, sl]
-    if name in kin.SQUARENESS:  # the coefficient is the angle itself (µrad)
-        val = np.full(n, float(coef[0]))
-        sd = np.full(n, float(np.sqrt(max(V[0, 0], 0.0))))
-    else:
-        D = terms.design(name, u)
-        val = D @ coef
-        sd = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", D, V, D), 0, None))
-    if name in set(result.unidentifiable) or any(
-            lab.startswith(name + "[") or lab == name for lab in result.unidentifiable):
-        sd = np.full(n, np.nan)
-    return u, val, 2.0 * sd
-
-
-def true_function_curve(truth: dict, name: str, u_mm, range_mm):
-    """A simulation's true error function along its axis (µm or µrad), from the truth's
-    coefficient labels (``dyz[3]``, ``dxx[sin180]``); None when the truth has none."""
-    if name in kin.SQUARENESS:
-        return None if name not in truth else np.full(len(u_mm), float(truth[name]))
-    poly, per = {}, {}
-    for lab, v in truth.items():
-        base, _, rest = lab.partition("[")
-        if base != name or not rest.endswith("]"):
-            continue
-        k = rest[:-1]
-        if k.isdigit():
-            poly[int(k)] = float(v)
-        elif k[:3] in ("sin", "cos"):
-            per.setdefault(float(k[3:]), {})[k[:3]] = float(v)
-    if not poly and not per:
-        return None
-    stroke = float(range_mm[kin.axis_of(name)])
-    val = np.zeros(len(u_mm))
-    if poly:
-        order = max(poly)
-        first = 2 if name in kin.STRAIGHTNESS else 1
-        coef = np.array([poly.get(j, 0.0) for j in range(first, order + 1)])
-        val += kin.basis(name, np.asarray(u_mm, float), order, stroke) @ coef
-    for period, sc in per.items():
-        val += kin.periodic_basis(np.asarray(u_mm, float), period) @ np.array(
-            [sc.get("sin", 0.0), sc.get("cos", 0.0)])
-    return val
-
-
-def fig_error_functions(result, names=None, cols: int = 3, truth=None):
-    """Fitted error functions with 95 % bands (k = 2), one panel per function; the span of
-    the measured scale readings shaded, and a simulation's true functions dashed when
-    ``truth`` (label -> value) is given."""
-    present = [n for n, _ in result.terms.functions]
-    names = [n for n in (names or present) if n in present]
-    if not names:
-        fig = go.Figure()
-        return _layout(fig, "No kinematic error functions in the model")
-    rows = int(np.ceil(len(names) / cols))
-    fig = make_subplots(rows=rows, cols=cols, subplot_titles=names,
-                        vertical_spacing=min(0.08, 0.6 / max(rows, 1)))
-    traces, trows, tcols, axes, spans = [], [], [], {}, []
-    for i, name in enumerate(names):
-        r, c = i // cols + 1, i % cols + 1
-        u, val, band = error_function_curves(result, name)
-        colour = AXIS_COLOURS["xyz"[kin.axis_of(name)]]
-        if np.isfinite(band).all():
-            traces.append(go.Scatter(x=np.r_[u, u[::-1]], y=np.r_[val + band, (val - band)[::-1]],
-                                     fill="toself", fillcolor="rgba(120,120,120,0.25)",
-                                     line={"width": 0}, hoverinfo="skip", showlegend=i == 0,
-                                     name="95 % band (k = 2)"))
-            trows.append(r)
-            tcols.append(c)
-        traces.append(go.Scatter(x=u, y=val, mode="lines", line={"color": colour},
-                                 name=name, showlegend=False,
-                                 hovertemplate=f"{name}: %{{y:.3f}}<extra></extra>"))
-        trows.append(r)
-        tcols.append(c)
-        true = None if truth is None else true_function_curve(truth, name, u,
-                                                              result.terms.range_mm)
-        if true is not None:
-            traces.append(go.Scatter(x=u, y=true, mode="lines", name="true (simulation)",
-                                     line={"color": "#222", "dash": "dash", "width": 1},
-                                     showlegend=not any(t.name == "true (simulation)"
-                                                        for t in traces),
-                                     hovertemplate=f"true {name}: %{{y:.3f}}<extra></extra>"))
-            trows.append(r)
-            tcols.append(c)
-        ax = kin.axis_of(name)
-        x_meas = result.problem.obs.r_mm[:, ax] - result.problem.obs.p_mm[:, ax]
-        spans.append((float(x_meas.min()), float(x_meas.max()), r, c))
-        n = "" if i == 0 else str(i + 1)
-        axes[f"xaxis{n}"] = {"title": {"text": f"{'xyz'[kin.axis_of(name)]} (mm)"}}
-        axes[f"yaxis{n}"] = {"title": {"text": FUNCTION_UNITS[name[0]]}}
-    fig.add_traces(traces, rows=trows, cols=tcols)
-    # after the traces: plotly skips shapes on subplots that are still empty
-    for x0, x1, r, c in spans:
-        fig.add_vrect(x0=x0, x1=x1, row=r, col=c, fillcolor="rgba(31,119,180,0.07)",
-                      line_width=0, layer="below")
-    fig.update_layout(axes)
-    return _layout(fig, "Fitted error functions with 95 % bands", height=260 * rows)
-
-
-# ---------------------------------------------------------------------------------------
-# Magnified deviation plots (thesis figures 4.8-4.10)
-# ---------------------------------------------------------------------------------------
-
-def deviations_plate_frame(result, position: str, probe=None) -> pd.DataFrame:
-    """Measured and model-predicted deviations from the (fitted) plate, plate frame, µm.
-
-    The fitted placement of the position maps the reported points back to the plate frame;
-    the model-predicted reported point is ``r - residual``. The rigid motion that best aligns
-    the measured points with the nominal ones is removed from both (only the shape shows).
-    """
-    obs = result.problem.obs
-    st = result.state
-    t = result.table
-    sel = (t["position"] == position).to_numpy()
-    if probe is not None:
-        sel &= (t["probe"].astype(str) == str(probe)).to_numpy()
-    if not sel.any():
-        return pd.DataFrame()
-    k = obs.positions.index(position)
-    R, tr = st["R"][k], st["t"][k]
-    plate = st["c"] if "c" in st else obs.plate0_mm
-    r = obs.r_mm[sel]
-    d = result.residuals_um[sel]
-    c = plate[obs.ball[sel]]
-    meas = (r - tr) @ R - c
-    pred = (r - d * UM - tr) @ R - c
-    # Show the shape, not where the plate sits: remove the rigid motion that best aligns the
-    # measured points with the nominal ones (the same motion is applied to the prediction).
-    if len(c) >= 3:
-        R2, t2 = rigid_fit(c + meas, c)
-        meas = (c + meas) @ R2.T + t2 - c
-        pred = (c + pred) @ R2.T + t2 - c
-    out = pd.DataFrame({"ball": t["ball"].to_numpy()[sel], "probe": t["probe"].to_numpy()[sel],
-                        "u_mm": c[:, 0], "v_mm": c[:, 1], "w_mm": c[:, 2]})
-    for i, a in enumerate("uvw"):
-        out[f"meas_d{a}_um"] = meas[:, i] / UM
-        out[f"pred_d{a}_um"] = pred[:, i] / UM
-    return out
-
-
-def fig_deviation(result, position: str, magnification: float = 2000.0, probe=None):
-    """Nominal grid, measured and predicted points with deviations magnified (plate frame)."""
-    df = deviations_plate_frame(result, position, probe)
-    fig = go.Figure()
-    if df.empty:
-        return _layout(fig, f"{position}: no observations")
-    m = magnification * UM  # µm -> mm, magnified
-    u, v = df["u_mm"].to_numpy(), df["v_mm"].to_numpy()
-    fig.add_trace(go.Scatter(x=u, y=v, mode="markers", name="nominal (certificate)",
-                             marker={"symbol": "circle-open", "size": 9, "color": "black"},
-                             text=df["ball"], hovertemplate="ball %{text}<extra>nominal</extra>"))
-    for kind, colour, sym in (("meas", "#d62728", "x"), ("pred", "#1f77b4", "cross")):
-        x = u + m * df[f"{kind}_du_um"].to_numpy()
-        y = v + m * df[f"{kind}_dv_um"].to_numpy()
-        label = "measured" if kind == "meas" else "predicted by model"
-        fig.add_trace(go.Scatter(
-            x=x, y=y, mode="markers", name=label,
-            marker={"symbol": sym, "size": 8, "color": colour},
-            customdata=np.column_stack([df["ball"], df[f"{kind}_du_um"], df[f"{kind}_dv_um"],
-                                        df[f"{kind}_dw_um"]]),
-            hovertemplate=("ball %{customdata[0]}<br>du %{customdata[1]:.2f} µm<br>"
-                           "dv %{customdata[2]:.2f} µm<br>dw %{customdata[3]:.2f} µm"
-                           f"<extra>{label}</extra>")))
-        # lines from nominal to the magnified point
-        xs = np.column_stack([u, x, np.full_like(u, np.nan)]).ravel()
-        ys = np.column_stack([v, y, np.full_like(v, np.nan)]).ravel()
-        fig.add_trace(go.Scatter(x=xs, y=ys, mode="lines", showlegend=False,
-                                 line={"color": colour, "width": 1}, hoverinfo="skip"))
-    # scale key: a bar about a tenth of the plate long, labelled with the deviation it means
-    span = float(max(np.ptp(u), np.ptp(v), 1.0))
-    raw = 0.1 * span / m
-    bar_um = float(min((k * 10 ** e for e in range(-2, 4) for k in (1, 2, 5)),
-                       key=lambda b: abs(np.log(b / raw))))
-    y_bar = float(v.min()) - 0.08 * span
-    fig.add_trace(go.Scatter(x=[u.min(), u.min() + bar_um * m], y=[y_bar, y_bar],
-                             mode="lines+text", line={"color": "black", "width": 3},
-                             text=["", f"{bar_um:g} µm"], textposition="middle right",
-                             name=f"scale: {bar_um:g} µm deviation", hoverinfo="skip"))
-    fig.update_xaxes(title_text=f"plate u (mm); deviations ×{magnification:g}",
-                     constrain="domain")
-    fig.update_yaxes(title_text=f"plate v (mm); deviations ×{magnification:g}",
-                     scaleanchor="x", scaleratio=1)
-    return _layout(fig, f"{position}: nominal vs measured vs predicted "
-                        f"(magnification ×{magnification:g})", height=600)
-
-
-# ---------------------------------------------------------------------------------------
-# Residual patterns, signatures, maps
-# ---------------------------------------------------------------------------------------
-
-def fig_pattern(table: pd.DataFrame, values_um, title: str, height: int = 330):
-    """A per-observation pattern (residuals or a candidate's signature), µm, three panels
-    (x, y, z) over the observations grouped by position."""
-    values_um = np.asarray(values_um, float)
-    labels = (table["position"].astype(str) + "/" + table["probe"].astype(str) + " b"
-              + table["ball"].astype(str)).to_numpy()
-    idx = np.arange(len(table))
-    fig = make_subplots(rows=1, cols=3, subplot_titles=("x", "y", "z"), shared_yaxes=True)
-    positions = list(dict.fromkeys(table["position"]))
-    palette = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b",
-               "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"]
-    traces, tcols = [], []
-    for j, pos in enumerate(positions):
-        sel = (table["position"] == pos).to_numpy()
-        for a in range(3):
-            traces.append(go.Scatter(x=idx[sel], y=values_um[sel, a], mode="markers",
-                                     marker={"size": 5, "color": palette[j % len(palette)]},
-                                     name=str(pos), legendgroup=str(pos), showlegend=a == 0,
-                                     text=labels[sel],
-                                     hovertemplate="%{text}: %{y:.3f} µm<extra></extra>"))
-            tcols.append(a + 1)
-    fig.add_traces(traces, rows=[1] * len(traces), cols=tcols)
-    # one axis title under the middle panel: three would overlap in a half-width column
-    fig.update_xaxes(title_text="observation (grouped by position)", row=1, col=2)
-    fig.update_yaxes(title_text="µm", row=1, col=1)
-    _layout(fig, title, height=height)
-    fig.update_layout(legend={"orientation": "h", "y": -0.32, "x": 0},
-                      margin={"t": 60, "b": 90})
-    return fig
-
-
-def fig_residual_map(result, component: str = "norm"):
-    """Residuals at the measured points in the machine volume (colour in µm)."""
-    t = result.table
-    d = result.residuals_um
-    val = np.linalg.norm(d, axis=1) if component == "norm" else d[:, "xyz".index(component)]
-    label = "|residual|" if component == "norm" else f"residual {component}"
-    fig = go.Figure(go.Scatter3d(
-        x=t["mx_mm"], y=t["my_mm"], z=t["mz_mm"], mode="markers",
-        marker={"size": 4, "color": val, "colorscale": "RdBu_r" if component != "norm"
-                else "Viridis", "colorbar": {"title": {"text": f"{label} (µm)"}}},
-        text=t["position"].astype(str) + " ball " + t["ball"].astype(str),
-        hovertemplate="%{text}<br>%{marker.color:.3f} µm<extra></extra>"))
-    fig.update_layout(scene={"xaxis_title": "X (mm)", "yaxis_title": "Y (mm)",
-                             "zaxis_title": "Z (mm)", "aspectmode": "data"})
-    return _layout(fig, f"Residual map: {label} in µm", height=480)
-
-
-def residual_summary(result) -> pd.DataFrame:
-    """RMS of the residuals (µm) per position and probe and axis."""
-    df = result.residuals_frame()
-    g = df.groupby(["position", "probe"], sort=False)[["rx_um", "ry_um", "rz_um"]]
-    out = g.apply(lambda s: np.sqrt((s**2).mean())).reset_index()
-    out.columns = ["position", "probe", "rms_x_um", "rms_y_um", "rms_z_um"]
-    return out
-
-
-# ---------------------------------------------------------------------------------------
-# History, placements
-# ---------------------------------------------------------------------------------------
-
-def fig_signature_scatter(residuals_um, signature_um, title: str, height: int = 300):
-    """Residual against a candidate's signature, per component, with the 1:1 line: an
-    effect that explains the misfit puts the points along the line (their scatter about it
-    is the noise); one that does not leaves a cloud around zero."""
-    r = np.asarray(residuals_um, float)
-    sg = np.asarray(signature_um, float)
-    fig = make_subplots(rows=1, cols=3, subplot_titles=("x", "y", "z"), shared_yaxes=True)
-    lim = float(np.nanmax(np.abs(sg))) or 1.0
-    for a in range(3):
-        fig.add_trace(go.Scatter(x=sg[:, a], y=r[:, a], mode="markers", showlegend=False,
-                                 marker={"size": 4, "opacity": 0.6},
-                                 hovertemplate="signature %{x:.3f} µm<br>residual %{y:.3f} "
-                                               "µm<extra></extra>"), row=1, col=a + 1)
-        fig.add_trace(go.Scatter(x=[-lim, lim], y=[-lim, lim], mode="lines", showlegend=False,
-                                 line={"color": "#888", "dash": "dash"}, hoverinfo="skip"),
-                      row=1, col=a + 1)
-    fig.update_xaxes(title_text="signature (µm)", row=1, col=2)
-    fig.update_yaxes(title_text="residual (µm)", row=1, col=1)
-    return _layout(fig, title, height=height)
-
-
-def fig_mpe(result, title: str = "Length errors against the MPE (0.6 µm + L/600)"):
-    """Length errors E (µm) against the certificate length L (mm): each with its ±U bar
-    (k = 2), coloured by its ISO 14253-1 decision, between the ±MPE(L) lines."""
-    colours = {"conforms": "#2ca02c", "inconclusive": "#ff7f0e",
-               "does not conform": "#d62728"}
-    fig = go.Figure()
-    L = np.asarray(result.length_mm, float)
-    order = np.argsort(L)
-    for sign in (1, -1):
-        fig.add_trace(go.Scatter(x=L[order], y=sign * np.asarray(result.mpe_um)[order],
-                                 mode="lines", line={"color": "#444", "dash": "dash"},
-                                 name="±MPE", showlegend=sign == 1, hoverinfo="skip"))
-    for dec, colour in colours.items():
-        sel = np.asarray(result.decision) == dec
-        if not sel.any():
-            continue
-        text = [f"{p}: balls {a}-{b} ({d})" for p, a, b, d in zip(
-            np.asarray(result.position)[sel], np.asarray(result.ball_a)[sel],
-            np.asarray(result.ball_b)[sel], np.asarray(result.direction)[sel], strict=True)]
-        fig.add_trace(go.Scatter(
-            x=L[sel], y=np.asarray(result.error_um)[sel], mode="markers", name=dec,
-            marker={"color": colour, "size": 5},
-            error_y={"type": "data", "array": np.asarray(result.U_um)[sel], "thickness": 1,
-                     "width": 0, "color": colour},
-            text=text, hovertemplate="%{text}<br>L %{x:.1f} mm, E %{y:.2f} µm<extra></extra>"))
-    fig.update_xaxes(title_text="certificate length L (mm)")
-    fig.update_yaxes(title_text="length error E (µm)")
-    return _layout(fig, title, height=420)
-
-
-def fig_history(history: list):
-    """RMS, χ²/dof, BIC and GP discrepancy amplitude as effects are added or removed."""
-    fig = make_subplots(rows=1, cols=4, subplot_titles=("RMS (µm)", "χ²/dof", "BIC",
-                                                       "GP discrepancy (µm)"))
-    if not history:
-        return _layout(fig, "Diagnosis history (empty)", height=320)
-    steps = [f"{i}: {h.get('change') or h.get('spec')}" for i, h in enumerate(history)]
-    # tick labels name the change of each step (shortened), the hover gives it in full
-    ticks = [str(h.get("change") or h.get("spec") or i)[:14] for i, h in enumerate(history)]
-    for c, key in enumerate(("rms_um", "chi2_dof", "bic", "gp_amplitude_um"), start=1):
-        y = [h.get(key) for h in history]
-        y = [np.nan if v is None else v for v in y]
-        fig.add_trace(go.Scatter(x=list(range(len(history))), y=y, mode="lines+markers",
-                                 text=steps, showlegend=False,
-                                 hovertemplate="%{text}<br>%{y:.4g}<extra></extra>"),
-                      row=1, col=c)
-        fig.update_xaxes(tickmode="array", tickvals=list(range(len(history))),
-                         ticktext=ticks, tickangle=-30, row=1, col=c)
-        if not np.isfinite(np.asarray(y, float)).any():
-            fig.update_yaxes(showticklabels=False, row=1, col=c)
-            fig.add_annotation(text="not computed", showarrow=False, row=1, col=c,
-                               x=(len(history) - 1) / 2, y=0.5,
-                               yref="y domain" if c == 1 else f"y{c} domain")
-    return _layout(fig, "Diagnosis history: fit quality as effects are added", height=360)
-
-
-def fig_placements(dataset, certificate_xyz=None):
-    """3D view of the plate placements (measured ball centres) in the machine volume."""
-    rng = np.asarray(dataset.setup.range_mm, float)
-    fig = go.Figure()
-    # machine volume wireframe
-    corners = np.array([[x, y, z] for x in (0, rng[0]) for y in (0, rng[1]) for z in (0, rng[2])])
-    edges = [(0, 1), (0, 2), (0, 4), (1, 3), (1, 5), (2, 3), (2, 6), (3, 7), (4, 5), (4, 6),
-             (5, 7), (6, 7)]
-    xs, ys, zs = [], [], []
-    for a, b in edges:
-        for arr, k in ((xs, 0), (ys, 1), (zs, 2)):
-            arr += [corners[a, k], corners[b, k], None]
-    fig.add_trace(go.Scatter3d(x=xs, y=ys, z=zs, mode="lines", name="working volume",
-                               line={"color": "grey", "width": 2}, hoverinfo="skip"))
-    m = dataset.meas
-    for pos, g in m.groupby("position", sort=False):
-        fig.add_trace(go.Scatter3d(
-            x=g["mx_mm"], y=g["my_mm"], z=g["mz_mm"], mode="markers", name=str(pos),
-            marker={"size": 3},
-            text=g["probe"].astype(str).radd("probe ") + ", ball " + g["ball"].astype(str),
-            hovertemplate="%{text}<br>(%{x:.1f}, %{y:.1f}, %{z:.1f}) mm<extra>"
-                          + str(pos) + "</extra>"))
-    # the camera a little further out than plotly's default, or the near corner of the
-    # volume and its tick labels are clipped
-    fig.update_layout(scene={"xaxis_title": "X (mm)", "yaxis_title": "Y (mm)",
-                             "zaxis_title": "Z (mm)", "aspectmode": "data",
-                             "camera": {"eye": {"x": 1.6, "y": 1.6, "z": 1.0}}})
-    return _layout(fig, "Plate placements in the machine volume (mm)", height=560)
-
-
-def fig_surface_grid(xg, yg, values, *, title: str, unit: str, points=None, colorscale="RdBu_r",
-                     xlabel: str = "X (mm)", ylabel: str = "Y (mm)", zrange=None):
-    """A heatmap of a quantity over a grid (mm) with the measured points on top.
-
-    A diverging colour scale (the default, for signed errors) is centred on zero so white
-    means no error; ``zrange`` = (min, max) fixes the scale so that maps drawn side by
-    side (kinematic model, GP, measurement) can be compared by colour.
-    """
-    scale = {}
-    if zrange is not None:
-        scale = {"zmin": float(zrange[0]), "zmax": float(zrange[1])}
-    elif isinstance(colorscale, str) and colorscale.startswith("RdBu"):
-        scale = {"zmid": 0.0}
-    fig = go.Figure(go.Heatmap(x=xg, y=yg, z=values, colorscale=colorscale, **scale,
-                               colorbar={"title": {"text": unit}},
-                               hovertemplate="%{x:.0f} mm, %{y:.0f} mm<br>%{z:.3f} "
-                                             + unit + "<extra></extra>"))
-    if points is not None and len(points):
-        fig.add_trace(go.Scatter(x=points[:, 0], y=points[:, 1], mode="markers",
-                                 name="measured points",
-                                 marker={"size": 5, "color": "black", "symbol": "x"}))
-    # equal scales without padding the x range: shrink the plot area instead
-    fig.update_xaxes(title_text=xlabel, constrain="domain")
-    fig.update_yaxes(title_text=ylabel, scaleanchor="x", scaleratio=1)
-    return _layout(fig, title, height=420)
-
-
-# ---------------------------------------------------------------------------------------
-# The report
-# ---------------------------------------------------------------------------------------
 
 def _table_html(df: pd.DataFrame, floatfmt="{:.4g}") -> str:
     # None in an object column (a value never computed) prints as "None" unless made NaN
@@ -448,13 +56,181 @@ color:#222;padding:0 1em}h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padd
 margin-top:1.6em}table.tbl{border-collapse:collapse;font-size:.85em;margin:.5em 0}
 table.tbl td,table.tbl th{border:1px solid #ddd;padding:2px 6px;text-align:right}
 .note{color:#555;font-size:.9em}.kv td{padding:2px 10px}
+.chi2{padding:.4em .7em;border-left:4px solid #2ca02c;background:#f3faf3}
+.chi2.fail{border-color:#d62728;background:#fdf1f1}
 """
+TIMESTAMP = re.compile(r"Generated \d{4}-\d\d-\d\d \d\d:\d\d UTC")
+"""The only part of a report that differs between two runs of the same record."""
+_PLOTLY_CONFIG = json.dumps({"displaylogo": False, "responsive": True})
+# base85 (Python's alphabet) with the characters HTML treats specially swapped for unused
+# ones, so the payload can sit in a script element as it is
+_ALPHABET = ("0123456789ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz"
+             "!#$%:()*+-;,=.?@^_`{|}~")
+_DIGITS = np.frombuffer(_ALPHABET.encode(), np.uint8)
+
+
+def _pack(text: str) -> tuple[str, int]:
+    """``text`` raw-deflated and base85-encoded, with the compressed length in bytes."""
+    z = zlib.compressobj(9, zlib.DEFLATED, -15)
+    data = z.compress(text.encode()) + z.flush()
+    pad = -len(data) % 4
+    a = np.frombuffer(data + b"\0" * pad, dtype=">u4").astype(np.int64)
+    digits = np.empty((len(a), 5), np.uint8)
+    for i in range(4, -1, -1):
+        a, digits[:, i] = np.divmod(a, 85)
+    out = _DIGITS[digits].tobytes()
+    return out[:len(out) - pad].decode("ascii"), len(data)
+
+
+@functools.lru_cache(maxsize=1)
+def _plotly_packed() -> tuple[str, int]:
+    """plotly.js packed (1.8 MB instead of 4.8), once per process."""
+    return _pack(get_plotlyjs())
+
+
+def plotly_loader(figures: dict) -> str:
+    """The one copy of plotly.js and the figures' data, packed, and the script that
+    unpacks them: the promise ``cmmPlotlyReady`` resolves to ``{div id: figure}``."""
+    js, n_js = _plotly_packed()
+    figs, n_figs = _pack("{" + ",".join(f'"{k}":{v}' for k, v in figures.items()) + "}")
+    return (f"<script id='cmm-plotly' type='application/octet-stream'>{js}</script>\n"
+            f"<script id='cmm-figures' type='application/octet-stream'>{figs}</script>\n"
+            f"<script>/* plotly.js v{get_plotlyjs_version()} and the figures, inline: raw "
+            "deflate, base85 */\nwindow.cmmPlotlyReady=(function(){"
+            f'var A="{_ALPHABET}",M=new Uint8Array(128),i;'
+            "for(i=0;i<85;i++)M[A.charCodeAt(i)]=i;function unpack(id,n){var i,j,v,k=0,"
+            "s=document.getElementById(id).textContent.trim(),"
+            "o=new Uint8Array(Math.ceil(s.length/5)*4);"
+            "for(i=0;i<s.length;i+=5){v=0;for(j=0;j<5;j++)v=v*85+(i+j<s.length?"
+            "M[s.charCodeAt(i+j)]:84);o[k++]=v>>>24;o[k++]=v>>>16&255;o[k++]=v>>>8&255;"
+            "o[k++]=v&255;}return new Response(new Blob([o.subarray(0,n)]).stream()"
+            ".pipeThrough(new DecompressionStream('deflate-raw'))).text();}"
+            f"return Promise.all([unpack('cmm-plotly',{n_js}),unpack('cmm-figures',{n_figs})])"
+            ".then(function(t){var e=document.createElement('script');e.textContent=t[0];"
+            "document.head.appendChild(e);return JSON.parse(t[1]);});})();\n"
+            "cmmPlotlyReady.catch(function(){document.body.insertAdjacentHTML('afterbegin',"
+            "\"<p class='chi2 fail'>The figures need a browser from 2023 or later "
+            "(DecompressionStream); the tables are complete.</p>\");});</script>")
+
+
+def figure_html(fig, div_id: str, figures: dict) -> str:
+    """A figure's div and the script that draws it once unpacked; its data go into
+    ``figures`` (packed by :func:`plotly_loader`)."""
+    figures[div_id] = pio.to_json(fig, validate=False, remove_uids=True)
+    height = fig.layout.height or 450
+    return (f"<div id='{div_id}' class='plotly-graph-div' style='height:{height}px;"
+            f"width:100%'></div><script>cmmPlotlyReady.then(function(F){{Plotly.newPlot("
+            f"'{div_id}',F['{div_id}'].data,F['{div_id}'].layout,{_PLOTLY_CONFIG});}});"
+            "</script>")
+
+
+def chi2_html(result) -> str:
+    """The fit's χ² test in words, shown next to every uncertainty: when it fails, by how
+    much the σ-based values understate the scatter (Birge ratio)."""
+    r = result
+    if r.fails_chi2_test:
+        return (f"<p class='chi2 fail'><b>The model fails its χ² test</b>: χ²/dof "
+                f"{r.chi2_dof:.2f} at {r.dof} degrees of freedom (p = {r.chi2_p_value:.2g}). "
+                f"Uncertainties from σ = {r.sigma_um:.3g} µm alone are too small by the "
+                f"Birge ratio ×{r.birge_ratio:.2f}; the inflated values are shown beside "
+                "them. Neither is trustworthy until the diagnosis explains the misfit.</p>")
+    return (f"<p class='chi2'>χ² test passed: χ²/dof {r.chi2_dof:.2f} at {r.dof} degrees "
+            f"of freedom (p = {r.chi2_p_value:.2g}); the σ-based uncertainties stand.</p>")
+
+
+def _uncertainty_table(uncertainty, result) -> pd.DataFrame:
+    rows = []
+    for lab in ("U1_um", "U2_um", "U3_um"):
+        val = getattr(uncertainty, lab, None)
+        row = {"quantity": lab[:2], **({f"{a} (µm)": val[a] for a in "xyz"} if val else {})}
+        if val and result.fails_chi2_test:
+            row.update({f"{a} × Birge (µm)": val[a] * result.birge_ratio for a in "xyz"})
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _record_sections(res) -> list:
+    """(heading, html) sections an :class:`~cmm_core.analysis.AnalysisResult` adds:
+    sources and settings, σ, outliers, measured errors, the GP."""
+    from .analysis import ERROR_CONVENTION, record_to_dict
+
+    rec, r = res.record, res.fit
+    d = rec.data
+    files = [("measurements", f) for f in d.measurements] + [("setup", d.setup)] + (
+        [("certificate", d.certificate)] if d.certificate else [])
+    src = pd.DataFrame([{"role": role, "file": f.name,
+                         "SHA-256 (first 12)": hashlib.sha256(f.text().encode()).hexdigest()[:12]}
+                        for role, f in files])
+    settings = {k: v for k, v in record_to_dict(rec).items() if k not in ("data", "history")}
+    rows = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(json.dumps(v))}</td></tr>"
+                   for k, v in settings.items())
+    out = [("Analysis record", "<p class='note'>The same record (ANALYSIS.json, "
+            "<code>python -m cmm_core report</code>) gives the same numbers and this same "
+            f"report.</p><table class='kv'>{rows}</table>" + _table_html(src))]
+    t = r.table
+    err = pd.DataFrame(np.column_stack([res.measured_error_um, r.residuals_um]),
+                       columns=[f"{k} {a} (µm)" for k in ("error", "residual") for a in "xyz"])
+    err.insert(0, "position", t["position"].to_numpy())
+    rms = err.groupby("position", sort=False).agg(lambda v: float(np.sqrt(np.mean(v ** 2))))
+    out.append(("Measured error and what the model leaves (RMS per position)",
+                f"<p class='note'>Sign: {html.escape(ERROR_CONVENTION)}. Measured error from "
+                "the placements alone (no error model); residual: corrected measurement "
+                "minus placed ball.</p>" + _table_html(rms.reset_index())))
+    flagged = ", ".join(f"{p}/{q} ball {b}" for p, q, b in res.flagged) or "none"
+    out.append(("Outliers", f"<p>Flagged by the robust check: {html.escape(flagged)}. "
+                + ("Excluded (exclude_outliers is true)." if rec.exclude_outliers else
+                   "Kept in the fit unless excluded by name (exclude_outliers is false).")
+                + "</p>"))
+    if res.gp is not None:
+        gp = pd.json_normalize([{"component": c, **v} for c, v in res.gp.summary().items()])
+        gp["LOO coverage 95 %"] = gp["component"].map(res.gp.loo_coverage(0.95))
+        out.append((f"Gaussian process of the measured error ({rec.gp_mean} mean, "
+                    f"{rec.gp_kernel})", _table_html(gp)))
+    return out
+
+
+def analysis_report(record, *, generated: str | None = None) -> str:
+    """The HTML report of an analysis record: what the Export page and ``python -m
+    cmm_core report`` both call (``generated``: the time printed, default now)."""
+    from .analysis import run
+
+    return render(run(record), generated=generated)
+
+
+def render(res, *, generated: str | None = None) -> str:
+    """The HTML report of an :class:`~cmm_core.analysis.AnalysisResult`."""
+    diag, text = None, ""
+    if res.diagnosis is not None:
+        diag = pd.DataFrame(diagnosis_rows(res.diagnosis))
+        text = diagnosis_conclusion(res.diagnosis)
+    return build_report(res.dataset, res.fit, exclusions=res.exclusions,
+                        history=list(res.history), uncertainty=res.uncertainty,
+                        diagnosis=diag, magnification=res.record.magnification,
+                        diagnosis_conclusion=text, mpe=res.mpe, generated=generated,
+                        sigma=res.sigma, extra_sections=_record_sections(res))
+
+
+def diagnosis_rows(d) -> list:
+    """The diagnosis's candidates as report rows (best first)."""
+    return [{"effect": c.effect, "title": c.title, "rms_um": c.rms_um,
+             "chi2_dof": c.chi2_dof, "delta_chi2": c.delta_chi2, "n_params": c.n_params,
+             "delta_bic": c.delta_bic, "p_value": c.p_value,
+             "significant": bool(c.significant), "aliases": ", ".join(c.aliases)}
+            for c in d.candidates]
+
+
+def diagnosis_conclusion(d) -> str:
+    """The diagnosis's verdict in words, with the candidates it did not try."""
+    return d.message + "".join(f" Not tried: {k} ({v})." for k, v in d.skipped.items())
 
 
 def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None,
                  diagnosis=None, magnification: float = 2000.0, extra_sections=(),
-                 diagnosis_conclusion: str = "", mpe=None) -> str:
+                 diagnosis_conclusion: str = "", mpe=None, generated: str | None = None,
+                 sigma: dict | None = None) -> str:
     """A self-contained HTML report of a fit: summary, figures and tables.
+
+    Prefer :func:`analysis_report`, which builds every argument from one analysis record.
 
     Parameters
     ----------
@@ -466,42 +242,48 @@ def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None
     uncertainty : UncertaintySummary, optional
     diagnosis : DataFrame, optional
         Ranked candidate effects.
+    magnification : float
+        Magnification of the deviation plots.
     extra_sections : iterable of (heading, html) pairs, optional
     diagnosis_conclusion : str
         The diagnosis's plain-language verdict, printed above its table.
     mpe : MpeResult, optional
         The MPE check (``cmm_core.mpe.mpe_check``): plot, counts and the rule used.
+    generated : str, optional
+        Generation time printed (default: now, UTC, to the minute).
+    sigma : dict, optional
+        How σ was chosen (``{"auto": bool, ...}``, :func:`cmm_core.analysis.run`).
 
     Returns
     -------
     str
-        One HTML document; plotly.js is embedded once, inline (no network needed).
+        One HTML document; plotly.js is embedded once, compressed (no network needed).
     """
-    parts = []
-    first = [True]
+    parts, figures = [], {}
 
     def fig_html(fig):
-        out = fig.to_html(full_html=False, include_plotlyjs=bool(first[0]),
-                          config={"displaylogo": False})
-        first[0] = False
-        return out
+        return figure_html(fig, f"fig{len(figures) + 1}", figures)
 
     def section(title, *items):
         parts.append(f"<h2>{html.escape(title)}</h2>")
         parts.extend(items)
 
-    now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    now = generated or datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    r = result
+    chi2 = (f"{'FAILS' if r.fails_chi2_test else 'passes'} at 1 %: χ²/dof {r.chi2_dof:.3f}, "
+            f"{r.dof} dof, p = {r.chi2_p_value:.3g}")
     summary = [("Dataset", dataset.name), ("Positions", ", ".join(map(str, dataset.positions))),
                ("Probes", ", ".join(map(str, dataset.probes))),
                ("Certificate", "yes" if dataset.certificate is not None else
                 "none (plate self-calibrated)"),
                ("Setup frame", dataset.setup.frame),
-               ("Model", result.spec), ("Plate geometry", result.plate),
-               ("Repeatability σ", f"{result.sigma_um:g} µm"),
-               ("Observations", str(result.n_obs)), ("Status", result.status),
-               ("RMS of residuals", f"{result.rms_um:.3f} µm"),
-               ("χ²/dof", f"{result.chi2_dof:.3f}"), ("BIC", f"{result.bic:.1f}"),
-               ("Effective parameters (rank)", str(result.rank)),
+               ("Model", r.spec), ("Plate geometry", r.plate),
+               ("Repeatability σ", f"{r.sigma_um:g} µm" + (
+                   " (estimated from the data)" if sigma and sigma.get("auto") else "")),
+               ("Observations", str(r.n_obs)), ("Status", r.status),
+               ("RMS of residuals", f"{r.rms_um:.3f} µm"),
+               ("χ² test", chi2), ("Birge ratio √(χ²/dof)", f"{r.birge_ratio:.3f}"),
+               ("BIC", f"{r.bic:.1f}"), ("Effective parameters (rank)", str(r.rank)),
                ("Excluded observations", "; ".join(f"{p}/{q} ball {b}"
                                                    for p, q, b in exclusions) or "none")]
     rows = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>"
@@ -509,28 +291,23 @@ def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None
     parts.append(f"<h1>CMM error lab report</h1><p class='note'>Generated {now} by cmm_core "
                  f"{__version__}. Lengths in mm, errors and uncertainties in µm (rotations "
                  "µrad); bands and expanded uncertainties at k = 2.</p>")
-    section("Summary", f"<table class='kv'>{rows}</table>",
-            f"<p>{html.escape(result.message)}</p>")
-    if result.unidentifiable:
+    section("Summary", f"<table class='kv'>{rows}</table>", chi2_html(r),
+            f"<p>{html.escape(r.message)}</p>")
+    if r.unidentifiable:
         section("Identifiability",
                 "<p>The data cannot determine these parameter combinations:</p><ul>"
-                + "".join(f"<li>{html.escape(c)}</li>" for c in result.null_combinations)
+                + "".join(f"<li>{html.escape(c)}</li>" for c in r.null_combinations)
                 + "</ul>")
     section("Plate placements", fig_html(fig_placements(dataset)))
-    section("Fitted error functions", fig_html(fig_error_functions(result)))
-    for pos in result.problem.obs.positions:
-        section(f"Deviations, {pos}", fig_html(fig_deviation(result, pos, magnification)))
-    section("Residuals", fig_html(fig_pattern(result.table, result.residuals_um,
+    section("Fitted error functions", chi2_html(r), fig_html(fig_error_functions(r)))
+    for pos in r.problem.obs.positions:
+        section(f"Deviations, {pos}", fig_html(fig_deviation(r, pos, magnification)))
+    section("Residuals", fig_html(fig_pattern(r.table, r.residuals_um,
                                               "Residuals per observation (µm)")),
-            _table_html(residual_summary(result)))
+            _table_html(residual_summary(r)))
     if uncertainty is not None:
-        rows_u = []
-        for lab in ("U1_um", "U2_um", "U3_um"):
-            val = getattr(uncertainty, lab, None)
-            rows_u.append({"quantity": lab[:2], **({f"{a} (µm)": val[a] for a in "xyz"}
-                                                   if val else {})})
-        section("Uncertainty (standard, k = 1; thesis tables 4.1-4.3)",
-                _table_html(pd.DataFrame(rows_u)),
+        section("Uncertainty (standard, k = 1; thesis tables 4.1-4.3)", chi2_html(r),
+                _table_html(_uncertainty_table(uncertainty, r)),
                 f"<p class='note'>{html.escape(uncertainty.message)}</p>")
     if diagnosis is not None and len(diagnosis):
         keep = [c for c in ("effect", "title", "rms_um", "chi2_dof", "delta_chi2", "n_params",
@@ -542,7 +319,7 @@ def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None
                 f"<p class='note'>The 10 best of {len(diagnosis)} candidates.</p>")
     if mpe is not None:
         counts = pd.DataFrame([{"decision": k, "lengths": v} for k, v in mpe.counts.items()])
-        section("MPE check (0.6 µm + L/600, ISO 14253-1 decision rule)",
+        section("MPE check (0.6 µm + L/600, ISO 14253-1 decision rule)", chi2_html(r),
                 fig_html(fig_mpe(mpe)), _table_html(counts),
                 "<p class='note'>Conforms when |E| + U ≤ MPE, does not conform when |E| − U "
                 "> MPE, otherwise inconclusive; U (k = 2) as chosen on the Uncertainty page "
@@ -550,14 +327,17 @@ def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None
     if history:
         hist = pd.DataFrame(history)
         section("Diagnosis history", fig_html(fig_history(list(history))), _table_html(hist))
-    pf = result.parameters_frame()
-    pf["identifiable"] = ~pf["parameter"].isin(result.unidentifiable)
+    pf = r.parameters_frame()
+    if r.fails_chi2_test:
+        pf["u × Birge"] = r.u_inflated
+    pf["identifiable"] = ~pf["parameter"].isin(r.unidentifiable)
     if "unit" in pf:
         pf["unit"] = pf["unit"].map(lambda u: str(u).replace("urad", "µrad").replace(
             "um", "µm"))
-    section("Fitted parameters (value and standard uncertainty)", _table_html(pf))
+    section("Fitted parameters (value and standard uncertainty)", chi2_html(r),
+            _table_html(pf))
     for heading, body in extra_sections:
         section(heading, body)
     return ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-            "<title>CMM error lab report</title>"
-            f"<style>{_CSS}</style></head><body>" + "\n".join(parts) + "</body></html>")
+            f"<title>CMM error lab report</title><style>{_CSS}</style></head><body>"
+            + plotly_loader(figures) + "\n" + "\n".join(parts) + "</body></html>")
