@@ -205,6 +205,12 @@ def cmd_budget(args):
     return read_budget(Path(args.budget))
 
 
+def cmd_report(args):
+    from .report import write_report
+
+    return write_report(args.analysis, args.out)
+
+
 def cmd_air(args):
     from .air import air_from_args
 
@@ -283,6 +289,17 @@ def build_parser():
                         "trials (docs/formats.md#uncertainty-budget; example: "
                         "sample_data/budget/ballplate_budget.json)")
     p.set_defaults(func=cmd_budget)
+    p = sub.add_parser("report", help="self-contained HTML report of an analysis record")
+    p.add_argument("analysis", metavar="ANALYSIS.json",
+                   help="analysis record: data files (paths relative to the record), model "
+                        "spec, order, plate mode, σ in µm, exclusions, exclude_outliers "
+                        "(default false: flagged outliers stay in the fit), diagnosis, GP, "
+                        "MPE and magnification choices (docs/report.md; example: "
+                        "sample_data/analysis/thesis.json)")
+    p.add_argument("--out", required=True, metavar="REPORT.html",
+                   help="HTML file to write (plotly inline, opens offline; about 2 MB); "
+                        "required. The χ² test of the fit is printed as JSON")
+    p.set_defaults(func=cmd_report)
     p = sub.add_parser("air", help="refractive index of air (modified Edlén)")
     p.add_argument("--t-C", type=float, required=True, dest="t_C", metavar="DEG_C",
                    help="air temperature in °C (required)")
