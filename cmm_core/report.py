@@ -197,6 +197,25 @@ def analysis_report(record, *, generated: str | None = None) -> str:
     return render(run(record), generated=generated)
 
 
+def write_report(analysis_path, out_path) -> dict:
+    """``python -m cmm_core report``: the report of the record at ``analysis_path``
+    written to ``out_path``; returns what the command prints (the fit's χ² test too)."""
+    from pathlib import Path
+
+    from .analysis import read_record, run
+
+    res = run(read_record(Path(analysis_path)))
+    text = render(res)
+    Path(out_path).write_text(text, encoding="utf-8")
+    r = res.fit
+    return {"out": str(out_path), "bytes": len(text.encode()), "model": r.spec,
+            "n_obs": r.n_obs, "rms_um": r.rms_um, "chi2_dof": r.chi2_dof, "dof": r.dof,
+            "chi2_p_value": r.chi2_p_value, "fails_chi2_test": r.fails_chi2_test,
+            "birge_ratio": r.birge_ratio, "sigma": res.sigma,
+            "excluded": [list(e) for e in res.exclusions],
+            "flagged_outliers": [list(e) for e in res.flagged]}
+
+
 def render(res, *, generated: str | None = None) -> str:
     """The HTML report of an :class:`~cmm_core.analysis.AnalysisResult`."""
     diag, text = None, ""
