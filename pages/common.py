@@ -596,6 +596,17 @@ def figure(kind: str, key: tuple, builder, *args):
     return _cached_figure(kind, key, builder, args)
 
 
+def beside_map(fig):
+    """A map (``report.fig_surface_grid``) drawn in a column: the colour bar right beside
+    the map (the equal-scale axes shrink the plot area; anchored right, it sits next to
+    the bar) and slim."""
+    fig.update_traces(colorbar={"thickness": 14, "xpad": 4, "len": 0.9},
+                      selector={"type": "heatmap"})
+    fig.update_xaxes(constraintoward="right")
+    fig.update_layout(margin={"l": 60, "r": 10, "t": 60, "b": 50})
+    return fig
+
+
 _DF_PLACEHOLDER = "placeholder" in inspect.signature(st.dataframe).parameters
 
 

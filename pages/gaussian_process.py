@@ -151,11 +151,11 @@ pts_plate = (pts[sel] - t) @ R
 zlim = float(np.nanmax(np.abs(np.concatenate([e_kin_grid[:, a], err[sel, a]])))) or 1.0
 cols = st.columns(3)
 with cols[0], C.guarded("Kinematic surface"):
-    st.plotly_chart(C.rep.fig_surface_grid(uu, vv, e_kin_grid[:, a].reshape(n, n),
+    st.plotly_chart(C.beside_map(C.rep.fig_surface_grid(uu, vv, e_kin_grid[:, a].reshape(n, n),
                                            title=f"Kinematic model e{comp} (µm)", unit="µm",
                                            points=pts_plate, xlabel="plate u (mm)",
-                                           ylabel="plate v (mm)", zrange=(-zlim, zlim)),
-                    key="gp_kin_surface")
+                                           ylabel="plate v (mm)", zrange=(-zlim, zlim))),
+                    key="gp_kin_surface", width="stretch")
 gp_mean_obs = gp_sd_obs = loo = loo_sd = None
 coverage = {}
 if not s.get("gp_on"):
@@ -206,17 +206,19 @@ if s.get("gp_on"):
             loo = loo + pred_kin
         gp_mean_obs, gp_sd_obs = om, osd
         with cols[1]:
-            st.plotly_chart(C.rep.fig_surface_grid(uu, vv, gm[:, a].reshape(n, n),
+            st.plotly_chart(C.beside_map(C.rep.fig_surface_grid(uu, vv, gm[:, a].reshape(n, n),
                                                    title=f"GP mean e{comp} (µm)", unit="µm",
                                                    points=pts_plate, xlabel="plate u (mm)",
                                                    ylabel="plate v (mm)",
-                                                   zrange=(-zlim, zlim)), key="gp_mean_surface")
+                                                   zrange=(-zlim, zlim))), key="gp_mean_surface",
+                            width="stretch")
         with cols[2]:
-            st.plotly_chart(C.rep.fig_surface_grid(uu, vv, gsd[:, a].reshape(n, n),
+            st.plotly_chart(C.beside_map(C.rep.fig_surface_grid(uu, vv, gsd[:, a].reshape(n, n),
                                                    title=f"GP standard deviation e{comp} (µm)",
                                                    unit="µm", points=pts_plate,
                                                    colorscale="Viridis", xlabel="plate u (mm)",
-                                                   ylabel="plate v (mm)"), key="gp_sd_surface")
+                                                   ylabel="plate v (mm)")), key="gp_sd_surface",
+                            width="stretch")
         coverage = {"xyz"[i]: 100 * c_.results[0].loo_coverage(0.95)
                     for i, c_ in enumerate(comps)}
         probe_names = _probe_names(comps[0], obs)

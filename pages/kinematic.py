@@ -85,6 +85,17 @@ else:
     st.success(f"Every parameter is determined by the data (numerical rank {r.rank}, "
                f"relative tolerance {r.rank_rtol:g} on the singular values).")
 
+def error_function_grid(r, show, cols, truth):
+    """The grid of fitted error functions, laid out for the page: the legend under the
+    title rather than 15 % of the figure's height below the last row (a blank band of
+    some 270 px under seven rows), and the bottom margin just what the axis titles need."""
+    fig = C.rep.fig_error_functions(r, show, cols, truth)
+    fig.update_layout(legend={"orientation": "h", "yref": "container", "y": 1.0,
+                              "yanchor": "top", "x": 1.0, "xanchor": "right"},
+                      margin={"t": 70, "b": 40})
+    return fig
+
+
 truth = s.get("sim_truth")
 tabs = st.tabs(["Error functions", "Deviation plots", "Parameters", "Residuals"])
 with tabs[0], C.guarded("Error functions"):
@@ -92,8 +103,8 @@ with tabs[0], C.guarded("Error functions"):
     show = st.multiselect("Show", present, default=present)
     true_now = truth["truth"] if truth and truth.get("key") == s["ds_key"] else None
     st.plotly_chart(C.figure("errfun", (C.fit_args(), tuple(show), true_now is not None),
-                             C.rep.fig_error_functions, r, show, 3, true_now),
-                    key="fig_errfun")
+                             error_function_grid, r, show, 3, true_now),
+                    key="fig_errfun", width="stretch")
     st.caption("Translational errors in µm, rotations in µrad, squareness as an angle in "
                "µrad; grey bands: 95 % (k = 2) from the parameter covariance; the blue tint "
                "spans the measured scale readings (outside it the curve extrapolates)"

@@ -54,14 +54,12 @@ zval = c1.slider("Z of the XY plane (mm)", 0.0, float(rng[2]), float(round(rng[2
                  step=10.0, key="w_u_z")
 probe = c2.selectbox("Probe", obs.probes, key="w_u_probe")
 comp = c3.radio("Component", ["x", "y", "z"], horizontal=True, key="w_u_comp")
-SHOW = {"shape": "U (k=2), rigid part removed", "absolute": "U (k=2), absolute",
-        "error": "error e"}
-show = c4.radio("Show", list(SHOW), format_func=SHOW.get, key="w_u_show",
+SHOW = {"shape": "rigid part removed", "absolute": "absolute"}
+show = c4.radio("Uncertainty U (k = 2)", list(SHOW), format_func=SHOW.get, key="w_u_show",
                 help="Rigid part removed: the uncertainty of the error's shape over the plane "
                      "(what lengths and form measured there carry, as U2/U3). Absolute: "
                      "also the common translation and rotation, fixed only through the "
                      "error functions' zero at the axis origins.")
-
 
 @st.cache_data(show_spinner=False, max_entries=64)
 def error_grid(args, z, probe, n, _r):
@@ -84,25 +82,26 @@ with C.guarded("Uncertainty map"):
     x_meas = obs.r_mm - obs.p_mm
     near = np.abs(x_meas[:, 2] - zval) < 60
     if show == "shape":
-        vals, title = 2 * u_shape[:, a], (f"Expanded uncertainty U(e{comp}), k = 2, at Z = "
-                                          f"{zval:g} mm, rigid part of the plane removed")
-        scale = "Viridis"
-    elif show == "absolute":
-        vals, title = 2 * u[:, a], (f"Expanded uncertainty U(e{comp}), k = 2, at Z = "
-                                    f"{zval:g} mm (absolute: rigid-body freedoms included)")
-        scale = "Viridis"
+        vals, title = 2 * u_shape[:, a], f"U(e{comp}), k = 2, rigid part removed"
     else:
-        vals, title = e[:, a], f"Error e{comp} at Z = {zval:g} mm (probe {probe})"
-        scale = "RdBu_r"
+        vals, title = 2 * u[:, a], f"U(e{comp}), k = 2, absolute"
     if np.isnan(vals).all():
         st.warning("The uncertainty is unbounded: the data do not determine every model "
                    "parameter (see the Kinematic model page).")
     else:
-        st.plotly_chart(C.rep.fig_surface_grid(xs, ys, vals.reshape(n, n), title=title,
-                                               unit="µm", points=x_meas[near],
-                                               colorscale=scale), key="u_map")
-        st.caption("Scale readings in mm; × marks measured points within 60 mm of the plane. "
-                   "The error is zero at the axis origins by convention.")
+        # the error and its uncertainty side by side: together they fill the page width,
+        # and each colour bar stays next to its map
+        m1, m2 = st.columns(2)
+        m1.plotly_chart(C.beside_map(C.rep.fig_surface_grid(
+            xs, ys, e[:, a].reshape(n, n), title=f"Error e{comp} (µm), probe {probe}",
+            unit="µm", points=x_meas[near], colorscale="RdBu_r")), key="u_error_map",
+            width="stretch")
+        m2.plotly_chart(C.beside_map(C.rep.fig_surface_grid(
+            xs, ys, vals.reshape(n, n), title=f"{title} (µm)", unit="µm",
+            points=x_meas[near], colorscale="Viridis")), key="u_map", width="stretch")
+        st.caption(f"XY plane at Z = {zval:g} mm; scale readings in mm; × marks measured "
+                   "points within 60 mm of the plane. The error is zero at the axis origins "
+                   "by convention.")
 
 st.subheader("Monte Carlo check of the propagated uncertainty")
 c1, c2 = st.columns([1, 3])

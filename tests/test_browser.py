@@ -347,3 +347,56 @@ def test_offline_favicon_and_full_width_plots(page, server):
         (plots.nth(i).bounding_box(), plots.nth(i).evaluate(
             "e => !!e.closest('[data-testid=\"stColumn\"]')")) for i in range(plots.count())])
     _no_exception(page)
+
+
+def _main_width(pg) -> float:
+    return pg.locator('[data-testid="stMainBlockContainer"] > [data-testid="stVerticalBlock"]'
+                      ).first.bounding_box()["width"]
+
+
+def test_uncertainty_maps_fill_the_width_with_their_colour_bars_beside(page, server):
+    """Issue 16: the map's colour bar sat far from the map (an equal-scale map in a
+    full-width figure). The error map and its uncertainty map side by side span the
+    page, and each colour bar is within a few pixels of its map."""
+    page.goto(server + "/uncertainty")
+    expect(page.locator("h1", has_text="Uncertainty").first).to_be_visible(timeout=90_000)
+    _idle(page)
+    maps = page.locator('[data-testid="stColumn"] .js-plotly-plot').filter(
+        has=page.locator("g.colorbar"))
+    expect(maps.first).to_be_visible()
+    page.wait_for_timeout(1000)  # plotly lays out after the element appears
+    assert maps.count() == 2
+    boxes = [maps.nth(i).bounding_box() for i in range(2)]
+    span = boxes[1]["x"] + boxes[1]["width"] - boxes[0]["x"]
+    assert span >= 0.9 * _main_width(page), (span, boxes)
+    for i in range(2):
+        heat = maps.nth(i).locator("g.heatmaplayer image").first.bounding_box()
+        bar = maps.nth(i).locator("g.colorbar").first.bounding_box()
+        gap = bar["x"] - (heat["x"] + heat["width"])
+        assert -2 <= gap <= 30, (i, heat, bar)
+    maps.first.scroll_into_view_if_needed()
+    page.screenshot(path=str(ART / "12_uncertainty_maps.png"))
+    _no_exception(page)
+
+
+def test_error_function_grid_has_no_blank_band_below(page, server):
+    """Issue 16: a blank band of some 270 px followed the grid of error functions (the
+    legend 15 % of the figure height below the last row). The last row's axis titles are
+    now close to the figure's bottom, and the figure fills the page width."""
+    page.goto(server + "/kinematic")
+    expect(page.locator("h1", has_text="Kinematic model").first).to_be_visible(
+        timeout=90_000)
+    _idle(page)
+    grid = page.locator(".js-plotly-plot").filter(has_text="Fitted error functions").first
+    expect(grid).to_be_visible()
+    page.wait_for_timeout(1000)
+    box = grid.bounding_box()
+    assert box["width"] >= 0.9 * _main_width(page)
+    titles = grid.locator("g.infolayer g[class^='g-x'][class$='title']")
+    lowest = max(titles.nth(i).bounding_box()["y"] + titles.nth(i).bounding_box()["height"]
+                 for i in range(titles.count()))
+    assert titles.count() >= 3
+    assert box["y"] + box["height"] - lowest < 60, (box, lowest)
+    legend = grid.locator("g.legend").first.bounding_box()
+    assert legend["y"] < box["y"] + 100  # at the top, beside the title
+    _no_exception(page)
