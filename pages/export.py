@@ -6,6 +6,7 @@ import json
 import pandas as pd
 import streamlit as st
 
+from cmm_core import analysis as A
 from cmm_core import export as ex
 from cmm_core import report as rep
 from cmm_core.compensate import model_to_dict
@@ -22,6 +23,7 @@ st.subheader("Correct measured points")
 st.write("Upload reported tip centres `probe,x_mm,y_mm,z_mm` (machine axes, mm; extra columns "
          "are kept). Each gets the corrected point `xc_mm, yc_mm, zc_mm` (reported + error) "
          "and the standard uncertainty of the correction in µm.")
+st.caption(f"Sign of every error here and in the report: {A.ERROR_CONVENTION}.")
 st.caption("Which uncertainty to quote: `u_x/y/z_um` here is the standard uncertainty "
            "(k = 1) of each point's correction in machine coordinates. It includes a common "
            "translation and rotation of all corrected points, which a ball plate fixes only "
@@ -62,7 +64,7 @@ if points is not None:
 if corr is not None:
     view = corr.copy()
     for a in "xyz":
-        view[f"e{a}_um"] = (view[f"{a}c_mm"] - view[f"{a}_mm"]) * 1e3
+        view[f"e{a}_um"] = A.measured_error_um(view[f"{a}_mm"], view[f"{a}c_mm"])
     C.dataframe(view, hide_index=True, key="corrected_table",
                  column_config={c: st.column_config.NumberColumn(format="%.5f")
                                 for c in view.columns if c.endswith("_mm")}
@@ -109,75 +111,51 @@ with st.container(border=True):
                            key="dl_grid", on_click="ignore")
 
 
-def _history_for_export():
-    return C.history_rows()
+# One analysis record from the session: the report, the record file and the project file
+# all come from it, and `python -m cmm_core report` gives the same report from the record.
+st.checkbox("Include a GP summary of the measured errors in the report (mean and "
+                        "kernel as chosen on the Gaussian process page; adds a few seconds)",
+                        key="w_report_gp")
+record = C.safe(A.record_from_session, s, what="Analysis record")
 
 
-@st.cache_data(show_spinner=False, max_entries=8)
-def report_html(args, hist_key, mag, diag_key, mpe_key, _ds, _r, _hist, _excl, _diag,
-                _conclusion):
-    from cmm_core.mpe import check_dataset
-    from cmm_core.uncertainty import evaluate
-
-    try:
-        unc = evaluate(_r)
-    except Exception:  # noqa: BLE001 - the report still has everything else
-        unc = None
-    mpe_res, _ = check_dataset(_ds, u_source=mpe_key, sigma_um=_r.sigma_um)
-    return rep.build_report(_ds, _r, exclusions=_excl, history=_hist, uncertainty=unc,
-                            diagnosis=_diag, magnification=mag,
-                            diagnosis_conclusion=_conclusion, mpe=mpe_res)
-
-
-hist = _history_for_export()
-hist_key = tuple((h["spec"], h["change"]) for h in hist)
-excl = [tuple(e) for e in s["exclusions"]]
-mag = float(s["magnification"])
-diag_df, diag_text = None, ""
-if s["diag_on"]:  # the diagnosis the user ran goes into the report (cached: no recompute)
-    _, _rows, diag_text, _info = C.run_diagnosis()
-    if _rows:
-        diag_df = pd.DataFrame([{k: v for k, v in c_.items() if k not in (
-            "signature_um", "explanation")} for c_ in _rows])
-
-
-mpe_u = s.get("w_mpe_u", "test")  # the MPE uncertainty chosen on the Uncertainty page
+@st.cache_data(show_spinner=False, max_entries=4)
+def report_html(record_json, _record):
+    return rep.analysis_report(_record)
 
 
 def _report_bytes():
     # runs on a separate thread when clicked: only local values, no session state
-    return report_html(args, hist_key, mag, diag_df is not None, mpe_u, ds, r, hist, excl,
-                       diag_df, diag_text).encode("utf-8")
-
-
-c3.download_button("HTML report (self-contained)", _report_bytes, "cmm_report.html",
-                   "text/html", key="dl_report", on_click="ignore",
-                   help="Summary, figures (plotly embedded inline, no network needed), "
-                        "parameter and residual tables.")
-
-
-_files = s["ds_files"]
-_model = {"spec": s["spec"], "order": int(s["order"]), "plate": s["plate"],
-          "sigma_um": float(s["sigma_um"]), "positions": s["positions"], "probes": s["probes"]}
+    return report_html(A.record_to_json(record), record).encode("utf-8")
 
 
 def _project_text():
     # runs on a separate thread when clicked: only local values, no session state
-    return ex.project_to_json(
-        dataset_name=_files["name"], measurements=_files["measurements"],
-        setup=_files["setup"], certificate=_files.get("certificate"), model=_model,
-        exclusions=excl, history=hist)
+    return A.record_to_project_json(record)
 
 
+if record is not None:
+    c3.download_button("HTML report (self-contained)", _report_bytes, "cmm_report.html",
+                       "text/html", key="dl_report", on_click="ignore",
+                       help="Summary with the fit's χ² test, figures (plotly embedded once, "
+                            "no network needed), uncertainty, parameter and residual tables. "
+                            "The same as `python -m cmm_core report ANALYSIS.json`.")
+    c2.download_button("Analysis record (ANALYSIS.json)", A.record_to_json(record),
+                       "ANALYSIS.json", "application/json", key="dl_analysis",
+                       on_click="ignore",
+                       help="Data, selection, exclusions, model, σ and report choices: "
+                            "`python -m cmm_core report ANALYSIS.json --out REPORT.html` "
+                            "reproduces this report.")
+    c1.download_button("Project file (JSON)", _project_text, "cmm_project.json",
+                       "application/json", key="dl_project", on_click="ignore",
+                       help="Restores the dataset, model, exclusions and history on the "
+                            "Data page.")
 c3.download_button("Fitted model (JSON, for `cmm_core compensate`)",
                    lambda: json.dumps(model_to_dict(r), indent=1), "cmm_model.json",
                    "application/json", key="dl_model", on_click="ignore")
-c1.download_button("Project file (JSON)", _project_text, "cmm_project.json",
-                   "application/json", key="dl_project", on_click="ignore",
-                   help="Restores the dataset, model, exclusions and history on the Data page.")
 c2.caption(f"Model `{r.spec}`, RMS {r.rms_um:.3f} µm, {r.n_obs} observations, "
-           f"{len(excl)} excluded. CSV files are safe to open in a spreadsheet (text cells "
-           "that could be formulas are prefixed with an apostrophe).")
+           f"{len(s['exclusions'])} excluded. CSV files are safe to open in a spreadsheet "
+           "(text cells that could be formulas are prefixed with an apostrophe).")
 if r.unidentifiable:
     st.warning("Some parameters are not determined by the data: their uncertainties are "
                "empty in the exports.")
