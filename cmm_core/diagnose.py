@@ -53,7 +53,7 @@ from .blocks import needs
 from .blocks.periodic import PERIOD_SCAN, shortest_resolvable_period
 from .certificate_check import CertificateCheck, check_certificate
 from .effects import PERIODIC, PHYSICAL, catalogue_entry
-from .fit import FitResult, Problem, augmented_state, fit, weighted_residual
+from .fit import FitResult, Problem, augmented_state, fit, held_constraints, weighted_residual
 from .solver import Normal, describe_null, solve
 
 PHYSICAL_SHARE = 0.5
@@ -232,11 +232,7 @@ def score(base: FitResult, token: str):
     # be credited with (and counted for) those directions too
     C = prob.constraints()
     if base.design_null.size:
-        col = {lab: i for i, lab in enumerate(prob.layout.labels)}
-        held = np.zeros((base.design_null.shape[0], prob.layout.n))
-        for j, lab in enumerate(base.labels):
-            held[:, col[lab]] = base.design_null[:, j]
-        C = np.vstack([C, held])
+        C = np.vstack([C, held_constraints(base.labels, base.design_null, prob)])
     # ... and what the candidate adds is decided at the nominal linearisation, as its
     # refit decides it (fit's frozen design null): at the baseline's solution the
     # nonlinearity of fitted rotations lends weakly coupled columns a small, spurious rank

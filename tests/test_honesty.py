@@ -153,3 +153,22 @@ def test_thesis_certificate_is_a_suspect_with_ball_16(thesis_clean):
     assert c.suspect and (c.entries[0]["ball"], c.entries[0]["axis"]) == (16, "x")
     assert c.fixes["certificate fixed"]["chi2_dof"] == pytest.approx(44.7, abs=0.1)
     assert c.fixes["prior, suspect entries released"]["chi2_dof"] < 17
+
+
+def test_chi2_test_counts_the_certificate_uncertainty_with_the_certificate_fixed():
+    """Certificate u 0.25 µm against σ 0.5 µm, certificate fixed (the default): the
+    certificate's calibration errors land in every placement's residuals. Over 24 clean
+    seeds the χ² against σ alone sits well above its dof (expected excess ≈ 3n·(0.25/0.5)²
+    less what the placements absorb), while the test statistic with the certificate's
+    uncertainty counted has mean χ² − dof within 3 standard errors (√(2ν/24)) of 0."""
+    excess_sigma, excess_test = [], []
+    for seed in range(24):
+        sim = sc.simulated("pitch150_5pos", 700 + seed, plate={"certificate_u_um": 0.25})
+        r = fit(sim.dataset, "kinematic21")
+        assert r.plate == "fixed" and r.dof_test == r.dof + 7  # the prior's gauge rows
+        excess_sigma.append(r.chi2 - r.dof)
+        excess_test.append(r.chi2_test - r.dof_test)
+    se = np.sqrt(2 * r.dof_test / 24)
+    assert abs(np.mean(excess_test)) < 3 * se, (np.mean(excess_test), se)
+    assert np.mean(excess_sigma) > 6 * se, (np.mean(excess_sigma), se)
+    assert r.birge_ratio == pytest.approx(np.sqrt(r.chi2_test / r.dof_test))
