@@ -370,20 +370,36 @@ def history_rows() -> list:
     return out
 
 
+def chi2_test_numbers(r) -> tuple:
+    """``(χ²/dof, dof, note)`` of the fit's χ² test. The core may test a statistic other
+    than the fit's own χ² (with the certificate fixed, its calibration uncertainty is
+    counted: ``FitResult.chi2_test``); the note then says so, with the fit's χ²/dof."""
+    chi2, dof = getattr(r, "chi2_test", None), getattr(r, "dof_test", None)
+    if chi2 is None or dof is None:
+        return r.chi2_dof, r.dof, ""
+    val = chi2 / max(dof, 1)
+    if abs(val - r.chi2_dof) < 5e-3 * max(r.chi2_dof, 1e-9) and dof == r.dof:
+        return r.chi2_dof, r.dof, ""
+    return val, dof, (f" (the certificate's calibration uncertainty counted; the fit's own "
+                      f"χ²/dof is {r.chi2_dof:.2f})")
+
+
 def misfit_banner(r) -> None:
     """Next to any uncertainty: the fit's χ² test, and when it fails, by how much the
     σ-based values understate the observed scatter (Birge ratio)."""
     if r is None:
         return
+    val, dof, note = chi2_test_numbers(r)
     if r.fails_chi2_test:
-        st.warning(f"The model fails its χ² test: χ²/dof {r.chi2_dof:.2f} at {r.dof} degrees "
-                   f"of freedom (p = {r.chi2_p_value:.2g}). Uncertainties from σ = "
+        st.warning(f"The model fails its χ² test: χ²/dof {val:.2f} at {dof} degrees "
+                   f"of freedom (p = {r.chi2_p_value:.2g}){note}. Uncertainties from σ = "
                    f"{r.sigma_um:.3g} µm alone are too small by the Birge ratio "
-                   f"×{r.birge_ratio:.2f}; the inflated values are shown beside them. Neither "
-                   "is trustworthy until the diagnosis explains the misfit.")
+                   f"×{r.birge_ratio:.2f}; multiply them by it (inflated values are shown "
+                   "beside them where listed). Neither is trustworthy until the diagnosis "
+                   "explains the misfit.")
     else:
-        st.caption(f"χ² test passed: χ²/dof {r.chi2_dof:.2f} at {r.dof} degrees of freedom "
-                   f"(p = {r.chi2_p_value:.2g}); the σ-based uncertainties stand.")
+        st.caption(f"χ² test passed: χ²/dof {val:.2f} at {dof} degrees of freedom "
+                   f"(p = {r.chi2_p_value:.2g}){note}; the σ-based uncertainties stand.")
 
 
 def set_sigma(sigma_um: float):
@@ -542,7 +558,8 @@ def sidebar():
         c1.metric("RMS (µm)", f"{r.rms_um:.3f}")
         c2.metric("χ²/dof", f"{r.chi2_dof:.2f}")
         if r.fails_chi2_test:
-            sb.warning(f"Fails the χ² test (p = {r.chi2_p_value:.2g}, {r.dof} dof): "
+            sb.warning(f"Fails the χ² test (p = {r.chi2_p_value:.2g}, "
+                       f"{chi2_test_numbers(r)[1]} dof): "
                        f"uncertainties from σ are too small by ×{r.birge_ratio:.2f}.")
         status = {"converged": "converged", "max_iterations": "NOT converged",
                   "failed": "fit failed"}.get(r.status, r.status)
