@@ -217,6 +217,18 @@ def cmd_air(args):
     return air_from_args(args.t_C, args.p_Pa, args.rh_percent, args.wavelength_nm)
 
 
+def cmd_plan(args):
+    from .plan_cli import run_plan
+
+    return run_plan(args)
+
+
+def cmd_task(args):
+    from .plan_cli import run_task
+
+    return run_task(args)
+
+
 def build_parser():
     """Argument parser with one sub-command per SPEC command."""
     ap = argparse.ArgumentParser(prog="python -m cmm_core", description="CMM error lab")
@@ -311,6 +323,16 @@ def build_parser():
                    metavar="NM", help="vacuum wavelength of the laser in nm, e.g. 632.99 "
                                       "for a HeNe laser (required)")
     p.set_defaults(func=cmd_air)
+    from .plan_cli import add_plan_arguments, add_task_arguments
+
+    p = sub.add_parser("plan", help="evaluate, compare and design measurement plans "
+                                    "before measuring")
+    add_plan_arguments(p)
+    p.set_defaults(func=cmd_plan)
+    p = sub.add_parser("task", help="task-specific uncertainty of a distance, circle or "
+                                    "plane measured with a fitted machine")
+    add_task_arguments(p)
+    p.set_defaults(func=cmd_task)
     return ap
 
 
