@@ -137,7 +137,7 @@ def _unknown(obj: dict, known, name, where=""):
         if k not in known:
             guess = _typo(str(k), known, cutoff=0.6)
             hint = f"did you mean {guess!r}? " if guess else ""
-            raise DataError(f"unknown key {_cut(k)!r}; {hint}expected one of "
+            raise DataError(f"unknown key {_cut(k)}; {hint}expected one of "
                             f"{', '.join(known)}.", file=name, column=f"{where}{k}")
 
 
@@ -163,8 +163,8 @@ def _file(obj, name, where, base) -> DataFile:
 
 def _check(cond, name, key, expected, found):
     if not cond:
-        raise DataError(f"{key} must be {expected}, found {_cut(found)!r}.", file=name,
-                        column=key)
+        t = json.dumps(found, ensure_ascii=False, default=str)  # as written in the file
+        raise DataError(f"{key} must be {expected}, found {t[:60]}.", file=name, column=key)
 
 
 def _num(lo, hi, whole=True):

@@ -203,7 +203,11 @@ def write_report(analysis_path, out_path) -> dict:
     from pathlib import Path
 
     from .analysis import read_record, run
+    from .io import DataError
 
+    if not Path(out_path).parent.is_dir():  # refused before minutes of work, not after
+        raise DataError(f"the folder {Path(out_path).parent} does not exist.",
+                        file=Path(out_path).name, hint="create it or write elsewhere.")
     res = run(read_record(Path(analysis_path)))
     text = render(res)
     Path(out_path).write_text(text, encoding="utf-8")

@@ -1,0 +1,109 @@
+"""The analysis record (issue 12): one frozen record read and written as JSON, built from
+the app session or a project file, and the conventions defined once in the core (the
+sign of the measured error, the outlier default)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scenarios import perturb, simulated
+
+from cmm_core import analysis as A
+from cmm_core.fit import fit
+from cmm_core.io import DataError
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "sample_data" / "analysis" / "thesis.json"
+
+
+def _session(**state):
+    from pages import common as C
+
+    return {**{k: list(v) if isinstance(v, list) else v for k, v in C.DEFAULTS.items()},
+            "ds_files": C.thesis_files(), **state}
+
+
+def test_sample_record_reads_and_round_trips():
+    rec = A.read_record(SAMPLE)
+    assert rec.spec == "kinematic21" and rec.order == 2 and rec.sigma_um == 0.5
+    assert len(rec.exclusions) == 3 and rec.exclude_outliers is False
+    assert [f.name for f in rec.data.measurements][0] == "BP111.csv"
+    assert A.record_from_dict(A.record_to_dict(rec)) == rec
+    # written relative to its folder, the paths are the sample's own
+    again = json.loads(A.record_to_json(rec, relative_to=SAMPLE.parent))
+    assert again == json.loads(SAMPLE.read_text())
+
+
+def test_session_record_round_trips_through_json_and_the_project_file():
+    rec = A.record_from_session(_session(exclusions=[("BP112", "2", 7)], diag_on=True,
+                                         w_mpe_u="cmm_spec", magnification=1500.0))
+    assert rec.diagnose and rec.mpe_u_source == "cmm_spec" and rec.magnification == 1500.0
+    assert rec.history == (("kinematic21", "baseline"),)
+    assert A.read_record(A.record_to_json(rec)) == rec
+    assert A.record_from_project(A.record_to_project_json(rec)) == rec
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        rec.spec = "rigid"
+
+
+def test_session_defaults_are_the_record_defaults():
+    """The app's defaults and a record file's defaults agree (one outlier rule)."""
+    rec = A.record_from_session(_session())
+    default = A.AnalysisRecord(rec.data, history=rec.history)
+    assert rec == default
+    assert A.DEFAULT_EXCLUDE_OUTLIERS is False and rec.exclude_outliers is False
+
+
+@pytest.mark.parametrize("patch, column, needle", [
+    ({"sigma": 0.5}, "sigma", "did you mean 'sigma_um'"),
+    ({"exclude_outlier": True}, "exclude_outlier", "did you mean 'exclude_outliers'"),
+    ({"magnifiction": 10}, "magnifiction", "did you mean 'magnification'"),
+    ({"order": 9}, "order", "whole number 1-5, found 9"),
+    ({"plate": "wobbly"}, "plate", "one of auto, fixed, prior, free, found \"wobbly\""),
+    ({"sigma_um": -1}, "sigma_um", "between 0 and 1000"),
+    ({"spec": "kinematic21,wobble"}, "spec", "wobble"),
+    ({"positions": "BP111"}, "positions", "list of names"),
+    ({"exclusions": [["BP111", "1"]]}, "exclusions", "triples"),
+    ({"format": "cmm-error-lab-project"}, "format", "not an analysis record"),
+    ({"version": 99}, "version", "newer cmm_core"),
+])
+def test_bad_records_are_refused_naming_file_and_key(patch, column, needle):
+    doc = {**json.loads(SAMPLE.read_text()), **patch}
+    with pytest.raises(DataError, match=needle.replace("(", r"\(")) as exc:
+        A.record_from_dict(doc, "ANALYSIS.json", SAMPLE.parent)
+    assert exc.value.column == column and "ANALYSIS.json" in str(exc.value)
+
+
+def test_unknown_data_key_is_refused_with_did_you_mean():
+    doc = json.loads(SAMPLE.read_text())
+    doc["data"]["certificat"] = doc["data"].pop("certificate")
+    with pytest.raises(DataError, match="did you mean 'certificate'") as exc:
+        A.record_from_dict(doc, "ANALYSIS.json")
+    assert exc.value.column == "data.certificat"
+
+
+def test_outlier_rule_excludes_only_what_the_record_says():
+    rec = A.read_record(SAMPLE)
+    none = dataclasses.replace(rec, exclusions=())
+    kept = A.run(none)
+    assert len(kept.flagged) == 3 and kept.exclusions == ()
+    dropped = A.run(dataclasses.replace(none, exclude_outliers=True))
+    assert dropped.exclusions == kept.flagged
+    assert dropped.fit.chi2_dof == pytest.approx(A.run(rec).fit.chi2_dof)
+
+
+def test_measured_error_sign_is_the_compensation_convention():
+    """true = reported + error: readings that are too long give a negative error, and the
+    report's measured error has that sign."""
+    sim = simulated("pitch100_4pos", 2, noise_um=0.05)
+    xyz = sim.dataset.meas[["mx_mm", "my_mm", "mz_mm"]].to_numpy()
+    scale = np.zeros_like(xyz)
+    scale[:, 0] = 2e-5 * (xyz[:, 0] - xyz[:, 0].mean())  # x reads 20 ppm long
+    long = perturb(sim.dataset, scale)
+    e = A.measured_error_from_residuals_um(fit(long, "rigid").residuals_um)
+    assert np.corrcoef(e[:, 0], scale[:, 0])[0, 1] < -0.9
+    assert np.allclose(A.measured_error_um([[1.0, 2.0, 3.0]], [[1.001, 2.0, 2.999]]),
+                       [[1.0, 0.0, -1.0]])

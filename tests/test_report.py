@@ -1,0 +1,164 @@
+"""The HTML report (issue 12): one core function from one analysis record, so the app's
+Export page and ``python -m cmm_core report`` give the same bytes (the generation time
+aside); the χ² test beside every uncertainty (issue 11); plotly.js once and < 2 MB
+(issue 18)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+from scenarios import simulated
+
+from cmm_core import analysis as A
+from cmm_core import report as rep
+from cmm_core.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "sample_data" / "analysis" / "thesis.json"
+FLAGGED = [("BP112", "2", 7), ("BP112", "2", 10), ("BP312", "6", 16)]
+
+
+def _session(**state):
+    """Session state as the app holds it (pages/common.py DEFAULTS, the thesis files)."""
+    from pages import common as C
+
+    return {**{k: list(v) if isinstance(v, list) else v for k, v in C.DEFAULTS.items()},
+            "ds_files": C.thesis_files(), **state}
+
+
+def _cli(record_path, out, capsys):
+    code = main(["report", str(record_path), "--out", str(out)])
+    printed = capsys.readouterr()
+    return code, printed
+
+
+def _same(a: str, b: str) -> bool:
+    strip = rep.TIMESTAMP.sub("Generated (time)", a), rep.TIMESTAMP.sub("Generated (time)", b)
+    return strip[0] == strip[1]
+
+
+def test_export_page_calls_the_cli_function_on_the_session_record():
+    """No AppTest needed: the page builds the record with the core function and renders
+    it with the function the CLI calls; it assembles no report arguments itself."""
+    src = (ROOT / "pages" / "export.py").read_text()
+    assert "A.record_from_session, s," in src and "rep.analysis_report(_record)" in src
+    assert "build_report" not in src
+    cli = (ROOT / "cmm_core" / "report.py").read_text()
+    assert "res = run(read_record(Path(analysis_path)))" in cli and "text = render(res)" in cli
+    assert "def analysis_report" in cli
+
+
+@pytest.fixture(scope="module")
+def thesis_app():
+    record = A.record_from_session(_session(exclusions=list(FLAGGED)))
+    return record, rep.analysis_report(record)
+
+
+def test_thesis_report_app_and_cli_byte_identical(thesis_app, tmp_path, capsys):
+    record, app_html = thesis_app
+    path = tmp_path / "ANALYSIS.json"
+    path.write_text(A.record_to_json(record))  # the page's ANALYSIS.json download
+    code, printed = _cli(path, tmp_path / "r.html", capsys)
+    assert code == 0, printed.err
+    cli_html = (tmp_path / "r.html").read_text(encoding="utf-8")
+    assert _same(app_html, cli_html)
+    assert rep.TIMESTAMP.search(cli_html)
+    # the committed sample names the same files by path: the same report again
+    code, printed = _cli(SAMPLE, tmp_path / "s.html", capsys)
+    assert code == 0, printed.err
+    assert _same(app_html, (tmp_path / "s.html").read_text(encoding="utf-8"))
+    out = json.loads(printed.out)
+    assert out["fails_chi2_test"] is True and out["chi2_dof"] == pytest.approx(44.7, abs=0.1)
+
+
+def test_thesis_report_shows_the_failed_chi2_test_and_inflated_values(thesis_app):
+    _, html = thesis_app
+    assert "The model fails its χ² test" in html and "χ²/dof 44.71 at 372" in html
+    assert "FAILS at 1 %" in html
+    assert html.count("class='chi2 fail'") >= 4  # summary, functions, U, MPE, parameters
+    assert "x × Birge (µm)" in html and "u × Birge" in html
+    assert "χ² test passed" not in html
+
+
+def test_report_size_and_plotly_once(thesis_app):
+    _, html = thesis_app
+    assert len(html.encode()) < 2_000_000
+    assert html.count("id='cmm-plotly'") == 1 and "<script src=" not in html
+    assert html.count("Plotly.newPlot") >= 10  # one per figure, the data packed once
+    assert "plotly.js v" in html and "id='fig1'" in html  # deterministic ids
+
+
+def _sim_session(tmp_path, sim, **state):
+    d = tmp_path / "data"
+    sim.write(d)
+    files = {"name": "simulated", "kind": "upload",
+             "measurements": [("measurements.csv", (d / "measurements.csv").read_text())],
+             "setup": (d / "setup.json").read_text(),
+             "certificate": ("certificate.csv", (d / "certificate.csv").read_text())}
+    return d, _session(ds_files=files, **state)
+
+
+def test_simulated_hidden_effect_app_and_cli_byte_identical(tmp_path, capsys):
+    """A plate sag hidden in simulated data, with the diagnosis in the report: the
+    session record and a record naming the written files by path give the same bytes."""
+    sim = simulated("pitch100_4pos", 5, effects={"plate_sag": {"uu": -3.0, "uv": 0.5,
+                                                               "vv": -2.0}})
+    d, state = _sim_session(tmp_path, sim, diag_on=True)
+    record = A.record_from_session(state)
+    app_html = rep.analysis_report(record)
+    by_path = dataclasses.replace(record, data=A.DataSources(
+        "simulated", (A.DataFile("measurements.csv", str(d / "measurements.csv")),),
+        A.DataFile("setup.json", str(d / "setup.json")),
+        A.DataFile("certificate.csv", str(d / "certificate.csv"))))
+    path = tmp_path / "rec" / "ANALYSIS.json"
+    path.parent.mkdir()
+    path.write_text(A.record_to_json(by_path, relative_to=path.parent))
+    assert '"../data/measurements.csv"' in path.read_text()
+    code, printed = _cli(path, tmp_path / "r.html", capsys)
+    assert code == 0, printed.err
+    assert _same(app_html, (tmp_path / "r.html").read_text(encoding="utf-8"))
+    assert "Diagnosis: candidate effects" in app_html and "plate_sag" in app_html
+    assert "The model fails its χ² test" in app_html and "x × Birge (µm)" in app_html
+
+
+def test_clean_simulation_passes_without_an_inflation_row(tmp_path):
+    _, state = _sim_session(tmp_path, simulated("pitch100_4pos", 1))
+    res = A.run(A.record_from_session(state))
+    assert not res.fit.fails_chi2_test
+    html = rep.render(res)
+    assert "χ² test passed" in html and "passes at 1 %" in html
+    assert "Birge (µm)" not in html and "u × Birge" not in html
+    assert "fails its χ² test" not in html
+
+
+@pytest.mark.parametrize("doc, needle", [
+    ({"sigma": 0.5}, "did you mean 'sigma_um'"),
+    ({"exclude_outlier": True}, "did you mean 'exclude_outliers'"),
+    ({"order": "two"}, "order must be a whole number 1-5, found \"two\""),
+])
+def test_cli_refuses_a_bad_record_in_one_line(doc, needle, tmp_path, capsys):
+    base = json.loads(SAMPLE.read_text())
+    base["data"]["measurements"] = [{"path": str(SAMPLE.parent / m["path"])}
+                                    for m in base["data"]["measurements"]]
+    base["data"]["setup"] = str(SAMPLE.parent / "../thesis/setup.json")
+    base["data"]["certificate"] = None
+    path = tmp_path / "ANALYSIS.json"
+    path.write_text(json.dumps({**base, **doc}))
+    code, printed = _cli(path, tmp_path / "r.html", capsys)
+    assert code == 2 and not (tmp_path / "r.html").exists()
+    err = printed.err.strip()
+    assert "\n" not in err and "ANALYSIS.json" in err and needle in err
+    assert "Traceback" not in err
+
+
+def test_cli_report_exit_codes(tmp_path, capsys):
+    code, printed = _cli(tmp_path / "missing.json", tmp_path / "r.html", capsys)
+    assert code == 2 and "missing.json" in printed.err
+    with pytest.raises(SystemExit) as exc:  # --out is required: argparse's usage error
+        main(["report", str(SAMPLE)])
+    assert exc.value.code == 2 and "--out" in capsys.readouterr().err
+    code, printed = _cli(SAMPLE, tmp_path / "no_such_dir" / "r.html", capsys)
+    assert code == 2 and printed.err.count("\n") == 1 and "no_such_dir" in printed.err
