@@ -75,9 +75,15 @@ def test_thesis_report_app_and_cli_byte_identical(thesis_app, tmp_path, capsys):
 
 
 def test_thesis_report_shows_the_failed_chi2_test_and_inflated_values(thesis_app):
-    _, html = thesis_app
-    assert "The model fails its χ² test" in html and "χ²/dof 44.71 at 372" in html
-    assert "FAILS at 1 %" in html
+    record, html = thesis_app
+    res = A.run(record)
+    val, dof, _ = rep.chi2_test_numbers(res.fit)
+    assert res.fit.chi2_dof == pytest.approx(44.7, abs=0.05) and res.fit.fails_chi2_test
+    # the statistic the core tests (certificate uncertainty counted), p, dof, and the
+    # fit's own χ²/dof beside it
+    assert "The model fails its χ² test" in html and f"χ²/dof {val:.2f} at {dof}" in html
+    assert f"p = {res.fit.chi2_p_value:.2g}" in html and "44.71" in html
+    assert "FAILS at 1 %" in html and f"×{res.fit.birge_ratio:.2f}" in html
     assert html.count("class='chi2 fail'") >= 4  # summary, functions, U, MPE, parameters
     assert "x × Birge (µm)" in html and "u × Birge" in html
     assert "χ² test passed" not in html
