@@ -1,0 +1,86 @@
+"""Benchmark: the HTML report of the sample analysis record (thesis data), time and size.
+
+Ours: ``report.render`` of ``analysis.run(record)`` (plotly.js and the figure data packed
+once; the first call in a process also packs plotly.js, reported as "cold"). Peers in the
+same run, on the same fit: the previous assembly (``report.build_report`` at commit
+``PREVIOUS``, read with git: plotly.js inline once, uncompressed, figures built with
+``add_vrect``) and the per-figure assembly (every figure with its own plotly.js).
+Run: ``.venv/bin/python bench/report.py``.
+"""
+
+import importlib.util
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from _timing import median_time  # noqa: E402
+
+from cmm_core import analysis as A  # noqa: E402
+from cmm_core import report as rep  # noqa: E402
+
+PREVIOUS = "08e52a4"  # last commit with the previous report assembly
+RECORD = ROOT / "sample_data" / "analysis" / "thesis.json"
+
+
+def previous_report():
+    """``cmm_core/report.py`` at ``PREVIOUS`` as a module of the package, or None."""
+    try:
+        src = subprocess.run(["git", "show", f"{PREVIOUS}:cmm_core/report.py"], cwd=ROOT,
+                             capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    spec = importlib.util.spec_from_loader("cmm_core.report_previous", loader=None)
+    mod = importlib.util.module_from_spec(spec)
+    mod.__package__ = "cmm_core"
+    exec(compile(src, "report_previous.py", "exec"), mod.__dict__)  # noqa: S102
+    return mod
+
+
+def per_figure(res) -> str:
+    """Every figure of the report with its own copy of plotly.js."""
+    r = res.fit
+    figs = [rep.fig_placements(res.dataset), rep.fig_error_functions(r)]
+    figs += [rep.fig_deviation(r, p, res.record.magnification)
+             for p in r.problem.obs.positions]
+    figs += [rep.fig_pattern(r.table, r.residuals_um, "Residuals per observation (µm)")]
+    if res.mpe is not None:
+        figs.append(rep.fig_mpe(res.mpe))
+    figs.append(rep.fig_history(list(res.history)))
+    return "".join(f.to_html(full_html=False, include_plotlyjs=True) for f in figs)
+
+
+def main():
+    record = A.read_record(RECORD)
+    t = time.perf_counter()
+    res = A.run(record)
+    t_run = time.perf_counter() - t
+    t = time.perf_counter()
+    cold = rep.render(res)
+    t_cold = time.perf_counter() - t
+    t_ours, ours = median_time(lambda: rep.render(res), 3)
+    rows = [("ours (packed once)", t_ours, len(ours.encode()))]
+    old = previous_report()
+    if old is not None:
+        def previous():
+            return old.build_report(res.dataset, res.fit, exclusions=res.exclusions,
+                                    history=list(res.history), uncertainty=res.uncertainty,
+                                    magnification=record.magnification, mpe=res.mpe)
+        t_prev, prev = median_time(previous, 3)
+        rows.append((f"previous ({PREVIOUS}, plotly.js once, raw)", t_prev,
+                     len(prev.encode())))
+    t_per, per = median_time(lambda: per_figure(res), 1)
+    rows.append(("plotly.js per figure", t_per, len(per.encode())))
+    print(f"record {RECORD.relative_to(ROOT)}: analysis.run {t_run:.2f} s (fit, history, "
+          f"uncertainty, MPE); ours cold (packs plotly.js) {t_cold:.2f} s, "
+          f"{len(cold.encode()) / 1e6:.2f} MB")
+    print(f"{'report assembly':44s} {'median s':>9s} {'MB':>7s} {'time ratio':>11s}")
+    for name, sec, size in rows:
+        print(f"{name:44s} {sec:9.2f} {size / 1e6:7.2f} {t_ours / sec:11.2f}")
+
+
+if __name__ == "__main__":
+    main()
