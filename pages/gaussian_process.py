@@ -31,13 +31,14 @@ def measured_errors(args, _ds):
 
 
 @st.cache_data(show_spinner=False, max_entries=32)
-def kinematic_at_observations(args, _r):
-    """Standard uncertainty of the kinematic error at the observations in the same
-    rigid-aligned sense as the measured error (each position's placement removed: the
-    absolute uncertainty, which grows away from the axis origins, does not apply)."""
-    from cmm_core.uncertainty import aligned_error_u
+def kinematic_residual_u(args, _r):
+    """Standard uncertainty of "kinematic model minus measurement" at each fitted ball.
+    That difference is the fit's residual: the model was fitted to this very ball, so
+    the two share its noise and the difference varies as σ√(1 − h_ii), less than
+    √(u_model² + σ²) (``uncertainty.residual_u``)."""
+    from cmm_core.uncertainty import residual_u
 
-    return aligned_error_u(_r)
+    return residual_u(_r)
 
 
 @st.cache_resource(show_spinner=False, max_entries=48)
@@ -96,7 +97,7 @@ def predict_all(args, mean, kernel, grid_key, comps, grid, probe):
 
 args = C.fit_args()
 pts, err, meta = measured_errors(args, ds)
-u_kin = kinematic_at_observations(args, r)
+u_res = kinematic_residual_u(args, r)
 # rows of the kinematic fit and the rigid fit are the same selection, same order
 pred_kin = err + r.residuals_um
 
@@ -156,7 +157,7 @@ with cols[0], C.guarded("Kinematic surface"):
                                            points=pts_plate, xlabel="plate u (mm)",
                                            ylabel="plate v (mm)", zrange=(-zlim, zlim))),
                     key="gp_kin_surface", width="stretch")
-gp_mean_obs = gp_sd_obs = loo = loo_sd = None
+gp_mean_obs = loo = loo_sd = None
 coverage = {}
 if not s.get("gp_on"):
     with cols[1]:
@@ -204,7 +205,7 @@ if s.get("gp_on"):
             gm = gm + e_kin_grid
             om = om + pred_kin
             loo = loo + pred_kin
-        gp_mean_obs, gp_sd_obs = om, osd
+        gp_mean_obs = om
         with cols[1]:
             st.plotly_chart(C.beside_map(C.rep.fig_surface_grid(uu, vv, gm[:, a].reshape(n, n),
                                                    title=f"GP mean e{comp} (µm)", unit="µm",
@@ -257,15 +258,23 @@ if s.get("gp_on"):
             st.warning(
                 "Leave-one-out coverage outside 95 ± 2 % for "
                 + ", ".join(f"e{c_} ({v:.1f} %)" for c_, v in off.items())
-                + f" ({n_pts} points, one point = {100 / n_pts:.1f} %). "
-                + ("Below: the GP's intervals are too narrow here: errors that jump between "
-                   "placements or styli in a way its inputs do not carry, blunders still in "
-                   "the data (see Data), or a noise level that differs between styli"
-                   + ("" if probe_input else " (tick 'Probe offset as input')") + ". "
-                   if any(v < 95 for v in off.values()) else "")
-                + ("Above: the intervals are wider than the scatter needs (a noise level "
-                   "shared by styli of different repeatability, or a degenerate fit)."
-                   if any(v > 95 for v in off.values()) else ""))
+                + f" ({n_pts} points, one point = {100 / n_pts:.1f} %): the GP's intervals "
+                + ("are too narrow" if all(v < 95 for v in off.values()) else
+                   "are too wide" if all(v > 95 for v in off.values()) else
+                   "are off") + " for points it has not seen. Why, from the numbers of each "
+                "component:")
+            loo_target = target if mean_choice == "kinematic" else err
+            for i, (c_, v) in enumerate(coverage.items()):
+                if c_ not in off:
+                    continue
+                g = comps[i].results[0]
+                z_loo = ((np.asarray(g.loo_mean_um, float) - loo_target[:, i])
+                         / np.asarray(g.loo_sd_um, float))
+                why = C.coverage_reasons(
+                    v, z_loo, meta, g.noise_sd_by_group_um if probe_names else None,
+                    probe_names, several_probes, bool(g.degenerate))
+                st.caption(f"**Why e{c_} covers {v:.1f} % rather than 95 ± 2 %:** "
+                           + " ".join(w[:1].upper() + w[1:] for w in why))
         else:
             st.caption(f"Leave-one-out 95 % coverage within 95 ± 2 % in every component "
                        f"({n_pts} points, one point = {100 / n_pts:.1f} %): the GP's "
@@ -290,13 +299,16 @@ rows = pd.DataFrame({"position": meta["position"].to_numpy(), "probe": meta["pro
 rows["measured_um"] = err[:, a]
 rows["kinematic_um"] = pred_kin[:, a]
 rows["kin_minus_meas_um"] = pred_kin[:, a] - err[:, a]
-rows["kin_z"] = rows["kin_minus_meas_um"] / np.sqrt(u_kin[:, a] ** 2 + sigma**2)
+# the kinematic difference at a fitted ball is its residual: z against σ√(1 − h_ii)
+with np.errstate(divide="ignore", invalid="ignore"):
+    rows["kin_z"] = rows["kin_minus_meas_um"] / np.where(u_res[:, a] > 0, u_res[:, a], np.nan)
 if gp_mean_obs is not None:
     rows["gp_um"] = gp_mean_obs[:, a]
     rows["gp_minus_meas_um"] = gp_mean_obs[:, a] - err[:, a]
-    rows["gp_z"] = rows["gp_minus_meas_um"] / np.sqrt(gp_sd_obs[:, a] ** 2 + sigma**2)
+    # the GP's in-sample difference has the same problem, and no closed-form sd: its z
+    # is the leave-one-out one (each ball predicted from the others, noise included)
     rows["gp_loo_minus_meas_um"] = loo[:, a] - err[:, a]
-    rows["gp_loo_z"] = rows["gp_loo_minus_meas_um"] / loo_sd[:, a]  # noise included
+    rows["gp_loo_z"] = rows["gp_loo_minus_meas_um"] / loo_sd[:, a]
 # Thesis eq. 7.1: |model - measurement| / measurement x 100 %, with the measurement taken
 # as the ball coordinate (mm) in the plate frame. Shown only beside the honest numbers.
 plate_pts = np.einsum("nji,nj->ni", r.state["R"][obs.pos], pts - r.state["t"][obs.pos])
@@ -308,14 +320,15 @@ if gp_mean_obs is not None:
     with np.errstate(divide="ignore", invalid="ignore"):
         rows["thesis_pct_gp"] = np.where(coord > 1.0, np.abs(rows["gp_minus_meas_um"]) * UM
                                          / coord * 100, np.nan)
+fin_k = np.isfinite(rows["kin_z"])
 summ = {"kinematic: RMS difference (µm)": float(np.sqrt(np.mean(rows["kin_minus_meas_um"]**2))),
-        "kinematic: RMS normalised (z)": float(np.sqrt(np.mean(rows["kin_z"] ** 2)))}
+        "kinematic: RMS z (residual sd)": float(np.sqrt(np.mean(rows["kin_z"][fin_k] ** 2)))}
 if gp_mean_obs is not None:
     summ["GP: RMS difference (µm)"] = float(np.sqrt(np.mean(rows["gp_minus_meas_um"] ** 2)))
-    summ["GP: RMS normalised (z)"] = float(np.sqrt(np.mean(rows["gp_z"] ** 2)))
     fin = np.isfinite(rows["gp_loo_z"])
     summ["GP leave-one-out: RMS difference (µm)"] = float(np.sqrt(np.mean(
         rows["gp_loo_minus_meas_um"][fin] ** 2)))
+    summ["GP: RMS z (leave-one-out sd)"] = float(np.sqrt(np.mean(rows["gp_loo_z"][fin] ** 2)))
 mc = st.columns(len(summ))
 for c_, (lab, v) in zip(mc, summ.items(), strict=True):
     c_.metric(lab, f"{v:.3f}")
@@ -324,15 +337,29 @@ C.dataframe(rows[rows["position"] == position] if only else rows, hide_index=Tru
              key="ch7_table",
              column_config={c_: st.column_config.NumberColumn(format="%.3f")
                             for c_ in rows.columns if c_.endswith(("_um", "_z"))} | {
+                 "kin_z": st.column_config.NumberColumn(
+                     "kin_z (residual sd)", format="%.2f",
+                     help="(kinematic − measured) / σ√(1 − h_ii): the difference at a ball "
+                          "the model was fitted to is its residual."),
+                 "gp_loo_z": st.column_config.NumberColumn(
+                     "gp_z (leave-one-out)", format="%.2f",
+                     help="(GP leave-one-out prediction − measured) / its leave-one-out sd, "
+                          "noise included: each ball predicted from all the others."),
                  "thesis_pct_kin": st.column_config.NumberColumn(
                      "thesis eq. 7.1 % (kinematic)", format="%.5f"),
                  "thesis_pct_gp": st.column_config.NumberColumn(
                      "thesis eq. 7.1 % (GP)", format="%.5f")})
 st.caption(
-    f"Component {comp}. Differences are in µm and in units of their standard uncertainty "
-    f"(z = difference / √(u_model² + σ²), σ = {sigma:g} µm; u_model of the kinematic model "
-    "with each placement's rigid part removed, as the differences are); |z| ≲ 2 is "
-    "agreement. The "
+    f"Component {comp}. Differences are in µm and in units of their standard uncertainty. "
+    "The kinematic model was fitted to these very balls, so its difference from the "
+    f"measurement is the fit's residual: *kin_z* divides it by the residual's sd "
+    f"σ√(1 − h_ii) (σ = {sigma:g} µm; h_ii the ball's leverage), not by √(u_model² + σ²), "
+    "which treats model and measurement as independent and makes z too small. The GP's "
+    "in-sample difference has the same problem, so its z (*gp_z (leave-one-out)*) "
+    "compares each ball with the GP's prediction from all the other balls, divided by "
+    "that prediction's sd (noise included). |z| ≲ 2 is agreement; an RMS z near 1 means "
+    "the stated uncertainties match the scatter (for the kinematic model, only when the "
+    "fit passes its χ² test). The "
     "columns labelled *thesis eq. 7.1 %* reproduce the thesis's 'percentage error' only for "
     "comparison: it divides a micrometre difference by the ball's coordinate (≈ 0.5 m), so "
     "any model scores a few thousandths of a percent; it is not a measure of model quality. "
