@@ -23,6 +23,8 @@ c[0].markdown(f"Model  \n{C.spec_markup(s['spec'])}", unsafe_allow_html=True)
 c[1].metric("RMS residual", f"{r.rms_um:.3f} µm")
 c[2].metric("χ²/dof", f"{r.chi2_dof:.2f}")
 c[3].metric("BIC", f"{r.bic:.1f}")
+# reversal and certificate uncertainties below are σ-based
+C.misfit_banner(r)
 
 st.subheader("Where the model fails")
 t_pat, t_map, t_tab, t_time = st.tabs(["Residual pattern", "Residual map (3D)",

@@ -293,6 +293,8 @@ st.caption("Plate plane of the chosen position (plate u and v in mm); × marks t
               "the kinematic model, which knows each stylus's offset, separates it."))
 
 st.subheader("Kinematic vs GP vs measurement (thesis chapter 7)")
+# the kinematic z-scores are σ-based: say whether σ describes the scatter
+C.misfit_banner(r)
 sigma = float(s["sigma_um"])
 rows = pd.DataFrame({"position": meta["position"].to_numpy(), "probe": meta["probe"].to_numpy(),
                      "ball": meta["ball"].to_numpy()})

@@ -96,6 +96,8 @@ def error_function_grid(r, show, cols, truth):
     return fig
 
 
+# the bands, the parameter u and the maps below are σ-based: say whether to trust them
+C.misfit_banner(r)
 truth = s.get("sim_truth")
 tabs = st.tabs(["Error functions", "Deviation plots", "Parameters", "Residuals"])
 with tabs[0], C.guarded("Error functions"):
