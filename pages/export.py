@@ -62,6 +62,7 @@ corr = None
 if points is not None:
     corr = C.safe(corrected, args, ckey, points, r, what="Compensation")
 if corr is not None:
+    C.misfit_banner(r)  # the corrections' uncertainties never hide a failed χ² test
     view = corr.copy()
     for a in "xyz":
         view[f"e{a}_um"] = A.measured_error_um(view[f"{a}_mm"], view[f"{a}c_mm"])
