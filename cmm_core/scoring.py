@@ -1,0 +1,162 @@
+"""Scoring a candidate effect against a baseline fit (the diagnosis's first stage).
+
+Every catalogue token the data can see (``blocks.needs``) is scored by the χ² reduction
+of one Gauss-Newton step of the augmented model from the baseline solution (a score
+test; the model is nearly linear, so this is the refit's reduction to high accuracy);
+periodic errors are scanned over the periods the layout resolves
+(``blocks.periodic``). :func:`_stats` turns a reduction into ΔBIC and an F-test p-value,
+:func:`_levels` shares the family-wise false-alarm rate over the candidates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize, stats
+
+from . import kinematics as kin
+from .blocks import needs
+from .blocks.periodic import PERIOD_SCAN, shortest_resolvable_period
+from .effects import PERIODIC, PHYSICAL
+from .fit import FitResult, Problem, augmented_state, held_constraints, weighted_residual
+from .solver import Normal, describe_null, solve
+
+PHYSICAL_SHARE = 0.5
+"""Share of the family-wise false-alarm rate ``alpha`` given to the physical effects and
+absent error functions (weighted Bonferroni: each of them is tested at
+``alpha * PHYSICAL_SHARE / n_physical``, every higher order and periodic error at
+``alpha * (1 - PHYSICAL_SHARE) / n_other``; the weights sum to one, so the family-wise
+rate stays at most ``alpha``). A handful of physical effects would otherwise pay for the
+~40 order increases tried beside them."""
+
+
+def _needs_met(token, base: FitResult):
+    """Why the baseline's data cannot see ``token`` (None: they can); the block says."""
+    return needs(token, base.problem.obs)
+
+
+def score(base: FitResult, token: str):
+    """One-step score of adding ``token``.
+
+    Returns (Δχ², Δrank, signature µm (n, 3), χ² new, u_new, combos) where ``u_new`` maps
+    each added parameter label to ``(unit, standard uncertainty)`` in the augmented model:
+    how well this data set determines the effect on top of the baseline; ``combos`` are
+    the parameter combinations the augmented model would leave undetermined (beyond the
+    baseline's own), written out as the fit writes them.
+    """
+    spec = base.problem.spec.with_token(token)
+    prob = Problem(base.problem.obs, spec, base.plate)
+    st = augmented_state(base, prob)
+    d, r, J = weighted_residual(prob, st, base.sigma_um, True)
+    # what the baseline's design could not determine stays held, or the candidate would
+    # be credited with (and counted for) those directions too
+    C = prob.constraints()
+    if base.design_null.size:
+        C = np.vstack([C, held_constraints(base.labels, base.design_null, prob)])
+    # ... and what the candidate adds is decided at the nominal linearisation, as its
+    # refit decides it (fit's frozen design null): at the baseline's solution the
+    # nonlinearity of fitted rotations lends weakly coupled columns a small, spurious rank
+    _, r0, J0 = weighted_residual(prob, prob.initial_state(), base.sigma_um, True)
+    ne0 = Normal(J0, r0, C, base.rank_rtol)
+    combos = describe_null(ne0.null, prob.layout.labels)[0] if ne0.null.shape[1] else []
+    step, cov, rank, null = solve(J, r, ne0.freeze_null(C), base.rank_rtol)
+    r_new = r + J @ step
+    chi2_new = float(r_new @ r_new)
+    n = prob.n_obs
+    sig = -(J @ step)[: 3 * n].reshape(n, 3) * base.sigma_um
+    old = set(base.labels)
+    u = np.sqrt(np.clip(np.diag(cov), 0, None))
+    # a parameter with a component in the null space is not determined at all
+    # (the same 5 % share rule as fit's unidentifiable parameters)
+    undetermined = ((np.abs(null) >= 0.05 * np.abs(null).max(axis=0)).any(axis=1)
+                    if null.size else np.zeros(len(u), bool))
+    u_new = {lab: (unit, float("inf") if und else float(ui))
+             for lab, unit, ui, und in zip(prob.layout.labels, prob.layout.units, u,
+                                           undetermined, strict=True) if lab not in old}
+    return base.chi2 - chi2_new, rank - base.rank, sig, chi2_new, u_new, combos
+
+
+def scan_period(base: FitResult, token: str):
+    """Best period of a periodic scale error (``periodic_x`` ...) for this residual.
+
+    Score test for every period of the scan: the χ² reduction of adding the two periodic
+    columns (sine, cosine) after projecting out the baseline's Jacobian, so that only what
+    the baseline cannot already explain counts. Returns ``(token with period, periods mm,
+    Δχ² per period, alias tokens)``: the best period is refined between its grid
+    neighbours; aliases are other local maxima within 80 % of the best (periods the ball
+    spacing cannot tell apart from it).
+    """
+    a = "xyz".index(token[-1])
+    _, r, J = weighted_residual(base.problem, base.state, base.sigma_um, True)
+    U, sv, _ = np.linalg.svd(J.toarray(), full_matrices=False)
+    U = U[:, sv > base.rank_rtol * sv.max()]
+    u = (base.problem.obs.r_mm - base.problem.obs.p_mm)[:, a]
+    n = u.size
+    shortest = shortest_resolvable_period(base.problem.obs, a)[0]
+    periods = np.geomspace(shortest, max(np.ptp(u), 2 * shortest), PERIOD_SCAN[1])
+
+    def gain(lam):
+        X = np.zeros((r.size, 2))
+        X[a: 3 * n: 3] = kin.periodic_basis(u, lam) / base.sigma_um
+        X -= U @ (U.T @ X)
+        q, rr = np.linalg.qr(X)
+        if abs(rr[-1, -1]) <= 1e-9 * abs(rr[0, 0]):
+            return 0.0  # this period is indistinguishable from the baseline
+        return float(np.sum((q.T @ r) ** 2))
+
+    gains = np.array([gain(lam) for lam in periods])
+    i = int(np.argmax(gains))
+    lo, hi = periods[max(i - 1, 0)], periods[min(i + 1, periods.size - 1)]
+    best = optimize.minimize_scalar(lambda lam: -gain(lam), bounds=(lo, hi),
+                                    method="bounded", options={"xatol": 0.5}).x
+    # other periods that explain nearly as much: aliases of the ball spacing
+    peaks = [j for j in range(periods.size) if gains[j] >= 0.8 * gains[i]
+             and gains[j] >= gains[max(j - 1, 0)] and gains[j] >= gains[min(j + 1, periods.size - 1)]
+             and abs(np.log(periods[j] / best)) > 0.1]
+    aliases = [f"{token}:{periods[j]:.0f}" for j in peaks]
+    return f"{token}:{best:.0f}", periods, gains, aliases
+
+
+def _stats(base: FitResult, dchi2, dk, chi2_new, n_scan=1):
+    """ΔBIC, F-test p-value and residual dof of adding ``dk`` parameters. A candidate
+    chosen as the best of ``n_scan`` (a scanned period) pays for the choice: one more
+    parameter in the BIC and a Bonferroni factor ``n_scan`` on p (conservative: the
+    scanned periods are correlated)."""
+    n_rows = base.dof + base.rank
+    dof_new = max(n_rows - base.rank - dk, 1)
+    dbic = -dchi2 + (dk + (n_scan > 1)) * np.log(n_rows)
+    if dk <= 0 or dchi2 <= 0:
+        return dbic, 1.0, dof_new
+    F = (dchi2 / dk) / max(chi2_new / dof_new, 1e-300)
+    return dbic, min(1.0, n_scan * float(stats.f.sf(F, dk, dof_new))), dof_new
+
+
+@dataclass
+class _Scored:
+    """Working record of one candidate while the diagnosis ranks it."""
+
+    token: str
+    dchi2: float
+    dk: int
+    signature: np.ndarray
+    chi2_new: float
+    u_new: dict
+    combos: list
+    n_scan: int = 1
+    period_aliases: list = field(default_factory=list)
+    refit: FitResult | None = None
+    family: str = ""
+
+
+def _levels(tokens, alpha):
+    """Weighted Bonferroni levels (:data:`PHYSICAL_SHARE`): ``{token: level}``."""
+    def physical(t):
+        return t in PHYSICAL or ":" not in t and t not in PERIODIC
+
+    phys = [t for t in tokens if physical(t)]
+    other = [t for t in tokens if not physical(t)]
+    share = PHYSICAL_SHARE if phys and other else float(bool(phys))
+    lv = {t: alpha * share / len(phys) for t in phys}
+    lv.update({t: alpha * (1 - share) / len(other) for t in other})
+    return lv
