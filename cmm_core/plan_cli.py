@@ -55,13 +55,14 @@ def add_plan_arguments(p) -> None:
 
 def run_plan(args) -> dict:
     """``plan``: evaluate every strategy; design and check when asked."""
-    from .plan import evaluate, read_plan
+    from .plan import evaluate
+    from .plan_file import read_plan
 
     pf = read_plan(args.plan)
     evals = [evaluate(p, detection=not args.no_detection) for p in pf.strategies]
     out = {"strategies": [e.to_dict() for e in evals]}
     if pf.design is not None:
-        from .plan_design import design_from_file
+        from .plan_file import design_from_file
 
         d = design_from_file(pf)
         out["design"] = d.to_dict()
