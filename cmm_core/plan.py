@@ -143,14 +143,16 @@ def simulation_config(plan: Plan, *, seed: int = 0, noise_um: float = 0.0,
             "minutes_per_ball": m["minutes_per_ball"], "repeats": m["repeats"]}
 
 
-def simulate_plan(plan: Plan, **kwargs) -> Dataset:
+def simulate_plan(plan: Plan, *, with_truth: bool = False, **kwargs):
     """Data of the plan from the virtual CMM (see :func:`simulation_config`), with the
-    certificate at the plate's nominal geometry and the plan's certificate uncertainty."""
+    certificate at the plate's nominal geometry and the plan's certificate uncertainty.
+    Returns the Dataset, or ``(Dataset, truth by parameter label)`` with ``with_truth``."""
     sim = simulate(simulation_config(plan, **kwargs), name=f"plan {plan.name!r}")
     d = sim.dataset
     cert = Certificate(d.certificate.balls, sim.true_plate_mm.copy(),
                        np.full(sim.true_plate_mm.shape, plan.plate["certificate_u_um"]))
-    return Dataset(d.meas, d.setup, cert, name=f"plan {plan.name}")
+    data = Dataset(d.meas, d.setup, cert, name=f"plan {plan.name}")
+    return (data, sim.truth) if with_truth else data
 
 
 def fit_plan_data(plan: Plan, data: Dataset, spec=None) -> FitResult:
@@ -198,6 +200,8 @@ class PlanEvaluation:
         What was evaluated and how.
     fit : FitResult
         The design fit (covariance, layout, null space).
+    plan : Plan
+        The plan evaluated.
     """
 
     name: str
@@ -213,6 +217,7 @@ class PlanEvaluation:
     time_min: float
     message: str
     fit: FitResult = field(repr=False)
+    plan: Plan | None = field(default=None, repr=False)
 
     @property
     def determined(self) -> bool:
@@ -284,6 +289,7 @@ def evaluate(plan: Plan, *, detection: bool = True, n_random: int = 200) -> Plan
                 " add placements or styli that exercise them, or remove those functions.")
     return PlanEvaluation(plan.name, r.n_obs, list(r.null_combinations),
                           list(r.unidentifiable), u.U1_um, u.U2_um, u.U3_um,
-                          function_uncertainty(r), limits, skipped, plan.time_min, msg, r)
+                          function_uncertainty(r), limits, skipped, plan.time_min, msg, r,
+                          plan)
 
 
