@@ -10,6 +10,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from .blocks import BY_TOKEN
+from .blocks.base import Effect
+from .blocks.periodic import PERIODIC
 from .kinematics import ERROR_NAMES, ROTATIONAL, SQUARENESS, TRANSLATIONAL
 
 GROUPS = {
@@ -18,41 +21,11 @@ GROUPS = {
     "rotational": ROTATIONAL,
     "squareness": SQUARENESS,
 }
-PHYSICAL = ("plate_thermal", "plate_sag", "probe_offset", "drift", "backlash")
-PERIODIC = {"periodic_x": "dxx", "periodic_y": "dyy", "periodic_z": "dzz"}
-"""Periodic scale error tokens (``periodic_x:200``: period 200 mm) and the positioning
-function each one adds to."""
+PHYSICAL = tuple(BY_TOKEN)
+"""Physical effect tokens, one per effect block (``blocks.REGISTRY`` order)."""
 MAX_ORDER = 5
 
 _AXIS = {"x": "X", "y": "Y", "z": "Z"}
-
-
-@dataclass(frozen=True)
-class Effect:
-    """One catalogue entry: what it is, what it needs, what it is confused with.
-
-    Attributes
-    ----------
-    name : str
-        Catalogue name used in model specs (``dyz``, ``dyz:3``, ``plate_sag``).
-    title : str
-        Short human title.
-    explanation : str
-        What a metrologist would write about the physical effect.
-    needs : str
-        The data it needs to be identifiable.
-    confused_with : str
-        Effects it can be mistaken for with common measurement plans.
-    separate_by : str
-        The measurement that separates it from those.
-    """
-
-    name: str
-    title: str
-    explanation: str
-    needs: str
-    confused_with: str
-    separate_by: str
 
 
 def _kinematic_effect(name: str) -> Effect:
@@ -92,51 +65,7 @@ def _kinematic_effect(name: str) -> Effect:
                   "two probe offsets or two heights of the plate.")
 
 
-_PHYSICAL = {
-    "plate_thermal": Effect(
-        "plate_thermal", "plate thermal expansion",
-        "the plate was not at 20 °C: it grows by CTE × (T − 20 °C), a uniform scale of every "
-        "ball-to-ball length, different for each recorded temperature.",
-        "a temp_C column that varies between positions or over time.",
-        "the positioning (scale) errors dxx, dyy, dzz when the temperature is constant.",
-        "positions measured at different plate temperatures."),
-    "plate_sag": Effect(
-        "plate_sag", "plate sag (gravity bending)",
-        "a horizontally supported plate bends under its own weight: the out-of-plane "
-        "coordinates follow a bowl shared by all horizontal placements and absent when the "
-        "plate stands vertically.",
-        "horizontal and vertical placements with a certificate (fixed or prior).",
-        "the straightness of the axes spanning the plate (dxz, dyz) and plate form.",
-        "the same horizontal placement at two heights or a vertical placement."),
-    "probe_offset": Effect(
-        "probe_offset", "probe offset error",
-        "a stylus's qualified offset is wrong: every point measured with that stylus is "
-        "shifted by the same vector.",
-        "several probes measuring the same balls in the same position.",
-        "the rigid placement of a position when each position uses only one probe, and "
-        "drift when the probes are measured one after the other.",
-        "interleave the probes ball by ball within one position."),
-    "drift": Effect(
-        "drift", "drift with time",
-        "the machine or plate moves slowly during the measurement (thermal drift): each "
-        "position's coordinates change linearly with time.",
-        "time_min (or a known measurement order) with balls measured in a varied order.",
-        "a positioning or straightness error when the balls are measured row by row "
-        "(time follows x and y), and a probe step when probes are measured in blocks.",
-        "repeating the first ball at the end of each position (and a serpentine or random "
-        "order, if the balls were measured row by row)."),
-    "backlash": Effect(
-        "backlash", "backlash (reversal error)",
-        "an axis reads differently depending on the direction it last moved in (play in the "
-        "drive, friction hysteresis of the carriage): balls approached from opposite sides "
-        "along an axis differ by the reversal span, whatever their position.",
-        "a known measurement order (time_min or the file's row order) that reaches balls "
-        "from both directions along an axis: serpentine or random order.",
-        "drift and straightness when the direction alternates row by row (serpentine), and "
-        "the placement when every ball is approached from the same side.",
-        "the same balls in two orders (row-by-row and serpentine), or one ball approached "
-        "from both sides."),
-}
+_PHYSICAL = {token: block.entry for token, block in BY_TOKEN.items()}
 
 
 def _periodic_effect(name: str, period: str) -> Effect:

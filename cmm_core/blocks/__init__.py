@@ -3,12 +3,11 @@
 The fit (``fit.Problem``) lays out its parameters, evaluates residuals and Jacobians and
 collects gauge constraints by looping over :data:`REGISTRY`; the diagnosis asks
 :func:`needs` whether the data can see an effect. Adding an effect is adding one module
-with its block and listing it here (plus its catalogue text in ``effects``).
+with its block and listing it here (its catalogue text is the block's ``entry``).
 """
 
 from __future__ import annotations
 
-from ..effects import PERIODIC
 from . import periodic
 from .backlash import Backlash
 from .base import Block, Eval
@@ -22,9 +21,11 @@ from .probe_offset import ProbeOffset
 
 __all__ = ["REGISTRY", "BY_TOKEN", "Block", "Eval", "needs"]
 
-REGISTRY = (Plate, Placement, Kinematic, ProbeOffset, PlateThermal, PlateSag, Drift,
+REGISTRY = (Plate, Placement, Kinematic, PlateThermal, PlateSag, ProbeOffset, Drift,
             Backlash)
-"""Blocks in parameter-layout order; stages run in this order too (thermal before sag)."""
+"""Blocks in parameter-layout order, which is also the catalogue's order of physical
+effects (``effects.PHYSICAL``, model specs written out) and the order in which the stages
+run (thermal expansion before sag)."""
 
 BY_TOKEN = {b.token: b for b in REGISTRY if b.token}
 
@@ -34,6 +35,6 @@ def needs(token: str, obs) -> str | None:
     name = token.partition(":")[0]
     if name in BY_TOKEN:
         return BY_TOKEN[name].needs(obs)
-    if name in PERIODIC:
+    if name in periodic.PERIODIC:
         return periodic.needs(obs, name)
     return None

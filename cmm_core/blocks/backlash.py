@@ -7,13 +7,24 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Block, shared_cols
+from .base import Block, Effect, shared_cols
 
 
 class Backlash(Block):
     """Reversal span of each axis (µm)."""
 
     token = "backlash"
+    entry = Effect(
+        "backlash", "backlash (reversal error)",
+        "an axis reads differently depending on the direction it last moved in (play in the "
+        "drive, friction hysteresis of the carriage): balls approached from opposite sides "
+        "along an axis differ by the reversal span, whatever their position.",
+        "a known measurement order (time_min or the file's row order) that reaches balls "
+        "from both directions along an axis: serpentine or random order.",
+        "drift and straightness when the direction alternates row by row (serpentine), and "
+        "the placement when every ball is approached from the same side.",
+        "the same balls in two orders (row-by-row and serpentine), or one ball approached "
+        "from both sides.")
 
     @staticmethod
     def needs(obs):

@@ -68,6 +68,34 @@ class Eval:
         return self.problem.layout.blocks[name].start
 
 
+@dataclass(frozen=True)
+class Effect:
+    """One catalogue entry: what it is, what it needs, what it is confused with.
+
+    Attributes
+    ----------
+    name : str
+        Catalogue name used in model specs (``dyz``, ``dyz:3``, ``plate_sag``).
+    title : str
+        Short human title.
+    explanation : str
+        What a metrologist would write about the physical effect.
+    needs : str
+        The data it needs to be identifiable.
+    confused_with : str
+        Effects it can be mistaken for with common measurement plans.
+    separate_by : str
+        The measurement that separates it from those.
+    """
+
+    name: str
+    title: str
+    explanation: str
+    needs: str
+    confused_with: str
+    separate_by: str
+
+
 class Block:
     """One physical effect: its parameters, the data it needs, its residual contribution,
     Jacobian and gauge constraints.
@@ -78,6 +106,8 @@ class Block:
 
     token: str | None = None
     """Catalogue name that puts the block in a model (``None``: always in the model)."""
+    entry: Effect | None = None
+    """Its catalogue entry (what it is, needs, is confused with, is separated by)."""
 
     def __init__(self, problem):
         self.problem = problem

@@ -6,13 +6,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Block, per_group_cols
+from .base import Block, Effect, per_group_cols
 
 
 class Drift(Block):
     """Drift rate per placement, xyz (µm/h)."""
 
     token = "drift"
+    entry = Effect(
+        "drift", "drift with time",
+        "the machine or plate moves slowly during the measurement (thermal drift): each "
+        "position's coordinates change linearly with time.",
+        "time_min (or a known measurement order) with balls measured in a varied order.",
+        "a positioning or straightness error when the balls are measured row by row "
+        "(time follows x and y), and a probe step when probes are measured in blocks.",
+        "repeating the first ball at the end of each position (and a serpentine or random "
+        "order, if the balls were measured row by row).")
 
     @staticmethod
     def needs(obs):

@@ -7,6 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
+PERIODIC = {"periodic_x": "dxx", "periodic_y": "dyy", "periodic_z": "dzz"}
+"""Periodic scale error tokens (``periodic_x:200``: period 200 mm) and the positioning
+function each one adds to."""
+
 PERIOD_SCAN = (40.0, 36)
 """Shortest period scanned (mm) and the number of periods, spaced geometrically up to the
 span of the balls along the axis (longer periods are what a higher polynomial order

@@ -8,13 +8,21 @@ from __future__ import annotations
 import numpy as np
 
 from ..units import UM
-from .base import Block, shared_cols
+from .base import Block, Effect, shared_cols
 
 
 class PlateSag(Block):
     """Bowl heights at the plate's edge (µm)."""
 
     token = "plate_sag"
+    entry = Effect(
+        "plate_sag", "plate sag (gravity bending)",
+        "a horizontally supported plate bends under its own weight: the out-of-plane "
+        "coordinates follow a bowl shared by all horizontal placements and absent when the "
+        "plate stands vertically.",
+        "horizontal and vertical placements with a certificate (fixed or prior).",
+        "the straightness of the axes spanning the plate (dxz, dyz) and plate form.",
+        "the same horizontal placement at two heights or a vertical placement.")
 
     @staticmethod
     def needs(obs):

@@ -7,13 +7,20 @@ from __future__ import annotations
 import numpy as np
 
 from ..units import PPM, UM
-from .base import Block, shared_cols
+from .base import Block, Effect, shared_cols
 
 
 class PlateThermal(Block):
     """Expansion coefficient of the plate (10⁻⁶/K)."""
 
     token = "plate_thermal"
+    entry = Effect(
+        "plate_thermal", "plate thermal expansion",
+        "the plate was not at 20 °C: it grows by CTE × (T − 20 °C), a uniform scale of every "
+        "ball-to-ball length, different for each recorded temperature.",
+        "a temp_C column that varies between positions or over time.",
+        "the positioning (scale) errors dxx, dyy, dzz when the temperature is constant.",
+        "positions measured at different plate temperatures.")
 
     @staticmethod
     def needs(obs):

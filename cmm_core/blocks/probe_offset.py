@@ -10,13 +10,21 @@ import numpy as np
 
 from .. import kinematics as kin
 from ..units import UM
-from .base import Block, per_group_cols
+from .base import Block, Effect, per_group_cols
 
 
 class ProbeOffset(Block):
     """Offset error of every stylus, xyz (µm); constrained to sum to zero."""
 
     token = "probe_offset"
+    entry = Effect(
+        "probe_offset", "probe offset error",
+        "a stylus's qualified offset is wrong: every point measured with that stylus is "
+        "shifted by the same vector.",
+        "several probes measuring the same balls in the same position.",
+        "the rigid placement of a position when each position uses only one probe, and "
+        "drift when the probes are measured one after the other.",
+        "interleave the probes ball by ball within one position.")
 
     @staticmethod
     def needs(obs):
