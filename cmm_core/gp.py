@@ -34,7 +34,7 @@ from itertools import combinations_with_replacement
 import numpy as np
 import scipy.linalg as sla
 from scipy.linalg import lapack
-from scipy.optimize import minimize
+from scipy.optimize import OptimizeResult, minimize
 from scipy.spatial.distance import cdist
 from scipy.stats import norm, qmc
 
@@ -65,8 +65,15 @@ _SAME_OPTIMUM = 0.05  # subset optima closer than this in every log hyperparamet
 # the optimum at n = 1000 (its gradient test then stops it first); the subset runs only
 # find the basins and keep the default
 _FTOL = 1e-12
-_GTOL = 1e-5  # BFGS polish: ∞-norm of the gradient, L-BFGS-B's default projected test
-_INTERIOR = 0.5  # a subset optimum this far (log) from every bound gets the BFGS polish
+# BFGS polish: ∞-norm of the gradient at which it stops. The log ML is then within
+# |g|²/(2 λ_min) ~ 1e-10 of the optimum (λ_min ~ 10 at n = 1000); 1e-5 is below what its
+# round-off (~1e-10) lets the line search see, which then spent 24 evaluations in place
+_GTOL = 1e-4
+_GTOL_STALLED = 1e-3  # a BFGS polish stalled by round-off below this gradient converged
+# a BFGS polish is a few steps from a good start; more means it is lost (L-BFGS-B then)
+_BFGS_MAXITER = 15
+_PRUNE_NATS = 10.0  # subset optima this far below the best are not polished (_optimise)
+_INTERIOR = 2.0  # a subset optimum this far (log) from every bound gets the BFGS polish
 _FTOL_PREFIT = 2.2e-9
 
 
@@ -337,7 +344,8 @@ class GPResult:
         as much and are not counted; see ``fit_gp``, Notes).
     start_log_ml : tuple of float
         Final log marginal likelihood of each start (default start first; for n > 600,
-        of the optimum its subset run led to, polished on all points); ``nan`` for a
+        of the optimum its subset run led to, polished on all points, or unpolished when
+        it was 10 nats or more below the best on the subset); ``nan`` for a
         start where the likelihood could not be evaluated.
     jitter_um2 : float
         Variance added to the diagonal of K_y at the reported hyperparameters because its
@@ -886,6 +894,8 @@ def fit_gp(X, y, *, mean="zero", kernel: str = "se_iso", restarts: int = 3, seed
     # between the smallest spacing and _ALT_MAX_LENGTH × the extent
     order = sorted((r for r in runs if float(r.fun) < 1e24), key=lambda r: float(r.fun))
     alt_runs = [r for r in order if not degeneracy(r.x, lb, ub)["degenerate"]][:1]
+    if alt_runs and not alt_runs[0].get("polished", True):
+        alt_runs = [_minimize(prob, lb, ub, alt_runs[0].x)]
     alt_lb, alt_ub, how = lb, ub, "the best start that is not degenerate"
     if not alt_runs and np.isfinite(spacing_s):
         alt_lb, alt_ub = lb.copy(), ub.copy()
@@ -929,6 +939,11 @@ def _optimise(prob, sub, lo, hi, points):
     like n/m but the length scale's and σ_f's more slowly (a fixed domain filled in);
     n/m overshot them and made BFGS's line search fail. An optimum at a bound, or a BFGS
     polish that leaves the bounds or fails, gets L-BFGS-B from where it stands.
+
+    Optima more than ``_PRUNE_NATS`` below the best on the subset (a likelihood ratio
+    e^-10: collapsed or signal-free optima the whole-bounds starts fall into) are not
+    polished; their result is the log ML on all points at the subset optimum, marked
+    ``polished=False`` (``fit_gp`` polishes one if it is needed as the alternative).
     """
     if sub is None:
         return [_minimize(prob, lo, hi, t0) for t0 in points]
@@ -942,8 +957,18 @@ def _optimise(prob, sub, lo, hi, points):
             reps.append(r)
             j = len(reps) - 1
         group.append(j)
-    polished = [_polish(prob, sub, lo, hi, q) for q in reps]
+    best = min(float(q.fun) for q in reps)
+    polished = [_polish(prob, sub, lo, hi, q) if float(q.fun) <= best + _PRUNE_NATS
+                else _unpolished(prob, q) for q in reps]
     return [polished[j] for j in group]
+
+
+def _unpolished(prob, pre):
+    """A subset optimum far below the best one, evaluated on all points, not optimised."""
+    f, g = prob.objective(pre.x)
+    return OptimizeResult(x=pre.x, fun=f, jac=g, success=False, status=-1, polished=False,
+                          message=f"not polished: {_PRUNE_NATS:g} nats or more below the "
+                                  "best optimum on the subset")
 
 
 def _polish(prob, sub, lo, hi, pre):
@@ -956,8 +981,17 @@ def _polish(prob, sub, lo, hi, pre):
         if lam.min() > 1e-6 * lam.max():  # a clear minimum on the subset
             Hinv = (V / lam) @ V.T
             res = minimize(prob.objective, t, jac=True, method="BFGS",
-                           options={"hess_inv0": (Hinv + Hinv.T) / 2, "gtol": _GTOL})
-            if res.success and np.all(res.x >= lo) and np.all(res.x <= hi):
+                           options={"hess_inv0": (Hinv + Hinv.T) / 2, "gtol": _GTOL,
+                                    "maxiter": _BFGS_MAXITER})
+            # BFGS's "precision loss": the line search found no decrease along the
+            # quasi-Newton direction, i.e. the optimum to round-off (at n = 1000 the
+            # log ML's round-off, ~1e-10, stalls gradients of ~1e-5 on the way down)
+            stalled = res.status == 2 and np.max(np.abs(res.jac)) < _GTOL_STALLED
+            if (res.success or stalled) and np.all(res.x >= lo) and np.all(res.x <= hi):
+                if stalled:
+                    res.success = True
+                    res.message = ("BFGS: no further increase of the log ML in floating "
+                                   f"point (gradient {np.max(np.abs(res.jac)):.1e})")
                 return res
             if float(res.fun) < 1e24:
                 t = res.x  # L-BFGS-B carries on from where BFGS stopped (clipped)
