@@ -266,24 +266,40 @@ class Problem:
             R[k], t[k] = rigid_fit(o.plate0_mm[o.ball[sel]], o.r_mm[sel])
         return {"c": o.plate0_mm.copy(), "R": R, "t": t, "x": np.zeros(self.layout.n)}
 
-    def _evaluate(self, state, want_jac):
-        o = self.obs
-        ev = Eval(self, state, want_jac)
+    def _placed(self, ev):
+        """Probe and plate stages, then the placed ball ``R_k c' + t_k`` (mm)."""
+        o, state = self.obs, ev.state
         p = o.p_mm.copy()
         for b in self.blocks:
             p = b.probe_stage(ev, p)
         ev.p_mm = p
-        xs = self._kinematic.model(ev)
         c = state["c"][o.ball]
         for b in self.blocks:
             c = b.plate_stage(ev, c)
         ev.plate_mm = c
         ev.Rk = state["R"][o.pos]
-        placed = np.einsum("nij,nj->ni", ev.Rk, c) + state["t"][o.pos]
-        d = (xs - placed) / UM
+        return np.einsum("nij,nj->ni", ev.Rk, c) + state["t"][o.pos]
+
+    def _reading(self, ev, d):
         for b in self.blocks:
             d = b.reading_stage(ev, d)
-        return d, ev
+        return d
+
+    def _evaluate(self, state, want_jac):
+        ev = Eval(self, state, want_jac)
+        placed = self._placed(ev)
+        xs = self._kinematic.model(ev)
+        return self._reading(ev, (xs - placed) / UM), ev
+
+    def targets(self, state):
+        """What the kinematic model must return for every residual to vanish (mm), and
+        the true probe offsets (mm): the simulator inverts the model to these
+        (``simulate``), so that it is the exact inverse of the fit's model."""
+        ev = Eval(self, state, False)
+        placed = self._placed(ev)
+        # the reading stage is linear in the residual: d = (x* - placed)/UM + L
+        L = self._reading(ev, np.zeros_like(placed))
+        return placed - L * UM, ev.p_mm
 
     def plate_points(self, state):
         """Plate coordinates of every observation after thermal and sag effects (mm)."""

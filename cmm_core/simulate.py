@@ -4,7 +4,9 @@ The simulation is the exact inverse of the fit's measurement model (see ``fit``)
 every probed ball the true tip centre ``s = R_k c_b' + t_k`` is computed (plate form,
 thermal expansion and sag included in ``c_b'``), the scale readings ``x`` that reach it are
 found by solving ``x*(x, p_true) = s + drift`` with exact rotations
-(``kinematics.invert``), and the CMM reports ``r = x + p_nominal`` plus noise.
+(``kinematics.invert``), and the CMM reports ``r = x + p_nominal`` plus noise. The effects
+are the fit's own blocks (``cmm_core.blocks``): each draws its true parameters
+(``Block.draw``) and the fit's model at the truth gives the targets (``Problem.targets``).
 
 Configuration keys (all optional; see ``DEFAULT_CONFIG``): ``seed``, ``setup`` (a setup
 dict in the SPEC format, frame ``machine``; default the thesis placements),
@@ -24,18 +26,19 @@ import copy
 import difflib
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from . import kinematics as kin
+from .blocks import BY_TOKEN
+from .blocks.base import SimContext
 from .dataset import THESIS_DIR, Dataset
 from .effects import MAX_ORDER, parse_spec
-from .fit import approach_directions, plate_effect_basis
+from .fit import Observations, Problem, approach_directions
 from .io import (
-    CTE_RANGE_PER_K,
     Certificate,
     DataError,
     _check_celsius,
@@ -106,8 +109,8 @@ class Simulation:
                                                     "config": self.config}, indent=1))
 
 
-_EFFECT_KEYS = {"plate_thermal": {"cte_per_K", "temp_C"}, "plate_sag": {"uu", "uv", "vv"},
-                "probe_offset": None, "drift": None, "backlash": {"x_um", "y_um", "z_um"}}
+_EFFECT_KEYS = {token: None if b.sim_keys is None else set(b.sim_keys)
+                for token, b in BY_TOKEN.items()}
 
 
 def _check_config(cfg, name="simulation config"):
@@ -210,20 +213,10 @@ def _check_config(cfg, name="simulation config"):
                   f"{_cut(km['coefficients'])}.")
     for lab, val in km["coefficients"].items():
         number(f"kinematic.coefficients.{lab}", val, -1e5, 1e5)
-    eff = cfg.get("effects") or {}
-    th = eff.get("plate_thermal", {})
-    if "cte_per_K" in th:
-        number("effects.plate_thermal.cte_per_K", th["cte_per_K"], *CTE_RANGE_PER_K)
-    for k in ("uu", "uv", "vv"):
-        if k in eff.get("plate_sag", {}):
-            number(f"effects.plate_sag.{k}", eff["plate_sag"][k], -1e3, 1e3)
-    for k in ("x_um", "y_um", "z_um"):
-        if k in eff.get("backlash", {}):
-            number(f"effects.backlash.{k}", eff["backlash"][k], -1e3, 1e3)
-    if "sd_um" in eff.get("probe_offset", {}):
-        number("effects.probe_offset.sd_um", eff["probe_offset"]["sd_um"], 0, 1e3)
-    if "sd_um_per_h" in eff.get("drift", {}):
-        number("effects.drift.sd_um_per_h", eff["drift"]["sd_um_per_h"], 0, 1e4)
+    for token, body in (cfg.get("effects") or {}).items():
+        for k, (lo, hi) in BY_TOKEN[token].sim_ranges.items():
+            if k in body:
+                number(f"effects.{token}.{k}", body[k], lo, hi)
 
 
 def _check_against_setup(cfg, setup, terms, name, own_ppp):
@@ -331,6 +324,28 @@ def _visit_order(rows, cols, how, rng):
     raise ValueError(f"order must be 'row', 'serpentine' or 'random', got {how!r}.")
 
 
+def _design(df, setup, plate) -> Observations:
+    """The observations a simulated schedule makes, before any reading exists: what the
+    fit's model needs to place every ball (``Problem.targets``)."""
+    positions = list(dict.fromkeys(df["position"]))
+    probes = list(dict.fromkeys(df["probe"]))
+    pos = df["position"].map({p: i for i, p in enumerate(positions)}).to_numpy()
+    prb = df["probe"].map({q: i for i, q in enumerate(probes)}).to_numpy()
+    tm = df["time_min"].to_numpy(float)
+    hours = np.zeros(len(df))
+    for i in range(len(positions)):
+        hours[pos == i] = (tm[pos == i] - tm[pos == i].mean()) / 60.0
+    pnom = np.array([setup.probes[q] for q in probes], float)[prb]
+    return Observations(
+        df, np.zeros((len(df), 3)), pnom, pos, prb, df["ball"].to_numpy() - 1, positions,
+        probes, np.arange(1, len(plate) + 1), plate, None,
+        df["temp_C"].to_numpy(float) - 20.0, True, hours,
+        np.array([setup.positions[p].horizontal for p in positions]),
+        np.array([setup.positions[p].rotation for p in positions]),
+        np.array([setup.positions[p].origin_mm for p in positions]),
+        np.asarray(setup.range_mm, float), False, np.zeros((len(df), 3)))
+
+
 def simulate(config: dict | None = None, *, name: str = "simulation config") -> Simulation:
     """Simulate a virtual CMM measuring a ball plate (see the module docstring).
 
@@ -387,40 +402,12 @@ def simulate(config: dict | None = None, *, name: str = "simulation config") -> 
     truth = dict(zip(terms.labels, coef.tolist(), strict=True))
 
     eff = cfg["effects"]
-    probe_err = {q: np.zeros(3) for q in setup.probes}
-    if "probe_offset" in eff:
-        po = eff["probe_offset"]
-        if "sd_um" in po:
-            vals = rng.normal(0, po["sd_um"], (len(setup.probes), 3))
-            vals -= vals.mean(0)  # the fit's gauge: offset errors sum to zero
-            probe_err = {q: v for q, v in zip(setup.probes, vals, strict=True)}
-        else:
-            probe_err.update({str(q): np.asarray(v, float) for q, v in po.items()})
-        truth.update({f"probe{q}.{a}": float(v[i]) for q, v in probe_err.items()
-                      for i, a in enumerate("xyz")})
-    drift = {p: np.zeros(3) for p in positions}
-    if "drift" in eff:
-        dr = eff["drift"]
-        for p in positions:
-            drift[p] = (rng.normal(0, dr["sd_um_per_h"], 3) if "sd_um_per_h" in dr
-                        else np.asarray(dr.get(p, [0, 0, 0]), float))
-        truth.update({f"{p}.drift_{a}": float(drift[p][i]) for p in positions
-                      for i, a in enumerate("xyz")})
-    cte = 0.0
-    temps = {p: (20.0, 20.0) for p in positions}
-    if "plate_thermal" in eff:
-        th = eff["plate_thermal"]
-        cte = float(th.get("cte_per_K", 11.5e-6))
-        for i, p in enumerate(positions):
-            t = th.get("temp_C", {}).get(p) if isinstance(th.get("temp_C"), dict) else None
-            temps[p] = tuple(t) if t else (20.0 + 0.4 * i, 20.2 + 0.4 * i)
-        truth["plate_thermal.cte"] = cte * 1e6
-    sag = np.zeros(3)
-    if "plate_sag" in eff:
-        sg = eff["plate_sag"]
-        sag = np.array([sg.get("uu", 0.0), sg.get("uv", 0.0), sg.get("vv", 0.0)], float)
-        truth.update({"plate_sag.uu": sag[0], "plate_sag.uv": sag[1], "plate_sag.vv": sag[2]})
-    centre, sag_basis = plate_effect_basis(plate)
+    sim = SimContext(positions, [str(q) for q in setup.probes],
+                     {p: (20.0, 20.0) for p in positions})
+    for token, block in BY_TOKEN.items():
+        if token in eff:
+            truth.update(block.draw(eff[token], sim, rng))
+    temps = sim.temps_C
 
     records = []
     clock = 0.0
@@ -436,30 +423,24 @@ def simulate(config: dict | None = None, *, name: str = "simulation config") -> 
         frac = (times - times[0]) / max(times[-1] - times[0], 1e-9)
         for j, (b, q) in enumerate(seq):
             records.append((p, q, int(b) + 1, times[j], t0 + (t1 - t0) * frac[j],
-                            j // (len(visit) * len(probes_of[p])), times[j] - times.mean()))
+                            j // (len(visit) * len(probes_of[p]))))
     df = pd.DataFrame(records, columns=["position", "probe", "ball", "time_min", "temp_C",
-                                        "repeat", "_dt_min"])
-    bi = df["ball"].to_numpy() - 1
-    dT = df["temp_C"].to_numpy() - 20.0
-    c = centre + (plate[bi] - centre) * (1 + cte * dT[:, None])
-    horiz = np.array([setup.positions[p].horizontal for p in df["position"]])
-    c[:, 2] += (sag_basis[bi] @ sag) * 1e-3 * horiz
-    R = np.array([setup.positions[p].rotation for p in df["position"]])
-    o = np.array([setup.positions[p].origin_mm for p in df["position"]])
-    s = np.einsum("nij,nj->ni", R, c) + o
-    hours = df["_dt_min"].to_numpy() / 60.0
-    s = s + np.array([drift[p] for p in df["position"]]) * hours[:, None] * 1e-3
-    pnom = np.array([setup.probes[q] for q in df["probe"]])
-    ptrue = pnom + np.array([probe_err[q] for q in df["probe"]]) * 1e-3
-    x = kin.invert(terms, coef, s, ptrue)
+                                        "repeat"])
+    # the fit's own model at the truth, inverted (see the module docstring)
+    model = parse_spec(",".join([km["spec"], *(t for t in BY_TOKEN if t in eff)]),
+                       default_order=int(km["order"]))
+    prob = Problem(_design(df, setup, plate), model, "fixed")
+    state = prob.initial_state()
+    state.update(c=plate.copy(), R=prob.obs.R0.copy(), t=prob.obs.t0_mm.copy(),
+                 x=np.array([truth.get(lab, 0.0) for lab in prob.layout.labels]))
+    x = kin.invert(terms, coef, *prob.targets(state))
     if "backlash" in eff:
-        # rows are in time order: the reading is short by half the span along the last move
-        span = np.array([eff["backlash"].get(f"{a}_um", 0.0) for a in "xyz"], float)
-        x = x - approach_directions(x) * span / 2 * 1e-3
-        truth.update({f"backlash.{a}": float(v) for a, v in zip("xyz", span, strict=True)})
+        # the approach directions follow the machine's moves, known once it has moved
+        prob = Problem(replace(prob.obs, approach=approach_directions(x)), model, "fixed")
+        x = kin.invert(terms, coef, *prob.targets(state))
+    pnom = prob.obs.p_mm
     r = x + pnom + rng.normal(0, cfg["noise_um"], x.shape) * 1e-3
     df["x_mm"], df["y_mm"], df["z_mm"] = r.T
-    df = df.drop(columns="_dt_min")
     if cfg["repeats"] <= 1:
         df = df.drop(columns="repeat")
     df["source"] = "measurements.csv"

@@ -26,6 +26,13 @@ class Backlash(Block):
         "the same balls in two orders (row-by-row and serpentine), or one ball approached "
         "from both sides.")
 
+    sim_keys = frozenset({"x_um", "y_um", "z_um"})
+    sim_ranges = {f"{a}_um": (-1e3, 1e3) for a in "xyz"}
+
+    @classmethod
+    def draw(cls, cfg, sim, rng):
+        return {f"backlash.{a}": float(cfg.get(f"{a}_um", 0.0)) for a in "xyz"}
+
     @staticmethod
     def needs(obs):
         if not (np.ptp(obs.approach, axis=0) == 2).any():

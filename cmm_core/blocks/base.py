@@ -96,6 +96,24 @@ class Effect:
     separate_by: str
 
 
+@dataclass
+class SimContext:
+    """What a block's :meth:`Block.draw` sees of a simulation, and may set.
+
+    Attributes
+    ----------
+    positions, probes : list of str
+        Positions and probes of the setup.
+    temps_C : dict
+        Plate temperature of each position at its start and finish (°C); 20 °C unless a
+        block (plate_thermal) sets it.
+    """
+
+    positions: list
+    probes: list
+    temps_C: dict = field(default_factory=dict)
+
+
 class Block:
     """One physical effect: its parameters, the data it needs, its residual contribution,
     Jacobian and gauge constraints.
@@ -109,8 +127,20 @@ class Block:
     entry: Effect | None = None
     """Its catalogue entry (what it is, needs, is confused with, is separated by)."""
 
+    sim_keys: frozenset | None = frozenset()
+    """Keys the simulator accepts under ``effects.<token>`` (None: position or probe names
+    besides those of :attr:`sim_ranges`, checked against the setup)."""
+    sim_ranges: dict = {}
+    """Numeric simulator keys and their allowed (low, high) range."""
+
     def __init__(self, problem):
         self.problem = problem
+
+    @classmethod
+    def draw(cls, cfg: dict, sim: SimContext, rng) -> dict:
+        """True parameter values (by fit label) for the simulator's ``effects.<token>``
+        configuration ``cfg``; random draws come from ``rng``."""
+        return {}
 
     @classmethod
     def wanted(cls, spec, plate: str) -> bool:

@@ -23,6 +23,19 @@ class Drift(Block):
         "repeating the first ball at the end of each position (and a serpentine or random "
         "order, if the balls were measured row by row).")
 
+    sim_keys = None
+    sim_ranges = {"sd_um_per_h": (0, 1e4)}
+
+    @classmethod
+    def draw(cls, cfg, sim, rng):
+        """Per-position vectors (µm/h), or ``sd_um_per_h``: random rates."""
+        out = {}
+        for p in sim.positions:
+            v = (rng.normal(0, cfg["sd_um_per_h"], 3) if "sd_um_per_h" in cfg
+                 else np.asarray(cfg.get(p, [0, 0, 0]), float))
+            out.update({f"{p}.drift_{a}": float(v[i]) for i, a in enumerate("xyz")})
+        return out
+
     @staticmethod
     def needs(obs):
         return "needs measurement times" if np.ptp(obs.hours) == 0 else None

@@ -24,6 +24,13 @@ class PlateSag(Block):
         "the straightness of the axes spanning the plate (dxz, dyz) and plate form.",
         "the same horizontal placement at two heights or a vertical placement.")
 
+    sim_keys = frozenset({"uu", "uv", "vv"})
+    sim_ranges = {k: (-1e3, 1e3) for k in ("uu", "uv", "vv")}
+
+    @classmethod
+    def draw(cls, cfg, sim, rng):
+        return {f"plate_sag.{k}": float(cfg.get(k, 0.0)) for k in ("uu", "uv", "vv")}
+
     @staticmethod
     def needs(obs):
         return None if obs.horizontal.any() else "needs at least one horizontal placement"

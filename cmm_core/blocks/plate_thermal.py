@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..io import CTE_RANGE_PER_K
 from ..units import PPM, UM
 from .base import Block, Effect, shared_cols
 
@@ -21,6 +22,19 @@ class PlateThermal(Block):
         "a temp_C column that varies between positions or over time.",
         "the positioning (scale) errors dxx, dyy, dzz when the temperature is constant.",
         "positions measured at different plate temperatures.")
+
+    sim_keys = frozenset({"cte_per_K", "temp_C"})
+    sim_ranges = {"cte_per_K": CTE_RANGE_PER_K}
+
+    @classmethod
+    def draw(cls, cfg, sim, rng):
+        """``cte_per_K`` (default 11.5e-6, steel) and each position's start and finish
+        temperature (default 20.0-20.2 °C, 0.4 K warmer at each position)."""
+        temps = cfg.get("temp_C") if isinstance(cfg.get("temp_C"), dict) else {}
+        for i, p in enumerate(sim.positions):
+            t = temps.get(p)
+            sim.temps_C[p] = tuple(t) if t else (20.0 + 0.4 * i, 20.2 + 0.4 * i)
+        return {"plate_thermal.cte": float(cfg.get("cte_per_K", 11.5e-6)) * 1e6}
 
     @staticmethod
     def needs(obs):

@@ -26,6 +26,23 @@ class ProbeOffset(Block):
         "drift when the probes are measured one after the other.",
         "interleave the probes ball by ball within one position.")
 
+    sim_keys = None
+    sim_ranges = {"sd_um": (0, 1e3)}
+
+    @classmethod
+    def draw(cls, cfg, sim, rng):
+        """Per-probe vectors (µm), or ``sd_um``: random errors summing to zero (the
+        fit's gauge)."""
+        err = {q: np.zeros(3) for q in sim.probes}
+        if "sd_um" in cfg:
+            vals = rng.normal(0, cfg["sd_um"], (len(sim.probes), 3))
+            vals -= vals.mean(0)
+            err = dict(zip(sim.probes, vals, strict=True))
+        else:
+            err.update({str(q): np.asarray(v, float) for q, v in cfg.items()})
+        return {f"probe{q}.{a}": float(v[i]) for q, v in err.items()
+                for i, a in enumerate("xyz")}
+
     @staticmethod
     def needs(obs):
         return "needs at least two probes" if len(obs.probes) < 2 else None
