@@ -66,7 +66,20 @@ def peer(data, exclude=()):
                          x_scale="jac", tr_solver="exact" if dense else "lsmr")
 
 
-def report(name, data, repeats, exclude=(), with_peer=True):
+def with_previous_kinematics(old, f):
+    """``f()`` with every cmm_core module's ``kin`` swapped for the previous kinematics."""
+    mods = [m for k, m in list(sys.modules.items())
+            if k.startswith("cmm_core") and getattr(m, "kin", None) is kin]
+    for m in mods:
+        m.kin = old
+    try:
+        return f()
+    finally:
+        for m in mods:
+            m.kin = kin
+
+
+def report(name, data, repeats, exclude=(), with_peer=True, old=None):
     fit(data, "kinematic21", exclude=exclude)  # warm-up: first-call page faults, imports
     ours, r = median_time(lambda: fit(data, "kinematic21", exclude=exclude), repeats)
     tracemalloc.start()
@@ -79,6 +92,11 @@ def report(name, data, repeats, exclude=(), with_peer=True):
         line += (f"  least_squares {theirs * 1e3:.1f} ms  ratio ours/peer {ours / theirs:.2f}"
                  f"  chi2 ours {r.chi2:.1f} vs peer {float(p.fun @ p.fun):.1f}")
     print(line + f"  peak memory {peak:.0f} MB", flush=True)
+    if old is not None:
+        t_old, r_old = with_previous_kinematics(old, lambda: median_time(
+            lambda: fit(data, "kinematic21", exclude=exclude), repeats))
+        print(f"  same fit with the previous kinematics ({PREVIOUS}): {t_old * 1e3:.1f} ms, "
+              f"ratio ours/previous {ours / t_old:.2f}, chi2 {r_old.chi2:.1f}", flush=True)
 
 
 def large_dataset():
@@ -131,9 +149,10 @@ if __name__ == "__main__":
     ap.add_argument("--quick", action="store_true",
                     help="no least_squares peer on the 10^5-observation set")
     args = ap.parse_args()
+    prev = previous_kinematics()
     th = thesis_dataset()
-    report("thesis six tables", th, 21, detect_outliers(th).exclusions)
+    report("thesis six tables", th, 21, detect_outliers(th).exclusions, old=prev)
     big = large_dataset()
-    report("simulated 10^5", big, 3, with_peer=not args.quick)
+    report("simulated 10^5", big, 3, with_peer=not args.quick, old=prev)
     print("forward model on the 10^5 points, kinematic21 order 2:")
     forward_model(big)

@@ -858,7 +858,7 @@ def fit_gp(X, y, *, mean="zero", kernel: str = "se_iso", restarts: int = 3, seed
     # large n: the starts first run on a random subset of the points, and only the
     # distinct optima found there are polished on all of them (``_optimise``)
     sub = None
-    if optimize and k and prob.n > 2 * _PREFIT_POINTS:
+    if optimize and prob.n > 2 * _PREFIT_POINTS:
         sub = prob.subset(np.sort(rng.choice(prob.n, _PREFIT_POINTS, replace=False)))
 
     spacing_s, far = _spacing(prob)
