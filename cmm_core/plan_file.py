@@ -92,14 +92,15 @@ def _check_measurement(m, name, prefix):
     return m
 
 
-def read_plan(source, *, name: str | None = None) -> PlanFile:
+def read_plan(source, *, name: str | None = None, base_dir=None) -> PlanFile:
     """Read a plan file (path, JSON text, bytes or an already parsed dict) and check it.
 
-    A ``setup`` given as a file name is read relative to the plan file. Every refusal is a
+    A ``setup`` given as a file name is read relative to the plan file (or to
+    ``base_dir`` for text and dicts; default the working directory). Every refusal is a
     :class:`~cmm_core.io.DataError` naming the file and the key (``plate.rows``), what
     was expected and what was found.
     """
-    base_dir = Path(".")
+    base_dir = Path(base_dir or ".")
     if isinstance(source, dict):
         raw, name = source, name or "plan"
     else:
@@ -118,8 +119,13 @@ def read_plan(source, *, name: str | None = None) -> PlanFile:
                    "setup object, or the name of a setup file).")
     setup_raw = raw["setup"]
     if isinstance(setup_raw, str):
-        path = (base_dir / setup_raw)
-        setup_raw, _ = read_json(path)
+        path = base_dir / setup_raw
+        try:
+            setup_raw, _ = read_json(path)
+        except DataError as exc:
+            raise _bad(name, "setup", f"cannot read the setup file {str(path)!r}: "
+                       f"{exc.detail}", hint="a setup file name is read relative to the "
+                       "plan file.") from None
     if not isinstance(setup_raw, dict):
         raise _bad(name, "setup", f"expected a setup object or file name, found "
                    f"{_cut(setup_raw)}.")

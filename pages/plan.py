@@ -1,0 +1,276 @@
+"""Plan page: evaluate, compare and design measurement plans before measuring, and (as
+``task_section()``, called from the Compensate page) task-specific uncertainty.
+
+Thin over ``cmm_core.plan*`` and ``cmm_core.task``: the page gathers the plan file (the
+sample, an upload or an edit), calls the core through cached wrappers and draws."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import plotly.graph_objects as go
+import streamlit as st
+
+from pages import common as C
+
+PLANS_DIR = Path(__file__).resolve().parents[1] / "sample_data" / "plans"
+SAMPLES = {"thesis layout: location 0 and all six": "thesis_plan.json",
+           "thesis pool with a design target": "thesis_design.json"}
+TASKS = {"distance": "task_distance.json", "circle": "task_circle.json",
+         "plane": "task_plane.json"}
+
+
+# --- cached thin wrappers (inputs: the plan text; outputs: plain records) --------------
+
+@st.cache_data(show_spinner=False, max_entries=16)
+def _plan_file(text: str):
+    from cmm_core.plan_file import read_plan
+
+    return read_plan(json.loads(text), name="plan", base_dir=PLANS_DIR)
+
+
+@st.cache_data(show_spinner="Evaluating the plans from their design…", max_entries=16)
+def evaluate_plans(text: str) -> list:
+    """Every strategy of the plan, evaluated (JSON records)."""
+    from cmm_core.plan import evaluate
+
+    return [evaluate(p).to_dict() for p in _plan_file(text).strategies]
+
+
+@st.cache_data(show_spinner="Designing…", max_entries=8)
+def design_plan(text: str) -> dict:
+    """The design section's result (JSON record)."""
+    from cmm_core.plan_file import design_from_file
+
+    return design_from_file(_plan_file(text)).to_dict()
+
+
+@st.cache_data(show_spinner="Computing the uncertainty map…", max_entries=32)
+def u_map(text: str, name: str, z_mm: float, n: int = 25):
+    """U (k = 1, rigid part removed) of the error over an XY grid at height ``z_mm``."""
+    from cmm_core.plan import design_fit
+    from cmm_core.uncertainty import rigid_removed_error_u
+
+    plan = next(p for p in _plan_file(text).strategies if p.name == name)
+    r = design_fit(plan)
+    rng = np.asarray(r.problem.obs.range_mm, float)
+    gx, gy = np.linspace(0, rng[0], n), np.linspace(0, rng[1], n)
+    X, Y = np.meshgrid(gx, gy)
+    pts = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, z_mm)])
+    return gx, gy, rigid_removed_error_u(r, pts).reshape(n, n, 3)
+
+
+def _fmt(v, digits=3):
+    return "—" if v is None else f"{v:.{digits}g}"
+
+
+def _plan_text() -> str | None:
+    s = st.session_state
+    c1, c2 = st.columns([2, 3])
+    sample = c1.selectbox("Start from", list(SAMPLES), key="w_plan_sample")
+    up = c2.file_uploader("…or upload a PLAN.json (a setup given by file name is read "
+                          "from sample_data/plans)", type="json", key="w_plan_upload")
+    default = (up.getvalue().decode("utf-8-sig") if up is not None
+               else (PLANS_DIR / SAMPLES[sample]).read_text())
+    if s.get("plan_source") != (sample, up.name if up else None):
+        s["plan_source"] = (sample, up.name if up else None)
+        s["w_plan_text"] = default
+    with st.expander("Plan file (edit and press Ctrl+Enter)", expanded=False):
+        text = st.text_area("PLAN.json", key="w_plan_text", height=320,
+                            help="Format: docs/planning.md. Lengths in mm, σ and "
+                                 "certificate uncertainty in µm, times in minutes.")
+    try:
+        json.loads(text)
+    except json.JSONDecodeError as exc:
+        st.error(f"The plan is not valid JSON: {exc.msg} at line {exc.lineno}.")
+        return None
+    return text
+
+
+def _comparison(evals: list) -> None:
+    rows = []
+    for e in evals:
+        rows.append({"strategy": e["name"], "probings": e["n_obs"],
+                     "time (min)": e["time_min"],
+                     "undetermined": len(e["undetermined"]),
+                     **{f"U2 {a} (µm)": (e["U2_um"] or {}).get(a) for a in "xyz"},
+                     **{f"U3 {a} (µm)": (e["U3_um"] or {}).get(a) for a in "xyz"}})
+    st.dataframe(pd.DataFrame(rows), hide_index=True,
+                 column_config={c: st.column_config.NumberColumn(format="%.3f")
+                                for c in rows[0] if "(µm)" in c})
+    for e in evals:
+        if e["undetermined"]:
+            with st.expander(f"{e['name']}: {len(e['undetermined'])} undetermined "
+                             "combination(s)"):
+                st.write("Parameters involved: " + ", ".join(e["undetermined_parameters"]))
+                st.code("\n".join(e["undetermined"]), language=None)
+                st.caption("Any basis of these combinations is as valid; the fit names the "
+                           "same space on real data of this design.")
+
+
+def _detection_plot(evals: list) -> None:
+    effects = list(dict.fromkeys(k for e in evals for k in e["detection_limits"]))
+    physical = [k for k in effects if ":" not in k or k.startswith("periodic")]
+    pick = st.multiselect("Effects", effects, default=physical, key="w_plan_effects")
+    fig = go.Figure()
+    for e in evals:
+        lim = e["detection_limits"]
+        fig.add_bar(name=e["name"], x=pick,
+                    y=[(lim.get(k) or {}).get("size") for k in pick],
+                    text=[_fmt((lim.get(k) or {}).get("size")) + " "
+                          + (lim.get(k) or {}).get("unit", "") for k in pick])
+    fig.update_layout(barmode="group", yaxis_type="log", height=380,
+                      yaxis_title="detection limit (effect unit, log)",
+                      margin={"t": 30})
+    st.plotly_chart(fig, width="stretch")
+    st.caption("Size the diagnosis names with 80 % probability at its own false-alarm "
+               "level (non-central F power). A missing bar: the design cannot see that "
+               "effect (the baseline absorbs its pattern). Units and shapes: "
+               "docs/planning.md.")
+
+
+def _u_map(text: str, evals: list) -> None:
+    ok = [e["name"] for e in evals if e["U3_um"] is not None]
+    if not ok:
+        st.info("No strategy determines every parameter: no uncertainty map.")
+        return
+    c1, c2, c3 = st.columns(3)
+    name = c1.selectbox("Strategy", ok, key="w_plan_map_strategy")
+    z = c2.slider("Z of the XY plane (mm)", 0.0, 700.0, 350.0, step=50.0, key="w_plan_map_z")
+    comp = c3.radio("Component", ["x", "y", "z"], horizontal=True, key="w_plan_map_comp")
+    res = C.safe(u_map, text, name, float(z), what="Uncertainty map")
+    if res is None:
+        return
+    gx, gy, u = res
+    fig = go.Figure(go.Heatmap(x=gx, y=gy, z=u[:, :, "xyz".index(comp)],
+                               colorbar={"title": "u (µm)"}))
+    fig.update_layout(height=420, xaxis_title="X (mm)", yaxis_title="Y (mm)",
+                      margin={"t": 30})
+    st.plotly_chart(fig, width="stretch")
+    st.caption("Standard uncertainty (k = 1) of the predicted CMM error with the rigid part "
+               "of the plane removed, from the design alone (as U2/U3).")
+
+
+def plan_page() -> None:
+    """The Plan page."""
+    C.page_start()
+    st.title("Plan")
+    st.caption("Before measuring: what a ball-plate plan will determine, how well, what it "
+               "can detect and how long it takes, from the design alone (noise-free virtual "
+               "data fitted by the real fit). Format and method: docs/planning.md.")
+    text = _plan_text()
+    if text is None:
+        return
+    evals = C.safe(evaluate_plans, text, what="Plan")
+    if not evals:
+        return
+    st.subheader("Strategies side by side")
+    _comparison(evals)
+    st.subheader("Detection limits")
+    _detection_plot(evals)
+    st.subheader("Uncertainty map")
+    _u_map(text, evals)
+    pf = C.safe(_plan_file, text, what="Plan")
+    if pf is not None and pf.design is not None:
+        st.subheader("Design")
+        st.write(f"Target: `{json.dumps(pf.design.get('target'))}`, criterion "
+                 f"{pf.design.get('criterion', 'D')}.")
+        if st.button("Find the cheapest plan", key="w_plan_design"):
+            st.session_state["plan_design_for"] = text
+        if st.session_state.get("plan_design_for") == text:
+            d = C.safe(design_plan, text, what="Design")
+            if d is not None:
+                st.success(d["message"])
+                st.write("Units: " + ", ".join(d["units"]))
+                st.json(d["achieved"], expanded=False)
+    _check_section(text, evals)
+
+
+def _check_section(text: str, evals: list) -> None:
+    st.subheader("Monte Carlo check (Dask)")
+    c1, c2 = st.columns(2)
+    trials = c1.number_input("Data sets per strategy and effect", 2, 1000, 20,
+                             key="w_plan_trials")
+    address = c2.text_input("Dask scheduler address (empty: a local cluster)", "",
+                            key="w_plan_scheduler")
+    if not st.button("Run the check", key="w_plan_check"):
+        return
+    from cmm_core.plan import evaluate
+    from cmm_core.plan_study import check_plans
+
+    bar = st.progress(0.0, "starting the Dask cluster…")
+    with C.guarded("Monte Carlo check"):
+        full = [evaluate(p) for p in _plan_file(text).strategies]
+        res = check_plans(full, trials=int(trials), scheduler=address or None,
+                          processes=False,
+                          progress=lambda f, t: bar.progress(min(f, 1.0), t)).to_dict()
+        for p in res["plans"]:
+            st.markdown(f"**{p['name']}**: {p['trials']} clean data sets")
+            if "max_relative_difference" in p:
+                st.write(f"U2/U3 observed vs predicted: largest relative difference "
+                         f"{p['max_relative_difference']:.1e}; RMS of normalised coefficient "
+                         f"errors {p['z_rms']:.2f} (1 when the uncertainties hold).")
+            if p["detection"]:
+                st.dataframe(pd.DataFrame([{"effect": k, "limit": v["size"], "unit": v["unit"],
+                                            "detected": v["rate"], "±SE": v["se"]}
+                                           for k, v in p["detection"].items()]),
+                             hide_index=True)
+
+
+# --- task-specific uncertainty (called from the Compensate page) -----------------------
+
+@st.cache_data(show_spinner="Monte Carlo of the task…", max_entries=16)
+def task_result(model_json: str, task_text: str, trials: int) -> dict:
+    """The task's result and uncertainty (JSON record)."""
+    from cmm_core.compensate import model_from_dict
+    from cmm_core.task import read_task, task_uncertainty
+
+    model = model_from_dict(json.loads(model_json), name="model")
+    return task_uncertainty(model, read_task(json.loads(task_text), name="task"),
+                            trials=trials).to_dict()
+
+
+def task_section() -> None:
+    """Task-specific uncertainty of a distance, circle or plane measured with the current
+    fit (or an uploaded saved model): Monte Carlo beside the law of propagation."""
+    from cmm_core.compensate import model_to_dict
+
+    st.subheader("Task-specific uncertainty")
+    st.caption("Points as the CMM reports them (tip centres, machine frame, mm) with their "
+               "stylus; corrected with the model, reported at 20 °C. Influences: the model's "
+               "covariance, probing noise, optional discrepancy, temperature and scale "
+               "(docs/planning.md).")
+    up = st.file_uploader("Saved model (fit --save); default: the current fit", type="json",
+                          key="w_task_model")
+    if up is not None:
+        model_json = up.getvalue().decode("utf-8-sig")
+    else:
+        r = C.current_fit()
+        if r is None:
+            return
+        model_json = json.dumps(model_to_dict(r), default=float)
+    kind = st.radio("Task", list(TASKS), horizontal=True, key="w_task_kind")
+    text = st.text_area("TASK.json", (PLANS_DIR / TASKS[kind]).read_text(), height=220,
+                        key=f"w_task_text_{kind}")
+    trials = st.number_input("Monte Carlo trials", 1000, 200000, 20000, step=1000,
+                             key="w_task_trials")
+    res = C.safe(task_result, model_json, text, int(trials), what="Task")
+    if res is None:
+        return
+    rows = [{"quantity": q, "value": v["value"], "unit": v["unit"],
+             "U = 2u, Monte Carlo (µm)": 2 * v["u_mc_um"],
+             "U = 2u, law of propagation (µm)": 2 * v["u_lpu_um"],
+             "95 % interval": "[{0:.{2}f}, {1:.{2}f}] {3}".format(
+                 *v["interval"], 5 if v["unit"] == "mm" else 3,
+                 v["unit"].replace("um", "µm")),
+             **{f"u {k} (µm)": c for k, c in v["contributions_um"].items()}}
+            for q, v in res["results"].items()]
+    st.dataframe(pd.DataFrame(rows), hide_index=True)
+    st.caption(res["message"])
+
+
+if __name__ == "__main__":  # run as a page (st.Page executes it as __main__), not on import
+    plan_page()
