@@ -24,7 +24,9 @@ import numpy as np
 import pandas as pd
 
 LONG_COLUMNS = ("position", "probe", "ball", "x_mm", "y_mm", "z_mm")
-OPTIONAL_COLUMNS = ("time_min", "temp_C", "repeat")
+SCALE_TEMP_COLUMNS = ("temp_x_C", "temp_y_C", "temp_z_C")
+"""Temperature of each axis's scale (°C), for the machine thermal effect."""
+OPTIONAL_COLUMNS = ("time_min", "temp_C", "repeat", *SCALE_TEMP_COLUMNS)
 THESIS_COLUMNS = ("ball", "x_mm", "y_mm", "z_mm")
 MAX_BYTES = 50 * 1024 * 1024
 MAX_PROBLEMS = 50
@@ -564,15 +566,18 @@ def read_measurements(source, *, name=None, position=None) -> pd.DataFrame:
     out["ball"] = _ball_numbers(df, name, found)
     for col in ("x_mm", "y_mm", "z_mm") + tuple(c for c in OPTIONAL_COLUMNS if c in df):
         out[col] = _numeric(df, col, name, problems=found)
-    if "temp_C" in out:
-        t = out["temp_C"].to_numpy(float)
-        lo, hi = TEMP_RANGE_C
+    lo, hi = TEMP_RANGE_C
+    for tcol in ("temp_C", *SCALE_TEMP_COLUMNS):
+        if tcol not in out:
+            continue
+        t = out[tcol].to_numpy(float)
         kelvin = np.isfinite(t) & (t > 253) & (t < 343)
-        found.add(kelvin, "temp_C", lambda i: f"temperature {t[i]:g} looks like kelvin; "
+        found.add(kelvin, tcol, lambda i, t=t: f"temperature {t[i]:g} looks like kelvin; "
                   f"expected °C ({lo:g} to {hi:g}).", hint="subtract 273.15 (°C, not K).")
-        found.add(np.isfinite(t) & ~kelvin & ((t < lo) | (t > hi)), "temp_C",
-                  lambda i: f"temperature {t[i]:g} °C is not plausible for a CMM room; "
-                  f"expected {lo:g} to {hi:g} °C.", hint="write the plate temperature in °C.")
+        what = "plate" if tcol == "temp_C" else f"{tcol[5]} scale"
+        found.add(np.isfinite(t) & ~kelvin & ((t < lo) | (t > hi)), tcol,
+                  lambda i, t=t: f"temperature {t[i]:g} °C is not plausible for a CMM room; "
+                  f"expected {lo:g} to {hi:g} °C.", hint=f"write the {what} temperature in °C.")
     key = ["position", "probe", "ball"] + (["repeat"] if "repeat" in out else [])
     _check_duplicates(out, key, found,
                       hint="add a 'repeat' column for repeated measurements." if long else

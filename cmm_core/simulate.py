@@ -426,6 +426,13 @@ def simulate(config: dict | None = None, *, name: str = "simulation config") -> 
                             j // (len(visit) * len(probes_of[p]))))
     df = pd.DataFrame(records, columns=["position", "probe", "ball", "time_min", "temp_C",
                                         "repeat"])
+    for col, by_pos in sim.columns.items():
+        # recorded like temp_C: start to finish over each position's measuring time
+        df[col] = np.nan
+        for p, (t0, t1) in by_pos.items():
+            sel = (df["position"] == p).to_numpy()
+            tm = df.loc[sel, "time_min"].to_numpy()
+            df.loc[sel, col] = t0 + (t1 - t0) * (tm - tm[0]) / max(np.ptp(tm), 1e-9)
     # the fit's own model at the truth, inverted (see the module docstring)
     model = parse_spec(",".join([km["spec"], *(t for t in BY_TOKEN if t in eff)]),
                        default_order=int(km["order"]))
@@ -434,9 +441,12 @@ def simulate(config: dict | None = None, *, name: str = "simulation config") -> 
     state.update(c=plate.copy(), R=prob.obs.R0.copy(), t=prob.obs.t0_mm.copy(),
                  x=np.array([truth.get(lab, 0.0) for lab in prob.layout.labels]))
     x = kin.invert(terms, coef, *prob.targets(state))
-    if "backlash" in eff:
-        # the approach directions follow the machine's moves, known once it has moved
-        prob = Problem(replace(prob.obs, approach=approach_directions(x)), model, "fixed")
+    if eff:
+        # effects of the readings themselves (the approach direction of backlash, the
+        # scale reading of machine_thermal) are known once the machine has moved: a
+        # second inversion with the first readings (their change is below 1e-9 mm)
+        prob = Problem(replace(prob.obs, r_mm=x + prob.obs.p_mm,
+                               approach=approach_directions(x)), model, "fixed")
         x = kin.invert(terms, coef, *prob.targets(state))
     pnom = prob.obs.p_mm
     r = x + pnom + rng.normal(0, cfg["noise_um"], x.shape) * 1e-3

@@ -58,13 +58,15 @@ def test_plate_prior_and_free_modes_also_recover():
 
 def test_problem_jacobian_matches_finite_differences():
     """Every block (plate, placement, kinematic, probe offsets, thermal, sag, drift,
-    backlash)."""
+    backlash, machine thermal)."""
     sim = simulate({"seed": 7, "order": "serpentine",
                     "effects": {"plate_sag": {"uu": -2}, "drift": {"sd_um_per_h": 2},
                                 "plate_thermal": {}, "probe_offset": {"sd_um": 1},
-                                "backlash": {"x_um": 1.0, "y_um": 2.0}}})
-    r = fit(sim.dataset, "kinematic21,plate_thermal,plate_sag,probe_offset,drift,backlash",
-            plate="free")
+                                "backlash": {"x_um": 1.0, "y_um": 2.0},
+                                "machine_thermal": {"x_cte_per_K": 2e-6, "z_cte_per_K": 1e-6}}})
+    r = fit(sim.dataset, "kinematic21,plate_thermal,plate_sag,probe_offset,drift,backlash,"
+            "machine_thermal", plate="free")
+    assert "machine_thermal.cte_z" in r.labels and "machine_thermal.cte_y" not in r.labels
     prob, st = r.problem, r.state
     _, J = prob.residual(st, True)
     J = J.toarray()

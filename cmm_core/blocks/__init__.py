@@ -13,6 +13,7 @@ from .backlash import Backlash
 from .base import Block, Eval
 from .drift import Drift
 from .kinematic import Kinematic
+from .machine_thermal import MachineThermal
 from .placement import Placement
 from .plate import Plate
 from .plate_sag import PlateSag
@@ -22,7 +23,7 @@ from .probe_offset import ProbeOffset
 __all__ = ["REGISTRY", "BY_TOKEN", "Block", "Eval", "needs"]
 
 REGISTRY = (Plate, Placement, Kinematic, PlateThermal, PlateSag, ProbeOffset, Drift,
-            Backlash)
+            Backlash, MachineThermal)
 """Blocks in parameter-layout order, which is also the catalogue's order of physical
 effects (``effects.PHYSICAL``, model specs written out) and the order in which the stages
 run (thermal expansion before sag)."""

@@ -107,11 +107,15 @@ class SimContext:
     temps_C : dict
         Plate temperature of each position at its start and finish (°C); 20 °C unless a
         block (plate_thermal) sets it.
+    columns : dict
+        Further columns a block records: column -> {position: (start, finish)},
+        interpolated over each position's measuring time like ``temp_C``.
     """
 
     positions: list
     probes: list
     temps_C: dict = field(default_factory=dict)
+    columns: dict = field(default_factory=dict)
 
 
 class Block:
