@@ -2,8 +2,9 @@
 
 A model is a comma-separated effect list applied left to right: names of the 21 errors,
 groups (``kinematic21``, ``translational``, ``rotational``, ``squareness``), ``name:order``
-and ``-name``; plus the physical effects ``plate_thermal``, ``plate_sag``, ``probe_offset``
-``drift`` and ``backlash``, and periodic scale errors ``periodic_x:PERIOD_MM`` (and ``_y``, ``_z``). Rigid placement of each position is always in the model.
+and ``-name``; plus the physical effects of the effect blocks (``blocks.REGISTRY``:
+``plate_thermal``, ``plate_sag``, ``probe_offset``, ``drift``, ``backlash``,
+``machine_thermal``), and periodic scale errors ``periodic_x:PERIOD_MM`` (and ``_y``, ``_z``). Rigid placement of each position is always in the model.
 """
 
 from __future__ import annotations
