@@ -62,9 +62,15 @@ def run_plan(args) -> dict:
     evals = [evaluate(p, detection=not args.no_detection) for p in pf.strategies]
     out = {"strategies": [e.to_dict() for e in evals]}
     if pf.design is not None:
+        from .io import DataError
         from .plan_file import design_from_file
 
-        d = design_from_file(pf)
+        try:
+            d = design_from_file(pf)
+        except DataError:
+            raise
+        except ValueError as exc:  # the target or pool the design cannot work with
+            raise DataError(str(exc), file=pf.name, column="design") from None
         out["design"] = d.to_dict()
         evals.append(d.evaluation)
     if args.check_trials:

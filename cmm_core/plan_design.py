@@ -110,10 +110,15 @@ class PoolModel:
         # each detection target's level and shape: the diagnosis's, on the whole pool
         from .plan_detect import detection_limits
 
-        limits, _ = detection_limits(base, self.plan) if self.detect else ({}, {})
+        limits, skipped = detection_limits(base, self.plan) if self.detect else ({}, {})
         self.levels, self.shapes = {}, {}
         for tok in self.detect:
-            lim = limits[tok]
+            lim = limits.get(tok)
+            if lim is None:
+                why = skipped.get(tok, "not a catalogue effect missing from the model "
+                                       f"(the diagnosis tries: {', '.join(limits)})")
+                raise ValueError(f"{tok!r} cannot be a detection target on this pool: "
+                                 f"{why}.")
             self.levels[tok] = lim.level
             self.shapes[tok] = np.array([lim.shape.get(L.labels[c], 0.0)
                                          for c in self.effect_cols[tok]])

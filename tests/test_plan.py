@@ -298,3 +298,22 @@ def test_plan_page_and_task_section_run():
     # relative standard error 0.5 %
     assert row["U = 2u, Monte Carlo (µm)"] == pytest.approx(
         row["U = 2u, law of propagation (µm)"], rel=0.02)
+
+
+@pytest.mark.parametrize("target,needle", [
+    ({"detect": {"sxy": 1.0}}, "'sxy' cannot be a detection target"),
+    ({"detect": {"wobble": 1.0}}, "unknown model token 'wobble'"),
+    ({"U3_um": 0.001}, "even the whole pool"),
+    ({"colour": 1}, "design.target.colour"),
+])
+def test_bad_design_targets_refused_naming_the_file(tmp_path, capsys, target, needle):
+    from cmm_core.cli import main
+
+    raw = json.loads(DESIGN.read_text())
+    raw["setup"] = str(ROOT / "sample_data" / "thesis" / "setup.json")
+    raw["design"]["target"] = target
+    path = tmp_path / "bad_design.json"
+    path.write_text(json.dumps(raw))
+    assert main(["plan", str(path), "--no-detection"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "bad_design.json" in err and needle in err
