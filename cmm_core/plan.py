@@ -224,14 +224,38 @@ class PlanEvaluation:
         """True when the design determines every parameter of the model."""
         return not self.undetermined
 
+    def expected_check(self) -> dict:
+        """For each effect the plan's ``model.expected`` names (token or family, e.g.
+        ``plate_sag`` or ``periodic_x``): ``{"expected", "limit", "unit", "detectable"}``
+        (detectable: the expected size reaches the detection limit)."""
+        exp = (self.plan.model.get("expected") or {}) if self.plan is not None else {}
+        out = {}
+        for tok, size in exp.items():
+            lim = next((v for v in self.detection_limits.values()
+                        if tok in (v.effect, v.family)), None)
+            out[tok] = {"expected": size, "limit": None if lim is None or not np.isfinite(
+                lim.size) else lim.size, "unit": None if lim is None else lim.unit,
+                        "detectable": bool(lim is not None and size >= lim.size)}
+        return out
+
+    def _limits_dict(self) -> dict:
+        exp = self.expected_check()
+        out = {k: v.to_dict() for k, v in self.detection_limits.items()}
+        for tok, rec in exp.items():
+            key = next((k for k, v in self.detection_limits.items()
+                        if tok in (v.effect, v.family)), None)
+            if key is not None:
+                out[key].update({"expected": rec["expected"], "detectable": rec["detectable"]})
+        return out
+
     def to_dict(self) -> dict:
         """JSON-ready record (the ``strategies`` entries of ``plan``'s output)."""
         return {"name": self.name, "n_obs": self.n_obs, "undetermined": self.undetermined,
                 "undetermined_parameters": self.undetermined_parameters,
                 "U1_um": self.U1_um, "U2_um": self.U2_um, "U3_um": self.U3_um,
-                "detection_limits": {k: v.to_dict() for k, v in
-                                     self.detection_limits.items()},
+                "detection_limits": self._limits_dict(),
                 "skipped": self.skipped, "functions": self.functions,
+                "expected_effects": self.expected_check(),
                 "time_min": self.time_min, "message": self.message}
 
 

@@ -24,7 +24,7 @@ TOP_KEYS = ("name", "setup", "plate", "model", "noise_um", "measurement", "strat
 PLATE_DEFAULTS = {"rows": 5, "cols": 5, "pitch_mm": 133.0, "certificate_u_um": 0.13,
                   "geometry": "fixed"}
 MODEL_DEFAULTS = {"spec": "kinematic21", "order": 2, "prior_um": 1.0, "prior_urad": 1.0,
-                  "alpha": 0.01, "periods_mm": {}}
+                  "alpha": 0.01, "periods_mm": {}, "expected": {}}
 MEASUREMENT_DEFAULTS = {"order": "row", "probes_interleaved": False, "repeats": 1,
                         "minutes_per_ball": 0.5, "minutes_per_placement": 10.0}
 STRATEGY_KEYS = ("name", "placements", "noise_um", "measurement")
@@ -156,6 +156,12 @@ def read_plan(source, *, name: str | None = None, base_dir=None) -> PlanFile:
                    f"in mm, found {_cut(per)}.")
     model["periods_mm"] = {a: _number(name, f"model.periods_mm.{a}", v, 1, 1e5)
                            for a, v in per.items()}
+    exp = model["expected"]
+    if not isinstance(exp, dict):
+        raise _bad(name, "model.expected", f"expected an object effect: expected size (in "
+                   f"the effect's unit), found {_cut(exp)}.")
+    model["expected"] = {str(k): _number(name, f"model.expected.{k}", v, 0, 1e6)
+                         for k, v in exp.items()}
     noise = _number(name, "noise_um", raw.get("noise_um", 0.5), 1e-4, 1000)
     meas = _check_measurement(_section(raw, "measurement", MEASUREMENT_DEFAULTS, name),
                               name, "measurement")

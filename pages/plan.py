@@ -126,6 +126,12 @@ def _detection_plot(evals: list) -> None:
                       yaxis_title="detection limit (effect unit, log)",
                       margin={"t": 30})
     st.plotly_chart(fig, width="stretch")
+    rows = [{"strategy": e["name"], "effect": k, "expected": v["expected"],
+             "detection limit": v["limit"], "unit": v["unit"],
+             "seen": "yes" if v["detectable"] else "no"}
+            for e in evals for k, v in e.get("expected_effects", {}).items()]
+    if rows:
+        st.dataframe(pd.DataFrame(rows), hide_index=True)
     st.caption("Size the diagnosis names with 80 % probability at its own false-alarm "
                "level (non-central F power). A missing bar: the design cannot see that "
                "effect (the baseline absorbs its pattern). Units and shapes: "

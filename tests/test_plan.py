@@ -159,6 +159,12 @@ def test_plan_json_and_cli(tmp_path, capsys):
             assert {"size", "unit"} <= set(rec)
     assert res["strategies"][0]["undetermined"] and not res["strategies"][1]["undetermined"]
     assert res["strategies"][1]["detection_limits"]["probe_offset"]["size"] is None
+    # the expected 2 µm plate sag: invisible from location 0 (horizontal only), seen with
+    # the vertical placements (limit 0.79 µm)
+    sag0, sag6 = (s["expected_effects"]["plate_sag"] for s in res["strategies"])
+    assert not sag0["detectable"] and sag0["limit"] is None
+    assert sag6["detectable"] and sag6["limit"] < 2.0
+    assert res["strategies"][1]["detection_limits"]["plate_sag"]["detectable"] is True
 
 
 @pytest.mark.parametrize("edit,field", [
