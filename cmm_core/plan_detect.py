@@ -75,6 +75,8 @@ class DetectionLimit:
         λ for a unit size: λ(s) = s² × this.
     note : str
         How the shape was chosen, or why the effect cannot be seen.
+    family : str
+        The diagnosis's candidate token (``periodic_x`` for ``periodic_x:420``).
     """
 
     effect: str
