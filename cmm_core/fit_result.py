@@ -136,12 +136,20 @@ class FitResult:
         return self.covariance[s, s]
 
     @property
+    def chi2_test_dof(self) -> float:
+        """χ²/dof of the statistic behind the χ² test (``chi2_test / dof_test``): equal to
+        ``chi2_dof`` unless the certificate is fixed, where its uncertainty is counted."""
+        chi2, dof = self._test()
+        return chi2 / max(dof, 1)
+
+    @property
     def birge_ratio(self) -> float:
         """sqrt(χ²/dof): how much larger the scatter is than the stated repeatability."""
         chi2, dof = self._test()
         return float(np.sqrt(chi2 / max(dof, 1)))
 
     def _test(self):
+        """``(χ², dof)`` behind the χ² test (see ``chi2_test``)."""
         if self.chi2_test is None:
             return self.chi2, self.dof
         return self.chi2_test, self.dof_test

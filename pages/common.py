@@ -153,7 +153,7 @@ def init_state():
 
 
 KEEP_PREFIXES = ("sim_", "w_gp_")
-KEEP_KEYS = ("hist_gp", "w_mpe_u")  # the report reads the MPE choice from any page
+KEEP_KEYS = ("hist_gp", "w_mpe_u", "w_u_npts", "w_u_seed")  # the report reads these from any page
 
 
 def keep_widget_state():
@@ -339,12 +339,11 @@ def _cached_core_diagnosis(args, _ds, _show_progress=False):
              "would_leave_undetermined": list(c.would_leave_undetermined),
              "holdout": next((h.reason for h in d.holdout if h.effect == c.effect), "")}
             for c in d.candidates]
-    skipped = "".join(f" Not tried: {k} ({v})." for k, v in d.skipped.items())
     if bar is not None:
         bar.empty()
     full = d.to_dict()
     info = {k: full[k] for k in ("verdict", "sigma_check", "certificate", "where")}
-    return rows, d.message + skipped, info
+    return rows, rep.diagnosis_conclusion(d), info
 
 
 def history_rows() -> list:
@@ -370,18 +369,7 @@ def history_rows() -> list:
     return out
 
 
-def chi2_test_numbers(r) -> tuple:
-    """``(χ²/dof, dof, note)`` of the fit's χ² test. The core may test a statistic other
-    than the fit's own χ² (with the certificate fixed, its calibration uncertainty is
-    counted: ``FitResult.chi2_test``); the note then says so, with the fit's χ²/dof."""
-    chi2, dof = getattr(r, "chi2_test", None), getattr(r, "dof_test", None)
-    if chi2 is None or dof is None:
-        return r.chi2_dof, r.dof, ""
-    val = chi2 / max(dof, 1)
-    if abs(val - r.chi2_dof) < 5e-3 * max(r.chi2_dof, 1e-9) and dof == r.dof:
-        return r.chi2_dof, r.dof, ""
-    return val, dof, (f" (the certificate's calibration uncertainty counted; the fit's own "
-                      f"χ²/dof is {r.chi2_dof:.2f})")
+chi2_test_numbers = rep.chi2_test_numbers  # one definition: the report's
 
 
 def misfit_banner(r) -> None:

@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
+from cmm_core.analysis import measured_error_from_residuals_um
 from cmm_core.gp_cmm import gp_components, predict_grid
 from pages import common as C
 
@@ -27,7 +28,8 @@ def measured_errors(args, _ds):
     key, spec, order, plate, sigma, pos, prb, excl = args
     rig = C.cached_fit(key, "rigid", order, plate, sigma, pos, prb, excl, _ds)
     obs = rig.problem.obs
-    return obs.r_mm, -rig.residuals_um, rig.table[["position", "probe", "ball"]]
+    return (obs.r_mm, measured_error_from_residuals_um(rig.residuals_um),
+            rig.table[["position", "probe", "ball"]])
 
 
 @st.cache_data(show_spinner=False, max_entries=32)
