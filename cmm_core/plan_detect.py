@@ -155,6 +155,10 @@ def _shapes(token, labels, base_spec, positions, probes):
         return [("sine term", {labels[0]: 1.0})]
     if name == "plate_thermal":
         return [("expansion coefficient", {labels[0]: 1.0})]
+    if name not in dict(base_spec.orders):
+        # an effect without a documented shape (a new catalogue block): each of its
+        # parameters alone, the worst reported
+        return [(f"{lab} alone", {lab: 1.0}) for lab in labels]
     present = base_spec.order(name) > 0
     lab = labels[-1] if present else labels[0]
     return [("highest new degree" if present else "lowest degree", {lab: 1.0})]
