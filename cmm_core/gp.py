@@ -15,8 +15,10 @@ R&W eq. 2.42 and the adjusted marginal likelihood of R&W eq. 2.45.
 
 Hyperparameters (length scale(s), signal and noise standard deviations) are chosen by
 maximising the log marginal likelihood with L-BFGS-B in log space, with analytic gradients
-(R&W eq. 5.9, using the projected matrix ``P`` for a basis mean), from a default start and
-``restarts`` further seeded random starts. Inputs are centred and scaled by one common
+(R&W eq. 5.9, using the projected matrix ``P`` for a basis mean; one Cholesky
+factorisation per evaluation), from a default start and ``restarts`` further starts, a
+seeded Latin hypercube over the whole bounds; above 600 points the starts run on a
+300-point subset first and the distinct optima are polished on all the points. Inputs are centred and scaled by one common
 factor, outputs by their RMS, for conditioning; everything is reported in data units
 (X in mm, y in µm for the CMM use).
 
