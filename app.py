@@ -1,4 +1,4 @@
-"""CMM error lab: the Streamlit app (``make run``). Six pages over ``cmm_core``.
+"""CMM error lab: the Streamlit app (``make run``). Seven pages over ``cmm_core``.
 
 The thesis ball-plate data are loaded and fitted on first run, so a first-time user sees a
 model and plots without touching anything. The sidebar states the dataset, the model and
@@ -40,6 +40,7 @@ PAGES = [
             url_path="uncertainty"),
     st.Page("pages/export.py", title="Compensate and export", icon=":material/download:",
             url_path="export"),
+    st.Page("pages/plan.py", title="Plan", icon=":material/route:", url_path="plan"),
 ]
 
 

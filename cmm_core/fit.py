@@ -374,7 +374,7 @@ def weighted_residual(prob: Problem, state, sigma_um: float, want_jac: bool):
     d, J = prob.residual(state, want_jac)
     r = d.ravel() / sigma_um
     if J is not None:
-        J = J / sigma_um
+        J.data /= sigma_um  # J is this call's own: scaled in place, not copied
     if prob.plate == "prior":
         rp, Jp = prob.block(Plate).prior_rows(state, want_jac)
         r = np.concatenate([r, rp])

@@ -11,6 +11,7 @@ from cmm_core import export as ex
 from cmm_core import report as rep
 from cmm_core.compensate import model_to_dict
 from pages import common as C
+from pages.plan import task_section
 
 C.page_start()
 st.title("Compensate and export")
@@ -83,6 +84,8 @@ if corr is not None:
     st.download_button("Download corrected points (CSV)",
                        ex.safe_csv(corr, float_format="%.6f"), "corrected_points.csv",
                        "text/csv", key="dl_corrected", on_click="ignore")
+
+task_section()
 
 st.subheader("Downloads")
 c1, c2, c3 = st.columns(3)

@@ -257,6 +257,10 @@ def task_section() -> None:
         r = C.current_fit()
         if r is None:
             return
+        if not r.identifiable:
+            st.info("The task's uncertainty needs a model the data determine: this one "
+                    "leaves parameter combinations undetermined (see the sidebar).")
+            return
         model_json = json.dumps(model_to_dict(r), default=float)
     kind = st.radio("Task", list(TASKS), horizontal=True, key="w_task_kind")
     text = st.text_area("TASK.json", (PLANS_DIR / TASKS[kind]).read_text(), height=220,

@@ -20,6 +20,7 @@ PAGES = {
     "pages/diagnose.py": "Compare and diagnose",
     "pages/uncertainty.py": "Uncertainty",
     "pages/export.py": "Compensate and export",
+    "pages/plan.py": "Plan",
 }
 TIMEOUT = 60
 
