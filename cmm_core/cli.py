@@ -178,6 +178,7 @@ def cmd_compensate(args):
 
 
 def cmd_gp(args):
+    from .analysis import measured_error_from_residuals_um
     from .fit import fit
     from .gp_cmm import gp_components
 
@@ -191,7 +192,8 @@ def cmd_gp(args):
         from .diagnose import kinematic_basis
 
         basis = kinematic_basis(r)
-    comps = gp_components(obs.r_mm, r.residuals_um, mean="zero" if basis is not None
+    comps = gp_components(obs.r_mm, measured_error_from_residuals_um(r.residuals_um),
+                          mean="zero" if basis is not None
                           else args.mean, kernel=args.kernel, basis=basis,
                           probe_mm=obs.p_mm if args.inputs == "probe" else None)
     return {"mean": args.mean, "kernel": args.kernel,
