@@ -125,6 +125,21 @@ def _check_config(cfg, name="simulation config"):
     def bad(column, message, hint=None):
         return DataError(message, file=name, column=column, hint=hint)
 
+    def number(*args, **kw):
+        return _number(bad, *args, **kw)
+
+    _check_keys(cfg, bad)
+    _check_run(cfg, bad, number)
+    _check_plate_config(cfg, bad, number)
+    _check_kinematic_config(cfg, bad, number)
+    for token, body in (cfg.get("effects") or {}).items():
+        for k, (lo, hi) in BY_TOKEN[token].sim_ranges.items():
+            if k in body:
+                number(f"effects.{token}.{k}", body[k], lo, hi)
+
+
+def _check_keys(cfg, bad):
+    """The configuration's shape: known keys and sections, known effects and their keys."""
     if not isinstance(cfg, dict):
         raise bad(None, f"expected a JSON object with some of {sorted(DEFAULT_CONFIG)}, "
                   f"found {type(cfg).__name__} {_cut(cfg)}.")
@@ -155,19 +170,24 @@ def _check_config(cfg, name="simulation config"):
             raise bad(f"effects.{key}", f"effect {key!r} takes {sorted(allowed)}, found "
                       f"{sorted(map(str, set(body) - allowed))}.")
 
-    def number(column, value, lo=None, hi=None, *, integer=False, positive=False):
-        ok = isinstance(value, int | float) and not isinstance(value, bool) and \
-            math.isfinite(value) and (not integer or float(value).is_integer())
-        rng_txt = (f" from {lo:g}" if lo is not None else "") + (
-            f" to {hi:g}" if hi is not None and lo is not None else
-            f" and at most {hi:g}" if hi is not None else "")
-        what = ("a whole number" if integer else "a number greater than 0" if positive
-                else "a finite number") + rng_txt
-        if not ok or (positive and value <= 0) or (lo is not None and value < lo) or (
-                hi is not None and value > hi):
-            raise bad(column, f"expected {what}, found {_cut(value)}.")
-        return int(value) if integer else float(value)
 
+def _number(bad, column, value, lo=None, hi=None, *, integer=False, positive=False):
+    """A finite number (or whole number) in range, or a DataError naming the key."""
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and \
+        math.isfinite(value) and (not integer or float(value).is_integer())
+    rng_txt = (f" from {lo:g}" if lo is not None else "") + (
+        f" to {hi:g}" if hi is not None and lo is not None else
+        f" and at most {hi:g}" if hi is not None else "")
+    what = ("a whole number" if integer else "a number greater than 0" if positive
+            else "a finite number") + rng_txt
+    if not ok or (positive and value <= 0) or (lo is not None and value < lo) or (
+            hi is not None and value > hi):
+        raise bad(column, f"expected {what}, found {_cut(value)}.")
+    return int(value) if integer else float(value)
+
+
+def _check_run(cfg, bad, number):
+    """Seed, noise, timing, visiting order, probes per position and the setup's type."""
     top = {k: cfg.get(k, DEFAULT_CONFIG[k]) for k in DEFAULT_CONFIG}
     number("seed", top["seed"], 0, 2**63 - 1, integer=True)
     number("noise_um", top["noise_um"], 0, 1000)
@@ -191,6 +211,10 @@ def _check_config(cfg, name="simulation config"):
     if top["setup"] is not None and not isinstance(top["setup"], dict):
         raise bad("setup", f"expected a setup object (or null for the thesis placements), "
                   f"found {type(top['setup']).__name__} {_cut(top['setup'])}.")
+
+
+def _check_plate_config(cfg, bad, number):
+    """The plate: at least 2 x 2 balls, a pitch, form and certificate uncertainty."""
     pl = {**DEFAULT_CONFIG["plate"], **(cfg.get("plate") or {})}
     rows = number("plate.rows", pl["rows"], 1, 100, integer=True)
     cols = number("plate.cols", pl["cols"], 1, 100, integer=True)
@@ -201,6 +225,10 @@ def _check_config(cfg, name="simulation config"):
     number("plate.pitch_mm", pl["pitch_mm"], 1.0, 5000.0)
     number("plate.form_um", pl["form_um"], 0, 1000)
     number("plate.certificate_u_um", pl["certificate_u_um"], 0, 1000)
+
+
+def _check_kinematic_config(cfg, bad, number):
+    """The true kinematic model: a spec, an order, random sizes and coefficients."""
     km = {**DEFAULT_CONFIG["kinematic"], **(cfg.get("kinematic") or {})}
     if not isinstance(km["spec"], str):
         raise bad("kinematic.spec", f"expected a model spec such as \"kinematic21\", found "
@@ -213,10 +241,6 @@ def _check_config(cfg, name="simulation config"):
                   f"{_cut(km['coefficients'])}.")
     for lab, val in km["coefficients"].items():
         number(f"kinematic.coefficients.{lab}", val, -1e5, 1e5)
-    for token, body in (cfg.get("effects") or {}).items():
-        for k, (lo, hi) in BY_TOKEN[token].sim_ranges.items():
-            if k in body:
-                number(f"effects.{token}.{k}", body[k], lo, hi)
 
 
 def _check_against_setup(cfg, setup, terms, name, own_ppp):
