@@ -92,6 +92,70 @@ def _check_measurement(m, name, prefix):
     return m
 
 
+def _plan_setup(raw, name, base_dir):
+    """The plan's machine and placements, ``(raw dict, Setup)``: a setup object or a file
+    read relative to the plan, always in the machine frame (a plan places the plate: no
+    tables are read)."""
+    if "setup" not in raw:
+        raise _bad(name, "setup", "missing: expected the machine and its placements (a "
+                   "setup object, or the name of a setup file).")
+    setup_raw = raw["setup"]
+    if isinstance(setup_raw, str):
+        path = base_dir / setup_raw
+        try:
+            setup_raw, _ = read_json(path)
+        except DataError as exc:
+            raise _bad(name, "setup", f"cannot read the setup file {str(path)!r}: "
+                       f"{exc.detail}", hint="a setup file name is read relative to the "
+                       "plan file.") from None
+    if not isinstance(setup_raw, dict):
+        raise _bad(name, "setup", f"expected a setup object or file name, found "
+                   f"{_cut(setup_raw)}.")
+    setup_raw = copy.deepcopy(setup_raw)
+    setup_raw["frame"] = "machine"
+    return setup_raw, read_setup(setup_raw, name=f"{name} (setup)")
+
+
+def _plan_plate(raw, name):
+    """The plate section: rows, columns, pitch, certificate u and the geometry mode."""
+    plate = _section(raw, "plate", PLATE_DEFAULTS, name)
+    plate["rows"] = _number(name, "plate.rows", plate["rows"], 2, 100, integer=True)
+    plate["cols"] = _number(name, "plate.cols", plate["cols"], 2, 100, integer=True)
+    plate["pitch_mm"] = _number(name, "plate.pitch_mm", plate["pitch_mm"], 1, 5000)
+    plate["certificate_u_um"] = _number(name, "plate.certificate_u_um",
+                                        plate["certificate_u_um"], 1e-3, 1000)
+    if plate["geometry"] not in PLATE_MODES:
+        raise _bad(name, "plate.geometry", f"expected one of {list(PLATE_MODES)}, found "
+                   f"{_cut(plate['geometry'])}.")
+    return plate
+
+
+def _plan_model(raw, name):
+    """The expected error model: spec, order, prior sizes, level, periods, expected sizes."""
+    model = _section(raw, "model", MODEL_DEFAULTS, name)
+    model["order"] = _number(name, "model.order", model["order"], 1, MAX_ORDER, integer=True)
+    try:
+        parse_spec(str(model["spec"]), default_order=model["order"])
+    except ValueError as exc:
+        raise _bad(name, "model.spec", str(exc)) from None
+    for k in ("prior_um", "prior_urad"):
+        model[k] = _number(name, f"model.{k}", model[k], 0, 1e4)
+    model["alpha"] = _number(name, "model.alpha", model["alpha"], 1e-6, 0.5)
+    per = model["periods_mm"]
+    if not isinstance(per, dict) or set(per) - set("xyz"):
+        raise _bad(name, "model.periods_mm", f"expected an object axis (x, y, z): period "
+                   f"in mm, found {_cut(per)}.")
+    model["periods_mm"] = {a: _number(name, f"model.periods_mm.{a}", v, 1, 1e5)
+                           for a, v in per.items()}
+    exp = model["expected"]
+    if not isinstance(exp, dict):
+        raise _bad(name, "model.expected", f"expected an object effect: expected size (in "
+                   f"the effect's unit), found {_cut(exp)}.")
+    model["expected"] = {str(k): _number(name, f"model.expected.{k}", v, 0, 1e6)
+                         for k, v in exp.items()}
+    return model
+
+
 def read_plan(source, *, name: str | None = None, base_dir=None) -> PlanFile:
     """Read a plan file (path, JSON text, bytes or an already parsed dict) and check it.
 
@@ -114,54 +178,9 @@ def read_plan(source, *, name: str | None = None, base_dir=None) -> PlanFile:
     if extra:
         raise _bad(name, extra[0], f"unknown key {extra[0]!r}; expected some of "
                    f"{list(TOP_KEYS)}.")
-    if "setup" not in raw:
-        raise _bad(name, "setup", "missing: expected the machine and its placements (a "
-                   "setup object, or the name of a setup file).")
-    setup_raw = raw["setup"]
-    if isinstance(setup_raw, str):
-        path = base_dir / setup_raw
-        try:
-            setup_raw, _ = read_json(path)
-        except DataError as exc:
-            raise _bad(name, "setup", f"cannot read the setup file {str(path)!r}: "
-                       f"{exc.detail}", hint="a setup file name is read relative to the "
-                       "plan file.") from None
-    if not isinstance(setup_raw, dict):
-        raise _bad(name, "setup", f"expected a setup object or file name, found "
-                   f"{_cut(setup_raw)}.")
-    setup_raw = copy.deepcopy(setup_raw)
-    setup_raw["frame"] = "machine"  # a plan places the plate: its tables are not read
-    setup = read_setup(setup_raw, name=f"{name} (setup)")
-    plate = _section(raw, "plate", PLATE_DEFAULTS, name)
-    plate["rows"] = _number(name, "plate.rows", plate["rows"], 2, 100, integer=True)
-    plate["cols"] = _number(name, "plate.cols", plate["cols"], 2, 100, integer=True)
-    plate["pitch_mm"] = _number(name, "plate.pitch_mm", plate["pitch_mm"], 1, 5000)
-    plate["certificate_u_um"] = _number(name, "plate.certificate_u_um",
-                                        plate["certificate_u_um"], 1e-3, 1000)
-    if plate["geometry"] not in PLATE_MODES:
-        raise _bad(name, "plate.geometry", f"expected one of {list(PLATE_MODES)}, found "
-                   f"{_cut(plate['geometry'])}.")
-    model = _section(raw, "model", MODEL_DEFAULTS, name)
-    model["order"] = _number(name, "model.order", model["order"], 1, MAX_ORDER, integer=True)
-    try:
-        parse_spec(str(model["spec"]), default_order=model["order"])
-    except ValueError as exc:
-        raise _bad(name, "model.spec", str(exc)) from None
-    for k in ("prior_um", "prior_urad"):
-        model[k] = _number(name, f"model.{k}", model[k], 0, 1e4)
-    model["alpha"] = _number(name, "model.alpha", model["alpha"], 1e-6, 0.5)
-    per = model["periods_mm"]
-    if not isinstance(per, dict) or set(per) - set("xyz"):
-        raise _bad(name, "model.periods_mm", f"expected an object axis (x, y, z): period "
-                   f"in mm, found {_cut(per)}.")
-    model["periods_mm"] = {a: _number(name, f"model.periods_mm.{a}", v, 1, 1e5)
-                           for a, v in per.items()}
-    exp = model["expected"]
-    if not isinstance(exp, dict):
-        raise _bad(name, "model.expected", f"expected an object effect: expected size (in "
-                   f"the effect's unit), found {_cut(exp)}.")
-    model["expected"] = {str(k): _number(name, f"model.expected.{k}", v, 0, 1e6)
-                         for k, v in exp.items()}
+    setup_raw, setup = _plan_setup(raw, name, base_dir)
+    plate = _plan_plate(raw, name)
+    model = _plan_model(raw, name)
     noise = _number(name, "noise_um", raw.get("noise_um", 0.5), 1e-4, 1000)
     meas = _check_measurement(_section(raw, "measurement", MEASUREMENT_DEFAULTS, name),
                               name, "measurement")
