@@ -608,3 +608,18 @@ def test_subset_then_polish_finds_the_direct_optimum(rng, monkeypatch):
         np.testing.assert_allclose(fast.hyperparameters[k], direct.hyperparameters[k],
                                    rtol=1e-5, err_msg=k)
     assert fast.n_evaluations < direct.n_evaluations
+
+
+def test_gp_module_still_exports_every_public_name():
+    """Issue 12 split gp.py into gp_basis, gp_likelihood, gp_prepare, gp_optimise,
+    gp_degeneracy and gp_result: ``cmm_core.gp`` still holds every public name, the same
+    objects as the modules that define them. (``fit_gp`` reads ``_optimise`` and
+    ``_PREFIT_POINTS`` from ``cmm_core.gp``: the speed tests above patch them there.)"""
+    from cmm_core import gp, gp_basis, gp_likelihood, gp_optimise, gp_result
+
+    assert set(gp.__all__) == {"GPResult", "fit_gp", "log_marginal_likelihood",
+                               "polynomial_basis", "MEANS", "KERNELS"}
+    assert gp.GPResult is gp_result.GPResult
+    assert gp.polynomial_basis is gp_basis.polynomial_basis and gp.MEANS is gp_basis.MEANS
+    assert gp.KERNELS is gp_likelihood.KERNELS
+    assert gp._optimise is gp_optimise._optimise
