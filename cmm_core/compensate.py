@@ -111,7 +111,7 @@ def model_to_dict(model: Model | FitResult) -> dict:
     m = model_from_result(model) if isinstance(model, FitResult) else model
     return {"format": "cmm-error-lab model 1", "spec": m.spec,
             "orders": [list(o) for o in m.terms.orders], "range_mm": list(m.terms.range_mm),
-            "periods": [list(o) for o in m.terms.periods],
+            "periods": [list(o) for o in m.terms.periods], "layout": m.terms.layout,
             "labels": m.terms.labels, "coef": m.coef.tolist(), "cov": m.cov.tolist(),
             "probes_mm": {k: list(map(float, v)) for k, v in m.probes_mm.items()},
             "undetermined": m.undetermined, "summary": m.summary,
@@ -123,7 +123,7 @@ def model_to_dict(model: Model | FitResult) -> dict:
 MODEL_FORMAT = "cmm-error-lab model 1"
 _MODEL_REQUIRED = ("format", "spec", "orders", "range_mm", "periods", "labels", "coef",
                    "cov", "probes_mm", "undetermined", "summary")
-_MODEL_OPTIONAL = ("backlash_um", "cov_with_backlash")
+_MODEL_OPTIONAL = ("backlash_um", "cov_with_backlash", "layout")
 
 
 def _checked_cov(cov, n, name, column):
@@ -175,10 +175,16 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
     if d.get("format") != MODEL_FORMAT:
         raise DataError(f"is not a model file written by 'fit --save' (expected \"format\": "
                         f"\"{MODEL_FORMAT}\", found {_cut(d.get('format'))}).", file=name)
+    layout = d.get("layout", kin.DEFAULT_LAYOUT)  # files written before layouts existed
+    if not isinstance(layout, str) or layout not in kin.LAYOUTS:
+        raise DataError(f"layout {_cut(layout)} is not a known machine layout; expected one "
+                        f"of: {', '.join(kin.LAYOUTS)}.", file=name, column="layout",
+                        hint="refit and save the model again (fit --save); do not edit it.")
     try:
         terms = kin.KinematicTerms(tuple((str(n), int(o)) for n, o in d["orders"]),
                                    tuple(float(x) for x in d["range_mm"]),
-                                   tuple((str(n), float(p)) for n, p in d.get("periods", [])))
+                                   tuple((str(n), float(p)) for n, p in d.get("periods", [])),
+                                   layout)
         coef = np.asarray(d["coef"], float)
         cov = np.asarray(d["cov"], float)
         probes = {str(k): np.asarray(v, float) for k, v in d["probes_mm"].items()}

@@ -71,7 +71,8 @@ class Problem:
 
     def __init__(self, obs: Observations, spec: ModelSpec, plate: str):
         self.obs, self.spec, self.plate = obs, spec, plate
-        self.terms = kin.KinematicTerms(spec.active, tuple(obs.range_mm), spec.periods)
+        self.terms = kin.KinematicTerms(spec.active, tuple(obs.range_mm), spec.periods,
+                                        obs.layout)
         self.plate_centre, self.sag_basis = plate_effect_basis(obs.plate0_mm)
         self.n_obs = len(obs.r_mm)
         self.B, self.P, self.Q = len(obs.balls), len(obs.positions), len(obs.probes)

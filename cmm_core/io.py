@@ -23,6 +23,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .kinematics import LAYOUTS as _KINEMATIC_LAYOUTS
+
 LONG_COLUMNS = ("position", "probe", "ball", "x_mm", "y_mm", "z_mm")
 SCALE_TEMP_COLUMNS = ("temp_x_C", "temp_y_C", "temp_z_C")
 """Temperature of each axis's scale (°C), for the machine thermal effect."""
@@ -672,12 +674,16 @@ def read_setup(source, *, name="setup.json") -> Setup:
                         column="frame")
     machine = _json_object(raw, "machine", name)
     layout = machine.get("layout", LAYOUTS[0])
-    if layout not in LAYOUTS:
-        raise DataError(f"machine.layout {_cut(layout)} is not a supported kinematic chain; "
-                        f"expected one of: {', '.join(LAYOUTS)}.", file=name,
+    if not isinstance(layout, str) or layout not in LAYOUTS:
+        close = difflib.get_close_matches(str(layout), list(LAYOUTS), n=1, cutoff=0.5)
+        raise DataError(f"machine.layout {_cut(layout)} is not a supported kinematic chain"
+                        + (f" (did you mean {close[0]!r}?)" if close else "")
+                        + f"; expected one of: {', '.join(LAYOUTS)}.", file=name,
                         column="machine.layout",
-                        hint="a moving-bridge CMM with x along the bridge and z in the ram "
-                             "is 'moving_bridge_fxyz'.")
+                        hint="the name gives the chain from the workpiece to the probe, F the "
+                             "foundation: 'moving_bridge_fxyz' (the bridge moves in x, the y "
+                             "carriage runs across it, z ram), 'fixed_bridge_xfyz' (the table "
+                             "moves in x); see docs/layouts.md.")
     rng = _vector(machine.get("range_mm", [1200, 1000, 700]), name, "machine.range_mm",
                   "three positive lengths (mm)")
     if (rng <= 0).any():
@@ -776,8 +782,9 @@ def read_setup(source, *, name="setup.json") -> Setup:
     return Setup(frame, rng, positions, probes, cte, raw, name)
 
 
-LAYOUTS = ("moving_bridge_fxyz",)
-"""Kinematic chains the model supports (``machine.layout``)."""
+LAYOUTS = tuple(_KINEMATIC_LAYOUTS)
+"""Kinematic chains the model supports (``machine.layout``; ``kinematics.LAYOUTS``), the
+default first."""
 AXIS_TOLERANCE_DEG = 0.1
 """Largest departure of a position's u and v axes from a right angle (degrees)."""
 MIN_STROKE_MM, MAX_STROKE_MM = 10.0, 50_000.0

@@ -14,10 +14,16 @@ Units: coordinates in mm; translational coefficients in µm; rotational and squa
 coefficients in µrad. Every error function is a Chebyshev series in its own axis
 coordinate mapped from ``[0, range]`` to ``[-1, 1]``, zero at the axis origin; straightness
 functions carry no linear term (thesis appendix 2 constraints made explicit).
+
+Other machine layouts (:data:`LAYOUTS`, ``KinematicTerms.layout``) stack the same three
+carriages in another order, and a carriage that moves the table (the workpiece) enters
+inverted: see ``kinematics_layouts`` and ``docs/layouts.md``. The moving bridge FXYZ above
+is the default and is evaluated by the code below unchanged.
 """
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +39,34 @@ ERROR_NAMES = TRANSLATIONAL + ROTATIONAL + SQUARENESS
 
 UM = 1e-3  # mm per µm
 URAD = 1e-6  # rad per µrad
+
+LAYOUTS = {
+    "moving_bridge_fxyz": "Fxyz",
+    "moving_bridge_fyxz": "Fyxz",
+    "fixed_bridge_xfyz": "xFyz",
+    "fixed_bridge_yfxz": "yFxz",
+    "gantry_fxyz": "Fxyz",
+    "gantry_fyxz": "Fyxz",
+    "horizontal_arm_fxzy": "Fxzy",
+    "horizontal_arm_fyzx": "Fyzx",
+}
+"""Machine layouts (``machine.layout``) and their kinematic chains, read from the workpiece
+to the probe: axes left of ``F`` (the foundation) move the table, axes right of it carry
+the probe, each riding on the one before it. ``xFyz``: the table moves in x, the y
+carriage runs across a fixed bridge and carries the z ram. A gantry has the chain of the
+moving bridge of the same axis order; its name records the machine. See
+``docs/layouts.md`` for the conventions."""
+DEFAULT_LAYOUT = "moving_bridge_fxyz"
+
+
+def check_layout(layout: str) -> str:
+    """The layout's chain; an unknown name raises ValueError listing the known ones."""
+    if layout in LAYOUTS:
+        return LAYOUTS[layout]
+    close = difflib.get_close_matches(str(layout), list(LAYOUTS), n=1, cutoff=0.5)
+    raise ValueError(f"machine layout {str(layout)[:60]!r} is not a known kinematic chain"
+                     + (f" (did you mean {close[0]!r}?)" if close else "")
+                     + f"; expected one of: {', '.join(LAYOUTS)}.")
 
 
 def axis_of(name: str) -> int:
@@ -104,11 +138,23 @@ class KinematicTerms:
         ``(positioning function, period mm)``: a periodic scale error added to ``dxx``,
         ``dyy`` or ``dzz`` (two coefficients, sine and cosine, µm), e.g. from a lead screw
         or a rack. Empty by default.
+    layout : str
+        Machine layout, a key of :data:`LAYOUTS` (default the moving bridge FXYZ); it fixes
+        the order of the carriages in the chain and which one moves the table.
     """
 
     orders: tuple
     range_mm: tuple
     periods: tuple = ()
+    layout: str = DEFAULT_LAYOUT
+
+    def __post_init__(self):
+        check_layout(self.layout)
+
+    @property
+    def chain(self) -> str:
+        """Kinematic chain of the layout, e.g. ``Fxyz`` or ``xFyz`` (see :data:`LAYOUTS`)."""
+        return LAYOUTS[self.layout]
 
     @property
     def functions(self) -> tuple:
@@ -290,10 +336,13 @@ def _forward(terms, coef, x_mm, p_mm, want_jac=False):
     xs = np.empty((n, 3))
     J = np.empty((n, 3, terms.n)) if want_jac else None
     sl = terms.slices
+    block = _forward_block
+    if terms.chain != "Fxyz":
+        from .kinematics_layouts import forward_block as block
     for lo in range(0, n, _BLOCK):
         b = slice(lo, min(lo + _BLOCK, n))
-        _forward_block(terms, sl, coef[b] if coef.ndim == 2 else coef, x_mm[b], p_mm[b],
-                       xs[b], None if J is None else J[b])
+        block(terms, sl, coef[b] if coef.ndim == 2 else coef, x_mm[b], p_mm[b],
+              xs[b], None if J is None else J[b])
     return xs, J
 
 
@@ -359,9 +408,13 @@ def jacobian(terms: KinematicTerms, coef, x_mm, p_mm):
 
 
 def probe_jacobian(terms: KinematicTerms, coef, x_mm):
-    """``d x* / d p`` = Rx Ry Rz at the scale readings, shape (n, 3, 3)."""
+    """``d x* / d p`` at the scale readings, shape (n, 3, 3): Rx Ry Rz on the moving
+    bridge FXYZ, the chain's rotations for other layouts (``kinematics_layouts``)."""
     ev = _Evaluation(terms, np.asarray(coef, float), np.asarray(x_mm, float),
                      rotations_only=True)
+    if terms.chain != "Fxyz":
+        from .kinematics_layouts import probe_rotation
+        return _to_rows(probe_rotation(terms.chain, ev.R))
     return _to_rows(_mm(_mm(ev.R["x"], ev.R["y"]), ev.R["z"]))
 
 

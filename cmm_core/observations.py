@@ -14,8 +14,9 @@ import numpy as np
 import pandas as pd
 
 from .dataset import Dataset
+from .kinematics import DEFAULT_LAYOUT
 
-__all__ = ["Observations", "select", "approach_directions"]
+__all__ = ["Observations", "select", "approach_directions", "setup_layout"]
 
 
 def _plate_u_um(cert_xyz_mm):
@@ -56,6 +57,9 @@ class Observations:
     approach : ndarray (n, 3)
         Direction of the last move of each axis before the point (+1, -1; 0 before the
         axis first moved), from the measurement order of the whole file (``backlash``).
+    layout : str
+        Machine layout from the setup's ``machine.layout`` (``kinematics.LAYOUTS``): the
+        kinematic chain the fit models.
     """
 
     table: pd.DataFrame
@@ -78,6 +82,14 @@ class Observations:
     range_mm: np.ndarray
     has_certificate: bool
     approach: np.ndarray
+    layout: str = DEFAULT_LAYOUT
+
+
+def setup_layout(setup) -> str:
+    """The setup's ``machine.layout``; the moving bridge FXYZ when it names none."""
+    machine = setup.raw.get("machine") if isinstance(setup.raw, dict) else None
+    return machine.get("layout", DEFAULT_LAYOUT) if isinstance(machine, dict) \
+        else DEFAULT_LAYOUT
 
 
 def approach_directions(ram_mm, time_min=None, *, min_move_mm=0.5):
@@ -182,4 +194,4 @@ def select(data: Dataset, *, positions=None, probes=None, exclude=()) -> Observa
     horiz = np.array([setup.positions[p].horizontal for p in positions])
     return Observations(t, r, pnom[prb], pos, prb, ball, positions, probes, balls, plate0, cu,
                         dT, bool(has_temp), hours, horiz, R0, t0, setup.range_mm,
-                        cert is not None, approach)
+                        cert is not None, approach, setup_layout(setup))

@@ -44,6 +44,7 @@ from .io import (
     write_certificate,
     write_long_csv,
 )
+from .observations import setup_layout
 from .simulate_config import (
     DEFAULT_CONFIG,
     _check_against_setup,
@@ -133,7 +134,8 @@ def _design(df, setup, plate) -> Observations:
         np.array([setup.positions[p].horizontal for p in positions]),
         np.array([setup.positions[p].rotation for p in positions]),
         np.array([setup.positions[p].origin_mm for p in positions]),
-        np.asarray(setup.range_mm, float), False, np.zeros((len(df), 3)))
+        np.asarray(setup.range_mm, float), False, np.zeros((len(df), 3)),
+        setup_layout(setup))
 
 
 def simulate(config: dict | None = None, *, name: str = "simulation config") -> Simulation:
@@ -183,7 +185,8 @@ def simulate(config: dict | None = None, *, name: str = "simulation config") -> 
         spec = parse_spec(km["spec"], default_order=int(km["order"]))
     except ValueError as exc:
         raise DataError(str(exc), file=name, column="kinematic.spec") from None
-    terms = kin.KinematicTerms(spec.active, tuple(setup.range_mm), spec.periods)
+    terms = kin.KinematicTerms(spec.active, tuple(setup.range_mm), spec.periods,
+                               setup_layout(setup))
     _check_against_setup(cfg, setup, terms, name, config.get("probes_per_position"))
     coef = np.zeros(terms.n)
     for i, lab in enumerate(terms.labels):
