@@ -6,7 +6,14 @@ timed runs is printed, with the peer in the same run: the same page run cold (ev
 st.cache_data / st.cache_resource cleared, so the fit, uncertainty and figures are
 recomputed) and the warm/cold ratio. Target: < 0.5 s per change.
 
-    .venv/bin/python bench/app.py [--runs N]
+``--diagnosis`` times the "Run the diagnosis" button instead (issue 18, target < 1 s): on
+the thesis data and on the simulated sample (``sample_data/simulated``), the page's run
+after the click with the fit cached and the diagnosis's own cache cleared before every
+click, beside the peer in the same run: ``cmm_core.diagnose.diagnose`` called directly
+with the page's arguments (the app's overhead is the ratio). Then the core diagnosis alone
+on simulated cases of the honesty bench's kind (``tests/scenarios.py``).
+
+    .venv/bin/python bench/app.py [--runs N] [--diagnosis]
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ import streamlit as st
 from streamlit.testing.v1 import AppTest
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 TARGET_S = 0.5
 
 # page, widget kind, key, two values to alternate, session state to set first
@@ -72,10 +80,99 @@ def bench(runs: int = 5) -> list:
     return rows
 
 
+def _simulated_files() -> dict:
+    d = ROOT / "sample_data" / "simulated"
+    return {"name": "simulated sample", "kind": "upload",
+            "measurements": [("measurements.csv", (d / "measurements.csv").read_text())],
+            "setup": (d / "setup.json").read_text(),
+            "certificate": ("certificate.csv", (d / "certificate.csv").read_text())}
+
+
+def bench_diagnosis(runs: int = 5) -> list:
+    """``(case, first click s, median s of the later clicks, median s of the core
+    diagnosis, verdict)``."""
+    from cmm_core.diagnose import diagnose
+
+    rows = []
+    for case in ("thesis", "simulated sample"):
+        at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=300)
+        at.run()
+        common = sys.modules["pages.common"]
+        if case != "thesis":
+            files = _simulated_files()
+            at.session_state["ds_files"] = files
+            at.session_state["ds_key"] = common.files_key(files)
+        at.switch_page("pages/diagnose.py")
+        at.run()
+        times = []
+        for _ in range(runs + 1):  # the first click warms imports
+            common._cached_core_diagnosis.clear()
+            at.button(key="run_diagnosis").click()
+            t0 = time.perf_counter()
+            at.run()
+            times.append(time.perf_counter() - t0)
+            if at.exception:
+                raise RuntimeError(f"{case}: {at.exception[0].message}")
+            at.button(key="hide_diagnosis").click()
+            at.run()
+        ds = common._load(at.session_state["ds_key"], at.session_state["ds_files"])
+        key, spec, order, plate, sigma, pos, prb, excl = _fit_args(at)
+        core = []
+        for _ in range(runs):
+            t0 = time.perf_counter()
+            d = diagnose(ds, baseline=spec, order=order,
+                         plate=None if plate == "auto" else plate, sigma_um=sigma,
+                         exclude=excl)
+            core.append(time.perf_counter() - t0)
+        rows.append((case, times[0], statistics.median(times[1:]), statistics.median(core),
+                     d.verdict))
+    return rows
+
+
+def _fit_args(at):
+    s = at.session_state
+    return (s["ds_key"], s["spec"], s["order"], s["plate"], s["sigma_um"], None, None,
+            tuple(tuple(e) for e in s["exclusions"]))
+
+
+def bench_core_cases(runs: int = 3) -> list:
+    """The core diagnosis on simulated layouts of ``tests/scenarios.py``, each with a
+    catalogue effect hidden in it: ``(case, median s, verdict)``."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from scenarios import simulated  # noqa: PLC0415
+
+    from cmm_core.diagnose import diagnose
+
+    cases = [("pitch100_4pos", {"plate_sag": {"uu": -2.0, "uv": 0.5, "vv": -1.5}}),
+             ("pitch80_3pos", {"probe_offset": {"sd_um": 2.0}}),
+             ("pitch150_5pos", {"drift": {"sd_um_per_h": 3.0}})]
+    rows = []
+    for layout, effects in cases:
+        data = simulated(layout, 7, effects=effects).dataset
+        times = []
+        for _ in range(runs):
+            t0 = time.perf_counter()
+            d = diagnose(data)
+            times.append(time.perf_counter() - t0)
+        rows.append((f"{layout} {next(iter(effects))}", statistics.median(times), d.verdict))
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=7)
+    ap.add_argument("--diagnosis", action="store_true",
+                    help='time the "Run the diagnosis" button instead')
     args = ap.parse_args(argv)
+    if args.diagnosis:
+        head = f"{'Run the diagnosis':34s} {'first s':>7s} {'app s':>7s} {'core s':>7s}"
+        print(f"{head} {'app/core':>8s}  verdict")
+        for case, first, app_s, core_s, verdict in bench_diagnosis(args.runs):
+            print(f"{case:34s} {first:7.3f} {app_s:7.3f} {core_s:7.3f} {app_s / core_s:8.2f}"
+                  f"  {verdict}")
+        for case, core_s, verdict in bench_core_cases():
+            print(f"{'core: ' + case:34s} {'':7s} {'':7s} {core_s:7.3f} {'':8s}  {verdict}")
+        return 0
     rows = bench(args.runs)
     print(f"{'page':30s} {'widget':18s} {'median s':>9s} {'max s':>7s} {'cold s':>7s} "
           f"{'ratio':>6s}")
