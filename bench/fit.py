@@ -5,6 +5,12 @@ scipy.optimize.least_squares solving the same problem (same residuals, same anal
 Jacobian, no constraints needed for the fixed-plate model), their ratio, the peak traced
 memory of one fit (tracemalloc, which sees numpy's allocations) and both χ².
 
+Beside it, the same fit by the previous ``fit.py`` (commit ``PREVIOUS_FIT``, read with git
+and loaded as a module of the package: it built the sparse J and multiplied it out, where
+the fit now accumulates the normal equations block by block of observations), with its
+time, peak memory and the largest parameter difference (relative to the parameter and to
+its uncertainty).
+
 Then the forward model alone on the 10^5 points: ``kinematics.jacobian`` and
 ``kinematics.model_point`` against the previous implementation (batched (n, 3, 3) matrix
 products, ``kinematics.py`` at commit ``PREVIOUS``, read with git), with the largest
@@ -23,6 +29,7 @@ import importlib.util
 import subprocess
 import sys
 import tracemalloc
+import types
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +49,7 @@ from cmm_core.outliers import detect_outliers  # noqa: E402
 from cmm_core.simulate import simulate  # noqa: E402
 
 PREVIOUS = "08e52a4"  # last commit with the batched-matmul forward model
+PREVIOUS_FIT = "718abca"  # last commit whose fit formed the sparse Jacobian
 N_LARGE = 100_200
 
 
@@ -67,11 +75,21 @@ def peer(data, exclude=()):
 
 
 def with_previous_kinematics(old, f):
-    """``f()`` with every cmm_core module's ``kin`` swapped for the previous kinematics."""
+    """``f()`` with every cmm_core module's ``kin`` swapped for the previous kinematics
+    (which knows only the moving bridge FXYZ: the layout argument is dropped)."""
     mods = [m for k, m in list(sys.modules.items())
             if k.startswith("cmm_core") and getattr(m, "kin", None) is kin]
+    shim = types.ModuleType("kinematics_previous_shim")
+    shim.__dict__.update(old.__dict__)
+
+    def terms(orders, range_mm, periods=(), layout=kin.DEFAULT_LAYOUT):
+        if layout != kin.DEFAULT_LAYOUT:
+            raise ValueError(f"the previous kinematics has no layout {layout!r}")
+        return old.KinematicTerms(orders, range_mm, periods)
+
+    shim.KinematicTerms = terms
     for m in mods:
-        m.kin = old
+        m.kin = shim
     try:
         return f()
     finally:
@@ -79,19 +97,58 @@ def with_previous_kinematics(old, f):
             m.kin = kin
 
 
+def previous_fit():
+    """``fit.py`` at ``PREVIOUS_FIT`` as a module of the package, or None without git."""
+    try:
+        src = subprocess.run(["git", "show", f"{PREVIOUS_FIT}:cmm_core/fit.py"], cwd=ROOT,
+                             capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    spec = importlib.util.spec_from_loader("cmm_core._fit_previous", loader=None)
+    mod = importlib.util.module_from_spec(spec)
+    mod.__package__ = "cmm_core"
+    sys.modules[spec.name] = mod
+    exec(compile(src, "fit_previous.py", "exec"), mod.__dict__)
+    return mod
+
+
+def peak_mb(f):
+    tracemalloc.start()
+    try:
+        f()
+        return tracemalloc.get_traced_memory()[1] / 1e6
+    finally:
+        tracemalloc.stop()
+
+
+def compare_previous(data, repeats, exclude, ours, r, peak):
+    prev = previous_fit()
+    if prev is None:
+        print("  previous fit.py: git unavailable, not compared")
+        return
+    t_prev, p = median_time(lambda: prev.fit(data, "kinematic21", exclude=exclude), repeats)
+    peak_prev = peak_mb(lambda: prev.fit(data, "kinematic21", exclude=exclude))
+    dv = np.abs(r.values - p.values)
+    rel = float(np.max(dv / np.maximum(np.abs(p.values), 1e-300)))
+    rel_u = float(np.nanmax(dv / p.u))
+    print(f"  same fit by the previous fit.py ({PREVIOUS_FIT}): {t_prev * 1e3:.1f} ms, ratio "
+          f"ours/previous {ours / t_prev:.2f}, peak memory {peak_prev:.0f} MB (ours {peak:.0f}),"
+          f" largest parameter difference {rel:.1e} relative, {rel_u:.1e} of its u; chi2 "
+          f"{p.chi2:.1f} vs ours {r.chi2:.1f}; iterations {p.iterations} vs {r.iterations}",
+          flush=True)
+
+
 def report(name, data, repeats, exclude=(), with_peer=True, old=None):
     fit(data, "kinematic21", exclude=exclude)  # warm-up: first-call page faults, imports
     ours, r = median_time(lambda: fit(data, "kinematic21", exclude=exclude), repeats)
-    tracemalloc.start()
-    fit(data, "kinematic21", exclude=exclude)
-    peak = tracemalloc.get_traced_memory()[1] / 1e6
-    tracemalloc.stop()
+    peak = peak_mb(lambda: fit(data, "kinematic21", exclude=exclude))
     line = f"{name}: n_obs={r.n_obs}  median fit {ours * 1e3:.1f} ms ({repeats} repeats)"
     if with_peer:
         theirs, p = median_time(lambda: peer(data, exclude), max(1, repeats // 3))
         line += (f"  least_squares {theirs * 1e3:.1f} ms  ratio ours/peer {ours / theirs:.2f}"
                  f"  chi2 ours {r.chi2:.1f} vs peer {float(p.fun @ p.fun):.1f}")
     print(line + f"  peak memory {peak:.0f} MB", flush=True)
+    compare_previous(data, repeats, exclude, ours, r, peak)
     if old is not None:
         t_old, r_old = with_previous_kinematics(old, lambda: median_time(
             lambda: fit(data, "kinematic21", exclude=exclude), repeats))

@@ -22,6 +22,7 @@ import scipy.sparse as sp
 from scipy import stats
 
 from . import kinematics as kin
+from . import normal as _normal
 from ._blas import single_blas_thread
 from .blocks import REGISTRY, Eval
 from .blocks.kinematic import Kinematic
@@ -169,6 +170,12 @@ class Problem:
                            np.arange(3 * n + 1, dtype=itype) * k), shape=(3 * n, self.layout.n))
         return d, J
 
+    def normal_equations(self, state, sigma_um: float, rows: int = _normal.ROWS):
+        """Weighted normal equations ``JᵀJ``, ``Jᵀr`` at ``state``, accumulated over blocks
+        of ``rows`` observations without forming ``J`` (``normal.accumulate``): residuals
+        (µm), ``r·r``, N, g and the number of weighted rows."""
+        return _normal.accumulate(self, state, sigma_um, rows)
+
     def constraints(self):
         """Gauge constraints C (rows) on the parameter vector: C x = 0."""
         L, rows = self.layout, []
@@ -243,8 +250,8 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     state = prob.initial_state()
 
     status, it = "max_iterations", 0
-    d, r, J = weighted_residual(prob, state, sigma_um, True)
-    cost = r @ r
+    # only the normal equations are formed, block by block of observations: never J
+    d, cost, N, g, n_rows = prob.normal_equations(state, sigma_um)
     # Gauss-Newton with Levenberg-Marquardt damping on rejection: a line search along the
     # full step fails when nearly undetermined directions (a single placement) ask for
     # rotations of radians, where the linearisation no longer holds.
@@ -254,18 +261,21 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     # coupled directions (sv 1e-5 of the largest for a single placement) become
     # "determined" through the nonlinearity of radian-sized rotations, and the fit slid
     # along that valley without converging.
-    ne = Normal(J, r, C, rank_rtol)
+    ne = Normal(None, None, C, rank_rtol, normal=(N, g))
     null0 = ne.null
     C_run = ne.freeze_null(C)
     for it in range(1, max_iter + 1):  # noqa: B007 - `it` reports the iteration count
         if it > 1 or null0.shape[1]:
-            ne = Normal(J, r, C_run, rank_rtol)
+            ne = Normal(None, None, C_run, rank_rtol, normal=(N, g))
         accepted = False
         for attempt in range(16):
             trial = prob.update(state, ne.step(mu))
-            # the undamped step is nearly always accepted: evaluate its Jacobian at once
-            dt, rt, Jt = weighted_residual(prob, trial, sigma_um, attempt == 0)
-            if rt @ rt <= cost * (1 + 1e-12):
+            # the undamped step is nearly always accepted: its normal equations at once
+            if attempt == 0:
+                dt, new_cost, Nt, gt, _ = prob.normal_equations(trial, sigma_um)
+            else:
+                (dt, new_cost), Nt = _normal.cost_of(prob, trial, sigma_um), None
+            if new_cost <= cost * (1 + 1e-12):
                 accepted = True
                 break
             mu = max(10 * mu, 1e-6)
@@ -275,16 +285,15 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
             break
         mu = mu / 10 if mu > 1e-6 else 0.0
         state = trial
-        new_cost = rt @ rt
-        if Jt is None:
-            dt, rt, Jt = weighted_residual(prob, state, sigma_um, True)
-        d, r, J = dt, rt, Jt
+        if Nt is None:
+            dt, new_cost, Nt, gt, _ = prob.normal_equations(state, sigma_um)
+        d, N, g = dt, Nt, gt
         done = cost - new_cost <= tol * max(cost, 1.0)
         cost = new_cost
         if done:
             status = "converged"
             break
-    ne = Normal(J, r, C_run, rank_rtol)
+    ne = Normal(None, None, C_run, rank_rtol, normal=(N, g))
     cov, rank = ne.cov(), ne.rank
     null = np.hstack([null0, ne.null]) if null0.shape[1] else ne.null
     u = np.sqrt(np.clip(np.diag(cov), 0, None))
@@ -292,8 +301,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     unident = [lab for lab in L.labels if lab in names]
     u = np.array([np.nan if lab in names else ui for lab, ui in zip(L.labels, u, strict=True)])
     values = _report_values(prob, state)
-    n_rows = r.size
-    chi2 = float(r @ r)
+    chi2 = float(cost)
     dof = n_rows - rank
     bic = chi2 + rank * np.log(n_rows)
     rms = float(np.sqrt(np.mean(d**2)))
@@ -347,13 +355,14 @@ def _chi2_with_certificate(prob: Problem, state, design_null, sigma_um, rank_rto
     st = {k: v.copy() for k, v in state.items()}
     old = dict(zip(prob.layout.labels, state["x"], strict=True))
     st["x"] = np.array([old.get(lab, 0.0) for lab in pp.layout.labels])
-    _, r, J = weighted_residual(pp, st, sigma_um, True)
+    _, cost, N, g, n_rows = pp.normal_equations(st, sigma_um)
     C = pp.constraints()
     if design_null.size:
         C = np.vstack([C, held_constraints(prob.layout.labels, design_null, pp)])
-    ne = Normal(J, r, C, rank_rtol)
-    rr = r + J @ ne.step()
-    return float(rr @ rr), int(r.size - ne.rank)
+    ne = Normal(None, None, C, rank_rtol, normal=(N, g))
+    s = ne.step()
+    # |r + J s|² from the normal equations
+    return float(cost + 2 * g @ s + s @ N @ s), int(n_rows - ne.rank)
 
 
 def augmented_state(base: FitResult, prob: Problem) -> dict:
