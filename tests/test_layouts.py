@@ -225,9 +225,10 @@ def _first_order_error_um(terms, coef, x_mm, p_mm):
 
 @pytest.mark.parametrize("layout", list(CHAINS))
 def test_exact_model_agrees_with_the_first_order_derivation(layout):
-    """Realistic errors (5 µm, 5 µrad per coefficient, order 3; squareness 20 µrad): the
-    terms eq. (F) drops are products of two errors, (15 µrad)² × 1.5 m = 3e-4 µm and
-    15 µrad × 15 µm = 2e-4 µm, so 0.01 µm is a margin of 30 on the worst case."""
+    """Errors of a poor machine (5 µm, 5 µrad per coefficient at order 3: functions up to
+    37 µm and 25 µrad; squareness 20 µrad): the terms eq. (F) drops are products of two
+    errors, ε²|lever| = (25 µrad)² × 1.8 m = 1.1e-3 µm and ε·d = 25 µrad × 57 µm =
+    1.4e-3 µm per pair of carriages; 2e-3 µm is observed, 0.01 µm is the requirement."""
     rng = np.random.default_rng(7)
     terms = _terms(layout, 3)
     coef = rng.normal(0, 5, terms.n)
@@ -333,6 +334,6 @@ def test_uncertainty_and_diagnosis_follow_the_layout():
     u_um = [v for d in (s.U2_um, s.U3_um) for v in d.values()]
     assert np.isfinite(u_um).all() and 0 < min(u_um) and max(u_um) < 5
     hidden = simulate({"seed": 1, "setup": _setup(layout), **EXACT_PLATE,
-                       "kinematic": {"coefficients": {"rxy[1]": 5.0, "rxy[2]": 2.0}}})
-    d = diagnose(hidden.dataset, "kinematic21,-rxy")
-    assert d.verdict == "rxy", [(c.effect, round(c.delta_bic, 1)) for c in d.candidates[:4]]
+                       "kinematic": {"coefficients": {"ryx[1]": 5.0, "ryx[2]": 2.0}}})
+    d = diagnose(hidden.dataset, "kinematic21,-ryx")  # the table's roll, left out
+    assert d.verdict == "ryx", [(c.effect, round(c.delta_bic, 1)) for c in d.candidates[:4]]
