@@ -53,7 +53,17 @@ from .certificate_check import CertificateCheck, check_certificate
 from .discrepancy import Discrepancy, discrepancy_gp, kinematic_basis
 from .effects import PERIODIC, catalogue_entry
 from .fit import FitResult, fit
-from .scoring import PHYSICAL_SHARE, _levels, _needs_met, _Scored, _stats, scan_period, score
+from .scoring import (
+    PHYSICAL_SHARE,
+    ScoreCache,
+    _levels,
+    _needs_met,
+    _Scored,
+    _stats,
+    baseline_basis,
+    scan_period,
+    score,
+)
 from .verdict import (
     OUTSIDE,
     _checked_verdict,
@@ -253,23 +263,39 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
                positions=positions, probes=probes, max_iter=2000)
     max_iter = 500 if base.iterations <= 500 else 2000
     tokens = candidates if candidates is not None else base.problem.spec.candidates()
-    skipped, scored = {}, []
+    skipped, todo = {}, []
     n_steps = len(tokens) + confirm
-    for i, tok in enumerate(tokens):
-        report(i / n_steps, f"scoring {tok} ({i + 1}/{len(tokens)})")
+    U = None
+    for tok in tokens:
         why = _needs_met(tok, base)
         if why:
             skipped[tok] = why
             continue
         n_scan, period_aliases, family = 1, [], tok
         if tok in PERIODIC:
-            tok, periods, _, period_aliases = scan_period(base, tok)
+            report(0.0, f"scanning the period of {tok}")
+            U = baseline_basis(base) if U is None else U
+            tok, periods, _, period_aliases = scan_period(base, tok, U)
             n_scan = periods.size
-        scored.append(_Scored(tok, *score(base, tok), n_scan=n_scan,
+        todo.append((tok, n_scan, period_aliases, family))
+    # every candidate's columns from one evaluation of the model with all of them added
+    try:
+        cache = ScoreCache(base, [t[0] for t in todo]) if todo else None
+    except ValueError:  # a superset the spec grammar refuses: each candidate on its own
+        cache = None
+    scored = []
+    for i, (tok, n_scan, period_aliases, family) in enumerate(todo):
+        report(i / n_steps, f"scoring {tok} ({i + 1}/{len(todo)})")
+        scored.append(_Scored(tok, *score(base, tok, cache), n_scan=n_scan,
                               period_aliases=period_aliases, family=family))
     levels = _levels([sc.family for sc in scored], alpha)
-    def stats_of(sc):
-        return _stats(base, sc.dchi2, sc.dk, sc.chi2_new, sc.n_scan)
+    memo = {}
+
+    def stats_of(sc):  # sorted on several times: each F-test once
+        key = (sc.dchi2, sc.dk, sc.chi2_new, sc.n_scan)
+        if key not in memo:
+            memo[key] = _stats(base, *key)
+        return memo[key]
 
     def significant(sc):
         return sc.dk > 0 and stats_of(sc)[1] < levels[sc.family]

@@ -6,6 +6,16 @@ test; the model is nearly linear, so this is the refit's reduction to high accur
 periodic errors are scanned over the periods the layout resolves
 (``blocks.periodic``). :func:`_stats` turns a reduction into ΔBIC and an F-test p-value,
 :func:`_levels` shares the family-wise false-alarm rate over the candidates.
+
+A diagnosis scores some forty candidates on the same observations. At the baseline's
+solution, with the parameters a candidate adds at zero, the augmented model *is* the
+baseline, so its Jacobian columns of the baseline's parameters are the baseline's and the
+columns of an added parameter do not depend on which other zero-valued parameters are
+present. :class:`ScoreCache` therefore evaluates once the model with every candidate
+added (the superset), at the baseline's solution and at the nominal linearisation, and
+forms its normal equations; each candidate's normal equations are then a sub-matrix of
+those (its columns' rows and columns), and its step, rank and signature follow without
+evaluating its model again.
 """
 
 from __future__ import annotations
@@ -20,7 +30,7 @@ from .blocks import needs
 from .blocks.periodic import PERIOD_SCAN, shortest_resolvable_period
 from .effects import PERIODIC, PHYSICAL
 from .fit import FitResult, Problem, augmented_state, held_constraints, weighted_residual
-from .solver import Normal, describe_null, solve
+from .solver import Normal, describe_null, normal_equations, solve
 
 PHYSICAL_SHARE = 0.5
 """Share of the family-wise false-alarm rate ``alpha`` given to the physical effects and
@@ -36,19 +46,60 @@ def _needs_met(token, base: FitResult):
     return needs(token, base.problem.obs)
 
 
-def score(base: FitResult, token: str):
+class ScoreCache:
+    """The superset of the candidates of one diagnosis, evaluated once (module docstring).
+
+    Parameters
+    ----------
+    base : FitResult
+    tokens : list of str
+        The candidates to be scored (periods already chosen).
+
+    Attributes
+    ----------
+    col : dict
+        Label -> column of the superset.
+    J, r : ndarray
+        Weighted Jacobian (dense) and residual at the baseline's solution.
+    N, g, N0, g0 : ndarray
+        Normal equations at the baseline's solution and at the nominal linearisation.
+    """
+
+    def __init__(self, base: FitResult, tokens):
+        spec = base.problem.spec
+        for tok in tokens:
+            spec = spec.with_token(tok)
+        prob = Problem(base.problem.obs, spec, base.plate)
+        self.base, self.col = base, {lab: i for i, lab in enumerate(prob.layout.labels)}
+        _, self.r, J = weighted_residual(prob, augmented_state(base, prob), base.sigma_um, True)
+        self.J = J.toarray()
+        self.N, self.g = normal_equations(self.J, self.r)
+        ne0 = prob.normal_equations(prob.initial_state(), base.sigma_um)
+        self.N0, self.g0 = ne0.N, ne0.g
+
+    def columns(self, prob: Problem):
+        """Superset columns of ``prob``'s parameters, or None when ``prob`` does not
+        extend the baseline within the superset (it is then scored on its own)."""
+        labels = prob.layout.labels
+        if not set(self.base.labels) <= set(labels) or any(lab not in self.col
+                                                           for lab in labels):
+            return None
+        return np.array([self.col[lab] for lab in labels])
+
+
+def score(base: FitResult, token: str, cache: ScoreCache | None = None):
     """One-step score of adding ``token``.
 
     Returns (Δχ², Δrank, signature µm (n, 3), χ² new, u_new, combos) where ``u_new`` maps
     each added parameter label to ``(unit, standard uncertainty)`` in the augmented model:
     how well this data set determines the effect on top of the baseline; ``combos`` are
     the parameter combinations the augmented model would leave undetermined (beyond the
-    baseline's own), written out as the fit writes them.
+    baseline's own), written out as the fit writes them. With a ``cache`` of the
+    diagnosis's superset the candidate's normal equations are taken from it.
     """
     spec = base.problem.spec.with_token(token)
     prob = Problem(base.problem.obs, spec, base.plate)
-    st = augmented_state(base, prob)
-    d, r, J = weighted_residual(prob, st, base.sigma_um, True)
+    idx = None if cache is None else cache.columns(prob)
     # what the baseline's design could not determine stays held, or the candidate would
     # be credited with (and counted for) those directions too
     C = prob.constraints()
@@ -57,14 +108,25 @@ def score(base: FitResult, token: str):
     # ... and what the candidate adds is decided at the nominal linearisation, as its
     # refit decides it (fit's frozen design null): at the baseline's solution the
     # nonlinearity of fitted rotations lends weakly coupled columns a small, spurious rank
-    _, r0, J0 = weighted_residual(prob, prob.initial_state(), base.sigma_um, True)
-    ne0 = Normal(J0, r0, C, base.rank_rtol)
+    if idx is None:
+        st = augmented_state(base, prob)
+        _, r, J = weighted_residual(prob, st, base.sigma_um, True)
+        _, r0, J0 = weighted_residual(prob, prob.initial_state(), base.sigma_um, True)
+        ne0 = Normal(J0, r0, C, base.rank_rtol)
+        step, cov, rank, null = solve(J, r, ne0.freeze_null(C), base.rank_rtol)
+    else:
+        sub = np.ix_(idx, idx)
+        ne0 = Normal(None, None, C, base.rank_rtol, normal=(cache.N0[sub], cache.g0[idx]))
+        ne = Normal(None, None, ne0.freeze_null(C), base.rank_rtol,
+                    normal=(cache.N[sub], cache.g[idx]))
+        step, cov, rank, null = ne.step(), ne.cov(), ne.rank, ne.null
+        r, J = cache.r, cache.J[:, idx]
     combos = describe_null(ne0.null, prob.layout.labels)[0] if ne0.null.shape[1] else []
-    step, cov, rank, null = solve(J, r, ne0.freeze_null(C), base.rank_rtol)
-    r_new = r + J @ step
+    Js = J @ step
+    r_new = r + Js
     chi2_new = float(r_new @ r_new)
     n = prob.n_obs
-    sig = -(J @ step)[: 3 * n].reshape(n, 3) * base.sigma_um
+    sig = -Js[: 3 * n].reshape(n, 3) * base.sigma_um
     old = set(base.labels)
     u = np.sqrt(np.clip(np.diag(cov), 0, None))
     # a parameter with a component in the null space is not determined at all
@@ -77,7 +139,14 @@ def score(base: FitResult, token: str):
     return base.chi2 - chi2_new, rank - base.rank, sig, chi2_new, u_new, combos
 
 
-def scan_period(base: FitResult, token: str):
+def baseline_basis(base: FitResult):
+    """Orthonormal basis of the baseline's determined column space (weighted J)."""
+    J = weighted_residual(base.problem, base.state, base.sigma_um, True)[2]
+    U, sv, _ = np.linalg.svd(J.toarray(), full_matrices=False)
+    return U[:, sv > base.rank_rtol * sv.max()]
+
+
+def scan_period(base: FitResult, token: str, U=None):
     """Best period of a periodic scale error (``periodic_x`` ...) for this residual.
 
     Score test for every period of the scan: the χ² reduction of adding the two periodic
@@ -85,12 +154,13 @@ def scan_period(base: FitResult, token: str):
     the baseline cannot already explain counts. Returns ``(token with period, periods mm,
     Δχ² per period, alias tokens)``: the best period is refined between its grid
     neighbours; aliases are other local maxima within 80 % of the best (periods the ball
-    spacing cannot tell apart from it).
+    spacing cannot tell apart from it). ``U``: :func:`baseline_basis`, when the caller
+    already has it (one per diagnosis).
     """
     a = "xyz".index(token[-1])
-    _, r, J = weighted_residual(base.problem, base.state, base.sigma_um, True)
-    U, sv, _ = np.linalg.svd(J.toarray(), full_matrices=False)
-    U = U[:, sv > base.rank_rtol * sv.max()]
+    r = weighted_residual(base.problem, base.state, base.sigma_um, False)[1]
+    if U is None:
+        U = baseline_basis(base)
     u = (base.problem.obs.r_mm - base.problem.obs.p_mm)[:, a]
     n = u.size
     shortest = shortest_resolvable_period(base.problem.obs, a)[0]

@@ -77,18 +77,22 @@ def _checked_verdict(base: FitResult, cands, max_checks: int = 3):
 
 def misfit_location(base: FitResult) -> dict:
     """Where the residual lives: the placement, probe, axis and ball carrying the largest
-    share of χ², with their shares (what the user should look at in the residual maps)."""
-    from .residuals import breakdown
-
+    share of χ², with their shares (what the user should look at in the residual maps).
+    The numbers of ``residuals.breakdown``, counted with ``bincount``."""
     out = {}
-    for by in ("position", "probe", "ball"):
-        b = breakdown(base, by)
-        if len(b) > 1:
-            v = b.iloc[0][by]
-            out[by] = {"name": str(int(v)) if by == "ball" else str(v),
-                       "chi2_share": float(b.iloc[0]["chi2_share"]),
-                       "expected_share": float(b.iloc[0]["n"] / b["n"].sum())}
     z2 = (base.residuals_um / base.sigma_um) ** 2
+    chi = z2.sum(axis=1)
+    total = max(chi.sum(), 1e-300)
+    o = base.problem.obs
+    for by, idx, names in (("position", o.pos, o.positions), ("probe", o.probe, o.probes),
+                           ("ball", o.ball, o.balls)):
+        n = np.bincount(idx, minlength=len(names))
+        if np.count_nonzero(n) > 1:
+            c = np.bincount(idx, weights=chi, minlength=len(names))
+            k = int(np.argmax(np.where(n > 0, c, -np.inf)))
+            out[by] = {"name": str(int(names[k])) if by == "ball" else str(names[k]),
+                       "chi2_share": float(c[k] / total),
+                       "expected_share": float(n[k] / n.sum())}
     shares = z2.sum(axis=0) / max(z2.sum(), 1e-300)
     a = int(np.argmax(shares))
     out["axis"] = {"name": "xyz"[a], "chi2_share": float(shares[a]), "expected_share": 1 / 3}
@@ -96,9 +100,12 @@ def misfit_location(base: FitResult) -> dict:
 
 
 def _refit(base: FitResult, spec, max_iter: int) -> FitResult:
-    """Full fit of another model on the baseline's observations, plate and settings."""
-    return fit(base.problem.obs, spec, plate=base.plate, sigma_um=base.sigma_um,
-               rank_rtol=base.rank_rtol, max_iter=max_iter)
+    """Full fit of another model on the baseline's observations, plate and settings. The
+    nested tests read its χ² and rank only: no χ² test with the certificate's uncertainty
+    (``fit``'s ``certificate_test``), and no BLAS thread limit of its own (the diagnosis
+    holds one)."""
+    return fit.__wrapped__(base.problem.obs, spec, plate=base.plate, sigma_um=base.sigma_um,
+                           rank_rtol=base.rank_rtol, max_iter=max_iter, certificate_test=False)
 
 
 def _nested_p(small: FitResult, big: FitResult) -> float:
