@@ -319,13 +319,16 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
             break
         refit_candidate(top, j)
     n_rows = base.dof + base.rank
-    out = []
+    out, k_of_level = [], {}
     for sc in scored:
         dbic, p, dof_new = stats_of(sc)
         # Size at which a parameter alone is found with 80 % probability at its level:
         # |θ| = u s (z_{1-level/2} + z_{0.8}), s² = χ²/ν left (normal approximation of the
         # F-test, which measures the reduction against the residual scatter left)
-        k_detect = float(stats.norm.isf(levels[sc.family] / 2) + stats.norm.isf(0.2))
+        lv = levels[sc.family]
+        if lv not in k_of_level:  # two levels in all (weighted Bonferroni)
+            k_of_level[lv] = float(stats.norm.isf(lv / 2) + stats.norm.isf(0.2))
+        k_detect = k_of_level[lv]
         scale = float(np.sqrt(sc.chi2_new / dof_new))
         e = catalogue_entry(sc.token)
         # Unconfirmed candidates: RMS from the one-step χ² (prior rows are few).
