@@ -158,6 +158,30 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
     that is not a finite positive semi-definite matrix, strokes that are not mm, probe
     offsets that are not 3-vectors in mm.
     """
+    layout = _checked_model_header(d, name)
+    terms, coef, cov, probes, backlash, joint = _parsed_model(d, name, layout)
+    spec = _checked_model_terms(d, terms, name)
+    _checked_model_values(d, terms, coef, cov, probes, backlash, joint, name)
+    summary = d.get("summary", {})
+    if not isinstance(summary, dict):
+        raise DataError("summary must be an object.", file=name, column="summary")
+    region = summary.get("region_mm")
+    if region is not None:
+        reg = np.asarray(region, float) if isinstance(region, list) else None
+        if reg is None or reg.shape != (2, 3) or not np.isfinite(reg).all():
+            raise DataError(f"summary.region_mm must be [[3 numbers], [3 numbers]] (mm), "
+                            f"found {_cut(region)}.", file=name, column="summary.region_mm")
+    if not isinstance(d.get("undetermined", False), bool):
+        raise DataError("undetermined must be true or false.", file=name,
+                        column="undetermined")
+    return Model(spec, terms, coef, cov, probes, bool(d.get("undetermined")), summary,
+                 backlash, joint, name)
+
+
+
+
+def _checked_model_header(d, name):
+    """A dict of this program's model format, with its machine layout."""
     if not isinstance(d, dict):
         raise DataError(f"is not a model file written by 'fit --save' (expected a JSON object, "
                         f"found {type(d).__name__}).", file=name)
@@ -180,6 +204,11 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
         raise DataError(f"layout {_cut(layout)} is not a known machine layout; expected one "
                         f"of: {', '.join(kin.LAYOUTS)}.", file=name, column="layout",
                         hint="refit and save the model again (fit --save); do not edit it.")
+    return layout
+
+
+def _parsed_model(d, name, layout):
+    """The model's terms and arrays, or a DataError when the file's structure is wrong."""
     try:
         terms = kin.KinematicTerms(tuple((str(n), int(o)) for n, o in d["orders"]),
                                    tuple(float(x) for x in d["range_mm"]),
@@ -195,6 +224,11 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
         raise DataError(f"is not a model file written by 'fit --save' ({_cut(str(exc), 80)}).",
                         file=name) from None
+    return terms, coef, cov, probes, backlash, joint
+
+
+def _checked_model_terms(d, terms, name):
+    """Spec, strokes, orders, periods and labels consistent with each other; the spec."""
     if not isinstance(d["periods"], list) or not isinstance(d["orders"], list):
         raise DataError("orders and periods must be lists of [function, value] pairs.",
                         file=name, column="orders" if not isinstance(d["orders"], list)
@@ -224,6 +258,12 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
                         f"{_cut(terms.labels, 80)}); the coefficients cannot be assigned.",
                         file=name, column="labels",
                         hint="refit and save the model again (fit --save); do not edit it.")
+    return spec
+
+
+def _checked_model_values(d, terms, coef, cov, probes, backlash, joint, name):
+    """Finite coefficients, positive semi-definite covariances, probe offsets in mm and
+    backlash spans when the spec has backlash."""
     if coef.shape != (terms.n,) or cov.shape != (terms.n, terms.n):
         raise DataError(f"expected {terms.n} coefficients and a {terms.n}x{terms.n} "
                         f"covariance, found {coef.shape} and {cov.shape}.", file=name)
@@ -253,20 +293,6 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
             raise DataError("backlash_um must be 3 finite spans (µm).", file=name,
                             column="backlash_um")
         _checked_cov(joint, terms.n + 3, name, "cov_with_backlash")
-    summary = d.get("summary", {})
-    if not isinstance(summary, dict):
-        raise DataError("summary must be an object.", file=name, column="summary")
-    region = summary.get("region_mm")
-    if region is not None:
-        reg = np.asarray(region, float) if isinstance(region, list) else None
-        if reg is None or reg.shape != (2, 3) or not np.isfinite(reg).all():
-            raise DataError(f"summary.region_mm must be [[3 numbers], [3 numbers]] (mm), "
-                            f"found {_cut(region)}.", file=name, column="summary.region_mm")
-    if not isinstance(d.get("undetermined", False), bool):
-        raise DataError("undetermined must be true or false.", file=name,
-                        column="undetermined")
-    return Model(spec, terms, coef, cov, probes, bool(d.get("undetermined")), summary,
-                 backlash, joint, name)
 
 
 OFF_MACHINE = "outside the machine's range"
