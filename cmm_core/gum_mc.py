@@ -188,6 +188,41 @@ def monte_carlo(contributions: Sequence[Contribution], *, function: Callable | N
     MonteCarloResult
     """
     cts = _as_contributions(contributions)
+    p = _checked_arguments(cts, function, coverage_probability, trials, chunk_size, n_dig,
+                           max_trials)
+    if rng is None:
+        rng = np.random.default_rng(seed)
+    else:
+        seed = None
+    draw = _sampler(cts, student_t_for_finite_dof)
+    model = _model(cts, function)
+    t0 = time.perf_counter()
+
+    def batch(m: int) -> np.ndarray:
+        return model(draw(rng, m))
+
+    if adaptive:
+        values, status, tol = _adaptive_run(batch, p, chunk_size, max_trials, n_dig, progress)
+        if progress is not None and status != "cancelled":
+            progress(1.0)
+    else:
+        values, status, tol = _fixed_run(batch, int(trials), chunk_size, progress)
+    values = np.sort(values)
+    n = values.size
+    mean = float(np.mean(values)) if n else math.nan
+    u = float(np.std(values, ddof=1)) if n >= 2 else math.nan
+    sym, short = coverage_intervals(values, p)
+    counts, edges = _histogram(values, bins)
+    return MonteCarloResult(mean=mean, u=u, interval_shortest=short, interval_symmetric=sym,
+                            coverage_probability=p, trials=int(n), status=status,
+                            tolerance=tol, seed=seed, elapsed_s=time.perf_counter() - t0,
+                            hist_counts=counts, hist_edges=edges,
+                            values=values if keep_values else None)
+
+
+def _checked_arguments(cts, function, coverage_probability, trials, chunk_size, n_dig,
+                       max_trials) -> float:
+    """The arguments of :func:`monte_carlo` checked; returns the coverage probability."""
     if function is not None:
         for i, ct in enumerate(cts):
             if ct.c is not None:
@@ -200,84 +235,63 @@ def monte_carlo(contributions: Sequence[Contribution], *, function: Callable | N
                         ("n_dig", n_dig, 1), ("max_trials", max_trials, 2)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
             raise ValueError(f"{what}: expected an integer >= {lo}, got {v!r}.")
-    if rng is None:
-        rng = np.random.default_rng(seed)
-    else:
-        seed = None
-    draw = _sampler(cts, student_t_for_finite_dof)
-    model = _model(cts, function)
-    t0 = time.perf_counter()
-    cancelled = False
-    tol = None
+    return p
 
-    def run(m: int, out: np.ndarray, start: int) -> None:
-        out[start:start + m] = model(draw(rng, m))
 
-    if not adaptive:
-        values = np.empty(int(trials))
-        done = 0
-        while done < trials:
-            m = min(chunk_size, trials - done)
-            run(m, values, done)
-            done += m
-            if progress is not None and progress(done / trials) is False and done < trials:
-                cancelled = True
-                break
-        values = values[:done]
-        status = "cancelled" if cancelled else "ok"
-    else:
-        m_seq = max(math.ceil(100.0 / (1.0 - p) - 1e-9), 10_000)     # JCGM 101 7.9.4 a)
-        per_chunk = max(1, chunk_size // m_seq)
-        h_max = max(2, max_trials // m_seq)
-        buf = np.empty(min(h_max, 64) * m_seq)
-        summaries = []                                # (y, u, low, high) per sequence
-        fraction = 0.0
-        status = "max_trials"
-        h = 0
-        while h < h_max:
-            n_new = min(per_chunk, h_max - h)
-            if buf.size < (h + n_new) * m_seq:
-                buf = np.concatenate([buf, np.empty(max(buf.size, n_new * m_seq))])
-            for _ in range(n_new):
-                seg = buf[h * m_seq:(h + 1) * m_seq]
-                seg[:] = model(draw(rng, m_seq))
-                s = np.sort(seg)
-                _, short = coverage_intervals(s, p)
-                summaries.append((float(np.mean(s)), float(np.std(s, ddof=1)), *short))
-                h += 1
-                if h >= 2:
-                    arr = np.array(summaries)
-                    sd_means = np.std(arr, axis=0, ddof=1) / math.sqrt(h)   # 7.9.4 d)
-                    u_all = float(np.std(buf[:h * m_seq], ddof=1))
-                    tol = _tolerance(u_all, n_dig)                         # 7.9.4 e)
-                    ratio = float(np.max(2.0 * sd_means) / tol)
-                    if ratio <= 1.0:                                       # 7.9.4 f)
-                        status = "converged"
-                        break
-                    fraction = max(fraction, min(0.99, 1.0 / ratio**2), h / h_max)
-            if status == "converged":
-                break
-            if progress is not None and progress(fraction) is False:
-                cancelled = True
-                status = "cancelled"
-                break
-        values = buf[:h * m_seq]
-    if adaptive and progress is not None and not cancelled:
-        progress(1.0)
-    values = np.sort(values)
-    n = values.size
-    mean = float(np.mean(values)) if n else math.nan
-    u = float(np.std(values, ddof=1)) if n >= 2 else math.nan
-    sym, short = coverage_intervals(values, p)
-    if n >= 2:
-        lo, hi = np.quantile(values, [0.0005, 0.9995])
-        if not hi > lo:
-            lo, hi = lo - 0.5, hi + 0.5
-        counts, edges = np.histogram(values, bins=bins, range=(lo, hi))
-    else:
-        counts, edges = np.zeros(bins, int), np.linspace(0.0, 1.0, bins + 1)
-    return MonteCarloResult(mean=mean, u=u, interval_shortest=short, interval_symmetric=sym,
-                            coverage_probability=p, trials=int(n), status=status,
-                            tolerance=tol, seed=seed, elapsed_s=time.perf_counter() - t0,
-                            hist_counts=counts, hist_edges=edges,
-                            values=values if keep_values else None)
+def _fixed_run(batch, trials, chunk_size, progress):
+    """A run of ``trials`` model values drawn in chunks (JCGM 101 7.2); the progress
+    callback may cancel it. Returns ``(values, status, None)``."""
+    values = np.empty(trials)
+    done = 0
+    while done < trials:
+        m = min(chunk_size, trials - done)
+        values[done:done + m] = batch(m)
+        done += m
+        if progress is not None and progress(done / trials) is False and done < trials:
+            return values[:done], "cancelled", None
+    return values, "ok", None
+
+
+def _adaptive_run(batch, p, chunk_size, max_trials, n_dig, progress):
+    """The adaptive procedure of JCGM 101 7.9: sequences of M values until the sequence
+    means of y, u(y) and the shortest-interval endpoints are stable to the tolerance of
+    u(y). Returns ``(all values, status, tolerance)``."""
+    m_seq = max(math.ceil(100.0 / (1.0 - p) - 1e-9), 10_000)     # JCGM 101 7.9.4 a)
+    per_chunk = max(1, chunk_size // m_seq)
+    h_max = max(2, max_trials // m_seq)
+    buf = np.empty(min(h_max, 64) * m_seq)
+    summaries = []                                # (y, u, low, high) per sequence
+    fraction, status, h, tol = 0.0, "max_trials", 0, None
+    while h < h_max:
+        n_new = min(per_chunk, h_max - h)
+        if buf.size < (h + n_new) * m_seq:
+            buf = np.concatenate([buf, np.empty(max(buf.size, n_new * m_seq))])
+        for _ in range(n_new):
+            seg = buf[h * m_seq:(h + 1) * m_seq]
+            seg[:] = batch(m_seq)
+            s = np.sort(seg)
+            _, short = coverage_intervals(s, p)
+            summaries.append((float(np.mean(s)), float(np.std(s, ddof=1)), *short))
+            h += 1
+            if h >= 2:
+                arr = np.array(summaries)
+                sd_means = np.std(arr, axis=0, ddof=1) / math.sqrt(h)   # 7.9.4 d)
+                u_all = float(np.std(buf[:h * m_seq], ddof=1))
+                tol = _tolerance(u_all, n_dig)                         # 7.9.4 e)
+                ratio = float(np.max(2.0 * sd_means) / tol)
+                if ratio <= 1.0:                                       # 7.9.4 f)
+                    return buf[:h * m_seq], "converged", tol
+                fraction = max(fraction, min(0.99, 1.0 / ratio**2), h / h_max)
+        if progress is not None and progress(fraction) is False:
+            return buf[:h * m_seq], "cancelled", tol
+    return buf[:h * m_seq], status, tol
+
+
+def _histogram(values, bins):
+    """Histogram of the sorted values between their 0.05 % and 99.95 % quantiles."""
+    if values.size < 2:
+        return np.zeros(bins, int), np.linspace(0.0, 1.0, bins + 1)
+    lo, hi = np.quantile(values, [0.0005, 0.9995])
+    if not hi > lo:
+        lo, hi = lo - 0.5, hi + 0.5
+    return np.histogram(values, bins=bins, range=(lo, hi))
