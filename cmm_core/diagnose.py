@@ -351,7 +351,7 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
         out, note = _encompassing(base, out, out[0].level, refits, alpha, max_iter=max_iter)
         out = _physical_before_periodic(out)
     report(0.995, "leave-one-placement-out checks")
-    verdict, checks, out, note2 = _checked_verdict(base, out)
+    verdict, checks, out, note2 = _checked_verdict(base, out, cache=cache)
     note += note2
     sigma = uniform = None
     if base.status == "converged" and base.fails_chi2_test and verdict in (None, OUTSIDE):

@@ -84,15 +84,20 @@ class HoldoutCheck:
                 "per_placement": self.per_placement, "reason": self.reason}
 
 
-def _effect_columns(base: FitResult, prob: Problem):
+def _effect_columns(base: FitResult, prob: Problem, cache=None):
     """Baseline residual and the effect's columns with the baseline's projected out.
 
     Returns ``(r, X, pos_of_row)``: weighted residual (m,), effect columns (m, k) in the
     effect's own gauge, and the placement index of every row (-1: certificate prior).
-    ``prob`` is the baseline's problem with the effect added.
+    ``prob`` is the baseline's problem with the effect added; ``cache``, the diagnosis's
+    ``scoring.ScoreCache``, holds its columns already.
     """
-    _, r, J = weighted_residual(prob, augmented_state(base, prob), base.sigma_um, True)
-    J = J.toarray()
+    idx = None if cache is None else cache.columns(prob)
+    if idx is None:
+        _, r, J = weighted_residual(prob, augmented_state(base, prob), base.sigma_um, True)
+        J = J.toarray()
+    else:
+        r, J = cache.r, cache.J[:, idx]
     old = set(base.labels)
     is_new = np.array([lab not in old for lab in prob.layout.labels])
     C = prob.constraints()
@@ -118,8 +123,9 @@ def _lstsq(A, b):
     return np.linalg.lstsq(A, b, rcond=1e-10)[0]
 
 
-def check(base: FitResult, token: str) -> HoldoutCheck:
-    """Leave-one-placement-out check of adding ``token`` to ``base`` (module docstring)."""
+def check(base: FitResult, token: str, cache=None) -> HoldoutCheck:
+    """Leave-one-placement-out check of adding ``token`` to ``base`` (module docstring);
+    ``cache``: the diagnosis's ``scoring.ScoreCache``, if at hand."""
     o = base.problem.obs
     prob = Problem(o, base.problem.spec.with_token(token), base.plate)
     added = {g for g, lab in zip(prob.layout.groups, prob.layout.labels, strict=True)
@@ -131,7 +137,7 @@ def check(base: FitResult, token: str) -> HoldoutCheck:
         return HoldoutCheck(token, False, True, float("nan"), float("nan"), {},
                             "its parameters belong to single placements (the drift of each "
                             "position), so no other placement can predict them")
-    r, X, pos_of_row = _effect_columns(base, prob)
+    r, X, pos_of_row = _effect_columns(base, prob, cache)
     gain_in = float(r @ r - np.sum((r - X @ _lstsq(X, r)) ** 2))
     per = {}
     for k, name in enumerate(o.positions):

@@ -97,11 +97,11 @@ def uniformity(result: FitResult) -> Uniformity:
     the x, y, z components. Each group's degrees of freedom are its share of the fit's
     (rows times dof per row): the fitted parameters spend them evenly enough for a test
     whose purpose is to tell a concentrated misfit from a spread one."""
-    rf = result.residuals_frame()
+    t = result.table
     z2 = (result.residuals_um / result.sigma_um) ** 2
     per_row = result.dof / max(z2.size, 1)
-    groupings = {"placement": rf["position"].to_numpy(), "probe": rf["probe"].to_numpy(),
-                 "ball": rf["ball"].to_numpy()}
+    groupings = {"placement": t["position"].to_numpy(), "probe": t["probe"].to_numpy(),
+                 "ball": t["ball"].to_numpy()}
     # regions of the machine volume: quarters of each axis's stroke as measured (a local
     # error of one axis, a placement's own scale, concentrate there)
     o = result.problem.obs
@@ -112,12 +112,15 @@ def uniformity(result: FitResult) -> Uniformity:
             groupings[f"{name} region"] = np.array(
                 [f"{name} quarter {k + 1}" for k in np.searchsorted(edges, u)])
     tests, ratios = {}, []
+    c_row = z2.sum(axis=1)
     for name, key in groupings.items():
-        g = pd.DataFrame({"k": key, "c": z2.sum(axis=1)}).groupby("k", sort=False)["c"]
-        chi2, nu = g.sum(), g.size() * 3 * per_row
-        if len(chi2) >= 2:
+        codes, keys = pd.factorize(key)  # groups in order of appearance
+        chi2 = np.bincount(codes, weights=c_row, minlength=len(keys))
+        nu = np.bincount(codes, minlength=len(keys)) * 3 * per_row
+        if len(keys) >= 2:
             tests[name] = {"p_value": _bartlett(chi2, nu),
-                           "groups": {str(k): float(chi2[k] / nu[k]) for k in chi2.index}}
+                           "groups": {str(k): float(chi2[i] / nu[i])
+                                      for i, k in enumerate(keys)}}
     chi2 = z2.sum(axis=0)
     nu = np.full(3, z2.shape[0] * per_row)
     tests["axis"] = {"p_value": _bartlett(chi2, nu),

@@ -52,7 +52,7 @@ def _physical_before_periodic(cands):
             *rest]
 
 
-def _checked_verdict(base: FitResult, cands, max_checks: int = 3):
+def _checked_verdict(base: FitResult, cands, max_checks: int = 3, cache=None):
     """Walk the significant candidates best first; the first that passes the
     leave-one-placement-out check (or that the check cannot judge) is the verdict.
     Returns ``(verdict, checks, candidates, note)``; ``verdict`` is ``OUTSIDE`` when the
@@ -62,7 +62,7 @@ def _checked_verdict(base: FitResult, cands, max_checks: int = 3):
         return None, [], cands, ""
     checks, failed = [], []
     for c in sig:
-        h = holdout.check(base, c.effect)
+        h = holdout.check(base, c.effect, cache)
         checks.append(h)
         if h.passed:
             if failed:
