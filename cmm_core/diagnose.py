@@ -302,7 +302,7 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
 
     def refit_candidate(sc, j):
         report((len(tokens) + j) / n_steps, f"confirming {sc.token} by a full refit")
-        ref = _refit(base, base.problem.spec.with_token(sc.token), max_iter)
+        ref = _refit(base, base.problem.spec.with_token(sc.token), max_iter, cache)
         sc.dchi2, sc.dk, sc.chi2_new, sc.refit = base.chi2 - ref.chi2, ref.rank - base.rank, \
             ref.chi2, ref
 
@@ -348,7 +348,8 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
     refits = {sc.token: sc.refit for sc in scored}
     if out and out[0].significant:
         report(0.99, "nested tests of the best candidates")
-        out, note = _encompassing(base, out, out[0].level, refits, alpha, max_iter=max_iter)
+        out, note = _encompassing(base, out, out[0].level, refits, alpha, max_iter=max_iter,
+                                  cache=cache)
         out = _physical_before_periodic(out)
     report(0.995, "leave-one-placement-out checks")
     verdict, checks, out, note2 = _checked_verdict(base, out, cache=cache)
@@ -358,7 +359,8 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
         # nothing catalogued explains the misfit: σ, or something outside the catalogue?
         # An understated σ spreads the misfit evenly; a missing effect concentrates it.
         uniform = repeatability.uniformity(base)
-        sigma = repeatability.estimate(base, _flexible_tokens([sc.token for sc in scored]))
+        sigma = repeatability.estimate(base, _flexible_tokens([sc.token for sc in scored]),
+                                       None if cache is None else cache.nominal)
         if verdict is None and not uniform.uniform:
             verdict = OUTSIDE
     if base.status != "converged":

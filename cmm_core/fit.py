@@ -205,7 +205,7 @@ class Problem:
 def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, order: int = 2,
         plate: str | None = None, sigma_um: float = 0.5, positions=None, probes=None,
         exclude=(), rank_rtol: float = 1e-4, max_iter: int = 500, tol: float = 1e-9,
-        certificate_test: bool = True) -> FitResult:
+        certificate_test: bool = True, nominal=None) -> FitResult:
     """Fit a model to ball-plate measurements by Gauss-Newton (thesis §4.5.1).
 
     Parameters
@@ -230,6 +230,9 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     certificate_test : bool
         With the certificate fixed, also test χ² with its uncertainty counted (one more
         evaluation); False leaves ``chi2_test`` = χ² (the diagnosis's refits compare χ²).
+    nominal : callable, optional
+        ``nominal(problem)``: the problem's normal equations at its initial state when the
+        caller has them (``scoring.ScoreCache.nominal``), else None.
 
     Returns
     -------
@@ -255,7 +258,8 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
 
     status, it = "max_iterations", 0
     # only the normal equations are formed, block by block of observations: never J
-    d, cost, N, g, n_rows = prob.normal_equations(state, sigma_um)
+    ne0 = nominal(prob) if nominal is not None else None
+    d, cost, N, g, n_rows = ne0 if ne0 is not None else prob.normal_equations(state, sigma_um)
     # Gauss-Newton with Levenberg-Marquardt damping on rejection: a line search along the
     # full step fails when nearly undetermined directions (a single placement) ask for
     # rotations of radians, where the linearisation no longer holds.

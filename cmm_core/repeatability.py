@@ -165,12 +165,12 @@ def flexible_spec(base: FitResult, tokens) -> str:
     return spec.to_string(explicit=True)
 
 
-def from_residuals(base: FitResult, tokens) -> SigmaEstimate:
+def from_residuals(base: FitResult, tokens, nominal=None) -> SigmaEstimate:
     """σ from the residuals of the most flexible model (:func:`flexible_spec`): what that
     model cannot explain stands in for pure error. Biased high if the truth is outside it."""
     flex = fit(base.problem.obs, flexible_spec(base, tokens), plate=base.plate,
                sigma_um=base.sigma_um, rank_rtol=base.rank_rtol, max_iter=2000,
-               certificate_test=False)  # its χ²/dof is read, not its test
+               certificate_test=False, nominal=nominal)  # its χ²/dof is read, not its test
     best = flex if flex.status == "converged" and flex.dof > 0 else base
     s = best.sigma_um * float(np.sqrt(best.chi2_dof))
     return SigmaEstimate(s, float(s / np.sqrt(2 * max(best.dof, 1))), int(best.dof),
@@ -179,6 +179,7 @@ def from_residuals(base: FitResult, tokens) -> SigmaEstimate:
                          f"{best.dof} degrees of freedom)")
 
 
-def estimate(base: FitResult, tokens=()) -> SigmaEstimate:
-    """σ from repeats when the data have them, else from the most flexible model."""
-    return from_repeats(base.table) or from_residuals(base, tokens)
+def estimate(base: FitResult, tokens=(), nominal=None) -> SigmaEstimate:
+    """σ from repeats when the data have them, else from the most flexible model
+    (``nominal``: ``fit``'s, when the caller has the normal equations at the start)."""
+    return from_repeats(base.table) or from_residuals(base, tokens, nominal)

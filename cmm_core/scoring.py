@@ -74,8 +74,8 @@ class ScoreCache:
         _, self.r, J = weighted_residual(prob, augmented_state(base, prob), base.sigma_um, True)
         self.J = J.toarray()
         self.N, self.g = normal_equations(self.J, self.r)
-        ne0 = prob.normal_equations(prob.initial_state(), base.sigma_um)
-        self.N0, self.g0 = ne0.N, ne0.g
+        self.ne0 = prob.normal_equations(prob.initial_state(), base.sigma_um)
+        self.N0, self.g0 = self.ne0.N, self.ne0.g
 
     def columns(self, prob: Problem):
         """Superset columns of ``prob``'s parameters, or None when ``prob`` does not
@@ -85,6 +85,15 @@ class ScoreCache:
                                                            for lab in labels):
             return None
         return np.array([self.col[lab] for lab in labels])
+
+    def nominal(self, prob: Problem):
+        """``prob``'s normal equations at the initial state (the same for every model on
+        these observations: all parameters zero), or None (``fit``'s ``nominal``)."""
+        idx = self.columns(prob) if prob.plate == self.base.plate else None
+        if idx is None or prob.obs is not self.base.problem.obs:
+            return None
+        e = self.ne0
+        return e._replace(N=e.N[np.ix_(idx, idx)], g=e.g[idx])
 
 
 def score(base: FitResult, token: str, cache: ScoreCache | None = None):

@@ -99,13 +99,15 @@ def misfit_location(base: FitResult) -> dict:
     return out
 
 
-def _refit(base: FitResult, spec, max_iter: int) -> FitResult:
+def _refit(base: FitResult, spec, max_iter: int, cache=None) -> FitResult:
     """Full fit of another model on the baseline's observations, plate and settings. The
     nested tests read its χ² and rank only: no χ² test with the certificate's uncertainty
     (``fit``'s ``certificate_test``), and no BLAS thread limit of its own (the diagnosis
-    holds one)."""
+    holds one). ``cache``: the diagnosis's ``scoring.ScoreCache``, whose normal equations
+    at the initial state start the fit."""
     return fit.__wrapped__(base.problem.obs, spec, plate=base.plate, sigma_um=base.sigma_um,
-                           rank_rtol=base.rank_rtol, max_iter=max_iter, certificate_test=False)
+                           rank_rtol=base.rank_rtol, max_iter=max_iter, certificate_test=False,
+                           nominal=None if cache is None else cache.nominal)
 
 
 def _nested_p(small: FitResult, big: FitResult) -> float:
@@ -118,7 +120,7 @@ def _nested_p(small: FitResult, big: FitResult) -> float:
 
 
 def _encompassing(base: FitResult, cands, level, refits, alpha=0.01, max_rivals=3,
-                  max_iter=500):
+                  max_iter=500, cache=None):
     """Nested F-tests between the best candidate A and the next significant ones B.
 
     Fits base+A, base+B and base+A+B. If A adds nothing at ``alpha`` once B is in while B
@@ -128,7 +130,7 @@ def _encompassing(base: FitResult, cands, level, refits, alpha=0.01, max_rivals=
     Returns the reordered candidates and a sentence for the message.
     """
     def refit(spec):
-        return _refit(base, spec, max_iter)
+        return _refit(base, spec, max_iter, cache)
 
     out, note = list(cands), ""
     a = out[0]
