@@ -91,7 +91,10 @@ def dense_rows(prob, ev):
     for b in prob.blocks:
         for cols, M in b.jacobian(ev):
             cols = np.asarray(cols)
-            shared = cols.ndim == 2 and (cols.strides[0] == 0 or cols.shape[0] == 1)
+            # the same columns in every row (shared, or one placement's in a block cut
+            # along the placements): written as a slice, not scattered
+            shared = cols.ndim == 2 and (cols.strides[0] == 0 or cols.shape[0] == 1
+                                         or bool((cols == cols[0]).all()))
             if shared:
                 cols = cols[0]
             used[cols] = True
