@@ -30,7 +30,7 @@ from .blocks import needs
 from .blocks.periodic import PERIOD_SCAN, shortest_resolvable_period
 from .effects import PERIODIC, PHYSICAL
 from .fit import FitResult, Problem, augmented_state, held_constraints, weighted_residual
-from .solver import Normal, describe_null, normal_equations, solve
+from .solver import Normal, describe_null, normal_equations, solve, surely_determined
 
 PHYSICAL_SHARE = 0.5
 """Share of the family-wise false-alarm rate ``alpha`` given to the physical effects and
@@ -125,12 +125,15 @@ def score(base: FitResult, token: str, cache: ScoreCache | None = None):
         step, cov, rank, null = solve(J, r, ne0.freeze_null(C), base.rank_rtol)
     else:
         sub = np.ix_(idx, idx)
-        ne0 = Normal(None, None, C, base.rank_rtol, normal=(cache.N0[sub], cache.g0[idx]))
-        ne = Normal(None, None, ne0.freeze_null(C), base.rank_rtol,
+        # nearly always the nominal problem is plainly of full rank: no eigendecomposition
+        ne0 = (None if surely_determined(cache.N0[sub], C, base.rank_rtol) else
+               Normal(None, None, C, base.rank_rtol, normal=(cache.N0[sub], cache.g0[idx])))
+        ne = Normal(None, None, C if ne0 is None else ne0.freeze_null(C), base.rank_rtol,
                     normal=(cache.N[sub], cache.g[idx]))
         step, cov, rank, null = ne.step(), ne.cov(), ne.rank, ne.null
         r, J = cache.r, cache.J[:, idx]
-    combos = describe_null(ne0.null, prob.layout.labels)[0] if ne0.null.shape[1] else []
+    combos = ([] if ne0 is None or not ne0.null.shape[1] else
+              describe_null(ne0.null, prob.layout.labels)[0])
     Js = J @ step
     r_new = r + Js
     chi2_new = float(r_new @ r_new)

@@ -13,7 +13,8 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-__all__ = ["Normal", "normal_equations", "solve", "describe_null", "signed_sum"]
+__all__ = ["Normal", "normal_equations", "solve", "describe_null", "signed_sum",
+           "surely_determined"]
 
 
 def normal_equations(J, d, chunk=30000):
@@ -63,16 +64,8 @@ class Normal:
 
     def __init__(self, J, d, C, rank_rtol, normal=None):
         N0, g0 = normal if normal is not None else normal_equations(J, d)
-        n = N0.shape[0]
-        norms = np.sqrt(np.clip(np.diag(N0), 0, None))
-        self.S = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
-        if C.shape[0]:
-            Q, _ = sla.qr((C * self.S).T)
-            self.Z = Q[:, np.linalg.matrix_rank(C * self.S):]
-        else:
-            self.Z = np.eye(n)
-        Nr = self.Z.T @ (self.S[:, None] * N0 * self.S[None, :]) @ self.Z
-        lam, V = np.linalg.eigh((Nr + Nr.T) / 2)
+        self.S, self.Z, Nr = _reduced(N0, C)
+        lam, V = np.linalg.eigh(Nr)
         lam = np.clip(lam, 0, None)
         sv = np.sqrt(lam)
         keep = sv > rank_rtol * sv.max() if sv.max() > 0 else np.zeros_like(sv, bool)
@@ -96,6 +89,38 @@ class Normal:
         """``C`` with the undetermined directions appended as constraints: what the design
         cannot determine is held (decided once, at the nominal linearisation)."""
         return np.vstack([C, (self.null / self.S[:, None]).T]) if self.null.shape[1] else C
+
+
+def _reduced(N0, C):
+    """Column scales S, null-space basis Z of the scaled constraints and the reduced,
+    scaled normal matrix ``Zᵀ S N S Z`` (symmetrised) of :class:`Normal`."""
+    n = N0.shape[0]
+    norms = np.sqrt(np.clip(np.diag(N0), 0, None))
+    S = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
+    if C.shape[0]:
+        Q, _ = sla.qr((C * S).T)
+        Z = Q[:, np.linalg.matrix_rank(C * S):]
+    else:
+        Z = np.eye(n)
+    Nr = Z.T @ (S[:, None] * N0 * S[None, :]) @ Z
+    return S, Z, (Nr + Nr.T) / 2
+
+
+def surely_determined(N0, C, rank_rtol) -> bool:
+    """True when :class:`Normal` of the normal matrix ``N0`` under ``C`` would find no
+    undetermined direction, decided without an eigendecomposition: a Cholesky factorisation
+    of the reduced matrix minus ``rank_rtol²`` times its trace (which bounds its largest
+    eigenvalue), with a 1 % margin, succeeds. False does not mean rank-deficient: ask
+    :class:`Normal`."""
+    _, _, Nr = _reduced(N0, C)
+    shift = 1.01 * rank_rtol**2 * np.trace(Nr)
+    if not shift > 0:
+        return False
+    try:
+        np.linalg.cholesky(Nr - shift * np.eye(Nr.shape[0]))
+    except np.linalg.LinAlgError:
+        return False
+    return True
 
 
 def solve(J, d, C, rank_rtol):
