@@ -263,21 +263,8 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
                positions=positions, probes=probes, max_iter=2000)
     max_iter = 500 if base.iterations <= 500 else 2000
     tokens = candidates if candidates is not None else base.problem.spec.candidates()
-    skipped, todo = {}, []
     n_steps = len(tokens) + confirm
-    U = None
-    for tok in tokens:
-        why = _needs_met(tok, base)
-        if why:
-            skipped[tok] = why
-            continue
-        n_scan, period_aliases, family = 1, [], tok
-        if tok in PERIODIC:
-            report(0.0, f"scanning the period of {tok}")
-            U = baseline_basis(base) if U is None else U
-            tok, periods, _, period_aliases = scan_period(base, tok, U)
-            n_scan = periods.size
-        todo.append((tok, n_scan, period_aliases, family))
+    skipped, todo = _to_score(base, tokens, report)
     # every candidate's columns from one evaluation of the model with all of them added
     try:
         cache = ScoreCache(base, [t[0] for t in todo]) if todo else None
@@ -376,6 +363,33 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
         report(0.997, "the certificate against the self-calibrated plate")
         cert = check_certificate(base.problem.obs, base.spec, sigma_um=base.sigma_um,
                                  fitted=base)
+    msg = _message(base, out, verdict, sigma, uniform, where, note, checks, cert)
+    report(1.0, "done")
+    return Diagnosis(base, out, verdict, skipped, msg, checks, sigma, uniform, where, cert)
+
+
+def _to_score(base, tokens, report):
+    """``(skipped, todo)``: why the data cannot see some tokens, and for the others
+    ``(token, n_scan, period_aliases, family)`` with periodic errors' periods scanned."""
+    skipped, todo, U = {}, [], None
+    for tok in tokens:
+        why = _needs_met(tok, base)
+        if why:
+            skipped[tok] = why
+            continue
+        n_scan, period_aliases, family = 1, [], tok
+        if tok in PERIODIC:
+            report(0.0, f"scanning the period of {tok}")
+            U = baseline_basis(base) if U is None else U
+            tok, periods, _, period_aliases = scan_period(base, tok, U)
+            n_scan = periods.size
+        todo.append((tok, n_scan, period_aliases, family))
+    return skipped, todo
+
+
+def _message(base, out, verdict, sigma, uniform, where, note, checks, cert) -> str:
+    """The diagnosis in words: the conclusion, what the holdout check could not judge,
+    and the certificate's suspect entries first."""
     msg = _conclusion(base, out, verdict, sigma, uniform, where) + note
     top = next((h for h in checks if h.effect == verdict), None)
     if top is not None and not top.applicable:
@@ -385,8 +399,7 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
                 "order tells them apart.")
     if cert is not None and cert.suspect:
         msg = cert.message + " " + msg
-    report(1.0, "done")
-    return Diagnosis(base, out, verdict, skipped, msg, checks, sigma, uniform, where, cert)
+    return msg
 
 
 def estimate_sigma(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
