@@ -8,7 +8,7 @@ import scenarios as sc
 from cmm_core import blocks
 from cmm_core.diagnose import diagnose
 from cmm_core.effects import PHYSICAL, catalogue_entry, parse_spec
-from cmm_core.fit import fit
+from cmm_core.fit import fit, weighted_residual
 from cmm_core.io import DataError
 from cmm_core.simulate import simulate
 
@@ -59,3 +59,48 @@ def test_machine_thermal_needs_varying_scale_temperatures():
 def test_simulator_refuses_an_unknown_machine_thermal_key():
     with pytest.raises(DataError, match="machine_thermal"):
         simulate({"effects": {"machine_thermal": {"x_cte": 1e-6}}})
+
+
+@pytest.mark.parametrize("plate,rows", [("prior", 7), ("free", 13), ("fixed", 5000)])
+def test_blocked_normal_equations_equal_the_sparse_jacobians(plate, rows):
+    """JᵀJ and Jᵀr accumulated over blocks of observations (never forming J) equal those
+    of the full sparse Jacobian of ``Problem.residual`` plus the plate prior's rows, with
+    every block in the model and block boundaries inside placements; 1e-10 of the size of
+    the summed terms (summation order only)."""
+    sim = simulate({"seed": 5, "order": "serpentine",
+                    "effects": {"plate_sag": {"uu": -2}, "drift": {"sd_um_per_h": 2},
+                                "plate_thermal": {}, "probe_offset": {"sd_um": 1},
+                                "backlash": {"x_um": 1.0},
+                                "machine_thermal": {"x_cte_per_K": 2e-6}}})
+    spec = ("kinematic21,plate_thermal,plate_sag,probe_offset,drift,backlash,"
+            "machine_thermal")
+    r = fit(sim.dataset, spec, plate=plate, max_iter=3)
+    prob, st = r.problem, r.state
+    ne = prob.normal_equations(st, 0.5, rows=rows)
+    _, rvec, J = weighted_residual(prob, st, 0.5, True)
+    J = J.toarray()
+    scale = np.abs(J.T @ J).max()
+    np.testing.assert_allclose(ne.N, J.T @ J, rtol=0, atol=1e-10 * scale)
+    # near the solution g is a sum of cancelling terms: compare against their size
+    np.testing.assert_allclose(ne.g, J.T @ rvec, rtol=0,
+                               atol=1e-10 * (np.abs(J).T @ np.abs(rvec)).max())
+    assert ne.rows == rvec.size and ne.cost == pytest.approx(rvec @ rvec, rel=1e-12)
+
+
+def test_scores_with_and_without_the_shared_cache_agree():
+    """The diagnosis scores every candidate from one evaluation of the model with all of
+    them added (``ScoreCache``); each candidate scored on its own gives the same Δχ²,
+    added rank and uncertainties (1e-8 relative: rounding of two summation orders)."""
+    from cmm_core.scoring import ScoreCache, score
+
+    sim = sc.simulated("pitch100_4pos", 21, order="serpentine",
+                       effects={"plate_sag": {"uu": -1.5}})
+    base = fit(sim.dataset, "kinematic21")
+    tokens = ["plate_sag", "probe_offset", "drift", "backlash", "dyz:3", "rxx:3"]
+    cache = ScoreCache(base, tokens)
+    for tok in tokens:
+        a, b = score(base, tok, cache), score(base, tok)
+        assert a[0] == pytest.approx(b[0], rel=1e-8, abs=1e-6), tok
+        assert a[1] == b[1], tok
+        for lab, (unit, u) in a[4].items():
+            assert b[4][lab][0] == unit and u == pytest.approx(b[4][lab][1], rel=1e-8), lab
