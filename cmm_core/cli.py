@@ -140,7 +140,8 @@ def cmd_fit(args):
             "n_obs": r.n_obs, "n_params": r.rank, "rms_um": r.rms_um, "chi2_dof": r.chi2_dof,
             "dof": r.dof, "chi2_p_value": r.chi2_p_value, "fails_chi2_test": r.fails_chi2_test,
             "birge_ratio": r.birge_ratio, "sigma": sigma,
-            "bic": r.bic, "plate": r.plate,
+            "bic": r.bic, "plate": r.plate, "layout": r.terms.layout,
+            "chi2_test_dof": r.chi2_test_dof, "dof_test": r._test()[1],
             "parameters": {lab: {"value": v, "u": u, "u_inflated": ui, "unit": un}
                            for lab, v, u, ui, un in zip(r.labels, r.values, r.u, r.u_inflated,
                                                         r.units, strict=True)},
