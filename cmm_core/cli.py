@@ -141,7 +141,7 @@ def cmd_fit(args):
             "dof": r.dof, "chi2_p_value": r.chi2_p_value, "fails_chi2_test": r.fails_chi2_test,
             "birge_ratio": r.birge_ratio, "sigma": sigma,
             "bic": r.bic, "plate": r.plate, "layout": r.terms.layout,
-            "chi2_test_dof": r.chi2_test_dof, "dof_test": r._test()[1],
+            "chi2_test_dof": r.chi2_test_dof, "dof_test": r.dof_test,
             "parameters": {lab: {"value": v, "u": u, "u_inflated": ui, "unit": un}
                            for lab, v, u, ui, un in zip(r.labels, r.values, r.u, r.u_inflated,
                                                         r.units, strict=True)},
