@@ -29,6 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.polynomial import chebyshev as C
 
+from .units import UM, URAD
+
 AXES = "xyz"
 POSITIONING = ("dxx", "dyy", "dzz")
 STRAIGHTNESS = ("dxy", "dxz", "dyx", "dyz", "dzx", "dzy")
@@ -36,9 +38,6 @@ TRANSLATIONAL = ("dxx", "dxy", "dxz", "dyx", "dyy", "dyz", "dzx", "dzy", "dzz")
 ROTATIONAL = ("rxx", "rxy", "rxz", "ryx", "ryy", "ryz", "rzx", "rzy", "rzz")
 SQUARENESS = ("sxy", "sxz", "syz")
 ERROR_NAMES = TRANSLATIONAL + ROTATIONAL + SQUARENESS
-
-UM = 1e-3  # mm per µm
-URAD = 1e-6  # rad per µrad
 
 LAYOUTS = {
     "moving_bridge_fxyz": "Fxyz",

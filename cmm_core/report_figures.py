@@ -12,9 +12,9 @@ import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
 from . import kinematics as kin
-from .fit import rigid_fit
+from .geometry import rigid_fit
+from .units import UM
 
-UM = 1e-3
 AXIS_COLOURS = {"x": "#1f77b4", "y": "#2ca02c", "z": "#d62728"}
 FUNCTION_UNITS = {"d": "µm", "r": "µrad", "s": "µrad"}
 

@@ -9,6 +9,7 @@ import streamlit as st
 
 from cmm_core.analysis import measured_error_from_residuals_um
 from cmm_core.gp_cmm import gp_components, predict_grid
+from cmm_core.units import UM
 from pages import common as C
 
 C.page_start()
@@ -18,7 +19,6 @@ st.caption("A GP over the measured errors at the ball centres (thesis chapter 5)
            "kernel, isotropic or ARD.")
 ds, r = C.require_fit()
 s = st.session_state
-UM = 1e-3
 
 
 @st.cache_data(show_spinner=False, max_entries=16)
