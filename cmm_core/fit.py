@@ -330,11 +330,14 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
                 "): the data determine them only weakly and the misfit drives them. Trust "
                 "neither them nor the error map built from them; add placements or remove "
                 "those functions.")
-    return FitResult(status, msg, it, spec.to_string(explicit=True), plate, sigma_um, list(L.labels),
-                     list(L.units), list(L.groups), values, u, cov, d, obs.table, rms, chi2,
-                     int(dof), chi2 / max(dof, 1), float(bic), rank, rank_rtol, unident, combos,
-                     prob.n_obs, prob, state, C_run[C.shape[0]:], float(chi2_test),
-                     int(dof_test))
+    return FitResult(
+        status=status, message=msg, iterations=it, spec=spec.to_string(explicit=True),
+        plate=plate, sigma_um=sigma_um, labels=list(L.labels), units=list(L.units),
+        groups=list(L.groups), values=values, u=u, covariance=cov, residuals_um=d,
+        table=obs.table, rms_um=rms, chi2=chi2, dof=int(dof), chi2_dof=chi2 / max(dof, 1),
+        bic=float(bic), rank=rank, rank_rtol=rank_rtol, unidentifiable=unident,
+        null_combinations=combos, n_obs=prob.n_obs, problem=prob, state=state,
+        design_null=C_run[C.shape[0]:], chi2_test=float(chi2_test), dof_test=int(dof_test))
 
 
 def held_constraints(labels, design_null, prob: Problem):
