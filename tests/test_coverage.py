@@ -62,6 +62,7 @@ def test_residual_u_matches_the_spread_of_residuals_over_noise_draws():
     assert (residual_u(r) < r.sigma_um).all()
 
 
+@pytest.mark.slow
 def test_predicted_error_covers_the_true_error_95_percent():
     """error_at's u against the true error at 50 random points of the measured region,
     200 data sets with random true errors (plate fixed to an exact certificate)."""

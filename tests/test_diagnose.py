@@ -146,6 +146,7 @@ def test_every_kinematic_error_at_twice_its_detection_limit_is_named_first(name,
         assert 0.75 <= fit(sim.dataset, parse_spec(base).with_token(name)).chi2_dof <= 1.3
 
 
+@pytest.mark.slow
 def test_detection_limit_is_calibrated(clean_design):
     """At exactly the reported detection limit an effect is found with 80 % probability
     (its definition). 60 simulations (sxy, syz; 30 seeds each): expect 48 detections,

@@ -247,6 +247,7 @@ def _fuzz_inputs():
     return out
 
 
+@pytest.mark.slow
 def test_fuzzed_inputs_are_refused_in_one_line_naming_the_file(tmp):
     """Over 500 bad inputs across every entry point: 0 tracebacks, 0 silent acceptances,
     every refusal one line naming the file."""

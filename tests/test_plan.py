@@ -124,6 +124,7 @@ def test_noncentrality_gives_the_stated_power():
     assert p_big == pytest.approx(p_inf, abs=1e-3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("effect", ["plate_sag", "dzz:3"])
 def test_effect_detected_at_its_limit_80_percent(plans, six, effect):
     """Monte Carlo: an effect at its predicted detection limit, hidden in simulated data of
