@@ -13,7 +13,10 @@ click, beside the peer in the same run: ``cmm_core.diagnose.diagnose`` called di
 with the page's arguments (the app's overhead is the ratio). Then the core diagnosis alone
 on simulated cases of the honesty bench's kind (``tests/scenarios.py``).
 
-    .venv/bin/python bench/app.py [--runs N] [--diagnosis]
+``--add-effect`` times "Add this effect" (the refit and the new diagnosis) beside the core
+calls, and a new session's first render with cold and warm caches.
+
+    .venv/bin/python bench/app.py [--runs N] [--diagnosis | --add-effect]
 """
 
 from __future__ import annotations
@@ -129,6 +132,75 @@ def bench_diagnosis(runs: int = 5) -> list:
     return rows
 
 
+def bench_add_effect(runs: int = 3) -> list:
+    """"Add this effect" on the Diagnose page: the click's rerun (refit with the effect and
+    a new diagnosis, fits cached as the app caches them) timed on the thesis data and on
+    the simulated sample, undone between clicks; peer: the core refit and diagnosis called
+    directly. ``(case, effect, median s app, median s core)``."""
+    from cmm_core.diagnose import diagnose
+    from cmm_core.fit import fit
+
+    rows = []
+    for case in ("thesis", "simulated sample"):
+        at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=300)
+        at.run()
+        common = sys.modules["pages.common"]
+        if case != "thesis":
+            files = _simulated_files()
+            at.session_state["ds_files"] = files
+            at.session_state["ds_key"] = common.files_key(files)
+        at.switch_page("pages/diagnose.py")
+        at.run()
+        at.button(key="run_diagnosis").click()
+        at.run()
+        adds = [b for b in at.button if str(b.key).startswith("add_")]
+        if not adds:
+            continue
+        key = adds[0].key
+        times = []
+        for _ in range(runs + 1):  # the first click warms the refit's imports
+            common._cached_core_diagnosis.clear()
+            at.button(key=key).click()
+            t0 = time.perf_counter()
+            at.run()
+            times.append(time.perf_counter() - t0)
+            if at.exception:
+                raise RuntimeError(f"{case}: {at.exception[0].message}")
+            at.button(key="undo_step").click()
+            at.run()
+        ds = common._load(at.session_state["ds_key"], at.session_state["ds_files"])
+        _, spec, order, plate, sigma, _, _, excl = _fit_args(at)
+        new = f"{spec},{key[4:]}"
+        core = []
+        for _ in range(runs):
+            t0 = time.perf_counter()
+            fit(ds, new, order=order, plate=None if plate == "auto" else plate,
+                sigma_um=sigma, exclude=excl)
+            diagnose(ds, baseline=new, order=order, plate=None if plate == "auto" else plate,
+                     sigma_um=sigma, exclude=excl)
+            core.append(time.perf_counter() - t0)
+        rows.append((case, key[4:], statistics.median(times[1:]), statistics.median(core)))
+    return rows
+
+
+def bench_first_render(runs: int = 3) -> tuple:
+    """A new session's first render (app.py with the Data page and the automatic fit):
+    cold (every cache cleared, as after starting the server) and warm (another session of
+    a running server). ``(median s cold, median s warm)``."""
+    cold, warm = [], []
+    for _ in range(runs):
+        st.cache_data.clear()
+        st.cache_resource.clear()
+        for out in (cold, warm):
+            at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=300)
+            t0 = time.perf_counter()
+            at.run()
+            out.append(time.perf_counter() - t0)
+            if at.exception:
+                raise RuntimeError(at.exception[0].message)
+    return statistics.median(cold), statistics.median(warm)
+
+
 def _fit_args(at):
     s = at.session_state
     return (s["ds_key"], s["spec"], s["order"], s["plate"], s["sigma_um"], None, None,
@@ -163,7 +235,19 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=7)
     ap.add_argument("--diagnosis", action="store_true",
                     help='time the "Run the diagnosis" button instead')
+    ap.add_argument("--add-effect", action="store_true",
+                    help='time "Add this effect" and a new session\'s first render instead')
     args = ap.parse_args(argv)
+    if args.add_effect:
+        print(f"{'Add this effect':34s} {'app s':>7s} {'core s':>7s} {'app/core':>8s}")
+        for case, effect, app_s, core_s in bench_add_effect(args.runs):
+            print(f"{case + ': ' + effect:34s} {app_s:7.3f} {core_s:7.3f} "
+                  f"{app_s / core_s:8.2f}")
+        cold, warm = bench_first_render(args.runs)
+        print(f"{'first render, cold caches':34s} {cold:7.3f}")
+        print(f"{'first render, warm (new session)':34s} {warm:7.3f} {'':7s} "
+              f"{warm / cold:8.2f}")
+        return 0
     if args.diagnosis:
         head = f"{'Run the diagnosis':34s} {'first s':>7s} {'app s':>7s} {'core s':>7s}"
         print(f"{head} {'app/core':>8s}  verdict")
