@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .effects import MAX_ORDER, parse_spec
-from .io import DataError, _cut, _typo, read_json
+from .io import DataError, _cut, read_json, refuse_unknown_keys
 
 FORMAT = "cmm-error-lab-analysis"
 """Value of the ``format`` key of an analysis record file."""
@@ -132,13 +132,7 @@ _DATA_KEYS = ("name", "measurements", "setup", "certificate")
 _FILE_KEYS = ("name", "path", "content")
 
 
-def _unknown(obj: dict, known, name, where=""):
-    for k in obj:
-        if k not in known:
-            guess = _typo(str(k), known, cutoff=0.6)
-            hint = f"did you mean {guess!r}? " if guess else ""
-            raise DataError(f"unknown key {_cut(k)}; {hint}expected one of "
-                            f"{', '.join(known)}.", file=name, column=f"{where}{k}")
+_unknown = refuse_unknown_keys  # one validator (io_errors)
 
 
 def _file(obj, name, where, base) -> DataFile:

@@ -57,6 +57,7 @@ from .io_errors import (
     _fold,
     _Problems,
     _typo,
+    refuse_unknown_keys,
 )
 from .io_measurements import (
     LONG_COLUMNS,
@@ -113,7 +114,7 @@ __all__ = [
     # other modules use them through it (compensate, export, task, analysis, plan_file and
     # simulate_config read their own files with _read_csv, _numeric, _cut, _typo,
     # _check_celsius, ...): every `from cmm_core.io import _x` keeps working.
-    "_Problems", "_cut", "_fold", "_typo", "_check_keys",
+    "_Problems", "_cut", "_fold", "_typo", "_check_keys", "refuse_unknown_keys",
     "_NAN_WORDS", "_DELIM_NAMES", "_DECIMAL_COMMA", "_COLUMNS_HINT", "_read_bytes",
     "_delimiter", "_too_many_fields", "_read_csv", "_file_rows", "_numeric", "_names",
     "_require", "_require_rows",

@@ -159,6 +159,19 @@ def _typo(key: str, known, cutoff: float = 0.85):
     return low[close[0]] if close else None
 
 
+def refuse_unknown_keys(obj: dict, known, name, where: str = "") -> None:
+    """Refuse any key of ``obj`` not in ``known``: a DataError naming the file and the key
+    (``where`` + key), the known key it most likely misspells, and the known keys. The one
+    validator of JSON inputs (analysis record, plan, task, simulation config): an unknown
+    key would silently leave its default."""
+    for k in obj:
+        if k not in known:
+            guess = _typo(str(k), known, cutoff=0.6)
+            hint = f"did you mean {guess!r}? " if guess else ""
+            raise DataError(f"unknown key {_cut(k)}; {hint}expected one of "
+                            f"{', '.join(map(str, known))}.", file=name, column=f"{where}{k}")
+
+
 def _check_keys(obj: dict, known, name, where: str):
     for k in obj:
         guess = _typo(str(k), known)

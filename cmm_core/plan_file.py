@@ -16,7 +16,7 @@ import numpy as np
 
 from .effects import MAX_ORDER, parse_spec
 from .fit import PLATE_MODES
-from .io import DataError, _cut, read_json, read_setup
+from .io import DataError, _cut, read_json, read_setup, refuse_unknown_keys
 from .plan import Plan, _build, evaluate
 
 TOP_KEYS = ("name", "setup", "plate", "model", "noise_um", "measurement", "strategies",
@@ -70,10 +70,7 @@ def _section(raw, key, defaults, name, prefix=""):
     val = raw.get(key, {})
     if not isinstance(val, dict):
         raise _bad(name, prefix + key, f"expected a JSON object, found {_cut(val)}.")
-    extra = sorted(set(map(str, val)) - set(defaults))
-    if extra:
-        raise _bad(name, f"{prefix}{key}.{extra[0]}", f"unknown key {extra[0]!r}; expected "
-                   f"some of {sorted(defaults)}.")
+    refuse_unknown_keys(val, sorted(defaults), name, f"{prefix}{key}.")
     return {**copy.deepcopy(defaults), **val}
 
 
@@ -174,10 +171,7 @@ def read_plan(source, *, name: str | None = None, base_dir=None) -> PlanFile:
     if not isinstance(raw, dict):
         raise _bad(name, None, f"expected a JSON object with some of {list(TOP_KEYS)}, "
                    f"found {type(raw).__name__}.")
-    extra = sorted(set(map(str, raw)) - set(TOP_KEYS))
-    if extra:
-        raise _bad(name, extra[0], f"unknown key {extra[0]!r}; expected some of "
-                   f"{list(TOP_KEYS)}.")
+    refuse_unknown_keys(raw, TOP_KEYS, name)
     setup_raw, setup = _plan_setup(raw, name, base_dir)
     plate = _plan_plate(raw, name)
     model = _plan_model(raw, name)
@@ -203,10 +197,7 @@ def read_plan(source, *, name: str | None = None, base_dir=None) -> PlanFile:
         if not isinstance(st, dict):
             raise _bad(name, where, f"expected an object with some of {list(STRATEGY_KEYS)}, "
                        f"found {_cut(st)}.")
-        extra = sorted(set(map(str, st)) - set(STRATEGY_KEYS))
-        if extra:
-            raise _bad(name, f"{where}.{extra[0]}", f"unknown key {extra[0]!r}; expected "
-                       f"some of {list(STRATEGY_KEYS)}.")
+        refuse_unknown_keys(st, STRATEGY_KEYS, name, f"{where}.")
         units = units_of(st.get("placements", list(everything)), setup, everything,
                          name, f"{where}.placements")
         m = _check_measurement(_section(st, "measurement", meas, name, f"{where}."), name,
@@ -261,10 +252,7 @@ def read_design(section: dict, base: Plan, name: str) -> dict:
     """Check a plan file's ``design`` section; returns keyword arguments of :func:`design`.
     """
     known = ("pool", "target", "criterion", "name", "random_plans", "restarts", "seed")
-    extra = sorted(set(map(str, section)) - set(known))
-    if extra:
-        raise DataError(f"unknown key {extra[0]!r}; expected some of {list(known)}.",
-                        file=name, column=f"design.{extra[0]}")
+    refuse_unknown_keys(section, known, name, "design.")
     setup = read_setup(base.setup, name=name)
     defaults = {p: (pl.probe or next(iter(setup.probes)),) for p, pl in
                 setup.positions.items()}

@@ -15,7 +15,7 @@ import numpy as np
 
 from .blocks import BY_TOKEN
 from .effects import MAX_ORDER
-from .io import DataError, _check_celsius, _cut
+from .io import DataError, _check_celsius, _cut, refuse_unknown_keys
 
 DEFAULT_CONFIG = {
     "seed": 0,
@@ -54,7 +54,7 @@ def _check_config(cfg, name="simulation config"):
     def number(*args, **kw):
         return _number(bad, *args, **kw)
 
-    _check_keys(cfg, bad)
+    _check_keys(cfg, bad, name)
     _check_run(cfg, bad, number)
     _check_plate_config(cfg, bad, number)
     _check_kinematic_config(cfg, bad, number)
@@ -64,25 +64,18 @@ def _check_config(cfg, name="simulation config"):
                 number(f"effects.{token}.{k}", body[k], lo, hi)
 
 
-def _check_keys(cfg, bad):
+def _check_keys(cfg, bad, name):
     """The configuration's shape: known keys and sections, known effects and their keys."""
     if not isinstance(cfg, dict):
         raise bad(None, f"expected a JSON object with some of {sorted(DEFAULT_CONFIG)}, "
                   f"found {type(cfg).__name__} {_cut(cfg)}.")
-    unknown = set(cfg) - set(DEFAULT_CONFIG)
-    if unknown:
-        raise bad(str(sorted(unknown)[0]), f"unknown key(s) {sorted(map(str, unknown))}; "
-                  f"expected some of {sorted(DEFAULT_CONFIG)}.")
+    refuse_unknown_keys(cfg, sorted(DEFAULT_CONFIG), name)
     for sect in ("plate", "kinematic", "effects"):
         if sect in cfg and not isinstance(cfg[sect], dict):
             raise bad(sect, f"expected a JSON object for {sect!r}, found "
                       f"{type(cfg[sect]).__name__} {_cut(cfg[sect])}.")
     for sect in ("plate", "kinematic"):
-        extra = set(cfg.get(sect) or {}) - set(DEFAULT_CONFIG[sect])
-        if extra:
-            raise bad(f"{sect}.{sorted(map(str, extra))[0]}", f"unknown key(s) "
-                      f"{sorted(map(str, extra))} in '{sect}'; expected some of "
-                      f"{sorted(DEFAULT_CONFIG[sect])}.")
+        refuse_unknown_keys(cfg.get(sect) or {}, sorted(DEFAULT_CONFIG[sect]), name, f"{sect}.")
     for key, body in (cfg.get("effects") or {}).items():
         if key not in _EFFECT_KEYS:
             raise bad(f"effects.{key}", f"unknown effect {_cut(key)}; expected one of "

@@ -36,7 +36,7 @@ import numpy as np
 from . import kinematics as kin
 from ._blas import single_blas_thread
 from .gum import coverage_intervals
-from .io import DataError, _cut, read_json
+from .io import DataError, _cut, read_json, refuse_unknown_keys
 
 TASKS = ("distance", "circle", "plane")
 TASK_KEYS = ("task", "points", "probing_sigma_um", "temperature", "scale_u_ppm",
@@ -108,10 +108,7 @@ def read_task(source, *, name=None) -> Task:
     if not isinstance(raw, dict):
         raise DataError(f"expected a JSON object with {list(TASK_KEYS)}, found "
                         f"{type(raw).__name__}.", file=name)
-    extra = sorted(set(map(str, raw)) - set(TASK_KEYS))
-    if extra:
-        raise DataError(f"unknown key {extra[0]!r}; expected some of {list(TASK_KEYS)}.",
-                        file=name, column=extra[0])
+    refuse_unknown_keys(raw, TASK_KEYS, name)
     kind = raw.get("task")
     if kind not in TASKS:
         raise DataError(f"expected one of {list(TASKS)}, found {_cut(kind)}.", file=name,

@@ -262,7 +262,14 @@ def test_dask_study_on_two_local_workers_equals_the_serial_loop(six):
     for a, b in zip(recs, serial, strict=True):
         assert a.keys() == b.keys()
         for k in a:
-            assert np.all(np.asarray(a[k], dtype=object) == np.asarray(b[k], dtype=object)), k
+            x, y = np.asarray(a[k]), np.asarray(b[k])
+            if x.dtype.kind in "fc":
+                # the same seeds and fits; two worker threads share one process-wide BLAS
+                # thread limit, so summation order (not results) may differ: 1e-9 relative
+                np.testing.assert_allclose(x, y, rtol=1e-9, atol=0, err_msg=k)
+            else:
+                assert np.all(np.asarray(a[k], dtype=object) ==
+                              np.asarray(b[k], dtype=object)), k
     s = summarise([six], tasks, recs).to_dict()["plans"][0]
     assert s["trials"] == 2 and s["max_relative_difference"] < 1e-3
     assert s["detection"]["plate_sag"]["trials"] == 2
