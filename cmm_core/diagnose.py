@@ -64,6 +64,7 @@ from .scoring import (
     scan_period,
     score,
 )
+from .units import label as unit_label
 from .verdict import (
     OUTSIDE,
     _checked_verdict,
@@ -159,7 +160,7 @@ class Candidate:
 
     def detectable_text(self) -> str:
         """``dxz[1] > 1.9 µm, dxz[2] > 2.3 µm`` (the first few parameters)."""
-        items = [f"{k} > {v:.3g} {u.replace('um', 'µm').replace('urad', 'µrad')}"
+        items = [f"{k} > {v:.3g} {unit_label(u)}"
                  for k, (u, v) in list(self.detectable.items())[:4]]
         more = len(self.detectable) - 4
         return ", ".join(items) + (f" (+{more} more)" if more > 0 else "")

@@ -34,6 +34,7 @@ from .geometry import plate_effect_basis, rigid_fit
 from .observations import Observations, approach_directions, select
 from .solver import Normal, describe_null
 from .units import UM
+from .units import label as unit_label
 
 __all__ = ["Observations", "Problem", "FitResult", "select", "fit", "weighted_residual",
            "augmented_state", "approach_directions", "rigid_fit", "plate_effect_basis",
@@ -326,7 +327,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     if wild:
         lab, val, unit = max(wild, key=lambda w: abs(w[1]))
         msg += (f" {len(wild)} kinematic parameter(s) reach physically implausible sizes "
-                f"(largest {lab} = {val:.3g} {unit.replace('um', 'µm').replace('urad', 'µrad')}"
+                f"(largest {lab} = {val:.3g} {unit_label(unit)}"
                 "): the data determine them only weakly and the misfit drives them. Trust "
                 "neither them nor the error map built from them; add placements or remove "
                 "those functions.")

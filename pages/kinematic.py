@@ -6,6 +6,7 @@ import streamlit as st
 
 from cmm_core.effects import GROUPS, PHYSICAL, parse_spec
 from cmm_core.kinematics import ERROR_NAMES
+from cmm_core.units import label as unit_label
 from pages import common as C
 
 C.page_start()
@@ -157,7 +158,7 @@ with tabs[2], C.guarded("Parameter table"):
                                      if b not in ("rotation", "translation")],
                             )
     view = pf[pf["block"].isin(blocks)].assign(unit=lambda d: d["unit"].map(
-        lambda u: u.replace("urad", "µrad").replace("um", "µm")))
+        unit_label))
     C.dataframe(view, hide_index=True, key="param_table",
                  column_config={"value": st.column_config.NumberColumn(format="%.4f"),
                                 "u": st.column_config.NumberColumn("u (k=1)", format="%.4f"),

@@ -14,6 +14,7 @@ import pandas as pd
 import plotly.graph_objects as go
 import streamlit as st
 
+from cmm_core.units import label as unit_label
 from pages import common as C
 
 PLANS_DIR = Path(__file__).resolve().parents[1] / "sample_data" / "plans"
@@ -275,7 +276,7 @@ def task_section() -> None:
              "U = 2u, law of propagation (µm)": 2 * v["u_lpu_um"],
              "95 % interval": "[{0:.{2}f}, {1:.{2}f}] {3}".format(
                  *v["interval"], 5 if v["unit"] == "mm" else 3,
-                 v["unit"].replace("um", "µm")),
+                 unit_label(v["unit"])),
              **{f"u {k} (µm)": c for k, c in v["contributions_um"].items()}}
             for q, v in res["results"].items()]
     st.dataframe(pd.DataFrame(rows), hide_index=True)
