@@ -15,7 +15,7 @@ determine, and those that they do not are named in the result.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -31,6 +31,7 @@ from .dataset import Dataset
 from .effects import ModelSpec, parse_spec
 from .fit_result import CHI2_ALPHA, FitResult
 from .geometry import plate_effect_basis, rigid_fit
+from .instruments import Instruments
 from .observations import Observations, approach_directions, select
 from .solver import Normal, describe_null
 from .units import UM
@@ -84,6 +85,7 @@ class Problem:
             for name, labels, unit in b.columns(obs):
                 L.add(name, labels, unit)
         self.layout = L
+        self.instruments = Instruments(self)  # laser and step-gauge rows (their own module)
         self._kinematic = next(b for b in self.blocks if isinstance(b, Kinematic))
 
     def block(self, cls):
@@ -184,6 +186,7 @@ class Problem:
             G = b.constraints()
             if G is None:
                 continue
+            G = self.instruments.plate_gauge(b, G)
             name = b.columns(self.obs)[0][0]
             C = np.zeros((G.shape[0], L.n))
             C[:, L.blocks[name]] = G
@@ -206,7 +209,7 @@ class Problem:
 def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, order: int = 2,
         plate: str | None = None, sigma_um: float = 0.5, positions=None, probes=None,
         exclude=(), rank_rtol: float = 1e-4, max_iter: int = 500, tol: float = 1e-9,
-        certificate_test: bool = True, nominal=None) -> FitResult:
+        certificate_test: bool = True, nominal=None, instruments=None) -> FitResult:
     """Fit a model to ball-plate measurements by Gauss-Newton (thesis §4.5.1).
 
     Parameters
@@ -234,6 +237,8 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     nominal : callable, optional
         ``nominal(problem)``: the problem's normal equations at its initial state when the
         caller has them (``scoring.ScoreCache.nominal``), else None.
+    instruments : list of LaserRun or StepGauge, optional
+        Fitted with the plate (``instruments`` eq. 1-2, docs/instruments.md); default: data's.
 
     Returns
     -------
@@ -246,6 +251,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
         spec = parse_spec(spec, default_order=order)
     obs = data if isinstance(data, Observations) else select(
         data, positions=positions, probes=probes, exclude=exclude)
+    obs = obs if instruments is None else replace(obs, instruments=tuple(instruments))
     if plate is None:
         plate = "fixed" if obs.has_certificate else "free"
     if plate not in PLATE_MODES:
@@ -391,7 +397,7 @@ def weighted_residual(prob: Problem, state, sigma_um: float, want_jac: bool):
     """Residuals (µm, (n, 3)), the weighted residual vector and its Jacobian.
 
     Observation rows are divided by σ; with a plate prior, rows ``(c - c_cert) / u_cert``
-    are appended so the certificate enters weighted by its uncertainty.
+    follow (the certificate weighted by its uncertainty), then the instruments' rows.
     """
     d, J = prob.residual(state, want_jac)
     r = d.ravel() / sigma_um
@@ -402,6 +408,7 @@ def weighted_residual(prob: Problem, state, sigma_um: float, want_jac: bool):
         r = np.concatenate([r, rp])
         if J is not None:
             J = sp.vstack([J, Jp]).tocsr()
+    r, J = prob.instruments.append(r, J, state, prob.layout.n)  # laser, step gauge rows
     return d, r, J
 
 

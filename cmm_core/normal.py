@@ -43,11 +43,11 @@ class NormalEquations(NamedTuple):
     d : ndarray (n, 3)
         Residuals (µm), in the observations' order.
     cost : float
-        ``r·r`` of the weighted residual (plate-prior rows included).
+        ``r·r`` of the weighted residual (plate-prior and instrument rows included).
     N, g : ndarray (p, p), (p,)
         ``JᵀJ`` and ``Jᵀr``.
     rows : int
-        Number of weighted residual rows (``3 n`` plus the prior rows).
+        Number of weighted residual rows (``3 n`` plus the prior and instrument rows).
     """
 
     d: np.ndarray
@@ -133,7 +133,8 @@ def accumulate(prob, state, sigma_um: float, rows: int = ROWS) -> NormalEquation
     """Weighted normal equations of ``prob`` at ``state`` (``fit.Problem.normal_equations``).
 
     Residual rows are divided by σ; with a plate prior its rows ``(c - c_cert)/u`` are
-    added as in ``fit.weighted_residual``.
+    added as in ``fit.weighted_residual``, and so are the instruments' weighted rows
+    (laser runs, step gauges: ``instruments``), on the kinematic columns only.
     """
     n, p = prob.n_obs, prob.layout.n
     N, g = np.zeros((p, p)), np.zeros(p)
@@ -168,7 +169,13 @@ def accumulate(prob, state, sigma_um: float, rows: int = ROWS) -> NormalEquation
         N += Jp.T @ Jp
         g += Jp.T @ rp
         cost += float(rp @ rp)
-    return NormalEquations(d, cost, N, g, 3 * n + (0 if rp is None else rp.size))
+    ri, Ji = prob.instruments.rows(state, True)
+    if ri.size:
+        k = prob.instruments.cols
+        N[k, k] += Ji.T @ Ji
+        g[k] += Ji.T @ ri
+        cost += float(ri @ ri)
+    return NormalEquations(d, cost, N, g, 3 * n + (0 if rp is None else rp.size) + ri.size)
 
 
 def cost_of(prob, state, sigma_um: float):
@@ -179,4 +186,5 @@ def cost_of(prob, state, sigma_um: float):
     if prob.plate == "prior":
         rp, _ = prob.block(Plate).prior_rows(state, False)
         cost += float(rp @ rp)
-    return d, cost
+    ri = prob.instruments.rows(state, False)[0]
+    return d, cost + float(ri @ ri)

@@ -60,6 +60,10 @@ class Observations:
     layout : str
         Machine layout from the setup's ``machine.layout`` (``kinematics.LAYOUTS``): the
         kinematic chain the fit models.
+    instruments : tuple
+        Laser runs and step gauges fitted with the plate (``instruments``; ``fit``'s
+        ``instruments=``). Kept here so that every model fitted or scored on these
+        observations (the diagnosis's candidates and refits) has their rows too.
     """
 
     table: pd.DataFrame
@@ -83,6 +87,7 @@ class Observations:
     has_certificate: bool
     approach: np.ndarray
     layout: str = DEFAULT_LAYOUT
+    instruments: tuple = ()
 
 
 def setup_layout(setup) -> str:
