@@ -122,13 +122,13 @@ def _detection_plot(evals: list) -> None:
         fig.add_bar(name=e["name"], x=pick,
                     y=[(lim.get(k) or {}).get("size") for k in pick],
                     text=[_fmt((lim.get(k) or {}).get("size")) + " "
-                          + (lim.get(k) or {}).get("unit", "") for k in pick])
+                          + unit_label((lim.get(k) or {}).get("unit", "")) for k in pick])
     fig.update_layout(barmode="group", yaxis_type="log", height=380,
                       yaxis_title="detection limit (effect unit, log)",
                       margin={"t": 30})
     st.plotly_chart(fig, width="stretch")
     rows = [{"strategy": e["name"], "effect": k, "expected": v["expected"],
-             "detection limit": v["limit"], "unit": v["unit"],
+             "detection limit": v["limit"], "unit": unit_label(v["unit"]),
              "seen": "yes" if v["detectable"] else "no"}
             for e in evals for k, v in e.get("expected_effects", {}).items()]
     if rows:
@@ -221,7 +221,7 @@ def _check_section(text: str, evals: list) -> None:
                          f"{p['max_relative_difference']:.1e}; RMS of normalised coefficient "
                          f"errors {p['z_rms']:.2f} (1 when the uncertainties hold).")
             if p["detection"]:
-                st.dataframe(pd.DataFrame([{"effect": k, "limit": v["size"], "unit": v["unit"],
+                st.dataframe(pd.DataFrame([{"effect": k, "limit": v["size"], "unit": unit_label(v["unit"]),
                                             "detected": v["rate"], "±SE": v["se"]}
                                            for k, v in p["detection"].items()]),
                              hide_index=True)
@@ -271,7 +271,7 @@ def task_section() -> None:
     res = C.safe(task_result, model_json, text, int(trials), what="Task")
     if res is None:
         return
-    rows = [{"quantity": q, "value": v["value"], "unit": v["unit"],
+    rows = [{"quantity": q, "value": v["value"], "unit": unit_label(v["unit"]),
              "U = 2u, Monte Carlo (µm)": 2 * v["u_mc_um"],
              "U = 2u, law of propagation (µm)": 2 * v["u_lpu_um"],
              "95 % interval": "[{0:.{2}f}, {1:.{2}f}] {3}".format(
