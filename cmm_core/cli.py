@@ -51,6 +51,35 @@ _PLATE_HELP = ("plate geometry: 'fixed' to the certificate, the certificate as a
                "certificate, free without")
 
 
+_LASER_HELP = ("laser interferometer run CSV, machine axes: [run,]axis[,component],x_mm,y_mm,"
+               "z_mm,error_um,u_um[,offset_x_mm,offset_y_mm,offset_z_mm]: the indicated "
+               "point (mm), the error reading, indicated minus true, relative to the run's "
+               "zero (µm) and its standard uncertainty (µm); component = axis is "
+               "positioning, another straightness. Fitted jointly with the plate; "
+               "repeatable (docs/instruments.md). Default: none")
+_STEP_GAUGE_HELP = ("step gauge / gauge block CSV, machine axes: [gauge,]x1_mm,y1_mm,z1_mm,"
+                    "x2_mm,y2_mm,z2_mm,measured_mm,certified_mm,u_um[,offset_x_mm,"
+                    "offset_y_mm,offset_z_mm][,temp_C,cte_per_K]: the indicated tip centres "
+                    "of the two probings and the lengths (mm), the standard uncertainty of "
+                    "measured minus certified length (µm). Fitted jointly with the plate; "
+                    "repeatable (docs/instruments.md). Default: none")
+
+
+def _instrument_args(p):
+    p.add_argument("--laser", action="append", default=[], metavar="RUN.csv",
+                   help=_LASER_HELP)
+    p.add_argument("--step-gauge", action="append", default=[], metavar="SG.csv",
+                   help=_STEP_GAUGE_HELP)
+
+
+def _instruments(args):
+    """The instrument files of ``--laser`` and ``--step-gauge``, read (DataError if bad)."""
+    from .io_instruments import read_laser, read_step_gauge
+
+    return ([read_laser(f) for f in args.laser]
+            + [read_step_gauge(f) for f in args.step_gauge])
+
+
 def _fit_args(p, *, baseline=False):
     p.add_argument("meas", nargs="+", metavar="MEAS.csv", help=_MEAS_HELP)
     p.add_argument("--setup", required=True, metavar="SETUP.json", help=_SETUP_HELP)
@@ -128,12 +157,14 @@ def _exclusions(data, keep):
 def cmd_fit(args):
     from .compensate import save_model
     from .fit import fit
+    from .instruments import summary
 
     data = _dataset(args)
+    instruments = _instruments(args)
     outliers, exclude = _exclusions(data, args.keep_outliers)
     sigma_um, sigma = _sigma(args, data, exclude, args.model)
     r = fit(data, args.model, order=args.order, plate=args.plate, sigma_um=sigma_um,
-            exclude=exclude)
+            exclude=exclude, instruments=instruments or None)
     if args.save:
         save_model(r, args.save)
     return {"model": r.spec, "status": r.status, "message": r.message,
@@ -146,6 +177,7 @@ def cmd_fit(args):
                            for lab, v, u, ui, un in zip(r.labels, r.values, r.u, r.u_inflated,
                                                         r.units, strict=True)},
             "unidentifiable": r.unidentifiable, "null_combinations": r.null_combinations,
+            "instruments": summary(r),
             "outliers": outliers, "excluded": [list(e) for e in exclude]}
 
 
@@ -153,8 +185,15 @@ def cmd_diagnose(args):
     from .diagnose import diagnose
 
     data = _dataset(args)
+    instruments = _instruments(args)
     outliers, exclude = _exclusions(data, args.keep_outliers)
     sigma_um, sigma = _sigma(args, data, exclude, args.baseline)
+    if instruments:  # they ride on the observations into every model the diagnosis fits
+        from dataclasses import replace
+
+        from .observations import select
+
+        data = replace(select(data, exclude=exclude), instruments=tuple(instruments))
     d = diagnose(data, args.baseline, order=args.order, plate=args.plate,
                  sigma_um=sigma_um, exclude=exclude)
     out = d.to_dict()
@@ -250,12 +289,14 @@ def build_parser():
     p.set_defaults(func=cmd_simulate)
     p = sub.add_parser("fit", help="fit the kinematic model")
     _fit_args(p)
+    _instrument_args(p)
     p.add_argument("--save", metavar="MODEL.json",
                    help="write the fitted model to this JSON file, for 'compensate' "
                         "(default: not saved)")
     p.set_defaults(func=cmd_fit)
     p = sub.add_parser("diagnose", help="rank the effects missing from a baseline model")
     _fit_args(p, baseline=True)
+    _instrument_args(p)
     p.set_defaults(func=cmd_diagnose)
     p = sub.add_parser("compensate", help="correct points with a saved model")
     p.add_argument("model", metavar="MODEL.json",

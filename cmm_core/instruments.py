@@ -225,6 +225,11 @@ class Instruments:
         """Whether any instrument measures a length (step gauge, positioning run)."""
         return any(it.sees_scale for it in self.items)
 
+    @property
+    def n_rows(self) -> int:
+        """Number of weighted rows the instruments add (the last rows of the fit's)."""
+        return sum(it.transform[0].shape[0] for it in self.items)
+
     def plate_gauge(self, block, G):
         """A self-calibrated plate's gauge constraints ``G`` (``Plate.constraints``: three
         translations, three rotations, then the isotropic scale) without the scale when an

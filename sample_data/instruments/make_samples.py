@@ -1,0 +1,37 @@
+"""Regenerate the example instrument files from the simulated sample's true machine.
+
+    python sample_data/instruments/make_samples.py
+
+The machine is ``sample_data/simulated`` (``config.json``, seed 42): the same truth as its
+measurements, so the files fit jointly with them.
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from cmm_core import instruments as ins
+from cmm_core.io_instruments import write_laser, write_step_gauge
+from cmm_core.simulate import simulate
+
+HERE = Path(__file__).resolve().parent
+SIM = HERE.parent / "simulated"
+
+sim = simulate(json.loads((SIM / "config.json").read_text()))
+xs = np.linspace(0.0, 1200.0, 25)
+pos = ins.simulate_laser(sim, "x", [0, 100, 50], xs, u_um=0.2, seed=1, run="x_pos_y100_z50")
+straight = ins.simulate_laser(sim, "x", [0, 100, 50], xs, component="y", u_um=0.3, seed=2,
+                              run="x_straight_y_y100_z50")
+laser = ins.LaserRun(
+    "laser_x.csv", np.arange(2, 2 + 2 * xs.size), np.repeat([0, 1], xs.size),
+    (pos.runs[0], straight.runs[0]), np.concatenate([pos.axis, straight.axis]),
+    np.concatenate([pos.component, straight.component]),
+    np.vstack([pos.r_mm, straight.r_mm]), np.vstack([pos.p_mm, straight.p_mm]),
+    np.concatenate([pos.error_um, straight.error_um]),
+    np.concatenate([pos.u_um, straight.u_um]))
+write_laser(laser, HERE / "laser_x.csv")
+sg = ins.simulate_step_gauge(sim, [100, 150, 100], [1100, 850, 400],
+                             np.arange(1, 12) * 100.0, offset_mm=(0, 0, -150), u_um=0.3,
+                             seed=3)
+write_step_gauge(sg, HERE / "step_gauge.csv")
