@@ -352,3 +352,17 @@ def test_cli_refuses_a_bad_instrument_file(tmp_path, capsys):
                "--laser", str(bad)])
     assert rc == 2
     assert "bad.csv, row 3, column 'axis'" in capsys.readouterr().err
+
+
+def test_cli_diagnose_counts_the_instrument_rows(capsys):
+    sim_dir = SAMPLE_DIR / "simulated"
+    args = ["diagnose", str(sim_dir / "measurements.csv"), "--setup",
+            str(sim_dir / "setup.json"), "--certificate", str(sim_dir / "certificate.csv")]
+    assert main(args) == 0
+    plain = json.loads(capsys.readouterr().out)
+    assert main(args + ["--laser", str(SAMPLES / "laser_x.csv"), "--step-gauge",
+                        str(SAMPLES / "step_gauge.csv")]) == 0
+    joint = json.loads(capsys.readouterr().out)
+    # 50 laser readings less 2 zeros and 1 slope, 11 lengths
+    assert joint["baseline"]["dof"] == plain["baseline"]["dof"] + 47 + 11
+    assert joint["verdict"] == plain["verdict"] == "plate_sag"  # the sample's hidden effect
