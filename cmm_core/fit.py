@@ -317,7 +317,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     u = np.array([np.nan if lab in names else ui for lab, ui in zip(L.labels, u, strict=True)])
     values = _report_values(prob, state)
     chi2 = float(cost)
-    dof = n_rows - rank
+    dof = n_rows - rank - _held_prior_rows(prob)
     bic = chi2 + rank * np.log(n_rows)
     rms = float(np.sqrt(np.mean(d**2)))
     chi2_test, dof_test = chi2, dof
@@ -380,7 +380,19 @@ def _chi2_with_certificate(prob: Problem, state, design_null, sigma_um, rank_rto
     ne = Normal(None, None, C, rank_rtol, normal=(N, g))
     s = ne.step()
     # |r + J s|² from the normal equations
-    return float(cost + 2 * g @ s + s @ N @ s), int(n_rows - ne.rank)
+    return float(cost + 2 * g @ s + s @ N @ s), int(n_rows - ne.rank - _held_prior_rows(pp))
+
+
+def _held_prior_rows(prob: Problem) -> int:
+    """Certificate-prior rows that are zero whatever the data: the plate's gauge
+    constraints (translations, rotations, scale) hold the plate's deviation from the
+    certificate at zero along those modes, so those prior rows carry no residual and no
+    degree of freedom (clean simulations: mean χ² equals dof only with them removed)."""
+    if prob.plate != "prior":
+        return 0
+    G = prob.block(Plate).constraints()
+    keep = np.isfinite(prob.obs.cert_u_um.ravel())
+    return int(np.linalg.matrix_rank(G[:, keep])) if keep.any() else 0
 
 
 def augmented_state(base: FitResult, prob: Problem) -> dict:
@@ -437,7 +449,7 @@ def _message(status, it, rms, chi2_dof, combos, chi2_p=1.0, dof=0, test_dof=None
         cert = ("" if abs(test_dof - chi2_dof) < 0.005 else
                 f" with the certificate's uncertainty counted (χ²/dof {test_dof:.2f})")
         msg += (f" It fails the χ² test{cert} (p = {chi2_p:.2g} at {dof} degrees of freedom):"
-                f" the scatter is {np.sqrt(test_dof):.2f} times the stated repeatability, so the "
+                f" the scatter is {np.sqrt(chi2_dof):.2f} times the stated repeatability, so the "
                 "model misses something or σ is understated (run the diagnosis), and "
                 "uncertainties based on σ alone are too small by that factor.")
     if combos:

@@ -144,9 +144,11 @@ class FitResult:
 
     @property
     def birge_ratio(self) -> float:
-        """sqrt(χ²/dof): how much larger the scatter is than the stated repeatability."""
-        chi2, dof = self._test()
-        return float(np.sqrt(chi2 / max(dof, 1)))
+        """sqrt(χ²/dof) of the fit itself: how much larger the scatter is than the stated
+        repeatability. It scales the σ-based uncertainties (``u_inflated``), which with the
+        certificate fixed leave the certificate's own uncertainty out, so the fit's own
+        χ² (certificate errors included) and not the test statistic is the honest factor."""
+        return float(np.sqrt(self.chi2_dof))
 
     def _test(self):
         """``(χ², dof)`` behind the χ² test (see ``chi2_test``)."""

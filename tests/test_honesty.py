@@ -165,10 +165,30 @@ def test_chi2_test_counts_the_certificate_uncertainty_with_the_certificate_fixed
     for seed in range(24):
         sim = sc.simulated("pitch150_5pos", 700 + seed, plate={"certificate_u_um": 0.25})
         r = fit(sim.dataset, "kinematic21")
-        assert r.plate == "fixed" and r.dof_test == r.dof + 7  # the prior's gauge rows
+        assert r.plate == "fixed" and r.dof_test == r.dof  # the prior's gauge rows are held
         excess_sigma.append(r.chi2 - r.dof)
         excess_test.append(r.chi2_test - r.dof_test)
     se = np.sqrt(2 * r.dof_test / 24)
     assert abs(np.mean(excess_test)) < 3 * se, (np.mean(excess_test), se)
     assert np.mean(excess_sigma) > 6 * se, (np.mean(excess_sigma), se)
-    assert r.birge_ratio == pytest.approx(np.sqrt(r.chi2_test / r.dof_test))
+    # the uncertainties are σ-only: they are inflated by the fit's own scatter
+    assert r.birge_ratio == pytest.approx(np.sqrt(r.chi2_dof))
+
+
+def test_prior_rows_along_the_plate_gauge_are_zero_and_not_counted_as_dof():
+    """With the certificate as a prior, the plate's gauge constraints (3 translations,
+    3 rotations, scale) hold its deviation from the certificate at zero along those modes:
+    the prior rows carry exactly nothing there (to 1e-9 of their size), so the degrees of
+    freedom are the rows minus the rank minus those 7, as ``fit`` counts them."""
+    from cmm_core.blocks.plate import Plate
+
+    sim = sc.simulated("pitch80_3pos", 5, plate={"certificate_u_um": 0.3})
+    r = fit(sim.dataset, "kinematic21", plate="prior")
+    plate = r.problem.block(Plate)
+    rp, _ = plate.prior_rows(r.state, False)
+    u = r.problem.obs.cert_u_um.ravel()
+    G = plate.constraints() * u  # G x = 0 with x = u * rp: the modes in the rows
+    Q, _ = np.linalg.qr(G.T)
+    assert np.abs(Q.T @ rp).max() < 1e-9 * np.abs(rp).max()
+    n_rows = 3 * r.n_obs + rp.size
+    assert r.dof == n_rows - r.rank - 7
