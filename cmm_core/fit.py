@@ -29,7 +29,7 @@ from .blocks.kinematic import Kinematic
 from .blocks.plate import Plate
 from .dataset import Dataset
 from .effects import ModelSpec, parse_spec
-from .fit_result import CHI2_ALPHA, FitResult
+from .fit_result import CHI2_ALPHA, IMPLAUSIBLE, FitResult, _message
 from .geometry import plate_effect_basis, rigid_fit
 from .instruments import Instruments
 from .observations import Observations, approach_directions, select
@@ -327,6 +327,9 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     msg = _message(status, it, rms, chi2 / max(dof, 1), combos,
                    float(stats.chi2.sf(chi2_test, max(dof_test, 1))), int(dof_test),
                    chi2_test / max(dof_test, 1))
+    # an effect the data cannot see adds nothing (or no parameter at all): say so
+    msg += "".join(f" {b.token} adds nothing determinable: {why}." for b in prob.blocks
+                   if b.token and (why := type(b).needs(obs)))
     kin_block = L.blocks["kinematic"]
     wild = [(L.labels[i], values[i], L.units[i]) for i in range(kin_block.start, kin_block.stop)
             if abs(values[i]) > IMPLAUSIBLE]
@@ -390,7 +393,8 @@ def _held_prior_rows(prob: Problem) -> int:
     degree of freedom (clean simulations: mean χ² equals dof only with them removed)."""
     if prob.plate != "prior":
         return 0
-    G = prob.block(Plate).constraints()
+    plate = prob.block(Plate)
+    G = prob.instruments.plate_gauge(plate, plate.constraints())  # as the fit applies it
     keep = np.isfinite(prob.obs.cert_u_um.ravel())
     return int(np.linalg.matrix_rank(G[:, keep])) if keep.any() else 0
 
@@ -431,31 +435,3 @@ def _report_values(prob, state):
         if hasattr(b, "report"):
             b.report(state, v)
     return v
-
-
-IMPLAUSIBLE = 1000.0
-"""Size (µm or µrad) beyond which a fitted kinematic coefficient is not a CMM error: a
-machine whose straightness or rotation errors reach a millimetre or a milliradian is
-broken, so such values mean the data barely determine that function."""
-
-
-def _message(status, it, rms, chi2_dof, combos, chi2_p=1.0, dof=0, test_dof=None):
-    head = {"converged": f"Converged in {it} iterations",
-            "max_iterations": f"Stopped after {it} iterations without converging",
-            "failed": "No step reduced the misfit"}[status]
-    msg = f"{head}: RMS {rms:.3f} µm, χ²/dof {chi2_dof:.2f}."
-    test_dof = chi2_dof if test_dof is None else test_dof
-    if chi2_p < CHI2_ALPHA:
-        cert = ("" if abs(test_dof - chi2_dof) < 0.005 else
-                f" with the certificate's uncertainty counted (χ²/dof {test_dof:.2f})")
-        msg += (f" It fails the χ² test{cert} (p = {chi2_p:.2g} at {dof} degrees of freedom):"
-                f" the scatter is {np.sqrt(chi2_dof):.2f} times the stated repeatability, so the "
-                "model misses something or σ is understated (run the diagnosis), and "
-                "uncertainties based on σ alone are too small by that factor.")
-    if combos:
-        msg += (f" The data cannot determine {len(combos)} parameter combination(s); they "
-                "are held at the minimum-norm solution and reported as unidentifiable: "
-                + "; ".join(combos[:4]) + (" ..." if len(combos) > 4 else "")
-                + ". Add positions, heights or probe offsets that exercise them, or remove "
-                "them from the model.")
-    return msg

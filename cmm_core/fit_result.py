@@ -196,3 +196,31 @@ class FitResult:
         out = t[cols].copy()
         out["rx_um"], out["ry_um"], out["rz_um"] = self.residuals_um.T
         return out
+
+
+IMPLAUSIBLE = 1000.0
+"""Size (µm or µrad) beyond which a fitted kinematic coefficient is not a CMM error: a
+machine whose straightness or rotation errors reach a millimetre or a milliradian is
+broken, so such values mean the data barely determine that function."""
+
+
+def _message(status, it, rms, chi2_dof, combos, chi2_p=1.0, dof=0, test_dof=None):
+    head = {"converged": f"Converged in {it} iterations",
+            "max_iterations": f"Stopped after {it} iterations without converging",
+            "failed": "No step reduced the misfit"}[status]
+    msg = f"{head}: RMS {rms:.3f} µm, χ²/dof {chi2_dof:.2f}."
+    test_dof = chi2_dof if test_dof is None else test_dof
+    if chi2_p < CHI2_ALPHA:
+        cert = ("" if abs(test_dof - chi2_dof) < 0.005 else
+                f" with the certificate's uncertainty counted (χ²/dof {test_dof:.2f})")
+        msg += (f" It fails the χ² test{cert} (p = {chi2_p:.2g} at {dof} degrees of freedom):"
+                f" the scatter is {np.sqrt(chi2_dof):.2f} times the stated repeatability, so the "
+                "model misses something or σ is understated (run the diagnosis), and "
+                "uncertainties based on σ alone are too small by that factor.")
+    if combos:
+        msg += (f" The data cannot determine {len(combos)} parameter combination(s); they "
+                "are held at the minimum-norm solution and reported as unidentifiable: "
+                + "; ".join(combos[:4]) + (" ..." if len(combos) > 4 else "")
+                + ". Add positions, heights or probe offsets that exercise them, or remove "
+                "them from the model.")
+    return msg
