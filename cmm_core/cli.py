@@ -1,4 +1,4 @@
-"""Command line (SPEC "Command line"): JSON to stdout or ``--json FILE``.
+"""Command line (docs/formats.md "Command line"): JSON to stdout or ``--json FILE``.
 
 Bad input exits with status 2 and one line on stderr naming the file, row and column.
 """
@@ -37,7 +37,7 @@ def _jsonable(o):
 
 
 _MEAS_HELP = ("measurement CSV file(s), coordinates in mm: one long-form file "
-              "(position,probe,ball,x_mm,y_mm,z_mm[,time_min,temp_C,repeat]) or one "
+              "(position,probe,ball,x_mm,y_mm,z_mm[,time_min,temp_C,repeat,temp_x_C,temp_y_C,temp_z_C]) or one "
               "thesis-form file per position (ball,x_mm,y_mm,z_mm, named after the position); "
               "see docs/formats.md")
 _SETUP_HELP = ("setup JSON: machine layout and range, each position's placement (mm) and "
@@ -272,7 +272,7 @@ def cmd_task(args):
 
 
 def build_parser():
-    """Argument parser with one sub-command per SPEC command."""
+    """Argument parser with one sub-command per command of docs/formats.md."""
     ap = argparse.ArgumentParser(prog="python -m cmm_core", description="CMM error lab")
     ap.add_argument("--json", metavar="FILE",
                     help="write the JSON result to FILE instead of stdout (default: stdout)")

@@ -1,4 +1,4 @@
-"""The effect catalogue and the model-spec language (SPEC "the effect catalogue").
+"""The effect catalogue and the model-spec language (docs/formats.md "Model specs").
 
 A model is a comma-separated effect list applied left to right: names of the 21 errors,
 groups (``kinematic21``, ``translational``, ``rotational``, ``squareness``), ``name:order``
@@ -146,9 +146,9 @@ class ModelSpec:
 
         By default orders are written relative to this model's own default order, so that
         a reader parsing with another default order (the app's order selector) re-orders
-        the model. ``explicit=True`` writes them relative to the SPEC's default order 2
+        the model. ``explicit=True`` writes them relative to the default order 2
         ("kinematic21" at order 3 becomes "kinematic21:3"): the form for reports, files
-        and the CLI, read back with the SPEC's default order.
+        and the CLI, read back with the default order.
         """
         o_ref = self.default_order if not explicit else 2
         o_mod = self.default_order

@@ -216,7 +216,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     ----------
     data : Dataset or Observations
     spec : str or ModelSpec
-        Model spec (SPEC grammar), e.g. ``"kinematic21"``, ``"kinematic21,plate_sag"``.
+        Model spec (docs/formats.md "Model specs"), e.g. ``"kinematic21"``, ``"kinematic21,plate_sag"``.
     order : int
         Default Chebyshev order (1-5).
     plate : {"fixed", "prior", "free"}, optional

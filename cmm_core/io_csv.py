@@ -32,7 +32,7 @@ _DECIMAL_COMMA = re.compile(r"^(\s*[+-]?\d*),(\d+(?:[eE][+-]?\d+)?\s*)$")
 
 _COLUMNS_HINT = ("Columns: position,probe,ball,x_mm,y_mm,z_mm (long form) or "
                  "ball,x_mm,y_mm,z_mm (one file per position), optional time_min, temp_C, "
-                 "repeat; lengths in mm, time in minutes, temperature in °C.")
+                 "repeat, temp_x_C, temp_y_C, temp_z_C (scale temperatures); lengths in mm, time in minutes, temperature in °C.")
 
 
 def _read_bytes(source, name):

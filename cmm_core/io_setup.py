@@ -79,7 +79,7 @@ class Placement:
 
 @dataclass(frozen=True)
 class Setup:
-    """Machine, plate placements and probe offsets (SPEC setup JSON).
+    """Machine, plate placements and probe offsets (the setup JSON of docs/formats.md).
 
     Attributes
     ----------

@@ -105,7 +105,7 @@ def approach_directions(ram_mm, time_min=None, *, min_move_mm=0.5):
     ram_mm : ndarray (n, 3)
         Scale readings (tip centre minus probe offset) in file order, mm.
     time_min : ndarray (n,), optional
-        Measurement times; without them the file order is the measurement order (SPEC).
+        Measurement times; without them the file order is the measurement order (docs/formats.md).
     min_move_mm : float
         Smaller steps (noise, a ball repeated in place) leave an axis's state unchanged.
 

@@ -360,8 +360,8 @@ def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None
         section("MPE check (0.6 µm + L/600, ISO 14253-1 decision rule)", chi2_html(r),
                 fig_html(fig_mpe(mpe)), _table_html(counts),
                 "<p class='note'>Conforms when |E| + U ≤ MPE, does not conform when |E| − U "
-                "> MPE, otherwise inconclusive; U (k = 2) as chosen on the Uncertainty page "
-                "(by default the test's: plate certificate and repeatability).</p>")
+                "> MPE, otherwise inconclusive; U (k = 2) from the record's MPE uncertainty source "
+                "(mpe_u_source; by default the test's: plate certificate and repeatability).</p>")
     if history:
         hist = pd.DataFrame(history)
         section("Diagnosis history", fig_html(fig_history(list(history))), _table_html(hist))
