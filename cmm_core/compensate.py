@@ -111,7 +111,10 @@ def model_to_dict(model: Model | FitResult) -> dict:
     m = model_from_result(model) if isinstance(model, FitResult) else model
     return {"format": "cmm-error-lab model 1", "spec": m.spec,
             "orders": [list(o) for o in m.terms.orders], "range_mm": list(m.terms.range_mm),
-            "periods": [list(o) for o in m.terms.periods], "layout": m.terms.layout,
+            "periods": [list(o) for o in m.terms.periods],
+            # the default layout is left out: model files of the moving bridge stay
+            # readable by releases before layouts existed
+            **({} if m.terms.layout == kin.DEFAULT_LAYOUT else {"layout": m.terms.layout}),
             "labels": m.terms.labels, "coef": m.coef.tolist(), "cov": m.cov.tolist(),
             "probes_mm": {k: list(map(float, v)) for k, v in m.probes_mm.items()},
             "undetermined": m.undetermined, "summary": m.summary,
