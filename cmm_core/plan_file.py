@@ -148,6 +148,11 @@ def _plan_model(raw, name):
     if not isinstance(exp, dict):
         raise _bad(name, "model.expected", f"expected an object effect: expected size (in "
                    f"the effect's unit), found {_cut(exp)}.")
+    for k in exp:  # an effect of the catalogue (a misspelt one would read "not detectable")
+        try:
+            parse_spec(f"{model['spec']},{k}", default_order=model["order"])
+        except ValueError as exc:
+            raise _bad(name, f"model.expected.{k}", str(exc)) from None
     model["expected"] = {str(k): _number(name, f"model.expected.{k}", v, 0, 1e6)
                          for k, v in exp.items()}
     return model

@@ -331,3 +331,17 @@ def test_bad_design_targets_refused_naming_the_file(tmp_path, capsys, target, ne
     assert main(["plan", str(path), "--no-detection"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "bad_design.json" in err and needle in err
+
+
+def test_a_misspelt_expected_effect_is_refused():
+    """``model.expected`` names catalogue effects: a typo would otherwise be reported as
+    an effect the plan cannot detect."""
+    import json
+
+    from cmm_core.io import DataError
+    from cmm_core.plan_file import read_plan
+
+    raw = json.loads(PLAN.read_text())
+    raw.setdefault("model", {})["expected"] = {"plate_sagg": 2}
+    with pytest.raises(DataError, match="model.expected.plate_sagg"):
+        read_plan(raw, base_dir=PLAN.parent)
