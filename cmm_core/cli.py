@@ -117,9 +117,10 @@ def _sigma_arg(text):
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"expected a repeatability in µm (e.g. 0.5) or 'auto', found {text[:40]!r}") from None
-    if not 0 < value < 1e3:
+    if not 1e-3 <= value < 1e3:
+        # below a nanometre no CMM repeats: a value in mm or m typed as µm
         raise argparse.ArgumentTypeError(
-            f"expected a repeatability in µm between 0 and 1000, found {value:g}")
+            f"expected a repeatability in µm from 0.001 to 1000, found {value:g}")
     return value
 
 
