@@ -100,6 +100,8 @@ def model_from_result(result: FitResult) -> Model:
                  result.kinematic_cov.copy(), probes,
                  any(lab in used for lab in result.unidentifiable),
                  {"rms_um": result.rms_um, "chi2_dof": result.chi2_dof, "n_obs": result.n_obs,
+                  "fails_chi2_test": bool(result.fails_chi2_test),
+                  "birge_ratio": float(result.birge_ratio),
                   "plate": result.plate, "sigma_um": result.sigma_um,
                   "region_mm": [np.min(obs.r_mm - obs.p_mm, axis=0).tolist(),
                                 np.max(obs.r_mm - obs.p_mm, axis=0).tolist()]},

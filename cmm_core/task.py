@@ -356,4 +356,9 @@ def task_uncertainty(model, task: Task, *, trials: int | None = None,
     msg = (f"{task.kind} from {n} points, corrected with the model {model.spec!r} and "
            f"reported at 20 °C; {M} Monte Carlo trials (JCGM 101) beside the law of "
            f"propagation (JCGM 100); probing σ = {sigma:g} µm.")
+    if model.summary.get("fails_chi2_test"):
+        # the model's covariance is σ-based: under misfit its share is too small
+        msg += (f" The model failed its χ² test (scatter {model.summary['birge_ratio']:.2f} "
+                "times σ): its share of these uncertainties is too small by about that "
+                "factor; diagnose and refit before relying on them.")
     return TaskResult(task.kind, values, M, task.coverage_probability, sigma, msg)
