@@ -248,21 +248,6 @@ def test_other_pages_render(page):
         page.screenshot(path=str(ART / shot), full_page=True)
 
 
-def test_plan_page_compares_the_sample_strategies(page, server):
-    """The Plan page evaluates the sample plans before any measurement: the strategies
-    side by side (location 0 alone undetermined, all six determined) and the detection
-    limits, with no exception."""
-    page.goto(server + "/plan")
-    expect(page.locator("h1", has_text="Plan").first).to_be_visible(timeout=90_000)
-    _idle(page)
-    expect(page.get_by_text("Strategies side by side").first).to_be_visible(timeout=90_000)
-    expect(page.get_by_text("Detection limits").first).to_be_visible()
-    expect(page.locator('[data-testid="stDataFrame"]').first).to_be_visible(timeout=90_000)
-    expect(page.get_by_text("location 0: 14 undetermined combination(s)")).to_be_visible()
-    _no_exception(page)
-    page.screenshot(path=str(ART / "12_plan.png"), full_page=True)
-
-
 def _download(pg, name):
     """Click a download button and return the file's bytes (None when the browser does
     not deliver downloads in this environment)."""
@@ -417,3 +402,18 @@ def test_error_function_grid_has_no_blank_band_below(page, server):
     legend = grid.locator("g.legend").first.bounding_box()
     assert legend["y"] < box["y"] + 100  # at the top, beside the title
     _no_exception(page)
+
+
+def test_plan_page_compares_the_sample_strategies(page, server):
+    """(Last: it opens a new session.) The Plan page evaluates the sample plans before any
+    measurement: the strategies side by side (location 0 alone undetermined, all six
+    determined) and the detection limits, with no exception."""
+    page.goto(server + "/plan")
+    expect(page.locator("h1", has_text="Plan").first).to_be_visible(timeout=90_000)
+    _idle(page)
+    expect(page.get_by_text("Strategies side by side").first).to_be_visible(timeout=90_000)
+    expect(page.get_by_text("Detection limits").first).to_be_visible()
+    expect(page.locator('[data-testid="stDataFrame"]').first).to_be_visible(timeout=90_000)
+    expect(page.get_by_text("location 0: 14 undetermined combination(s)")).to_be_visible()
+    _no_exception(page)
+    page.screenshot(path=str(ART / "12_plan.png"), full_page=True)
