@@ -21,6 +21,7 @@ import numpy as np
 
 from .effects import MAX_ORDER, parse_spec
 from .io import DataError, _cut, read_json, refuse_unknown_keys
+from .observations import check_selection
 
 FORMAT = "cmm-error-lab-analysis"
 """Value of the ``format`` key of an analysis record file."""
@@ -404,6 +405,8 @@ def run(record: AnalysisRecord) -> AnalysisResult:
     from .uncertainty import evaluate
 
     ds = load_data(record)
+    check_selection(ds, record.positions, record.probes, record.exclusions,
+                    "analysis record")
     try:
         flagged = tuple(tuple(e) for e in detect_outliers(ds).exclusions)
     except ValueError:  # too few positions to compare: nothing flagged unless asked to

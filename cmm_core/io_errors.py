@@ -159,7 +159,7 @@ def _typo(key: str, known, cutoff: float = 0.85):
     return low[close[0]] if close else None
 
 
-def refuse_unknown_keys(obj: dict, known, name, where: str = "") -> None:
+def refuse_unknown_keys(obj: dict, known, name, where: str = "", what: str = "key") -> None:
     """Refuse any key of ``obj`` not in ``known``: a DataError naming the file and the key
     (``where`` + key), the known key it most likely misspells, and the known keys. The one
     validator of JSON inputs (analysis record, plan, task, simulation config): an unknown
@@ -168,7 +168,7 @@ def refuse_unknown_keys(obj: dict, known, name, where: str = "") -> None:
         if k not in known:
             guess = _typo(str(k), known, cutoff=0.6)
             hint = f"did you mean {guess!r}? " if guess else ""
-            raise DataError(f"unknown key {_cut(k)}; {hint}expected one of "
+            raise DataError(f"unknown {what} {_cut(k)}; {hint}expected one of "
                             f"{', '.join(map(str, known))}.", file=name, column=f"{where}{k}")
 
 

@@ -200,3 +200,22 @@ def select(data: Dataset, *, positions=None, probes=None, exclude=()) -> Observa
     return Observations(t, r, pnom[prb], pos, prb, ball, positions, probes, balls, plate0, cu,
                         dT, bool(has_temp), hours, horiz, R0, t0, setup.range_mm,
                         cert is not None, approach, setup_layout(setup))
+
+
+def check_selection(data: Dataset, positions, probes, exclusions, name: str) -> None:
+    """Positions, probes and excluded ``(position, probe, ball)`` observations a saved
+    analysis names exist in its data: an unknown one would silently select or exclude
+    nothing. A DataError names the field and the name it most likely misspells."""
+    from .io import DataError, refuse_unknown_keys
+
+    known = {"positions": [str(p) for p in data.positions],
+             "probes": [str(q) for q in dict.fromkeys(data.meas["probe"])]}
+    for field, names in (("positions", positions), ("probes", probes)):
+        refuse_unknown_keys(names or (), known[field], name, f"{field}.", field[:-1])
+    have = set(zip(data.meas["position"].astype(str), data.meas["probe"].astype(str),
+                   data.meas["ball"].astype(int), strict=True))
+    for e in exclusions:
+        if (str(e[0]), str(e[1]), int(e[2])) not in have:
+            raise DataError(f"excluded observation {list(e)} (position, probe, ball) is not "
+                            "in the data; expected one of its measured balls.", file=name,
+                            column="exclusions")

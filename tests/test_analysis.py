@@ -107,3 +107,18 @@ def test_measured_error_sign_is_the_compensation_convention():
     assert np.corrcoef(e[:, 0], scale[:, 0])[0, 1] < -0.9
     assert np.allclose(A.measured_error_um([[1.0, 2.0, 3.0]], [[1.001, 2.0, 2.999]]),
                        [[1.0, 0.0, -1.0]])
+
+
+@pytest.mark.parametrize("change, column, needle", [
+    ({"positions": ("BP111", "BP11x")}, "positions.BP11x", "unknown position 'BP11x'; did you"),
+    ({"probes": ("1", "9")}, "probes.9", "unknown probe '9'"),
+    ({"exclusions": (("BP999", "2", 7),)}, "exclusions", "not in the data"),
+])
+def test_names_the_data_lack_are_refused_not_dropped(change, column, needle):
+    """A position, probe or excluded observation the data do not have would silently
+    select or exclude nothing (a 25-observation report from a typo): refused, naming the
+    field."""
+    rec = dataclasses.replace(A.read_record(SAMPLE), **change)
+    with pytest.raises(DataError, match=needle) as exc:
+        A.run(rec)
+    assert exc.value.column == column
