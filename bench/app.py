@@ -91,6 +91,21 @@ def _simulated_files() -> dict:
             "certificate": ("certificate.csv", (d / "certificate.csv").read_text())}
 
 
+def _diagnose_page(case: str):
+    """An app session on the Diagnose page with the thesis data or the simulated sample:
+    ``(AppTest, the pages.common module it runs)``."""
+    at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=300)
+    at.run()
+    common = sys.modules["pages.common"]
+    if case != "thesis":
+        files = _simulated_files()
+        at.session_state["ds_files"] = files
+        at.session_state["ds_key"] = common.files_key(files)
+    at.switch_page("pages/diagnose.py")
+    at.run()
+    return at, common
+
+
 def bench_diagnosis(runs: int = 5) -> list:
     """``(case, first click s, median s of the later clicks, median s of the core
     diagnosis, verdict)``."""
@@ -98,15 +113,7 @@ def bench_diagnosis(runs: int = 5) -> list:
 
     rows = []
     for case in ("thesis", "simulated sample"):
-        at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=300)
-        at.run()
-        common = sys.modules["pages.common"]
-        if case != "thesis":
-            files = _simulated_files()
-            at.session_state["ds_files"] = files
-            at.session_state["ds_key"] = common.files_key(files)
-        at.switch_page("pages/diagnose.py")
-        at.run()
+        at, common = _diagnose_page(case)
         times = []
         for _ in range(runs + 1):  # the first click warms imports
             common._cached_core_diagnosis.clear()
@@ -142,15 +149,7 @@ def bench_add_effect(runs: int = 3) -> list:
 
     rows = []
     for case in ("thesis", "simulated sample"):
-        at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=300)
-        at.run()
-        common = sys.modules["pages.common"]
-        if case != "thesis":
-            files = _simulated_files()
-            at.session_state["ds_files"] = files
-            at.session_state["ds_key"] = common.files_key(files)
-        at.switch_page("pages/diagnose.py")
-        at.run()
+        at, common = _diagnose_page(case)
         at.button(key="run_diagnosis").click()
         at.run()
         adds = [b for b in at.button if str(b.key).startswith("add_")]

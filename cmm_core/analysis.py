@@ -51,7 +51,6 @@ def measured_error_from_residuals_um(residuals_um) -> np.ndarray:
     return -np.asarray(residuals_um, float)
 
 
-
 @dataclass(frozen=True)
 class DataFile:
     """One input file, by path or by content (exactly one of the two)."""
@@ -133,16 +132,13 @@ _DATA_KEYS = ("name", "measurements", "setup", "certificate")
 _FILE_KEYS = ("name", "path", "content")
 
 
-_unknown = refuse_unknown_keys  # one validator (io_errors)
-
-
 def _file(obj, name, where, base) -> DataFile:
     if isinstance(obj, str):
         obj = {"path": obj}
     if not isinstance(obj, dict):
         raise DataError(f"expected {{\"path\": ...}} or {{\"name\": ..., \"content\": ...}}, "
                         f"found {_cut(obj)}.", file=name, column=where)
-    _unknown(obj, _FILE_KEYS, name, where + ".")
+    refuse_unknown_keys(obj, _FILE_KEYS, name, where + ".")
     path, content = obj.get("path"), obj.get("content")
     if (path is None) == (content is None) or not isinstance(path or content, str):
         raise DataError("expected exactly one of path (text) and content (text).", file=name,
@@ -202,7 +198,7 @@ def record_from_dict(doc, name="ANALYSIS.json", base=None) -> AnalysisRecord:
     was found; an unknown key is refused with the known key it most likely misspells.
     """
     _check(isinstance(doc, dict), name, "(document)", "a JSON object", type(doc).__name__)
-    _unknown(doc, ["format", "version", *KEYS], name)
+    refuse_unknown_keys(doc, ["format", "version", *KEYS], name)
     if doc.get("format") != FORMAT:
         raise DataError(f"is not an analysis record (expected \"format\": \"{FORMAT}\", "
                         f"found {_cut(doc.get('format'))!r}).", file=name, column="format")
@@ -212,7 +208,7 @@ def record_from_dict(doc, name="ANALYSIS.json", base=None) -> AnalysisRecord:
     d = doc.get("data")
     _check(isinstance(d, dict) and "setup" in d, name, "data",
            "an object with measurements and setup", d)
-    _unknown(d, _DATA_KEYS, name, "data.")
+    refuse_unknown_keys(d, _DATA_KEYS, name, "data.")
     meas = d.get("measurements")
     _check(isinstance(meas, list) and len(meas) > 0, name, "data.measurements",
            "a non-empty list of files", meas)
@@ -356,7 +352,6 @@ def load_data(record: AnalysisRecord):
     d = record.data
     return load_dataset([src(f) for f in d.measurements], src(d.setup)[0],
                         d.certificate and src(d.certificate), name=d.name)
-
 
 
 @dataclass(frozen=True)

@@ -139,7 +139,7 @@ class FitResult:
     def chi2_test_dof(self) -> float:
         """χ²/dof of the statistic behind the χ² test (``chi2_test / dof_test``): equal to
         ``chi2_dof`` unless the certificate is fixed, where its uncertainty is counted."""
-        chi2, dof = self._test()
+        chi2, dof = self.test_statistic
         return chi2 / max(dof, 1)
 
     @property
@@ -150,18 +150,27 @@ class FitResult:
         χ² (certificate errors included) and not the test statistic is the honest factor."""
         return float(np.sqrt(self.chi2_dof))
 
-    def _test(self):
+    @property
+    def test_statistic(self) -> tuple:
         """``(χ², dof)`` behind the χ² test (see ``chi2_test``)."""
         if self.chi2_test is None:
             return self.chi2, self.dof
         return self.chi2_test, self.dof_test
 
     @property
+    def test_counts_certificate(self) -> bool:
+        """True when the tested statistic is not the fit's own χ² (the certificate's
+        uncertainty counted), so that both are worth quoting."""
+        chi2, dof = self.test_statistic
+        return not (abs(chi2 / max(dof, 1) - self.chi2_dof) < 5e-3 * max(self.chi2_dof, 1e-9)
+                    and dof == self.dof)
+
+    @property
     def chi2_p_value(self) -> float:
         """P-value of the χ² test of the model against the stated repeatability:
         the probability of a χ² at least this large at ``dof`` degrees of freedom when the
         model is right and σ is true (upper tail)."""
-        chi2, dof = self._test()
+        chi2, dof = self.test_statistic
         return float(stats.chi2.sf(chi2, max(dof, 1)))
 
     @property

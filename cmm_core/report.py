@@ -128,10 +128,9 @@ def chi2_test_numbers(r) -> tuple:
     """``(χ²/dof, dof, note)`` of the fit's χ² test. With the certificate fixed the test
     counts its calibration uncertainty (``FitResult.chi2_test``); the note then says so,
     with the fit's own χ²/dof."""
-    val, dof = r.chi2_test_dof, r._test()[1]
-    if abs(val - r.chi2_dof) < 5e-3 * max(r.chi2_dof, 1e-9) and dof == r.dof:
+    if not r.test_counts_certificate:
         return r.chi2_dof, r.dof, ""
-    return val, dof, (f" (the certificate's calibration uncertainty counted; the fit's own "
+    return r.chi2_test_dof, r.test_statistic[1], (f" (the certificate's calibration uncertainty counted; the fit's own "
                       f"χ²/dof is {r.chi2_dof:.2f})")
 
 
