@@ -4,7 +4,9 @@ An :class:`AnalysisRecord` names the data, selection, exclusions, model (spec, o
 mode, σ) and the diagnosis, GP, MPE and report choices. It is read and written as JSON
 (``ANALYSIS.json``, docs/report.md), built from the app session by the Export page and
 carried by the project file; :func:`run` turns it into numbers, so the same record gives
-the same numbers (and the same report) everywhere. Also defined once here: the sign of the
+the same numbers (and the same report) everywhere. Laser interferometer runs and step
+gauges (docs/instruments.md) ride along as :class:`InstrumentFile` and are fitted jointly
+with the plate in every fit of :func:`run`. Also defined once here: the sign of the
 measured error (:data:`ERROR_CONVENTION`) and the outlier default
 (:data:`DEFAULT_EXCLUDE_OUTLIERS`).
 """
@@ -14,7 +16,7 @@ from __future__ import annotations
 import io
 import json
 import os
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -73,9 +75,50 @@ class DataFile:
             raise DataError(f"cannot be read ({why}).", file=Path(self.path).name) from None
 
 
+INSTRUMENT_READERS = {"laser": "read_laser", "step_gauge": "read_step_gauge"}
+"""Instrument kind -> reader in ``io_instruments``, used when that module has no
+``read_instrument`` dispatcher (a new kind is one entry here, or one in its
+``INSTRUMENT_KINDS``)."""
+
+
+def instrument_kinds() -> tuple:
+    """The instrument kinds a record may name (``io_instruments.INSTRUMENT_KINDS`` when
+    defined, else :data:`INSTRUMENT_READERS`)."""
+    from . import io_instruments as ioi
+
+    return tuple(getattr(ioi, "INSTRUMENT_KINDS", None) or INSTRUMENT_READERS)
+
+
+def read_instrument(source, kind: str, name=None):
+    """Read an instrument file of ``kind`` (``LaserRun``, ``StepGauge`` ...); raises
+    :class:`DataError` naming file, row and column, or the kinds known."""
+    from . import io_instruments as ioi
+
+    refuse_unknown_keys({kind: None}, instrument_kinds(), name or "instrument file",
+                        what="instrument kind")
+    if hasattr(ioi, "read_instrument"):
+        return ioi.read_instrument(source, kind, name=name)
+    return getattr(ioi, INSTRUMENT_READERS[kind])(source, name=name)
+
+
+@dataclass(frozen=True)
+class InstrumentFile:
+    """One instrument file of an analysis (docs/instruments.md)."""
+
+    kind: str
+    """Instrument kind, one of :func:`instrument_kinds` (``laser``, ``step_gauge``)."""
+    file: DataFile
+    """The file, by path or by content."""
+
+    def read(self):
+        """The instrument's readings (``io_instruments``); DataError when bad."""
+        return read_instrument(io.StringIO(self.file.text()), self.kind, name=self.file.name)
+
+
 @dataclass(frozen=True)
 class DataSources:
-    """The data of an analysis: measurements, setup and an optional certificate."""
+    """The data of an analysis: measurements, setup, an optional certificate and
+    instrument files."""
 
     name: str
     """Dataset label shown in the app and the report."""
@@ -85,6 +128,8 @@ class DataSources:
     """The setup JSON."""
     certificate: DataFile | None = None
     """The plate certificate CSV; None: the plate is self-calibrated."""
+    instruments: tuple = ()
+    """:class:`InstrumentFile` per laser run or step-gauge file, fitted with the plate."""
 
 
 @dataclass(frozen=True)
@@ -128,8 +173,22 @@ class AnalysisRecord:
 
 
 KEYS = [f.name for f in fields(AnalysisRecord)]
-_DATA_KEYS = ("name", "measurements", "setup", "certificate")
+_DATA_KEYS = ("name", "measurements", "setup", "certificate", "instruments")
 _FILE_KEYS = ("name", "path", "content")
+
+
+def _instrument(obj, name, where, base) -> InstrumentFile:
+    _check(isinstance(obj, dict) and "kind" in obj, name, where,
+           "an object {\"kind\": ..., \"path\": ...} or {\"kind\": ..., \"name\": ..., "
+           "\"content\": ...}", obj)
+    kind = obj["kind"]
+    try:
+        refuse_unknown_keys({str(kind): None}, instrument_kinds(), name,
+                            what="instrument kind")
+    except DataError as exc:
+        raise DataError(exc.detail, file=name, column=where + ".kind") from None
+    rest = {k: v for k, v in obj.items() if k != "kind"}
+    return InstrumentFile(str(kind), _file(rest, name, where, base))
 
 
 def _file(obj, name, where, base) -> DataFile:
@@ -213,11 +272,15 @@ def record_from_dict(doc, name="ANALYSIS.json", base=None) -> AnalysisRecord:
     _check(isinstance(meas, list) and len(meas) > 0, name, "data.measurements",
            "a non-empty list of files", meas)
     files = tuple(_file(m, name, f"data.measurements[{i}]", base) for i, m in enumerate(meas))
-    cert = d.get("certificate")
+    cert, inst = d.get("certificate"), d.get("instruments") or []
+    _check(isinstance(inst, list), name, "data.instruments", "a list of instrument files",
+           inst)
     out = {"data": DataSources(
         str(d.get("name") or ", ".join(f.name for f in files)), files,
         _file(d["setup"], name, "data.setup", base),
-        None if cert is None else _file(cert, name, "data.certificate", base))}
+        None if cert is None else _file(cert, name, "data.certificate", base),
+        tuple(_instrument(x, name, f"data.instruments[{i}]", base)
+              for i, x in enumerate(inst)))}
     for key, (ok, expected, convert) in _RULES.items():
         if key in doc:
             _check(ok(doc[key]), name, key, expected, doc[key])
@@ -257,6 +320,8 @@ def record_to_dict(record: AnalysisRecord, relative_to=None) -> dict:
            "data": {"name": d.name, "measurements": [file(f) for f in d.measurements],
                     "setup": file(d.setup),
                     "certificate": None if d.certificate is None else file(d.certificate)}}
+    if d.instruments:  # written only when there are some: older records stay as they were
+        out["data"]["instruments"] = [{"kind": i.kind, **file(i.file)} for i in d.instruments]
     for k in KEYS[1:]:
         v = getattr(record, k)
         out[k] = ([{"spec": s, "change": c} for s, c in v] if k == "history" else
@@ -279,18 +344,21 @@ def read_record(source, name=None) -> AnalysisRecord:
     return record_from_dict(doc, name or "ANALYSIS.json", base)
 
 
-def _inline(name, measurements, setup, certificate) -> dict:
-    """The ``data`` block of a record that carries its files' text."""
+def _inline(name, measurements, setup, certificate, instruments=()) -> dict:
+    """The ``data`` block of a record that carries its files' text (``instruments``:
+    ``(kind, file name, text)`` triples)."""
     return {"name": name, "measurements": [{"name": n, "content": c} for n, c in measurements],
             "setup": {"name": "setup.json", "content": setup},
-            "certificate": certificate and {"name": certificate[0], "content": certificate[1]}}
+            "certificate": certificate and {"name": certificate[0], "content": certificate[1]},
+            "instruments": [{"kind": k, "name": n, "content": c} for k, n, c in instruments]}
 
 
 def record_from_session(state) -> AnalysisRecord:
     """The record of an app session (the Export page passes ``st.session_state``).
 
     ``state`` is a mapping with the app's canonical keys: ``ds_files`` (name, measurements
-    as (file name, text) pairs, setup text, certificate pair or None), ``spec, order,
+    as (file name, text) pairs, setup text, certificate pair or None), ``instruments``
+    (``(kind, file name, text)`` triples, optional), ``spec, order,
     plate, sigma_um, positions, probes, exclusions, history, diag_on, magnification`` and,
     when set, ``w_mpe_u, w_u_npts, w_u_seed`` and, with ``w_report_gp`` true, ``w_gp_mean,
     w_gp_kernel``. Missing keys take the record's defaults.
@@ -307,13 +375,14 @@ def record_from_session(state) -> AnalysisRecord:
     doc.update(format=FORMAT, exclusions=[list(e) for e in g("exclusions") or []],
                history=[dict(h) for h in hist], gp_mean=g("w_gp_mean") if g("w_report_gp")
                else None, data=_inline(f["name"], f["measurements"], f["setup"],
-                                       f.get("certificate")))
+                                       f.get("certificate"), g("instruments") or ()))
     return record_from_dict(doc, "session")
 
 
 def record_to_project_json(record: AnalysisRecord) -> str:
     """A project file (``cmm_core.export``) carrying the record: the model block, the
-    exclusions and history as ever, the other choices under ``extra.analysis``."""
+    exclusions and history as ever, the other choices and the instrument files (their
+    text) under ``extra.analysis``."""
     from .export import project_to_json
 
     d, full = record.data, record_to_dict(record)
@@ -321,6 +390,9 @@ def record_to_project_json(record: AnalysisRecord) -> str:
                                       "probes")}
     rest = {k: v for k, v in full.items() if k not in ("data", "format", "version",
                                                        "exclusions", "history")}
+    if d.instruments:
+        rest["instruments"] = [{"kind": i.kind, "name": i.file.name, "content": i.file.text()}
+                               for i in d.instruments]
     return project_to_json(dataset_name=d.name, measurements=[(f.name, f.text()) for f in
                                                               d.measurements],
                            setup=d.setup.text(), certificate=d.certificate and (
@@ -336,9 +408,11 @@ def record_from_project(text, name="project.json") -> AnalysisRecord:
     p = project_from_json(text, name)
     extra = p["extra"].get("analysis") or {}
     _check(isinstance(extra, dict), name, "extra.analysis", "an object", extra)
+    extra = dict(extra)
+    data = _inline(p["dataset_name"], p["measurements"], p["setup"], p["certificate"])
+    data["instruments"] = extra.pop("instruments", None) or []
     doc = {**extra, **p["model"], "format": FORMAT, "exclusions": p["exclusions"],
-           "history": p["history"], "data": _inline(p["dataset_name"], p["measurements"],
-                                                   p["setup"], p["certificate"])}
+           "history": p["history"], "data": data}
     return record_from_dict(doc, name)
 
 
@@ -352,6 +426,25 @@ def load_data(record: AnalysisRecord):
     d = record.data
     return load_dataset([src(f) for f in d.measurements], src(d.setup)[0],
                         d.certificate and src(d.certificate), name=d.name)
+
+
+def load_instruments(record: AnalysisRecord) -> tuple:
+    """The instrument readings the record names (``LaserRun``, ``StepGauge`` ...)."""
+    return tuple(i.read() for i in record.data.instruments)
+
+
+def with_instruments(ds, instruments, *, positions=None, probes=None, exclude=()):
+    """What the fits of an analysis take as data: ``ds`` itself without instruments, else
+    its selected observations carrying them, so every model built from them (the
+    diagnosis's scores and refits, the σ estimate) includes their rows
+    (docs/instruments.md#python)."""
+    if not instruments:
+        return ds
+    from .observations import select
+
+    obs = select(ds, positions=positions and list(positions),
+                 probes=probes and list(probes), exclude=list(exclude))
+    return replace(obs, instruments=tuple(instruments))
 
 
 @dataclass(frozen=True)
@@ -382,6 +475,11 @@ class AnalysisResult:
     """:class:`~cmm_core.mpe.MpeResult`, None without a 25-ball certificate."""
     gp: object = None
     """:class:`~cmm_core.gp_cmm.GPComponents` when the record names a GP mean."""
+    instruments: tuple = ()
+    """Per instrument file, its record of ``instruments.summary`` (kind, file, readings,
+    rows, χ², rms_um, max_abs_z ...); empty without instruments."""
+    instrument_residuals: object = None
+    """``instruments.residuals_frame`` of the fit (one row per reading), None without."""
 
 
 def _fit_kwargs(r: AnalysisRecord, exclude, **more) -> dict:
@@ -392,9 +490,11 @@ def _fit_kwargs(r: AnalysisRecord, exclude, **more) -> dict:
 
 def run(record: AnalysisRecord) -> AnalysisResult:
     """Dataset, fit, history, measured errors, uncertainty, and the optional diagnosis,
-    MPE check and GP of a record. The app and the CLI both call this."""
+    MPE check and GP of a record, every fit with the record's instruments. The app and
+    the CLI both call this."""
     from .diagnose import diagnose, estimate_sigma
     from .fit import fit
+    from .instruments import residuals_frame, summary
     from .mpe import check_dataset
     from .outliers import detect_outliers
     from .uncertainty import evaluate
@@ -410,24 +510,27 @@ def run(record: AnalysisRecord) -> AnalysisResult:
         flagged = ()
     excl = tuple(sorted(set(record.exclusions) | (set(flagged) if record.exclude_outliers
                                                  else set())))
+    inst = load_instruments(record)
+    data = with_instruments(ds, inst, positions=record.positions, probes=record.probes,
+                            exclude=excl)
     if record.sigma_um == "auto":
-        est = estimate_sigma(ds, record.spec, **_fit_kwargs(record, excl))
+        est = estimate_sigma(data, record.spec, **_fit_kwargs(record, excl))
         sigma = {**est.to_dict(), "value_um": float(est.value_um), "auto": True}
     else:
         sigma = {"value_um": float(record.sigma_um), "auto": False}
     kw = _fit_kwargs(record, excl, sigma_um=sigma["value_um"])
-    r = fit(ds, record.spec, **kw)
+    r = fit(data, record.spec, **kw)
     history = [{"spec": spec, "change": change, "rms_um": round(h.rms_um, 4),
                 "chi2_dof": round(h.chi2_dof, 3), "bic": round(h.bic, 1), "n_params": h.rank}
                for spec, change in record.history
-               for h in [r if spec == record.spec else fit(ds, spec, **kw)]]
-    rigid = fit(ds, "rigid", **kw)
+               for h in [r if spec == record.spec else fit(data, spec, **kw)]]
+    rigid = fit(data, "rigid", **kw)
     err = measured_error_from_residuals_um(rigid.residuals_um)
     try:
         unc = evaluate(r, n_random=record.uncertainty_points, seed=record.uncertainty_seed)
     except (ValueError, np.linalg.LinAlgError):
         unc = None
-    diag = diagnose(ds, record.spec, **kw) if record.diagnose else None
+    diag = diagnose(data, record.spec, **kw) if record.diagnose else None
     mpe, _ = check_dataset(ds, u_source=record.mpe_u_source, sigma_um=r.sigma_um)
     gp = None
     if record.gp_mean is not None:
@@ -439,4 +542,5 @@ def run(record: AnalysisRecord) -> AnalysisResult:
         gp = gp_components(obs.r_mm, vals, mean="zero" if kin else record.gp_mean,
                            kernel=record.gp_kernel, restarts=1, probe_mm=obs.p_mm)
     return AnalysisResult(record, ds, r, excl, flagged, sigma, unc, tuple(history), err,
-                          diag, mpe, gp)
+                          diag, mpe, gp, tuple(summary(r)) if inst else (),
+                          residuals_frame(r) if inst else None)

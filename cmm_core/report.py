@@ -38,6 +38,7 @@ from .report_figures import (  # noqa: F401 - re-exported: pages use rep.fig_*
     fig_residual_map,
     fig_signature_scatter,
     fig_surface_grid,
+    instrument_tables,
     residual_summary,
     true_function_curve,
 )
@@ -163,13 +164,14 @@ def _uncertainty_table(uncertainty, result) -> pd.DataFrame:
 
 def _record_sections(res) -> list:
     """(heading, html) sections an :class:`~cmm_core.analysis.AnalysisResult` adds:
-    sources and settings, σ, outliers, measured errors, the GP."""
+    sources and settings, σ, outliers, measured errors, the instruments, the GP."""
     from .analysis import ERROR_CONVENTION, record_to_dict
 
     rec, r = res.record, res.fit
     d = rec.data
     files = [("measurements", f) for f in d.measurements] + [("setup", d.setup)] + (
-        [("certificate", d.certificate)] if d.certificate else [])
+        [("certificate", d.certificate)] if d.certificate else []) + [
+        (i.kind, i.file) for i in d.instruments]
     src = pd.DataFrame([{"role": role, "file": f.name,
                          "SHA-256 (first 12)": hashlib.sha256(f.text().encode()).hexdigest()[:12]}
                         for role, f in files])
@@ -193,6 +195,14 @@ def _record_sections(res) -> list:
                 + ("Excluded (exclude_outliers is true)." if rec.exclude_outliers else
                    "Kept in the fit unless excluded by name (exclude_outliers is false).")
                 + "</p>"))
+    if res.instruments:
+        table, readings = instrument_tables(res.instruments, res.instrument_residuals)
+        out.append(("Instruments fitted with the plate", "<p class='note'>Laser runs and "
+                    "step gauges (docs/instruments.md) are rows of the same fit. Residual: "
+                    "the model's prediction minus the reading (µm), the runs' zeros and "
+                    "slopes removed; RMS residual/u near 1 when the model explains the "
+                    "instrument as its u says.</p>" + _table_html(table)
+                    + _table_html(readings, "{:.4f}")))
     if res.gp is not None:
         gp = pd.json_normalize([{"component": c, **v} for c, v in res.gp.summary().items()])
         gp["LOO coverage 95 %"] = gp["component"].map(res.gp.loo_coverage(0.95))

@@ -289,6 +289,23 @@ def residual_summary(result) -> pd.DataFrame:
     return out
 
 
+def instrument_tables(summary, residuals: pd.DataFrame) -> tuple:
+    """The instruments of a joint fit as two tables (app and report alike): per
+    instrument its kind, file, readings, rows, χ² and the RMS of the normalised residuals
+    (residual / u, near 1 when the model explains the instrument as its u says); and per
+    reading its residual (model minus reading, nuisances removed, µm), u and residual / u.
+    ``summary``: ``instruments.summary``; ``residuals``: ``instruments.residuals_frame``."""
+    per = residuals.assign(z=residuals["residual_um"] / residuals["u_um"])
+    rms_z = per.groupby("file", sort=False)["z"].apply(lambda z: float(np.sqrt(np.mean(z ** 2))))
+    table = pd.DataFrame([{"kind": s["kind"], "file": s["file"], "readings": s["readings"],
+                           "rows": s["rows"], "chi2": s["chi2"],
+                           "RMS residual/u": rms_z.get(s["file"], np.nan),
+                           "RMS residual (µm)": s["rms_um"]} for s in summary])
+    readings = per.rename(columns={"residual_um": "residual (µm)", "u_um": "u (µm)",
+                                   "z": "residual/u"})
+    return table, readings
+
+
 # ---------------------------------------------------------------------------------------
 # History, placements
 # ---------------------------------------------------------------------------------------

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -122,3 +123,68 @@ def test_names_the_data_lack_are_refused_not_dropped(change, column, needle):
     with pytest.raises(DataError, match=needle) as exc:
         A.run(rec)
     assert exc.value.column == column
+
+
+# --- instruments (laser runs, step gauges) in the record ---------------------------------
+
+INSTRUMENTS = ROOT / "sample_data" / "instruments"
+
+
+def _with_instruments(rec, *kinds_files):
+    files = tuple(A.InstrumentFile(k, A.DataFile(f.name, str(f))) for k, f in kinds_files)
+    return dataclasses.replace(rec, data=dataclasses.replace(rec.data, instruments=files))
+
+
+def test_record_with_instruments_round_trips_through_json_session_and_project():
+    laser = (INSTRUMENTS / "laser_x.csv").read_text()
+    rec = A.record_from_session(_session(instruments=[("laser", "laser_x.csv", laser)]))
+    (inst,) = rec.data.instruments
+    assert inst.kind == "laser" and inst.file.name == "laser_x.csv"
+    assert inst.file.text() == laser
+    assert A.read_record(A.record_to_json(rec)) == rec
+    assert A.record_from_project(A.record_to_project_json(rec)) == rec
+    by_path = _with_instruments(A.read_record(SAMPLE), ("step_gauge", INSTRUMENTS /
+                                                        "step_gauge.csv"))
+    doc = json.loads(A.record_to_json(by_path, relative_to=SAMPLE.parent))
+    assert doc["data"]["instruments"] == [{"kind": "step_gauge",
+                                           "path": "../instruments/step_gauge.csv"}]
+    (back,) = A.record_from_dict(doc, base=SAMPLE.parent).data.instruments
+    assert back.kind == "step_gauge"
+    assert back.file.text() == by_path.data.instruments[0].file.text()
+    # without instruments the file is written as before
+    assert "instruments" not in A.record_to_dict(A.read_record(SAMPLE))["data"]
+
+
+@pytest.mark.parametrize("entry, column, needle", [
+    ({"kind": "lazer", "path": "x.csv"}, "data.instruments[0].kind",
+     "unknown instrument kind 'lazer'; did you mean 'laser'? expected one of laser, "
+     "step_gauge"),
+    ({"kind": "laser", "path": "x.csv", "contnet": "a"}, "data.instruments[0].contnet",
+     "did you mean 'content'"),
+    ({"path": "x.csv"}, "data.instruments[0]", "kind"),
+])
+def test_bad_instrument_entries_are_refused_naming_the_key(entry, column, needle):
+    doc = {**json.loads(SAMPLE.read_text())}
+    doc["data"] = {**doc["data"], "instruments": [entry]}
+    with pytest.raises(DataError, match=re.escape(needle)) as exc:
+        A.record_from_dict(doc, "ANALYSIS.json", SAMPLE.parent)
+    assert exc.value.column == column
+
+
+def test_record_run_with_instruments_equals_a_direct_joint_fit():
+    from cmm_core import instruments as ins
+    from cmm_core.io_instruments import read_laser, read_step_gauge
+
+    rec = _with_instruments(A.read_record(SAMPLE), ("laser", INSTRUMENTS / "laser_x.csv"),
+                            ("step_gauge", INSTRUMENTS / "step_gauge.csv"))
+    res = A.run(rec)
+    direct = fit(A.load_data(rec), rec.spec, exclude=list(rec.exclusions), sigma_um=0.5,
+                 instruments=[read_laser(INSTRUMENTS / "laser_x.csv"),
+                              read_step_gauge(INSTRUMENTS / "step_gauge.csv")])
+    assert res.fit.chi2 == pytest.approx(direct.chi2, rel=1e-10)
+    assert np.allclose(res.fit.values, direct.values, atol=1e-9)
+    assert np.allclose(res.fit.u, direct.u, rtol=1e-8, equal_nan=True)
+    assert list(res.instruments) == ins.summary(direct)
+    assert [s["kind"] for s in res.instruments] == ["laser", "step_gauge"]
+    assert res.instrument_residuals.equals(ins.residuals_frame(direct))
+    assert not A.run(A.read_record(SAMPLE)).instruments  # none: nothing added

@@ -168,3 +168,29 @@ def test_cli_report_exit_codes(tmp_path, capsys):
     assert exc.value.code == 2 and "--out" in capsys.readouterr().err
     code, printed = _cli(SAMPLE, tmp_path / "no_such_dir" / "r.html", capsys)
     assert code == 2 and printed.err.count("\n") == 1 and "no_such_dir" in printed.err
+
+
+def test_report_with_an_instrument_app_and_cli_byte_identical(tmp_path, capsys):
+    """A laser run fitted with the plate: the session record (file text) and a record
+    naming the files by path give the same bytes, with the instruments section."""
+    sim, ins = ROOT / "sample_data" / "simulated", ROOT / "sample_data" / "instruments"
+    files = {"name": "simulated sample", "kind": "upload",
+             "measurements": [("measurements.csv", (sim / "measurements.csv").read_text())],
+             "setup": (sim / "setup.json").read_text(),
+             "certificate": ("certificate.csv", (sim / "certificate.csv").read_text())}
+    record = A.record_from_session(_session(
+        ds_files=files, instruments=[("laser", "laser_x.csv", (ins / "laser_x.csv").read_text())]))
+    app_html = rep.analysis_report(record)
+    by_path = dataclasses.replace(record, data=A.DataSources(
+        "simulated sample", (A.DataFile("measurements.csv", str(sim / "measurements.csv")),),
+        A.DataFile("setup.json", str(sim / "setup.json")),
+        A.DataFile("certificate.csv", str(sim / "certificate.csv")),
+        (A.InstrumentFile("laser", A.DataFile("laser_x.csv", str(ins / "laser_x.csv"))),)))
+    path = tmp_path / "ANALYSIS.json"
+    path.write_text(A.record_to_json(by_path, relative_to=tmp_path))
+    assert '"kind": "laser"' in path.read_text()
+    code, printed = _cli(path, tmp_path / "r.html", capsys)
+    assert code == 0, printed.err
+    assert _same(app_html, (tmp_path / "r.html").read_text(encoding="utf-8"))
+    assert "Instruments fitted with the plate" in app_html
+    assert "x_straight_y_y100_z50" in app_html and "RMS residual/u" in app_html
