@@ -3,24 +3,29 @@
 The true tip centre of a reported point ``r`` measured with probe offset ``p`` is
 ``r + e(r - p, p)`` (SPEC conventions). A saved model holds what that needs: the
 kinematic terms and coefficients with their covariance, and the probe offsets (nominal plus
-any fitted offset error). A model fitted with ``backlash`` also holds the reversal spans:
-each new point is then corrected for the direction from which its axes last moved (its
-file order, or ``time_min``), and an axis whose direction is unknown (before it first
-moves) carries half the span as standard uncertainty instead.
+any fitted offset error). The effect blocks that act on new points add their parts
+(``Block.compensation``; the model file's keys are each block's, ``Block.part_to_file``)
+and correct the points in turn (``Block.correct``): ``backlash`` for the direction from
+which each axis last moved, ``machine_thermal`` for the scales' expansion at the points'
+scale temperatures. The uncertainty propagates the kinematic coefficients and every
+part's parameters through their joint covariance (JCGM 100 eq. 13):
+``u² = diag(J V Jᵀ)`` with ``J = [∂e/∂coef, ∂δ_block/∂values ...]``.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from . import kinematics as kin
+from .blocks import REGISTRY
+from .blocks.base import checked_cov
 from .effects import MAX_ORDER, parse_spec
-from .fit import FitResult, approach_directions
+from .fit import FitResult
 from .io import (
     MAX_PROBE_MM,
     MAX_STROKE_MM,
@@ -35,6 +40,10 @@ from .io import (
     read_json,
 )
 from .uncertainty import propagate_error
+
+COMPENSATING = tuple(b for b in REGISTRY if b.model_keys)
+"""Blocks that act on new points, in the order of their parameters in the joint
+covariance (after the kinematic coefficients)."""
 
 
 @dataclass(frozen=True)
@@ -56,10 +65,10 @@ class Model:
         points then carry NaN uncertainties.
     summary : dict
         RMS, χ²/dof and provenance for the record.
-    backlash_um : ndarray (3,) or None
-        Reversal span of each axis (µm) when the model was fitted with ``backlash``.
-    cov_with_backlash : ndarray or None
-        Joint covariance of the kinematic coefficients followed by the three spans.
+    parts : dict
+        Block token -> :class:`blocks.base.ModelPart` of each block that acts on new
+        points (backlash spans, scale expansion coefficients), in :data:`COMPENSATING`
+        order; each holds the joint covariance up to its own parameters.
     name : str
         File the model was read from (for messages).
     """
@@ -71,9 +80,14 @@ class Model:
     probes_mm: dict
     undetermined: bool
     summary: dict
-    backlash_um: np.ndarray | None = None
-    cov_with_backlash: np.ndarray | None = None
+    parts: dict = field(default_factory=dict)
     name: str = "model"
+
+    @property
+    def joint_cov(self) -> np.ndarray:
+        """Covariance of the kinematic coefficients followed by every part's parameters
+        (the last part's: each part holds the covariance up to its own)."""
+        return next(reversed(self.parts.values())).cov if self.parts else self.cov
 
 
 def model_from_result(result: FitResult) -> Model:
@@ -86,16 +100,17 @@ def model_from_result(result: FitResult) -> Model:
         if len(lab):
             p = p + val.reshape(-1, 3)[i] * 1e-3
         probes[q] = p
-    kin_labels = set(result.terms.labels)
     blk = result.problem.layout.blocks
-    backlash = joint = None
-    if "backlash" in blk:
-        idx = np.r_[np.arange(blk["kinematic"].start, blk["kinematic"].stop),
-                    np.arange(blk["backlash"].start, blk["backlash"].stop)]
-        backlash = result.values[blk["backlash"]].copy()
-        joint = result.covariance[np.ix_(idx, idx)].copy()
-    # an undetermined span would be applied as if known: it makes the model undetermined
-    used = kin_labels | {f"backlash.{a}" for a in "xyz"}
+    before = np.arange(blk["kinematic"].start, blk["kinematic"].stop)
+    parts = {}
+    for b in COMPENSATING:
+        part = b.compensation(result, before)
+        if part is not None:
+            parts[b.token] = part
+            before = np.r_[before, np.arange(blk[b.token].start, blk[b.token].stop)]
+    # an undetermined span or coefficient would be applied as if known: it makes the
+    # model undetermined
+    used = set(result.terms.labels).union(*(p.labels for p in parts.values()))
     return Model(result.spec, result.terms, result.kinematic_coef.copy(),
                  result.kinematic_cov.copy(), probes,
                  any(lab in used for lab in result.unidentifiable),
@@ -105,7 +120,7 @@ def model_from_result(result: FitResult) -> Model:
                   "plate": result.plate, "sigma_um": result.sigma_um,
                   "region_mm": [np.min(obs.r_mm - obs.p_mm, axis=0).tolist(),
                                 np.max(obs.r_mm - obs.p_mm, axis=0).tolist()]},
-                 backlash, joint)
+                 parts)
 
 
 def model_to_dict(model: Model | FitResult) -> dict:
@@ -120,39 +135,19 @@ def model_to_dict(model: Model | FitResult) -> dict:
             "labels": m.terms.labels, "coef": m.coef.tolist(), "cov": m.cov.tolist(),
             "probes_mm": {k: list(map(float, v)) for k, v in m.probes_mm.items()},
             "undetermined": m.undetermined, "summary": m.summary,
-            **({} if m.backlash_um is None else {
-                "backlash_um": m.backlash_um.tolist(),
-                "cov_with_backlash": m.cov_with_backlash.tolist()})}
+            # each block's own keys; none for a model without such blocks (the format of
+            # releases before them)
+            **{k: v for b in COMPENSATING if b.token in m.parts
+               for k, v in b.part_to_file(m.parts[b.token]).items()}}
 
 
 MODEL_FORMAT = "cmm-error-lab model 1"
 _MODEL_REQUIRED = ("format", "spec", "orders", "range_mm", "periods", "labels", "coef",
                    "cov", "probes_mm", "undetermined", "summary")
-_MODEL_OPTIONAL = ("backlash_um", "cov_with_backlash", "layout")
+_MODEL_OPTIONAL = ("layout", *(k for b in COMPENSATING for k in b.model_keys))
 
 
-def _checked_cov(cov, n, name, column):
-    """A covariance must be finite, symmetric and positive semi-definite: a NaN or a
-    negative variance would give NaN or imaginary uncertainties, silently."""
-    if cov.shape != (n, n):
-        raise DataError(f"expected a {n}x{n} covariance, found shape {cov.shape}.", file=name,
-                        column=column)
-    if not np.isfinite(cov).all():
-        raise DataError("the covariance holds NaN or infinite entries; expected finite "
-                        "numbers.", file=name, column=column,
-                        hint="refit and save the model again (fit --save).")
-    scale = max(float(np.abs(cov).max()), 1e-300)
-    if np.abs(cov - cov.T).max() > 1e-9 * scale:
-        raise DataError("the covariance is not symmetric.", file=name, column=column,
-                        hint="refit and save the model again (fit --save).")
-    if n and (np.diag(cov) < 0).any():
-        k = int(np.flatnonzero(np.diag(cov) < 0)[0])
-        raise DataError(f"entry {k} of the covariance's diagonal is negative "
-                        f"({cov[k, k]:g}); expected variances >= 0.", file=name, column=column)
-    if n and np.linalg.eigvalsh((cov + cov.T) / 2).min() < -1e-8 * scale:
-        raise DataError("the covariance is not positive semi-definite; expected a "
-                        "covariance matrix.", file=name, column=column,
-                        hint="refit and save the model again (fit --save).")
+_checked_cov = checked_cov  # the name this module used before the blocks shared it
 
 
 def model_from_dict(d: dict, *, name: str = "model") -> Model:
@@ -164,9 +159,10 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
     offsets that are not 3-vectors in mm.
     """
     layout = _checked_model_header(d, name)
-    terms, coef, cov, probes, backlash, joint = _parsed_model(d, name, layout)
+    terms, coef, cov, probes = _parsed_model(d, name, layout)
     spec = _checked_model_terms(d, terms, name)
-    _checked_model_values(d, terms, coef, cov, probes, backlash, joint, name)
+    _checked_model_values(d, terms, coef, cov, probes, name)
+    parts = _model_parts(d, spec, terms.n, name)
     summary = d.get("summary", {})
     if not isinstance(summary, dict):
         raise DataError("summary must be an object.", file=name, column="summary")
@@ -180,9 +176,29 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
         raise DataError("undetermined must be true or false.", file=name,
                         column="undetermined")
     return Model(spec, terms, coef, cov, probes, bool(d.get("undetermined")), summary,
-                 backlash, joint, name)
+                 parts, name)
 
 
+def _model_parts(d, spec, n_kin, name):
+    """The parts of the compensating blocks the file holds, each read and checked by its
+    block; a spec naming such a block without its part (or the reverse) is refused."""
+    effects = parse_spec(spec).effects
+    parts, n_before = {}, n_kin
+    for b in COMPENSATING:
+        part = b.part_from_file(d, n_before, name)
+        if part is None and b.token in effects:
+            raise DataError(f"the model's spec has {b.token} but the file holds no "
+                            f"{b.model_what} (written by an older version).", file=name,
+                            hint="refit and save the model again.")
+        if part is not None and b.token not in effects:
+            raise DataError(f"the file holds {b.model_what} but the model's spec has no "
+                            f"{b.token}.", file=name, column=b.model_keys[0],
+                            hint="refit and save the model again (fit --save); do not "
+                                 "edit it.")
+        if part is not None:
+            parts[b.token] = part
+            n_before += len(part.values)
+    return parts
 
 
 def _checked_model_header(d, name):
@@ -222,14 +238,10 @@ def _parsed_model(d, name, layout):
         coef = np.asarray(d["coef"], float)
         cov = np.asarray(d["cov"], float)
         probes = {str(k): np.asarray(v, float) for k, v in d["probes_mm"].items()}
-        backlash = joint = None
-        if "backlash_um" in d:
-            backlash = np.asarray(d["backlash_um"], float)
-            joint = np.asarray(d["cov_with_backlash"], float)
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
         raise DataError(f"is not a model file written by 'fit --save' ({_cut(str(exc), 80)}).",
                         file=name) from None
-    return terms, coef, cov, probes, backlash, joint
+    return terms, coef, cov, probes
 
 
 def _checked_model_terms(d, terms, name):
@@ -266,9 +278,8 @@ def _checked_model_terms(d, terms, name):
     return spec
 
 
-def _checked_model_values(d, terms, coef, cov, probes, backlash, joint, name):
-    """Finite coefficients, positive semi-definite covariances, probe offsets in mm and
-    backlash spans when the spec has backlash."""
+def _checked_model_values(d, terms, coef, cov, probes, name):
+    """Finite coefficients, a positive semi-definite covariance and probe offsets in mm."""
     if coef.shape != (terms.n,) or cov.shape != (terms.n, terms.n):
         raise DataError(f"expected {terms.n} coefficients and a {terms.n}x{terms.n} "
                         f"covariance, found {coef.shape} and {cov.shape}.", file=name)
@@ -285,19 +296,6 @@ def _checked_model_values(d, terms, coef, cov, probes, backlash, joint, name):
         if p.shape != (3,) or not np.isfinite(p).all() or np.linalg.norm(p) > MAX_PROBE_MM:
             raise DataError(f"expected 3 finite numbers (mm), found {_cut(d['probes_mm'][q])}.",
                             file=name, column=f"probes_mm.{q}")
-    if backlash is None and "backlash" in str(d.get("spec", "")).split(","):
-        raise DataError("the model's spec has backlash but the file holds no backlash spans "
-                        "(written by an older version).", file=name,
-                        hint="refit and save the model again.")
-    if backlash is not None:
-        if backlash.shape != (3,) or joint.shape != (terms.n + 3, terms.n + 3):
-            raise DataError(f"expected 3 backlash spans and a {terms.n + 3}x{terms.n + 3} "
-                            f"joint covariance, found {backlash.shape} and {joint.shape}.",
-                            file=name)
-        if not np.isfinite(backlash).all():
-            raise DataError("backlash_um must be 3 finite spans (µm).", file=name,
-                            column="backlash_um")
-        _checked_cov(joint, terms.n + 3, name, "cov_with_backlash")
 
 
 OFF_MACHINE = "outside the machine's range"
@@ -375,6 +373,12 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
     ``probe`` column unless the model has a single probe. With a backlash model the
     points' order (``time_min``, else the rows) is their measurement order, and the
     output gets the approach direction of each axis (``approach_x`` ...: +1, -1, 0 unknown).
+    With a machine_thermal model the points need the scale temperature of every fitted
+    axis (``temp_x_C``, ``temp_y_C``, ``temp_z_C``, °C).
+
+    The correction is ``e + Σ δ_block`` (kinematic error, thesis eq. 4.13, plus each
+    part's :meth:`blocks.base.Block.correct`), its uncertainty the propagation of the
+    joint covariance (module docstring) plus any variance a part adds.
     """
     m = model_from_result(model) if isinstance(model, FitResult) else model
     name = points.attrs.get("source", "points")
@@ -403,19 +407,19 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
                         file=name, column="x_mm", hint="write the points in mm.")
     p = np.array([m.probes_mm[q] for q in probes]).reshape(-1, 3)
     x = r - p
-    d = None  # approach directions, with a backlash model
-    if m.backlash_um is None:
+    fixes = [b.correct(part, points, x, name) for b in COMPENSATING
+             if (part := m.parts.get(b.token)) is not None]
+    if not fixes:
         e_um, u = propagate_error(m.terms, m.coef, m.cov, x, p)
     else:
-        t = points["time_min"].to_numpy(float) if "time_min" in points and \
-            points["time_min"].notna().all() else None
-        d = approach_directions(x, t)
-        # the reversal enters each axis linearly: extra Jacobian columns diag(d/2)
-        e_um, u = propagate_error(m.terms, m.coef, m.cov_with_backlash, x, p,
-                                  extra_jac=np.eye(3)[None] * (d / 2)[:, None, :])
-        e_um = e_um + m.backlash_um * d / 2
-        # direction unknown: the correction is ±span/2 with equal odds, σ = |span|/2
-        u = np.sqrt(u**2 + (d == 0) * (m.backlash_um / 2) ** 2)
+        # each part enters linearly: its Jacobian columns follow the kinematic ones
+        e_um, u = propagate_error(m.terms, m.coef, m.joint_cov, x, p,
+                                  extra_jac=np.concatenate([f.jac for f in fixes], axis=2))
+        for f in fixes:
+            e_um = e_um + f.delta_um
+        extra = [f.var_um2 for f in fixes if f.var_um2 is not None]
+        if extra:
+            u = np.sqrt(u**2 + sum(extra))
     if m.undetermined:
         u[:] = np.nan
     out = points.copy()
@@ -423,7 +427,7 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
     out["ex_um"], out["ey_um"], out["ez_um"] = e_um.T
     out["u_x_um"], out["u_y_um"], out["u_z_um"] = u.T
     out["extrapolated"] = _extrapolation_note(m, x)
-    if d is not None:
-        for a, col in enumerate(("approach_x", "approach_y", "approach_z")):
-            out[col] = d[:, a].astype(int)
+    for f in fixes:
+        for col, v in f.columns.items():
+            out[col] = v
     return out

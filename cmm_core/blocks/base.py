@@ -6,18 +6,26 @@ The residual of an observation (µm) is built in stages (``fit`` module docstrin
     x* = kinematic model(r - p, p')        kinematic (thesis eq. 4.13)
     c' = plate stage(c_b)                  plate_thermal, plate_sag
     d  = (x* - (R_k c' + t_k)) / UM        placement
-    d  = reading stage(d)                  drift, backlash
+    d  = reading stage(d)                  drift, backlash, machine_thermal
 
 A block takes part in the stages it overrides; each writes its own columns of the
 Jacobian. Adding an effect is adding one block module and listing it in
-``blocks.REGISTRY``.
+``blocks.REGISTRY``. A block that also acts on new points (``compensate``: backlash,
+machine_thermal) says what the model file keeps of it (:meth:`Block.compensation`,
+:meth:`Block.part_to_file`, :meth:`Block.part_from_file`) and how it corrects a point
+(:meth:`Block.correct`); a block checks its own simulator configuration
+(:meth:`Block.check_sim`).
 """
 
 from __future__ import annotations
 
+import difflib
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from ..io import DataError, _check_celsius, _cut
 
 
 @dataclass
@@ -118,6 +126,109 @@ class SimContext:
     columns: dict = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class SimCheck:
+    """What a block's :meth:`Block.check_sim` checks its configuration against, and the
+    refusals it raises (every one a ``DataError`` naming the file and the key).
+
+    Attributes
+    ----------
+    name : str
+        The configuration's file name, for messages.
+    positions : tuple of str
+        Positions of the setup being simulated.
+    probes : tuple of str
+        Probes of that setup.
+    """
+
+    name: str
+    positions: tuple
+    probes: tuple
+
+    def bad(self, column, message, hint=None) -> DataError:
+        """A refusal of the key ``column``."""
+        return DataError(message, file=self.name, column=column, hint=hint)
+
+    def known(self, column, key, names, what):
+        """Refuse ``key`` unless it is one of ``names`` (a position or probe of the setup);
+        a close name is offered (a typo would silently drop the entry)."""
+        if str(key) not in names:
+            close = difflib.get_close_matches(str(key), list(names), n=1, cutoff=0.6)
+            raise self.bad(column, f"{what} {_cut(key)} is not in the setup (known: "
+                           f"{_cut(', '.join(names), 200)})" + (
+                               f"; did you mean {close[0]!r}?" if close else "."))
+
+    def vector(self, column, v):
+        """Refuse anything but 3 finite numbers."""
+        if not (isinstance(v, list | tuple) and len(v) == 3 and all(
+                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+                for x in v)):
+            raise self.bad(column, f"expected 3 finite numbers (µm or µm/h), found "
+                           f"{_cut(v)}.")
+
+    def start_finish_C(self, column, temps):
+        """Refuse ``temps`` unless it maps positions of the setup to [start, finish]
+        temperatures in °C."""
+        if temps is None:
+            return
+        if not isinstance(temps, dict):
+            raise self.bad(column, f"expected an object position: [start, finish] in °C, "
+                           f"found {_cut(temps)}.")
+        for pos, t in temps.items():
+            col = f"{column}.{pos}"
+            self.known(col, pos, self.positions, "position")
+            if not (isinstance(t, list) and len(t) == 2 and all(
+                    isinstance(x, int | float) and not isinstance(x, bool) for x in t)):
+                raise self.bad(col, f"expected [start, finish] in °C, found {_cut(t)}.")
+            _check_celsius(np.asarray(t, float), self.name, col)
+
+
+@dataclass(frozen=True)
+class ModelPart:
+    """What a model file keeps of one block to correct new points (``compensate``).
+
+    Attributes
+    ----------
+    labels : tuple of str
+        The block's parameters applied to new points (fit labels: ``backlash.x``,
+        ``machine_thermal.cte_z``).
+    values : ndarray (k,)
+        Their fitted values, in the block's units.
+    cov : ndarray (n + m + k, n + m + k)
+        Joint covariance of the n kinematic coefficients, the m parameters of the
+        compensating blocks before this one in ``REGISTRY`` order, and these k: the
+        correction's uncertainty needs their correlations with the error map.
+    """
+
+    labels: tuple
+    values: np.ndarray
+    cov: np.ndarray
+
+
+@dataclass(frozen=True)
+class Correction:
+    """A block's correction of new points (:meth:`Block.correct`).
+
+    Attributes
+    ----------
+    delta_um : ndarray (m, 3)
+        Added to the kinematic correction ``e`` (true minus reported tip centre, µm).
+    jac : ndarray (m, 3, k)
+        Derivative of ``delta_um`` with respect to the part's values (µm per unit): the
+        columns that follow the kinematic Jacobian in the propagation through
+        :attr:`ModelPart.cov`.
+    var_um2 : ndarray (m, 3) or None
+        Variance the covariance does not hold (µm²), added to the propagated one.
+    columns : dict
+        Output columns the block adds (name -> (m,) array).
+    """
+
+    delta_um: np.ndarray
+    jac: np.ndarray
+    var_um2: np.ndarray | None = None
+    columns: dict = field(default_factory=dict)
+
+
 class Block:
     """One physical effect: its parameters, the data it needs, its residual contribution,
     Jacobian and gauge constraints.
@@ -178,6 +289,82 @@ class Block:
     def constraints(self) -> np.ndarray | None:
         """Gauge constraint rows on the block's own columns (``C x = 0``), or None."""
         return None
+
+    # --- simulator configuration ------------------------------------------------------
+    @classmethod
+    def check_sim(cls, cfg: dict, where: str, check: SimCheck) -> None:
+        """Refuse what :attr:`sim_keys` and :attr:`sim_ranges` cannot say is wrong in
+        ``effects.<token>`` (``where``): names of positions or probes the setup lacks,
+        malformed vectors or temperatures (``check`` raises the refusals)."""
+
+    # --- compensation of new points -----------------------------------------------------
+    model_keys: tuple = ()
+    """Keys the block writes in a model file (empty: it does not act on new points)."""
+    model_what: str = ""
+    """What those keys hold, for messages ("backlash spans")."""
+
+    @classmethod
+    def compensation(cls, result, before) -> ModelPart | None:
+        """What a model file must keep of this block to correct new points (None: the
+        block is not in the fit, or does not act on new points).
+
+        Parameters
+        ----------
+        result : FitResult
+        before : ndarray of int
+            Parameter indices of the kinematic coefficients and of the compensating
+            blocks before this one (the leading rows of :attr:`ModelPart.cov`).
+        """
+        s = result.problem.layout.blocks.get(cls.token)
+        if not cls.model_keys or s is None:
+            return None
+        idx = np.r_[before, np.arange(s.start, s.stop)]
+        return ModelPart(tuple(result.labels[s]), result.values[s].copy(),
+                         result.covariance[np.ix_(idx, idx)].copy())
+
+    @classmethod
+    def part_to_file(cls, part: ModelPart) -> dict:
+        """The model-file keys (:attr:`model_keys`) holding ``part``."""
+        return {}
+
+    @classmethod
+    def part_from_file(cls, d: dict, n_before: int, name: str) -> ModelPart | None:
+        """The part a model file ``d`` holds (None: none), every field checked; a
+        ``DataError`` naming the file ``name`` and the key otherwise. ``n_before``: the
+        parameters before the block's in the joint covariance."""
+        return None
+
+    @classmethod
+    def correct(cls, part: ModelPart, points, x_mm: np.ndarray, name: str) -> Correction:
+        """The block's correction of new ``points`` (a table with ``x_mm, y_mm, z_mm``
+        and what the block needs) at scale readings ``x_mm`` (m, 3); refusals name the
+        points file ``name``."""
+        raise NotImplementedError(f"{cls.__name__} does not correct new points")
+
+
+def checked_cov(cov, n, name, column):
+    """Refuse a model file's covariance unless it is an n × n finite, symmetric, positive
+    semi-definite matrix: a NaN or a negative variance would give NaN or imaginary
+    uncertainties, silently."""
+    if cov.shape != (n, n):
+        raise DataError(f"expected a {n}x{n} covariance, found shape {cov.shape}.", file=name,
+                        column=column)
+    if not np.isfinite(cov).all():
+        raise DataError("the covariance holds NaN or infinite entries; expected finite "
+                        "numbers.", file=name, column=column,
+                        hint="refit and save the model again (fit --save).")
+    scale = max(float(np.abs(cov).max()), 1e-300) if n else 1.0
+    if n and np.abs(cov - cov.T).max() > 1e-9 * scale:
+        raise DataError("the covariance is not symmetric.", file=name, column=column,
+                        hint="refit and save the model again (fit --save).")
+    if n and (np.diag(cov) < 0).any():
+        k = int(np.flatnonzero(np.diag(cov) < 0)[0])
+        raise DataError(f"entry {k} of the covariance's diagonal is negative "
+                        f"({cov[k, k]:g}); expected variances >= 0.", file=name, column=column)
+    if n and np.linalg.eigvalsh((cov + cov.T) / 2).min() < -1e-8 * scale:
+        raise DataError("the covariance is not positive semi-definite; expected a "
+                        "covariance matrix.", file=name, column=column,
+                        hint="refit and save the model again (fit --save).")
 
 
 def per_group_cols(start: int, group: np.ndarray):

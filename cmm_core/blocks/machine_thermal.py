@@ -3,17 +3,35 @@ along it short by α_a (T_a − 20 °C) of the reading (ISO 1), so the true coor
 reading times 1 + α_a ΔT_a. α_a (10⁻⁶/K) is fitted per axis: the scale's expansion
 coefficient, or its error when the controller already compensates a nominal one. The
 scale temperatures are the ``temp_x_C``, ``temp_y_C``, ``temp_z_C`` columns; an axis
-without its column has no parameter."""
+without its column has no parameter.
+
+New points are corrected with the same term at their own scale temperatures
+(``compensate``): ``e_a += α_a (T_a − 20 °C) u_a`` for each fitted axis a, u the scale
+reading, so the points need the ``temp_a_C`` column of every fitted axis. The model file
+keeps the section ``machine_thermal``: the fitted ``axes``, their ``cte_ppm_per_K`` and
+``cov_joint``, the joint covariance of the kinematic coefficients, the backlash spans
+(when the model has them) and these coefficients.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..io import SCALE_TEMP_COLUMNS
+from ..io import (
+    SCALE_TEMP_COLUMNS,
+    TEMP_RANGE_C,
+    DataError,
+    _check_celsius,
+    _cut,
+    _file_rows,
+    _numeric,
+)
 from ..units import PPM, UM
-from .base import Block, Effect, shared_cols
+from .base import Block, Correction, Effect, ModelPart, checked_cov, shared_cols
 
 AXES = "xyz"
+SECTION_KEYS = ("axes", "cte_ppm_per_K", "cov_joint")
+"""Keys of the model file's ``machine_thermal`` section."""
 
 
 def _scale_temps(obs):
@@ -99,3 +117,71 @@ class MachineThermal(Block):
         for j, (a, g) in enumerate(terms):
             M[:, a, j] = g
         return [(shared_cols(ev.start("machine_thermal"), len(terms), n), M)]
+
+    @classmethod
+    def check_sim(cls, cfg, where, check):
+        check.start_finish_C(f"{where}.temp_C", cfg.get("temp_C"))
+
+    # --- compensation of new points -----------------------------------------------------
+    model_keys = ("machine_thermal",)
+    model_what = "scale expansion coefficients"
+
+    @classmethod
+    def part_to_file(cls, part):
+        return {"machine_thermal": {"axes": [lab[-1] for lab in part.labels],
+                                    "cte_ppm_per_K": part.values.tolist(),
+                                    "cov_joint": part.cov.tolist()}}
+
+    @classmethod
+    def part_from_file(cls, d, n_before, name):
+        sec = d.get("machine_thermal")
+        if sec is None:
+            return None
+        col = "machine_thermal"
+        if not isinstance(sec, dict) or set(map(str, sec)) != set(SECTION_KEYS):
+            raise DataError(f"expected an object with the keys {', '.join(SECTION_KEYS)}, "
+                            f"found {_cut(sec)}.", file=name, column=col,
+                            hint="refit and save the model again (fit --save); do not edit it.")
+        axes = sec["axes"]
+        if not isinstance(axes, list) or not all(isinstance(a, str) for a in axes) or \
+                axes != sorted(set(axes)) or not set(axes) <= set(AXES):
+            raise DataError(f"axes must be distinct axes among x, y, z in that order, found "
+                            f"{_cut(axes)}.", file=name, column=f"{col}.axes")
+        try:
+            cte = np.asarray(sec["cte_ppm_per_K"], float)
+            cov = np.asarray(sec["cov_joint"], float)
+        except (TypeError, ValueError) as exc:
+            raise DataError(f"expected numbers ({_cut(str(exc), 80)}).", file=name,
+                            column=col) from None
+        k = n_before + len(axes)
+        if cte.shape != (len(axes),) or not np.isfinite(cte).all():
+            raise DataError(f"expected {len(axes)} finite expansion coefficients "
+                            f"(10⁻⁶/K), one per axis, found {_cut(sec['cte_ppm_per_K'])}.",
+                            file=name, column=f"{col}.cte_ppm_per_K")
+        checked_cov(cov, k, name, f"{col}.cov_joint")
+        return ModelPart(tuple(f"machine_thermal.cte_{a}" for a in axes), cte, cov)
+
+    @classmethod
+    def correct(cls, part, points, x_mm, name):
+        axes = [AXES.index(lab[-1]) for lab in part.labels]
+        need = [SCALE_TEMP_COLUMNS[a] for a in axes]
+        missing = [c for c in need if c not in points]
+        if missing:
+            raise DataError(f"missing column(s) {', '.join(missing)}: the model corrects the "
+                            f"thermal expansion of the scales (machine_thermal), so every "
+                            f"point needs the temperature of each fitted axis's scale "
+                            f"({', '.join(need)}, °C).", file=name, column=missing[0],
+                            hint="record the scale temperatures with the points, as in the "
+                                 "measurements the model was fitted to.")
+        rows = _file_rows(points)
+        m = len(x_mm)
+        delta, jac = np.zeros((m, 3)), np.zeros((m, 3, len(axes)))
+        for j, (a, col) in enumerate(zip(axes, need, strict=True)):
+            t = _numeric(points, col, name)
+            bad = np.flatnonzero(~np.isfinite(t) | (t < TEMP_RANGE_C[0]) | (t > TEMP_RANGE_C[1]))
+            if bad.size:
+                _check_celsius(t[bad[:1]], name, col, row=int(rows[bad[0]]))
+            # the fit's reading stage (eq. in the module docstring), per point
+            jac[:, a, j] = (t - 20.0) * x_mm[:, a] * PPM / UM
+            delta[:, a] += part.values[j] * jac[:, a, j]
+        return Correction(delta, jac)
