@@ -7,8 +7,10 @@ import pandas as pd
 import streamlit as st
 
 from cmm_core import analysis as A
+from cmm_core import comp_table as ct
 from cmm_core import export as ex
 from cmm_core import report as rep
+from cmm_core import results_export as rx
 from cmm_core.compensate import model_to_dict
 from pages import common as C
 from pages.plan import task_section
@@ -17,7 +19,8 @@ C.page_start()
 st.title("Compensate and export")
 ds, r = C.require_fit()
 s = st.session_state
-args = C.fit_args()
+# the fit's cache key (``fit_key`` where pages/common.py has it, ``fit_args`` before)
+args = (C.fit_key if hasattr(C, "fit_key") else C.fit_args)()
 obs = r.problem.obs
 
 st.subheader("Correct measured points")
@@ -113,6 +116,57 @@ with st.container(border=True):
                    f"{' × '.join(f'{v:g}' for v in obs.range_mm)} mm.")
         st.download_button("Download error-map grid (CSV)", text, "error_map.csv", "text/csv",
                            key="dl_grid", on_click="ignore")
+
+with st.container(border=True):
+    st.markdown("**Compensation tables and results for a quality system** "
+                "([docs/compensation.md](docs/compensation.md)): a 3-D grid of corrections "
+                "(true − indicated, added to the reading, µm) with uncertainties; the "
+                "per-axis error functions and squareness a controller needs (µm, µrad); the "
+                "fitted parameters with uncertainties as JSON and QIF-like XML. The same as "
+                "`python -m cmm_core export MODEL.json`.")
+    k1, k2, k3 = st.columns(3)
+    cstep = k1.number_input("Table step (mm)", 25.0, 500.0, 100.0, step=25.0,
+                            key="w_comp_step")
+    origin = "none (ram reference point)"
+    cprobe = k2.selectbox("Grid probe", [origin, *obs.probes], key="w_comp_probe",
+                          help="The per-axis tables do not depend on the probe.")
+    kfac = k3.number_input("Coverage factor k", 1.0, 10.0, 2.0, step=0.5, key="w_comp_k")
+
+    @st.cache_data(show_spinner="Computing the compensation tables…", max_entries=16)
+    def comp_tables(args, step, probe, _r):
+        if ct.as_model(_r).undetermined:
+            return None
+        g = ct.compensation_grid(_r, step, probe=probe)
+        src = "fit in this session"
+        return ct.grid_csv(_r, g, probe, src), ct.axis_tables_zip(_r, step, src), len(g)
+
+    @st.cache_data(show_spinner=False, max_entries=16)
+    def results_files(args, k, _r):
+        src = "fit in this session"
+        return (rx.results_json(_r, coverage_factor=k, source=src),
+                rx.results_xml(_r, coverage_factor=k, source=src))
+
+    tables = C.safe(comp_tables, args, float(cstep), None if cprobe == origin else cprobe,
+                    r, what="Compensation tables")
+    files = C.safe(results_files, args, float(kfac), r, what="Results files")
+    t1, t2, t3, t4 = st.columns(4)
+    if tables is not None:
+        t1.download_button("Grid compensation table (CSV)", tables[0], "compensation_grid.csv",
+                           "text/csv", key="dl_comp_grid", on_click="ignore",
+                           help=f"{tables[2]} nodes; header: units, sign, layout, probe, "
+                                "grid, model and its χ² test.")
+        t2.download_button("Per-axis tables (zip of CSV)", tables[1], "axis_tables.zip",
+                           "application/zip", key="dl_axis_tables", on_click="ignore",
+                           help="axis_x/y/z.csv: the six error functions of each axis; "
+                                "squareness.csv.")
+    elif ct.as_model(r).undetermined:
+        t1.info("No compensation tables: the data do not determine every kinematic "
+                "combination, so the corrections would be an arbitrary choice.")
+    if files is not None:
+        t3.download_button("Results (JSON)", files[0], "cmm_results.json", "application/json",
+                           key="dl_results_json", on_click="ignore")
+        t4.download_button("Results (QIF-like XML)", files[1], "cmm_results.xml",
+                           "application/xml", key="dl_results_xml", on_click="ignore")
 
 
 # One analysis record from the session: the report, the record file and the project file
