@@ -177,6 +177,13 @@ _DATA_KEYS = ("name", "measurements", "setup", "certificate", "instruments")
 _FILE_KEYS = ("name", "path", "content")
 
 
+def instruments_from_list(items, name, where="data.instruments", base=None) -> tuple:
+    """:class:`InstrumentFile` per entry of a JSON list (``{"kind", "path"}`` or ``{"kind",
+    "name", "content"}``); DataError naming ``name`` and the entry otherwise."""
+    _check(isinstance(items, list), name, where, "a list of instrument files", items)
+    return tuple(_instrument(x, name, f"{where}[{i}]", base) for i, x in enumerate(items))
+
+
 def _instrument(obj, name, where, base) -> InstrumentFile:
     _check(isinstance(obj, dict) and "kind" in obj, name, where,
            "an object {\"kind\": ..., \"path\": ...} or {\"kind\": ..., \"name\": ..., "
@@ -272,15 +279,12 @@ def record_from_dict(doc, name="ANALYSIS.json", base=None) -> AnalysisRecord:
     _check(isinstance(meas, list) and len(meas) > 0, name, "data.measurements",
            "a non-empty list of files", meas)
     files = tuple(_file(m, name, f"data.measurements[{i}]", base) for i, m in enumerate(meas))
-    cert, inst = d.get("certificate"), d.get("instruments") or []
-    _check(isinstance(inst, list), name, "data.instruments", "a list of instrument files",
-           inst)
+    cert = d.get("certificate")
     out = {"data": DataSources(
         str(d.get("name") or ", ".join(f.name for f in files)), files,
         _file(d["setup"], name, "data.setup", base),
         None if cert is None else _file(cert, name, "data.certificate", base),
-        tuple(_instrument(x, name, f"data.instruments[{i}]", base)
-              for i, x in enumerate(inst)))}
+        instruments_from_list(d.get("instruments") or [], name, base=base))}
     for key, (ok, expected, convert) in _RULES.items():
         if key in doc:
             _check(ok(doc[key]), name, key, expected, doc[key])

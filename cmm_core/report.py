@@ -41,6 +41,7 @@ from .report_figures import (  # noqa: F401 - re-exported: pages use rep.fig_*
     instrument_tables,
     residual_summary,
     true_function_curve,
+    uncertainty_gain,
 )
 
 

@@ -306,6 +306,20 @@ def instrument_tables(summary, residuals: pd.DataFrame) -> tuple:
     return table, readings
 
 
+def uncertainty_gain(joint, plate_only) -> pd.DataFrame:
+    """Per kinematic coefficient its standard uncertainty from the plate alone
+    (``plate_only``, a FitResult) and with the instruments (``joint``, the same model, σ
+    and selection) and the gain, their ratio (how many times smaller u gets), largest
+    first. Units per row: µm or µrad."""
+    cols = ["parameter", "unit", "u"]
+    a = joint.parameters_frame().query("block == 'kinematic'")[cols]
+    b = plate_only.parameters_frame().query("block == 'kinematic'")[cols]
+    out = b.merge(a, on=["parameter", "unit"], suffixes=(" plate only", " with instruments"))
+    out["gain"] = out["u plate only"] / out["u with instruments"]
+    out["unit"] = out["unit"].map(lambda u: str(u).replace("urad", "µrad").replace("um", "µm"))
+    return out.sort_values("gain", ascending=False, kind="stable").reset_index(drop=True)
+
+
 # ---------------------------------------------------------------------------------------
 # History, placements
 # ---------------------------------------------------------------------------------------

@@ -15,12 +15,14 @@ import io
 import json
 import sys
 from contextlib import contextmanager, nullcontext  # noqa: F401 - pages use C.nullcontext
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import streamlit as st
 
+from cmm_core import analysis as A
 from cmm_core import report as rep  # noqa: F401 - pages use C.rep
 from cmm_core.dataset import THESIS_DIR, THESIS_POSITIONS, load_dataset
 from cmm_core.effects import parse_spec
@@ -39,7 +41,11 @@ DEFAULTS = {
     "history": [],
     "magnification": 2000.0,
     "diag_on": False,
+    "instruments": [],
 }
+INSTRUMENT_NAMES = {"laser": "laser interferometer", "step_gauge": "step gauge",
+                    "ball_bar": "ball bar"}
+"""Words for the instrument kinds (``analysis.instrument_kinds``) on screen."""
 PLATE_CHOICES = {"auto": "default (certificate fixed if given, else self-calibrated)",
                  "fixed": "certificate fixed", "prior": "certificate as prior",
                  "free": "self-calibrated (free)"}
@@ -126,6 +132,9 @@ def set_dataset(files: dict, *, reset_model: bool = True):
                    if k in s and s[k] != DEFAULTS[k]]
         if s.get("exclusions"):
             changed.append(f"{len(s['exclusions'])} exclusion(s) cleared")
+        if s.get("instruments"):  # they measured the previous machine
+            changed.append(f"{len(s['instruments'])} instrument file(s) removed")
+            set_instruments([])
         if s.get("positions") is not None or s.get("probes") is not None:
             changed.append("position/probe selection → all")
         for k in ("positions", "probes", "exclusions", "history", "diag_on"):
@@ -226,14 +235,121 @@ def dataset():
 
 
 # ---------------------------------------------------------------------------------------
+# Instrument files (laser runs, step gauges): kept as (kind, file name, text) triples in
+# ``st.session_state["instruments"]``, like the dataset, so the project file restores them
+# ---------------------------------------------------------------------------------------
+
+def instruments_key(items) -> str:
+    """Key of a list of instrument files; "" for none."""
+    if not items:
+        return ""
+    h = hashlib.sha1()
+    for kind, name, text in items:
+        h.update(f"{kind}\0{name}\0".encode() + text.encode() + b"\0")
+    return h.hexdigest()[:16]
+
+
+@st.cache_resource(show_spinner=False, max_entries=16)
+def _read_instruments(key: str, _items) -> tuple:
+    return tuple(A.read_instrument(io.StringIO(text), kind, name=name)
+                 for kind, name, text in _items)
+
+
+def read_instrument_file(kind: str, name: str, text: str):
+    """Validate one instrument file with the core reader (raises DataError naming file,
+    row and column)."""
+    return A.read_instrument(io.StringIO(text), kind, name=name)
+
+
+def set_instruments(items):
+    """Make ``items`` ((kind, name, text) triples) the instrument files of the session."""
+    s = st.session_state
+    s["instruments"] = [tuple(i) for i in items]
+    s["instruments_key"] = instruments_key(s["instruments"])
+
+
+def check_instruments(items, ds=None) -> None:
+    """Raise DataError unless every instrument file of ``items`` reads and lies within the
+    machine of ``ds`` (default: the current dataset): the rigid fit builds their rows."""
+    data = [read_instrument_file(*i) for i in items]
+    if data:
+        core_fit(dataset() if ds is None else ds, "rigid", instruments=data)
+
+
+def remove_instrument(index: int):
+    """Button callback: remove the ``index``-th instrument file."""
+    items = list(st.session_state.get("instruments") or [])
+    if 0 <= index < len(items):
+        kind, name, _ = items.pop(index)
+        set_instruments(items)
+        st.session_state["flash"] = ("success", f"Removed {name} "
+                                                f"({INSTRUMENT_NAMES.get(kind, kind)}).")
+
+
+def instrument_data(key: FitKey | None = None) -> tuple:
+    """The session's instrument readings (``LaserRun``, ``StepGauge`` ...) for a fit
+    ``key`` (none when the key has none)."""
+    s = st.session_state
+    items = s.get("instruments") or []
+    ikey = instruments_key(items)
+    if not items or (key is not None and key.instruments != ikey):
+        return ()
+    return _read_instruments(ikey, items)
+
+
+# ---------------------------------------------------------------------------------------
 # Cached core wrappers (hashable inputs; the dataset travels as an unhashed argument)
 # ---------------------------------------------------------------------------------------
 
+@dataclass(frozen=True)
+class FitKey:
+    """What decides one fit of the app, built by keyword from the session (:func:`fit_key`):
+    the cache key of every cached core call, hashable, never indexed by position."""
+
+    data: str
+    """Key of the dataset files (:func:`files_key`)."""
+    spec: str
+    """Model spec."""
+    order: int
+    """Default polynomial order."""
+    plate: str
+    """Plate geometry: auto, fixed, prior or free."""
+    sigma_um: float
+    """Repeatability σ (µm)."""
+    positions: tuple | None
+    """Positions fitted (None: all)."""
+    probes: tuple | None
+    """Probes fitted (None: all)."""
+    exclusions: tuple
+    """``(position, probe, ball)`` observations left out."""
+    instruments: str = ""
+    """Key of the instrument files fitted with the plate (:func:`instruments_key`); "":
+    none."""
+
+    def fit_kwargs(self) -> dict:
+        """Keyword arguments of ``cmm_core.fit.fit`` (and ``diagnose``) but the spec."""
+        return {"order": self.order, "plate": None if self.plate == "auto" else self.plate,
+                "sigma_um": self.sigma_um,
+                "positions": None if self.positions is None else list(self.positions),
+                "probes": None if self.probes is None else list(self.probes),
+                "exclude": list(self.exclusions)}
+
+    def with_spec(self, spec: str) -> FitKey:
+        """The same fit of another model (the rigid placements, a history step)."""
+        return replace(self, spec=spec)
+
+
 @st.cache_data(show_spinner=False, max_entries=256)
-def cached_fit(key, spec, order, plate, sigma_um, positions, probes, exclude, _ds):
-    return core_fit(_ds, spec, order=order, plate=None if plate == "auto" else plate,
-                    sigma_um=sigma_um, positions=None if positions is None else list(positions),
-                    probes=None if probes is None else list(probes), exclude=exclude)
+def cached_fit(key: FitKey, _ds, _instruments=()):
+    """The fit ``key`` names, with ``_instruments`` (the readings ``key.instruments``
+    names) fitted jointly."""
+    return core_fit(_ds, key.spec, instruments=list(_instruments) or None,
+                    **key.fit_kwargs())
+
+
+def fit_of(key: FitKey):
+    """``cached_fit`` of ``key`` with the current dataset and the instruments it names."""
+    return cached_fit(key, dataset(), instrument_data(key))
 
 
 @st.cache_data(show_spinner=False, max_entries=16)
@@ -241,12 +357,17 @@ def cached_outliers(key, _ds):
     return detect_outliers(_ds)
 
 
-def fit_args(spec=None) -> tuple:
+def fit_key(spec=None, *, instruments: bool = True) -> FitKey:
+    """The :class:`FitKey` of the session's fit (of ``spec`` when given; without the
+    instrument files when ``instruments`` is false)."""
     s = st.session_state
-    pos = tuple(s["positions"]) if s["positions"] is not None else None
-    prb = tuple(s["probes"]) if s["probes"] is not None else None
-    return (s["ds_key"], spec or s["spec"], int(s["order"]), s["plate"], float(s["sigma_um"]),
-            pos, prb, tuple(tuple(e) for e in s["exclusions"]))
+    return FitKey(
+        data=s["ds_key"], spec=spec or s["spec"], order=int(s["order"]), plate=s["plate"],
+        sigma_um=float(s["sigma_um"]),
+        positions=tuple(s["positions"]) if s["positions"] is not None else None,
+        probes=tuple(s["probes"]) if s["probes"] is not None else None,
+        exclusions=tuple(tuple(e) for e in s["exclusions"]),
+        instruments=(s.get("instruments_key") or "") if instruments else "")
 
 
 def require_dataset():
@@ -266,11 +387,11 @@ def require_fit():
     return ds, r
 
 
-def current_fit(spec=None, *, show_error=True):
-    """The fit of the current (or a given) model, or None with a message."""
-    args = fit_args(spec)
+def current_fit(spec=None, *, show_error=True, instruments: bool = True):
+    """The fit of the current (or a given) model, with the session's instrument files
+    unless ``instruments`` is false, or None with a message."""
     try:
-        return cached_fit(*args, dataset())
+        return fit_of(fit_key(spec, instruments=instruments))
     except Exception as exc:  # noqa: BLE001
         if show_error:
             st.error(f"The fit failed: {describe_error(exc)}")
@@ -278,13 +399,13 @@ def current_fit(spec=None, *, show_error=True):
 
 
 @st.cache_data(show_spinner=False, max_entries=64)
-def cached_uncertainty(args, n_random, seed, _result):
+def cached_uncertainty(key: FitKey, n_random, seed, _result):
     from cmm_core.uncertainty import evaluate
     return evaluate(_result, n_random=n_random, seed=seed)
 
 
 @st.cache_resource(show_spinner=False, max_entries=64)
-def cached_gp_discrepancy(args, _result) -> float:
+def cached_gp_discrepancy(key: FitKey, _result) -> float:
     """GP discrepancy of a fit (µm): the structure a GP over its residuals finds, with the
     model's own design matrix as basis (``diagnose.discrepancy_gp``)."""
     from cmm_core.diagnose import discrepancy_gp
@@ -310,14 +431,19 @@ def run_diagnosis(show_progress: bool = False):
     base = current_fit()
     if base is None:
         return None, None, "", {}
-    return (base, *_cached_core_diagnosis(fit_args(), dataset(), show_progress))
+    key = fit_key()
+    return (base, *_cached_core_diagnosis(key, dataset(), instrument_data(key),
+                                          show_progress))
 
 
 @st.cache_data(show_spinner="Running the diagnosis…", max_entries=32)
-def _cached_core_diagnosis(args, _ds, _show_progress=False):
+def _cached_core_diagnosis(key: FitKey, _ds, _instruments=(), _show_progress=False):
     from cmm_core.diagnose import diagnose
 
-    key, spec, order, plate, sigma, pos, prb, excl = args
+    kw = key.fit_kwargs()
+    # with instruments, every model the diagnosis scores or refits carries their rows
+    data = A.with_instruments(_ds, _instruments, positions=kw["positions"],
+                              probes=kw["probes"], exclude=kw["exclude"])
     # created inside the cached function so that a cache replay can recreate it
     bar = st.progress(0.0, text="Scoring candidate effects…") if _show_progress else None
 
@@ -325,9 +451,7 @@ def _cached_core_diagnosis(args, _ds, _show_progress=False):
         if bar is not None:
             bar.progress(frac, text=text)
 
-    d = diagnose(_ds, baseline=spec, order=order, plate=None if plate == "auto" else plate,
-                 sigma_um=sigma, exclude=excl, positions=None if pos is None else list(pos),
-                 probes=None if prb is None else list(prb), progress=report)
+    d = diagnose(data, baseline=key.spec, progress=report, **kw)
     rows = [{"effect": c.effect, "title": c.title, "explanation": c.explanation,
              "aliases": ", ".join(c.aliases), "separate_by": c.separate_by,
              "rms_um": c.rms_um, "chi2_dof": c.chi2_dof, "delta_chi2": c.delta_chi2,
@@ -357,7 +481,7 @@ def history_rows() -> list:
         gp = None
         if r is not None and s.get("hist_gp"):
             try:
-                gp = cached_gp_discrepancy(fit_args(h["spec"]), r)
+                gp = cached_gp_discrepancy(fit_key(h["spec"]), r)
             except Exception:  # noqa: BLE001
                 gp = None
         out.append({"spec": h["spec"], "change": h["change"],
@@ -532,7 +656,10 @@ def sidebar():
                 + f", {len(ds.positions)} positions, {len(ds.probes)} probes")
     files = s.get("ds_files", {})
     sb.caption(f"Setup: {files.get('setup_source', 'setup of the dataset')}.  \n"
-               f"Certificate: {files.get('certificate_source') or _cert_words(ds)}.")
+               f"Certificate: {files.get('certificate_source') or _cert_words(ds)}."
+               + ("  \nInstruments fitted with the plate: " + ", ".join(
+                   f"{n} ({INSTRUMENT_NAMES.get(k, k)})" for k, n, _ in s["instruments"])
+                  + "." if s.get("instruments") else ""))
     if s.get("reset_note"):
         sb.caption("New dataset, settings reset to its defaults: "
                    + "; ".join(s["reset_note"]) + ".")

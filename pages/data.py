@@ -1,15 +1,19 @@
-"""Data page: load the thesis tables, upload CSVs, simulate, restore a project; validate."""
+"""Data page: load the thesis tables, upload CSVs, simulate, restore a project, add
+instrument files (laser runs, step gauges); validate."""
 
 import io
 import json
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import streamlit as st
 
+from cmm_core import analysis as A
 from cmm_core import io as cio
 from cmm_core.dataset import THESIS_POSITIONS
+from cmm_core.kinematics import DEFAULT_LAYOUT, LAYOUTS
 from pages import common as C
 
 C.page_start()
@@ -20,6 +24,20 @@ C.flash()
 
 
 MAX_SHOWN = cio.MAX_PROBLEMS  # rows of the upload problem table
+LAYOUT_NAMES = {  # docs/layouts.md, in words
+    "moving_bridge_fxyz": "Moving bridge, bridge along x (thesis machine)",
+    "moving_bridge_fyxz": "Moving bridge, bridge along y",
+    "fixed_bridge_xfyz": "Fixed bridge, table moving in x",
+    "fixed_bridge_yfxz": "Fixed bridge, table moving in y",
+    "gantry_fxyz": "Gantry, beam along x",
+    "gantry_fyxz": "Gantry, beam along y",
+    "horizontal_arm_fxzy": "Horizontal arm, column along x, arm in y",
+    "horizontal_arm_fyzx": "Horizontal arm, column along y, arm in x",
+}
+INSTRUMENT_FORMATS = {  # docs/instruments.md
+    "laser": "`[run,]axis[,component],x_mm,y_mm,z_mm,error_um,u_um`",
+    "step_gauge": "`[gauge,]x1_mm,y1_mm,z1_mm,x2_mm,y2_mm,z2_mm,measured_mm,certified_mm,u_um`",
+}
 
 
 def _problem(file, problem, hint="", row=None, column="", more=0):
@@ -194,9 +212,34 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label=""):
     return files, [], [n for n in notes if n]
 
 
+def _simulated_instruments(sim, seed: int) -> list:
+    """A laser positioning run along x and a step gauge along a diagonal of the volume,
+    measured on the simulation's true machine, as (kind, file name, text) triples."""
+    from cmm_core import instruments as ins
+    from cmm_core.io_instruments import write_laser, write_step_gauge
+
+    rng = np.asarray(sim.dataset.setup.range_mm, float)
+    laser = ins.simulate_laser(sim, "x", [0.0, 0.1 * rng[1], 0.1 * rng[2]],
+                               np.linspace(0.0, rng[0], 25), u_um=0.2, seed=seed + 1,
+                               run="x_positioning", source="simulated_laser_x.csv")
+    start, end = 0.1 * rng, np.array([0.9, 0.85, 0.6]) * rng
+    n = int(np.linalg.norm(end - start) // 100)
+    sg = ins.simulate_step_gauge(sim, start, end, np.arange(1, n + 1) * 100.0, u_um=0.3,
+                                 seed=seed + 2, source="simulated_step_gauge.csv")
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for kind, item, write in (("laser", laser, write_laser),
+                                  ("step_gauge", sg, write_step_gauge)):
+            path = Path(tmp) / item.source
+            write(item, path)
+            out.append((kind, item.source, path.read_text()))
+    return out
+
+
 def _loaded(message):
     """After any successful load: the old upload report no longer applies."""
     st.session_state.pop("upload_report", None)
+    st.session_state.pop("instrument_errors", None)
     st.session_state["flash"] = ("success", message)
     st.rerun()
 
@@ -279,6 +322,17 @@ with tab_sim:
     korder = c3.selectbox("Polynomial order of the true errors", [1, 2, 3, 4, 5], index=1,
                           key="sim_korder")
     interleave = c4.checkbox("Probes interleaved", key="sim_interleave")
+    c1, c2 = st.columns([2, 2])
+    layout = c1.selectbox("Machine layout", list(LAYOUTS), key="sim_layout",
+                          format_func=lambda k: f"{LAYOUT_NAMES.get(k, k)} ({k})",
+                          help="How the carriages are stacked and which one moves the table "
+                               "(docs/layouts.md). The thesis placements are measured on it.")
+    sim_inst = c2.checkbox("Also simulate a laser run along x and a step gauge",
+                           key="sim_instruments",
+                           help="Measured on the same true machine (laser u 0.2 µm, step "
+                                "gauge u 0.3 µm) and fitted jointly with the plate: the "
+                                "Kinematic model page then shows how much they lower each "
+                                "coefficient's uncertainty.")
     st.markdown("**Hidden effects**")
     e1, e2, e3, e4 = st.columns(4)
     eff = {}
@@ -320,24 +374,37 @@ with tab_sim:
                "plate": {"form_um": float(form)},
                "kinematic": kin_cfg,
                "effects": eff}
+        if layout != DEFAULT_LAYOUT:
+            from cmm_core.simulate import thesis_machine_setup
+
+            setup = thesis_machine_setup()
+            setup["machine"]["layout"] = layout
+            cfg["setup"] = setup
         sim = C.safe(simulate, cfg, what="Simulation")
+        inst = [] if sim is None or not sim_inst else C.safe(
+            _simulated_instruments, sim, int(seed), what="Simulating the instruments")
         if sim is not None:
             with tempfile.TemporaryDirectory() as tmp:
                 sim.write(tmp)
                 p = Path(tmp)
-                files = {"name": f"simulated (seed {int(seed)})", "kind": "simulated",
+                files = {"name": f"simulated (seed {int(seed)})"
+                         + ("" if layout == DEFAULT_LAYOUT else f", {layout}"),
+                         "kind": "simulated",
                          "setup_source": "the simulation's setup (thesis placements)",
                          "certificate_source": "the simulation's certificate",
                          "measurements": [("measurements.csv",
                                            (p / "measurements.csv").read_text())],
                          "setup": (p / "setup.json").read_text(),
                          "certificate": ("certificate.csv", (p / "certificate.csv").read_text())}
-            ok = C.safe(C.set_dataset, files, what="Loading the simulation")
+            ok = None if inst is None else C.safe(C.set_dataset, files,
+                                                  what="Loading the simulation")
             if ok is not None:
+                C.set_instruments(inst)
                 st.session_state["sim_truth"] = {"key": C.files_key(files),
                                                  "truth": sim.truth, "config": cfg}
-                _loaded("Simulated dataset loaded. The true parameters are on the Kinematic "
-                        "model page.")
+                _loaded("Simulated dataset loaded" + (
+                    " with a laser run and a step gauge fitted jointly" if inst else "")
+                    + ". The true parameters are on the Kinematic model page.")
 
 with tab_proj:
     st.write("A project file (JSON, from *Compensate and export*) restores the dataset, model, "
@@ -367,6 +434,10 @@ with tab_proj:
                         "observations its data do not have: " + "; ".join(
                             f"{p} probe {q} ball {b}" for p, q, b in unknown[:10])
                         + ". Remove them from the file or restore it with its own data.")
+                inst = [(i.kind, i.file.name, i.file.text()) for i in A.instruments_from_list(
+                    (doc["extra"].get("analysis") or {}).get("instruments") or [],
+                    up_proj.name, "extra.analysis.instruments")]
+                C.check_instruments(inst, new_ds)  # before anything changes
                 C.set_dataset(files)
             except Exception as exc:  # noqa: BLE001
                 st.error(f"The project does not restore: {C.describe_error(exc)}")
@@ -384,8 +455,90 @@ with tab_proj:
                     # the model was edited by hand after the last recorded step
                     s["history"].append({"spec": s["spec"], "change": "edited by hand"})
                 s["reset_note"] = []  # the project's own settings, not defaults
+                C.set_instruments(inst)
                 C.reset_widgets()
                 _loaded(f"Restored project '{doc['dataset_name']}'.")
+
+# ---------------------------------------------------------------------------------------
+# Instruments: laser runs and step gauges fitted jointly with the plate
+# ---------------------------------------------------------------------------------------
+
+def _read_instrument_uploads(uploads, have):
+    """(kind, name, text) of every uploaded instrument file that reads, and the one-line
+    problem of each that does not (the core reader's: file, row, column)."""
+    new, errors = [], []
+    names = {n for _, n, _ in have}
+    for kind, files in uploads.items():
+        for f in files or []:
+            if f.name in names:
+                errors.append(f"{f.name}: a file of this name is already loaded; remove it "
+                              "first (the residual tables name instruments by file).")
+                continue
+            try:
+                text = f.getvalue().decode("utf-8-sig")
+                C.read_instrument_file(kind, f.name, text)
+            except UnicodeDecodeError:
+                errors.append(f"{f.name}: is not UTF-8 text; save it as UTF-8 CSV.")
+            except Exception as exc:  # noqa: BLE001 - a message, never a traceback
+                errors.append(C.describe_error(exc))
+            else:
+                new.append((kind, f.name, text))
+                names.add(f.name)
+    if new and not errors:
+        try:  # together, against this machine's strokes
+            C.check_instruments(have + new)
+        except Exception as exc:  # noqa: BLE001
+            errors.append(C.describe_error(exc))
+    return new, errors
+
+
+def instruments_section():
+    s = st.session_state
+    st.subheader("Instruments (fitted jointly with the plate)")
+    st.write("Laser interferometer runs and step gauges observe the machine's errors "
+             "directly; their readings become rows of every fit, beside the plate's "
+             "(docs/instruments.md). Machine axes, mm; errors and u in µm.")
+    gen = s.get("inst_gen", 0)
+    sfx = "" if gen == 0 else f"_{gen}"
+    kinds = list(A.instrument_kinds())
+    cols = st.columns(len(kinds))
+    uploads = {}
+    for col, kind in zip(cols, kinds, strict=True):
+        uploads[kind] = col.file_uploader(
+            f"{C.INSTRUMENT_NAMES.get(kind, kind).capitalize()} (CSV)", type=["csv", "txt"],
+            accept_multiple_files=True, key=f"up_{kind}{sfx}",
+            help=f"Columns {INSTRUMENT_FORMATS[kind]}." if kind in INSTRUMENT_FORMATS
+            else None)
+    if st.button("Add instrument files", key="add_instruments"):
+        have = list(s.get("instruments") or [])
+        new, errors = _read_instrument_uploads(uploads, have)
+        s["instrument_errors"] = errors
+        if not new and not errors:
+            st.info("Choose instrument files above first.")
+        elif not errors:
+            C.set_instruments(have + new)
+            s["inst_gen"] = gen + 1
+            _loaded(f"Added {len(new)} instrument file(s): "
+                    + ", ".join(n for _, n, _ in new) + ". Every fit now includes them.")
+    for e in s.get("instrument_errors") or []:
+        st.error(e)
+    if s.get("instrument_errors"):
+        st.caption("Nothing was added: the dataset and the instrument files loaded are "
+                   "unchanged.")
+    items = s.get("instruments") or []
+    if not items:
+        st.caption("No instrument files: the fits use the ball plate alone.")
+        return
+    data = C.safe(C.instrument_data, what="Reading the instrument files") or ()
+    for i, (kind, name, _) in enumerate(items):
+        c1, c2 = st.columns([5, 1])
+        n = f", {len(data[i].rows)} readings" if i < len(data) else ""
+        c1.markdown(f"**{name}**: {C.INSTRUMENT_NAMES.get(kind, kind)}{n}")
+        c2.button("Remove", key=f"rm_instrument_{i}", on_click=C.remove_instrument,
+                  args=(i,))
+
+
+instruments_section()
 
 # ---------------------------------------------------------------------------------------
 # The current dataset: validation report

@@ -22,11 +22,10 @@ s = st.session_state
 
 
 @st.cache_data(show_spinner=False, max_entries=16)
-def measured_errors(args, _ds):
+def measured_errors(key, _ds, _instruments=()):
     """Measured error at every observation: minus the residual of a rigid-placement-only
     fit (µm, machine axes), with the points (tip centres, mm) and placements removed."""
-    key, spec, order, plate, sigma, pos, prb, excl = args
-    rig = C.cached_fit(key, "rigid", order, plate, sigma, pos, prb, excl, _ds)
+    rig = C.cached_fit(key.with_spec("rigid"), _ds, _instruments)
     obs = rig.problem.obs
     return (obs.r_mm, measured_error_from_residuals_um(rig.residuals_um),
             rig.table[["position", "probe", "ball"]])
@@ -97,8 +96,8 @@ def predict_all(args, mean, kernel, grid_key, comps, grid, probe):
     return np.column_stack([o[0] for o in out]), np.column_stack([o[1] for o in out])
 
 
-args = C.fit_args()
-pts, err, meta = measured_errors(args, ds)
+args = C.fit_key()
+pts, err, meta = measured_errors(args, ds, C.instrument_data(args))
 u_res = kinematic_residual_u(args, r)
 # rows of the kinematic fit and the rigid fit are the same selection, same order
 pred_kin = err + r.residuals_um

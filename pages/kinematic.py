@@ -105,7 +105,7 @@ with tabs[0], C.guarded("Error functions"):
     present = [n for n, _ in r.terms.functions]
     show = st.multiselect("Show", present, default=present)
     true_now = truth["truth"] if truth and truth.get("key") == s["ds_key"] else None
-    st.plotly_chart(C.figure("errfun", (C.fit_args(), tuple(show), true_now is not None),
+    st.plotly_chart(C.figure("errfun", (C.fit_key(), tuple(show), true_now is not None),
                              error_function_grid, r, show, 3, true_now),
                     key="fig_errfun", width="stretch")
     st.caption("Translational errors in µm, rotations in µrad, squareness as an angle in "
@@ -119,7 +119,7 @@ with tabs[1], C.guarded("Deviation plots"):
     position = c1.selectbox("Position", pos_fit, key="w_dev_position")
     C.bind("magnification", c2.slider, "Magnification", min_value=100.0, max_value=10000.0,
            step=100.0, format="×%.0f")
-    st.plotly_chart(C.figure("deviation", (C.fit_args(), position, float(s["magnification"])),
+    st.plotly_chart(C.figure("deviation", (C.fit_key(), position, float(s["magnification"])),
                              C.rep.fig_deviation, r, position, float(s["magnification"])),
                     key="fig_deviation")
     st.caption("Plate frame, mm: nominal ball centres (certificate or fitted plate), measured "
@@ -176,7 +176,7 @@ with tabs[2], C.guarded("Parameter table"):
                   "minute per row (µm/h = µm per 60 rows)."))
 
 with tabs[3], C.guarded("Residuals"):
-    st.plotly_chart(C.figure("pattern", C.fit_args(), C.rep.fig_pattern, r.table,
+    st.plotly_chart(C.figure("pattern", C.fit_key(), C.rep.fig_pattern, r.table,
                              r.residuals_um, "Residuals per observation (µm)"),
                     key="fig_resid")
     C.dataframe(C.rep.residual_summary(r), hide_index=True, key="resid_summary")
@@ -184,6 +184,45 @@ with tabs[3], C.guarded("Residuals"):
     worst = rf.assign(norm_um=np.linalg.norm(r.residuals_um, axis=1)).nlargest(10, "norm_um")
     st.caption("Largest residuals (µm), with the file and row each came from:")
     C.dataframe(worst, hide_index=True, key="resid_worst")
+
+def instruments_section(r):
+    """The instruments fitted with the plate: their residuals and the uncertainty gain."""
+    from cmm_core import instruments as ins
+
+    st.subheader("Instruments fitted with the plate")
+    table, readings = C.rep.instrument_tables(ins.summary(r), ins.residuals_frame(r))
+    C.dataframe(table, hide_index=True, key="instrument_summary",
+                column_config={"chi2": st.column_config.NumberColumn("χ²", format="%.1f"),
+                               "RMS residual/u": st.column_config.NumberColumn(format="%.2f"),
+                               "RMS residual (µm)": st.column_config.NumberColumn(
+                                   format="%.3f")})
+    st.caption("Residual: the model's prediction minus the reading (µm), each laser run's "
+               "zero (and a straightness run's slope) removed; RMS residual/u near 1 when "
+               "the model explains the instrument as its u says.")
+    C.dataframe(readings, hide_index=True, key="instrument_residuals",
+                column_config={c_: st.column_config.NumberColumn(format="%.3f")
+                               for c_ in ("residual (µm)", "u (µm)", "residual/u")})
+    alone = C.current_fit(instruments=False, show_error=False)
+    if alone is None:
+        st.warning("The fit of the plate alone failed: no uncertainty gain to show.")
+        return
+    st.markdown("**Uncertainty gain**")
+    gain = C.rep.uncertainty_gain(r, alone)
+    st.caption("Standard uncertainty (k = 1) of each kinematic coefficient from the plate "
+               "alone and with the instruments in the same fit (same model, σ and "
+               "selection); the gain is their ratio, how many times smaller the "
+               "instruments make it, largest first.")
+    C.dataframe(gain, hide_index=True, key="instrument_gain",
+                column_config={"u plate only": st.column_config.NumberColumn(format="%.4f"),
+                               "u with instruments": st.column_config.NumberColumn(
+                                   format="%.4f"),
+                               "gain": st.column_config.NumberColumn("gain ×",
+                                                                     format="%.2f")})
+
+
+if s.get("instruments"):
+    with C.guarded("Instruments"):
+        instruments_section(r)
 
 with st.expander("The 21 error names"):
     st.write(", ".join(ERROR_NAMES))

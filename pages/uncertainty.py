@@ -17,7 +17,7 @@ st.caption("Standard uncertainties (k = 1) unless marked U (k = 2). U1-U3 remove
            "orientation of the machine frame.")
 ds, r = C.require_fit()
 s = st.session_state
-args = C.fit_args()
+args = C.fit_key()
 
 C.misfit_banner(r)
 st.subheader("U1, U2, U3 (thesis tables 4.1-4.3)")
@@ -248,7 +248,7 @@ def show_mpe(out, skipped, u_src, sig):
         for c_, (k_, v) in zip(m, cnt.items(), strict=False):
             c_.metric(k_, v)
         m[-1].metric("max |E| (µm)", f"{out.max_abs_error_um():.2f}")
-        st.plotly_chart(C.figure("mpe", (C.fit_args(), u_src, sig), C.rep.fig_mpe, out),
+        st.plotly_chart(C.figure("mpe", (args, u_src, sig), C.rep.fig_mpe, out),
                         key="fig_mpe")
         C.dataframe(pd.DataFrame(out.rows()), hide_index=True, key="mpe_table",
                      column_config={"length_mm": st.column_config.NumberColumn(format="%.3f"),

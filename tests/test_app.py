@@ -861,3 +861,72 @@ def test_every_page_with_an_uncertainty_says_the_fit_fails_its_chi2_test(page):
         "The model fails its χ² test")]
     assert len(banner) == 1, [w.value for w in at.main.warning]
     assert f"×{birge:.2f}" in banner[0]
+
+
+# --- instruments: laser runs and step gauges fitted with the plate ------------------------
+
+LASER = ROOT / "sample_data" / "instruments" / "laser_x.csv"
+
+
+@pytest.fixture(scope="module")
+def inst_app():
+    """One session for the instrument tests (AppTest runs are slow): the thesis data."""
+    return _new()
+
+
+def test_a_bad_instrument_file_is_one_line_and_keeps_the_dataset(inst_app):
+    at = inst_app
+    lines = LASER.read_text().splitlines()
+    lines[2] = lines[2].rsplit(",", 1)[0] + ",0.2 um"  # a unit in a number cell, file row 3
+    _uploader(at, "Laser interferometer").set_value(
+        [("laser_bad.csv", "\n".join(lines).encode(), "text/csv")])
+    at.button(key="add_instruments").click()
+    at.run()
+    assert not at.exception
+    (err,) = [e.value for e in at.error]
+    assert "\n" not in err and "laser_bad.csv" in err
+    assert "row 3" in err and "column 'u_um'" in err
+    assert any("thesis tables" in m.value for m in at.sidebar.markdown)  # nothing lost
+    assert not at.session_state["instruments"]
+
+
+def test_a_laser_upload_shows_its_residuals_and_the_uncertainty_gain(inst_app):
+    at = inst_app
+    _uploader(at, "Laser interferometer").set_value(
+        [("laser_x.csv", LASER.read_bytes(), "text/csv")])
+    at.button(key="add_instruments").click()
+    at.run()
+    _ok(at)
+    assert [i[1] for i in at.session_state["instruments"]] == ["laser_x.csv"]
+    assert any("laser_x.csv" in c.value for c in at.sidebar.caption)
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    _ok(at)
+    summary = _frame(at, "RMS residual/u")
+    assert list(summary["file"]) == ["laser_x.csv"] and summary["readings"].iloc[0] == 50
+    assert len(_frame(at, "residual (µm)")) == 50
+    gain = _frame(at, "gain")
+    assert gain["gain"].is_monotonic_decreasing and gain["gain"].iloc[0] > 3
+    assert gain["parameter"].iloc[0].startswith("dxx")  # a run along x sees dxx first
+    # every fit of the app has it: the diagnosis's baseline is this fit
+    at.switch_page("pages/diagnose.py")
+    at.run()
+    _ok(at)
+
+
+def test_simulated_moving_table_with_instruments_fits_within_its_noise():
+    at = _new()
+    at.selectbox(key="sim_layout").set_value("fixed_bridge_xfyz")
+    at.checkbox(key="sim_instruments").check()
+    at.run()
+    at.button(key="simulate").click()
+    at.run()
+    _ok(at)
+    assert [i[0] for i in at.session_state["instruments"]] == ["laser", "step_gauge"]
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    _ok(at)
+    chi2 = float({m.label: m.value for m in at.metric}["χ²/dof"])
+    assert 0.75 <= chi2 <= 1.3
+    assert set(_frame(at, "RMS residual/u")["kind"]) == {"laser", "step_gauge"}
+    assert (_frame(at, "gain")["gain"] > 0.99).all()
