@@ -186,7 +186,7 @@ def _model_parts(d, spec, n_kin, name):
     parts, n_before = {}, n_kin
     for b in COMPENSATING:
         part = b.part_from_file(d, n_before, name)
-        if part is None and b.token in effects:
+        if part is None and b.token in effects and not b.model_keys_optional:
             raise DataError(f"the model's spec has {b.token} but the file holds no "
                             f"{b.model_what} (written by an older version).", file=name,
                             hint="refit and save the model again.")

@@ -302,6 +302,10 @@ class Block:
     """Keys the block writes in a model file (empty: it does not act on new points)."""
     model_what: str = ""
     """What those keys hold, for messages ("backlash spans")."""
+    model_keys_optional: bool = False
+    """Whether a model file whose spec has the block may lack its keys (written before the
+    block kept them): it is then read without the part and corrects as it did; False:
+    such a file is refused."""
 
     @classmethod
     def compensation(cls, result, before) -> ModelPart | None:

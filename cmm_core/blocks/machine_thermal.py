@@ -125,6 +125,9 @@ class MachineThermal(Block):
     # --- compensation of new points -----------------------------------------------------
     model_keys = ("machine_thermal",)
     model_what = "scale expansion coefficients"
+    # model files of earlier releases kept only the kinematic coefficients (fitted jointly
+    # with the scale term, so they correct as at 20 °C scales): they read as before
+    model_keys_optional = True
 
     @classmethod
     def part_to_file(cls, part):

@@ -29,7 +29,10 @@ pts.to_csv(HERE / "points.csv", index=False)
 for tag, spec, effects in (
         ("kinematic", "kinematic21", {}),
         ("backlash", "kinematic21,backlash",
-         {"backlash": {"x_um": 2.0, "y_um": -1.5, "z_um": 1.0}})):
+         {"backlash": {"x_um": 2.0, "y_um": -1.5, "z_um": 1.0}}),
+        # that release saved no scale coefficients: it corrected as at 20 °C scales
+        ("machine_thermal", "kinematic21,machine_thermal",
+         {"machine_thermal": {"x_cte_per_K": 3e-6, "z_cte_per_K": -2e-6}})):
     sim = simulate({"seed": 8, "order": "serpentine", "effects": effects})
     save_model(fit(sim.dataset, spec), HERE / f"model_{tag}.json")
     out = compensate(load_model(HERE / f"model_{tag}.json"), pts)
