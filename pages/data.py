@@ -34,10 +34,18 @@ LAYOUT_NAMES = {  # docs/layouts.md, in words
     "horizontal_arm_fxzy": "Horizontal arm, column along x, arm in y",
     "horizontal_arm_fyzx": "Horizontal arm, column along y, arm in x",
 }
-INSTRUMENT_FORMATS = {  # docs/instruments.md
-    "laser": "`[run,]axis[,component],x_mm,y_mm,z_mm,error_um,u_um`",
-    "step_gauge": "`[gauge,]x1_mm,y1_mm,z1_mm,x2_mm,y2_mm,z2_mm,measured_mm,certified_mm,u_um`",
-}
+
+
+def _instrument_columns(kind: str) -> str | None:
+    """The columns of an instrument file of ``kind`` (``io_instruments``), for the help."""
+    from cmm_core import io_instruments as ioi
+
+    need = getattr(ioi, f"{kind.upper()}_COLUMNS", None)
+    opt = getattr(ioi, f"{kind.upper()}_OPTIONAL", ())
+    if not need:
+        return None
+    return (f"Columns {', '.join(need)}" + (f"; optional {', '.join(opt)}" if opt else "")
+            + ". Machine axes, mm; errors and u in µm (docs/instruments.md).")
 
 
 def _problem(file, problem, hint="", row=None, column="", more=0):
@@ -495,20 +503,19 @@ def _read_instrument_uploads(uploads, have):
 def instruments_section():
     s = st.session_state
     st.subheader("Instruments (fitted jointly with the plate)")
-    st.write("Laser interferometer runs and step gauges observe the machine's errors "
-             "directly; their readings become rows of every fit, beside the plate's "
+    kinds = list(A.instrument_kinds())
+    st.write(f"Instrument files ({', '.join(C.INSTRUMENT_NAMES.get(k, k) for k in kinds)}) "
+             "observe the machine's errors directly; their readings become rows of every "
+             "fit, beside the plate's "
              "(docs/instruments.md). Machine axes, mm; errors and u in µm.")
     gen = s.get("inst_gen", 0)
     sfx = "" if gen == 0 else f"_{gen}"
-    kinds = list(A.instrument_kinds())
     cols = st.columns(len(kinds))
     uploads = {}
     for col, kind in zip(cols, kinds, strict=True):
         uploads[kind] = col.file_uploader(
             f"{C.INSTRUMENT_NAMES.get(kind, kind).capitalize()} (CSV)", type=["csv", "txt"],
-            accept_multiple_files=True, key=f"up_{kind}{sfx}",
-            help=f"Columns {INSTRUMENT_FORMATS[kind]}." if kind in INSTRUMENT_FORMATS
-            else None)
+            accept_multiple_files=True, key=f"up_{kind}{sfx}", help=_instrument_columns(kind))
     if st.button("Add instrument files", key="add_instruments"):
         have = list(s.get("instruments") or [])
         new, errors = _read_instrument_uploads(uploads, have)

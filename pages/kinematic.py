@@ -6,17 +6,20 @@ import streamlit as st
 
 from cmm_core.effects import GROUPS, PHYSICAL, parse_spec
 from cmm_core.kinematics import ERROR_NAMES
+from cmm_core.observations import setup_layout
 from cmm_core.units import label as unit_label
 from pages import common as C
 
 C.page_start()
 st.title("Kinematic model")
-st.caption("The 21-error local kinematic model of a moving-bridge FXYZ CMM (thesis eq. 4.13), "
-           "Chebyshev polynomials over each axis stroke, fitted by Gauss-Newton with the rigid "
-           "placement of every position.")
 C.flash()
 ds = C.require_dataset()
 s = st.session_state
+st.caption("The 21-error local kinematic model of the machine's layout, here "
+           f"`{setup_layout(ds.setup)}` (setup machine.layout, docs/layouts.md; the moving "
+           "bridge FXYZ is thesis eq. 4.13), Chebyshev polynomials over each axis stroke, "
+           "fitted by Gauss-Newton with the rigid placement of every position"
+           + (" and the instrument files' rows." if s.get("instruments") else "."))
 
 with st.container(border=True):
     c1, c2, c3 = st.columns([3, 3, 2])

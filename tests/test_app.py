@@ -912,6 +912,23 @@ def test_a_laser_upload_shows_its_residuals_and_the_uncertainty_gain(inst_app):
     at.switch_page("pages/diagnose.py")
     at.run()
     _ok(at)
+    # the project file carries the instrument file; restoring it brings it back
+    from cmm_core import analysis as A
+
+    state = {k: at.session_state[k] for k in ("ds_files", "spec", "order", "plate",
+                                               "sigma_um", "instruments")}
+    text = A.record_to_project_json(A.record_from_session(state))
+    at.switch_page("pages/data.py")
+    at.run()
+    at.button(key="rm_instrument_0").click()
+    at.run()
+    assert not at.session_state["instruments"]
+    at.file_uploader(key="up_project").set_value(("p.json", text.encode(), "application/json"))
+    at.run()
+    at.button(key="restore_project").click()
+    at.run()
+    _ok(at)
+    assert [i[1] for i in at.session_state["instruments"]] == ["laser_x.csv"]
 
 
 def test_simulated_moving_table_with_instruments_fits_within_its_noise():
