@@ -63,6 +63,12 @@ _STEP_GAUGE_HELP = ("step gauge / gauge block CSV, machine axes: [gauge,]x1_mm,y
                     "of the two probings and the lengths (mm), the standard uncertainty of "
                     "measured minus certified length (µm). Fitted jointly with the plate; "
                     "repeatable (docs/instruments.md). Default: none")
+_BALL_BAR_HELP = ("ball bar CSV, machine axes: [bar,]x1_mm,y1_mm,z1_mm,x2_mm,y2_mm,z2_mm,"
+                  "certified_mm,u_um[,offset_x_mm,offset_y_mm,offset_z_mm][,temp_C,"
+                  "cte_per_K]: the indicated centres of the bar's two balls and its "
+                  "certified length (mm), the standard uncertainty of indicated minus "
+                  "certified length (µm); one row per placement of the bar. Fitted jointly "
+                  "with the plate; repeatable (docs/instruments.md). Default: none")
 
 
 def _instrument_args(p):
@@ -70,14 +76,18 @@ def _instrument_args(p):
                    help=_LASER_HELP)
     p.add_argument("--step-gauge", action="append", default=[], metavar="SG.csv",
                    help=_STEP_GAUGE_HELP)
+    p.add_argument("--ball-bar", action="append", default=[], metavar="BB.csv",
+                   help=_BALL_BAR_HELP)
 
 
 def _instruments(args):
-    """The instrument files of ``--laser`` and ``--step-gauge``, read (DataError if bad)."""
-    from .io_instruments import read_laser, read_step_gauge
+    """The instrument files of ``--laser``, ``--step-gauge`` and ``--ball-bar``, read
+    (DataError if bad)."""
+    from .io_instruments import read_instrument
 
-    return ([read_laser(f) for f in args.laser]
-            + [read_step_gauge(f) for f in args.step_gauge])
+    return [read_instrument(f, kind) for kind, files in
+            (("laser", args.laser), ("step_gauge", args.step_gauge),
+             ("ball_bar", args.ball_bar)) for f in files]
 
 
 def _fit_args(p, *, baseline=False):

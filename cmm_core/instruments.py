@@ -1,6 +1,6 @@
-"""Laser interferometer runs and step gauges / gauge blocks, fitted jointly with the plate.
+"""Laser interferometer runs, step gauges / gauge blocks and ball bars, fitted with the plate.
 
-Both instruments observe the machine's kinematic errors directly, with no plate and no
+These instruments observe the machine's kinematic errors directly, with no plate and no
 placement in between: their weighted rows depend on the kinematic coefficients only and
 join the fit's least squares beside the ball plate's rows (``normal.accumulate``,
 ``fit.weighted_residual``), as the certificate prior's rows do. Formats, sign conventions
@@ -32,7 +32,8 @@ Step gauge or gauge block (one length per row, probed points ``r1``, ``r2``)::
 
 the measured length corrected by the model's change of the distance between the two
 points; the row is ``pred / u``. It is sensitive to the scale of the machine, which a
-self-calibrated plate cannot give (``Instruments.plate_gauge``).
+self-calibrated plate cannot give (``Instruments.plate_gauge``). Ball bars (lengths between
+two probed ball centres, eq. 3) are in :mod:`cmm_core.instruments_ballbar`.
 """
 
 from __future__ import annotations
@@ -48,7 +49,8 @@ from .io import DataError
 from .units import UM
 
 __all__ = ["LaserRun", "StepGauge", "Instruments", "RANGE_MARGIN", "summary",
-           "residuals_frame", "truth_of", "simulate_laser", "simulate_step_gauge"]
+           "residuals_frame", "truth_of", "simulate_laser", "simulate_step_gauge",
+           "length_change"]  # and BallBar, simulate_ball_bar (module __getattr__)
 
 RANGE_MARGIN = 0.05
 """Share of each axis stroke an instrument point may lie outside ``[0, range]``: beyond,
@@ -186,21 +188,29 @@ class StepGauge:
 
     def predict(self, terms, coef, want_jac):
         """Eq. 2 in µm and its Jacobian (µm per coefficient unit)."""
-        (x1, p), (x2, _) = self.points()
-        if want_jac:
-            (s1, J1), (s2, J2) = kin.jacobian(terms, coef, x1, p), kin.jacobian(terms, coef, x2, p)
-        else:
-            s1, s2 = kin.model_point(terms, coef, x1, p), kin.model_point(terms, coef, x2, p)
-        d, e = s2 - s1, self.r2_mm - self.r1_mm
-        nd, ne = np.linalg.norm(d, axis=1), np.linalg.norm(e, axis=1)
-        # |d| - |e| without cancelling two lengths of ~1 m to a micrometre difference
-        change = np.einsum("ni,ni->n", d - e, d + e) / (nd + ne)
-        pred = (self.measured_mm - self.certified_mm + change) / UM
-        Jp = (np.einsum("ni,nik->nk", d / nd[:, None], J2 - J1) / UM) if want_jac else None
-        return pred, Jp
+        change, Jp = length_change(terms, coef, self.r1_mm, self.r2_mm, self.p_mm, want_jac)
+        return (self.measured_mm - self.certified_mm + change) / UM, Jp
 
     def labels(self):
         return list(self.gauge)
+
+
+def length_change(terms, coef, r1_mm, r2_mm, p_mm, want_jac):
+    """The model's change of the distance between two indicated points (mm),
+    ``|x*(r2 - p, p) - x*(r1 - p, p)| - |r2 - r1|``, and its Jacobian (µm per coefficient
+    unit, (m, terms.n)) when wanted: the length terms of eq. 2 and 3."""
+    x1, x2 = r1_mm - p_mm, r2_mm - p_mm
+    if want_jac:
+        (s1, J1), (s2, J2) = kin.jacobian(terms, coef, x1, p_mm), kin.jacobian(terms, coef, x2,
+                                                                                p_mm)
+    else:
+        s1, s2 = kin.model_point(terms, coef, x1, p_mm), kin.model_point(terms, coef, x2, p_mm)
+    d, e = s2 - s1, r2_mm - r1_mm
+    nd, ne = np.linalg.norm(d, axis=1), np.linalg.norm(e, axis=1)
+    # |d| - |e| without cancelling two lengths of ~1 m to a micrometre difference
+    change = np.einsum("ni,ni->n", d - e, d + e) / (nd + ne)
+    Jp = (np.einsum("ni,nik->nk", d / nd[:, None], J2 - J1) / UM) if want_jac else None
+    return change, Jp
 
 
 class Instruments:
@@ -222,7 +232,8 @@ class Instruments:
 
     @property
     def sees_scale(self) -> bool:
-        """Whether any instrument measures a length (step gauge, positioning run)."""
+        """Whether any instrument measures a length (step gauge, ball bar, positioning
+        run)."""
         return any(it.sees_scale for it in self.items)
 
     @property
@@ -231,14 +242,14 @@ class Instruments:
         return sum(it.transform[0].shape[0] for it in self.items)
 
     def plate_gauge(self, block, G):
-        """A self-calibrated plate's gauge constraints ``G`` (``Plate.constraints``: three
-        translations, three rotations, then the isotropic scale) without the scale when an
+        """A self-calibrated plate's gauge constraints ``G`` (``Plate.constraints``: rigid
+        motions, then the isotropic scale, always last) without the scale when an
         instrument gives the machine's scale: the scale is then determined, and holding it
         at the starting plate would bias the machine's positioning errors."""
         from .blocks.plate import Plate
 
-        if isinstance(block, Plate) and self.sees_scale and G.shape[0] == 7:
-            return G[:6]
+        if isinstance(block, Plate) and self.sees_scale:
+            return G[:-1]
         return G
 
     def evaluate(self, state, want_jac=False):
@@ -410,3 +421,14 @@ def simulate_step_gauge(sim, start_mm, end_mm, lengths_mm, *, offset_mm=(0.0, 0.
     noise = np.random.default_rng(seed).normal(0.0, u_um, m) * UM
     return StepGauge(source, np.arange(2, m + 2), tuple(f"L{v:g}" for v in L), r1, r2, p,
                      np.linalg.norm(r2 - r1, axis=1) + noise, L, np.full(m, float(u_um)))
+
+
+def __getattr__(name):
+    """``BallBar`` and ``simulate_ball_bar`` beside the other instruments: they live in
+    :mod:`cmm_core.instruments_ballbar` (this module's size), imported on first use so that
+    either module can be imported first."""
+    if name in ("BallBar", "simulate_ball_bar"):
+        from . import instruments_ballbar
+
+        return getattr(instruments_ballbar, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

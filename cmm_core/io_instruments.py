@@ -1,4 +1,4 @@
-"""Reading and writing laser interferometer runs and step-gauge / gauge-block lengths.
+"""Reading and writing laser interferometer runs, step-gauge / gauge-block and ball-bar lengths.
 
 Formats (``docs/instruments.md``), machine axes, lengths in mm, errors and uncertainties
 in µm::
@@ -6,8 +6,10 @@ in µm::
     laser:       [run,]axis[,component],x_mm,y_mm,z_mm,error_um,u_um[,offset_x_mm,...]
     step gauge:  [gauge,]x1_mm,y1_mm,z1_mm,x2_mm,y2_mm,z2_mm,measured_mm,certified_mm,u_um
                  [,offset_x_mm,offset_y_mm,offset_z_mm][,temp_C,cte_per_K]
+    ball bar:    [bar,]x1_mm,y1_mm,z1_mm,x2_mm,y2_mm,z2_mm,certified_mm,u_um
+                 [,offset_x_mm,offset_y_mm,offset_z_mm][,temp_C,cte_per_K]
 
-Every problem is a :class:`~cmm_core.io.DataError` naming the file, row and column and
+:func:`read_instrument` reads any of them by kind (:data:`INSTRUMENT_KINDS`). Every problem is a :class:`~cmm_core.io.DataError` naming the file, row and column and
 what was expected; the cell-level problems of a file are reported together.
 """
 
@@ -17,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from .instruments import LaserRun, StepGauge
+from .instruments_ballbar import BallBar
 from .io import (
     MAX_PROBE_MM,
     TEMP_RANGE_C,
@@ -29,10 +32,13 @@ from .io import (
     _require,
     _require_rows,
     _typo,
+    refuse_unknown_keys,
 )
 
-__all__ = ["read_laser", "read_step_gauge", "write_laser", "write_step_gauge",
-           "LASER_COLUMNS", "STEP_GAUGE_COLUMNS", "LINE_TOLERANCE_MM", "MAX_ERROR_UM"]
+__all__ = ["read_laser", "read_step_gauge", "read_ball_bar", "read_instrument",
+           "write_laser", "write_step_gauge", "write_ball_bar", "write_instrument",
+           "INSTRUMENT_KINDS", "LASER_COLUMNS", "STEP_GAUGE_COLUMNS", "BALL_BAR_COLUMNS",
+           "LINE_TOLERANCE_MM", "MAX_ERROR_UM", "MIN_BAR_MM"]
 
 OFFSET_COLUMNS = ("offset_x_mm", "offset_y_mm", "offset_z_mm")
 LASER_COLUMNS = ("axis", "x_mm", "y_mm", "z_mm", "error_um", "u_um")
@@ -40,6 +46,9 @@ LASER_OPTIONAL = ("run", "component") + OFFSET_COLUMNS
 STEP_GAUGE_COLUMNS = ("x1_mm", "y1_mm", "z1_mm", "x2_mm", "y2_mm", "z2_mm", "measured_mm",
                       "certified_mm", "u_um")
 STEP_GAUGE_OPTIONAL = ("gauge",) + OFFSET_COLUMNS + ("temp_C", "cte_per_K")
+BALL_BAR_COLUMNS = ("x1_mm", "y1_mm", "z1_mm", "x2_mm", "y2_mm", "z2_mm", "certified_mm",
+                    "u_um")
+BALL_BAR_OPTIONAL = ("bar",) + OFFSET_COLUMNS + ("temp_C", "cte_per_K")
 
 LINE_TOLERANCE_MM = 0.1
 """How far the two coordinates across a laser run's axis may wander within the run."""
@@ -51,12 +60,16 @@ MAX_LENGTH_DIFF_MM = 1.0
 MAX_STYLUS_MM = 50.0
 """Largest plausible difference between the measured length and the distance of the two
 probed centres (mm): the stylus diameter, added for a bidirectional measurement."""
+MIN_BAR_MM = 1.0
+"""Shortest distance of a ball bar's two centres (mm): closer, the row names one ball twice."""
 
 _LASER_HINT = ("Columns: [run,]axis[,component],x_mm,y_mm,z_mm,error_um,u_um"
                "[,offset_x_mm,offset_y_mm,offset_z_mm]; docs/instruments.md.")
 _SG_HINT = ("Columns: [gauge,]x1_mm,y1_mm,z1_mm,x2_mm,y2_mm,z2_mm,measured_mm,certified_mm,"
             "u_um[,offset_x_mm,offset_y_mm,offset_z_mm][,temp_C,cte_per_K]; "
             "docs/instruments.md.")
+_BB_HINT = ("Columns: [bar,]x1_mm,y1_mm,z1_mm,x2_mm,y2_mm,z2_mm,certified_mm,u_um"
+            "[,offset_x_mm,offset_y_mm,offset_z_mm][,temp_C,cte_per_K]; docs/instruments.md.")
 
 
 def _columns(df, name, required, optional, form, hint):
@@ -242,7 +255,7 @@ def read_step_gauge(source, name=None) -> StepGauge:
     return StepGauge(name, _file_rows(df), labels, r1, r2, p, meas, cert, u)
 
 
-def _temperature(df, name, found, cert):
+def _temperature(df, name, found, cert, hint=_SG_HINT):
     """Certified lengths expanded to the measuring temperature (both columns or neither)."""
     have = [c for c in ("temp_C", "cte_per_K") if c in df]
     if not have:
@@ -251,7 +264,7 @@ def _temperature(df, name, found, cert):
         other = ({"temp_C", "cte_per_K"} - set(have)).pop()
         raise DataError(f"has {have[0]} but no {other}; expected both (the gauge's "
                         "temperature and expansion coefficient) or neither.", file=name,
-                        row=1, column=have[0], hint=_SG_HINT)
+                        row=1, column=have[0], hint=hint)
     t = _numeric(df, "temp_C", name, problems=found)
     cte = _numeric(df, "cte_per_K", name, problems=found)
     lo, hi = TEMP_RANGE_C
@@ -262,6 +275,51 @@ def _temperature(df, name, found, cert):
               lambda i: f"expected an expansion coefficient per K (steel 11.5e-6), found "
                         f"{cte[i]:g}.")
     return cert * (1 + cte * (t - 20.0))
+
+
+def read_ball_bar(source, name=None) -> BallBar:
+    """Read a ball-bar file (module docstring; ``docs/instruments.md``): one length per row,
+    the indicated centres of the bar's two balls and its certified length.
+
+    With ``temp_C`` and ``cte_per_K`` the certified length (at 20 °C) is expanded to the
+    measuring temperature, ``L (1 + cte (temp_C - 20))``.
+
+    Raises
+    ------
+    DataError
+        Naming file, row and column: unknown or missing columns, unreadable numbers, u not
+        positive, a certified length not positive, two centres closer than
+        :data:`MIN_BAR_MM` (one ball named twice), a distance of the centres more than
+        :data:`MAX_LENGTH_DIFF_MM` from the certified length, a temperature without a CTE.
+    """
+    df, name = _read_csv(source, name)
+    _columns(df, name, BALL_BAR_COLUMNS, BALL_BAR_OPTIONAL, "ball-bar", _BB_HINT)
+    found = _Problems(name, _file_rows(df), df.columns)
+    num = {c: _numeric(df, c, name, problems=found) for c in BALL_BAR_COLUMNS[:7]}
+    r1 = np.column_stack([num[c] for c in ("x1_mm", "y1_mm", "z1_mm")])
+    r2 = np.column_stack([num[c] for c in ("x2_mm", "y2_mm", "z2_mm")])
+    cert = num["certified_mm"]
+    u = _positive_um(df, "u_um", name, found, "the length's standard uncertainty")
+    p = _offsets(df, name, found)
+    found.add(np.isfinite(cert) & (cert <= 0), "certified_mm",
+              lambda i: f"expected a positive length in mm, found {cert[i]:g}.")
+    dist = np.linalg.norm(r2 - r1, axis=1)
+    same = np.isfinite(dist) & (dist < MIN_BAR_MM)
+    found.add(same, "x2_mm", lambda i: f"the two ball centres are {dist[i]:.3g} mm apart; "
+              f"expected the centres of the bar's two balls, at least {MIN_BAR_MM:g} mm "
+              "apart.", hint="x1..z1 and x2..z2 are the indicated centres of the two "
+                   "balls, machine axes, mm.")
+    diff = np.abs(dist - cert)
+    found.add(np.isfinite(diff) & ~same & (cert > 0) & (diff > MAX_LENGTH_DIFF_MM),
+              "certified_mm", lambda i: f"the centres are {dist[i]:.6g} mm apart against a "
+              f"certified length of {cert[i]:g} mm: they differ by {diff[i]:.4g} mm, "
+              "expected micrometres.", hint="check the units (mm) and that each row pairs "
+              "a bar placement with its bar's certified length.")
+    cert = _temperature(df, name, found, cert, _BB_HINT)
+    found.raise_if_any()
+    labels = (tuple(df["bar"].fillna("").astype(str).str.strip()) if "bar" in df
+              else tuple(f"L{c:g}" for c in num["certified_mm"]))
+    return BallBar(name, _file_rows(df), labels, r1, r2, p, cert, u)
 
 
 def write_laser(run: LaserRun, path) -> None:
@@ -289,3 +347,44 @@ def write_step_gauge(sg: StepGauge, path) -> None:
         for a, col in enumerate(OFFSET_COLUMNS):
             df[col] = sg.p_mm[:, a]
     df.to_csv(path, index=False, float_format="%.7f")
+
+
+def write_ball_bar(bb: BallBar, path) -> None:
+    """Write ball-bar lengths in the format :func:`read_ball_bar` reads (certified lengths
+    as stored: at the measuring temperature)."""
+    df = pd.DataFrame({"bar": list(bb.bar)})
+    for k, (a, b) in enumerate(zip(bb.r1_mm.T, bb.r2_mm.T, strict=True)):
+        df[f"{'xyz'[k]}1_mm"], df[f"{'xyz'[k]}2_mm"] = a, b
+    df = df[["bar", *BALL_BAR_COLUMNS[:6]]]
+    df["certified_mm"], df["u_um"] = bb.certified_mm, bb.u_um
+    if np.any(bb.p_mm):
+        for a, col in enumerate(OFFSET_COLUMNS):
+            df[col] = bb.p_mm[:, a]
+    df.to_csv(path, index=False, float_format="%.7f")
+
+
+INSTRUMENT_KINDS = {"laser": (read_laser, write_laser),
+                    "step_gauge": (read_step_gauge, write_step_gauge),
+                    "ball_bar": (read_ball_bar, write_ball_bar)}
+"""Instrument kind (``LaserRun.kind`` ...) -> its reader and writer; the CLI's flags
+``--laser``, ``--step-gauge``, ``--ball-bar`` and other callers (the app, the analysis
+record) read a file of a named kind through :func:`read_instrument`."""
+
+
+def read_instrument(source, kind: str, name=None):
+    """Read an instrument file of ``kind`` (one of :data:`INSTRUMENT_KINDS`).
+
+    Raises
+    ------
+    DataError
+        An unknown kind (naming the known ones and the one it most likely misspells), or
+        any problem of the file (its reader's refusals).
+    """
+    refuse_unknown_keys([kind], list(INSTRUMENT_KINDS), name or str(source), "",
+                        "instrument kind")
+    return INSTRUMENT_KINDS[kind][0](source, name)
+
+
+def write_instrument(item, path) -> None:
+    """Write an instrument (``LaserRun``, ``StepGauge``, ``BallBar``) in its own format."""
+    INSTRUMENT_KINDS[item.kind][1](item, path)
