@@ -318,3 +318,24 @@ def test_export_page_offers_the_new_downloads():
     assert not at.exception, [e.message for e in at.exception]
     keys = {b.key for b in at.get("download_button")}
     assert {"dl_comp_grid", "dl_axis_tables", "dl_results_json", "dl_results_xml"} <= keys
+
+
+def test_backlash_is_a_characteristic_and_named_as_not_in_the_tables():
+    """A model fitted with backlash: the saved model's results carry the spans with the
+    fit's uncertainties; the tables (position only) say they do not hold them."""
+    from cmm_core.fit import fit
+    from cmm_core.simulate import simulate
+
+    sim = simulate({"seed": 4, "order": "serpentine",
+                    "effects": {"backlash": {"x_um": 2.0, "y_um": 1.0}}})
+    r = fit(sim.dataset, "kinematic21,backlash")
+    lab, val, u = r.block("backlash")
+    c = _chars(rx.results_dict(model_from_result(r)))
+    for name, v, s in zip(lab, val, u, strict=True):
+        assert c[name]["value"] == v and math.isclose(c[name]["standard_uncertainty"], s,
+                                                      rel_tol=1e-9)
+        assert c[name]["unit"] == "um"
+    assert abs(c["backlash.x"]["value"] - 2.0) < 4 * c["backlash.x"]["standard_uncertainty"]
+    text = ct.grid_csv(r, ct.compensation_grid(r, 400.0))
+    line = next(x for x in text.splitlines() if x.startswith("# NOT in this table"))
+    assert "backlash.x" in line and f"{val[0]:.4g}" in line
