@@ -3,7 +3,8 @@
 Every problem is a ``DataError`` naming the key (``plate.rows``) and what was expected:
 unknown keys, effects, labels, positions and probes are refused (a typo would silently
 hide an effect), numbers must be finite and in range. Each effect block declares the keys
-and ranges it accepts (``Block.sim_keys``, ``Block.sim_ranges``).
+and ranges it accepts (``Block.sim_keys``, ``Block.sim_ranges``) and checks the names and
+values it reads against the setup (``Block.check_sim``).
 """
 
 from __future__ import annotations
@@ -14,8 +15,9 @@ import math
 import numpy as np
 
 from .blocks import BY_TOKEN
+from .blocks.base import SimCheck
 from .effects import MAX_ORDER
-from .io import DataError, _check_celsius, _cut, refuse_unknown_keys
+from .io import DataError, _cut, refuse_unknown_keys
 
 DEFAULT_CONFIG = {
     "seed": 0,
@@ -166,23 +168,9 @@ def _check_against_setup(cfg, setup, terms, name, own_ppp):
     """The parts of a configuration that name positions, probes or coefficient labels,
     checked against the setup and the model's terms (unknown names are refused: they
     would be dropped silently)."""
-    def bad(column, message, hint=None):
-        return DataError(message, file=name, column=column, hint=hint)
-
-    def vector(column, v):
-        if not (isinstance(v, list | tuple) and len(v) == 3 and all(
-                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
-                for x in v)):
-            raise bad(column, f"expected 3 finite numbers (µm or µm/h), found {_cut(v)}.")
-
-    def known(column, key, names, what):
-        if str(key) not in names:
-            close = difflib.get_close_matches(str(key), list(names), n=1, cutoff=0.6)
-            raise bad(column, f"{what} {_cut(key)} is not in the setup (known: "
-                      f"{_cut(', '.join(names), 200)})" + (f"; did you mean {close[0]!r}?"
-                                                           if close else "."))
-
     positions, probes = list(setup.positions), list(setup.probes)
+    check = SimCheck(name, tuple(positions), tuple(probes))
+    bad, known = check.bad, check.known
     # only the user's own entries: the default names the thesis positions, which a setup
     # of its own need not have
     ppp = own_ppp
@@ -208,27 +196,9 @@ def _check_against_setup(cfg, setup, terms, name, own_ppp):
                                                         if close else "."),
                       hint="labels are function[order], e.g. dxx[1], rxy[2], sxy; a higher "
                            "order needs it in the spec, e.g. \"kinematic21,dyz:3\".")
-    eff = cfg["effects"]
-    for key, v in eff.get("probe_offset", {}).items():
-        if key != "sd_um":
-            known(f"effects.probe_offset.{key}", key, probes, "probe")
-            vector(f"effects.probe_offset.{key}", v)
-    for key, v in eff.get("drift", {}).items():
-        if key != "sd_um_per_h":
-            known(f"effects.drift.{key}", key, positions, "position")
-            vector(f"effects.drift.{key}", v)
-    temps = eff.get("plate_thermal", {}).get("temp_C")
-    if temps is not None:
-        if not isinstance(temps, dict):
-            raise bad("effects.plate_thermal.temp_C", f"expected an object position: "
-                      f"[start, finish] in °C, found {_cut(temps)}.")
-        for pos, t in temps.items():
-            col = f"effects.plate_thermal.temp_C.{pos}"
-            known(col, pos, positions, "position")
-            if not (isinstance(t, list) and len(t) == 2 and all(
-                    isinstance(x, int | float) and not isinstance(x, bool) for x in t)):
-                raise bad(col, f"expected [start, finish] in °C, found {_cut(t)}.")
-            _check_celsius(np.asarray(t, float), name, col)
+    # each effect checks the names and values its block reads (Block.check_sim)
+    for token, body in cfg["effects"].items():
+        BY_TOKEN[token].check_sim(body, f"effects.{token}", check)
 
 
 def _check_plate_in_machine(setup, nominal, name):

@@ -36,6 +36,14 @@ class Drift(Block):
             out.update({f"{p}.drift_{a}": float(v[i]) for i, a in enumerate("xyz")})
         return out
 
+    @classmethod
+    def check_sim(cls, cfg, where, check):
+        """Besides ``sd_um_per_h``: positions of the setup, each with a vector (µm/h)."""
+        for key, v in cfg.items():
+            if key != "sd_um_per_h":
+                check.known(f"{where}.{key}", key, check.positions, "position")
+                check.vector(f"{where}.{key}", v)
+
     @staticmethod
     def needs(obs):
         return "needs measurement times" if np.ptp(obs.hours) == 0 else None

@@ -36,6 +36,10 @@ class PlateThermal(Block):
             sim.temps_C[p] = tuple(t) if t else (20.0 + 0.4 * i, 20.2 + 0.4 * i)
         return {"plate_thermal.cte": float(cfg.get("cte_per_K", 11.5e-6)) * 1e6}
 
+    @classmethod
+    def check_sim(cls, cfg, where, check):
+        check.start_finish_C(f"{where}.temp_C", cfg.get("temp_C"))
+
     @staticmethod
     def needs(obs):
         if not obs.has_temp:

@@ -43,6 +43,14 @@ class ProbeOffset(Block):
         return {f"probe{q}.{a}": float(v[i]) for q, v in err.items()
                 for i, a in enumerate("xyz")}
 
+    @classmethod
+    def check_sim(cls, cfg, where, check):
+        """Besides ``sd_um``: probes of the setup, each with a vector (µm)."""
+        for key, v in cfg.items():
+            if key != "sd_um":
+                check.known(f"{where}.{key}", key, check.probes, "probe")
+                check.vector(f"{where}.{key}", v)
+
     @staticmethod
     def needs(obs):
         return "needs at least two probes" if len(obs.probes) < 2 else None
