@@ -342,12 +342,12 @@ def axis_tables(obj: Model | FitResult, step_mm: float, *,
             "squareness": squareness_table(m)}
 
 
-def axis_tables_csv(obj: Model | FitResult, step_mm: float,
-                    source: str | None = None) -> dict[str, str]:
+def axis_tables_csv(obj: Model | FitResult, step_mm: float, source: str | None = None, *,
+                    allow_undetermined: bool = False) -> dict[str, str]:
     """File name -> CSV text of the per-axis tables (``axis_x.csv`` ...,
     ``squareness.csv``), each with a header stating units and sign convention."""
     m = as_model(obj)
-    tables = axis_tables(m, step_mm)
+    tables = axis_tables(m, step_mm, allow_undetermined=allow_undetermined)
     roles = axis_roles(m)
     common = model_lines(obj, source)
     out = {}

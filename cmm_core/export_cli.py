@@ -17,7 +17,9 @@ from pathlib import Path
 from .io import DataError
 
 _MODEL_HELP = ("fitted model written by 'fit --save' (its kinematic coefficients, their "
-               "covariance, the layout, strokes and probe offsets)")
+               "covariance, the layout, strokes and probe offsets). At least one of --grid, "
+               "--axis-tables, --results-json, --results-xml is required; formats in "
+               "docs/compensation.md")
 _GRID_STEP_HELP = ("spacing of the 3-D compensation grid along each axis, mm; one number "
                    "for all axes or three (x,y,z), e.g. 100 or 100,100,50. Each axis runs "
                    "from 0 to its stroke, the last interval shorter when the stroke is not "
@@ -30,16 +32,18 @@ _PROBE_HELP = ("stylus of the model whose tip the grid corrects; default: none, 
 _GRID_HELP = ("write the 3-D grid compensation table to this CSV: at each node the "
               "correction (true minus indicated, µm, added to the reading) in x, y, z and "
               "its standard uncertainty (k = 1), with a header block (units, sign, layout, "
-              "probe, grid, model and its χ² test)")
+              "probe, grid, model and its χ² test). Default: not written")
 _AXES_HELP = ("write the per-axis tables to this directory (created if missing): "
               "axis_x.csv, axis_y.csv, axis_z.csv (positioning, two straightness, three "
               "rotations along each axis, µm and µrad, with standard uncertainties) and "
-              "squareness.csv (µrad)")
+              "squareness.csv (µrad). Default: not written")
 _JSON_HELP = ("write the fitted parameters with standard and expanded uncertainties and "
-              "the χ² test outcome as a results JSON document (schema version 1)")
+              "the χ² test outcome as a results JSON document (schema version 1). Default: "
+              "not written")
 _XML_HELP = ("write the same results as QIF-like XML (MeasurementResults: machine, "
              "artefact, one characteristic per parameter with value, unit, standard "
-             "uncertainty, coverage factor, expanded uncertainty; the χ² test)")
+             "uncertainty, coverage factor, expanded uncertainty; the χ² test). Default: "
+             "not written")
 _K_HELP = ("coverage factor k of the expanded uncertainties U = k·u in the results files, "
            "1 to 10 (default: %(default)s, about 95 %% for a normal distribution)")
 _UNDET_HELP = ("write the tables even when the model has parameter combinations the data "
@@ -102,46 +106,61 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def command(args) -> dict:
     """Write the files asked for; the JSON summary (what was written where).
 
-    Raises DataError / ValueError / OSError on bad input (one line each).
+    Raises DataError / OSError on bad input (one line each). Every file is computed
+    before the first is written, so a refusal leaves none behind.
     """
-    from . import comp_table as ct
-    from . import results_export as rx
     from .compensate import load_model
 
+    source = Path(args.model).name
     outs = (args.grid, args.axis_tables, args.results_json, args.results_xml)
     if not any(outs):
-        raise ValueError("nothing to write: give --grid, --axis-tables, --results-json "
-                         "and/or --results-xml.")
+        raise DataError("nothing to write: give --grid, --axis-tables, --results-json "
+                        "and/or --results-xml.", file=source)
     model = load_model(args.model)
-    source = Path(args.model).name
+    try:
+        return _write(args, model, source)
+    except DataError:
+        raise
+    except ValueError as exc:  # a step or coverage the model's strokes cannot take
+        raise DataError(str(exc), file=source) from None
+
+
+def _write(args, model, source) -> dict:
+    """Compute the files of ``args`` from ``model``, then write them; the summary."""
+    from . import comp_table as ct
+    from . import results_export as rx
+
     step = args.grid_step_mm
     axis_step = args.axis_step_mm if args.axis_step_mm is not None else step
     if isinstance(axis_step, tuple):
         axis_step = axis_step[0]
     out = {"model": source, "spec": model.spec, "layout": model.terms.layout,
            "fails_chi2_test": model.summary.get("fails_chi2_test")}
+    texts = {}  # path -> text
     if args.grid:
         g = ct.compensation_grid(model, step, probe=args.probe,
                                  allow_undetermined=args.allow_undetermined)
-        Path(args.grid).write_text(ct.grid_csv(model, g, args.probe, source), newline="")
+        texts[Path(args.grid)] = ct.grid_csv(model, g, args.probe, source)
         out["grid"] = {"file": str(args.grid), "nodes": len(g),
                        "max_correction_um": float(g[["cx_um", "cy_um", "cz_um"]].abs()
                                                   .max().max())}
     if args.axis_tables:
-        ct.axis_tables(model, axis_step, allow_undetermined=args.allow_undetermined)
         d = Path(args.axis_tables)
-        d.mkdir(parents=True, exist_ok=True)
-        files = ct.axis_tables_csv(model, axis_step, source)
-        for name, text in files.items():
-            (d / name).write_text(text, newline="")
+        files = ct.axis_tables_csv(model, axis_step, source,
+                                   allow_undetermined=args.allow_undetermined)
+        texts.update({d / name: text for name, text in files.items()})
         out["axis_tables"] = {"dir": str(d), "files": sorted(files)}
     kw = {"coverage_factor": args.coverage_factor, "source": source}
     if args.results_json:
-        Path(args.results_json).write_text(rx.results_json(model, **kw), encoding="utf-8")
+        texts[Path(args.results_json)] = rx.results_json(model, **kw)
         out["results_json"] = str(args.results_json)
     if args.results_xml:
-        Path(args.results_xml).write_text(rx.results_xml(model, **kw), encoding="utf-8")
+        texts[Path(args.results_xml)] = rx.results_xml(model, **kw)
         out["results_xml"] = str(args.results_xml)
+    if args.axis_tables:
+        Path(args.axis_tables).mkdir(parents=True, exist_ok=True)
+    for path, text in texts.items():
+        path.write_text(text, encoding="utf-8", newline="")
     return out
 
 

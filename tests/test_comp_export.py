@@ -339,3 +339,34 @@ def test_backlash_is_a_characteristic_and_named_as_not_in_the_tables():
     text = ct.grid_csv(r, ct.compensation_grid(r, 400.0))
     line = next(x for x in text.splitlines() if x.startswith("# NOT in this table"))
     assert "backlash.x" in line and f"{val[0]:.4g}" in line
+
+
+def test_cli_refuses_an_undetermined_model_and_writes_nothing(tmp_path, capsys):
+    from cmm_core.dataset import thesis_dataset
+    from cmm_core.fit import fit
+
+    model = tmp_path / "under.json"
+    save_model(fit(thesis_dataset(), positions=["BP111", "BP112"]), model)
+    argv = ["export", str(model), "--grid", str(tmp_path / "g.csv"), "--results-json",
+            str(tmp_path / "r.json"), "--axis-tables", str(tmp_path / "axes")]
+    assert export_cli.run(_parser().parse_args(argv)) == 2
+    err = capsys.readouterr().err
+    assert "under.json" in err and "column 'undetermined'" in err and err.count("\n") == 1
+    assert not any(tmp_path.glob("r.json")) and not (tmp_path / "axes").exists()
+    assert export_cli.run(_parser().parse_args([*argv, "--allow-undetermined"])) == 0
+    assert pd.read_csv(tmp_path / "g.csv", comment="#")["u_cx_um"].isna().all()
+    assert json.loads((tmp_path / "r.json").read_text())["model"]["undetermined"] is True
+
+
+def test_every_option_says_its_unit_and_default():
+    """The rules of tests/test_cli_help.py for the sub-command, before it is wired in."""
+    p = _parser()._subparsers._group_actions[0].choices["export"]
+    for a in p._actions:
+        if isinstance(a, argparse._HelpAction):
+            continue
+        text = a.help % {"default": a.default}
+        assert len(text) > 40, a.dest
+        if a.option_strings and not isinstance(a, argparse._StoreTrueAction):
+            assert "default" in text.lower(), a.option_strings
+        if a.dest.endswith("_mm"):
+            assert "mm" in text, a.dest
