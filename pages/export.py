@@ -19,8 +19,7 @@ C.page_start()
 st.title("Compensate and export")
 ds, r = C.require_fit()
 s = st.session_state
-# the fit's cache key (``fit_key`` where pages/common.py has it, ``fit_args`` before)
-args = (C.fit_key if hasattr(C, "fit_key") else C.fit_args)()
+args = C.fit_key()
 obs = r.problem.obs
 
 st.subheader("Correct measured points")
@@ -119,7 +118,7 @@ with st.container(border=True):
 
 with st.container(border=True):
     st.markdown("**Compensation tables and results for a quality system** "
-                "([docs/compensation.md](docs/compensation.md)): a 3-D grid of corrections "
+                "(formats in `docs/compensation.md`): a 3-D grid of corrections "
                 "(true − indicated, added to the reading, µm) with uncertainties; the "
                 "per-axis error functions and squareness a controller needs (µm, µrad); the "
                 "fitted parameters with uncertainties as JSON and QIF-like XML. The same as "
