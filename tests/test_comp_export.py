@@ -319,6 +319,15 @@ def test_export_page_offers_the_new_downloads():
     keys = {b.key for b in at.get("download_button")}
     assert {"dl_comp_grid", "dl_axis_tables", "dl_results_json", "dl_results_xml"} <= keys
 
+    def grid_help():
+        return next(b for b in at.get("download_button") if b.key == "dl_comp_grid").proto.help
+
+    assert grid_help().startswith("1144 nodes")  # 13 × 11 × 8 at 100 mm
+    at.number_input(key="w_comp_step").set_value(200.0)
+    at.run()
+    assert not at.exception and not at.error
+    assert grid_help().startswith("210 nodes")  # 7 × 6 × 5: 0..1200, 0..1000, 0..700 (end)
+
 
 def test_backlash_is_a_characteristic_and_named_as_not_in_the_tables():
     """A model fitted with backlash: the saved model's results carry the spans with the
