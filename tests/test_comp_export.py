@@ -379,3 +379,17 @@ def test_every_option_says_its_unit_and_default():
             assert "default" in text.lower(), a.option_strings
         if a.dest.endswith("_mm"):
             assert "mm" in text, a.dest
+
+
+def test_the_worked_example_of_the_docs_is_the_thesis_model(thesis_fit):
+    """docs/compensation.md quotes one node of the thesis model to 3 decimals."""
+    text = (ROOT / "docs" / "compensation.md").read_text()
+    row = next(x for x in text.splitlines() if x.startswith("| correction (µm) |"))
+    quoted = [float(v.replace("−", "-")) for v in row.split("|")[2:5]]
+    g = ct.compensation_grid(thesis_fit, 100.0)
+    node = g[(g["x_mm"] == 600) & (g["y_mm"] == 500) & (g["z_mm"] == 300)]
+    np.testing.assert_allclose(node[["cx_um", "cy_um", "cz_um"]].to_numpy()[0], quoted,
+                               rtol=0, atol=5e-4)
+    assert "dxx 17.338" in text and "rxz 84.351" in text and "sxy 77.650" in text
+    x = ct.axis_table(thesis_fit, "x", 100.0).set_index("x_mm").loc[600.0]
+    assert f"{x['dxx_um']:.3f}" == "17.338" and f"{x['rxz_urad']:.3f}" == "84.351"
