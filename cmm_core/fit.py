@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy import stats
 
+from . import hole_plate
 from . import kinematics as kin
 from . import normal as _normal
 from ._blas import single_blas_thread
@@ -95,6 +96,8 @@ class Problem:
     # --- state ---------------------------------------------------------------------
     def initial_state(self):
         """Nominal plate, placements by a rigid fit of the plate to each position."""
+        if hole_plate.is_hole_plate(self.obs):  # in-plane fit at the nominal tilt
+            return hole_plate.initial_state(self)
         o = self.obs
         R = np.empty((self.P, 3, 3))
         t = np.empty((self.P, 3))
@@ -147,7 +150,13 @@ class Problem:
         return c
 
     def residual(self, state, want_jac=False):
-        """Residuals (n, 3) in µm and, if asked, the sparse Jacobian (3n, N)."""
+        """Residuals (n, 3) in µm and, if asked, the sparse Jacobian (3n, N); a hole
+        plate's without their components along the plate normal (``hole_plate``)."""
+        out = self._residual3(state, want_jac)
+        return hole_plate.in_plane(self, state, *out) if hole_plate.is_hole_plate(self.obs) \
+            else out
+
+    def _residual3(self, state, want_jac):
         d, ev = self._evaluate(state, want_jac)
         if not want_jac:
             return d, None
@@ -177,6 +186,8 @@ class Problem:
         """Weighted normal equations ``JᵀJ``, ``Jᵀr`` at ``state``, accumulated over blocks
         of ``rows`` observations without forming ``J`` (``normal.accumulate``): residuals
         (µm), ``r·r``, N, g and the number of weighted rows."""
+        if hole_plate.is_hole_plate(self.obs):  # projected rows: J assembled
+            return hole_plate.normal_equations(self, state, sigma_um)
         return _normal.accumulate(self, state, sigma_um, rows)
 
     def constraints(self):
@@ -187,9 +198,9 @@ class Problem:
             if G is None:
                 continue
             G = self.instruments.plate_gauge(b, G)
-            name = b.columns(self.obs)[0][0]
+            s = L.blocks[b.columns(self.obs)[0][0]]
             C = np.zeros((G.shape[0], L.n))
-            C[:, L.blocks[name]] = G
+            C[:, s.start:s.start + G.shape[1]] = G  # G may span the block's next groups
             rows.append(C)
         return np.vstack(rows) if rows else np.zeros((0, L.n))
 
@@ -320,6 +331,8 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     dof = n_rows - rank - _held_prior_rows(prob)
     bic = chi2 + rank * np.log(n_rows)
     rms = float(np.sqrt(np.mean(d**2)))
+    if hole_plate.is_hole_plate(obs):  # two components of three per observation
+        rms *= np.sqrt(1.5)
     chi2_test, dof_test = chi2, dof
     if plate == "fixed" and obs.cert_u_um is not None and certificate_test:
         chi2_test, dof_test = _chi2_with_certificate(prob, state, C_run[C.shape[0]:],

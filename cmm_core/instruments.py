@@ -316,7 +316,9 @@ def summary(result) -> list:
     ``rows`` counts the weighted rows the instrument adds (readings minus the eliminated
     run offsets and slopes): the degrees of freedom it brings before parameters.
     ``chi2_share`` is its part of the fit's χ²; near ``rows / (fit rows)`` when the model
-    explains the instrument and the plate alike.
+    explains the instrument and the plate alike. A laser record names its ``runs``; a
+    ball bar's lists its ``lengths``: label, file row, residual (µm, the model's
+    prediction minus the reading) and u (µm) of each.
     """
     prob = result.problem
     out = []
@@ -330,6 +332,10 @@ def summary(result) -> list:
                "max_abs_z": float(np.max(np.abs(res / it.u_um)))}
         if it.kind == "laser":
             rec["runs"] = list(it.runs)
+        if it.kind == "ball_bar":  # a few lengths, each the result of a length test
+            rec["lengths"] = [{"label": lab, "row": int(row), "residual_um": float(v),
+                               "u_um": float(u)} for lab, row, v, u in
+                              zip(it.labels(), it.rows, res, it.u_um, strict=True)]
         out.append(rec)
     return out
 

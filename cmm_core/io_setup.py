@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .io_csv import read_json
-from .io_errors import DataError, _check_keys, _cut
+from .io_errors import DataError, _check_keys, _cut, _typo
 from .kinematics import LAYOUTS as _KINEMATIC_LAYOUTS
 
 LAYOUTS = tuple(_KINEMATIC_LAYOUTS)
@@ -33,8 +33,13 @@ TEMP_RANGE_C = (0.0, 50.0)
 """Plausible temperatures of a CMM room or a plate (°C)."""
 
 
+ARTEFACTS = ("ball_plate", "hole_plate")
+"""What the plate's features are (setup ``artefact``, default the first): balls, whose
+centres are points of the artefact, or holes probed from inside, whose centres give only
+the two in-plane coordinates (the coordinate along the hole axis is the probing height)."""
+
 SETUP_KEYS = {
-    "": ("units", "frame", "machine", "positions", "probes", "plate"),
+    "": ("units", "frame", "machine", "positions", "probes", "plate", "artefact"),
     "machine": ("layout", "range_mm"),
     "plate": ("cte_per_K", "balls", "pitch_mm"),
     "position": ("origin_mm", "u_axis", "v_axis", "probe", "temp_C", "rh_percent"),
@@ -97,6 +102,8 @@ class Setup:
         The JSON as read, for round trips.
     name : str or None
         File name, for messages.
+    artefact : str
+        One of :data:`ARTEFACTS`: ``"ball_plate"`` (default) or ``"hole_plate"``.
     """
 
     frame: str
@@ -106,6 +113,7 @@ class Setup:
     cte_per_K: float = 11.5e-6
     raw: dict = field(default_factory=dict, repr=False)
     name: str | None = field(default=None, repr=False, compare=False)
+    artefact: str = ARTEFACTS[0]
 
 
 def read_setup(source, *, name="setup.json") -> Setup:
@@ -141,7 +149,19 @@ def read_setup(source, *, name="setup.json") -> Setup:
     if not positions:
         raise DataError("no positions defined.", file=name, column="positions")
     cte = _plate_cte(_json_object(raw, "plate", name), name)
-    return Setup(frame, rng, positions, probes, cte, raw, name)
+    return Setup(frame, rng, positions, probes, cte, raw, name, _artefact(raw, name))
+
+
+def _artefact(raw: dict, name) -> str:
+    """The ``artefact`` key: one of :data:`ARTEFACTS` (the first when absent); an unknown
+    value is refused naming the known ones and the one it most likely misspells."""
+    artefact = raw.get("artefact", ARTEFACTS[0])
+    if not isinstance(artefact, str) or artefact not in ARTEFACTS:
+        guess = _typo(str(artefact), ARTEFACTS, cutoff=0.6)
+        hint = f"did you mean {guess!r}? " if guess else ""
+        raise DataError(f"unknown artefact {_cut(artefact)}; {hint}expected one of "
+                        f"{', '.join(ARTEFACTS)}.", file=name, column="artefact")
+    return artefact
 
 
 def _machine_range(machine: dict, name) -> np.ndarray:

@@ -64,6 +64,9 @@ class Observations:
         Laser runs and step gauges fitted with the plate (``instruments``; ``fit``'s
         ``instruments=``). Kept here so that every model fitted or scored on these
         observations (the diagnosis's candidates and refits) has their rows too.
+    artefact : str
+        ``"ball_plate"`` or ``"hole_plate"`` (the setup's ``artefact``): a hole plate's
+        observations give only the two coordinates in the plate's plane (``hole_plate``).
     """
 
     table: pd.DataFrame
@@ -88,6 +91,7 @@ class Observations:
     approach: np.ndarray
     layout: str = DEFAULT_LAYOUT
     instruments: tuple = ()
+    artefact: str = "ball_plate"
 
 
 def setup_layout(setup) -> str:
@@ -199,7 +203,8 @@ def select(data: Dataset, *, positions=None, probes=None, exclude=()) -> Observa
     horiz = np.array([setup.positions[p].horizontal for p in positions])
     return Observations(t, r, pnom[prb], pos, prb, ball, positions, probes, balls, plate0, cu,
                         dT, bool(has_temp), hours, horiz, R0, t0, setup.range_mm,
-                        cert is not None, approach, setup_layout(setup))
+                        cert is not None, approach, setup_layout(setup),
+                        artefact=getattr(setup, "artefact", "ball_plate"))
 
 
 def check_selection(data: Dataset, positions, probes, exclusions, name: str) -> None:

@@ -17,7 +17,9 @@ dict in the SPEC format, frame ``machine``; default the thesis placements),
 ``temp_C`` per position [start, finish]; ``plate_sag``: ``uu, uv, vv`` µm;
 ``probe_offset``: per-probe vectors in µm or ``sd_um``; ``drift``: per-position vectors in
 µm/h or ``sd_um_per_h``; ``backlash``: reversal span ``x_um, y_um, z_um``), ``order`` (``row``, ``serpentine``, ``random``),
-``probes_interleaved``, ``minutes_per_ball``, ``repeats``.
+``probes_interleaved``, ``minutes_per_ball``, ``repeats``, ``artefact`` (``"hole_plate"``:
+the plate's features are holes, of which the fit uses the in-plane coordinates only;
+default the setup's, a ball plate).
 """
 
 from __future__ import annotations
@@ -135,7 +137,7 @@ def _design(df, setup, plate) -> Observations:
         np.array([setup.positions[p].rotation for p in positions]),
         np.array([setup.positions[p].origin_mm for p in positions]),
         np.asarray(setup.range_mm, float), False, np.zeros((len(df), 3)),
-        setup_layout(setup))
+        setup_layout(setup), artefact=setup.artefact)
 
 
 def simulate(config: dict | None = None, *, name: str = "simulation config") -> Simulation:
@@ -160,6 +162,8 @@ def simulate(config: dict | None = None, *, name: str = "simulation config") -> 
     rng = np.random.default_rng(cfg["seed"])
     setup_raw = copy.deepcopy(cfg["setup"] or thesis_machine_setup())
     setup_raw["frame"] = "machine"
+    if cfg["artefact"] is not None:
+        setup_raw["artefact"] = cfg["artefact"]
     pl = cfg["plate"]
     rows, cols, pitch = int(pl["rows"]), int(pl["cols"]), float(pl["pitch_mm"])
     gx, gy = np.meshgrid(np.arange(cols) * pitch, np.arange(rows) * pitch)

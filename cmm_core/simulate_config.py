@@ -18,6 +18,7 @@ from .blocks import BY_TOKEN
 from .blocks.base import SimCheck
 from .effects import MAX_ORDER
 from .io import DataError, _cut, refuse_unknown_keys
+from .io_setup import ARTEFACTS
 
 DEFAULT_CONFIG = {
     "seed": 0,
@@ -34,7 +35,10 @@ DEFAULT_CONFIG = {
     "probes_interleaved": False,
     "minutes_per_ball": 0.5,
     "repeats": 1,
+    "artefact": None,
 }
+"""``artefact`` None: the setup's (``io_setup.ARTEFACTS``; a ball plate unless the setup
+says otherwise); ``"hole_plate"`` simulates the plate's features as holes."""
 
 
 _EFFECT_KEYS = {token: None if b.sim_keys is None else set(b.sim_keys)
@@ -129,6 +133,9 @@ def _check_run(cfg, bad, number):
                 isinstance(q, str | int) and not isinstance(q, bool) for q in qs):
             raise bad(f"probes_per_position.{pos}", f"expected a non-empty list of probe "
                       f"names, found {_cut(qs)}.")
+    if top["artefact"] is not None and top["artefact"] not in ARTEFACTS:
+        raise bad("artefact", f"unknown artefact {_cut(top['artefact'])}; expected one of "
+                  f"{', '.join(ARTEFACTS)} (or null for the setup's).")
     if top["setup"] is not None and not isinstance(top["setup"], dict):
         raise bad("setup", f"expected a setup object (or null for the thesis placements), "
                   f"found {type(top['setup']).__name__} {_cut(top['setup'])}.")

@@ -8,6 +8,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..geometry import skew
+from ..hole_plate import is_hole_plate
 from ..units import UM, URAD
 from .base import Block, per_group_cols
 
@@ -30,6 +31,22 @@ class Placement(Block):
         return [(per_group_cols(ev.start("rotation"), o.pos), skew(v) * UM),
                 (per_group_cols(ev.start("translation"), o.pos),
                  -np.broadcast_to(np.eye(3), (n, 3, 3)))]
+
+    def constraints(self):
+        """None for a ball plate. A hole plate sees each placement only in its plane
+        (``hole_plate``): its tilt (rotations about the plate's u and v axes) and its
+        translation along the normal are held at their start, rows over the rotation and
+        then the translation columns."""
+        o = self.problem.obs
+        if not is_hole_plate(o):
+            return None
+        P = len(o.positions)
+        G = np.zeros((3 * P, 6 * P))
+        for k, R in enumerate(o.R0):
+            G[3 * k, 3 * k:3 * k + 3] = R[:, 0]
+            G[3 * k + 1, 3 * k:3 * k + 3] = R[:, 1]
+            G[3 * k + 2, 3 * P + 3 * k:3 * P + 3 * k + 3] = R[:, 2]
+        return G
 
     def update(self, new):
         blk = self.problem.layout.blocks

@@ -8,6 +8,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..geometry import skew
+from ..hole_plate import is_hole_plate
 from ..units import UM
 from .base import Block, per_group_cols
 
@@ -29,7 +30,12 @@ class Plate(Block):
     def constraints(self):
         """Seven gauge freedoms of a self-calibrated plate (thesis appendix 2): three
         translations and three small rotations, which the placements carry, and the
-        isotropic scale, which needs an external length reference."""
+        isotropic scale, which needs an external length reference. The scale is the last
+        row (``instruments.Instruments.plate_gauge`` releases it).
+
+        A hole plate (``hole_plate``) has the in-plane translations, the rotation about
+        its normal and its in-plane scale, and every hole's coordinate along the normal
+        (no residual sees it) held instead."""
         c = self.problem.obs.plate0_mm - self.problem.plate_centre
         G = np.zeros((c.size, 7))
         for a in range(3):
@@ -38,6 +44,11 @@ class Plate(Block):
         for a in range(3):
             G[:, 3 + a] = -rot[:, :, a].ravel()
         G[:, 6] = c.ravel()
+        if is_hole_plate(self.problem.obs):
+            normal = np.zeros((c.size, len(c)))
+            normal[2::3] = np.eye(len(c))
+            G[2::3, 6] = 0.0
+            G = np.hstack([G[:, [0, 1, 5]], normal, G[:, 6:]])
         return G.T
 
     def prior_rows(self, state, want_jac):
