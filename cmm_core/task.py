@@ -24,6 +24,18 @@ ISO/TS 15530-4 simulation): each trial draws
 and evaluates the feature. The law of propagation of uncertainty (JCGM 100 eq. 10, with
 the points' joint covariance and a central-difference gradient of the feature) is given
 beside it, with each influence's share; for a linear task the two agree (the check).
+
+Each point's true position is thus N(measured, σ²) (JCGM 101 §6.4.7: the measured value
+is its best estimate). For a nonlinear feature the distribution of the result is then not
+centred on the value: the flatness, a range, is raised by noise twice, once in the value
+(the range of noisy points exceeds the surface's) and once more in the trials, so their
+mean (``mc_mean``) lies above the value by about that excess and the interval is that of
+the flatness of point sets scattered about the measured ones (as a repeat measurement of
+a surface shaped like the measured points would give). It is not a coverage interval for
+the surface's flatness when the form is within a few σ (``_FLATNESS_NOTE``; the four-point
+plane, whose flatness is 2|w| with a twist w known as N(ŵ, σ²/4), has a closed form:
+``tests/test_task.py``). Points outside the machine's range are refused (``compensate``'s
+test), and so are the two points of a distance closer than :data:`MIN_LENGTH_MM`.
 """
 
 from __future__ import annotations
@@ -35,12 +47,24 @@ import numpy as np
 
 from . import kinematics as kin
 from ._blas import single_blas_thread
+from .compensate import OFF_MACHINE, _extrapolation_note
 from .gum import coverage_intervals
 from .io import DataError, _cut, read_json, refuse_unknown_keys
 
 TASKS = ("distance", "circle", "plane")
 TASK_KEYS = ("task", "points", "probing_sigma_um", "temperature", "scale_u_ppm",
              "discrepancy", "include_model", "trials", "seed", "coverage_probability")
+MIN_LENGTH_MM = 1e-3
+"""Shortest distance task (mm): two points closer than 1 µm are one point probed twice;
+their length has no direction, and its gradient (the law of propagation's) is zero."""
+_FLATNESS_NOTE = (
+    "Flatness is the range of the corrected points, probing noise included (a range of "
+    "noisy points exceeds the surface's); the Monte Carlo draws each point about its "
+    "measured position (JCGM 101), which adds that excess again: its mean (mc_mean) lies "
+    "above the value by about the excess, and its interval is that of the flatness of "
+    "points scattered like these about the measured ones, as a repeat measurement would "
+    "give, not a coverage interval for the surface's flatness when the form is within a "
+    "few σ.")
 
 
 @dataclass(frozen=True)
@@ -128,6 +152,11 @@ def read_task(source, *, name=None) -> Task:
                                                                          "z_mm")])
         probes.append(None if p.get("probe") is None else str(p["probe"]))
     xyz = np.array(xyz)
+    if kind == "distance" and np.linalg.norm(xyz[1] - xyz[0]) < MIN_LENGTH_MM:
+        raise DataError(f"points[0] and points[1] are {np.linalg.norm(xyz[1] - xyz[0]):.2g} "
+                        f"mm apart; a distance needs two distinct points (at least "
+                        f"{MIN_LENGTH_MM:g} mm apart).", file=name, column="points[1]",
+                        hint="probe the two ends of the length.")
     if kind != "distance" and np.linalg.matrix_rank(xyz - xyz.mean(0), tol=1e-6) < 2:
         raise DataError("the points lie on one line; a circle or plane needs points "
                         "spanning a plane.", file=name, column="points")
@@ -206,11 +235,13 @@ class TaskResult:
     ----------
     kind : str
     values : dict
-        Quantity -> ``{"value", "unit", "u_mc_um", "u_lpu_um", "interval",
+        Quantity -> ``{"value", "unit", "mc_mean", "u_mc_um", "u_lpu_um", "interval",
         "contributions_um"}``: the estimate (from the corrected points, at 20 °C), the
-        Monte Carlo standard uncertainty (µm), the law of propagation's (µm), the
-        shortest coverage interval (in the quantity's unit) and each influence's
-        standard uncertainty by the law of propagation (µm).
+        mean of the Monte Carlo results (the quantity's unit; above the value for a
+        flatness, module docstring), their standard deviation (µm), the law of
+        propagation's standard uncertainty (µm), the shortest coverage interval of the
+        Monte Carlo results (in the quantity's unit) and each influence's standard
+        uncertainty by the law of propagation (µm).
     trials : int
     coverage_probability : float
     sigma_um : float
@@ -243,6 +274,22 @@ def _probe_offsets(model, task):
                             f"{', '.join(names)}).", file=task.name, column=f"points[{i}].probe")
         out.append(model.probes_mm[q])
     return np.array(out)
+
+
+def _check_on_machine(model, task, x):
+    """Refuse points off the machine (compensate's test: beyond the strokes by more than
+    a stylus length), where the model is not defined; the indices of points outside the
+    region the fit measured (their correction extrapolates)."""
+    note = _extrapolation_note(model, x)
+    off = np.flatnonzero(note == OFF_MACHINE)
+    if off.size:
+        i = int(off[0])
+        raise DataError(f"points[{i}] at {np.round(task.points_mm[i], 1).tolist()} mm lies "
+                        f"outside the machine's range {list(model.terms.range_mm)} mm, where "
+                        "the model is not defined; expected points in mm, machine frame.",
+                        file=task.name, column=f"points[{i}]",
+                        hint="check the units and the frame of the points.")
+    return np.flatnonzero(note != "")
 
 
 def _influences(model, task, x, p, sigma):
@@ -290,6 +337,7 @@ def task_uncertainty(model, task: Task, *, trials: int | None = None,
     p = _probe_offsets(model, task)
     x = task.points_mm - p
     n = len(x)
+    outside = _check_on_machine(model, task, x)
     e = kin.error(model.terms, model.coef, x, p) * kin.UM  # µm -> mm
     alpha, dT = task.cte_per_K, task.temp_C - 20.0
     corr = task.points_mm + e
@@ -349,6 +397,7 @@ def task_uncertainty(model, task: Task, *, trials: int | None = None,
         col = np.sort(Y[:, j])
         _, short = coverage_intervals(col, task.coverage_probability)
         values[qname] = {"value": float(est[j]), "unit": unit,
+                         "mc_mean": float(np.mean(Y[:, j])),
                          "u_mc_um": float(np.std(Y[:, j], ddof=1) * unit_um[j]),
                          "u_lpu_um": float(u_lpu[j]), "interval": list(short),
                          "contributions_um": {k: float(v[j]) for k, v in contrib.items()
@@ -356,6 +405,11 @@ def task_uncertainty(model, task: Task, *, trials: int | None = None,
     msg = (f"{task.kind} from {n} points, corrected with the model {model.spec!r} and "
            f"reported at 20 °C; {M} Monte Carlo trials (JCGM 101) beside the law of "
            f"propagation (JCGM 100); probing σ = {sigma:g} µm.")
+    if outside.size:
+        msg += (f" Points {', '.join(f'points[{i}]' for i in outside)} lie outside the "
+                "region the fit measured: their correction extrapolates the model.")
+    if task.kind == "plane":
+        msg += " " + _FLATNESS_NOTE
     if model.summary.get("fails_chi2_test"):
         # the model's covariance is σ-based: under misfit its share is too small
         msg += (f" The model failed its χ² test (scatter {model.summary['birge_ratio']:.2f} "
