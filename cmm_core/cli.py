@@ -388,6 +388,9 @@ def build_parser():
                                     "plane measured with a fitted machine")
     add_task_arguments(p)
     p.set_defaults(func=cmd_task)
+    from .export_cli import add_parser as add_export_parser
+
+    add_export_parser(sub)
     return ap
 
 
