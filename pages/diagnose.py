@@ -16,6 +16,7 @@ st.caption("The model against the measurements: where it fails, which physical e
 C.flash()
 ds, r = C.require_fit()
 s = st.session_state
+fkey = C.fit_key()  # what decides the fit: the key of its cached figures
 
 c = st.columns(4)
 # the model as the user wrote it, wrapped at its commas (a metric would cut it)
@@ -30,12 +31,12 @@ st.subheader("Where the model fails")
 t_pat, t_map, t_tab, t_time = st.tabs(["Residual pattern", "Residual map (3D)",
                                        "Per position and probe", "Against time and direction"])
 with t_pat, C.guarded("Residual pattern"):
-    st.plotly_chart(C.figure("pattern", C.fit_key(), C.rep.fig_pattern, r.table,
+    st.plotly_chart(C.figure("pattern", fkey, C.rep.fig_pattern, r.table,
                              r.residuals_um, "Residuals per observation (µm)"),
                     key="diag_resid")
 with t_map, C.guarded("Residual map"):
     comp = st.radio("Component", ["norm", "x", "y", "z"], horizontal=True, key="w_map_comp")
-    st.plotly_chart(C.figure("resmap", (C.fit_key(), comp), C.rep.fig_residual_map, r, comp),
+    st.plotly_chart(C.figure("resmap", (fkey, comp), C.rep.fig_residual_map, r, comp),
                     key="diag_map")
 with t_tab, C.guarded("Residual table"):
     by = st.radio("Group by", ["position", "probe", "ball"], horizontal=True,
@@ -45,7 +46,7 @@ with t_tab, C.guarded("Residual table"):
     if ds.certificate is not None:
         st.markdown("**Each position against the certificate** (own scale and "
                     "out-of-plane bowl)")
-        C.dataframe(res_mod.position_trends(ds, exclude=C.fit_key().exclusions),
+        C.dataframe(res_mod.position_trends(ds, exclude=fkey.exclusions),
                      hide_index=True, key="diag_trends")
 with t_time, C.guarded("Residuals against time"):
     rf = r.residuals_frame()
@@ -199,18 +200,18 @@ if s["diag_on"]:
                 if st.toggle("Show residuals beside its signature", value=i == 0,
                              key=f"w_sig_{c_['effect']}"):
                     f1, f2 = st.columns(2)
-                    f1.plotly_chart(C.figure("pattern_small", C.fit_key(), C.rep.fig_pattern,
+                    f1.plotly_chart(C.figure("pattern_small", fkey, C.rep.fig_pattern,
                                              base.table, base.residuals_um,
                                              "Residual pattern (µm)", 300),
                                     key=f"sig_res_{c_['effect']}")
-                    f2.plotly_chart(C.figure("signature", (C.fit_key(), c_["effect"]),
+                    f2.plotly_chart(C.figure("signature", (fkey, c_["effect"]),
                                              C.rep.fig_pattern, base.table, c_["signature_um"],
                                              f"Signature of {c_['effect']} (µm)", 300),
                                     key=f"sig_{c_['effect']}")
                     sv, rv = np.ravel(c_["signature_um"]), np.ravel(base.residuals_um)
                     den = float(np.linalg.norm(sv) * np.linalg.norm(rv))
                     corr = float(sv @ rv) / den if den > 0 else 0.0
-                    st.plotly_chart(C.figure("sig_scatter", (C.fit_key(), c_["effect"]),
+                    st.plotly_chart(C.figure("sig_scatter", (fkey, c_["effect"]),
                                              C.rep.fig_signature_scatter, base.residuals_um,
                                              c_["signature_um"],
                                              "Residual against the signature: along the "
