@@ -507,7 +507,9 @@ def instruments_section():
     st.write(f"Instrument files ({', '.join(C.INSTRUMENT_NAMES.get(k, k) for k in kinds)}) "
              "observe the machine's errors directly; their readings become rows of every "
              "fit, beside the plate's "
-             "(docs/instruments.md). Machine axes, mm; errors and u in µm.")
+             "(docs/instruments.md). Machine axes, mm; errors and u in µm. Loading another "
+             "dataset removes them (they measured the previous machine); a project file "
+             "keeps them.")
     gen = s.get("inst_gen", 0)
     sfx = "" if gen == 0 else f"_{gen}"
     cols = st.columns(len(kinds))
