@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..io import DataError, _numeric
+from ..io import DataError, _cut, _numeric
 from ..observations import approach_directions
 from .base import Block, Correction, Effect, ModelPart, checked_cov, shared_cols
 
@@ -79,7 +79,7 @@ class Backlash(Block):
             joint = np.asarray(d["cov_with_backlash"], float)
         except (KeyError, TypeError, ValueError) as exc:
             raise DataError(f"is not a model file written by 'fit --save' "
-                            f"({str(exc)[:80]}).", file=name) from None
+                            f"({_cut(str(exc), 80)}).", file=name) from None
         k = n_before + 3
         if spans.shape != (3,) or joint.shape != (k, k):
             raise DataError(f"expected 3 backlash spans and a {k}x{k} joint covariance, "
