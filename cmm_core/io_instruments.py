@@ -15,6 +15,8 @@ what was expected; the cell-level problems of a file are reported together.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 
@@ -380,8 +382,9 @@ def read_instrument(source, kind: str, name=None):
         An unknown kind (naming the known ones and the one it most likely misspells), or
         any problem of the file (its reader's refusals).
     """
-    refuse_unknown_keys([kind], list(INSTRUMENT_KINDS), name or str(source), "",
-                        "instrument kind")
+    label = name or (Path(source).name if isinstance(source, str | Path) else
+                     "instrument file")
+    refuse_unknown_keys([kind], list(INSTRUMENT_KINDS), label, "", "instrument kind")
     return INSTRUMENT_KINDS[kind][0](source, name)
 
 

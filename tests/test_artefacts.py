@@ -218,8 +218,8 @@ def test_ball_bar_file_round_trip_and_the_dispatcher(tmp_path):
     write_instrument(back, tmp_path / "again.csv")
     assert (tmp_path / "again.csv").read_text() == (tmp_path / "bb.csv").read_text()
     assert set(INSTRUMENT_KINDS) == {"laser", "step_gauge", "ball_bar"}
-    with pytest.raises(DataError, match=r"unknown instrument kind 'ballbar'; did you mean "
-                                        r"'ball_bar'\?"):
+    with pytest.raises(DataError, match=r"bb.csv, .*unknown instrument kind 'ballbar'; did "
+                                        r"you mean 'ball_bar'\?"):
         read_instrument(tmp_path / "bb.csv", "ballbar")
 
 
