@@ -408,6 +408,12 @@ def task_uncertainty(model, task: Task, *, trials: int | None = None,
     if outside.size:
         msg += (f" Points {', '.join(f'points[{i}]' for i in outside)} lie outside the "
                 "region the fit measured: their correction extrapolates the model.")
+    parts = list(getattr(model, "parts", {}))
+    if parts:
+        # a task point has no measurement order or scale temperatures to apply them with
+        msg += (f" The model's {' and '.join(parts)} corrections are not applied to task "
+                "points (compensate applies them from the points' order and scale "
+                "temperatures); neither they nor their uncertainty are in these results.")
     if task.kind == "plane":
         msg += " " + _FLATNESS_NOTE
     if model.summary.get("fails_chi2_test"):

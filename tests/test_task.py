@@ -166,6 +166,18 @@ def test_points_off_the_machine_are_refused_naming_the_point():
     raw["points"][1]["x_mm"] = 1100.0  # on the machine, beyond the balls
     res = task_uncertainty(model, read_task(raw, name="t.json"), trials=200)
     assert "points[1] lie outside the region the fit measured" in res.message
+    assert "not applied" not in res.message
+
+
+def test_a_model_with_backlash_says_its_spans_are_not_applied():
+    """Task points carry no measurement order or scale temperatures: the parts of the
+    model that need them (backlash, machine_thermal) are left out, and the message says
+    so instead of passing the result off as fully corrected."""
+    from cmm_core.compensate import load_model
+
+    model = load_model(ROOT / "tests" / "corpus" / "legacy_models" / "model_backlash.json")
+    res = task_uncertainty(model, _task("task_distance.json", trials=200))
+    assert "backlash corrections are not applied to task points" in res.message
 
 
 @pytest.mark.parametrize("dx_mm", [0.0, 1e-4])
