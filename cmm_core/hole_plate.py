@@ -38,9 +38,9 @@ from .units import URAD
 __all__ = ["is_hole_plate", "in_plane", "initial_state", "normal_equations", "ROUNDING"]
 
 ROUNDING = 1e-12
-"""Jacobian entries below this share of its largest are rounding residue of the projection
-(exact zeros): the smallest real entries, a residual of 1e-3 µm turning with the normal
-(``URAD`` per µrad), are 1e-9 of the largest."""
+"""Jacobian entries below this share of its largest are set to zero: the rounding residue
+of the projection (exact zeros, ~1e-16) and real entries too small to change any result (a
+residual of 1e-6 µm turning with the normal, ``URAD`` per µrad)."""
 
 
 def is_hole_plate(obs) -> bool:
