@@ -179,7 +179,22 @@ def _encompassing(base: FitResult, cands, level, refits, alpha=0.01, max_rivals=
                 f"its ΔBIC ({b.delta_bic:.1f}, for {b.n_params} parameters) is weaker than "
                 f"{a.effect}'s ({a.delta_bic:.1f}).")
     elif mutual:
-        out[0] = replace(a, aliases=list(dict.fromkeys([*a.aliases, *mutual])))
+        # The data cannot tell them apart: name the one the testing procedure supports
+        # best, the smallest p relative to its share of the false-alarm rate (the order
+        # of a weighted Holm procedure, whose weights are the prior plausibility of each
+        # kind of effect), not the one a ΔBIC that charges unused parameters prefers.
+        group = [a, *(c for c in out if c.effect in mutual)]
+        best = min(group, key=lambda c: c.p_value / c.level)
+        tied = [c.effect for c in group if c is not best]
+        if best is not a:
+            out.remove(best)
+            out = [best, *out]
+            note += (f" {best.effect} is named ahead of {a.effect}, which neither adds "
+                     f"anything to nor needs once the other is in the model, as the better "
+                     f"supported at its level (p = {best.p_value:.2g} against "
+                     f"{best.level:.2g}; {a.effect}: p = {a.p_value:.2g} against "
+                     f"{a.level:.2g}).")
+        out[0] = replace(best, aliases=list(dict.fromkeys([*best.aliases, *tied])))
     return out, note
 
 
