@@ -364,6 +364,28 @@ def test_hole_plate_ignores_where_along_the_hole_axis_it_was_probed():
     assert ball.chi2_dof > 1000
 
 
+def test_monte_carlo_hole_plate_with_ball_bar_is_calibrated():
+    """50 simulations (fresh truth, hole plate and bar noise; ~5 s): the pooled χ² over the
+    pooled degrees of freedom is within 3.5 standard errors of 1 (sqrt(2 / Σdof) = 0.0083;
+    counting three rows per hole would give 0.66), and the RMS of (estimate - truth) / u of
+    sxy, dxx[1] and dyy[1] (the bar's squareness and the scales) within 3.5 standard errors
+    of 1 (1 / sqrt(2 N) = 0.1)."""
+    chi2 = dof = 0.0
+    z = {"sxy": [], "dxx[1]": [], "dyy[1]": []}
+    for seed in range(300, 350):
+        sim = _hole_sim(seed)
+        bar = _bar(sim, centres=GRID_XY, directions=XY, seed=seed + 1000)
+        r = fit(sim.dataset, "kinematic21", instruments=[bar])
+        chi2, dof = chi2 + r.chi2, dof + r.dof
+        for lab in z:
+            i = r.labels.index(lab)
+            z[lab].append((r.values[i] - sim.truth[lab]) / r.u[i])
+    assert abs(chi2 / dof - 1) < 3.5 * np.sqrt(2 / dof), chi2 / dof
+    for lab, zs in z.items():
+        rms = float(np.sqrt(np.mean(np.square(zs))))
+        assert abs(rms - 1) < 3.5 / np.sqrt(2 * len(zs)), (lab, rms)
+
+
 @pytest.mark.parametrize("plate", ["prior", "free"])
 def test_hole_plate_with_its_plate_fitted(plate):
     """A prior or self-calibrated hole plate: its in-plane geometry is fitted, its normal
