@@ -5,7 +5,9 @@ For each layout of ``tests/scenarios.py`` and each catalogue effect of
 diagnosis predicts it finds with 80 % probability at its own level), over ``--seeds``
 seeds: how often the loop's verdict names the hidden effect, beside an ideal test that
 knows which effect is hidden (the F-test of adding it, at 1 %). The gap is what
-multiplicity and aliases cost. Usage: ``python bench/power.py [--seeds N] [--scale S]``.
+multiplicity and aliases cost. With ``--pairs``: two effects hidden together, the loop
+(diagnose, add the verdict, diagnose again) against the ideal tests of each effect given
+the other. Usage: ``python bench/power.py [--seeds N] [--scale S] [--pairs]``.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "bench")]
 
 import scenarios as sc  # noqa: E402
-from honesty import hidden_configs, limits  # noqa: E402
+from honesty import hidden_configs, limits, loop  # noqa: E402
 
 from cmm_core.diagnose import diagnose  # noqa: E402
 from cmm_core.fit import fit  # noqa: E402
@@ -43,11 +45,50 @@ def ideal_detects(data, base: str, token: str, alpha: float = 0.01) -> bool:
     return bool(stats.f.sf(F, dk, a.dof) < alpha)
 
 
+def _merged(a, b):
+    """Two simulator configurations in one (nested dictionaries merged)."""
+    out = dict(a)
+    for k, v in b.items():
+        out[k] = _merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+PAIRS = [("plate_sag", "backlash"), ("probe_offset", "dyz:3"), ("backlash", "dyz:3")]
+"""Effects hidden together (both with the baseline kinematic21)."""
+
+
+def pairs(args) -> int:
+    """Two hidden effects: does the loop name both (in either order)?"""
+    total = [0, 0, 0]
+    print(f"{'layout':15s} {'effects':22s} {'both':>5s} {'ideal':>6s} {'of':>4s}")
+    for layout in sc.LAYOUTS:
+        cfgs = {name: cfg for name, _, cfg in hidden_configs(layout, limits(layout))}
+        for e1, e2 in PAIRS:
+            if e1 not in cfgs or e2 not in cfgs:
+                continue
+            cfg = _scaled(_merged(cfgs[e1], cfgs[e2]), args.scale / 2)
+            both = ideal = 0
+            for seed in range(args.seeds):
+                data = sc.simulated(layout, 5000 + seed, order="serpentine", **cfg).dataset
+                path = loop(data, "kinematic21")[0]
+                both += set(path[:2]) == {e1, e2}
+                ideal += (ideal_detects(data, f"kinematic21,{e1}", e2)
+                          and ideal_detects(data, f"kinematic21,{e2}", e1))
+            total = [total[0] + both, total[1] + ideal, total[2] + args.seeds]
+            print(f"{layout:15s} {e1 + ' + ' + e2:22s} {both:5d} {ideal:6d} {args.seeds:4d}")
+    print(f"all: both named {total[0]}/{total[2]}, ideal tests {total[1]}/{total[2]}")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=25, help="seeds per effect and layout")
     ap.add_argument("--scale", type=float, default=1.0, help="size in detection limits")
+    ap.add_argument("--pairs", action="store_true",
+                    help="two effects hidden together (the loop against the ideal tests)")
     args = ap.parse_args(argv)
+    if args.pairs:
+        return pairs(args)
     total = [0, 0, 0]
     print(f"{'layout':15s} {'effect':13s} {'named':>6s} {'ideal':>6s} {'of':>4s}")
     for layout in sc.LAYOUTS:

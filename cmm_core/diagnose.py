@@ -54,6 +54,7 @@ from .discrepancy import Discrepancy, discrepancy_gp, kinematic_basis
 from .effects import PERIODIC, catalogue_entry
 from .fit import FitResult, fit
 from .scoring import (
+    FAMILY_ALPHA,
     PHYSICAL_SHARE,
     ScoreCache,
     _levels,
@@ -79,7 +80,7 @@ from .verdict import (
 
 __all__ = ["Candidate", "Diagnosis", "diagnose", "estimate_sigma", "history_entry", "score",
            "scan_period", "misfit_location", "kinematic_basis", "Discrepancy",
-           "discrepancy_gp", "OUTSIDE", "PHYSICAL_SHARE", "PERIOD_SCAN",
+           "discrepancy_gp", "OUTSIDE", "FAMILY_ALPHA", "PHYSICAL_SHARE", "PERIOD_SCAN",
            "shortest_resolvable_period"]
 
 
@@ -232,7 +233,7 @@ class Diagnosis:
 @single_blas_thread
 def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
              sigma_um: float = 0.5, exclude=(), positions=None, probes=None,
-             candidates=None, alpha: float = 0.01, confirm: int = 3,
+             candidates=None, alpha: float = FAMILY_ALPHA, confirm: int = 3,
              alias_corr: float = 0.9, progress=None) -> Diagnosis:
     """Rank the catalogue effects missing from ``baseline`` (see module docstring).
 
@@ -245,7 +246,7 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
         Tokens to try (default: every catalogue token not in the baseline).
     alpha : float
         Family-wise false-alarm rate, shared over the candidates by weighted Bonferroni
-        (:data:`PHYSICAL_SHARE`).
+        (:data:`PHYSICAL_SHARE`); default :data:`scoring.FAMILY_ALPHA`.
     confirm : int
         How many of the best scored candidates are confirmed by a full refit.
     alias_corr : float

@@ -18,13 +18,14 @@ from .effects import MAX_ORDER, parse_spec
 from .fit import PLATE_MODES
 from .io import DataError, _cut, read_json, read_setup, refuse_unknown_keys
 from .plan import Plan, _build, evaluate
+from .scoring import FAMILY_ALPHA
 
 TOP_KEYS = ("name", "setup", "plate", "model", "noise_um", "measurement", "strategies",
             "design", "seed")
 PLATE_DEFAULTS = {"rows": 5, "cols": 5, "pitch_mm": 133.0, "certificate_u_um": 0.13,
                   "geometry": "fixed"}
 MODEL_DEFAULTS = {"spec": "kinematic21", "order": 2, "prior_um": 1.0, "prior_urad": 1.0,
-                  "alpha": 0.01, "periods_mm": {}, "expected": {}}
+                  "alpha": FAMILY_ALPHA, "periods_mm": {}, "expected": {}}
 MEASUREMENT_DEFAULTS = {"order": "row", "probes_interleaved": False, "repeats": 1,
                         "minutes_per_ball": 0.5, "minutes_per_placement": 10.0}
 STRATEGY_KEYS = ("name", "placements", "noise_um", "measurement")
