@@ -31,6 +31,7 @@ from .blocks.plate import Plate
 from .dataset import Dataset
 from .effects import ModelSpec, parse_spec
 from .fit_result import CHI2_ALPHA, IMPLAUSIBLE, FitResult, _message
+from .fit_state import State
 from .geometry import plate_effect_basis, rigid_fit
 from .instruments import Instruments
 from .observations import Observations, approach_directions, select
@@ -104,7 +105,7 @@ class Problem:
         for k in range(self.P):
             sel = o.pos == k
             R[k], t[k] = rigid_fit(o.plate0_mm[o.ball[sel]], o.r_mm[sel])
-        return {"c": o.plate0_mm.copy(), "R": R, "t": t, "x": np.zeros(self.layout.n)}
+        return State(o.plate0_mm.copy(), R, t, np.zeros(self.layout.n))
 
     def _placed(self, ev):
         """Probe and plate stages, then the placed ball ``R_k c' + t_k`` (mm)."""
@@ -113,12 +114,12 @@ class Problem:
         for b in self.blocks:
             p = b.probe_stage(ev, p)
         ev.p_mm = p
-        c = state["c"][o.ball]
+        c = state.c[o.ball]
         for b in self.blocks:
             c = b.plate_stage(ev, c)
         ev.plate_mm = c
-        ev.Rk = state["R"][o.pos]
-        return np.einsum("nij,nj->ni", ev.Rk, c) + state["t"][o.pos]
+        ev.Rk = state.R[o.pos]
+        return np.einsum("nij,nj->ni", ev.Rk, c) + state.t[o.pos]
 
     def _reading(self, ev, d):
         for b in self.blocks:
@@ -144,7 +145,7 @@ class Problem:
     def plate_points(self, state):
         """Plate coordinates of every observation after thermal and sag effects (mm)."""
         ev = Eval(self, state, False)
-        c = state["c"][self.obs.ball]
+        c = state.c[self.obs.ball]
         for b in self.blocks:
             c = b.plate_stage(ev, c)
         return c
@@ -208,11 +209,10 @@ class Problem:
         """Apply a step: placements are updated multiplicatively so the rotation
         parameters stay small increments (exact Jacobian at zero), the plate into its
         coordinates."""
-        new = {k: v.copy() for k, v in state.items()}
-        new["x"] = state["x"] + step
+        new = state.with_x(state.x + step)
         for b in self.blocks:
             if hasattr(b, "update"):
-                b.update(new)
+                new = b.update(new)
         return new
 
 
@@ -386,9 +386,7 @@ def _chi2_with_certificate(prob: Problem, state, design_null, sigma_um, rank_rto
     by one Gauss-Newton step from the fixed solution: the model is linear in the plate
     coordinates."""
     pp = Problem(prob.obs, prob.spec, "prior")
-    st = {k: v.copy() for k, v in state.items()}
-    old = dict(zip(prob.layout.labels, state["x"], strict=True))
-    st["x"] = np.array([old.get(lab, 0.0) for lab in pp.layout.labels])
+    st = state.relabelled(prob.layout.labels, pp.layout.labels)
     _, cost, N, g, n_rows = pp.normal_equations(st, sigma_um)
     C = pp.constraints()
     if design_null.size:
@@ -412,14 +410,11 @@ def _held_prior_rows(prob: Problem) -> int:
     return int(np.linalg.matrix_rank(G[:, keep])) if keep.any() else 0
 
 
-def augmented_state(base: FitResult, prob: Problem) -> dict:
+def augmented_state(base: FitResult, prob: Problem) -> State:
     """A fit's solution expressed in another problem's parameter vector on the same
     observations (parameters the fit does not have start at zero): the linearisation
     point from which a candidate effect is scored (``diagnose.score``, ``holdout``)."""
-    st = {k: v.copy() for k, v in base.state.items()}
-    old = dict(zip(base.labels, base.state["x"], strict=True))
-    st["x"] = np.array([old.get(lab, 0.0) for lab in prob.layout.labels])
-    return st
+    return base.state.relabelled(base.labels, prob.layout.labels)
 
 
 def weighted_residual(prob: Problem, state, sigma_um: float, want_jac: bool):
@@ -443,7 +438,7 @@ def weighted_residual(prob: Problem, state, sigma_um: float, want_jac: bool):
 
 def _report_values(prob, state):
     """Parameter values relative to the nominal setup / certificate, in their units."""
-    v = state["x"].copy()
+    v = state.x.copy()
     for b in prob.blocks:
         if hasattr(b, "report"):
             b.report(state, v)

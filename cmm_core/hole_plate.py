@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from .fit_state import State
 from .geometry import skew
 from .units import URAD
 
@@ -56,7 +57,7 @@ def in_plane(prob, state, d, J):
     ``w`` in µrad), which adds ``[(n·d) [n]× + n (d × n)ᵀ] URAD`` to the rotation columns
     (µm per µrad: negligible beside the data, kept so the Jacobian is exact)."""
     o = prob.obs
-    n = state["R"][o.pos][:, :, 2]
+    n = state.R[o.pos][:, :, 2]
     along = np.einsum("ni,ni->n", n, d)
     out = d - n * along[:, None]
     if J is None:
@@ -99,7 +100,7 @@ def initial_state(prob):
         Rz = np.array([[cs, -sn, 0.0], [sn, cs, 0.0], [0.0, 0.0, 1.0]])
         shift = local.mean(0) - Rz @ c.mean(0)
         R[k], t[k] = o.R0[k] @ Rz, o.t0_mm[k] + o.R0[k] @ shift
-    return {"c": o.plate0_mm.copy(), "R": R, "t": t, "x": np.zeros(prob.layout.n)}
+    return State(o.plate0_mm.copy(), R, t, np.zeros(prob.layout.n))
 
 
 def normal_equations(prob, state, sigma_um: float):

@@ -255,7 +255,7 @@ class Instruments:
     def evaluate(self, state, want_jac=False):
         """Per instrument: ``(item, weighted rows, Jacobian over the kinematic columns or
         None)``."""
-        coef = state["x"][self.cols]
+        coef = state.x[self.cols]
         out = []
         for it in self.items:
             d, Jp = it.predict(self.terms, coef, want_jac)

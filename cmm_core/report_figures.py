@@ -161,8 +161,7 @@ def deviations_plate_frame(result, position: str, probe=None) -> pd.DataFrame:
     if not sel.any():
         return pd.DataFrame()
     k = obs.positions.index(position)
-    R, tr = st["R"][k], st["t"][k]
-    plate = st["c"] if "c" in st else obs.plate0_mm
+    R, tr, plate = st.R[k], st.t[k], st.c
     r = obs.r_mm[sel]
     d = result.residuals_um[sel]
     c = plate[obs.ball[sel]]

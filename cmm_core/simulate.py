@@ -38,6 +38,7 @@ from .blocks.base import SimContext
 from .dataset import THESIS_DIR, Dataset
 from .effects import parse_spec
 from .fit import Observations, Problem, approach_directions
+from .fit_state import State
 from .io import (
     Certificate,
     DataError,
@@ -234,9 +235,8 @@ def simulate(config: dict | None = None, *, name: str = "simulation config") -> 
     model = parse_spec(",".join([km["spec"], *(t for t in BY_TOKEN if t in eff)]),
                        default_order=int(km["order"]))
     prob = Problem(_design(df, setup, plate), model, "fixed")
-    state = prob.initial_state()
-    state.update(c=plate.copy(), R=prob.obs.R0.copy(), t=prob.obs.t0_mm.copy(),
-                 x=np.array([truth.get(lab, 0.0) for lab in prob.layout.labels]))
+    state = State(plate.copy(), prob.obs.R0.copy(), prob.obs.t0_mm.copy(),
+                  np.array([truth.get(lab, 0.0) for lab in prob.layout.labels]))
     x = kin.invert(terms, coef, *prob.targets(state))
     if eff:
         # effects of the readings themselves (the approach direction of backlash, the

@@ -75,20 +75,20 @@ def test_ball_bar_rows_and_jacobian_match_finite_differences(layout):
     inst = prob.instruments
     state = prob.initial_state()
     k = inst.cols
-    state["x"][k] = np.random.default_rng(0).normal(0, 3.0, k.stop - k.start)  # bent machine
+    state.x[k] = np.random.default_rng(0).normal(0, 3.0, k.stop - k.start)  # bent machine
     r, J = inst.rows(state, True)
     assert J.shape == (6, k.stop - k.start) and np.abs(J).max() > 0.1
     h = 1e-3
     fd = np.empty_like(J)
     for j in range(J.shape[1]):
-        up, dn = {**state, "x": state["x"].copy()}, {**state, "x": state["x"].copy()}
-        up["x"][k.start + j] += h
-        dn["x"][k.start + j] -= h
+        up, dn = state.with_x(state.x.copy()), state.with_x(state.x.copy())
+        up.x[k.start + j] += h
+        dn.x[k.start + j] -= h
         fd[:, j] = (inst.rows(up)[0] - inst.rows(dn)[0]) / (2 * h)
     np.testing.assert_allclose(J, fd, rtol=1e-6, atol=1e-5)
     # the row against eq. 3 evaluated naively: the difference of two ~0.5 m lengths loses
     # ~1e-13 m, 1e-7 µm
-    coef = state["x"][k]
+    coef = state.x[k]
     s1 = kin.model_point(prob.terms, coef, bar.r1_mm - bar.p_mm, bar.p_mm)
     s2 = kin.model_point(prob.terms, coef, bar.r2_mm - bar.p_mm, bar.p_mm)
     naive = (np.linalg.norm(s2 - s1, axis=1) - bar.certified_mm) * 1e3 / bar.u_um
@@ -154,7 +154,7 @@ def test_plate_and_ball_bar_recover_the_truth():
     assert list(frame["kind"]) == ["ball_bar"] * 18
     np.testing.assert_allclose(frame["residual_um"], [x["residual_um"] for x in rec["lengths"]])
     # each residual is the fitted model's length minus the certified one
-    coef = r.state["x"][r.problem.instruments.cols]
+    coef = r.state.x[r.problem.instruments.cols]
     np.testing.assert_allclose(frame["residual_um"],
                                bar.predict(r.problem.terms, coef, False)[0], atol=1e-9)
 
@@ -322,7 +322,7 @@ def test_hole_plate_jacobian_matches_finite_differences():
     state = prob.update(prob.initial_state(), rng.normal(0, 2.0, prob.layout.n))
     for name in ("kinematic", "drift", "plate_thermal"):
         s = prob.layout.blocks[name]
-        state["x"][s] = rng.normal(0, 2.0, s.stop - s.start)
+        state.x[s] = rng.normal(0, 2.0, s.stop - s.start)
     J = prob.residual(state, True)[1].toarray()
     h = 1e-4
     fd = np.empty_like(J)

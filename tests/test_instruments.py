@@ -71,20 +71,20 @@ def test_rows_and_jacobian_match_finite_differences(layout):
     state = prob.initial_state()
     k = inst.cols
     rng = np.random.default_rng(0)
-    state["x"][k] = rng.normal(0, 3.0, k.stop - k.start)  # µm / µrad: a bent machine
+    state.x[k] = rng.normal(0, 3.0, k.stop - k.start)  # µm / µrad: a bent machine
     r, J = inst.rows(state, True)
     assert J.shape == (r.size, k.stop - k.start)
     h = 1e-3
     fd = np.empty_like(J)
     for j in range(J.shape[1]):
-        up, dn = {**state, "x": state["x"].copy()}, {**state, "x": state["x"].copy()}
-        up["x"][k.start + j] += h
-        dn["x"][k.start + j] -= h
+        up, dn = state.with_x(state.x.copy()), state.with_x(state.x.copy())
+        up.x[k.start + j] += h
+        dn.x[k.start + j] -= h
         fd[:, j] = (inst.rows(up)[0] - inst.rows(dn)[0]) / (2 * h)
     np.testing.assert_allclose(J, fd, rtol=1e-6, atol=1e-5)
     # the residual itself against the model evaluated independently (kinematics.error is
     # true minus indicated; the instruments' error is indicated minus true)
-    coef = state["x"][k]
+    coef = state.x[k]
     pos, straight, sg = prob.obs.instruments
     for run in (pos, straight):
         e = -kin.error(prob.terms, coef, run.r_mm - run.p_mm, run.p_mm)
@@ -143,7 +143,7 @@ def test_blocked_normal_equations_include_the_instrument_rows():
     sim = _sim()
     prob = _problem(sim, _kit(sim), spec="kinematic21,probe_offset", plate="prior")
     st = prob.initial_state()
-    st["x"][prob.instruments.cols] = 0.5
+    st.x[prob.instruments.cols] = 0.5
     _, r, J = weighted_residual(prob, st, 0.5, True)
     ne = _normal.accumulate(prob, st, 0.5, rows=40)
     Jd = J.toarray()

@@ -36,9 +36,8 @@ class Eval:
     ----------
     problem : fit.Problem
         The problem being evaluated (observations, layout, blocks).
-    state : dict
-        Plate coordinates ``c`` (B, 3) mm, placements ``R`` (P, 3, 3), ``t`` (P, 3) mm and
-        the parameter vector ``x``.
+    state : fit_state.State
+        Plate coordinates, placements and the parameter vector.
     want_jac : bool
         Whether the Jacobian is wanted.
     p_mm : ndarray (n, 3)
@@ -54,7 +53,7 @@ class Eval:
     """
 
     problem: object
-    state: dict
+    state: object
     want_jac: bool
     p_mm: np.ndarray | None = None
     plate_mm: np.ndarray | None = None
@@ -69,7 +68,7 @@ class Eval:
 
     def x(self, name):
         """Parameters of one layout slice."""
-        return self.state["x"][self.problem.layout.blocks[name]]
+        return self.state.x[self.problem.layout.blocks[name]]
 
     def start(self, name):
         """First column of one layout slice."""

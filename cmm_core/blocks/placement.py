@@ -4,6 +4,8 @@ small increments at which the Jacobian is exact."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -50,16 +52,17 @@ class Placement(Block):
 
     def update(self, new):
         blk = self.problem.layout.blocks
-        w = new["x"][blk["rotation"]].reshape(-1, 3) * URAD
-        tau = new["x"][blk["translation"]].reshape(-1, 3) * UM
-        new["R"] = Rotation.from_rotvec(w).as_matrix() @ new["R"]
-        new["t"] = new["t"] + tau
-        new["x"][blk["rotation"]] = 0.0
-        new["x"][blk["translation"]] = 0.0
+        w = new.x[blk["rotation"]].reshape(-1, 3) * URAD
+        tau = new.x[blk["translation"]].reshape(-1, 3) * UM
+        x = new.x.copy()
+        x[blk["rotation"]] = 0.0
+        x[blk["translation"]] = 0.0
+        return replace(new, R=Rotation.from_rotvec(w).as_matrix() @ new.R, t=new.t + tau,
+                       x=x)
 
     def report(self, state, v):
         blk, o = self.problem.layout.blocks, self.problem.obs
         rot = np.array([Rotation.from_matrix(R @ R0.T).as_rotvec() for R, R0 in
-                        zip(state["R"], o.R0, strict=True)]) / URAD
+                        zip(state.R, o.R0, strict=True)]) / URAD
         v[blk["rotation"]] = rot.ravel()
-        v[blk["translation"]] = ((state["t"] - o.t0_mm) / UM).ravel()
+        v[blk["translation"]] = ((state.t - o.t0_mm) / UM).ravel()

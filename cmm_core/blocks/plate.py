@@ -4,6 +4,8 @@ absent and the balls sit where the certificate puts them (thesis §4.5.1)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -57,7 +59,7 @@ class Plate(Block):
         that it neither counts as an observation nor constrains the plate."""
         prob, o = self.problem, self.problem.obs
         s = prob.layout.blocks["plate"]
-        dev = (state["c"] - o.plate0_mm) / UM + state["x"][s].reshape(-1, 3)
+        dev = (state.c - o.plate0_mm) / UM + state.x[s].reshape(-1, 3)
         keep = np.flatnonzero(np.isfinite(o.cert_u_um.ravel()))
         u = o.cert_u_um.ravel()[keep]
         J = None
@@ -68,9 +70,10 @@ class Plate(Block):
 
     def update(self, new):
         s = self.problem.layout.blocks["plate"]
-        new["c"] = new["c"] + new["x"][s].reshape(-1, 3) * UM
-        new["x"][s] = 0.0
+        x = new.x.copy()
+        x[s] = 0.0
+        return replace(new, c=new.c + new.x[s].reshape(-1, 3) * UM, x=x)
 
     def report(self, state, v):
         s = self.problem.layout.blocks["plate"]
-        v[s] = ((state["c"] - self.problem.obs.plate0_mm) / UM).ravel()
+        v[s] = ((state.c - self.problem.obs.plate0_mm) / UM).ravel()

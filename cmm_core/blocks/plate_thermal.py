@@ -59,6 +59,6 @@ class PlateThermal(Block):
 
     def jacobian(self, ev):
         o = ev.obs
-        dc = np.einsum("nij,nj->ni", ev.Rk, ev.state["c"][o.ball] - self.problem.plate_centre)
+        dc = np.einsum("nij,nj->ni", ev.Rk, ev.state.c[o.ball] - self.problem.plate_centre)
         return [(shared_cols(ev.start("plate_thermal"), 1, len(o.pos)),
                  (-dc * o.dT_K[:, None] * PPM / UM)[:, :, None])]
