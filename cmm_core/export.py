@@ -270,9 +270,10 @@ def _checked_model(model, name) -> dict:
         out["plate"] = model["plate"]
     if "sigma_um" in model:
         v = model["sigma_um"]
-        if isinstance(v, bool) or not isinstance(v, int | float) or not 0 < v < 1e4:
-            raise bad("sigma_um", "a positive repeatability in µm")
-        out["sigma_um"] = float(v)
+        if v != "auto" and (isinstance(v, bool) or not isinstance(v, int | float)
+                            or not 0 < v < 1e4):
+            raise bad("sigma_um", 'a positive repeatability in µm or "auto"')
+        out["sigma_um"] = v if v == "auto" else float(v)
     for key in ("positions", "probes"):
         if key in model:
             v = model[key]

@@ -463,9 +463,22 @@ with tab_proj:
                     # the model was edited by hand after the last recorded step
                     s["history"].append({"spec": s["spec"], "change": "edited by hand"})
                 s["reset_note"] = []  # the project's own settings, not defaults
+                note = ""
+                if s["sigma_um"] == "auto":  # a record written by the command line
+                    from cmm_core.diagnose import estimate_sigma
+
+                    est = C.safe(estimate_sigma, C.dataset(), s["spec"], order=int(s["order"]),
+                                 plate=None if s["plate"] == "auto" else s["plate"],
+                                 exclude=[tuple(e) for e in s["exclusions"]],
+                                 what="Estimating σ")
+                    s["sigma_um"] = 0.5 if est is None else round(float(est.value_um), 4)
+                    note = (f" Its σ is 'auto': estimated from the data as "
+                            f"{s['sigma_um']:.4g} ± {est.u_um:.2g} µm ({est.method})."
+                            if est is not None else " Its σ is 'auto' and could not be "
+                            "estimated: 0.5 µm is used; set it in the sidebar.")
                 C.set_instruments(inst)
                 C.reset_widgets()
-                _loaded(f"Restored project '{doc['dataset_name']}'.")
+                _loaded(f"Restored project '{doc['dataset_name']}'.{note}")
 
 # ---------------------------------------------------------------------------------------
 # Instruments: laser runs and step gauges fitted jointly with the plate

@@ -50,6 +50,13 @@ def test_session_record_round_trips_through_json_and_the_project_file():
         rec.spec = "rigid"
 
 
+def test_a_record_with_sigma_auto_round_trips_through_the_project_file():
+    """A command-line record may say σ "auto": its project file keeps it (it was refused
+    before, so such a record could not be saved as a project)."""
+    rec = dataclasses.replace(A.record_from_session(_session()), sigma_um="auto")
+    assert A.record_from_project(A.record_to_project_json(rec)) == rec
+
+
 def test_session_defaults_are_the_record_defaults():
     """The app's defaults and a record file's defaults agree (one outlier rule)."""
     rec = A.record_from_session(_session())

@@ -1,5 +1,6 @@
 """AppTest smoke and interaction tests of the Streamlit app (no browser)."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -430,6 +431,26 @@ def _thesis_project_text(exclusions):
         model={"spec": "kinematic21", "order": 2, "plate": "fixed", "sigma_um": 0.5,
                "positions": None, "probes": None},
         exclusions=exclusions, history=[])
+
+
+def test_a_project_with_sigma_auto_restores_with_the_estimate():
+    """σ "auto" (a record from the command line): the app estimates it from the data with
+    the core's estimator, says so, and fits with it."""
+    from cmm_core.dataset import thesis_dataset
+    from cmm_core.diagnose import estimate_sigma
+
+    doc = json.loads(_thesis_project_text([]))
+    doc["model"]["sigma_um"] = "auto"
+    at = _new()
+    at.file_uploader(key="up_project").set_value(
+        ("p.json", json.dumps(doc).encode(), "application/json"))
+    at.run()
+    at.button(key="restore_project").click()
+    at.run()
+    _ok(at)
+    want = estimate_sigma(thesis_dataset(), "kinematic21", plate="fixed").value_um
+    assert at.session_state["sigma_um"] == pytest.approx(want, abs=1e-4)
+    assert any("σ is 'auto'" in s.value for s in at.success)
 
 
 def test_project_exclusions_are_checked_and_unflagged_ones_shown():
