@@ -155,6 +155,11 @@ def error_map_csv(result, grid: pd.DataFrame, probe=None) -> str:
                     "each axis last moved): " + "; ".join(
                         f"{a} {v:.3f} +- {ui:.3f}" for a, v, ui in
                         zip("xyz", val, u, strict=True)))
+    lab, val, u = result.block("machine_thermal")
+    if len(lab):
+        head.append("NOT in this table: machine_thermal (scale expansion, depends on each "
+                    "scale's temperature; the table is for the scales at 20 C): " + "; ".join(
+                        f"{a} {v:.4g} +- {ui:.2g} ppm/K" for a, v, ui in zip(lab, val, u, strict=True)))
     return safe_csv(grid, float_format="%.5f", header_lines=head)
 
 

@@ -66,9 +66,10 @@ def propagate_error(terms, coef, cov, x_mm, p_mm, extra_jac=None):
     """Error ``e(x, p)`` (µm) and its standard uncertainty ``sqrt(diag(J V Jᵀ))`` per
     component, J the analytic Jacobian of the error with respect to the coefficients.
 
-    ``extra_jac`` (m, 3, k) appends the sensitivities of further linear terms (backlash
-    spans) whose coefficients follow the kinematic ones in ``cov``; their contribution to
-    ``e`` is the caller's.
+    ``extra_jac`` (m, 3, k) appends the sensitivities of further linear terms (the
+    compensation parts of effect blocks: backlash spans, scale expansion coefficients)
+    whose coefficients follow the kinematic ones in ``cov``; their contribution to ``e``
+    is the caller's.
     """
     xs, J = kin.jacobian(terms, coef, x_mm, p_mm)
     e = (xs - x_mm - p_mm) / kin.UM

@@ -86,6 +86,22 @@ def test_error_map_header_says_a_fitted_backlash_is_not_in_the_table():
     assert abs(x_span - 2.0) < 3 * u_span  # the fitted span, with its uncertainty
 
 
+def test_error_map_header_says_a_fitted_scale_expansion_is_not_in_the_table():
+    """The grid is for the scales at 20 °C: a fitted machine_thermal expansion is named
+    in the header with its value and uncertainty (simulated 1 ppm/K on x)."""
+    from cmm_core.simulate import simulate
+
+    sim = simulate({"seed": 3, "effects": {"machine_thermal": {
+        "x_cte_per_K": 1e-6, "temp_C": {"BP111": [20, 23], "BP211": [21, 24],
+                                         "BP311": [19, 22]}}}})
+    r = fit(sim.dataset, "kinematic21,machine_thermal")
+    text = export.error_map_csv(r, export.error_map_grid(r, step_mm=400))
+    line = next(x for x in text.splitlines()
+                if x.startswith("# NOT in this table: machine_thermal"))
+    cte, u = (float(v) for v in line.split("cte_x ")[1].split(" ppm/K")[0].split(" +- "))
+    assert abs(cte - 1.0) < 3 * u
+
+
 def test_compensation_adds_the_error(result):
     from cmm_core.uncertainty import error_at
 
