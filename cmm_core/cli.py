@@ -113,10 +113,21 @@ def _fit_args(p, *, baseline=False):
                         "balls where the file has a repeat column, else the residuals of "
                         "the most flexible model the data determine) and reports the "
                         "estimate with its uncertainty under \"sigma\"")
+    _outlier_args(p)
+
+
+def _outlier_args(p):
+    """The outlier rule of the app and the analysis record (``analysis.
+    DEFAULT_EXCLUDE_OUTLIERS``): flagged observations are listed, and kept unless asked."""
+    p.add_argument("--exclude-outliers", action="store_true",
+                   help="leave out every observation the robust median/MAD check across "
+                        "the placements flags (default: they are fitted, and listed under "
+                        "\"outliers\" in the JSON with their deviation in µm so that you "
+                        "can decide; the app and an analysis record keep them too)")
     p.add_argument("--keep-outliers", action="store_true",
-                   help="fit every observation, also those the robust median/MAD check "
-                        "flags as outliers (default: flagged observations are excluded and "
-                        "listed in the JSON)")
+                   help="fit the flagged observations: what happens without "
+                        "--exclude-outliers (accepted for scripts written when exclusion "
+                        "was the command line's default)")
 
 
 def _sigma_arg(text):
@@ -156,13 +167,13 @@ def cmd_simulate(args):
             "files": ["measurements.csv", "setup.json", "certificate.csv", "truth.json"]}
 
 
-def _exclusions(data, keep):
+def _exclusions(data, exclude_flagged):
     from .outliers import detect_outliers
 
     rep = detect_outliers(data)
     out = [{k: o[k] for k in ("position", "probe", "ball", "axis", "deviation_um")}
            for o in rep.outliers]
-    return out, ([] if keep else rep.exclusions)
+    return out, (rep.exclusions if exclude_flagged else [])
 
 
 def cmd_fit(args):
@@ -172,7 +183,7 @@ def cmd_fit(args):
 
     data = _dataset(args)
     instruments = _instruments(args)
-    outliers, exclude = _exclusions(data, args.keep_outliers)
+    outliers, exclude = _exclusions(data, args.exclude_outliers)
     sigma_um, sigma = _sigma(args, data, exclude, args.model)
     r = fit(data, args.model, order=args.order, plate=args.plate, sigma_um=sigma_um,
             exclude=exclude, instruments=instruments or None)
@@ -197,7 +208,7 @@ def cmd_diagnose(args):
 
     data = _dataset(args)
     instruments = _instruments(args)
-    outliers, exclude = _exclusions(data, args.keep_outliers)
+    outliers, exclude = _exclusions(data, args.exclude_outliers)
     sigma_um, sigma = _sigma(args, data, exclude, args.baseline)
     if instruments:  # they ride on the observations into every model the diagnosis fits
         from dataclasses import replace
@@ -234,7 +245,7 @@ def cmd_gp(args):
     from .gp_cmm import gp_components
 
     data = _dataset(args)
-    _, exclude = _exclusions(data, False)
+    _, exclude = _exclusions(data, args.exclude_outliers)
     r = fit(data, "kinematic21" if args.mean == "kinematic" else "rigid", order=args.order,
             plate=args.plate, exclude=exclude)
     obs = r.problem.obs
@@ -343,6 +354,7 @@ def build_parser():
                    help="GP inputs: 'probe' = the ram position and the stylus offset (mm), "
                         "one noise level per stylus, when the data carry several styli; "
                         "'tip' = the tip coordinates only (default: %(default)s)")
+    _outlier_args(p)
     p.add_argument("--order", type=int, default=2, metavar="N",
                    help="polynomial order of the kinematic model for --mean kinematic "
                         "(default: %(default)s)")

@@ -19,14 +19,21 @@ def run(*args, check=True):
 
 
 def test_fit_thesis_tables_reports_outliers_and_parameters():
+    """Flagged observations are listed and fitted (the app's and the record's rule);
+    --exclude-outliers leaves them out and says which."""
     files = sorted(THESIS.glob("BP*.csv"))
-    out = json.loads(run("fit", *files, "--setup", THESIS / "setup.json", "--certificate",
-                         THESIS / "certificate.csv").stdout)
-    assert out["model"] == "kinematic21" and out["n_obs"] == 150 - 3
+    args = ("fit", *files, "--setup", THESIS / "setup.json", "--certificate",
+            THESIS / "certificate.csv")
+    out = json.loads(run(*args).stdout)
+    assert out["model"] == "kinematic21" and out["n_obs"] == 150 and out["excluded"] == []
     assert {"rms_um", "chi2_dof", "parameters", "unidentifiable", "outliers"} <= set(out)
-    assert {(o["position"], o["ball"]) for o in out["outliers"]} >= {("BP112", 7),
-                                                                       ("BP312", 16)}
+    flagged = {(o["position"], o["ball"]) for o in out["outliers"]}
+    assert flagged >= {("BP112", 7), ("BP312", 16)}
     assert set(out["parameters"]["dxx[1]"]) >= {"value", "u"}
+    cut = json.loads(run(*args, "--exclude-outliers").stdout)
+    assert cut["n_obs"] == 150 - len(cut["excluded"]) == 147
+    assert {(p, b) for p, _, b in cut["excluded"]} == flagged
+    assert cut["chi2_dof"] < out["chi2_dof"]
 
 
 def test_simulate_fit_save_compensate_roundtrip(tmp_path):
