@@ -57,11 +57,11 @@ from .scoring import (
     FAMILY_ALPHA,
     PHYSICAL_SHARE,
     ScoreCache,
-    _levels,
-    _needs_met,
     _Scored,
-    _stats,
     baseline_basis,
+    candidate_stats,
+    family_levels,
+    needs_met,
     scan_period,
     score,
 )
@@ -278,13 +278,13 @@ def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
         report(i / n_steps, f"scoring {tok} ({i + 1}/{len(todo)})")
         scored.append(_Scored(tok, *score(base, tok, cache), n_scan=n_scan,
                               period_aliases=period_aliases, family=family))
-    levels = _levels([sc.family for sc in scored], alpha)
+    levels = family_levels([sc.family for sc in scored], alpha)
     memo = {}
 
     def stats_of(sc):  # sorted on several times: each F-test once
         key = (sc.dchi2, sc.dk, sc.chi2_new, sc.n_scan)
         if key not in memo:
-            memo[key] = _stats(base, *key)
+            memo[key] = candidate_stats(base, *key)
         return memo[key]
 
     def significant(sc):
@@ -376,7 +376,7 @@ def _to_score(base, tokens, report):
     ``(token, n_scan, period_aliases, family)`` with periodic errors' periods scanned."""
     skipped, todo, U = {}, [], None
     for tok in tokens:
-        why = _needs_met(tok, base)
+        why = needs_met(tok, base)
         if why:
             skipped[tok] = why
             continue
@@ -415,7 +415,7 @@ def estimate_sigma(data, baseline: str = "kinematic21", *, order: int = 2, plate
     base = fit(data, baseline, order=order, plate=plate, exclude=exclude,
                positions=positions, probes=probes)
     tokens = [t for t in base.problem.spec.candidates()
-              if t not in PERIODIC and not _needs_met(t, base)]
+              if t not in PERIODIC and not needs_met(t, base)]
     return repeatability.estimate(base, _flexible_tokens(tokens))
 
 

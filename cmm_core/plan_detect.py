@@ -42,12 +42,12 @@ POWER = 0.8
 
 
 def _diagnosis_rules():
-    """The diagnosis's own rules: (skip reason, levels, F-test statistics, scan size,
-    shortest resolvable period). Private names of ``diagnose``: repoint here."""
-    from . import diagnose as dg
+    """The diagnosis's own rules (``scoring``): skip reason, levels, F-test statistics,
+    scan size, shortest resolvable period."""
+    from . import scoring as sc
 
-    return dg._needs_met, dg._levels, dg._stats, dg.PERIOD_SCAN[1], \
-        dg.shortest_resolvable_period
+    return sc.needs_met, sc.family_levels, sc.candidate_stats, sc.PERIOD_SCAN[1], \
+        sc.shortest_resolvable_period
 
 
 @dataclass(frozen=True)

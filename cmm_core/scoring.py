@@ -4,8 +4,8 @@ Every catalogue token the data can see (``blocks.needs``) is scored by the χ² 
 of one Gauss-Newton step of the augmented model from the baseline solution (a score
 test; the model is nearly linear, so this is the refit's reduction to high accuracy);
 periodic errors are scanned over the periods the layout resolves
-(``blocks.periodic``). :func:`_stats` turns a reduction into ΔBIC and an F-test p-value,
-:func:`_levels` shares the family-wise false-alarm rate over the candidates.
+(``blocks.periodic``). :func:`candidate_stats` turns a reduction into ΔBIC and an F-test p-value,
+:func:`family_levels` shares the family-wise false-alarm rate over the candidates.
 
 A diagnosis scores some forty candidates on the same observations. At the baseline's
 solution, with the parameters a candidate adds at zero, the augmented model *is* the
@@ -32,6 +32,10 @@ from .effects import PERIODIC, PHYSICAL
 from .fit import FitResult, Problem, augmented_state, held_constraints, weighted_residual
 from .solver import Normal, describe_null, normal_equations, solve, surely_determined
 
+__all__ = ["FAMILY_ALPHA", "PHYSICAL_SHARE", "ScoreCache", "score", "scan_period",
+           "baseline_basis", "candidate_stats", "family_levels", "needs_met",
+           "PERIOD_SCAN", "shortest_resolvable_period"]
+
 FAMILY_ALPHA = 0.008
 """Family-wise false-alarm rate of the diagnosis's significance stage (the default
 ``alpha``). The verdict's target is at most 1 % false alarms on clean data. The weighted
@@ -48,7 +52,7 @@ rate stays at most ``alpha``). A handful of physical effects would otherwise pay
 ~40 order increases tried beside them."""
 
 
-def _needs_met(token, base: FitResult):
+def needs_met(token, base: FitResult):
     """Why the baseline's data cannot see ``token`` (None: they can); the block says."""
     return needs(token, base.problem.obs)
 
@@ -207,7 +211,7 @@ def scan_period(base: FitResult, token: str, U=None):
     return f"{token}:{best:.0f}", periods, gains, aliases
 
 
-def _stats(base: FitResult, dchi2, dk, chi2_new, n_scan=1):
+def candidate_stats(base: FitResult, dchi2, dk, chi2_new, n_scan=1):
     """ΔBIC, F-test p-value and residual dof of adding ``dk`` parameters. A candidate
     chosen as the best of ``n_scan`` (a scanned period) pays for the choice: one more
     parameter in the BIC and a Bonferroni factor ``n_scan`` on p (conservative: the
@@ -238,7 +242,7 @@ class _Scored:
     family: str = ""
 
 
-def _levels(tokens, alpha):
+def family_levels(tokens, alpha):
     """Weighted Bonferroni levels (:data:`PHYSICAL_SHARE`): ``{token: level}``."""
     def physical(t):
         return t in PHYSICAL or ":" not in t and t not in PERIODIC
