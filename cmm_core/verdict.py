@@ -184,16 +184,21 @@ def _encompassing(base: FitResult, cands, level, refits, alpha=0.01, max_rivals=
         # of a weighted Holm procedure, whose weights are the prior plausibility of each
         # kind of effect), not the one a ΔBIC that charges unused parameters prefers.
         group = [a, *(c for c in out if c.effect in mutual)]
-        best = min(group, key=lambda c: c.p_value / c.level)
+        # ... among those with a physical story when there are any (a periodic error
+        # yields to them, :func:`_physical_before_periodic`)
+        story = [c for c in group if not c.effect.startswith("periodic")] or group
+        best = min(story, key=lambda c: c.p_value / c.level)
         tied = [c.effect for c in group if c is not best]
         if best is not a:
             out.remove(best)
             out = [best, *out]
+            why = ("as the better supported at its level" if best is min(
+                group, key=lambda c: c.p_value / c.level) else
+                "as the one with a physical story (a periodic error yields to it)")
             note += (f" {best.effect} is named ahead of {a.effect}, which neither adds "
-                     f"anything to nor needs once the other is in the model, as the better "
-                     f"supported at its level (p = {best.p_value:.2g} against "
-                     f"{best.level:.2g}; {a.effect}: p = {a.p_value:.2g} against "
-                     f"{a.level:.2g}).")
+                     f"anything to nor needs once the other is in the model, {why} "
+                     f"(p = {best.p_value:.2g} against {best.level:.2g}; {a.effect}: "
+                     f"p = {a.p_value:.2g} against {a.level:.2g}).")
         out[0] = replace(best, aliases=list(dict.fromkeys([*best.aliases, *tied])))
     return out, note
 

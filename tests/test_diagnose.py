@@ -1,6 +1,7 @@
 """Hidden-effect suite: each catalogue effect hidden from the baseline is named first and
 adding it brings χ²/dof into [0.75, 1.3]; with nothing hidden the verdict is null."""
 
+import numpy as np
 import pytest
 
 from cmm_core.diagnose import diagnose
@@ -313,3 +314,38 @@ def test_two_orders_of_one_function_are_not_reported_as_aliases():
                                              "coefficients": {"dyx[3]": 3.0, "dyx[4]": 4.0}}})
     d = diagnose(sim.dataset, "kinematic21")
     assert d.verdict == "dyx:4" and "dyx:3" not in d.candidates[0].aliases
+
+
+def _candidate(effect, p, level, dbic):
+    from cmm_core.diagnose import Candidate
+
+    return Candidate(effect, effect, "", "", "", 0.5, 1.0, 30.0, 1, dbic, p, True, True,
+                     np.zeros((1, 3)), level=level)
+
+
+@pytest.mark.parametrize("rival, named", [
+    # an order-3 term ahead on ΔBIC, plate sag better supported at its level: plate sag
+    (("rxx:3", 7e-5, 1.0e-4, -10.2), "plate_sag"),
+    # a periodic error even better supported: the physical effect keeps the name
+    (("periodic_x:180", 1e-12, 1.0e-4, -30.0), "plate_sag"),
+])
+def test_mutual_aliases_are_named_in_weighted_holm_order(monkeypatch, rival, named):
+    """Two candidates neither of which adds anything once the other is in (nested F-tests
+    mocked at p = 0.5): the one with the smaller p relative to its level is named, never
+    a periodic error over a physical one, and the other is its alias (pitch-80 layout,
+    plate sag hidden at its detection limit, was named rxx:3 by ΔBIC)."""
+    from types import SimpleNamespace
+
+    from cmm_core import verdict as V
+
+    monkeypatch.setattr(V, "_refit", lambda base, spec, max_iter, cache=None: spec)
+    monkeypatch.setattr(V, "_nested_p", lambda small, big: 0.5)
+    spec = SimpleNamespace(with_token=lambda t: SimpleNamespace(with_token=lambda u: u))
+    base = SimpleNamespace(problem=SimpleNamespace(spec=spec))
+    top = _candidate(*rival)
+    sag = _candidate("plate_sag", 4.1e-5, 1.0e-3, -4.8)
+    out, note = V._encompassing(base, [top, sag], top.level, {}, 0.008)
+    out = V._physical_before_periodic(out)
+    assert out[0].effect == named and top.effect in out[0].aliases
+    assert f"{named} is named ahead of {top.effect}" in note
+    assert ("physical story" in note) == top.effect.startswith("periodic")
