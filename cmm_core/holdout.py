@@ -158,6 +158,12 @@ def _effect_columns(base: FitResult, prob: Problem, cache=None):
     return r, X, pos_of_row, Jb, cov
 
 
+def _falls_short(gain, expected, z) -> bool:
+    """The decision: the held-out gain falls short of a real effect's, significantly
+    (``z`` below the :data:`ALPHA` quantile) and materially (:data:`MATERIAL`)."""
+    return bool(z < stats.norm.ppf(ALPHA) and gain < (1.0 - MATERIAL) * expected)
+
+
 def _pinv(A):
     return np.linalg.pinv(A, rcond=1e-10)
 
@@ -256,8 +262,7 @@ def check(base: FitResult, token: str, cache=None) -> HoldoutCheck:
         per[name] = float(rp @ rp - e @ e)
     gain = float(sum(per.values()))
     expected, sd, z = _real_effect_test(r, X, folds, Jb, cov, gain, s2)
-    short = z < stats.norm.ppf(ALPHA) and gain < (1.0 - MATERIAL) * expected
-    passed = bool(gain_in > 0 and not short)
+    passed = bool(gain_in > 0 and not _falls_short(gain, expected, z))
     if passed:
         why = (f"fitted on the other placements, its predictions of the held-out ones are "
                f"consistent with a real effect: the held-out χ² falls by {gain:.1f} where a "
