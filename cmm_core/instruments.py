@@ -316,9 +316,9 @@ def summary(result) -> list:
     ``rows`` counts the weighted rows the instrument adds (readings minus the eliminated
     run offsets and slopes): the degrees of freedom it brings before parameters.
     ``chi2_share`` is its part of the fit's χ²; near ``rows / (fit rows)`` when the model
-    explains the instrument and the plate alike. A laser record names its ``runs``; a
-    ball bar's lists its ``lengths``: label, file row, residual (µm, the model's
-    prediction minus the reading) and u (µm) of each.
+    explains the instrument and the plate alike; ``rms_z`` is the RMS of residual / u. A
+    laser record names its ``runs``; a ball bar's lists its ``lengths``: label, file row,
+    residual (µm, the model's prediction minus the reading) and u (µm) of each.
     """
     prob = result.problem
     out = []
@@ -329,6 +329,7 @@ def summary(result) -> list:
                "rows": int(r.size), "chi2": chi2,
                "chi2_share": chi2 / result.chi2 if result.chi2 > 0 else float("nan"),
                "rms_um": float(np.sqrt(np.mean(res ** 2))),
+               "rms_z": float(np.sqrt(np.mean((res / it.u_um) ** 2))),
                "max_abs_z": float(np.max(np.abs(res / it.u_um)))}
         if it.kind == "laser":
             rec["runs"] = list(it.runs)

@@ -198,8 +198,8 @@ def _record_sections(res) -> list:
                 + "</p>"))
     if res.instruments:
         table, readings = instrument_tables(res.instruments, res.instrument_residuals)
-        out.append(("Instruments fitted with the plate", "<p class='note'>Laser runs and "
-                    "step gauges (docs/instruments.md) are rows of the same fit. Residual: "
+        out.append(("Instruments fitted with the plate", "<p class='note'>Laser runs, "
+                    "step gauges and ball bars (docs/instruments.md) are rows of the same fit. Residual: "
                     "the model's prediction minus the reading (µm), the runs' zeros and "
                     "slopes removed; RMS residual/u near 1 when the model explains the "
                     "instrument as its u says.</p>" + _table_html(table)

@@ -295,10 +295,10 @@ def instrument_tables(summary, residuals: pd.DataFrame) -> tuple:
     reading its residual (model minus reading, nuisances removed, µm), u and residual / u.
     ``summary``: ``instruments.summary``; ``residuals``: ``instruments.residuals_frame``."""
     per = residuals.assign(z=residuals["residual_um"] / residuals["u_um"])
-    rms_z = per.groupby("file", sort=False)["z"].apply(lambda z: float(np.sqrt(np.mean(z ** 2))))
+    # per instrument, not per file name: two runs.csv from different folders are two
     table = pd.DataFrame([{"kind": s["kind"], "file": s["file"], "readings": s["readings"],
                            "rows": s["rows"], "chi2": s["chi2"],
-                           "RMS residual/u": rms_z.get(s["file"], np.nan),
+                           "RMS residual/u": s["rms_z"],
                            "RMS residual (µm)": s["rms_um"]} for s in summary])
     readings = per.rename(columns={"residual_um": "residual (µm)", "u_um": "u (µm)",
                                    "z": "residual/u"})

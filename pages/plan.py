@@ -271,10 +271,14 @@ def task_section() -> None:
     res = C.safe(task_result, model_json, text, int(trials), what="Task")
     if res is None:
         return
+    # a flatness's interval is the spread of a repeat measurement, not a coverage interval
+    # for the true flatness (the task's message says why)
+    p_cov = f"{100 * res['coverage_probability']:g} %"
     rows = [{"quantity": q, "value": v["value"], "unit": unit_label(v["unit"]),
              "U = 2u, Monte Carlo (µm)": 2 * v["u_mc_um"],
              "U = 2u, law of propagation (µm)": 2 * v["u_lpu_um"],
-             "95 % interval": "[{0:.{2}f}, {1:.{2}f}] {3}".format(
+             "Monte Carlo interval": ("spread of a repeat: " if "flatness" in q else
+                                      f"{p_cov}: ") + "[{0:.{2}f}, {1:.{2}f}] {3}".format(
                  *v["interval"], 5 if v["unit"] == "mm" else 3,
                  unit_label(v["unit"])),
              **{f"u {k} (µm)": c for k, c in v["contributions_um"].items()}}

@@ -366,3 +366,22 @@ def test_cli_diagnose_counts_the_instrument_rows(capsys):
     # 50 laser readings less 2 zeros and 1 slope, 11 lengths
     assert joint["baseline"]["dof"] == plain["baseline"]["dof"] + 47 + 11
     assert joint["verdict"] == plain["verdict"] == "plate_sag"  # the sample's hidden effect
+
+
+def test_two_instrument_files_of_the_same_name_keep_their_own_statistics():
+    """Review finding: the report grouped readings by file name, so two runs.csv from
+    different folders showed one pooled RMS residual/u. Each instrument's own RMS of
+    residual/u comes from its own readings."""
+    from cmm_core.fit import fit
+    from cmm_core.report_figures import instrument_tables
+
+    sim = _sim()
+    a = dataclasses.replace(ins.simulate_laser(sim, "x", [0, 100, 50], XS, u_um=0.2, seed=5),
+                            source="runs.csv")
+    b = dataclasses.replace(a, u_um=a.u_um * 5.0)  # the same readings, a 5x looser u
+    r = fit(dataclasses.replace(select(sim.dataset), instruments=(a, b)), "kinematic21")
+    table, _ = instrument_tables(ins.summary(r), ins.residuals_frame(r))
+    z = table["RMS residual/u"].to_numpy()
+    assert list(table["file"]) == ["runs.csv", "runs.csv"]
+    # the same readings: equal residuals, so the ratio is exactly that of their u
+    assert z[0] == pytest.approx(5.0 * z[1], rel=1e-9)
