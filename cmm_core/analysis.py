@@ -23,6 +23,7 @@ import numpy as np
 
 from .effects import MAX_ORDER, parse_spec
 from .io import DataError, _cut, read_json, refuse_unknown_keys
+from .io_instruments import INSTRUMENT_KINDS, read_instrument
 from .observations import check_selection
 
 FORMAT = "cmm-error-lab-analysis"
@@ -75,30 +76,9 @@ class DataFile:
             raise DataError(f"cannot be read ({why}).", file=Path(self.path).name) from None
 
 
-INSTRUMENT_READERS = {"laser": "read_laser", "step_gauge": "read_step_gauge"}
-"""Instrument kind -> reader in ``io_instruments``, used when that module has no
-``read_instrument`` dispatcher (a new kind is one entry here, or one in its
-``INSTRUMENT_KINDS``)."""
-
-
 def instrument_kinds() -> tuple:
-    """The instrument kinds a record may name (``io_instruments.INSTRUMENT_KINDS`` when
-    defined, else :data:`INSTRUMENT_READERS`)."""
-    from . import io_instruments as ioi
-
-    return tuple(getattr(ioi, "INSTRUMENT_KINDS", None) or INSTRUMENT_READERS)
-
-
-def read_instrument(source, kind: str, name=None):
-    """Read an instrument file of ``kind`` (``LaserRun``, ``StepGauge`` ...); raises
-    :class:`DataError` naming file, row and column, or the kinds known."""
-    from . import io_instruments as ioi
-
-    refuse_unknown_keys({kind: None}, instrument_kinds(), name or "instrument file",
-                        what="instrument kind")
-    if hasattr(ioi, "read_instrument"):
-        return ioi.read_instrument(source, kind, name=name)
-    return getattr(ioi, INSTRUMENT_READERS[kind])(source, name=name)
+    """The instrument kinds a record may name (``io_instruments.INSTRUMENT_KINDS``)."""
+    return tuple(INSTRUMENT_KINDS)
 
 
 @dataclass(frozen=True)
