@@ -10,7 +10,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..geometry import skew
-from ..hole_plate import is_hole_plate
+from ..hole_plate import initial_state, is_hole_plate
 from ..units import UM, URAD
 from .base import Block, per_group_cols
 
@@ -38,13 +38,16 @@ class Placement(Block):
         """None for a ball plate. A hole plate sees each placement only in its plane
         (``hole_plate``): its tilt (rotations about the plate's u and v axes) and its
         translation along the normal are held at their start, rows over the rotation and
-        then the translation columns."""
+        then the translation columns. The axes are the starting placement's (the plane of
+        its measured centres, ``hole_plate.initial_state``), not the setup's: rows off the
+        unseen directions by the angle between them would leave combinations seen only
+        through that angle, which the rank check calls undetermined."""
         o = self.problem.obs
         if not is_hole_plate(o):
             return None
         P = len(o.positions)
         G = np.zeros((3 * P, 6 * P))
-        for k, R in enumerate(o.R0):
+        for k, R in enumerate(initial_state(self.problem).R):
             G[3 * k, 3 * k:3 * k + 3] = R[:, 0]
             G[3 * k + 1, 3 * k:3 * k + 3] = R[:, 1]
             G[3 * k + 2, 3 * P + 3 * k:3 * P + 3 * k + 3] = R[:, 2]
