@@ -7,6 +7,10 @@ otherwise the certificate. A coordinate is flagged when its deviation from the r
 exceeds ``k`` robust standard deviations (1.4826 × MAD of that axis over all balls and
 groups, and of that axis within its own group) and ``floor_um``. The MAD is robust to a few gross errors, and the floor keeps
 sub-micrometre scatter from being flagged on very repeatable data.
+
+A hole plate (setup ``artefact``, ``hole_plate``) is compared in its plane only: the
+coordinate along the hole axis is the probing height the operator chose, not a property of
+the plate, so it is set to zero (the plate-frame ``z``, reported as 0 and never flagged).
 """
 
 from __future__ import annotations
@@ -83,13 +87,19 @@ def detect_outliers(data: Dataset, *, k: float = 5.0, floor_um: float = 10.0,
         meta.append((pos, probe, dict(zip(sub["ball"], zip(sub["source"], sub["row"],
                                                              strict=True), strict=True))))
     use_median = G >= 3 or data.certificate is None
+    in_plane = getattr(data.setup, "artefact", "ball_plate") == "hole_plate"
+    cert_ref = None if data.certificate is None else data.certificate.xyz_mm
+    if in_plane:  # a hole's normal coordinate is its probing height (module docstring)
+        tables[:, :, 2] = np.where(np.isnan(tables[:, :, 2]), np.nan, 0.0)
+        if cert_ref is not None:
+            cert_ref = cert_ref * np.array([1.0, 1.0, 0.0])
     flagged = np.zeros(tables.shape, bool)
     aligned = tables.copy()
     for _ in range(iterations):
         if use_median:
             ref = np.nanmedian(np.where(flagged, np.nan, aligned), axis=0)
         else:
-            ref = data.certificate.xyz_mm
+            ref = cert_ref
         for g in range(G):
             ok = ~np.isnan(tables[g, :, 0]) & ~flagged[g].any(1) & ~np.isnan(ref[:, 0])
             if ok.sum() >= 3:

@@ -136,9 +136,14 @@ def uniformity(result: FitResult) -> Uniformity:
     return Uniformity(all(t["p_value"] >= level for t in tests.values()), tests, worst)
 
 
-def from_repeats(table: pd.DataFrame) -> SigmaEstimate | None:
+def from_repeats(table: pd.DataFrame, normals: dict | None = None) -> SigmaEstimate | None:
     """σ from repeated measurements of the same ball (same position, probe and ball): the
-    pooled within-group standard deviation of every coordinate. None without repeats."""
+    pooled within-group standard deviation of every coordinate. None without repeats.
+
+    ``normals``: position -> unit plate normal in machine axes, for a hole plate. Only
+    the coordinates in each placement's plane are pooled then, two degrees of freedom per
+    repeat: the coordinate along the hole axis is the probing height, which may change
+    between repeats without the hole moving (``hole_plate``)."""
     if "repeat" not in table or table["repeat"].isna().all():
         return None
     xyz = table[["mx_mm", "my_mm", "mz_mm"]].to_numpy() * 1e3
@@ -147,12 +152,28 @@ def from_repeats(table: pd.DataFrame) -> SigmaEstimate | None:
     if (counts > 1).sum() == 0:
         return None
     means = np.stack([np.bincount(g, weights=xyz[:, a]) / counts for a in range(3)], axis=1)
-    ss = float(np.sum((xyz - means[g]) ** 2))
-    dof = int(3 * np.sum(counts - 1))
+    dev = xyz - means[g]
+    per_repeat = 3
+    if normals is not None:
+        n = np.array([normals[p] for p in table["position"]], float)
+        dev = dev - n * np.einsum("ni,ni->n", n, dev)[:, None]
+        per_repeat = 2
+    ss = float(np.sum(dev ** 2))
+    dof = int(per_repeat * np.sum(counts - 1))
     s = float(np.sqrt(ss / dof))
     return SigmaEstimate(s, float(s / np.sqrt(2 * dof)), dof, "repeats",
                          f"{int((counts > 1).sum())} balls measured more than once "
-                         f"({dof} degrees of freedom)")
+                         f"({dof} degrees of freedom"
+                         + (", in-plane coordinates of the holes)" if normals is not None
+                            else ")"))
+
+
+def _hole_normals(base: FitResult) -> dict | None:
+    """Position -> fitted plate normal (machine axes) of a hole plate's fit, else None."""
+    o = base.problem.obs
+    if getattr(o, "artefact", "ball_plate") != "hole_plate":
+        return None
+    return {p: base.state.R[k][:, 2] for k, p in enumerate(o.positions)}
 
 
 def flexible_spec(base: FitResult, tokens) -> str:
@@ -182,4 +203,5 @@ def from_residuals(base: FitResult, tokens, nominal=None) -> SigmaEstimate:
 def estimate(base: FitResult, tokens=(), nominal=None) -> SigmaEstimate:
     """σ from repeats when the data have them, else from the most flexible model
     (``nominal``: ``fit``'s, when the caller has the normal equations at the start)."""
-    return from_repeats(base.table) or from_residuals(base, tokens, nominal)
+    return (from_repeats(base.table, _hole_normals(base))
+            or from_residuals(base, tokens, nominal))

@@ -495,3 +495,54 @@ def test_hole_plate_placement_tilt_comes_from_the_measured_plane():
     assert tilt_note(*(lambda q: (q.problem, q.state))(fit(
         dataclasses.replace(_hole_sim().dataset, setup=read_setup(nominal)),
         "kinematic21"))) == ""
+
+
+def _deeper(ds, rows, depth_mm):
+    """The dataset with the holes of ``rows`` (indices into ``ds.meas``) probed
+    ``depth_mm`` deeper along their placement's normal."""
+    meas = ds.meas.copy()
+    n = np.array([ds.setup.positions[p].rotation[:, 2] for p in meas["position"]])
+    for a, col in enumerate(("mx_mm", "my_mm", "mz_mm")):
+        vals = meas[col].to_numpy().copy()
+        vals[rows] -= depth_mm * n[rows, a]
+        meas[col] = vals
+    return dataclasses.replace(ds, meas=meas)
+
+
+def test_hole_plate_outlier_check_ignores_the_probing_depth():
+    """Three holes probed 0.3 mm deeper (300 µm along the hole axis, 30 times the 10 µm
+    floor): a hole plate's normal coordinate is its probing height, so nothing is
+    flagged; the same data as a ball plate flag exactly those three along z."""
+    from cmm_core.outliers import detect_outliers
+
+    ds = _deeper(_hole_sim().dataset, [3, 40, 77], 0.3)
+    rep = detect_outliers(ds)
+    assert rep.outliers == [], rep.outliers
+    ball = detect_outliers(dataclasses.replace(ds, setup=dataclasses.replace(
+        ds.setup, artefact="ball_plate")))
+    assert {(o["position"], o["ball"]) for o in ball.outliers} == {
+        (ds.meas["position"].iloc[i], ds.meas["ball"].iloc[i]) for i in (3, 40, 77)}
+
+
+def test_hole_plate_repeats_pool_the_in_plane_coordinates():
+    """Every hole measured twice, the second time at another probing depth (up to
+    ±0.3 mm): σ from the repeats pools the two in-plane coordinates only, two degrees of
+    freedom per repeat, and finds the simulated 0.5 µm (u of the estimate ~0.01 µm)."""
+    from cmm_core import repeatability as rp
+
+    sim = _hole_sim(repeats=2)
+    ds = sim.dataset
+    second = np.flatnonzero(ds.meas["repeat"].to_numpy() == 1)
+    depth = np.random.default_rng(2).uniform(-0.3, 0.3, len(second))
+    meas = _deeper(ds, second, 0.0).meas
+    n = np.array([ds.setup.positions[p].rotation[:, 2] for p in meas["position"]])
+    for a, col in enumerate(("mx_mm", "my_mm", "mz_mm")):
+        vals = meas[col].to_numpy().copy()
+        vals[second] += depth * n[second, a]
+        meas[col] = vals
+    r = fit(dataclasses.replace(ds, meas=meas), "kinematic21")
+    s = rp.estimate(r)
+    assert s.method == "repeats" and s.dof == 2 * len(second), s
+    assert abs(s.value_um - 0.5) < 4 * s.u_um, s
+    # all three coordinates, as for a ball plate: the depths dominate
+    assert rp.from_repeats(r.table).value_um > 50
