@@ -38,9 +38,11 @@ from .report_figures import (  # noqa: F401 - re-exported: pages use rep.fig_*
     fig_residual_map,
     fig_signature_scatter,
     fig_surface_grid,
+    true_function_curve,
+)
+from .residuals import (  # noqa: F401 - re-exported: pages use rep.* for these tables too
     instrument_tables,
     residual_summary,
-    true_function_curve,
     uncertainty_gain,
 )
 

@@ -279,50 +279,6 @@ def fig_residual_map(result, component: str = "norm"):
     return _layout(fig, f"Residual map: {label} in µm", height=480)
 
 
-def residual_summary(result) -> pd.DataFrame:
-    """RMS of the residuals (µm) per position and probe and axis."""
-    df = result.residuals_frame()
-    g = df.groupby(["position", "probe"], sort=False)[["rx_um", "ry_um", "rz_um"]]
-    out = g.apply(lambda s: np.sqrt((s**2).mean())).reset_index()
-    out.columns = ["position", "probe", "rms_x_um", "rms_y_um", "rms_z_um"]
-    return out
-
-
-def instrument_tables(summary, residuals: pd.DataFrame) -> tuple:
-    """The instruments of a joint fit as two tables (app and report alike): per
-    instrument its kind, file, readings, rows, χ² and the RMS of the normalised residuals
-    (residual / u, near 1 when the model explains the instrument as its u says); and per
-    reading its residual (model minus reading, nuisances removed, µm), u and residual / u.
-    ``summary``: ``instruments.summary``; ``residuals``: ``instruments.residuals_frame``."""
-    per = residuals.assign(z=residuals["residual_um"] / residuals["u_um"])
-    # per instrument, not per file name: two runs.csv from different folders are two
-    table = pd.DataFrame([{"kind": s["kind"], "file": s["file"], "readings": s["readings"],
-                           "rows": s["rows"], "chi2": s["chi2"],
-                           "RMS residual/u": s["rms_z"],
-                           "RMS residual (µm)": s["rms_um"]} for s in summary])
-    readings = per.rename(columns={"residual_um": "residual (µm)", "u_um": "u (µm)",
-                                   "z": "residual/u"})
-    return table, readings
-
-
-def uncertainty_gain(joint, plate_only) -> pd.DataFrame:
-    """Per kinematic coefficient its standard uncertainty from the plate alone
-    (``plate_only``, a FitResult) and with the instruments (``joint``, the same model, σ
-    and selection) and the gain, their ratio (how many times smaller u gets), largest
-    first. Units per row: µm or µrad."""
-    cols = ["parameter", "unit", "u"]
-    a = joint.parameters_frame().query("block == 'kinematic'")[cols]
-    b = plate_only.parameters_frame().query("block == 'kinematic'")[cols]
-    out = b.merge(a, on=["parameter", "unit"], suffixes=(" plate only", " with instruments"))
-    out["gain"] = out["u plate only"] / out["u with instruments"]
-    out["unit"] = out["unit"].map(lambda u: str(u).replace("urad", "µrad").replace("um", "µm"))
-    return out.sort_values("gain", ascending=False, kind="stable").reset_index(drop=True)
-
-
-# ---------------------------------------------------------------------------------------
-# History, placements
-# ---------------------------------------------------------------------------------------
-
 def fig_signature_scatter(residuals_um, signature_um, title: str, height: int = 300):
     """Residual against a candidate's signature, per component, with the 1:1 line: an
     effect that explains the misfit puts the points along the line (their scatter about it

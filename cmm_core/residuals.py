@@ -2,7 +2,9 @@
 
 These are the views a metrologist reads before asking which effect is missing: the RMS
 and χ² share by position, probe, ball and axis, residual against machine coordinates and
-time, and, with a certificate, each position's own scale and out-of-plane bowl.
+time, and, with a certificate, each position's own scale and out-of-plane bowl; and the
+tables the app and the report show beside them (residual RMS per position and probe, the
+instruments of a joint fit, the uncertainty gain the instruments bring).
 """
 
 from __future__ import annotations
@@ -126,3 +128,48 @@ def _lsq(A, b):
     dof = max(len(b) - A.shape[1], 1)
     s2 = r @ r / dof
     return sol, s2 * np.linalg.pinv(A.T @ A), float(np.sqrt(np.mean(r**2)))
+
+
+def residual_summary(result) -> pd.DataFrame:
+    """RMS of the residuals (µm) per position and probe and axis."""
+    df = result.residuals_frame()
+    g = df.groupby(["position", "probe"], sort=False)[["rx_um", "ry_um", "rz_um"]]
+    out = g.apply(lambda s: np.sqrt((s**2).mean())).reset_index()
+    out.columns = ["position", "probe", "rms_x_um", "rms_y_um", "rms_z_um"]
+    return out
+
+
+def instrument_tables(summary, residuals: pd.DataFrame) -> tuple:
+    """The instruments of a joint fit as two tables (app and report alike): per
+    instrument its kind, file, readings, rows, χ² and the RMS of the normalised residuals
+    (residual / u, near 1 when the model explains the instrument as its u says); and per
+    reading its residual (model minus reading, nuisances removed, µm), u and residual / u.
+    ``summary``: ``instruments.summary``; ``residuals``: ``instruments.residuals_frame``."""
+    per = residuals.assign(z=residuals["residual_um"] / residuals["u_um"])
+    # per instrument, not per file name: two runs.csv from different folders are two
+    table = pd.DataFrame([{"kind": s["kind"], "file": s["file"], "readings": s["readings"],
+                           "rows": s["rows"], "chi2": s["chi2"],
+                           "RMS residual/u": s["rms_z"],
+                           "RMS residual (µm)": s["rms_um"]} for s in summary])
+    readings = per.rename(columns={"residual_um": "residual (µm)", "u_um": "u (µm)",
+                                   "z": "residual/u"})
+    return table, readings
+
+
+def uncertainty_gain(joint, plate_only) -> pd.DataFrame:
+    """Per kinematic coefficient its standard uncertainty from the plate alone
+    (``plate_only``, a FitResult) and with the instruments (``joint``, the same model, σ
+    and selection) and the gain, their ratio (how many times smaller u gets), largest
+    first. Units per row: µm or µrad."""
+    cols = ["parameter", "unit", "u"]
+    a = joint.parameters_frame().query("block == 'kinematic'")[cols]
+    b = plate_only.parameters_frame().query("block == 'kinematic'")[cols]
+    out = b.merge(a, on=["parameter", "unit"], suffixes=(" plate only", " with instruments"))
+    out["gain"] = out["u plate only"] / out["u with instruments"]
+    out["unit"] = out["unit"].map(lambda u: str(u).replace("urad", "µrad").replace("um", "µm"))
+    return out.sort_values("gain", ascending=False, kind="stable").reset_index(drop=True)
+
+
+# ---------------------------------------------------------------------------------------
+# History, placements
+# ---------------------------------------------------------------------------------------

@@ -28,6 +28,7 @@ from cmm_core.dataset import THESIS_DIR, THESIS_POSITIONS, load_dataset
 from cmm_core.effects import parse_spec
 from cmm_core.fit import fit as core_fit
 from cmm_core.io import DataError
+from cmm_core.io_instruments import read_instrument
 from cmm_core.outliers import detect_outliers
 
 DEFAULTS = {
@@ -251,14 +252,14 @@ def instruments_key(items) -> str:
 
 @st.cache_resource(show_spinner=False, max_entries=16)
 def _read_instruments(key: str, _items) -> tuple:
-    return tuple(A.read_instrument(io.StringIO(text), kind, name=name)
+    return tuple(read_instrument(io.StringIO(text), kind, name=name)
                  for kind, name, text in _items)
 
 
 def read_instrument_file(kind: str, name: str, text: str):
     """Validate one instrument file with the core reader (raises DataError naming file,
     row and column)."""
-    return A.read_instrument(io.StringIO(text), kind, name=name)
+    return read_instrument(io.StringIO(text), kind, name=name)
 
 
 def set_instruments(items):

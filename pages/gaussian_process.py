@@ -129,8 +129,8 @@ probe_input = bool(probe_input and several_probes)
 # Grid over the plate plane of the chosen position (plate u, v -> machine coordinates).
 obs = r.problem.obs
 k = obs.positions.index(position)
-R, t = r.state["R"][k], r.state["t"][k]
-plate = r.state.get("c", obs.plate0_mm)
+R, t = r.state.R[k], r.state.t[k]
+plate = r.state.c
 n = 21
 uu = np.linspace(plate[:, 0].min(), plate[:, 0].max(), n)
 vv = np.linspace(plate[:, 1].min(), plate[:, 1].max(), n)
@@ -314,7 +314,7 @@ if gp_mean_obs is not None:
     rows["gp_loo_z"] = rows["gp_loo_minus_meas_um"] / loo_sd[:, a]
 # Thesis eq. 7.1: |model - measurement| / measurement x 100 %, with the measurement taken
 # as the ball coordinate (mm) in the plate frame. Shown only beside the honest numbers.
-plate_pts = np.einsum("nji,nj->ni", r.state["R"][obs.pos], pts - r.state["t"][obs.pos])
+plate_pts = np.einsum("nji,nj->ni", r.state.R[obs.pos], pts - r.state.t[obs.pos])
 coord = np.abs(plate_pts[:, a])
 with np.errstate(divide="ignore", invalid="ignore"):
     pct = np.where(coord > 1.0, np.abs(rows["kin_minus_meas_um"]) * UM / coord * 100, np.nan)

@@ -373,7 +373,7 @@ def test_two_instrument_files_of_the_same_name_keep_their_own_statistics():
     different folders showed one pooled RMS residual/u. Each instrument's own RMS of
     residual/u comes from its own readings."""
     from cmm_core.fit import fit
-    from cmm_core.report_figures import instrument_tables
+    from cmm_core.residuals import instrument_tables
 
     sim = _sim()
     a = dataclasses.replace(ins.simulate_laser(sim, "x", [0, 100, 50], XS, u_um=0.2, seed=5),
