@@ -12,14 +12,20 @@ from pathlib import Path
 
 import numpy as np
 
+from .cli_inputs import (
+    CERT_HELP,
+    MEAS_HELP,
+    PLATE_HELP,
+    SETUP_HELP,
+    add_fit_args,
+    add_instrument_args,
+    add_outlier_args,
+    dataset_of,
+    exclusions_of,
+    instruments_of,
+    sigma_of,
+)
 from .io import DataError
-
-
-def _dataset(args):
-    from .dataset import load_dataset
-
-    return load_dataset(args.meas, args.setup, args.certificate,
-                        name=", ".join(Path(m).name for m in args.meas))
 
 
 def _jsonable(o):
@@ -36,125 +42,6 @@ def _jsonable(o):
     return o
 
 
-_MEAS_HELP = ("measurement CSV file(s), coordinates in mm: one long-form file "
-              "(position,probe,ball,x_mm,y_mm,z_mm[,time_min,temp_C,repeat,temp_x_C,temp_y_C,temp_z_C]) or one "
-              "thesis-form file per position (ball,x_mm,y_mm,z_mm, named after the position); "
-              "see docs/formats.md")
-_SETUP_HELP = ("setup JSON: machine layout and range, each position's placement (mm) and "
-               "stylus, the probe offsets (mm); required (docs/formats.md#setup)")
-_CERT_HELP = ("plate certificate CSV (ball,x_mm,y_mm,z_mm[,u_x_um,u_y_um,u_z_um]), mm and "
-              "µm; default: none, the plate geometry is then fitted (self-calibration)")
-_ORDER_HELP = ("polynomial order of each error function along its axis (1 = linear; "
-               "default: %(default)s)")
-_PLATE_HELP = ("plate geometry: 'fixed' to the certificate, the certificate as a 'prior' "
-               "with its uncertainties, or 'free' (self-calibrated). Default: fixed with a "
-               "certificate, free without")
-
-
-_LASER_HELP = ("laser interferometer run CSV, machine axes: [run,]axis[,component],x_mm,y_mm,"
-               "z_mm,error_um,u_um[,offset_x_mm,offset_y_mm,offset_z_mm]: the indicated "
-               "point (mm), the error reading, indicated minus true, relative to the run's "
-               "zero (µm) and its standard uncertainty (µm); component = axis is "
-               "positioning, another straightness. Fitted jointly with the plate; "
-               "repeatable (docs/instruments.md). Default: none")
-_STEP_GAUGE_HELP = ("step gauge / gauge block CSV, machine axes: [gauge,]x1_mm,y1_mm,z1_mm,"
-                    "x2_mm,y2_mm,z2_mm,measured_mm,certified_mm,u_um[,offset_x_mm,"
-                    "offset_y_mm,offset_z_mm][,temp_C,cte_per_K]: the indicated tip centres "
-                    "of the two probings and the lengths (mm), the standard uncertainty of "
-                    "measured minus certified length (µm). Fitted jointly with the plate; "
-                    "repeatable (docs/instruments.md). Default: none")
-_BALL_BAR_HELP = ("ball bar CSV, machine axes: [bar,]x1_mm,y1_mm,z1_mm,x2_mm,y2_mm,z2_mm,"
-                  "certified_mm,u_um[,offset_x_mm,offset_y_mm,offset_z_mm][,temp_C,"
-                  "cte_per_K]: the indicated centres of the bar's two balls and its "
-                  "certified length (mm), the standard uncertainty of indicated minus "
-                  "certified length (µm); one row per placement of the bar. Fitted jointly "
-                  "with the plate; repeatable (docs/instruments.md). Default: none")
-
-
-def _instrument_args(p):
-    p.add_argument("--laser", action="append", default=[], metavar="RUN.csv",
-                   help=_LASER_HELP)
-    p.add_argument("--step-gauge", action="append", default=[], metavar="SG.csv",
-                   help=_STEP_GAUGE_HELP)
-    p.add_argument("--ball-bar", action="append", default=[], metavar="BB.csv",
-                   help=_BALL_BAR_HELP)
-
-
-def _instruments(args):
-    """The instrument files of ``--laser``, ``--step-gauge`` and ``--ball-bar``, read
-    (DataError if bad)."""
-    from .io_instruments import read_instrument
-
-    return [read_instrument(f, kind) for kind, files in
-            (("laser", args.laser), ("step_gauge", args.step_gauge),
-             ("ball_bar", args.ball_bar)) for f in files]
-
-
-def _fit_args(p, *, baseline=False):
-    p.add_argument("meas", nargs="+", metavar="MEAS.csv", help=_MEAS_HELP)
-    p.add_argument("--setup", required=True, metavar="SETUP.json", help=_SETUP_HELP)
-    p.add_argument("--certificate", metavar="CERT.csv", help=_CERT_HELP)
-    if baseline:
-        p.add_argument("--baseline", default="kinematic21", metavar="SPEC",
-                       help="model the diagnosis starts from, as a model spec "
-                            "(docs/formats.md#model-specs), e.g. 'kinematic21,-sxy' "
-                            "(default: %(default)s, the 21 errors)")
-    else:
-        p.add_argument("--model", default="kinematic21", metavar="SPEC",
-                       help="model to fit, as a model spec (docs/formats.md#model-specs), "
-                            "e.g. 'kinematic21,plate_sag' or 'translational,squareness' "
-                            "(default: %(default)s, the 21 errors)")
-    p.add_argument("--order", type=int, default=2, metavar="N", help=_ORDER_HELP)
-    p.add_argument("--plate", choices=("fixed", "prior", "free"), help=_PLATE_HELP)
-    p.add_argument("--sigma-um", type=_sigma_arg, default=0.5, metavar="UM|auto",
-                   help="repeatability of one probed coordinate, standard deviation in µm: "
-                        "weights the fit and scales every uncertainty (default: "
-                        "%(default)s µm). 'auto' estimates it from the data (repeated "
-                        "balls where the file has a repeat column, else the residuals of "
-                        "the most flexible model the data determine) and reports the "
-                        "estimate with its uncertainty under \"sigma\"")
-    _outlier_args(p)
-
-
-def _outlier_args(p):
-    """The outlier rule of the app and the analysis record (``analysis.
-    DEFAULT_EXCLUDE_OUTLIERS``): flagged observations are listed, and kept unless asked."""
-    p.add_argument("--exclude-outliers", action="store_true",
-                   help="leave out every observation the robust median/MAD check across "
-                        "the placements flags (default: they are fitted, and listed under "
-                        "\"outliers\" in the JSON with their deviation in µm so that you "
-                        "can decide; the app and an analysis record keep them too)")
-    p.add_argument("--keep-outliers", action="store_true",
-                   help="fit the flagged observations: what happens without "
-                        "--exclude-outliers (accepted for scripts written when exclusion "
-                        "was the command line's default)")
-
-
-def _sigma_arg(text):
-    if text.strip().lower() == "auto":
-        return "auto"
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected a repeatability in µm (e.g. 0.5) or 'auto', found {text[:40]!r}") from None
-    if not 1e-3 <= value < 1e3:
-        # below a nanometre no CMM repeats: a value in mm or m typed as µm
-        raise argparse.ArgumentTypeError(
-            f"expected a repeatability in µm from 0.001 to 1000, found {value:g}")
-    return value
-
-
-def _sigma(args, data, exclude, spec):
-    """``(σ µm, JSON record)``: the stated value, or the estimate for ``--sigma-um auto``."""
-    if args.sigma_um != "auto":
-        return args.sigma_um, {"value_um": args.sigma_um, "auto": False}
-    from .diagnose import estimate_sigma
-
-    est = estimate_sigma(data, spec, order=args.order, plate=args.plate, exclude=exclude)
-    return est.value_um, {**est.to_dict(), "auto": True}
-
-
 def cmd_simulate(args):
     from .io import read_json
     from .simulate import simulate
@@ -167,24 +54,15 @@ def cmd_simulate(args):
             "files": ["measurements.csv", "setup.json", "certificate.csv", "truth.json"]}
 
 
-def _exclusions(data, exclude_flagged):
-    from .outliers import detect_outliers
-
-    rep = detect_outliers(data)
-    out = [{k: o[k] for k in ("position", "probe", "ball", "axis", "deviation_um")}
-           for o in rep.outliers]
-    return out, (rep.exclusions if exclude_flagged else [])
-
-
 def cmd_fit(args):
     from .compensate import save_model
     from .fit import fit
     from .instruments import summary
 
-    data = _dataset(args)
-    instruments = _instruments(args)
-    outliers, exclude = _exclusions(data, args.exclude_outliers)
-    sigma_um, sigma = _sigma(args, data, exclude, args.model)
+    data = dataset_of(args)
+    instruments = instruments_of(args)
+    outliers, exclude = exclusions_of(data, args.exclude_outliers)
+    sigma_um, sigma = sigma_of(args, data, exclude, args.model)
     r = fit(data, args.model, order=args.order, plate=args.plate, sigma_um=sigma_um,
             exclude=exclude, instruments=instruments or None)
     if args.save:
@@ -206,10 +84,10 @@ def cmd_fit(args):
 def cmd_diagnose(args):
     from .diagnose import diagnose
 
-    data = _dataset(args)
-    instruments = _instruments(args)
-    outliers, exclude = _exclusions(data, args.exclude_outliers)
-    sigma_um, sigma = _sigma(args, data, exclude, args.baseline)
+    data = dataset_of(args)
+    instruments = instruments_of(args)
+    outliers, exclude = exclusions_of(data, args.exclude_outliers)
+    sigma_um, sigma = sigma_of(args, data, exclude, args.baseline)
     if instruments:  # they ride on the observations into every model the diagnosis fits
         from dataclasses import replace
 
@@ -244,8 +122,8 @@ def cmd_gp(args):
     from .fit import fit
     from .gp_cmm import gp_components
 
-    data = _dataset(args)
-    _, exclude = _exclusions(data, args.exclude_outliers)
+    data = dataset_of(args)
+    _, exclude = exclusions_of(data, args.exclude_outliers)
     r = fit(data, "kinematic21" if args.mean == "kinematic" else "rigid", order=args.order,
             plate=args.plate, exclude=exclude)
     obs = r.problem.obs
@@ -310,15 +188,15 @@ def build_parser():
                         "and truth.json into (created if missing; required)")
     p.set_defaults(func=cmd_simulate)
     p = sub.add_parser("fit", help="fit the kinematic model")
-    _fit_args(p)
-    _instrument_args(p)
+    add_fit_args(p)
+    add_instrument_args(p)
     p.add_argument("--save", metavar="MODEL.json",
                    help="write the fitted model to this JSON file, for 'compensate' "
                         "(default: not saved)")
     p.set_defaults(func=cmd_fit)
     p = sub.add_parser("diagnose", help="rank the effects missing from a baseline model")
-    _fit_args(p, baseline=True)
-    _instrument_args(p)
+    add_fit_args(p, baseline=True)
+    add_instrument_args(p)
     p.set_defaults(func=cmd_diagnose)
     p = sub.add_parser("compensate", help="correct points with a saved model")
     p.add_argument("model", metavar="MODEL.json",
@@ -338,9 +216,9 @@ def build_parser():
                         "the flagged output still written")
     p.set_defaults(func=cmd_compensate)
     p = sub.add_parser("gp", help="Gaussian-process model of the errors")
-    p.add_argument("meas", nargs="+", metavar="MEAS.csv", help=_MEAS_HELP)
-    p.add_argument("--setup", required=True, metavar="SETUP.json", help=_SETUP_HELP)
-    p.add_argument("--certificate", metavar="CERT.csv", help=_CERT_HELP)
+    p.add_argument("meas", nargs="+", metavar="MEAS.csv", help=MEAS_HELP)
+    p.add_argument("--setup", required=True, metavar="SETUP.json", help=SETUP_HELP)
+    p.add_argument("--certificate", metavar="CERT.csv", help=CERT_HELP)
     p.add_argument("--mean", choices=("zero", "quadratic", "kinematic"), default="zero",
                    help="GP mean: 'zero' (the GP models the rigid-aligned errors), "
                         "'quadratic' (full quadratic in the ram position, coefficients "
@@ -354,11 +232,11 @@ def build_parser():
                    help="GP inputs: 'probe' = the ram position and the stylus offset (mm), "
                         "one noise level per stylus, when the data carry several styli; "
                         "'tip' = the tip coordinates only (default: %(default)s)")
-    _outlier_args(p)
+    add_outlier_args(p)
     p.add_argument("--order", type=int, default=2, metavar="N",
                    help="polynomial order of the kinematic model for --mean kinematic "
                         "(default: %(default)s)")
-    p.add_argument("--plate", choices=("fixed", "prior", "free"), help=_PLATE_HELP)
+    p.add_argument("--plate", choices=("fixed", "prior", "free"), help=PLATE_HELP)
     p.set_defaults(func=cmd_gp)
     p = sub.add_parser("budget", help="GUM uncertainty budget")
     p.add_argument("budget", metavar="BUDGET.json",
