@@ -19,6 +19,7 @@ import pandas as pd
 from scipy import stats
 
 from .fit import FitResult, fit
+from .hole_plate import ROUNDING
 
 UNIFORM_ALPHA = 0.01
 """Family level of the uniformity tests (Bonferroni over the groupings tried)."""
@@ -92,14 +93,35 @@ def _bartlett(chi2, nu):
     return float(stats.chi2.sf(t / c, nu.size - 1))
 
 
+def axis_weights(result: FitResult) -> np.ndarray:
+    """How much of each observation's residual each machine axis carries, (n, 3): the
+    diagonal of the projector onto what the fit compares, ``I - n nᵀ`` for a hole plate
+    (``hole_plate``: ``n`` the placement's fitted normal; a horizontal placement's z
+    component is exactly zero) and ``I`` for a ball plate (ones). A row sums to the
+    components it has (2 or 3): the share of the degrees of freedom and of χ² that an
+    understated σ gives each axis and group."""
+    o = result.problem.obs
+    if getattr(o, "artefact", "ball_plate") != "hole_plate":
+        return np.ones((len(o.pos), 3))
+    n = result.state.R[o.pos][:, :, 2]
+    w = 1.0 - n ** 2
+    w[w < ROUNDING] = 0.0  # a normal along an axis up to rounding: that axis has nothing
+    return w
+
+
 def uniformity(result: FitResult) -> Uniformity:
     """Test the residual scatter of ``result`` for equality over placements, probes and
     the x, y, z components. Each group's degrees of freedom are its share of the fit's
-    (rows times dof per row): the fitted parameters spend them evenly enough for a test
-    whose purpose is to tell a concentrated misfit from a spread one."""
+    (its components times dof per component; per axis the :func:`axis_weights` of its
+    observations, so a hole plate's axis along the normal has none): the fitted
+    parameters spend them evenly enough for a test whose purpose is to tell a
+    concentrated misfit from a spread one."""
     t = result.table
     z2 = (result.residuals_um / result.sigma_um) ** 2
-    per_row = result.dof / max(z2.size, 1)
+    w = axis_weights(result)
+    # for a ball plate every sum below is of integers, exact in floating point: the
+    # numbers of the three-components-per-row form bit for bit
+    per_row = result.dof / max(w.sum(), 1)
     groupings = {"placement": t["position"].to_numpy(), "probe": t["probe"].to_numpy(),
                  "ball": t["ball"].to_numpy()}
     # regions of the machine volume: quarters of each axis's stroke as measured (a local
@@ -116,15 +138,16 @@ def uniformity(result: FitResult) -> Uniformity:
     for name, key in groupings.items():
         codes, keys = pd.factorize(key)  # groups in order of appearance
         chi2 = np.bincount(codes, weights=c_row, minlength=len(keys))
-        nu = np.bincount(codes, minlength=len(keys)) * 3 * per_row
+        nu = np.bincount(codes, weights=w.sum(axis=1), minlength=len(keys)) * per_row
         if len(keys) >= 2:
             tests[name] = {"p_value": _bartlett(chi2, nu),
                            "groups": {str(k): float(chi2[i] / nu[i])
                                       for i, k in enumerate(keys)}}
     chi2 = z2.sum(axis=0)
-    nu = np.full(3, z2.shape[0] * per_row)
+    nu = w.sum(axis=0) * per_row
     tests["axis"] = {"p_value": _bartlett(chi2, nu),
-                     "groups": {a: float(c / n) for a, c, n in zip("xyz", chi2, nu, strict=True)}}
+                     "groups": {a: float(c / n) for a, c, n in zip("xyz", chi2, nu, strict=True)
+                                if n > 0}}
     level = UNIFORM_ALPHA / len(tests)
     for name, t in tests.items():
         k = max(t["groups"], key=t["groups"].get)

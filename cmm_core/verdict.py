@@ -78,24 +78,39 @@ def _checked_verdict(base: FitResult, cands, max_checks: int = 3, cache=None):
 def misfit_location(base: FitResult) -> dict:
     """Where the residual lives: the placement, probe, axis and ball carrying the largest
     share of χ², with their shares (what the user should look at in the residual maps).
-    The numbers of ``residuals.breakdown``, counted with ``bincount``."""
+    The numbers of ``residuals.breakdown``, counted with ``bincount``. The expected
+    shares are those of an evenly spread misfit: each observation's components
+    (``repeatability.axis_weights``: three for a ball plate, the two in its plane for a
+    hole plate), and the axis named is the one most above its expected share."""
+    from .repeatability import axis_weights
+
     out = {}
     z2 = (base.residuals_um / base.sigma_um) ** 2
     chi = z2.sum(axis=1)
     total = max(chi.sum(), 1e-300)
     o = base.problem.obs
+    w = axis_weights(base)
+    comps = w.sum(axis=1)
     for by, idx, names in (("position", o.pos, o.positions), ("probe", o.probe, o.probes),
                            ("ball", o.ball, o.balls)):
         n = np.bincount(idx, minlength=len(names))
         if np.count_nonzero(n) > 1:
             c = np.bincount(idx, weights=chi, minlength=len(names))
             k = int(np.argmax(np.where(n > 0, c, -np.inf)))
+            # sums of integers for a ball plate: n[k] / n.sum() exactly
+            e = np.bincount(idx, weights=comps, minlength=len(names))
             out[by] = {"name": str(int(names[k])) if by == "ball" else str(names[k]),
                        "chi2_share": float(c[k] / total),
-                       "expected_share": float(n[k] / n.sum())}
+                       "expected_share": float(e[k] / e.sum())}
     shares = z2.sum(axis=0) / max(z2.sum(), 1e-300)
-    a = int(np.argmax(shares))
-    out["axis"] = {"name": "xyz"[a], "chi2_share": float(shares[a]), "expected_share": 1 / 3}
+    expected = w.sum(axis=0) / w.sum()  # 1/3 each for a ball plate
+    if np.all(expected == expected[0]):
+        a = int(np.argmax(shares))
+    else:  # an axis with no expected share (a hole plate's normal) is never named
+        a = int(np.argmax(np.where(expected > 0, shares / np.maximum(expected, 1e-300),
+                                   -np.inf)))
+    out["axis"] = {"name": "xyz"[a], "chi2_share": float(shares[a]),
+                   "expected_share": float(expected[a])}
     return out
 
 

@@ -546,3 +546,33 @@ def test_hole_plate_repeats_pool_the_in_plane_coordinates():
     assert abs(s.value_um - 0.5) < 4 * s.u_um, s
     # all three coordinates, as for a ball plate: the depths dominate
     assert rp.from_repeats(r.table).value_um > 50
+
+
+def test_hole_plate_misfit_uniformity_counts_two_components_per_hole():
+    """A clean hole plate on the horizontal placements: its z residual is exactly zero,
+    which an axis test expecting three equal components always rejected (p = 0, "axis y
+    carries 62 %"); with each axis's share of the degrees of freedom from the in-plane
+    projector the misfit is uniform and z is neither tested nor named."""
+    from cmm_core import repeatability as rp
+    from cmm_core.verdict import misfit_location
+
+    r = fit(_hole_sim().dataset, "kinematic21", positions=["BP111", "BP112"])
+    u = rp.uniformity(r)
+    assert u.uniform, u.tests
+    assert set(u.tests["axis"]["groups"]) == {"x", "y"}
+    where = misfit_location(r)["axis"]
+    assert where["name"] in "xy" and where["expected_share"] == pytest.approx(0.5)
+
+
+def test_hole_plate_understated_sigma_is_the_suspect():
+    """Noise 0.5 µm stated as 0.35 on a hole plate on the horizontal placements (no z
+    component anywhere): as for a ball plate
+    (tests/test_honesty.py), no verdict, the misfit uniform and σ the suspect, with an
+    estimate within 3 u of 0.5 µm (it ended as outside_catalogue)."""
+    from cmm_core.diagnose import diagnose
+
+    d = diagnose(_hole_sim().dataset, "kinematic21", sigma_um=0.35,
+                 positions=["BP111", "BP112"])
+    assert d.baseline.fails_chi2_test and d.verdict is None, d.message
+    assert d.uniformity.uniform and "repeatability looks too small" in d.message
+    assert abs(d.sigma.value_um - 0.5) < 3 * d.sigma.u_um, d.sigma
