@@ -64,9 +64,10 @@ def chi2_status(obj: Model | FitResult) -> dict:
     -------
     dict
         ``chi2_dof`` (the fit's χ²/dof), ``chi2_test_dof``, ``dof`` and ``p_value`` of the
-        tested statistic (None when only a saved model is at hand: a model file keeps the
-        verdict, not the statistic), ``alpha`` (the test's level), ``fails`` (True, False,
-        or None when unknown) and ``birge_ratio``.
+        tested statistic (of a saved model: its summary's ``chi2_test_dof``, ``dof_test``
+        and ``chi2_p_value``, None in model files written before they were kept),
+        ``alpha`` (the test's level), ``fails`` (True, False, or None when unknown) and
+        ``birge_ratio``.
     """
     if isinstance(obj, FitResult):
         return {"chi2_dof": float(obj.chi2_dof), "chi2_test_dof": float(obj.chi2_test_dof),
@@ -80,8 +81,10 @@ def chi2_status(obj: Model | FitResult) -> dict:
         return float(v) if isinstance(v, int | float) and not isinstance(v, bool) else None
 
     fails = s.get("fails_chi2_test")
+    dof = num("dof_test")
     return {"chi2_dof": num("chi2_dof"), "chi2_test_dof": num("chi2_test_dof"),
-            "dof": None, "p_value": num("chi2_p_value"), "alpha": CHI2_ALPHA,
+            "dof": None if dof is None else int(dof), "p_value": num("chi2_p_value"),
+            "alpha": CHI2_ALPHA,
             "fails": fails if isinstance(fails, bool) else None,
             "birge_ratio": num("birge_ratio")}
 

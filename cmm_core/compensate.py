@@ -117,6 +117,14 @@ def model_from_result(result: FitResult) -> Model:
                  {"rms_um": result.rms_um, "chi2_dof": result.chi2_dof, "n_obs": result.n_obs,
                   "fails_chi2_test": bool(result.fails_chi2_test),
                   "birge_ratio": float(result.birge_ratio),
+                  # the χ² test's statistic, so that results exported from the model file
+                  # state the test as those of the fit (results_export); absent in files
+                  # written before them, which then report these as unknown
+                  "chi2_test_dof": float(result.chi2_test_dof),
+                  "dof_test": int(result.test_statistic[1]),
+                  "chi2_p_value": float(result.chi2_p_value),
+                  "artefact": getattr(obs, "artefact", "ball_plate"),
+                  "placements": [str(p) for p in obs.positions],
                   "plate": result.plate, "sigma_um": result.sigma_um,
                   "region_mm": [np.min(obs.r_mm - obs.p_mm, axis=0).tolist(),
                                 np.max(obs.r_mm - obs.p_mm, axis=0).tolist()]},

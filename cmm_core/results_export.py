@@ -11,7 +11,15 @@ a QIF-schema-valid document.
 
 Numbers are written with Python's shortest round-trip representation, so a value read
 back with ``float`` is the same double; a value the data do not determine is ``null`` in
-JSON and an absent element (with ``determined="false"``) in XML.
+JSON and an absent element (with ``determined="false"``) in XML. So is a parameter held by
+a gauge constraint rather than determined by the data (a hole plate's hole coordinates
+along the normal, its placements' tilts and normal translations: ``hole_plate``): its
+value is the one it was held at, with no uncertainty.
+
+A saved model's results equal those of the model of the fit it came from
+(:func:`compensate.model_from_result`): the summary keeps the artefact, the placements
+and the χ² test's statistic. A model file written before those were kept reports a ball
+plate, no placements and the statistic as unknown.
 """
 
 from __future__ import annotations
@@ -55,14 +63,30 @@ class Characteristic:
     """False when the data do not determine the parameter."""
 
 
+def held_labels(result: FitResult) -> set:
+    """Labels of the parameters a gauge constraint holds by itself (a unit vector of the
+    parameter lies in the span of the constraint rows): the data say nothing about them,
+    so they are not determined. Combinations held across several parameters (a plate's
+    translation) leave each parameter its uncertainty and are not named."""
+    C = result.problem.constraints()
+    if C is None or not len(C):
+        return set()
+    # orthonormal basis of the row space: a parameter is held when its unit vector is in it
+    U, sv, Vt = np.linalg.svd(np.asarray(C, float), full_matrices=False)
+    rows = Vt[sv > 1e-12 * sv.max(initial=0.0)]
+    inside = np.sum(rows ** 2, axis=0)  # squared norm of each e_j projected on the span
+    return {lab for lab, q in zip(result.labels, inside, strict=True) if q > 1 - 1e-9}
+
+
 def characteristics(obj: Model | FitResult) -> list[Characteristic]:
     """Every parameter of a fit result; of a saved model, its kinematic coefficients and
     backlash spans (what a model file holds)."""
     t = chi2_status(obj)
     inflate = max(1.0, t["birge_ratio"] or 1.0)
     if isinstance(obj, FitResult):
-        bad = set(obj.unidentifiable)
-        return [Characteristic(lab, grp, un, float(v), float(u), float(ui), lab not in bad)
+        bad = set(obj.unidentifiable) | held_labels(obj)
+        return [Characteristic(lab, grp, un, float(v), math.nan if lab in bad else float(u),
+                               math.nan if lab in bad else float(ui), lab not in bad)
                 for lab, grp, un, v, u, ui in zip(obj.labels, obj.groups, obj.units,
                                                   obj.values, obj.u, obj.u_inflated,
                                                   strict=True)]
@@ -95,11 +119,13 @@ def results_dict(obj: Model | FitResult, *, coverage_factor: float = DEFAULT_COV
     s = m.summary if isinstance(m.summary, dict) else {}
     t = chi2_status(obj)
     region = s.get("region_mm")
-    artefact = {"type": "ball plate", "plate_geometry": s.get("plate"),
+    kind = s.get("artefact") if s.get("artefact") in ("ball_plate", "hole_plate") \
+        else "ball_plate"  # model files written before the key: ball plates
+    artefact = {"type": kind.replace("_", " "), "plate_geometry": s.get("plate"),
                 "n_observations": s.get("n_obs"),
                 "measured_region_mm": region}
-    if isinstance(obj, FitResult):
-        artefact["placements"] = list(dict.fromkeys(map(str, obj.table["position"])))
+    if isinstance(s.get("placements"), list):
+        artefact["placements"] = [str(p) for p in s["placements"]]
     chars = [{"name": c.name, "block": c.block, "unit": c.unit, "value": _num(c.value),
               "standard_uncertainty": _num(c.u), "coverage_factor": coverage_factor,
               "expanded_uncertainty": _num(c.u * coverage_factor),

@@ -15,6 +15,9 @@ from cmm_core.compensate import model_to_dict
 from pages import common as C
 from pages.plan import task_section
 
+MODEL_FILE = "cmm_model.json"
+"""The fitted model's download name, which the results files name as their source."""
+
 C.page_start()
 st.title("Compensate and export")
 ds, r = C.require_fit()
@@ -121,8 +124,11 @@ with st.container(border=True):
                 "(formats in `docs/compensation.md`): a 3-D grid of corrections "
                 "(true − indicated, added to the reading, µm) with uncertainties; the "
                 "per-axis error functions and squareness a controller needs (µm, µrad); the "
-                "fitted parameters with uncertainties as JSON and QIF-like XML. The same as "
-                "`python -m cmm_core export MODEL.json`.")
+                "fitted model's parameters with uncertainties and its χ² test as JSON and "
+                "QIF-like XML. The same files as `python -m cmm_core export cmm_model.json` "
+                "gives from the fitted model downloaded below (only the creation time "
+                "differs); every fitted parameter, plate and placements included, is in "
+                "the parameters CSV.")
     k1, k2, k3 = st.columns(3)
     cstep = k1.number_input("Table step (mm)", 25.0, 500.0, 100.0, step=25.0,
                             key="w_comp_step")
@@ -136,14 +142,15 @@ with st.container(border=True):
         if ct.as_model(_r).undetermined:
             return None
         g = ct.compensation_grid(_r, step, probe=probe)
-        src = "fit in this session"
+        src = MODEL_FILE
         return ct.grid_csv(_r, g, probe, src), ct.axis_tables_zip(_r, step, src), len(g)
 
     @st.cache_data(show_spinner=False, max_entries=16)
     def results_files(args, k, _r):
-        src = "fit in this session"
-        return (rx.results_json(_r, coverage_factor=k, source=src),
-                rx.results_xml(_r, coverage_factor=k, source=src))
+        # of the model, named as its download: what the command line writes from that file
+        m = ct.as_model(_r)
+        return (rx.results_json(m, coverage_factor=k, source=MODEL_FILE),
+                rx.results_xml(m, coverage_factor=k, source=MODEL_FILE))
 
     tables = C.safe(comp_tables, args, float(cstep), None if cprobe == origin else cprobe,
                     r, what="Compensation tables")
@@ -208,7 +215,7 @@ if record is not None:
                        help="Restores the dataset, model, exclusions and history on the "
                             "Data page.")
 c3.download_button("Fitted model (JSON, for `cmm_core compensate`)",
-                   lambda: json.dumps(model_to_dict(r), indent=1), "cmm_model.json",
+                   lambda: json.dumps(model_to_dict(r), indent=1), MODEL_FILE,
                    "application/json", key="dl_model", on_click="ignore")
 c2.caption(f"Model `{r.spec}`, RMS {r.rms_um:.3f} µm, {r.n_obs} observations, "
            f"{len(s['exclusions'])} excluded. CSV files are safe to open in a spreadsheet "

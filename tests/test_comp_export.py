@@ -393,3 +393,57 @@ def test_the_worked_example_of_the_docs_is_the_thesis_model(thesis_fit):
     assert "dxx 17.338" in text and "rxz 84.351" in text and "sxy 77.650" in text
     x = ct.axis_table(thesis_fit, "x", 100.0).set_index("x_mm").loc[600.0]
     assert f"{x['dxx_um']:.3f}" == "17.338" and f"{x['rxz_urad']:.3f}" == "84.351"
+
+
+def test_hole_plate_results_say_hole_plate_and_leave_held_parameters_undetermined(tmp_path):
+    """A hole plate fit: the artefact is a hole plate in the results of the fit and of its
+    saved model, and what gauge constraints hold (each hole's normal coordinate, each
+    placement's tilt and normal translation: here the horizontal placements' rx, ry and
+    tz) is not determined, with no uncertainty (it was exported as 0 ± 0, determined)."""
+    from cmm_core.fit import fit
+    from cmm_core.simulate import simulate
+
+    sim = simulate({"seed": 5, "artefact": "hole_plate",
+                    "plate": {"form_um": 2.0, "certificate_u_um": 0.1}})
+    r = fit(sim.dataset, "kinematic21", plate="prior")
+    d = rx.results_dict(r)
+    assert d["artefact"]["type"] == "hole plate"
+    c = _chars(d)
+    held = {n for n, v in c.items() if not v["determined"]}
+    B = len(r.problem.obs.balls)
+    assert {f"BP111.{k}" for k in ("rx", "ry", "tz")} <= held
+    assert sum(n.endswith(".z") for n in held) == B, sorted(held)
+    assert all(c[n]["standard_uncertainty"] is None for n in held)
+    assert all(v["determined"] for n, v in c.items() if n in r.terms.labels)
+    save_model(r, tmp_path / "m.json")
+    assert rx.results_dict(load_model(tmp_path / "m.json"))["artefact"]["type"] == "hole plate"
+
+
+def test_results_of_the_app_equal_those_of_the_cli_from_the_saved_model(tmp_path):
+    """A backlash fit: the Export page's results (of the fit's model, named as the model
+    file it offers) and `python -m cmm_core export cmm_model.json` give the same document,
+    χ² test included (a model file kept no statistic: dof and p were null)."""
+    from cmm_core.fit import fit
+    from cmm_core.simulate import simulate
+
+    sim = simulate({"seed": 4, "order": "serpentine",
+                    "effects": {"backlash": {"x_um": 2.0, "y_um": 1.0}}})
+    r = fit(sim.dataset, "kinematic21,backlash")
+    kw = {"coverage_factor": 2.0, "source": "cmm_model.json", "created": "2026-11-24T00:00:00"}
+    app = rx.results_dict(ct.as_model(r), **kw)
+    save_model(r, tmp_path / "cmm_model.json")
+    cli = rx.results_dict(load_model(tmp_path / "cmm_model.json"), **kw)
+    assert app == cli
+    assert cli["chi2_test"]["dof"] == r.dof_test and cli["chi2_test"]["p_value"] == r.chi2_p_value
+    assert cli["artefact"]["placements"] == list(r.problem.obs.positions)
+    assert rx.results_xml(ct.as_model(r), **kw) == rx.results_xml(
+        load_model(tmp_path / "cmm_model.json"), **kw)
+
+
+def test_a_legacy_model_file_still_exports_its_results():
+    """Model files written before the summary kept the artefact and the χ² statistic: a
+    ball plate, the statistic unknown (null), nothing refused."""
+    for f in sorted((ROOT / "tests" / "corpus" / "legacy_models").glob("model_*.json")):
+        d = rx.results_dict(load_model(f))
+        assert d["artefact"]["type"] == "ball plate" and "placements" not in d["artefact"]
+        assert d["chi2_test"]["dof"] is None and d["chi2_test"]["p_value"] is None
