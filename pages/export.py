@@ -41,6 +41,14 @@ if "backlash" in r.problem.layout.blocks:
                "axes last moved in, taken from the file's row order (or `time_min`); before "
                "an axis first moves its direction is unknown and half the span is added to "
                "the uncertainty (columns `approach_x/y/z`: +1, −1, 0 unknown).")
+# columns the model's own blocks read from the points besides the coordinates: the scale
+# temperatures of machine_thermal, the measurement order of backlash (time_min, else rows)
+NEEDS = {"machine_thermal": ("temp_x_C", "temp_y_C", "temp_z_C"), "backlash": ("time_min",)}
+extra_cols = [c for b, cols in NEEDS.items() if b in r.problem.layout.blocks for c in cols]
+if "machine_thermal" in r.problem.layout.blocks:
+    st.caption("This model has the scales' thermal expansion (machine_thermal): each point "
+               "needs the scale temperatures of the fitted axes in columns `temp_x_C`, "
+               "`temp_y_C`, `temp_z_C` (°C) of the points file.")
 up = st.file_uploader("Points to correct (CSV)", type=["csv", "txt"], key="up_points")
 # an uploaded file always wins: correcting the example instead would let a user download
 # corrections of points they did not ask for
@@ -62,7 +70,10 @@ elif use_example:
     t = r.table
     points = pd.DataFrame({"probe": t["probe"].astype(str), "x_mm": t["mx_mm"],
                            "y_mm": t["my_mm"], "z_mm": t["mz_mm"],
-                           "position": t["position"], "ball": t["ball"]}).head(50)
+                           "position": t["position"], "ball": t["ball"],
+                           # what the model reads besides (a machine_thermal model
+                           # refuses points without their scale temperatures)
+                           **{c: t[c] for c in extra_cols if c in t}}).head(50)
     ckey = "example"
 corr = None
 if points is not None:

@@ -1,0 +1,51 @@
+"""The Compensate and export page with models whose blocks read more than coordinates."""
+
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("streamlit")
+from streamlit.testing.v1 import AppTest  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _uploader(at, label):
+    return next(u for u in at.file_uploader if u.label.startswith(label))
+
+
+def test_export_page_corrects_its_example_points_with_a_machine_thermal_model(tmp_path):
+    """A fit with machine_thermal: the example points (the fit's own rows) carry their
+    scale temperatures, so the page corrects them as it opens (it failed: "needs
+    temp_x_C"), and the upload caption names the columns a points file needs."""
+    from cmm_core.simulate import simulate
+
+    d = tmp_path / "thermal"
+    simulate({"seed": 2, "effects": {"machine_thermal": {
+        "x_cte_per_K": 4e-6, "y_cte_per_K": -3e-6, "z_cte_per_K": 2e-6}}}).write(d)
+    at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
+    at.run()
+    at.switch_page("pages/data.py")
+    at.run()
+    _uploader(at, "Measurement CSV").set_value(
+        [("measurements.csv", (d / "measurements.csv").read_bytes(), "text/csv")])
+    _uploader(at, "Setup").set_value(
+        [("setup.json", (d / "setup.json").read_bytes(), "application/json")])
+    at.button(key="load_upload").click()
+    at.run()
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    at.text_input(key="w_spec").input("kinematic21,machine_thermal")
+    at.run()
+    assert not at.exception, [e.message for e in at.exception]
+    at.switch_page("pages/export.py")
+    at.run()
+    assert not at.exception, [e.message for e in at.exception]
+    assert not at.error, [e.value for e in at.error]
+    keys = {b.key for b in at.get("download_button")}
+    assert "dl_corrected" in keys
+    table = next(t.value for t in at.dataframe if "xc_mm" in t.value.columns)
+    assert {"temp_x_C", "temp_y_C", "temp_z_C"} <= set(table.columns)
+    assert table["xc_mm"].notna().all()
+    cap = " ".join(c.value for c in at.caption)
+    assert "temp_x_C" in cap and "machine_thermal" in cap
