@@ -30,7 +30,7 @@ import pandas as pd
 
 from . import __version__
 from . import kinematics as kin
-from .compensate import Model, model_from_result
+from .compensate import Model, _extrapolation_note, model_from_result
 from .export import MAX_GRID_NODES, safe_csv
 from .fit import FitResult
 from .fit_result import CHI2_ALPHA
@@ -125,20 +125,27 @@ def _refuse_undetermined(model: Model) -> None:
 
 
 def compensation_grid(obj: Model | FitResult, step_mm=100.0, *, probe: str | None = None,
-                      allow_undetermined: bool = False) -> pd.DataFrame:
+                      allow_undetermined: bool = False, lower_mm=None,
+                      upper_mm=None) -> pd.DataFrame:
     """Correction and its standard uncertainty on a regular grid over the strokes.
+
+    The one grid of the package: the app's error map (``export.error_map_grid``) is this
+    table under its older column names.
 
     Parameters
     ----------
     obj : Model or FitResult
     step_mm : float or 3 floats
-        Grid step per axis (mm); each axis ends at its stroke (:func:`axis_nodes`).
+        Grid step per axis (mm); each axis ends at its stroke (:func:`axis_nodes`), or at
+        ``upper_mm``.
     probe : str, optional
         Probe of the model whose tip is corrected; default the ram reference point
         (offset 0), the probe of a controller's table.
     allow_undetermined : bool
         Tabulate a model with undetermined combinations (uncertainties NaN); refused by
         default.
+    lower_mm, upper_mm : 3 floats, optional
+        Corners of the box tabulated (scale readings, mm); default the strokes, 0 to range.
 
     Returns
     -------
@@ -155,12 +162,20 @@ def compensation_grid(obj: Model | FitResult, step_mm=100.0, *, probe: str | Non
         _refuse_undetermined(m)
     p = probe_offset(m, probe)
     step = np.broadcast_to(np.asarray(step_mm, float), (3,))
-    axes = [axis_nodes(s, st, limit=201, axis=a)
-            for s, st, a in zip(m.terms.range_mm, step, kin.AXES, strict=True)]
+    lo = np.zeros(3) if lower_mm is None else np.asarray(lower_mm, float)
+    hi = np.asarray(m.terms.range_mm, float) if upper_mm is None else np.asarray(upper_mm,
+                                                                                  float)
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (hi >= lo).all()):
+        raise ValueError(f"the grid's corners must be finite with upper >= lower, found "
+                         f"{lo.tolist()} to {hi.tolist()} mm.")
+    axes = [a0 + axis_nodes(b - a0, st, limit=201, axis=a)
+            for a0, b, st, a in zip(lo, hi, step, kin.AXES, strict=True)]
     n = math.prod(len(a) for a in axes)
     if n > MAX_GRID_NODES:
+        # the uncertainty at every node costs a Jacobian row: keep it to seconds
+        hint = (float(np.prod(np.maximum(hi - lo, 1e-9))) / MAX_GRID_NODES) ** (1 / 3)
         raise ValueError(f"the grid would have {n:,} nodes (limit {MAX_GRID_NODES:,}); use a "
-                         "coarser step.")
+                         f"step of about {math.ceil(hint):d} mm or more, or a smaller box.")
     Z, Y, X = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
     x = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
     e, u = propagate_error(m.terms, m.coef, m.cov, x, np.broadcast_to(p, x.shape))
@@ -170,18 +185,10 @@ def compensation_grid(obj: Model | FitResult, step_mm=100.0, *, probe: str | Non
     out[["tip_x_mm", "tip_y_mm", "tip_z_mm"]] = x + p
     out[["cx_um", "cy_um", "cz_um"]] = e
     out[["u_cx_um", "u_cy_um", "u_cz_um"]] = u
-    out["extrapolated"] = _outside_region(m, x).astype(int)
+    # the region test of compensate itself: a node is flagged exactly when a point there
+    # would be
+    out["extrapolated"] = (_extrapolation_note(m, x) != "").astype(int)
     return out
-
-
-def _outside_region(m: Model, x_mm: np.ndarray) -> np.ndarray:
-    """True for scale readings more than 1 mm outside the box the fit measured (as
-    ``compensate`` flags them)."""
-    region = m.summary.get("region_mm") if isinstance(m.summary, dict) else None
-    if region is None:
-        return np.zeros(len(x_mm), bool)
-    lo, hi = np.asarray(region[0], float), np.asarray(region[1], float)
-    return ((x_mm < lo - 1.0) | (x_mm > hi + 1.0)).any(axis=1)
 
 
 def function_values(m: Model, name: str, u_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -7,7 +7,8 @@ and uncertainties are µm.
   cells starting with ``= + - @``, tab or carriage return that are not plain numbers get a
   leading apostrophe (CSV formula injection).
 - :func:`error_map_grid` tabulates the fitted error and its standard uncertainty on a
-  regular grid of machine coordinates, the layout of an ISG-style compensation table.
+  regular grid of machine coordinates, the layout of an ISG-style compensation table
+  (``comp_table.compensation_grid``, the one grid, under this table's column names).
 - :func:`compensate_points` corrects reported tip centres (uses ``cmm_core.compensate``
   when it is available; otherwise a thin adapter over ``uncertainty.error_at``).
 - :func:`project_to_json` / :func:`project_from_json` save and restore a session: the
@@ -94,9 +95,14 @@ def error_map_grid(result, *, step_mm=(100.0, 100.0, 100.0), lower_mm=None, uppe
                    probe=None) -> pd.DataFrame:
     """Error map on a regular grid of scale readings: an ISG-style compensation table.
 
+    :func:`comp_table.compensation_grid` (the one grid: same nodes, each axis ending at
+    its stroke or ``upper_mm``, same region test) under this table's column names, for a
+    probe tip, and for a model whose data leave combinations undetermined too (its
+    uncertainties are then NaN).
+
     Parameters
     ----------
-    result : FitResult
+    result : FitResult or compensate.Model
     step_mm : float or 3 floats
         Grid spacing per axis (mm).
     lower_mm, upper_mm : 3 floats, optional
@@ -107,37 +113,18 @@ def error_map_grid(result, *, step_mm=(100.0, 100.0, 100.0), lower_mm=None, uppe
     Returns
     -------
     DataFrame with ``x_mm, y_mm, z_mm`` (grid, x fastest), ``ex_um, ey_um, ez_um`` (error:
-    true minus reported, add it to correct) and ``u_ex_um, u_ey_um, u_ez_um`` (standard
-    uncertainty, k = 1; NaN when the data do not determine the model).
+    true minus reported, add it to correct; the grid's ``cx_um`` ...), ``u_ex_um, u_ey_um,
+    u_ez_um`` (standard uncertainty, k = 1; NaN when the data do not determine the model)
+    and ``extrapolated`` (1 where the node lies outside the region the fit measured).
     """
-    from .uncertainty import error_at
+    from .comp_table import as_model, compensation_grid
 
-    rng = np.asarray(result.problem.obs.range_mm, float)
-    lo = np.zeros(3) if lower_mm is None else np.asarray(lower_mm, float)
-    hi = rng if upper_mm is None else np.asarray(upper_mm, float)
-    step = np.broadcast_to(np.asarray(step_mm, float), (3,))
-    if (step <= 0).any():
-        raise ValueError("grid step must be positive.")
-    axes = []
-    for a in range(3):
-        n = int(math.floor((hi[a] - lo[a]) / step[a] + 1e-9)) + 1
-        if n > 200:
-            raise ValueError(f"grid has {n} nodes along {'xyz'[a]}; use a coarser step.")
-        axes.append(lo[a] + step[a] * np.arange(max(n, 1)))
-    n_nodes = math.prod(len(ax) for ax in axes)
-    if n_nodes > MAX_GRID_NODES:
-        # the uncertainty at every node costs a Jacobian row: keep it to seconds
-        vol = float(np.prod(np.maximum(hi - lo, 1e-9)))
-        hint = (vol / MAX_GRID_NODES) ** (1 / 3)
-        raise ValueError(f"the grid would have {n_nodes:,} nodes (limit "
-                         f"{MAX_GRID_NODES:,}); use a step of about {math.ceil(hint):d} mm or "
-                         "more, or a smaller box.")
-    Z, Y, X = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
-    pts = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
-    e, u = error_at(result, pts, probe)
-    return pd.DataFrame({"x_mm": pts[:, 0], "y_mm": pts[:, 1], "z_mm": pts[:, 2],
-                         "ex_um": e[:, 0], "ey_um": e[:, 1], "ez_um": e[:, 2],
-                         "u_ex_um": u[:, 0], "u_ey_um": u[:, 1], "u_ez_um": u[:, 2]})
+    m = as_model(result)
+    probe = next(iter(m.probes_mm)) if probe is None else probe
+    g = compensation_grid(m, step_mm, probe=probe, allow_undetermined=True,
+                          lower_mm=lower_mm, upper_mm=upper_mm)
+    names = {f"{p}c{a}_um": f"{p}e{a}_um" for p in ("", "u_") for a in "xyz"}
+    return g[["x_mm", "y_mm", "z_mm", *names, "extrapolated"]].rename(columns=names)
 
 
 def error_map_csv(result, grid: pd.DataFrame, probe=None) -> str:
@@ -147,7 +134,8 @@ def error_map_csv(result, grid: pd.DataFrame, probe=None) -> str:
             f"model {result.spec}; plate {result.plate}; RMS {result.rms_um:.4f} um",
             f"probe {probe or obs.probes[0]}; grid: scale readings in mm, x fastest",
             "ex,ey,ez: error in um (true minus reported; add to correct); u_*: standard "
-            "uncertainty in um (k=1)"]
+            "uncertainty in um (k=1)",
+            "extrapolated: 1 where the node lies outside the region the fit measured"]
     lab, val, u = result.block("backlash")
     if len(lab):
         # a position-only table cannot hold a direction-dependent error: say so

@@ -59,7 +59,7 @@ def test_error_map_grid_matches_the_model(result):
 
     g = export.error_map_grid(result, step_mm=(300, 250, 350))
     assert list(g.columns) == ["x_mm", "y_mm", "z_mm", "ex_um", "ey_um", "ez_um",
-                               "u_ex_um", "u_ey_um", "u_ez_um"]
+                               "u_ex_um", "u_ey_um", "u_ez_um", "extrapolated"]
     assert len(g) == 5 * 5 * 3  # 0..1200/300, 0..1000/250, 0..700/350
     assert g["x_mm"].iloc[1] == 300.0 and g["y_mm"].iloc[0] == 0.0  # x fastest
     e, u = error_at(result, g[["x_mm", "y_mm", "z_mm"]].to_numpy())
@@ -288,3 +288,30 @@ def test_a_project_naming_a_position_its_data_lack_is_refused():
     # a byte-order mark is read as in CSV files
     doc = export.project_from_json(b"\xef\xbb\xbf" + _thesis_project().encode())
     assert doc["dataset_name"] == "thesis"
+
+
+def test_error_map_is_the_compensation_grid(result):
+    """One grid: the error map is comp_table.compensation_grid for the fit's first probe
+    (same nodes, each axis ending at its stroke even when the step does not divide it;
+    same numbers; the region test of compensate), under its own column names. Before,
+    its x axis stopped at 1050 of 1200 mm for a 350 mm step and it had no
+    extrapolation flag."""
+    from cmm_core import comp_table as ct
+    from cmm_core.compensate import _extrapolation_note, model_from_result
+
+    g = export.error_map_grid(result, step_mm=350.0)
+    c = ct.compensation_grid(result, 350.0, probe=result.problem.obs.probes[0],
+                             allow_undetermined=True)
+    assert sorted(set(g["x_mm"])) == [0.0, 350.0, 700.0, 1050.0, 1200.0]
+    for a in "xyz":
+        assert g[f"{a}_mm"].equals(c[f"{a}_mm"])
+        assert g[f"e{a}_um"].equals(c[f"c{a}_um"]) and g[f"u_e{a}_um"].equals(c[f"u_c{a}_um"])
+    x = g[["x_mm", "y_mm", "z_mm"]].to_numpy()
+    flag = (_extrapolation_note(model_from_result(result), x) != "").astype(int)
+    assert (g["extrapolated"].to_numpy() == flag).all() and 0 < flag.sum() < len(g)
+    text = export.error_map_csv(result, g)
+    assert "# extrapolated: 1 where the node lies outside" in text
+    box = export.error_map_grid(result, step_mm=100.0, lower_mm=(200, 200, 100),
+                                upper_mm=(450, 400, 100))
+    assert sorted(set(box["x_mm"])) == [200.0, 300.0, 400.0, 450.0]
+    assert set(box["z_mm"]) == {100.0}
