@@ -259,17 +259,23 @@ def test_dask_study_on_two_local_workers_equals_the_serial_loop(six):
                      progress=lambda f, text: seen.append(f))
     assert seen[-1] == 1.0 and len(seen) == 4
     serial = run_serial(tasks)
+
+    def same(x, y, key):
+        if isinstance(x, dict):  # U2_um, U3_um: per axis
+            assert x.keys() == y.keys(), key
+            for k in x:
+                same(x[k], y[k], f"{key}.{k}")
+        elif np.asarray(x).dtype.kind in "fc":
+            # the same seeds and fits; two worker threads share one process-wide BLAS
+            # thread limit, so summation order (not results) may differ: 1e-9 relative
+            np.testing.assert_allclose(x, y, rtol=1e-9, atol=0, err_msg=key)
+        else:
+            assert np.all(np.asarray(x, dtype=object) == np.asarray(y, dtype=object)), key
+
     for a, b in zip(recs, serial, strict=True):
         assert a.keys() == b.keys()
         for k in a:
-            x, y = np.asarray(a[k]), np.asarray(b[k])
-            if x.dtype.kind in "fc":
-                # the same seeds and fits; two worker threads share one process-wide BLAS
-                # thread limit, so summation order (not results) may differ: 1e-9 relative
-                np.testing.assert_allclose(x, y, rtol=1e-9, atol=0, err_msg=k)
-            else:
-                assert np.all(np.asarray(a[k], dtype=object) ==
-                              np.asarray(b[k], dtype=object)), k
+            same(a[k], b[k], k)
     s = summarise([six], tasks, recs).to_dict()["plans"][0]
     assert s["trials"] == 2 and s["max_relative_difference"] < 1e-3
     assert s["detection"]["plate_sag"]["trials"] == 2
