@@ -72,7 +72,7 @@ def held_labels(result: FitResult) -> set:
     if C is None or not len(C):
         return set()
     # orthonormal basis of the row space: a parameter is held when its unit vector is in it
-    U, sv, Vt = np.linalg.svd(np.asarray(C, float), full_matrices=False)
+    _, sv, Vt = np.linalg.svd(np.asarray(C, float), full_matrices=False)
     rows = Vt[sv > 1e-12 * sv.max(initial=0.0)]
     inside = np.sum(rows ** 2, axis=0)  # squared norm of each e_j projected on the span
     return {lab for lab, q in zip(result.labels, inside, strict=True) if q > 1 - 1e-9}
