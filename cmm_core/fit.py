@@ -339,7 +339,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
                                                      sigma_um, rank_rtol)
     msg = _message(status, it, rms, chi2 / max(dof, 1), combos,
                    float(stats.chi2.sf(chi2_test, max(dof_test, 1))), int(dof_test),
-                   chi2_test / max(dof_test, 1))
+                   chi2_test / max(dof_test, 1)) + hole_plate.tilt_note(prob, state)
     # an effect the data cannot see adds nothing (or no parameter at all): say so
     msg += "".join(f" {b.token} adds nothing determinable: {why}." for b in prob.blocks
                    if b.token and (why := type(b).needs(obs)))

@@ -492,6 +492,7 @@ def test_hole_plate_placement_tilt_comes_from_the_measured_plane():
     assert ang.max() < 1e-4, ang
     note = tilt_note(r.problem, r.state)
     assert "BP111" in note and "2.0 mrad" in note, note
+    assert note.strip() in r.message  # the user sees it with the fit
     assert tilt_note(*(lambda q: (q.problem, q.state))(fit(
         dataclasses.replace(_hole_sim().dataset, setup=read_setup(nominal)),
         "kinematic21"))) == ""
