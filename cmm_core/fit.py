@@ -30,6 +30,7 @@ from .blocks.kinematic import Kinematic
 from .blocks.plate import Plate
 from .dataset import Dataset
 from .effects import ModelSpec, parse_spec
+from .fit_certificate import certificate_terms, held_prior_rows
 from .fit_result import CHI2_ALPHA, IMPLAUSIBLE, FitResult, _message
 from .fit_state import State
 from .geometry import plate_effect_basis, rigid_fit
@@ -243,8 +244,10 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
         Singular values of the column-scaled reduced Jacobian below ``rank_rtol`` times the
         largest count as zero: those directions are reported as undetermined.
     certificate_test : bool
-        With the certificate fixed, also test χ² with its uncertainty counted (one more
-        evaluation); False leaves ``chi2_test`` = χ² (the diagnosis's refits compare χ²).
+        With the certificate fixed, count its uncertainty (``fit_certificate``): in the χ²
+        test and, propagated, in every parameter's covariance (one more evaluation);
+        False leaves ``chi2_test`` = χ² and the covariance of σ alone (the diagnosis's
+        refits compare χ² only).
     nominal : callable, optional
         ``nominal(problem)``: the problem's normal equations at its initial state when the
         caller has them (``scoring.ScoreCache.nominal``), else None.
@@ -321,22 +324,25 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
             break
     ne = Normal(None, None, C_run, rank_rtol, normal=(N, g))
     cov, rank = ne.cov(), ne.rank
+    cert = None
+    if plate == "fixed" and obs.cert_u_um is not None and certificate_test:
+        # the certificate's own uncertainty: in the χ² test and in every parameter's u
+        cert = certificate_terms(prob, state, C_run[C.shape[0]:], sigma_um, rank_rtol, cov)
     null = np.hstack([null0, ne.null]) if null0.shape[1] else ne.null
+    if cert is not None:
+        cov = cert[2]
     u = np.sqrt(np.clip(np.diag(cov), 0, None))
     combos, names = describe_null(null, L.labels)
     unident = [lab for lab in L.labels if lab in names]
     u = np.array([np.nan if lab in names else ui for lab, ui in zip(L.labels, u, strict=True)])
     values = _report_values(prob, state)
     chi2 = float(cost)
-    dof = n_rows - rank - _held_prior_rows(prob)
+    dof = n_rows - rank - held_prior_rows(prob)
     bic = chi2 + rank * np.log(n_rows)
     rms = float(np.sqrt(np.mean(d**2)))
     if hole_plate.is_hole_plate(obs):  # two components of three per observation
         rms *= np.sqrt(1.5)
-    chi2_test, dof_test = chi2, dof
-    if plate == "fixed" and obs.cert_u_um is not None and certificate_test:
-        chi2_test, dof_test = _chi2_with_certificate(prob, state, C_run[C.shape[0]:],
-                                                     sigma_um, rank_rtol)
+    chi2_test, dof_test = (chi2, dof) if cert is None else cert[:2]
     msg = _message(status, it, rms, chi2 / max(dof, 1), combos,
                    float(stats.chi2.sf(chi2_test, max(dof_test, 1))), int(dof_test),
                    chi2_test / max(dof_test, 1)) + hole_plate.tilt_note(prob, state)
@@ -372,42 +378,6 @@ def held_constraints(labels, design_null, prob: Problem):
     for j, lab in enumerate(labels):
         held[:, col[lab]] = design_null[:, j]
     return held
-
-
-def _chi2_with_certificate(prob: Problem, state, design_null, sigma_um, rank_rtol):
-    """χ² test statistic of a fit with the certificate fixed, the certificate's own
-    uncertainty accounted for, and its degrees of freedom.
-
-    With the certificate fixed its calibration errors land in the residuals of every
-    placement, and a χ² against σ alone fails on clean data (certificate u = σ/5 already
-    adds about 4 % to χ²/dof). The statistic is the χ² of the same model with the
-    certificate as a prior weighted by its uncertainty (the generalised least-squares χ²
-    of the fixed model, whose residual covariance is σ²I plus the certificate's), reached
-    by one Gauss-Newton step from the fixed solution: the model is linear in the plate
-    coordinates."""
-    pp = Problem(prob.obs, prob.spec, "prior")
-    st = state.relabelled(prob.layout.labels, pp.layout.labels)
-    _, cost, N, g, n_rows = pp.normal_equations(st, sigma_um)
-    C = pp.constraints()
-    if design_null.size:
-        C = np.vstack([C, held_constraints(prob.layout.labels, design_null, pp)])
-    ne = Normal(None, None, C, rank_rtol, normal=(N, g))
-    s = ne.step()
-    # |r + J s|² from the normal equations
-    return float(cost + 2 * g @ s + s @ N @ s), int(n_rows - ne.rank - _held_prior_rows(pp))
-
-
-def _held_prior_rows(prob: Problem) -> int:
-    """Certificate-prior rows that are zero whatever the data: the plate's gauge
-    constraints (translations, rotations, scale) hold the plate's deviation from the
-    certificate at zero along those modes, so those prior rows carry no residual and no
-    degree of freedom (clean simulations: mean χ² equals dof only with them removed)."""
-    if prob.plate != "prior":
-        return 0
-    plate = prob.block(Plate)
-    G = prob.instruments.plate_gauge(plate, plate.constraints())  # as the fit applies it
-    keep = np.isfinite(prob.obs.cert_u_um.ravel())
-    return int(np.linalg.matrix_rank(G[:, keep])) if keep.any() else 0
 
 
 def augmented_state(base: FitResult, prob: Problem) -> State:

@@ -71,6 +71,19 @@ class PoolModel:
                               for u in range(len(self.units))])
         self.rows_per_unit = np.bincount(rows, minlength=len(self.units))
         self.prior_gram = J[n_obs_rows:].T @ J[n_obs_rows:]
+        # with the certificate fixed its uncertainty propagates into every parameter
+        # (fit_certificate): per unit, the cross information of the parameters and the
+        # plate coordinates, to be summed over a subset like the Gram matrices
+        self.cert_cross, self.cert_u2 = None, None
+        if base.plate == "fixed" and obs.cert_u_um is not None:
+            pp = Problem(obs, spec, "prior")
+            Jp = weighted_residual(pp, augmented_state(base, pp), base.sigma_um,
+                                   True)[2].toarray()[:n_obs_rows]
+            blk = pp.layout.blocks["plate"]
+            Jc = Jp[:, blk.start:blk.stop]
+            self.cert_cross = np.array([J[:n_obs_rows][rows == u].T @ Jc[rows == u]
+                                        for u in range(len(self.units))])
+            self.cert_u2 = np.nan_to_num(obs.cert_u_um.ravel() ** 2, posinf=0.0)
         self.n_prior_rows = J.shape[0] - n_obs_rows
         self.C = prob.constraints()
         self.labels = L.labels
@@ -163,13 +176,17 @@ class PoolModel:
         determined = bool(keep.all())
         ZV = Z @ V[:, keep]
         cov = (S[:, None] * ((ZV / lam[keep]) @ ZV.T)) * S[None, :]
+        cov_u = cov
+        if self.cert_cross is not None:  # the certificate's uncertainty, as the fit has it
+            CG = cov @ self.cert_cross[list(sel)].sum(0)[idx]
+            cov_u = cov + (CG * self.cert_u2) @ CG.T
         u3 = np.inf
         if determined:
             first = self.units[min(sel)][1]
             E, kin_cols = self.Eu[first]
             pos = {c: i for i, c in enumerate(idx)}
             kk = [pos[c] for c in kin_cols]
-            Vk = cov[np.ix_(kk, kk)]
+            Vk = cov_u[np.ix_(kk, kk)]
             u = np.sqrt(np.clip(np.einsum("ik,kl,il->i", E, Vk, E), 0, None)).reshape(-1, 3)
             u3 = float(u.mean(0).max())
         det = {}
