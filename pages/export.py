@@ -15,8 +15,7 @@ from cmm_core.compensate import model_to_dict
 from pages import common as C
 from pages.plan import task_section
 
-MODEL_FILE = "cmm_model.json"
-"""The fitted model's download name, which the results files name as their source."""
+MODEL_FILE = "cmm_model.json"  # the fitted model's download name, the results' source
 
 C.page_start()
 st.title("Compensate and export")

@@ -76,7 +76,8 @@ def _plan_text() -> str | None:
                           "from sample_data/plans)", type="json", key="w_plan_upload")
     default = (up.getvalue().decode("utf-8-sig") if up is not None
                else (PLANS_DIR / SAMPLES[sample]).read_text())
-    if s.get("plan_source") != (sample, up.name if up else None):
+    # a new dataset resets every widget (common.reset_widgets), the text box too: refill it
+    if s.get("plan_source") != (sample, up.name if up else None) or "w_plan_text" not in s:
         s["plan_source"] = (sample, up.name if up else None)
         s["w_plan_text"] = default
     with st.expander("Plan file (edit and press Ctrl+Enter)", expanded=False):

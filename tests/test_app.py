@@ -295,6 +295,23 @@ def test_simulate_a_virtual_cmm():
     assert "true (simulation)" in _frame(at, "parameter").columns
 
 
+def test_the_plan_page_keeps_its_plan_after_a_new_dataset():
+    """Newcomer walk: loading a dataset resets every widget, the plan's text box too, and
+    the Plan page then stopped at "The plan is not valid JSON"; it refills the sample."""
+    at = _new()
+    at.switch_page("pages/plan.py")
+    at.run()
+    _ok(at)
+    at.switch_page("pages/data.py")
+    at.run()
+    at.button(key="simulate").click()
+    at.run()
+    at.switch_page("pages/plan.py")
+    at.run()
+    _ok(at)
+    assert at.session_state["w_plan_text"].strip().startswith("{")
+
+
 def test_without_a_hidden_effect_the_fit_matches_the_truth_within_its_uncertainty():
     """The (value − true)/u column: nothing hidden, so every kinematic parameter's z-score
     is within 4 (about 60 of them: the chance of one beyond 4 is 0.4 %). With a hidden
