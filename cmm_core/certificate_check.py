@@ -142,8 +142,8 @@ def check_certificate(data, spec: str = "kinematic21", *, order: int = 2,
         fixes["prior, suspect entries released"] = _summary(rel, release)
     suspect = p < ALPHA
     if suspect:
-        named = ", ".join(f"ball {e['ball']} {e['axis']} ({e['deviation_um']:+.1f} µm, "
-                          f"z {e['z']:+.1f})" for e in entries[:5])
+        named = ", ".join(f"ball {e['ball']} {e['axis']} ({e['deviation_um']:+.1f} µm = "
+                          f"{e['z']:+.1f} u)" for e in entries[:5])
         msg = (f"The certificate is a suspect: the plate the measurements imply disagrees "
                f"with it beyond its stated uncertainty (F-test p = {p:.2g}; χ² "
                f"{dchi2:.0f} on {dof} certificate rows). "
@@ -155,7 +155,9 @@ def check_certificate(data, spec: str = "kinematic21", *, order: int = 2,
                f"{fixed.chi2_dof:.2f}, as a prior {prior.chi2_dof:.2f}, self-calibrated "
                f"{free.chi2_dof:.2f}"
                + (f", suspect entries released {fixes['prior, suspect entries released']['chi2_dof']:.2f}"
-                  if release else "") + ".")
+                  if release else "") + ". An effect that deforms the plate's image alike in "
+               "every placement (plate sag, the plate's temperature) looks the same: when a "
+               "catalogue effect is significant too, add it first and check again.")
     else:
         msg = (f"The certificate agrees with the self-calibrated plate within its stated "
                f"uncertainty (F-test p = {p:.2g}).")

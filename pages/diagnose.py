@@ -95,7 +95,7 @@ if s["diag_on"]:
     cert = info.get("certificate")
     if cert and cert["suspect"]:
         with st.container(border=True):
-            st.warning("**The certificate is a suspect.** " + cert["message"])
+            st.warning(cert["message"])
             if cert["entries"]:
                 C.dataframe(pd.DataFrame(cert["entries"]), hide_index=True, key="cert_entries",
                             column_config={"deviation_um": st.column_config.NumberColumn(

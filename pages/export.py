@@ -110,8 +110,11 @@ c2.download_button("Residuals (CSV)", ex.residuals_csv(r), "residuals.csv", "tex
                    key="dl_residuals", on_click="ignore")
 
 with st.container(border=True):
-    st.markdown("**Error-map grid** (ISG-style compensation table: machine coordinates with "
-                "e_x, e_y, e_z and their standard uncertainties in µm)")
+    st.markdown("**Error-map grid** (for checking and plotting: the error e = true − "
+                "reported at each node for one of the fitted styli, µm, with standard "
+                "uncertainties, k = 1). For a controller use the *compensation table* below: "
+                "the same corrections, its probe and coverage factor chosen there, and a "
+                "header a controller's import can check.")
     g1, g2 = st.columns(2)
     step = g1.number_input("Grid step (mm)", 10.0, 500.0, 100.0, step=10.0, key="w_grid_step")
     gprobe = g2.selectbox("Probe", obs.probes, key="w_grid_probe")
@@ -136,7 +139,7 @@ with st.container(border=True):
                 "per-axis error functions and squareness a controller needs (µm, µrad); the "
                 "fitted model's parameters with uncertainties and its χ² test as JSON and "
                 "QIF-like XML. The same files as `python -m cmm_core export cmm_model.json` "
-                "gives from the fitted model downloaded below (only the creation time "
+                "gives from the *Fitted model* download above (only the creation time "
                 "differs); every fitted parameter, plate and placements included, is in "
                 "the parameters CSV.")
     k1, k2, k3 = st.columns(3)

@@ -324,18 +324,24 @@ if gp_mean_obs is not None:
         rows["thesis_pct_gp"] = np.where(coord > 1.0, np.abs(rows["gp_minus_meas_um"]) * UM
                                          / coord * 100, np.nan)
 fin_k = np.isfinite(rows["kin_z"])
-summ = {"kinematic: RMS difference (µm)": float(np.sqrt(np.mean(rows["kin_minus_meas_um"]**2))),
-        "kinematic: RMS z (residual sd)": float(np.sqrt(np.mean(rows["kin_z"][fin_k] ** 2)))}
+# short labels (five cards in a row), each with its meaning as help
+summ = {"kin. RMS Δ (µm)": (float(np.sqrt(np.mean(rows["kin_minus_meas_um"]**2))),
+                            "kinematic model − measured, RMS over every ball"),
+        "kin. RMS z": (float(np.sqrt(np.mean(rows["kin_z"][fin_k] ** 2))),
+                       "RMS of (kinematic − measured) / σ√(1 − h_ii), the residual's sd")}
 if gp_mean_obs is not None:
-    summ["GP: RMS difference (µm)"] = float(np.sqrt(np.mean(rows["gp_minus_meas_um"] ** 2)))
     fin = np.isfinite(rows["gp_loo_z"])
-    summ["GP leave-one-out: RMS difference (µm)"] = float(np.sqrt(np.mean(
-        rows["gp_loo_minus_meas_um"][fin] ** 2)))
-    summ["GP: RMS z (leave-one-out sd)"] = float(np.sqrt(np.mean(rows["gp_loo_z"][fin] ** 2)))
+    summ["GP RMS Δ (µm)"] = (float(np.sqrt(np.mean(rows["gp_minus_meas_um"] ** 2))),
+                             "GP posterior mean − measured, RMS over every ball")
+    summ["GP LOO RMS Δ (µm)"] = (float(np.sqrt(np.mean(rows["gp_loo_minus_meas_um"][fin] ** 2))),
+                                 "each ball predicted by the GP from all the others, RMS")
+    summ["GP LOO RMS z"] = (float(np.sqrt(np.mean(rows["gp_loo_z"][fin] ** 2))),
+                            "RMS of the leave-one-out difference / its sd (noise included)")
+st.caption(f"All positions, component {comp}:")
 mc = st.columns(len(summ))
-for c_, (lab, v) in zip(mc, summ.items(), strict=True):
-    c_.metric(lab, f"{v:.3f}")
-only = st.checkbox("Only the chosen position", value=True, key="w_gp_only_pos")
+for c_, (lab, (v, what)) in zip(mc, summ.items(), strict=True):
+    c_.metric(lab, f"{v:.3f}", help=what)
+only = st.checkbox("Table: only the chosen position", value=True, key="w_gp_only_pos")
 C.dataframe(rows[rows["position"] == position] if only else rows, hide_index=True,
              key="ch7_table",
              column_config={c_: st.column_config.NumberColumn(format="%.3f")

@@ -523,10 +523,10 @@ def test_gaussian_process_fit_and_chapter7_comparison():
     assert "gp_z" not in _frame(at, "gp_loo_z").columns  # no in-sample z
     # the page's leave-one-out RMS of component x is the core's closed-form LOO RMS
     metric = {m.label: m.value for m in at.metric}
-    loo_page = float(metric["GP leave-one-out: RMS difference (µm)"])
+    loo_page = float(metric["GP LOO RMS Δ (µm)"])
     assert loo_page == pytest.approx(float(hyp.iloc[0]["LOO RMS (µm)"]), abs=1.5e-3)
     # predicting a ball from the others is harder than refitting it
-    assert loo_page > float(metric["GP: RMS difference (µm)"])
+    assert loo_page > float(metric["GP RMS Δ (µm)"])
 
 
 def test_gp_probe_input_coverage_and_degenerate_fit_offered():
@@ -815,7 +815,7 @@ def test_kinematic_z_on_clean_simulated_data_has_rms_one():
         assert n > 50
         mean_z2 = float(np.mean(table["kin_z"] ** 2))
         assert abs(mean_z2 - 1) < 4 * np.sqrt(2 / n), (comp, mean_z2, n)
-        rms = float({m.label: m.value for m in at.metric}["kinematic: RMS z (residual sd)"])
+        rms = float({m.label: m.value for m in at.metric}["kin. RMS z"])
         assert rms == pytest.approx(np.sqrt(mean_z2), abs=2e-3)
 
 
