@@ -408,6 +408,10 @@ with tab_sim:
                                                   what="Loading the simulation")
             if ok is not None:
                 C.set_instruments(inst)
+                if inst:  # the simulation brings its own: "instrument files removed" misleads
+                    st.session_state["reset_note"] = [
+                        n for n in st.session_state.get("reset_note", [])
+                        if "instrument file" not in n]
                 st.session_state["sim_truth"] = {"key": C.files_key(files),
                                                  "truth": sim.truth, "config": cfg}
                 _loaded("Simulated dataset loaded" + (

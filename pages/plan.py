@@ -98,11 +98,10 @@ def _comparison(evals: list) -> None:
         rows.append({"strategy": e["name"], "probings": e["n_obs"],
                      "time (min)": e["time_min"],
                      "undetermined": len(e["undetermined"]),
-                     **{f"U2 {a} (µm)": (e["U2_um"] or {}).get(a) for a in "xyz"},
-                     **{f"U3 {a} (µm)": (e["U3_um"] or {}).get(a) for a in "xyz"}})
-    st.dataframe(pd.DataFrame(rows), hide_index=True,
-                 column_config={c: st.column_config.NumberColumn(format="%.3f")
-                                for c in rows[0] if "(µm)" in c})
+                     # undetermined: no U at all, said in words rather than a blank
+                     **{f"U{k} {a} (µm)": _fmt((e[f"U{k}_um"] or {}).get(a), 3)
+                        .replace("—", "undetermined") for k in (2, 3) for a in "xyz"}})
+    st.dataframe(pd.DataFrame(rows), hide_index=True)
     for e in evals:
         if e["undetermined"]:
             with st.expander(f"{e['name']}: {len(e['undetermined'])} undetermined "
@@ -129,7 +128,7 @@ def _detection_plot(evals: list) -> None:
                       margin={"t": 30})
     st.plotly_chart(fig, width="stretch")
     rows = [{"strategy": e["name"], "effect": k, "expected": v["expected"],
-             "detection limit": v["limit"], "unit": unit_label(v["unit"]),
+             "detection limit": _fmt(v["limit"]), "unit": unit_label(v["unit"]),
              "seen": "yes" if v["detectable"] else "no"}
             for e in evals for k, v in e.get("expected_effects", {}).items()]
     if rows:
