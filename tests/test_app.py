@@ -125,9 +125,11 @@ def test_kinematic_page_elements_and_order_change():
 
 def test_adopting_the_observed_scatter_scales_every_uncertainty():
     """The Birge button sets σ to σ × the Birge ratio of the χ² test: the fit is the same
-    (uniform weights), so χ²/dof falls by its square and every u grows by the ratio (with
-    the certificate fixed the test counts the certificate's uncertainty, so the fit's own
-    χ²/dof need not become exactly 1)."""
+    (uniform weights), so χ²/dof falls by its square and the probing-noise part of every u
+    grows by the ratio (with the certificate fixed the test counts the certificate's
+    uncertainty, so the fit's own χ²/dof need not become exactly 1; and the certificate's
+    part of u, which the new σ does not touch, makes a u grow by less: by the full ratio
+    where the certificate hardly matters, never by more)."""
     at = _new()
     at.switch_page("pages/kinematic.py")
     at.run()
@@ -140,8 +142,9 @@ def test_adopting_the_observed_scatter_scales_every_uncertainty():
     after = _frame(at, "parameter").set_index("parameter")
     assert float({m.label: m.value for m in at.metric}["χ²/dof"]) == pytest.approx(
         chi2_before / birge**2, rel=0.01, abs=0.01)
-    ratio = (after["u"] / before["u"]).dropna()
-    assert ratio.to_numpy() == pytest.approx(birge, rel=0.01)
+    ratio = (after["u"] / before["u"]).dropna().to_numpy()
+    assert (ratio > 1).all() and (ratio <= birge * 1.01).all()
+    assert ratio.max() == pytest.approx(birge, rel=0.01)
 
 
 def test_bad_model_spec_is_a_message_not_a_traceback():
