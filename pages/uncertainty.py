@@ -262,6 +262,14 @@ def show_mpe(out, skipped, u_src, sig):
                    + mpe_mod.U_SOURCES[u_src]
                    + (f" (σ = {sig:g} µm)." if u_src == "test" else ".")
                    + (f" Skipped (missing balls): {', '.join(skipped)}." if skipped else ""))
+        # ISO 14253-1 needs |E| + U <= MPE: where U alone reaches the MPE nothing can conform
+        cannot = np.asarray(out.U_um) >= np.asarray(out.mpe_um)
+        if cannot.any():
+            st.info(f"{int(cannot.sum())} of {cannot.size} lengths cannot conform whatever "
+                    "their error: their U (k = 2) is at least the MPE, so every such length "
+                    "is at best inconclusive. A smaller U (a better certificate, a smaller "
+                    "repeatability, repeated measurements) is needed to show conformity "
+                    "there.")
 
 
 st.subheader("MPE check (0.6 µm + L/600)")
