@@ -140,6 +140,9 @@ else:
                "Changing any input cancels a running check.")
 
 st.subheader("Ball-plate calibration budget (thesis eq. 3.14-3.29)")
+st.caption("The budget of calibrating a ball plate by the thesis's procedure, a calculator "
+           "of its own: its inputs start at the thesis's recorded environment (appendix 3), "
+           "not at the dataset loaded; set them for your calibration.")
 with C.guarded("Budget"):
     recs = {r.position: r for r in (*budget.THESIS_ENVIRONMENT,
                                     budget.average_environment())}
