@@ -141,7 +141,8 @@ else:
 
 st.subheader("Ball-plate calibration budget (thesis eq. 3.14-3.29)")
 st.caption("The budget of calibrating a ball plate by the thesis's procedure, a calculator "
-           "of its own: its inputs start at the thesis's recorded environment (appendix 3), "
+           "of its own: its inputs start at the environment recorded with thesis tables "
+           "6.1-6.6, "
            "not at the dataset loaded; set them for your calibration.")
 with C.guarded("Budget"):
     recs = {r.position: r for r in (*budget.THESIS_ENVIRONMENT,
