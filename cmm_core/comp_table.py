@@ -276,7 +276,7 @@ def model_lines(obj: Model | FitResult, source: str | None = None) -> list[str]:
     else:
         p = "" if t["p_value"] is None else f", p = {t['p_value']:.3g}"
         head.append(f"chi2 test at {t['alpha']:g}: {'FAILS' if t['fails'] else 'passes'}{p}"
-                    + (f"; the uncertainties are sigma-based and too small by the Birge "
+                    + (f"; the uncertainties' noise part is too small by the Birge "
                        f"ratio {_g(t['birge_ratio'])}" if t["fails"] else ""))
     head.append(f"layout: {m.terms.layout} (chain {m.terms.chain}; docs/layouts.md)")
     if m.undetermined:

@@ -329,8 +329,9 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
         # the certificate's own uncertainty: in the χ² test and in every parameter's u
         cert = certificate_terms(prob, state, C_run[C.shape[0]:], sigma_um, rank_rtol, cov)
     null = np.hstack([null0, ne.null]) if null0.shape[1] else ne.null
+    cov_noise = None
     if cert is not None:
-        cov = cert[2]
+        cov_noise, cov = cov, cert[2]
     u = np.sqrt(np.clip(np.diag(cov), 0, None))
     combos, names = describe_null(null, L.labels)
     unident = [lab for lab in L.labels if lab in names]
@@ -366,7 +367,8 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
         table=obs.table, rms_um=rms, chi2=chi2, dof=int(dof), chi2_dof=chi2 / max(dof, 1),
         bic=float(bic), rank=rank, rank_rtol=rank_rtol, unidentifiable=unident,
         null_combinations=combos, n_obs=prob.n_obs, problem=prob, state=state,
-        design_null=C_run[C.shape[0]:], chi2_test=float(chi2_test), dof_test=int(dof_test))
+        design_null=C_run[C.shape[0]:], chi2_test=float(chi2_test), dof_test=int(dof_test),
+        covariance_noise=cov_noise, residual_cert_u_um=None if cert is None else cert[3])
 
 
 def held_constraints(labels, design_null, prob: Problem):

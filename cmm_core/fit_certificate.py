@@ -29,15 +29,21 @@ __all__ = ["certificate_terms", "held_prior_rows"]
 
 
 def certificate_terms(prob, state, design_null, sigma_um, rank_rtol, cov):
-    """``(χ² test statistic, its dof, covariance)`` of a fit with the certificate fixed.
+    """``(χ² test statistic, its dof, covariance, residual u µm (n, 3))`` of a fit with
+    the certificate fixed: the last two with the certificate's uncertainty propagated.
 
     Parameters
     ----------
     prob : fit.Problem
         The fixed-plate problem, ``state`` its solution, ``design_null`` the combinations
         its design left undetermined (held), ``cov`` its σ-only covariance.
+
+    Notes
+    -----
+    The residual ``r = (I - J C Jᵀ)(e + J_c ε)`` (weighted) carries, besides the noise's
+    ``σ²(1 - h_ii)``, the certificate's ``Σ_j [(J_c - J C Jᵀ J_c)_ij]² u_j²``.
     """
-    from .fit import Problem, held_constraints
+    from .fit import Problem, held_constraints, weighted_residual
 
     pp = Problem(prob.obs, prob.spec, "prior")
     st = state.relabelled(prob.layout.labels, pp.layout.labels)
@@ -57,7 +63,11 @@ def certificate_terms(prob, state, design_null, sigma_um, rank_rtol, cov):
     G = N[np.ix_(rows, np.arange(plate.start, plate.stop))]
     u2 = np.nan_to_num(prob.obs.cert_u_um.ravel() ** 2, posinf=0.0)  # released: no value
     CG = cov @ G
-    return chi2, dof, cov + (CG * u2) @ CG.T
+    n3 = 3 * prob.n_obs
+    J = weighted_residual(pp, st, sigma_um, True)[2][:n3].toarray()
+    R = J[:, plate.start:plate.stop] - J[:, rows] @ CG
+    res_u = np.sqrt((R**2) @ u2) * sigma_um
+    return chi2, dof, cov + (CG * u2) @ CG.T, res_u.reshape(-1, 3)
 
 
 def held_prior_rows(prob) -> int:

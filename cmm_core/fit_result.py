@@ -82,6 +82,13 @@ class FitResult:
         with the certificate fixed, where the certificate's uncertainty is counted (the χ²
         of the same model with the certificate as a prior): its calibration errors are
         not the model's misfit. None means equal to ``chi2``, ``dof``.
+    covariance_noise : ndarray or None
+        The part of ``covariance`` due to the probing noise alone, when the certificate's
+        own uncertainty is propagated into it (certificate fixed, ``fit_certificate``);
+        None: ``covariance`` is all noise.
+    residual_cert_u_um : ndarray (n, 3) or None
+        Standard uncertainty the certificate's errors add to each residual component (µm),
+        with the certificate fixed; None otherwise.
     """
 
     status: str
@@ -113,6 +120,8 @@ class FitResult:
     design_null: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
     chi2_test: float | None = None
     dof_test: int | None = None
+    covariance_noise: np.ndarray | None = field(default=None, repr=False)
+    residual_cert_u_um: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def terms(self) -> kin.KinematicTerms:
@@ -144,11 +153,12 @@ class FitResult:
 
     @property
     def birge_ratio(self) -> float:
-        """sqrt(χ²/dof) of the fit itself: how much larger the scatter is than the stated
-        repeatability. It scales the σ-based uncertainties (``u_inflated``), which with the
-        certificate fixed leave the certificate's own uncertainty out, so the fit's own
-        χ² (certificate errors included) and not the test statistic is the honest factor."""
-        return float(np.sqrt(self.chi2_dof))
+        """sqrt(χ²/dof) of the statistic behind the χ² test: how much larger the scatter
+        is than the stated repeatability (and, with the certificate fixed, than the
+        certificate's uncertainty) allows. It scales the noise part of the uncertainties
+        (``u_inflated``); the certificate's part, counted in the statistic, is not
+        scaled."""
+        return float(np.sqrt(self.chi2_test_dof))
 
     @property
     def test_statistic(self) -> tuple:
@@ -183,9 +193,15 @@ class FitResult:
 
     @property
     def u_inflated(self) -> np.ndarray:
-        """Uncertainties scaled by the Birge ratio when it exceeds 1: the honest figure
-        when the model does not explain the data to the stated noise."""
-        return self.u * max(1.0, self.birge_ratio)
+        """Uncertainties with their noise part scaled by the Birge ratio when it exceeds
+        1: the honest figure when the model does not explain the data to the stated
+        noise. The certificate's propagated part (certificate fixed) stays as it is."""
+        b2 = max(1.0, self.birge_ratio) ** 2
+        if self.covariance_noise is None:
+            return self.u * np.sqrt(b2)
+        noise = np.clip(np.diag(self.covariance_noise), 0, None)
+        cert = np.clip(np.diag(self.covariance) - noise, 0, None)
+        return np.where(np.isnan(self.u), np.nan, np.sqrt(b2 * noise + cert))
 
     @property
     def identifiable(self) -> bool:
@@ -223,9 +239,10 @@ def _message(status, it, rms, chi2_dof, combos, chi2_p=1.0, dof=0, test_dof=None
         cert = ("" if abs(test_dof - chi2_dof) < 0.005 else
                 f" with the certificate's uncertainty counted (χ²/dof {test_dof:.2f})")
         msg += (f" It fails the χ² test{cert} (p = {chi2_p:.2g} at {dof} degrees of freedom):"
-                f" the scatter is {np.sqrt(chi2_dof):.2f} times the stated repeatability, so the "
-                "model misses something or σ is understated (run the diagnosis), and "
-                "uncertainties based on σ alone are too small by that factor.")
+                f" the scatter is {np.sqrt(test_dof):.2f} times what the stated repeatability"
+                f"{' and certificate allow' if cert else ' allows'}, so the model misses "
+                "something or σ is understated (run the diagnosis), and the uncertainties' "
+                "noise part is too small by that factor (the Birge ratio).")
     if combos:
         msg += (f" The data cannot determine {len(combos)} parameter combination(s); they "
                 "are held at the minimum-norm solution and reported as unidentifiable: "

@@ -144,13 +144,19 @@ def simulation_config(plan: Plan, *, seed: int = 0, noise_um: float = 0.0,
 
 
 def simulate_plan(plan: Plan, *, with_truth: bool = False, **kwargs):
-    """Data of the plan from the virtual CMM (see :func:`simulation_config`), with the
-    certificate at the plate's nominal geometry and the plan's certificate uncertainty.
-    Returns the Dataset, or ``(Dataset, truth by parameter label)`` with ``with_truth``."""
+    """Data of the plan from the virtual CMM (see :func:`simulation_config`) with the plan's
+    certificate uncertainty: the certificate at the true plate for the noise-free design
+    data, and off it by N(0, u²) per coordinate for noisy data (studies, Monte Carlo
+    checks), as a real certificate is, since fits with the certificate fixed count that
+    uncertainty. Returns the Dataset, or ``(Dataset, truth by parameter label)``."""
     sim = simulate(simulation_config(plan, **kwargs), name=f"plan {plan.name!r}")
     d = sim.dataset
-    cert = Certificate(d.certificate.balls, sim.true_plate_mm.copy(),
-                       np.full(sim.true_plate_mm.shape, plan.plate["certificate_u_um"]))
+    u_um = plan.plate["certificate_u_um"]
+    xyz = sim.true_plate_mm.copy()
+    if kwargs.get("noise_um", 0.0) > 0:
+        rng = np.random.default_rng([int(kwargs.get("seed", 0)), 20261124])
+        xyz = xyz + rng.normal(0.0, u_um * 1e-3, xyz.shape)
+    cert = Certificate(d.certificate.balls, xyz, np.full(xyz.shape, u_um))
     data = Dataset(d.meas, d.setup, cert, name=f"plan {plan.name}")
     return (data, sim.truth) if with_truth else data
 

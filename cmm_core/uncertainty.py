@@ -197,7 +197,8 @@ def residual_u(result: FitResult, *, chunk: int = 30000) -> np.ndarray:
     plate and effects included) and the full covariance. Combining them as
     ``√(u_model² + σ²)`` treats them as independent, which holds only for a measurement
     the fit did not use, and made nominal 95 % intervals cover about 97 % (96.3 % with
-    the plate fixed, 97.1 % with it free, over simulated data sets). With this, they
+    the plate fixed, 97.1 % with it free, over simulated data sets). With the certificate
+    fixed its errors add ``FitResult.residual_cert_u_um`` to each residual. With this, they
     cover 95 % (``tests/test_coverage.py``).
 
     Parameters
@@ -212,14 +213,19 @@ def residual_u(result: FitResult, *, chunk: int = 30000) -> np.ndarray:
         ``σ √(1 − h_ii)`` per residual component, in the fit's observation order.
     """
     _, J = result.problem.residual(result.state, True)
-    cov = np.nan_to_num(result.covariance)
+    # the noise's part: σ²(1 - h_ii) needs the covariance of the noise alone; the
+    # certificate's errors (certificate fixed) add their own part to each residual
+    cov = np.nan_to_num(result.covariance if result.covariance_noise is None
+                        else result.covariance_noise)
     var_fit = np.empty(J.shape[0])
     for i in range(0, J.shape[0], chunk):
         A = J[i:i + chunk]
         A = A.toarray() if hasattr(A, "toarray") else np.asarray(A)
         var_fit[i:i + chunk] = np.einsum("ik,ik->i", A @ cov, A)
-    u2 = result.sigma_um**2 - var_fit
-    return np.sqrt(np.clip(u2, 0, None)).reshape(-1, 3)
+    u2 = np.clip(result.sigma_um**2 - var_fit, 0, None)
+    if result.residual_cert_u_um is not None:
+        u2 = u2 + result.residual_cert_u_um.ravel() ** 2
+    return np.sqrt(u2).reshape(-1, 3)
 
 
 def rigid_removed_error_u(result: FitResult, x_mm, probe=None) -> np.ndarray:

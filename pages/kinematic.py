@@ -143,9 +143,10 @@ with tabs[2], C.guarded("Parameter table"):
     if birge > 1.05:
         # the scatter exceeds the stated σ: scale u by √(χ²/dof) (Birge 1932), the
         # figure to quote until the missing effect is found
-        pf["u, Birge-scaled"] = pf["u"] * birge
-        st.info(f"Birge ratio √(χ²/dof) = {birge:.2f}: the residuals scatter {birge:.2f} "
-                "times the stated σ, so u from σ alone is too small. The column *u, "
+        pf["u, Birge-scaled"] = r.u_inflated
+        st.info(f"Birge ratio √(χ²/dof) = {birge:.2f} (of the tested statistic): the "
+                f"residuals scatter {birge:.2f} times what the stated σ allows, so the noise "
+                "part of u is too small. The column *u, "
                 "Birge-scaled* is the honest standard uncertainty until the model explains "
                 "the data (see Compare and diagnose). The bands, maps, U1-U3 and exports "
                 "use σ; to carry the scaling everywhere, adopt the observed scatter as σ.")

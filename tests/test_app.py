@@ -103,8 +103,11 @@ def test_kinematic_page_elements_and_order_change():
     # scaled by the Birge ratio the χ² test reports (sidebar)
     birge = _sidebar_birge(at)
     assert birge > 5
-    ratio = (pf["u, Birge-scaled"] / pf["u"]).dropna()
-    assert ratio.to_numpy() == pytest.approx(birge, rel=0.01)
+    # ... its noise part: the certificate's propagated part is not scaled, so a u grows by
+    # the full ratio where the certificate hardly matters and by less elsewhere
+    ratio = (pf["u, Birge-scaled"] / pf["u"]).dropna().to_numpy()
+    assert (ratio > 1).all() and (ratio <= birge * 1.01).all()
+    assert ratio.max() == pytest.approx(birge, rel=0.01)
     assert at.slider(key="w_magnification").value == 2000.0
     rms2 = _sidebar_rms(at)
     at.selectbox(key="w_order").set_value(3)
