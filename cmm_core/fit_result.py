@@ -48,7 +48,8 @@ class FitResult:
     u : ndarray
         Standard uncertainties (NaN for parameters the data cannot determine).
     covariance : ndarray
-        Parameter covariance by the law of propagation of uncertainty, σ-scaled.
+        Parameter covariance by the law of propagation of uncertainty: the probing noise
+        (σ) and, with the certificate fixed, the certificate's own uncertainty.
     residuals_um : ndarray (n, 3)
         Corrected measurement minus placed ball, per observation.
     table : DataFrame
