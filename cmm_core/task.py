@@ -417,8 +417,8 @@ def task_uncertainty(model, task: Task, *, trials: int | None = None,
     if task.kind == "plane":
         msg += " " + _FLATNESS_NOTE
     if model.summary.get("fails_chi2_test"):
-        # the model's covariance is σ-based: under misfit its share is too small
+        # the model's noise part is σ-based: under misfit its share is too small
         msg += (f" The model failed its χ² test (scatter {model.summary['birge_ratio']:.2f} "
-                "times σ): its share of these uncertainties is too small by about that "
-                "factor; diagnose and refit before relying on them.")
+                "times what σ allows): its share of these uncertainties is too small by up "
+                "to that factor; diagnose and refit before relying on them.")
     return TaskResult(task.kind, values, M, task.coverage_probability, sigma, msg)
