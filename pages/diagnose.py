@@ -5,7 +5,7 @@ import pandas as pd
 import streamlit as st
 
 from cmm_core import residuals as res_mod
-from cmm_core.effects import PERIODIC, parse_spec
+from cmm_core.effects import PERIODIC, catalogue_entry, parse_spec
 from pages import common as C
 
 C.page_start()
@@ -254,7 +254,17 @@ with c2:
     model = parse_spec(s["spec"], default_order=int(s["order"]))
     removable = ([f"-{e}" for e in model.effects] + [f"-{n}" for n, _ in model.active]
                  + [f"-{t}" for t, fn in PERIODIC.items() if fn in dict(model.periods)])
-    rm = st.selectbox("Remove from the model", removable, key="w_remove") if removable else None
+    def _removal_words(token):
+        try:
+            return f"{token} (drop {catalogue_entry(token[1:]).title})"
+        except (KeyError, ValueError):
+            return token
+
+    rm = (st.selectbox("Remove from the model", removable, key="w_remove",
+                       format_func=_removal_words,
+                       help="A model-spec token: '-dxx' drops the X positioning function "
+                            "from the model, '-plate_sag' the plate sag.")
+          if removable else None)
     b1, b2 = st.columns(2)
     b1.button("Remove", key="remove_effect", disabled=rm is None, on_click=C.apply_selected,
               args=("w_remove",))

@@ -214,6 +214,8 @@ def test_remove_an_error_function():
     at = _new()
     at.switch_page("pages/diagnose.py")
     at.run()
+    # the spec token with its meaning in words (a newcomer read '-dxx' as jargon)
+    assert "-sxy (drop squareness XY)" in at.selectbox(key="w_remove").options
     at.selectbox(key="w_remove").set_value("-sxy")
     at.button(key="remove_effect").click()
     at.run()
