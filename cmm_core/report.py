@@ -159,8 +159,9 @@ def _uncertainty_table(uncertainty, result) -> pd.DataFrame:
     for lab in ("U1_um", "U2_um", "U3_um"):
         val = getattr(uncertainty, lab, None)
         row = {"quantity": lab[:2], **({f"{a} (µm)": val[a] for a in "xyz"} if val else {})}
-        if val and result.fails_chi2_test:
-            row.update({f"{a} × Birge (µm)": val[a] * result.birge_ratio for a in "xyz"})
+        if val and result.fails_chi2_test:  # noise part scaled, certificate's as it is
+            vi = uncertainty.inflated[lab]
+            row.update({f"{a} × Birge (µm)": vi[a] for a in "xyz"})
         rows.append(row)
     return pd.DataFrame(rows)
 

@@ -16,7 +16,7 @@ because the frame of the workpiece is always re-established.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -155,12 +155,15 @@ def _undetermined(result: FitResult, block: str) -> bool:
                for g, lab in zip(result.groups, result.labels, strict=True))
 
 
-def error_covariance(result: FitResult, x_mm, probe=None):
-    """Full covariance (3m × 3m, µm²) of the error at the points, for maps and U2/U3."""
+def error_covariance(result: FitResult, x_mm, probe=None, kinematic_cov=None):
+    """Full covariance (3m × 3m, µm²) of the error at the points, for maps and U2/U3
+    (``kinematic_cov``: another covariance of the kinematic coefficients, e.g. the noise
+    part alone)."""
     x = np.atleast_2d(np.asarray(x_mm, float))
     p = np.broadcast_to(_probe_vector(result, probe), x.shape)
     Je = _error_jacobian(result, x, p)
-    return Je @ result.kinematic_cov @ Je.T
+    cov = result.kinematic_cov if kinematic_cov is None else kinematic_cov
+    return Je @ cov @ Je.T
 
 
 def _error_jacobian(result: FitResult, x, p) -> np.ndarray:
@@ -271,11 +274,22 @@ class UncertaintySummary:
     U3_um: dict | None
     region_mm: np.ndarray
     message: str
+    inflated: dict = field(default_factory=dict)
+    """``{"U1_um": ..., "U2_um": ..., "U3_um": ...}`` with the noise part of every point's
+    variance scaled by the squared Birge ratio (when above 1) and the certificate's part
+    (certificate fixed) as it is; equal to the plain values when the fit passes."""
 
 
-def _avg(V, m):
-    u = np.sqrt(np.clip(np.diag(V), 0, None)).reshape(m, 3)
-    return {a: float(u[:, i].mean()) for i, a in enumerate("xyz")}
+def _avg(V, m, Vn=None, b2=1.0):
+    """Mean over points of each axis's u: plain, and with the noise part ``Vn`` of the
+    variance (all of it when None) scaled by ``b2``."""
+    d = np.clip(np.diag(V), 0, None)
+    dn = d if Vn is None else np.clip(np.diag(Vn), 0, None)
+    out = []
+    for var in (d, b2 * dn + np.clip(d - dn, 0, None)):
+        u = np.sqrt(var).reshape(m, 3)
+        out.append({a: float(u[:, i].mean()) for i, a in enumerate("xyz")})
+    return out
 
 
 def evaluate(result: FitResult, *, n_random: int = 200, seed: int = 0,
@@ -299,6 +313,9 @@ def evaluate(result: FitResult, *, n_random: int = 200, seed: int = 0,
     rng = np.random.default_rng(seed)
     msgs = []
     U1 = None
+    b2 = max(1.0, result.birge_ratio) ** 2
+    cn = result.covariance_noise
+    inflated = {}
     labels, _, _ = result.block("plate")
     if len(labels) and _undetermined(result, "plate"):
         msgs.append("U1 not evaluated: the data cannot determine the plate")
@@ -306,16 +323,22 @@ def evaluate(result: FitResult, *, n_random: int = 200, seed: int = 0,
         s = result.problem.layout.blocks["plate"]
         Vc = result.covariance[s, s]
         P = rigid_body_projector(obs.plate0_mm)
-        U1 = _avg(P @ Vc @ P.T, len(obs.plate0_mm))
+        U1, inflated["U1_um"] = _avg(P @ Vc @ P.T, len(obs.plate0_mm),
+                                     None if cn is None else P @ cn[s, s] @ P.T, b2)
         msgs.append(f"U1 over {len(obs.plate0_mm)} balls ({result.plate} plate)")
     else:
         msgs.append("U1 not evaluated: the plate is fixed to the certificate")
     out = []
     rng_mm = np.asarray(obs.range_mm, float)
+    kin = result.problem.layout.blocks["kinematic"]
     for lo, hi in ((region[0], region[1]), (np.zeros(3), rng_mm)):
         pts = lo + (hi - lo) * rng.random((n_random, 3))
         V = error_covariance(result, pts, probe)
         P = rigid_body_projector(pts)
-        out.append(_avg(P @ V @ P.T, n_random))
+        Vn = None if cn is None else P @ error_covariance(result, pts, probe,
+                                                          cn[kin, kin]) @ P.T
+        out.append(_avg(P @ V @ P.T, n_random, Vn, b2))
     msgs.append(f"U2 and U3 at {n_random} random points (seed {seed})")
-    return UncertaintySummary(U1, out[0], out[1], region, "; ".join(msgs) + ".")
+    inflated.update(U2_um=out[0][1], U3_um=out[1][1])
+    return UncertaintySummary(U1, out[0][0], out[1][0], region, "; ".join(msgs) + ".",
+                              inflated)

@@ -33,9 +33,10 @@ if summary is not None:
                       ("U3_um", "U3: CMM error in the whole working volume")):
         v = getattr(summary, lab)
         if v:  # a quantity not evaluated is left out; the caption below says why
-            rows.append({"quantity": desc, **{f"u_{a} (µm)": v[a] for a in "xyz"}})
-            if r.fails_chi2_test:
-                rows[-1].update({f"u_{a} × Birge (µm)": v[a] * r.birge_ratio for a in "xyz"})
+            rows.append({"quantity": desc, **{f"u_{a} (µm, k = 1)": v[a] for a in "xyz"}})
+            if r.fails_chi2_test:  # the noise part scaled, the certificate's as it is
+                vi = summary.inflated[lab]
+                rows[-1].update({f"u_{a} × Birge (µm)": vi[a] for a in "xyz"})
     if rows:
         C.dataframe(pd.DataFrame(rows), hide_index=True, key="u_table",
                      column_config={c_: st.column_config.NumberColumn(format="%.4f")

@@ -620,8 +620,8 @@ def test_uncertainty_monte_carlo_budget_and_mpe():
     at.switch_page("pages/uncertainty.py")
     at.run()
     _ok(at)
-    u = _frame(at, "u_x (µm)")
-    u = u.set_index("quantity")["u_x (µm)"]
+    u = _frame(at, "u_x (µm, k = 1)")
+    u = u.set_index("quantity")["u_x (µm, k = 1)"]
     # certificate fixed: U1 is not evaluated (left out, the caption says why); U2 < U3
     assert not any(q.startswith("U1") for q in u.index)
     assert 0 < u["U2: CMM error in the evaluated region"] < u[

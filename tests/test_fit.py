@@ -411,3 +411,22 @@ def test_with_the_certificate_fixed_residual_u_and_the_birge_scaling_count_it_on
     cover = 100 * np.mean(np.concatenate(hits))
     assert 93.5 <= cover <= 96.5, cover
     assert abs(np.sqrt(np.mean(np.concatenate(z) ** 2)) - 1) < 0.2
+
+
+def test_u1_u3_inflation_scales_the_noise_part_only(thesis):
+    """Under misfit (thesis data) U1-U3 are shown Birge-inflated: with the plate free all of
+    u is noise and the inflated U is U × B exactly; with the certificate fixed its part is
+    not scaled, so U < inflated U < U × B."""
+    from cmm_core.uncertainty import evaluate
+
+    free = fit(thesis, "kinematic21", plate="free")
+    u = evaluate(free, n_random=50)
+    for key in ("U1_um", "U2_um", "U3_um"):
+        for a in "xyz":
+            assert u.inflated[key][a] == pytest.approx(
+                getattr(u, key)[a] * free.birge_ratio, rel=1e-9)
+    fixed = fit(thesis, "kinematic21")
+    u = evaluate(fixed, n_random=50)
+    assert fixed.birge_ratio > 2
+    for a in "xyz":
+        assert u.U2_um[a] < u.inflated["U2_um"][a] < u.U2_um[a] * fixed.birge_ratio
