@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_instruments import fd_rows_jacobian, plate_and_joint_with_predicted_u
 
 from cmm_core import instruments as ins
 from cmm_core import kinematics as kin
@@ -31,7 +32,6 @@ from cmm_core.io_instruments import (
     write_instrument,
 )
 from cmm_core.simulate import simulate
-from cmm_core.solver import Normal
 
 HERE = Path(__file__).resolve().parent
 EXACT = {"plate": {"form_um": 2.0, "certificate_u_um": 0.0}}
@@ -78,14 +78,7 @@ def test_ball_bar_rows_and_jacobian_match_finite_differences(layout):
     state.x[k] = np.random.default_rng(0).normal(0, 3.0, k.stop - k.start)  # bent machine
     r, J = inst.rows(state, True)
     assert J.shape == (6, k.stop - k.start) and np.abs(J).max() > 0.1
-    h = 1e-3
-    fd = np.empty_like(J)
-    for j in range(J.shape[1]):
-        up, dn = state.with_x(state.x.copy()), state.with_x(state.x.copy())
-        up.x[k.start + j] += h
-        dn.x[k.start + j] -= h
-        fd[:, j] = (inst.rows(up)[0] - inst.rows(dn)[0]) / (2 * h)
-    np.testing.assert_allclose(J, fd, rtol=1e-6, atol=1e-5)
+    np.testing.assert_allclose(J, fd_rows_jacobian(inst, state), rtol=1e-6, atol=1e-5)
     # the row against eq. 3 evaluated naively: the difference of two ~0.5 m lengths loses
     # ~1e-13 m, 1e-7 µm
     coef = state.x[k]
@@ -167,18 +160,7 @@ def test_ball_bar_lowers_u_of_squareness_as_the_information_matrix_predicts():
     5 %."""
     sim = _sim()
     bar = _bar(sim, centres=GRID_XY, directions=XY, seed=5)
-    # the information of the probing noise alone: the certificate's own uncertainty, which
-    # a fit with the certificate fixed adds (fit_certificate), is left out on both sides
-    plate = fit(sim.dataset, "kinematic21", certificate_test=False)
-    joint = fit(sim.dataset, "kinematic21", instruments=[bar], certificate_test=False)
-    prob0 = Problem(plate.problem.obs, joint.problem.spec, "fixed")
-    ne = prob0.normal_equations(joint.state, 0.5)
-    _, Jb = joint.problem.instruments.rows(joint.state, True)
-    N = ne.N.copy()
-    k = joint.problem.instruments.cols
-    N[k, k] += Jb.T @ Jb
-    C = joint.problem.constraints()
-    u_pred = np.sqrt(np.diag(Normal(None, None, C, joint.rank_rtol, normal=(N, ne.g)).cov()))
+    plate, joint, u_pred = plate_and_joint_with_predicted_u(sim, bar)
     np.testing.assert_allclose(u_pred, joint.u, rtol=1e-6)
 
     def u(r, lab):

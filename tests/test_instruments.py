@@ -63,6 +63,37 @@ def _problem(sim, items, spec="kinematic21", plate="fixed", layout=None):
 
 # --- the observation model ------------------------------------------------------------
 
+def fd_rows_jacobian(inst, state, h=1e-3):
+    """Central differences (step ``h`` µm or µrad) of the instruments' weighted rows with
+    respect to their kinematic columns: the independent check of ``rows(..., True)``."""
+    k = inst.cols
+    fd = np.empty((inst.rows(state)[0].size, k.stop - k.start))
+    for j in range(fd.shape[1]):
+        up, dn = state.with_x(state.x.copy()), state.with_x(state.x.copy())
+        up.x[k.start + j] += h
+        dn.x[k.start + j] -= h
+        fd[:, j] = (inst.rows(up)[0] - inst.rows(dn)[0]) / (2 * h)
+    return fd
+
+
+def plate_and_joint_with_predicted_u(sim, item):
+    """Fits of the plate alone and with ``item``, and the joint u the information matrix
+    predicts: (N_plate + Jᵀ J of the item's rows)⁻¹ under the joint fit's constraints. The
+    information of the noise alone: the certificate's own uncertainty, which a fit with
+    the certificate fixed adds (fit_certificate), is left out on both sides."""
+    plate = fit(sim.dataset, "kinematic21", certificate_test=False)
+    joint = fit(sim.dataset, "kinematic21", instruments=[item], certificate_test=False)
+    prob0 = Problem(plate.problem.obs, joint.problem.spec, "fixed")
+    ne = prob0.normal_equations(joint.state, 0.5)
+    _, Ji = joint.problem.instruments.rows(joint.state, True)
+    N = ne.N.copy()
+    k = joint.problem.instruments.cols
+    N[k, k] += Ji.T @ Ji
+    C = joint.problem.constraints()
+    u_pred = np.sqrt(np.diag(Normal(None, None, C, joint.rank_rtol, normal=(N, ne.g)).cov()))
+    return plate, joint, u_pred
+
+
 @pytest.mark.parametrize("layout", ["moving_bridge_fxyz", "fixed_bridge_xfyz"])
 def test_rows_and_jacobian_match_finite_differences(layout):
     sim = _sim()
@@ -74,14 +105,7 @@ def test_rows_and_jacobian_match_finite_differences(layout):
     state.x[k] = rng.normal(0, 3.0, k.stop - k.start)  # µm / µrad: a bent machine
     r, J = inst.rows(state, True)
     assert J.shape == (r.size, k.stop - k.start)
-    h = 1e-3
-    fd = np.empty_like(J)
-    for j in range(J.shape[1]):
-        up, dn = state.with_x(state.x.copy()), state.with_x(state.x.copy())
-        up.x[k.start + j] += h
-        dn.x[k.start + j] -= h
-        fd[:, j] = (inst.rows(up)[0] - inst.rows(dn)[0]) / (2 * h)
-    np.testing.assert_allclose(J, fd, rtol=1e-6, atol=1e-5)
+    np.testing.assert_allclose(J, fd_rows_jacobian(inst, state), rtol=1e-6, atol=1e-5)
     # the residual itself against the model evaluated independently (kinematics.error is
     # true minus indicated; the instruments' error is indicated minus true)
     coef = state.x[k]
@@ -209,18 +233,7 @@ def test_a_laser_run_lowers_u_of_dxx_as_the_information_matrix_predicts():
     fit's u; the laser divides u(dxx[1]), u(dxx[2]) of this plate by more than 4."""
     sim = _sim()
     run = ins.simulate_laser(sim, "x", [0, 100, 50], XS, u_um=0.2, seed=3)
-    # the information of the noise alone: the certificate's own uncertainty, which a fit
-    # with the certificate fixed adds (fit_certificate), is left out on both sides
-    plate = fit(sim.dataset, "kinematic21", certificate_test=False)
-    joint = fit(sim.dataset, "kinematic21", instruments=[run], certificate_test=False)
-    prob0 = Problem(plate.problem.obs, joint.problem.spec, "fixed")
-    ne = prob0.normal_equations(joint.state, 0.5)
-    rl, Jl = joint.problem.instruments.rows(joint.state, True)
-    N = ne.N.copy()
-    k = joint.problem.instruments.cols
-    N[k, k] += Jl.T @ Jl
-    C = joint.problem.constraints()
-    u_pred = np.sqrt(np.diag(Normal(None, None, C, joint.rank_rtol, normal=(N, ne.g)).cov()))
+    plate, joint, u_pred = plate_and_joint_with_predicted_u(sim, run)
     np.testing.assert_allclose(u_pred, joint.u, rtol=1e-6)
     for lab in ("dxx[1]", "dxx[2]"):
         i = joint.labels.index(lab)
