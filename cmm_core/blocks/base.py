@@ -157,6 +157,14 @@ class SimCheck:
                            f"{_cut(', '.join(names), 200)})" + (
                                f"; did you mean {close[0]!r}?" if close else "."))
 
+    def vectors_by_name(self, cfg, where, skip, names, what):
+        """Every key of ``cfg`` but ``skip`` one of ``names`` (positions or probes of the
+        setup), each with a vector of 3 numbers (drift per position, offset per probe)."""
+        for key, v in cfg.items():
+            if key != skip:
+                self.known(f"{where}.{key}", key, names, what)
+                self.vector(f"{where}.{key}", v)
+
     def vector(self, column, v):
         """Refuse anything but 3 finite numbers."""
         if not (isinstance(v, list | tuple) and len(v) == 3 and all(

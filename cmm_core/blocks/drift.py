@@ -39,10 +39,7 @@ class Drift(Block):
     @classmethod
     def check_sim(cls, cfg, where, check):
         """Besides ``sd_um_per_h``: positions of the setup, each with a vector (µm/h)."""
-        for key, v in cfg.items():
-            if key != "sd_um_per_h":
-                check.known(f"{where}.{key}", key, check.positions, "position")
-                check.vector(f"{where}.{key}", v)
+        check.vectors_by_name(cfg, where, "sd_um_per_h", check.positions, "position")
 
     @staticmethod
     def needs(obs):

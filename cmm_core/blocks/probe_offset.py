@@ -46,10 +46,7 @@ class ProbeOffset(Block):
     @classmethod
     def check_sim(cls, cfg, where, check):
         """Besides ``sd_um``: probes of the setup, each with a vector (µm)."""
-        for key, v in cfg.items():
-            if key != "sd_um":
-                check.known(f"{where}.{key}", key, check.probes, "probe")
-                check.vector(f"{where}.{key}", v)
+        check.vectors_by_name(cfg, where, "sd_um", check.probes, "probe")
 
     @staticmethod
     def needs(obs):
