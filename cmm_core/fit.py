@@ -368,7 +368,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
         bic=float(bic), rank=rank, rank_rtol=rank_rtol, unidentifiable=unident,
         null_combinations=combos, n_obs=prob.n_obs, problem=prob, state=state,
         design_null=C_run[C.shape[0]:], chi2_test=float(chi2_test), dof_test=int(dof_test),
-        covariance_noise=cov_noise, residual_cert_u_um=None if cert is None else cert[3])
+        covariance_noise=cov_noise)
 
 
 def held_constraints(labels, design_null, prob: Problem):

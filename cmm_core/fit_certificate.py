@@ -29,21 +29,16 @@ __all__ = ["certificate_terms", "held_prior_rows"]
 
 
 def certificate_terms(prob, state, design_null, sigma_um, rank_rtol, cov):
-    """``(χ² test statistic, its dof, covariance, residual u µm (n, 3))`` of a fit with
-    the certificate fixed: the last two with the certificate's uncertainty propagated.
+    """``(χ² test statistic, its dof, covariance)`` of a fit with the certificate fixed,
+    the covariance with the certificate's uncertainty propagated.
 
     Parameters
     ----------
     prob : fit.Problem
         The fixed-plate problem, ``state`` its solution, ``design_null`` the combinations
         its design left undetermined (held), ``cov`` its σ-only covariance.
-
-    Notes
-    -----
-    The residual ``r = (I - J C Jᵀ)(e + J_c ε)`` (weighted) carries, besides the noise's
-    ``σ²(1 - h_ii)``, the certificate's ``Σ_j [(J_c - J C Jᵀ J_c)_ij]² u_j²``.
     """
-    from .fit import Problem, held_constraints, weighted_residual
+    from .fit import Problem, held_constraints
 
     pp = Problem(prob.obs, prob.spec, "prior")
     st = state.relabelled(prob.layout.labels, pp.layout.labels)
@@ -63,11 +58,34 @@ def certificate_terms(prob, state, design_null, sigma_um, rank_rtol, cov):
     G = N[np.ix_(rows, np.arange(plate.start, plate.stop))]
     u2 = np.nan_to_num(prob.obs.cert_u_um.ravel() ** 2, posinf=0.0)  # released: no value
     CG = cov @ G
-    n3 = 3 * prob.n_obs
-    J = weighted_residual(pp, st, sigma_um, True)[2][:n3].toarray()
-    R = J[:, plate.start:plate.stop] - J[:, rows] @ CG
-    res_u = np.sqrt((R**2) @ u2) * sigma_um
-    return chi2, dof, cov + (CG * u2) @ CG.T, res_u.reshape(-1, 3)
+    return chi2, dof, cov + (CG * u2) @ CG.T
+
+
+def residual_u_um(result, chunk: int = 30000):
+    """Standard uncertainty (µm, (n, 3)) the certificate's errors add to each residual of
+    a fit with the certificate fixed (zeros otherwise): the residual ``r = (I - J C Jᵀ)
+    (e + J_c ε)`` (weighted) carries, besides the noise's ``σ²(1 - h_ii)``, the
+    certificate's ``Σ_j [(J_c - J C Jᵀ J_c)_ij]² u_j²``. Computed when asked (the
+    residual checks of the app), from the sparse Jacobian a chunk of rows at a time."""
+    prob = result.problem
+    if result.covariance_noise is None:
+        return np.zeros((prob.n_obs, 3))
+    from .fit import Problem, weighted_residual
+
+    pp = Problem(prob.obs, prob.spec, "prior")
+    st = result.state.relabelled(prob.layout.labels, pp.layout.labels)
+    J = weighted_residual(pp, st, result.sigma_um, True)[2][: 3 * prob.n_obs].tocsc()
+    col = {lab: i for i, lab in enumerate(pp.layout.labels)}
+    plate = pp.layout.blocks["plate"]
+    Jp = J[:, [col[lab] for lab in prob.layout.labels]].tocsr()
+    Jc = J[:, plate.start:plate.stop].tocsr()
+    CG = np.nan_to_num(result.covariance_noise) @ (Jp.T @ Jc).toarray()
+    u2 = np.nan_to_num(prob.obs.cert_u_um.ravel() ** 2, posinf=0.0)
+    var = np.empty(Jc.shape[0])
+    for i in range(0, var.size, chunk):
+        R = Jc[i:i + chunk].toarray() - Jp[i:i + chunk] @ CG
+        var[i:i + chunk] = (R**2) @ u2
+    return (np.sqrt(var) * result.sigma_um).reshape(-1, 3)
 
 
 def held_prior_rows(prob) -> int:

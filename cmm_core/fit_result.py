@@ -87,9 +87,6 @@ class FitResult:
         The part of ``covariance`` due to the probing noise alone, when the certificate's
         own uncertainty is propagated into it (certificate fixed, ``fit_certificate``);
         None: ``covariance`` is all noise.
-    residual_cert_u_um : ndarray (n, 3) or None
-        Standard uncertainty the certificate's errors add to each residual component (µm),
-        with the certificate fixed; None otherwise.
     """
 
     status: str
@@ -122,7 +119,6 @@ class FitResult:
     chi2_test: float | None = None
     dof_test: int | None = None
     covariance_noise: np.ndarray | None = field(default=None, repr=False)
-    residual_cert_u_um: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def terms(self) -> kin.KinematicTerms:

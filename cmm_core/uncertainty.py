@@ -201,7 +201,7 @@ def residual_u(result: FitResult, *, chunk: int = 30000) -> np.ndarray:
     ``√(u_model² + σ²)`` treats them as independent, which holds only for a measurement
     the fit did not use, and made nominal 95 % intervals cover about 97 % (96.3 % with
     the plate fixed, 97.1 % with it free, over simulated data sets). With the certificate
-    fixed its errors add ``FitResult.residual_cert_u_um`` to each residual. With this, they
+    fixed its errors add their own part (``fit_certificate.residual_u_um``). With this, they
     cover 95 % (``tests/test_coverage.py``).
 
     Parameters
@@ -226,8 +226,10 @@ def residual_u(result: FitResult, *, chunk: int = 30000) -> np.ndarray:
         A = A.toarray() if hasattr(A, "toarray") else np.asarray(A)
         var_fit[i:i + chunk] = np.einsum("ik,ik->i", A @ cov, A)
     u2 = np.clip(result.sigma_um**2 - var_fit, 0, None)
-    if result.residual_cert_u_um is not None:
-        u2 = u2 + result.residual_cert_u_um.ravel() ** 2
+    if result.covariance_noise is not None:
+        from .fit_certificate import residual_u_um
+
+        u2 = u2 + residual_u_um(result, chunk).ravel() ** 2
     return np.sqrt(u2).reshape(-1, 3)
 
 
