@@ -168,10 +168,17 @@ def _pinv(A):
     return np.linalg.pinv(A, rcond=1e-10)
 
 
-def _real_effect_test(r, X, folds, Jb, cov, gain, s2=1.0):
+def _fold_maps(X, folds):
+    """Per held-out placement, the least-squares map from the other rows to the effect's
+    coefficients: ``β(-p) = pinv(X[~held]) r[~held]``."""
+    return [_pinv(X[~held]) for held in folds]
+
+
+def _real_effect_test(r, X, folds, maps, Jb, cov, gain, s2=1.0):
     """``(expected, sd, z)`` of the held-out ``gain`` under "the effect is real" (module
-    docstring). ``folds``: boolean row masks of the held-out placements; ``s2``: the
-    noise variance in units of the weights (the scatter left, as in the F-test).
+    docstring). ``folds``: boolean row masks of the held-out placements, ``maps`` their
+    :func:`_fold_maps`; ``s2``: the noise variance in units of the weights (the scatter
+    left, as in the F-test).
 
     Everything is kept in the basis ``Z`` of the columns the quadratic forms live in (each
     fold's effect columns and its prediction map), so that no n × n matrix is formed:
@@ -179,10 +186,10 @@ def _real_effect_test(r, X, folds, Jb, cov, gain, s2=1.0):
     """
     n, k = X.shape
     F, B, XtX = [], [], []  # per fold: effect rows, prediction map, XpᵀXp
-    for held in folds:
+    for held, A in zip(folds, maps, strict=True):
         Fp = np.where(held[:, None], X, 0.0)
         Bp = np.zeros((n, k))
-        Bp[~held] = _pinv(X[~held]).T  # β(-p) = Bpᵀ r
+        Bp[~held] = A.T  # β(-p) = Bpᵀ r
         F.append(Fp)
         B.append(Bp)
         XtX.append(Fp.T @ Fp)
@@ -255,13 +262,13 @@ def check(base: FitResult, token: str, cache=None) -> HoldoutCheck:
     # misfit elsewhere (or a misstated σ) is noise to this check, not evidence
     s2 = float(left @ left) / max(base.dof - np.linalg.matrix_rank(X), 1)
     folds = [pos_of_row == k for k in range(len(o.positions))]
+    maps = _fold_maps(X, folds)
     per = {}
-    for name, held in zip(o.positions, folds, strict=True):
-        beta = _pinv(X[~held]) @ r[~held]
-        rp, e = r[held], r[held] - X[held] @ beta
+    for name, held, A in zip(o.positions, folds, maps, strict=True):
+        rp, e = r[held], r[held] - X[held] @ (A @ r[~held])
         per[name] = float(rp @ rp - e @ e)
     gain = float(sum(per.values()))
-    expected, sd, z = _real_effect_test(r, X, folds, Jb, cov, gain, s2)
+    expected, sd, z = _real_effect_test(r, X, folds, maps, Jb, cov, gain, s2)
     passed = bool(gain_in > 0 and not _falls_short(gain, expected, z))
     if passed and z < stats.norm.ppf(ALPHA):
         why = (f"fitted on the other placements, it predicts {100 * gain / expected:.0f} % "
