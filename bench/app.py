@@ -109,7 +109,7 @@ def _diagnose_page(case: str):
 def bench_diagnosis(runs: int = 5) -> list:
     """``(case, first click s, median s of the later clicks, median s of the core
     diagnosis, verdict)``."""
-    from cmm_core.diagnose import diagnose
+    from cmm_core.diagnosis import diagnose
 
     rows = []
     for case in ("thesis", "simulated sample"):
@@ -144,8 +144,8 @@ def bench_add_effect(runs: int = 3) -> list:
     a new diagnosis, fits cached as the app caches them) timed on the thesis data and on
     the simulated sample, undone between clicks; peer: the core refit and diagnosis called
     directly. ``(case, effect, median s app, median s core)``."""
-    from cmm_core.diagnose import diagnose
-    from cmm_core.fit import fit
+    from cmm_core.diagnosis import diagnose
+    from cmm_core.model import fit
 
     rows = []
     for case in ("thesis", "simulated sample"):
@@ -212,7 +212,7 @@ def bench_core_cases(runs: int = 3) -> list:
     sys.path.insert(0, str(ROOT / "tests"))
     from scenarios import simulated  # noqa: PLC0415
 
-    from cmm_core.diagnose import diagnose
+    from cmm_core.diagnosis import diagnose
 
     cases = [("pitch100_4pos", {"plate_sag": {"uu": -2.0, "uv": 0.5, "vv": -1.5}}),
              ("pitch80_3pos", {"probe_offset": {"sd_um": 2.0}}),

@@ -22,10 +22,8 @@ sys.path.insert(0, str(ROOT))
 
 from _timing import median_time  # noqa: E402
 
-from cmm_core.diagnose import diagnose  # noqa: E402
-from cmm_core.effects import parse_spec  # noqa: E402
-from cmm_core.fit import fit  # noqa: E402
-from cmm_core.simulate import simulate  # noqa: E402
+from cmm_core.diagnosis import diagnose  # noqa: E402
+from cmm_core.model import fit, parse_spec, simulate  # noqa: E402
 
 PREVIOUS = "718abca"  # last commit before the issue-18 diagnosis (one evaluation per candidate)
 REPEATS = 7

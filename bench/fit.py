@@ -41,12 +41,10 @@ sys.path.insert(0, str(ROOT))
 
 from _timing import median_time  # noqa: E402
 
-from cmm_core import kinematics as kin  # noqa: E402
-from cmm_core.dataset import thesis_dataset  # noqa: E402
-from cmm_core.effects import parse_spec  # noqa: E402
-from cmm_core.fit import Problem, fit, select  # noqa: E402
-from cmm_core.outliers import detect_outliers  # noqa: E402
-from cmm_core.simulate import simulate  # noqa: E402
+from cmm_core.diagnosis import detect_outliers  # noqa: E402
+from cmm_core.io import thesis_dataset  # noqa: E402
+from cmm_core.machine import kinematics as kin  # noqa: E402
+from cmm_core.model import Problem, fit, parse_spec, select, simulate  # noqa: E402
 
 PREVIOUS = "08e52a4"  # last commit with the batched-matmul forward model
 PREVIOUS_FIT = "718abca"  # last commit whose fit formed the sparse Jacobian

@@ -15,7 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from _timing import median_time  # noqa: E402
 
-from cmm_core.gum import Contribution, coverage_intervals, monte_carlo  # noqa: E402
+from cmm_core.gum import Contribution, coverage_intervals, monte_carlo
 
 M = 1_000_000
 REPEATS = 7

@@ -21,9 +21,8 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 import scenarios as sc  # noqa: E402
 
-from cmm_core.diagnose import OUTSIDE, diagnose  # noqa: E402
-from cmm_core.effects import parse_spec  # noqa: E402
-from cmm_core.fit import fit  # noqa: E402
+from cmm_core.diagnosis import OUTSIDE, diagnose  # noqa: E402
+from cmm_core.model import fit, parse_spec  # noqa: E402
 
 
 def limits(layout):

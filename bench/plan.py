@@ -31,12 +31,14 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from _timing import median_time  # noqa: E402
 
-from cmm_core.plan import evaluate, fit_plan_data, simulate_plan  # noqa: E402
-from cmm_core.plan_file import read_plan  # noqa: E402
-from cmm_core.plan_study import (  # noqa: E402
+from cmm_core.plan import (  # noqa: E402
     dask_client,
+    evaluate,
+    fit_plan_data,
+    read_plan,
     run_serial,
     run_tasks,
+    simulate_plan,
     summarise,
     tasks_for,
 )

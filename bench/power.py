@@ -24,8 +24,8 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "bench")]
 import scenarios as sc  # noqa: E402
 from honesty import hidden_configs, limits, loop  # noqa: E402
 
-from cmm_core.diagnose import diagnose  # noqa: E402
-from cmm_core.fit import fit  # noqa: E402
+from cmm_core.diagnosis import diagnose  # noqa: E402
+from cmm_core.model import fit  # noqa: E402
 
 
 def _scaled(o, f):

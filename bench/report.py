@@ -20,7 +20,7 @@ sys.path.insert(0, str(ROOT))
 from _timing import median_time  # noqa: E402
 
 from cmm_core import analysis as A  # noqa: E402
-from cmm_core import report as rep  # noqa: E402
+from cmm_core.analysis import report as rep  # noqa: E402
 
 PREVIOUS = "08e52a4"  # last commit with the previous report assembly
 RECORD = ROOT / "sample_data" / "analysis" / "thesis.json"

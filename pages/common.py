@@ -23,13 +23,11 @@ import pandas as pd
 import streamlit as st
 
 from cmm_core import analysis as A
-from cmm_core import report as rep  # noqa: F401 - pages use C.rep
-from cmm_core.dataset import THESIS_DIR, THESIS_POSITIONS, load_dataset
-from cmm_core.effects import parse_spec
-from cmm_core.fit import fit as core_fit
-from cmm_core.io import DataError
-from cmm_core.io_instruments import read_instrument
-from cmm_core.outliers import detect_outliers
+from cmm_core import analysis as rep
+from cmm_core.diagnosis import detect_outliers
+from cmm_core.io import THESIS_DIR, THESIS_POSITIONS, DataError, load_dataset
+from cmm_core.model import fit as core_fit
+from cmm_core.model import parse_spec, read_instrument
 
 DEFAULTS = {
     "spec": "kinematic21",
@@ -401,7 +399,7 @@ def current_fit(spec=None, *, show_error=True, instruments: bool = True):
 
 @st.cache_data(show_spinner=False, max_entries=64)
 def cached_uncertainty(key: FitKey, n_random, seed, _result):
-    from cmm_core.uncertainty import evaluate
+    from cmm_core.model import evaluate
     return evaluate(_result, n_random=n_random, seed=seed)
 
 
@@ -409,7 +407,7 @@ def cached_uncertainty(key: FitKey, n_random, seed, _result):
 def cached_gp_discrepancy(key: FitKey, _result) -> float:
     """GP discrepancy of a fit (µm): the structure a GP over its residuals finds, with the
     model's own design matrix as basis (``diagnose.discrepancy_gp``)."""
-    from cmm_core.diagnose import discrepancy_gp
+    from cmm_core.diagnosis import discrepancy_gp
 
     return float(discrepancy_gp(_result, restarts=1).rms_amplitude_um)
 
@@ -439,7 +437,7 @@ def run_diagnosis(show_progress: bool = False):
 
 @st.cache_data(show_spinner="Running the diagnosis…", max_entries=32)
 def _cached_core_diagnosis(key: FitKey, _ds, _instruments=(), _show_progress=False):
-    from cmm_core.diagnose import diagnose
+    from cmm_core.diagnosis import diagnose
 
     kw = key.fit_kwargs()
     # with instruments, every model the diagnosis scores or refits carries their rows

@@ -12,8 +12,8 @@ import streamlit as st
 
 from cmm_core import analysis as A
 from cmm_core import io as cio
-from cmm_core.dataset import THESIS_POSITIONS
-from cmm_core.kinematics import DEFAULT_LAYOUT, LAYOUTS
+from cmm_core.io import THESIS_POSITIONS
+from cmm_core.machine import DEFAULT_LAYOUT, LAYOUTS
 from pages import common as C
 
 C.page_start()
@@ -38,7 +38,7 @@ LAYOUT_NAMES = {  # docs/layouts.md, in words
 
 def _instrument_columns(kind: str) -> str | None:
     """The columns of an instrument file of ``kind`` (``io_instruments``), for the help."""
-    from cmm_core import io_instruments as ioi
+    from cmm_core.model import instrument_files as ioi
 
     need = getattr(ioi, f"{kind.upper()}_COLUMNS", None)
     opt = getattr(ioi, f"{kind.upper()}_OPTIONAL", ())
@@ -223,8 +223,8 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label=""):
 def _simulated_instruments(sim, seed: int) -> list:
     """A laser positioning run along x and a step gauge along a diagonal of the volume,
     measured on the simulation's true machine, as (kind, file name, text) triples."""
-    from cmm_core import instruments as ins
-    from cmm_core.io_instruments import write_laser, write_step_gauge
+    from cmm_core.model import instruments as ins
+    from cmm_core.model import write_laser, write_step_gauge
 
     rng = np.asarray(sim.dataset.setup.range_mm, float)
     laser = ins.simulate_laser(sim, "x", [0.0, 0.1 * rng[1], 0.1 * rng[2]],
@@ -375,7 +375,7 @@ with tab_sim:
         kin_cfg.update(spec=f"kinematic21,periodic_x:{per}",
                        coefficients={f"dxx[sin{per}]": amp, f"dxx[cos{per}]": 0.0})
     if st.button("Simulate", key="simulate", type="primary"):
-        from cmm_core.simulate import simulate
+        from cmm_core.model import simulate
 
         cfg = {"seed": int(seed), "noise_um": float(noise), "order": order,
                "probes_interleaved": bool(interleave),
@@ -383,7 +383,7 @@ with tab_sim:
                "kinematic": kin_cfg,
                "effects": eff}
         if layout != DEFAULT_LAYOUT:
-            from cmm_core.simulate import thesis_machine_setup
+            from cmm_core.model import thesis_machine_setup
 
             setup = thesis_machine_setup()
             setup["machine"]["layout"] = layout
@@ -469,7 +469,7 @@ with tab_proj:
                 s["reset_note"] = []  # the project's own settings, not defaults
                 note = ""
                 if s["sigma_um"] == "auto":  # a record written by the command line
-                    from cmm_core.diagnose import estimate_sigma
+                    from cmm_core.diagnosis import estimate_sigma
 
                     est = C.safe(estimate_sigma, C.dataset(), s["spec"], order=int(s["order"]),
                                  plate=None if s["plate"] == "auto" else s["plate"],

@@ -4,8 +4,8 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
-from cmm_core import residuals as res_mod
-from cmm_core.effects import PERIODIC, catalogue_entry, parse_spec
+from cmm_core.analysis import residuals as res_mod
+from cmm_core.model import PERIODIC, catalogue_entry, parse_spec
 from pages import common as C
 
 C.page_start()

@@ -7,11 +7,7 @@ import pandas as pd
 import streamlit as st
 
 from cmm_core import analysis as A
-from cmm_core import comp_table as ct
 from cmm_core import export as ex
-from cmm_core import report as rep
-from cmm_core import results_export as rx
-from cmm_core.compensate import model_to_dict
 from pages import common as C
 from pages.plan import task_section
 
@@ -63,7 +59,7 @@ def corrected(args, content_key, _points, _r):
 
 points = None
 if up is not None:
-    points = C.safe(ex.read_points, io.BytesIO(up.getvalue()), up.name, what="Points file")
+    points = C.safe(ex.read_points, io.BytesIO(up.getvalue()), name=up.name, what="Points file")
     ckey = (up.name, len(up.getvalue()), hash(up.getvalue()))
 elif use_example:
     t = r.table
@@ -152,18 +148,18 @@ with st.container(border=True):
 
     @st.cache_data(show_spinner="Computing the compensation tables…", max_entries=16)
     def comp_tables(args, step, probe, _r):
-        if ct.as_model(_r).undetermined:
+        if ex.as_model(_r).undetermined:
             return None
-        g = ct.compensation_grid(_r, step, probe=probe)
+        g = ex.compensation_grid(_r, step, probe=probe)
         src = MODEL_FILE
-        return ct.grid_csv(_r, g, probe, src), ct.axis_tables_zip(_r, step, src), len(g)
+        return ex.grid_csv(_r, g, probe, src), ex.axis_tables_zip(_r, step, src), len(g)
 
     @st.cache_data(show_spinner=False, max_entries=16)
     def results_files(args, k, _r):
         # of the model, named as its download: what the command line writes from that file
-        m = ct.as_model(_r)
-        return (rx.results_json(m, coverage_factor=k, source=MODEL_FILE),
-                rx.results_xml(m, coverage_factor=k, source=MODEL_FILE))
+        m = ex.as_model(_r)
+        return (ex.results_json(m, coverage_factor=k, source=MODEL_FILE),
+                ex.results_xml(m, coverage_factor=k, source=MODEL_FILE))
 
     tables = C.safe(comp_tables, args, float(cstep), None if cprobe == origin else cprobe,
                     r, what="Compensation tables")
@@ -178,7 +174,7 @@ with st.container(border=True):
                            "application/zip", key="dl_axis_tables", on_click="ignore",
                            help="axis_x/y/z.csv: the six error functions of each axis; "
                                 "squareness.csv.")
-    elif ct.as_model(r).undetermined:
+    elif ex.as_model(r).undetermined:
         t1.info("No compensation tables: the data do not determine every kinematic "
                 "combination, so the corrections would be an arbitrary choice.")
     if files is not None:
@@ -198,7 +194,7 @@ record = C.safe(A.record_from_session, s, what="Analysis record")
 
 @st.cache_data(show_spinner=False, max_entries=4)
 def report_html(record_json, _record):
-    return rep.analysis_report(_record)
+    return A.analysis_report(_record)
 
 
 def _report_bytes():
@@ -228,7 +224,7 @@ if record is not None:
                        help="Restores the dataset, model, exclusions and history on the "
                             "Data page.")
 c3.download_button("Fitted model (JSON, for `cmm_core compensate`)",
-                   lambda: json.dumps(model_to_dict(r), indent=1), MODEL_FILE,
+                   lambda: json.dumps(ex.model_to_dict(r), indent=1), MODEL_FILE,
                    "application/json", key="dl_model", on_click="ignore")
 c2.caption(f"Model `{r.spec}`, RMS {r.rms_um:.3f} µm, {r.n_obs} observations, "
            f"{len(s['exclusions'])} excluded. CSV files are safe to open in a spreadsheet "

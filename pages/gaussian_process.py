@@ -8,7 +8,7 @@ import pandas as pd
 import streamlit as st
 
 from cmm_core.analysis import measured_error_from_residuals_um
-from cmm_core.gp_cmm import gp_components, predict_grid
+from cmm_core.gp import gp_components, predict_grid
 from cmm_core.units import UM
 from pages import common as C
 
@@ -37,7 +37,7 @@ def kinematic_residual_u(args, _r):
     That difference is the fit's residual: the model was fitted to this very ball, so
     the two share its noise and the difference varies as σ√(1 − h_ii), less than
     √(u_model² + σ²) (``uncertainty.residual_u``)."""
-    from cmm_core.uncertainty import residual_u
+    from cmm_core.model import residual_u
 
     return residual_u(_r)
 
@@ -140,7 +140,7 @@ grid_m = grid_plate @ R.T + t
 sel = (meta["position"] == position).to_numpy()
 probe_k = str(meta["probe"][sel].iloc[0])
 pk = obs.p_mm[sel][0]
-from cmm_core.uncertainty import error_at  # noqa: E402
+from cmm_core.model import error_at  # noqa: E402
 
 e_kin_grid, u_kin_grid = error_at(r, grid_m - pk, probe_k)
 # remove the part the placement absorbs: align the kinematic surface like the data

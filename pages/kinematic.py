@@ -4,9 +4,8 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
-from cmm_core.effects import GROUPS, PHYSICAL, parse_spec
-from cmm_core.kinematics import ERROR_NAMES
-from cmm_core.observations import setup_layout
+from cmm_core.machine import ERROR_NAMES
+from cmm_core.model import GROUPS, PHYSICAL, parse_spec, setup_layout
 from cmm_core.units import label as unit_label
 from pages import common as C
 
@@ -192,7 +191,7 @@ with tabs[3], C.guarded("Residuals"):
 
 def instruments_section(r):
     """The instruments fitted with the plate: their residuals and the uncertainty gain."""
-    from cmm_core import instruments as ins
+    from cmm_core.model import instruments as ins
 
     st.subheader("Instruments fitted with the plate")
     table, readings = C.rep.instrument_tables(ins.summary(r), ins.residuals_frame(r))

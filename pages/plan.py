@@ -28,7 +28,7 @@ TASKS = {"distance": "task_distance.json", "circle": "task_circle.json",
 
 @st.cache_data(show_spinner=False, max_entries=16)
 def _plan_file(text: str):
-    from cmm_core.plan_file import read_plan
+    from cmm_core.plan import read_plan
 
     return read_plan(json.loads(text), name="plan", base_dir=PLANS_DIR)
 
@@ -44,7 +44,7 @@ def evaluate_plans(text: str) -> list:
 @st.cache_data(show_spinner="Designing…", max_entries=8)
 def design_plan(text: str) -> dict:
     """The design section's result (JSON record)."""
-    from cmm_core.plan_file import design_from_file
+    from cmm_core.plan import design_from_file
 
     return design_from_file(_plan_file(text)).to_dict()
 
@@ -52,8 +52,8 @@ def design_plan(text: str) -> dict:
 @st.cache_data(show_spinner="Computing the uncertainty map…", max_entries=32)
 def u_map(text: str, name: str, z_mm: float, n: int = 25):
     """U (k = 1, rigid part removed) of the error over an XY grid at height ``z_mm``."""
+    from cmm_core.model import rigid_removed_error_u
     from cmm_core.plan import design_fit
-    from cmm_core.uncertainty import rigid_removed_error_u
 
     plan = next(p for p in _plan_file(text).strategies if p.name == name)
     r = design_fit(plan)
@@ -205,8 +205,7 @@ def _check_section(text: str, evals: list) -> None:
                             key="w_plan_scheduler")
     if not st.button("Run the check", key="w_plan_check"):
         return
-    from cmm_core.plan import evaluate
-    from cmm_core.plan_study import check_plans
+    from cmm_core.plan import check_plans, evaluate
 
     bar = st.progress(0.0, "starting the Dask cluster…")
     with C.guarded("Monte Carlo check"):
@@ -232,8 +231,8 @@ def _check_section(text: str, evals: list) -> None:
 @st.cache_data(show_spinner="Monte Carlo of the task…", max_entries=16)
 def task_result(model_json: str, task_text: str, trials: int) -> dict:
     """The task's result and uncertainty (JSON record)."""
-    from cmm_core.compensate import model_from_dict
-    from cmm_core.task import read_task, task_uncertainty
+    from cmm_core.export import model_from_dict
+    from cmm_core.plan import read_task, task_uncertainty
 
     model = model_from_dict(json.loads(model_json), name="model")
     return task_uncertainty(model, read_task(json.loads(task_text), name="task"),
@@ -243,7 +242,7 @@ def task_result(model_json: str, task_text: str, trials: int) -> dict:
 def task_section() -> None:
     """Task-specific uncertainty of a distance, circle or plane measured with the current
     fit (or an uploaded saved model): Monte Carlo beside the law of propagation."""
-    from cmm_core.compensate import model_to_dict
+    from cmm_core.export import model_to_dict
 
     st.subheader("Task-specific uncertainty")
     st.caption("Points as the CMM reports them (tip centres, machine frame, mm) with their "

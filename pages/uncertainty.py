@@ -4,8 +4,10 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
-from cmm_core import air, budget, gum
-from cmm_core import mpe as mpe_mod
+from cmm_core.gum import air
+from cmm_core.gum import ballplate as budget
+from cmm_core.gum import evaluate as gum
+from cmm_core.gum import mpe as mpe_mod
 from pages import common as C
 
 C.page_start()
@@ -64,13 +66,13 @@ show = c4.radio("Uncertainty U (k = 2)", list(SHOW), format_func=SHOW.get, key="
 
 @st.cache_data(show_spinner=False, max_entries=64)
 def error_grid(args, z, probe, n, _r):
-    from cmm_core.uncertainty import error_at
+    from cmm_core.model import error_at
 
     xs = np.linspace(0, _r.problem.obs.range_mm[0], n)
     ys = np.linspace(0, _r.problem.obs.range_mm[1], n)
     X, Y = np.meshgrid(xs, ys)
     pts = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, z)])
-    from cmm_core.uncertainty import rigid_removed_error_u
+    from cmm_core.model import rigid_removed_error_u
 
     e, u = error_at(_r, pts, probe)
     return xs, ys, e, u, rigid_removed_error_u(_r, pts, probe)
@@ -116,7 +118,7 @@ if run_mc:
         rs = np.random.default_rng(1)
         pts = np.column_stack([rs.uniform(0, rng[0], 40), rs.uniform(0, rng[1], 40),
                                rs.uniform(0, rng[2], 40)])
-        from cmm_core.uncertainty import monte_carlo_error
+        from cmm_core.model import monte_carlo_error
 
         bar = st.progress(0.0, text="Monte Carlo…")
         _, u_mc, u_lin = monte_carlo_error(r, pts, probe, trials=int(trials),

@@ -18,10 +18,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from cmm_core.dataset import thesis_dataset  # noqa: E402
-from cmm_core.diagnose import OUTSIDE, diagnose  # noqa: E402
-from cmm_core.effects import parse_spec  # noqa: E402
-from cmm_core.outliers import detect_outliers  # noqa: E402
+from cmm_core.diagnosis import OUTSIDE, detect_outliers, diagnose  # noqa: E402
+from cmm_core.io import thesis_dataset  # noqa: E402
+from cmm_core.model import parse_spec  # noqa: E402
 
 DOC = ROOT / "docs" / "thesis-data.md"
 BEGIN, END = "<!-- thesis-walk:begin -->", "<!-- thesis-walk:end -->"

@@ -16,7 +16,7 @@ def rng():
 
 @pytest.fixture(scope="session")
 def thesis():
-    from cmm_core.dataset import thesis_dataset
+    from cmm_core.io import thesis_dataset
 
     return thesis_dataset()
 
@@ -24,6 +24,6 @@ def thesis():
 @pytest.fixture(scope="session")
 def thesis_clean(thesis):
     """The thesis data and the exclusions of its flagged blunders."""
-    from cmm_core.outliers import detect_outliers
+    from cmm_core.diagnosis import detect_outliers
 
     return thesis, detect_outliers(thesis).exclusions

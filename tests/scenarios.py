@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from cmm_core.dataset import Dataset
-from cmm_core.io import resolve
-from cmm_core.simulate import simulate
+from cmm_core.io import Dataset, resolve
+from cmm_core.model import simulate
 
 _H = {"u_axis": [1, 0, 0], "v_axis": [0, 1, 0]}
 _H90 = {"u_axis": [0, 1, 0], "v_axis": [-1, 0, 0]}

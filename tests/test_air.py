@@ -18,7 +18,7 @@ import math
 import numpy as np
 import pytest
 
-from cmm_core.air import (
+from cmm_core.gum import (
     air_from_args,
     refractive_index_edlen,
     refractive_index_sensitivities,

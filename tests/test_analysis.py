@@ -14,8 +14,8 @@ import pytest
 from scenarios import perturb, simulated
 
 from cmm_core import analysis as A
-from cmm_core.fit import fit
 from cmm_core.io import DataError
+from cmm_core.model import fit
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_data" / "analysis" / "thesis.json"
@@ -179,8 +179,8 @@ def test_bad_instrument_entries_are_refused_naming_the_key(entry, column, needle
 
 
 def test_record_run_with_instruments_equals_a_direct_joint_fit():
-    from cmm_core import instruments as ins
-    from cmm_core.io_instruments import read_laser, read_step_gauge
+    from cmm_core.model import instruments as ins
+    from cmm_core.model import read_laser, read_step_gauge
 
     rec = _with_instruments(A.read_record(SAMPLE), ("laser", INSTRUMENTS / "laser_x.csv"),
                             ("step_gauge", INSTRUMENTS / "step_gauge.csv"))

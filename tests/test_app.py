@@ -9,7 +9,7 @@ import pytest
 pytest.importorskip("streamlit")
 from streamlit.testing.v1 import AppTest  # noqa: E402
 
-from cmm_core import export  # noqa: E402
+from cmm_core.export import downloads as export
 
 ROOT = Path(__file__).resolve().parents[1]
 APP = str(ROOT / "app.py")
@@ -224,7 +224,7 @@ def test_remove_an_error_function():
 
 
 def parse(spec):
-    from cmm_core.effects import parse_spec
+    from cmm_core.model import parse_spec
 
     return parse_spec(spec).to_string()
 
@@ -261,7 +261,7 @@ def test_upload_with_its_own_setup_never_borrows_the_thesis_certificate(tmp_path
     """Acceptance finding: measurements and setup of another plate, no certificate: the
     thesis certificate stood in silently and the fit was 20 times the noise. Now the plate
     is self-calibrated and the load message says so."""
-    from cmm_core.simulate import simulate
+    from cmm_core.model import simulate
 
     simulate({"seed": 5}).write(tmp_path)
     at = _new()
@@ -461,8 +461,8 @@ def _thesis_project_text(exclusions):
 def test_a_project_with_sigma_auto_restores_with_the_estimate():
     """σ "auto" (a record from the command line): the app estimates it from the data with
     the core's estimator, says so, and fits with it."""
-    from cmm_core.dataset import thesis_dataset
-    from cmm_core.diagnose import estimate_sigma
+    from cmm_core.diagnosis import estimate_sigma
+    from cmm_core.io import thesis_dataset
 
     doc = json.loads(_thesis_project_text([]))
     doc["model"]["sigma_um"] = "auto"
@@ -643,7 +643,7 @@ def test_uncertainty_monte_carlo_budget_and_mpe():
     assert "decision" in table.columns
     # U of the decision is the test's by default (plate certificate + σ), named in the
     # caption; the CMM specification is the alternative (acceptance finding)
-    from cmm_core.mpe import conformity_uncertainty_um, uncertainty_um
+    from cmm_core.gum import conformity_uncertainty_um, uncertainty_um
 
     np.testing.assert_allclose(table["U_um"], conformity_uncertainty_um(table["length_mm"], 0.5))
     assert any("plate certificate" in c.value for c in at.caption)
@@ -658,7 +658,7 @@ def test_uncertainty_monte_carlo_budget_and_mpe():
 
 def _sim_upload(at, tmp_path, seed, label=""):
     """Upload a simulated dataset's measurements.csv and setup.json, optionally named."""
-    from cmm_core.simulate import simulate
+    from cmm_core.model import simulate
 
     d = tmp_path / f"case{seed}"
     simulate({"seed": seed}).write(d)
@@ -727,7 +727,7 @@ def test_without_a_setup_the_stand_in_is_named_and_unknown_positions_ask_for_one
     assert "thesis setup (stand-in: no setup uploaded)" in text
     assert "thesis certificate (stand-in: none uploaded)" in text
     # positions the thesis setup does not know: the problem says so and asks for a setup
-    from cmm_core.simulate import simulate
+    from cmm_core.model import simulate
 
     simulate({"seed": 4}).write(tmp_path)
     long = (tmp_path / "measurements.csv").read_text().replace("BP111,", "H1,")

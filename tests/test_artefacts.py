@@ -17,21 +17,24 @@ import numpy as np
 import pytest
 from test_instruments import fd_rows_jacobian, plate_and_joint_with_predicted_u
 
-from cmm_core import instruments as ins
-from cmm_core import kinematics as kin
 from cmm_core.cli import main
-from cmm_core.effects import parse_spec
-from cmm_core.fit import Problem, fit, select
-from cmm_core.instruments_ballbar import BallBar
 from cmm_core.io import DataError, read_setup
-from cmm_core.io_instruments import (
+from cmm_core.machine import kinematics as kin
+from cmm_core.model import (
     INSTRUMENT_KINDS,
+    BallBar,
+    Problem,
+    fit,
+    parse_spec,
     read_ball_bar,
     read_instrument,
+    select,
+    simulate,
+    simulate_ball_bar,
     write_ball_bar,
     write_instrument,
 )
-from cmm_core.simulate import simulate
+from cmm_core.model import instruments as ins
 
 HERE = Path(__file__).resolve().parent
 EXACT = {"plate": {"form_um": 2.0, "certificate_u_um": 0.0}}
@@ -61,7 +64,7 @@ def _ends(centres, directions, length_mm):
 
 def _bar(sim, centres=((600.0, 500.0, 350.0),), directions=XY + XZ + YZ, length_mm=500.0,
          seed=5, **kw):
-    return ins.simulate_ball_bar(sim, *_ends(centres, directions, length_mm), seed=seed, **kw)
+    return simulate_ball_bar(sim, *_ends(centres, directions, length_mm), seed=seed, **kw)
 
 
 # --- ball bar: the observation model ----------------------------------------------------------
@@ -440,7 +443,7 @@ def test_an_unknown_artefact_is_refused(value, message):
 def _tilted_setup(theta_rad):
     """The thesis placements (machine frame, hole plate), each turned by ``theta_rad``
     about its own u axis: the plate's v axis leaves the nominal plane."""
-    from cmm_core.simulate import thesis_machine_setup
+    from cmm_core.model import thesis_machine_setup
 
     raw = thesis_machine_setup()
     raw["artefact"] = "hole_plate"
@@ -458,7 +461,7 @@ def test_hole_plate_placement_tilt_comes_from_the_measured_plane():
     measured centres, so every kinematic coefficient is within 3 u of the truth. Held at
     the nominal tilt, the v coordinates were short by θ²/2 = 2e-6 and dzz[1] came out
     11 u off with χ²/dof passing."""
-    from cmm_core.hole_plate import tilt_note
+    from cmm_core.model import tilt_note
 
     sim = simulate({"seed": 3, **EXACT, "setup": _tilted_setup(2e-3)})
     nominal = _tilted_setup(0.0)
@@ -498,7 +501,7 @@ def test_hole_plate_outlier_check_ignores_the_probing_depth():
     """Three holes probed 0.3 mm deeper (300 µm along the hole axis, 30 times the 10 µm
     floor): a hole plate's normal coordinate is its probing height, so nothing is
     flagged; the same data as a ball plate flag exactly those three along z."""
-    from cmm_core.outliers import detect_outliers
+    from cmm_core.diagnosis import detect_outliers
 
     ds = _deeper(_hole_sim().dataset, [3, 40, 77], 0.3)
     rep = detect_outliers(ds)
@@ -513,7 +516,7 @@ def test_hole_plate_repeats_pool_the_in_plane_coordinates():
     """Every hole measured twice, the second time at another probing depth (up to
     ±0.3 mm): σ from the repeats pools the two in-plane coordinates only, two degrees of
     freedom per repeat, and finds the simulated 0.5 µm (u of the estimate ~0.01 µm)."""
-    from cmm_core import repeatability as rp
+    from cmm_core.diagnosis import replicates as rp
 
     sim = _hole_sim(repeats=2)
     ds = sim.dataset
@@ -538,8 +541,8 @@ def test_hole_plate_misfit_uniformity_counts_two_components_per_hole():
     which an axis test expecting three equal components always rejected (p = 0, "axis y
     carries 62 %"); with each axis's share of the degrees of freedom from the in-plane
     projector the misfit is uniform and z is neither tested nor named."""
-    from cmm_core import repeatability as rp
-    from cmm_core.verdict import misfit_location
+    from cmm_core.diagnosis import misfit_location
+    from cmm_core.diagnosis import replicates as rp
 
     r = fit(_hole_sim().dataset, "kinematic21", positions=["BP111", "BP112"])
     u = rp.uniformity(r)
@@ -554,7 +557,7 @@ def test_hole_plate_understated_sigma_is_the_suspect():
     component anywhere): as for a ball plate
     (tests/test_honesty.py), no verdict, the misfit uniform and σ the suspect, with an
     estimate within 3 u of 0.5 µm (it ended as outside_catalogue)."""
-    from cmm_core.diagnose import diagnose
+    from cmm_core.diagnosis import diagnose
 
     d = diagnose(_hole_sim().dataset, "kinematic21", sigma_um=0.35,
                  positions=["BP111", "BP112"])

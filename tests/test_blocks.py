@@ -5,12 +5,17 @@ import numpy as np
 import pytest
 import scenarios as sc
 
-from cmm_core import blocks
-from cmm_core.diagnose import diagnose
-from cmm_core.effects import PHYSICAL, catalogue_entry, parse_spec
-from cmm_core.fit import fit, weighted_residual
+from cmm_core.diagnosis import diagnose
 from cmm_core.io import DataError
-from cmm_core.simulate import simulate
+from cmm_core.model import (
+    PHYSICAL,
+    blocks,
+    catalogue_entry,
+    fit,
+    parse_spec,
+    simulate,
+    weighted_residual,
+)
 
 MACHINE = {"x_cte_per_K": 5e-6, "y_cte_per_K": -4e-6, "z_cte_per_K": 3e-6}
 """Expansion coefficients (errors) of a few ppm/K: steel scales (11.5 ppm/K) compensated
@@ -91,7 +96,7 @@ def test_scores_with_and_without_the_shared_cache_agree():
     """The diagnosis scores every candidate from one evaluation of the model with all of
     them added (``ScoreCache``); each candidate scored on its own gives the same Δχ²,
     added rank and uncertainties (1e-8 relative: rounding of two summation orders)."""
-    from cmm_core.scoring import ScoreCache, score
+    from cmm_core.diagnosis import ScoreCache, score
 
     sim = sc.simulated("pitch100_4pos", 21, order="serpentine",
                        effects={"plate_sag": {"uu": -1.5}})

@@ -270,9 +270,9 @@ def test_report_and_project_downloads_then_restore(page):
     _no_exception(page)
     if html is None:
         # the same core function the button calls, on the same inputs
-        from cmm_core import report
-        from cmm_core.dataset import thesis_dataset
-        from cmm_core.fit import fit
+        from cmm_core.analysis import report
+        from cmm_core.io import thesis_dataset
+        from cmm_core.model import fit
 
         ds = thesis_dataset()
         html = report.build_report(ds, fit(ds, exclude=[("BP112", "2", 7)]),

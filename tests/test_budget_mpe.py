@@ -7,21 +7,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cmm_core.budget import (
+from cmm_core.gum import (
+    DECISIONS,
     THESIS_ENVIRONMENT,
     BallPlateBudgetInputs,
     average_environment,
     ballplate_budget,
+    budget_from_dict,
     budget_spec_dict,
     budget_vs_length,
     cmm_uncertainty_um,
+    decide,
     default_inputs,
     inputs_from_record,
+    line_pairs,
+    mpe_check,
+    mpe_um,
     plate_lengths_mm,
     thesis_budgets,
+    uncertainty_um,
 )
-from cmm_core.gum import budget_from_dict
-from cmm_core.mpe import DECISIONS, decide, line_pairs, mpe_check, mpe_um, uncertainty_um
 
 ROOT = Path(__file__).resolve().parents[1]
 THESIS = ROOT / "sample_data" / "thesis"
@@ -199,7 +204,7 @@ def test_mpe_validation():
 def test_conformity_uncertainty_of_a_length_error_by_hand():
     """L = 532 mm, σ = 0.5 µm: plate U = √(0.26² + (1.9e-3·532)²) = 1.0437 µm (k = 2), so
     u = √((1.0437/2)² + 2·0.5²) = 0.8789 µm and U = 1.758 µm."""
-    from cmm_core.mpe import conformity_uncertainty_um
+    from cmm_core.gum import conformity_uncertainty_um
 
     assert float(conformity_uncertainty_um(532.0, 0.5)) == pytest.approx(1.7578, abs=5e-4)
     assert float(conformity_uncertainty_um(0.0, 0.0)) == pytest.approx(0.26)

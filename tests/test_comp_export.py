@@ -18,12 +18,12 @@ import pandas as pd
 import pytest
 from scipy.spatial.transform import Rotation
 
-from cmm_core import comp_table as ct
-from cmm_core import export_cli
-from cmm_core import kinematics as kin
-from cmm_core import results_export as rx
-from cmm_core.compensate import Model, compensate, load_model, model_from_result, save_model
+from cmm_core.cli import export as export_cli
+from cmm_core.export import Model, compensate, load_model, model_from_result, save_model
+from cmm_core.export import comp_tables as ct
+from cmm_core.export import results as rx
 from cmm_core.io import DataError
+from cmm_core.machine import kinematics as kin
 
 ROOT = Path(__file__).resolve().parents[1]
 CHAINS = {"moving_bridge_fxyz": "Fxyz", "moving_bridge_fyxz": "Fyxz",
@@ -40,8 +40,8 @@ FLOAT_TOL_UM = 1e-9
 
 @pytest.fixture(scope="module")
 def thesis_fit(request):
-    from cmm_core.dataset import thesis_dataset
-    from cmm_core.fit import fit
+    from cmm_core.io import thesis_dataset
+    from cmm_core.model import fit
 
     return fit(thesis_dataset())
 
@@ -177,8 +177,8 @@ def test_headers_state_units_sign_layout_probe_and_the_chi2_test(thesis_fit):
 
 
 def test_refusals(thesis_fit):
-    from cmm_core.dataset import thesis_dataset
-    from cmm_core.fit import fit
+    from cmm_core.io import thesis_dataset
+    from cmm_core.model import fit
 
     under = fit(thesis_dataset(), positions=["BP111", "BP112"])
     with pytest.raises(DataError, match="do not determine") as exc:
@@ -220,8 +220,8 @@ def test_results_json_round_trips_every_number(thesis_fit):
 
 
 def test_results_xml_parses_and_round_trips(thesis_fit):
-    from cmm_core.dataset import thesis_dataset
-    from cmm_core.fit import fit
+    from cmm_core.io import thesis_dataset
+    from cmm_core.model import fit
 
     root = ET.fromstring(rx.results_xml(thesis_fit, source='fit <of> "thesis" & more'))
     assert root.tag == "MeasurementResults" and root.get("version") == "1"
@@ -332,8 +332,7 @@ def test_export_page_offers_the_new_downloads():
 def test_backlash_is_a_characteristic_and_named_as_not_in_the_tables():
     """A model fitted with backlash: the saved model's results carry the spans with the
     fit's uncertainties; the tables (position only) say they do not hold them."""
-    from cmm_core.fit import fit
-    from cmm_core.simulate import simulate
+    from cmm_core.model import fit, simulate
 
     sim = simulate({"seed": 4, "order": "serpentine",
                     "effects": {"backlash": {"x_um": 2.0, "y_um": 1.0}}})
@@ -351,8 +350,8 @@ def test_backlash_is_a_characteristic_and_named_as_not_in_the_tables():
 
 
 def test_cli_refuses_an_undetermined_model_and_writes_nothing(tmp_path, capsys):
-    from cmm_core.dataset import thesis_dataset
-    from cmm_core.fit import fit
+    from cmm_core.io import thesis_dataset
+    from cmm_core.model import fit
 
     model = tmp_path / "under.json"
     save_model(fit(thesis_dataset(), positions=["BP111", "BP112"]), model)
@@ -400,8 +399,7 @@ def test_hole_plate_results_say_hole_plate_and_leave_held_parameters_undetermine
     saved model, and what gauge constraints hold (each hole's normal coordinate, each
     placement's tilt and normal translation: here the horizontal placements' rx, ry and
     tz) is not determined, with no uncertainty (it was exported as 0 ± 0, determined)."""
-    from cmm_core.fit import fit
-    from cmm_core.simulate import simulate
+    from cmm_core.model import fit, simulate
 
     sim = simulate({"seed": 5, "artefact": "hole_plate",
                     "plate": {"form_um": 2.0, "certificate_u_um": 0.1}})
@@ -423,8 +421,7 @@ def test_results_of_the_app_equal_those_of_the_cli_from_the_saved_model(tmp_path
     """A backlash fit: the Export page's results (of the fit's model, named as the model
     file it offers) and `python -m cmm_core export cmm_model.json` give the same document,
     χ² test included (a model file kept no statistic: dof and p were null)."""
-    from cmm_core.fit import fit
-    from cmm_core.simulate import simulate
+    from cmm_core.model import fit, simulate
 
     sim = simulate({"seed": 4, "order": "serpentine",
                     "effects": {"backlash": {"x_um": 2.0, "y_um": 1.0}}})

@@ -10,17 +10,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cmm_core import kinematics as kin
-from cmm_core.compensate import (
-    compensate,
-    load_model,
-    model_from_dict,
-    model_to_dict,
-    read_points,
-)
-from cmm_core.fit import fit
+from cmm_core.export import compensate, load_model, model_from_dict, model_to_dict, read_points
 from cmm_core.io import SCALE_TEMP_COLUMNS, DataError
-from cmm_core.simulate import simulate
+from cmm_core.machine import kinematics as kin
+from cmm_core.model import fit, simulate
 
 LEGACY = Path(__file__).resolve().parent / "corpus" / "legacy_models"
 NUMERIC = ["xc_mm", "yc_mm", "zc_mm", "ex_um", "ey_um", "ez_um", "u_x_um", "u_y_um",

@@ -17,10 +17,8 @@ correlated within a data set (about 4 independent values per set, as the issue's
 import numpy as np
 import pytest
 
-from cmm_core import kinematics as kin
-from cmm_core.fit import fit
-from cmm_core.simulate import simulate
-from cmm_core.uncertainty import aligned_error_u, error_at, residual_u
+from cmm_core.machine import kinematics as kin
+from cmm_core.model import aligned_error_u, error_at, fit, residual_u, simulate
 
 EXACT = {"plate": {"form_um": 2.0, "certificate_u_um": 0.0}}
 K95 = 1.959964  # two-sided 95 % quantile of the standard normal

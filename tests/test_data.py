@@ -8,9 +8,15 @@ import pandas as pd
 import pytest
 from conftest import ROOT, THESIS
 
-from cmm_core.dataset import THESIS_POSITIONS, load_dataset
-from cmm_core.io import DataError, read_certificate, read_measurements, read_setup
-from cmm_core.outliers import detect_outliers
+from cmm_core.diagnosis import detect_outliers
+from cmm_core.io import (
+    THESIS_POSITIONS,
+    DataError,
+    load_dataset,
+    read_certificate,
+    read_measurements,
+    read_setup,
+)
 
 
 def test_table_6_8_reproduced_to_printed_digits(thesis):
@@ -44,7 +50,7 @@ def test_gross_outliers_flagged(thesis):
 
 
 def test_no_false_outliers_on_clean_simulation():
-    from cmm_core.simulate import simulate
+    from cmm_core.model import simulate
 
     sim = simulate({"seed": 4})
     assert detect_outliers(sim.dataset).outliers == []

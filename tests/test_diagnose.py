@@ -4,11 +4,9 @@ adding it brings χ²/dof into [0.75, 1.3]; with nothing hidden the verdict is n
 import numpy as np
 import pytest
 
-from cmm_core.diagnose import diagnose
-from cmm_core.effects import catalogue_entry, parse_spec
-from cmm_core.fit import fit
-from cmm_core.kinematics import ERROR_NAMES
-from cmm_core.simulate import simulate
+from cmm_core.diagnosis import diagnose
+from cmm_core.machine import ERROR_NAMES
+from cmm_core.model import catalogue_entry, fit, parse_spec, simulate
 
 # Realistic magnitudes: a few µm, a few arcseconds (1" = 4.85 µrad), 1-2 K.
 HIDDEN = {
@@ -76,7 +74,7 @@ def test_missing_data_skips_candidates_with_reason(thesis):
 
 
 def test_thesis_diagnosis_runs_end_to_end(thesis):
-    from cmm_core.outliers import detect_outliers
+    from cmm_core.diagnosis import detect_outliers
 
     d = diagnose(thesis, "kinematic21", exclude=detect_outliers(thesis).exclusions)
     assert d.baseline.chi2_dof > 10  # the thesis data are far from explained by 21 errors
@@ -98,7 +96,7 @@ def test_gp_discrepancy_shrinks_when_the_missing_effect_is_added(seed):
     basis, sees the hidden sag as smooth structure in z; adding plate_sag leaves noise, so
     the structure the GP finds in z falls to a fraction (seeds 5-8 give ratios 0-0.22)
     and the one-number history value falls with it."""
-    from cmm_core.diagnose import discrepancy_gp
+    from cmm_core.diagnosis import discrepancy_gp
 
     sim = simulate({"seed": seed,
                     "effects": {"plate_sag": {"uu": -2.0, "uv": 0.5, "vv": -1.5}}})
@@ -200,7 +198,7 @@ def test_a_period_the_ball_spacing_cannot_resolve_is_not_scanned():
     """60 mm along x is under half the 133 mm ball pitch: the plate samples it as another
     period, and anything that differs from ball to ball or placement to placement fits
     such periods as well. No period below 2.5 pitches (333 mm) is scanned."""
-    from cmm_core.diagnose import shortest_resolvable_period
+    from cmm_core.model import shortest_resolvable_period
 
     sim = _periodic_sim(0, "x", 60, pitch_mm=133.0, balls=5)
     d = diagnose(sim.dataset, "kinematic21")
@@ -295,7 +293,7 @@ def test_a_slow_baseline_is_refitted_to_convergence_before_scoring(thesis):
 def test_an_unconverged_baseline_names_no_effect(monkeypatch):
     """Plate sag hidden, but every fit stopped after one iteration: no verdict, and the
     message says why instead of crediting the baseline's unfinished descent to an effect."""
-    import cmm_core.diagnose as dg
+    import cmm_core.diagnosis.search as dg
 
     real = dg.fit
     monkeypatch.setattr(dg, "fit", lambda *a, **k: real(*a, **{**k, "max_iter": 1}))
@@ -317,7 +315,7 @@ def test_two_orders_of_one_function_are_not_reported_as_aliases():
 
 
 def _candidate(effect, p, level, dbic):
-    from cmm_core.diagnose import Candidate
+    from cmm_core.diagnosis import Candidate
 
     return Candidate(effect, effect, "", "", "", 0.5, 1.0, 30.0, 1, dbic, p, True, True,
                      np.zeros((1, 3)), level=level)
@@ -336,7 +334,7 @@ def test_mutual_aliases_are_named_in_weighted_holm_order(monkeypatch, rival, nam
     plate sag hidden at its detection limit, was named rxx:3 by ΔBIC)."""
     from types import SimpleNamespace
 
-    from cmm_core import verdict as V
+    from cmm_core.diagnosis import verdict as V
 
     monkeypatch.setattr(V, "_refit", lambda base, spec, max_iter, cache=None: spec)
     monkeypatch.setattr(V, "_nested_p", lambda small, big: 0.5)

@@ -2,8 +2,8 @@
 
 import pytest
 
-from cmm_core.effects import catalogue_entry, parse_spec
-from cmm_core.kinematics import ROTATIONAL, SQUARENESS
+from cmm_core.machine import ROTATIONAL, SQUARENESS
+from cmm_core.model import catalogue_entry, parse_spec
 
 
 @pytest.mark.parametrize("spec,expected", [

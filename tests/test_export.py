@@ -7,10 +7,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cmm_core import export, report
-from cmm_core.dataset import THESIS_DIR, THESIS_POSITIONS, thesis_dataset
-from cmm_core.fit import fit
-from cmm_core.io import DataError
+from cmm_core import analysis as report
+from cmm_core import export
+from cmm_core.io import THESIS_DIR, THESIS_POSITIONS, DataError, thesis_dataset
+from cmm_core.model import fit
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +55,7 @@ def test_parameters_and_residuals_csv(result):
 
 
 def test_error_map_grid_matches_the_model(result):
-    from cmm_core.uncertainty import error_at
+    from cmm_core.model import error_at
 
     g = export.error_map_grid(result, step_mm=(300, 250, 350))
     assert list(g.columns) == ["x_mm", "y_mm", "z_mm", "ex_um", "ey_um", "ez_um",
@@ -75,7 +75,7 @@ def test_error_map_grid_matches_the_model(result):
 
 
 def test_error_map_header_says_a_fitted_backlash_is_not_in_the_table():
-    from cmm_core.simulate import simulate
+    from cmm_core.model import simulate
 
     sim = simulate({"seed": 4, "order": "serpentine",
                     "effects": {"backlash": {"x_um": 2.0, "y_um": 1.0}}})
@@ -89,7 +89,7 @@ def test_error_map_header_says_a_fitted_backlash_is_not_in_the_table():
 def test_error_map_header_says_a_fitted_scale_expansion_is_not_in_the_table():
     """The grid is for the scales at 20 °C: a fitted machine_thermal expansion is named
     in the header with its value and uncertainty (simulated 1 ppm/K on x)."""
-    from cmm_core.simulate import simulate
+    from cmm_core.model import simulate
 
     sim = simulate({"seed": 3, "effects": {"machine_thermal": {
         "x_cte_per_K": 1e-6, "temp_C": {"BP111": [20, 23], "BP211": [21, 24],
@@ -103,7 +103,7 @@ def test_error_map_header_says_a_fitted_scale_expansion_is_not_in_the_table():
 
 
 def test_compensation_adds_the_error(result):
-    from cmm_core.uncertainty import error_at
+    from cmm_core.model import error_at
 
     obs = result.problem.obs
     pts = pd.DataFrame({"probe": ["1", "3"], "x_mm": [500.0, 700.0], "y_mm": [400.0, 300.0],
@@ -118,16 +118,16 @@ def test_compensation_adds_the_error(result):
 
 def test_read_points_reports_row_and_column():
     with pytest.raises(DataError) as exc:
-        export.read_points(b"probe,x_mm,y_mm,z_mm\n1,1,2,3\n1,abc,2,3\n", "pts.csv")
+        export.read_points(b"probe,x_mm,y_mm,z_mm\n1,1,2,3\n1,abc,2,3\n", name="pts.csv")
     assert exc.value.row == 3 and exc.value.column == "x_mm"
     with pytest.raises(DataError):
-        export.read_points(b"a,b\n1,2\n", "pts.csv")
+        export.read_points(b"a,b\n1,2\n", name="pts.csv")
 
 
 def test_unknown_probe_is_reported_at_its_file_row_past_blank_lines(result):
     """Header row 1, a point on row 2, two blank lines, the bad probe on row 5."""
     pts = export.read_points(b"probe,x_mm,y_mm,z_mm\n1,400,300,100\n\n\n9,400,300,100\n",
-                             "pts.csv")
+                             name="pts.csv")
     with pytest.raises(DataError) as exc:
         export.compensate_points(result, pts)
     assert exc.value.row == 5 and exc.value.column == "probe" and "'9'" in str(exc.value)
@@ -157,7 +157,7 @@ def test_project_roundtrip_restores_everything():
     assert doc["exclusions"] == [("BP112", "2", 7)]
     assert doc["history"][0]["rms_um"] is None  # NaN is not JSON
     # the restored files load into the same dataset
-    from cmm_core.dataset import load_dataset
+    from cmm_core.io import load_dataset
 
     ds = load_dataset([(io.StringIO(c), n) for n, c in doc["measurements"]],
                       io.StringIO(doc["setup"]), (io.StringIO(doc["certificate"][1]),
@@ -197,7 +197,7 @@ def test_report_is_self_contained(result):
 def test_report_carries_the_mpe_check_and_the_diagnosis_verdict(result):
     """Acceptance finding: a report to file needs the conformity result and the verdict
     in words, not only a table of 43 candidates."""
-    from cmm_core.mpe import check_dataset
+    from cmm_core.gum import check_dataset
 
     ds = thesis_dataset()
     check, skipped = check_dataset(ds, sigma_um=0.5)
@@ -250,7 +250,7 @@ def test_true_function_curve_reads_the_coefficient_labels(spec):
     """Fed the fit's own coefficients as 'truth', the dashed true curves coincide with the
     fitted ones (same basis reached from the labels), including straightness (no linear
     term), squareness (a constant angle) and a periodic term."""
-    from cmm_core.simulate import simulate
+    from cmm_core.model import simulate
 
     sim = simulate({"seed": 5, "kinematic": {"spec": spec}})
     r = fit(sim.dataset, spec)
@@ -296,8 +296,9 @@ def test_error_map_is_the_compensation_grid(result):
     same numbers; the region test of compensate), under its own column names. Before,
     its x axis stopped at 1050 of 1200 mm for a 350 mm step and it had no
     extrapolation flag."""
-    from cmm_core import comp_table as ct
-    from cmm_core.compensate import _extrapolation_note, model_from_result
+    from cmm_core.export import comp_tables as ct
+    from cmm_core.export import model_from_result
+    from cmm_core.export.correction import extrapolation_note
 
     g = export.error_map_grid(result, step_mm=350.0)
     c = ct.compensation_grid(result, 350.0, probe=result.problem.obs.probes[0],
@@ -307,7 +308,7 @@ def test_error_map_is_the_compensation_grid(result):
         assert g[f"{a}_mm"].equals(c[f"{a}_mm"])
         assert g[f"e{a}_um"].equals(c[f"c{a}_um"]) and g[f"u_e{a}_um"].equals(c[f"u_c{a}_um"])
     x = g[["x_mm", "y_mm", "z_mm"]].to_numpy()
-    flag = (_extrapolation_note(model_from_result(result), x) != "").astype(int)
+    flag = (extrapolation_note(model_from_result(result), x) != "").astype(int)
     assert (g["extrapolated"].to_numpy() == flag).all() and 0 < flag.sum() < len(g)
     text = export.error_map_csv(result, g)
     assert "# extrapolated: 1 where the node lies outside" in text

@@ -18,7 +18,7 @@ def test_export_page_corrects_its_example_points_with_a_machine_thermal_model(tm
     """A fit with machine_thermal: the example points (the fit's own rows) carry their
     scale temperatures, so the page corrects them as it opens (it failed: "needs
     temp_x_C"), and the upload caption names the columns a points file needs."""
-    from cmm_core.simulate import simulate
+    from cmm_core.model import simulate
 
     d = tmp_path / "thermal"
     simulate({"seed": 2, "effects": {"machine_thermal": {

@@ -5,13 +5,19 @@ from itertools import combinations
 import numpy as np
 import pytest
 
-from cmm_core import kinematics as kin
-from cmm_core.compensate import compensate, model_from_dict, model_to_dict
-from cmm_core.fit import approach_directions, fit, weighted_residual
+from cmm_core.diagnosis import detect_outliers
+from cmm_core.export import compensate, model_from_dict, model_to_dict
 from cmm_core.io import DataError
-from cmm_core.outliers import detect_outliers
-from cmm_core.simulate import simulate
-from cmm_core.uncertainty import error_at, evaluate, rigid_body_projector
+from cmm_core.machine import kinematics as kin
+from cmm_core.model import (
+    approach_directions,
+    error_at,
+    evaluate,
+    fit,
+    rigid_body_projector,
+    simulate,
+    weighted_residual,
+)
 
 EXACT_PLATE = {"plate": {"form_um": 2.0, "certificate_u_um": 0.0}}
 
@@ -229,7 +235,7 @@ def test_monte_carlo_error_matches_a_loop_over_draws_and_the_propagated_u():
     each draw on its own gives, and the spread agrees with the linearised u to the
     Monte Carlo's own sampling error (4000 draws: relative sd of a standard deviation
     1/sqrt(2·4000) = 1.1 %; accept 5 %, i.e. 4.5 sd)."""
-    from cmm_core.uncertainty import monte_carlo_error
+    from cmm_core.model import monte_carlo_error
 
     r = fit(simulate({"seed": 3}).dataset, "kinematic21")
     pts = np.array([[400.0, 300.0, 100.0], [800.0, 700.0, 500.0]])
@@ -284,8 +290,8 @@ def test_an_undetermined_backlash_span_makes_the_model_undetermined():
     undetermined and corrected points carry no finite uncertainty."""
     import pandas as pd
 
-    from cmm_core.compensate import model_from_result
-    from cmm_core.fit import select
+    from cmm_core.export import model_from_result
+    from cmm_core.model import select
 
     sim = simulate({"seed": 2, "order": "serpentine",
                     "effects": {"backlash": {"x_um": 3.0, "y_um": -2.0}}})
@@ -316,7 +322,7 @@ def test_aligned_error_u_matches_a_monte_carlo_with_the_placement_refitted():
     Carlo: coefficients drawn from N(estimate, covariance), the exact model evaluated at
     one position's balls, a small rigid motion least-squares fitted and removed from each
     draw; 800 draws give the standard deviation to about 2.5 %, hence 10 %."""
-    from cmm_core.uncertainty import aligned_error_u
+    from cmm_core.model import aligned_error_u
 
     sim = simulate({"seed": 9})
     r = fit(sim.dataset, "kinematic21")
@@ -338,7 +344,7 @@ def test_aligned_error_u_matches_a_monte_carlo_with_the_placement_refitted():
     u_mc = resid.std(axis=1, ddof=1).reshape(-1, 3)
     np.testing.assert_allclose(u[idx], u_mc, rtol=0.10)
     # the rigid part is what made the absolute u large
-    from cmm_core.uncertainty import error_at
+    from cmm_core.model import error_at
     _, u_abs = error_at(r, x, obs.probes[obs.probe[idx[0]]])
     assert np.median(u[idx]) < 0.5 * np.median(u_abs)
 
@@ -346,7 +352,7 @@ def test_aligned_error_u_matches_a_monte_carlo_with_the_placement_refitted():
 def test_rigid_removed_map_u_equals_the_projected_covariance():
     """The map's fast path (Q Qᵀ never formed) against P V Pᵀ with the explicit projector
     (the thesis's xux2uzsp form) on a small grid; and it is the smaller of the two."""
-    from cmm_core.uncertainty import (
+    from cmm_core.model import (
         error_at,
         error_covariance,
         rigid_body_projector,
@@ -372,7 +378,7 @@ def test_with_the_certificate_fixed_its_uncertainty_is_in_every_parameter_u():
     0.99), and are too large with σ alone (1.37). Tolerance: the RMS of 40 data sets of
     correlated coefficients has a standard error of at most 1/sqrt(80) = 0.11 (coefficients
     fully correlated within a set), so ±0.2 is about 2 standard errors."""
-    from cmm_core.simulate import simulate
+    from cmm_core.model import simulate
 
     z_cert, z_sigma = [], []
     for seed in range(40):
@@ -396,8 +402,7 @@ def test_with_the_certificate_fixed_residual_u_and_the_birge_scaling_count_it_on
     0.3 % with residuals nearly independent), z RMS of the 33 coefficients with u_inflated
     within 1 ± 0.2 (standard error at most 1/sqrt(30) = 0.18 with fully correlated
     coefficients)."""
-    from cmm_core.simulate import simulate
-    from cmm_core.uncertainty import residual_u
+    from cmm_core.model import residual_u, simulate
 
     hits, z = [], []
     for seed in range(15):
@@ -417,7 +422,7 @@ def test_u1_u3_inflation_scales_the_noise_part_only(thesis):
     """Under misfit (thesis data) U1-U3 are shown Birge-inflated: with the plate free all of
     u is noise and the inflated U is U × B exactly; with the certificate fixed its part is
     not scaled, so U < inflated U < U × B."""
-    from cmm_core.uncertainty import evaluate
+    from cmm_core.model import evaluate
 
     free = fit(thesis, "kinematic21", plate="free")
     u = evaluate(free, n_random=50)

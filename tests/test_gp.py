@@ -12,12 +12,14 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from cmm_core.gp import fit_gp, log_marginal_likelihood, polynomial_basis
-from cmm_core.gp_cmm import (
+from cmm_core.gp import (
     appendix3_workflow,
     box_grid,
+    fit_gp,
     gp_components,
+    log_marginal_likelihood,
     plate_grid,
+    polynomial_basis,
     predict_grid,
 )
 
@@ -365,7 +367,7 @@ def test_thesis_data_components(thesis):
 
 
 def test_paths_from_file():
-    assert (ROOT / "cmm_core" / "gp.py").exists()
+    assert (ROOT / "cmm_core" / "gp" / "regression.py").exists()
 
 
 # ----------------------------------------------------------------- length-scale and noise groups
@@ -474,7 +476,7 @@ def test_collapsed_length_scale_is_degenerate_with_the_next_best_offered(rng):
 def test_thesis_collapsed_gp_is_not_reported_converged(thesis):
     """Issue 11: on the thesis data the Y-error GP over tip coordinates collapsed to
     0.6 mm (the lower bound) against a 133 mm pitch and was reported as converged."""
-    from cmm_core.fit import fit
+    from cmm_core.model import fit
 
     ex = [("BP112", "2", 7), ("BP112", "2", 10), ("BP312", "6", 16)]
     rig = fit(thesis, "rigid", exclude=ex)
@@ -499,7 +501,7 @@ def test_thesis_probe_input_loo_coverage_per_component(thesis):
     scale each, one noise level per stylus) the GPs' 95 % leave-one-out intervals cover
     95 ± 2 % of the thesis points in every component (tip coordinates alone: x 93.9,
     z 93.2 % with the y GP collapsed). 147 points: one point is 0.7 %."""
-    from cmm_core.fit import fit
+    from cmm_core.model import fit
 
     ex = [("BP112", "2", 7), ("BP112", "2", 10), ("BP312", "6", 16)]
     rig = fit(thesis, "rigid", exclude=ex)
@@ -537,7 +539,7 @@ def test_likelihood_and_gradient_equal_the_dense_textbook_formulas(rng):
     P as WᵀW never formed) against R&W eq. 2.45 and 5.9 written with the full matrices:
     P = K⁻¹ - K⁻¹H A⁻¹ HᵀK⁻¹, ∂/∂θ_j = ½ tr((ααᵀ - P) ∂K_j). Both are exact; the
     difference is round-off of n = 40 dense solves (1e-10 relative)."""
-    from cmm_core import gp
+    from cmm_core.gp import regression as gp
 
     X = rng.uniform(0, 500, (40, 2))
     y = _surface(X) + 0.3 * rng.standard_normal(40)
@@ -570,7 +572,7 @@ def test_likelihood_and_gradient_equal_the_dense_textbook_formulas(rng):
 def test_restarts_are_a_latin_hypercube_over_the_whole_bounds(data2d, monkeypatch):
     """Each restart coordinate falls in its own one of ``restarts`` equal strata of the
     (log) bounds: the short and long ends of every range are searched."""
-    from cmm_core import gp
+    from cmm_core.gp import regression as gp
 
     seen = {}
     real = gp._optimise
@@ -595,7 +597,7 @@ def test_subset_then_polish_finds_the_direct_optimum(rng, monkeypatch):
     Hessian is ~1e3, a log ML error ~1e-13), hyperparameters to 1e-5 relative (step
     ~g/H = 1e-8 in log units, with margin for the flat σ_f-length direction), in fewer
     evaluations on all the points."""
-    from cmm_core import gp
+    from cmm_core.gp import regression as gp
 
     X = rng.uniform(0, 500, (700, 2))
     y = _surface(X) + 0.3 * rng.standard_normal(700)
@@ -609,17 +611,3 @@ def test_subset_then_polish_finds_the_direct_optimum(rng, monkeypatch):
                                    rtol=1e-5, err_msg=k)
     assert fast.n_evaluations < direct.n_evaluations
 
-
-def test_gp_module_still_exports_every_public_name():
-    """Issue 12 split gp.py into gp_basis, gp_likelihood, gp_prepare, gp_optimise,
-    gp_degeneracy and gp_result: ``cmm_core.gp`` still holds every public name, the same
-    objects as the modules that define them. (``fit_gp`` reads ``_optimise`` and
-    ``_PREFIT_POINTS`` from ``cmm_core.gp``: the speed tests above patch them there.)"""
-    from cmm_core import gp, gp_basis, gp_likelihood, gp_optimise, gp_result
-
-    assert set(gp.__all__) == {"GPResult", "fit_gp", "log_marginal_likelihood",
-                               "polynomial_basis", "MEANS", "KERNELS"}
-    assert gp.GPResult is gp_result.GPResult
-    assert gp.polynomial_basis is gp_basis.polynomial_basis and gp.MEANS is gp_basis.MEANS
-    assert gp.KERNELS is gp_likelihood.KERNELS
-    assert gp._optimise is gp_optimise._optimise

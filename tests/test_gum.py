@@ -254,19 +254,3 @@ def test_budget_from_dict_errors(bad, match):
         budget_from_dict(bad)
     assert "\n" not in str(err.value)
 
-
-def test_gum_module_still_exports_every_public_name():
-    """Issue 12 split gum.py into gum_inputs, gum_framework and gum_mc: ``cmm_core.gum``
-    still holds every public name, and the very objects of the modules that define them
-    (an isinstance check on a Contribution made either way holds)."""
-    import importlib
-
-    from cmm_core import gum
-
-    for name in gum.__all__:
-        obj = getattr(gum, name)
-        home = getattr(obj, "__module__", None)
-        if home is not None:
-            assert getattr(importlib.import_module(home), name) is obj, name
-    assert {"Contribution", "gum_combine", "monte_carlo", "coverage_intervals",
-            "budget_from_dict", "MonteCarloResult", "GumResult"} <= set(gum.__all__)

@@ -28,9 +28,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from cmm_core.cli import MAX_MESSAGE, main
-from cmm_core.compensate import model_from_dict
+from cmm_core.export import model_from_dict
 from cmm_core.io import DataError, read_certificate, read_measurements, read_setup
-from cmm_core.simulate import simulate
+from cmm_core.model import simulate
 
 CORPUS = ROOT / "tests" / "corpus"
 SIM = ROOT / "sample_data" / "simulated"

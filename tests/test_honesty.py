@@ -10,13 +10,11 @@ import numpy as np
 import pytest
 import scenarios as sc
 
-from cmm_core import holdout
 from cmm_core._blas import single_blas_thread
-from cmm_core.certificate_check import check_certificate
-from cmm_core.dataset import Dataset
-from cmm_core.diagnose import OUTSIDE, diagnose
-from cmm_core.fit import Problem, fit
-from cmm_core.io import Certificate
+from cmm_core.diagnosis import OUTSIDE, check_certificate, diagnose
+from cmm_core.diagnosis import crossval as holdout
+from cmm_core.io import Certificate, Dataset
+from cmm_core.model import Problem, fit
 
 
 @pytest.mark.parametrize("layout", list(sc.LAYOUTS))
@@ -223,7 +221,7 @@ def test_prior_rows_along_the_plate_gauge_are_zero_and_not_counted_as_dof():
     3 rotations, scale) hold its deviation from the certificate at zero along those modes:
     the prior rows carry exactly nothing there (to 1e-9 of their size), so the degrees of
     freedom are the rows minus the rank minus those 7, as ``fit`` counts them."""
-    from cmm_core.blocks.plate import Plate
+    from cmm_core.model import Plate
 
     sim = sc.simulated("pitch80_3pos", 5, plate={"certificate_u_um": 0.3})
     r = fit(sim.dataset, "kinematic21", plate="prior")

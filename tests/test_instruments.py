@@ -12,23 +12,26 @@ import json
 import numpy as np
 import pytest
 
-from cmm_core import instruments as ins
-from cmm_core import kinematics as kin
-from cmm_core import normal as _normal
 from cmm_core.cli import main
-from cmm_core.dataset import SAMPLE_DIR
-from cmm_core.fit import Problem, fit, select, weighted_residual
-from cmm_core.instruments import LaserRun, StepGauge
-from cmm_core.io import DataError
-from cmm_core.io_instruments import (
+from cmm_core.diagnosis import score
+from cmm_core.io import SAMPLE_DIR, DataError
+from cmm_core.machine import kinematics as kin
+from cmm_core.model import (
+    LaserRun,
+    Normal,
+    Problem,
+    StepGauge,
+    fit,
     read_laser,
     read_step_gauge,
+    select,
+    simulate,
+    weighted_residual,
     write_laser,
     write_step_gauge,
 )
-from cmm_core.scoring import score
-from cmm_core.simulate import simulate
-from cmm_core.solver import Normal
+from cmm_core.model import instruments as ins
+from cmm_core.model import normal as _normal
 
 EXACT = {"plate": {"form_um": 2.0, "certificate_u_um": 0.0}}
 SAMPLES = SAMPLE_DIR / "instruments"
@@ -56,7 +59,7 @@ def _problem(sim, items, spec="kinematic21", plate="fixed", layout=None):
     obs = select(sim.dataset)
     obs = dataclasses.replace(obs, instruments=tuple(items),
                               **({"layout": layout} if layout else {}))
-    from cmm_core.effects import parse_spec
+    from cmm_core.model import parse_spec
 
     return Problem(obs, parse_spec(spec), plate)
 
@@ -270,7 +273,7 @@ def test_the_diagnosis_scores_a_candidate_the_laser_sees():
     d0 = score(base0, "dxx:3")[0]
     d1, dk, *_ = score(base, "dxx:3")
     assert dk == 1 and d1 > 10 * max(d0, 1.0) and d1 > 100
-    from cmm_core.diagnose import diagnose
+    from cmm_core.diagnosis import diagnose
 
     dg = diagnose(base.problem.obs, "kinematic21", candidates=["dxx:3", "dyy:3", "plate_sag"])
     assert dg.verdict == "dxx:3", dg.message
@@ -387,8 +390,8 @@ def test_two_instrument_files_of_the_same_name_keep_their_own_statistics():
     """Review finding: the report grouped readings by file name, so two runs.csv from
     different folders showed one pooled RMS residual/u. Each instrument's own RMS of
     residual/u comes from its own readings."""
-    from cmm_core.fit import fit
-    from cmm_core.residuals import instrument_tables
+    from cmm_core.analysis import instrument_tables
+    from cmm_core.model import fit
 
     sim = _sim()
     a = dataclasses.replace(ins.simulate_laser(sim, "x", [0, 100, 50], XS, u_um=0.2, seed=5),

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from cmm_core import kinematics as kin
-from cmm_core.effects import parse_spec
+from cmm_core.machine import kinematics as kin
+from cmm_core.model import parse_spec
 
 RANGE = (1200.0, 1000.0, 700.0)
 

@@ -8,15 +8,19 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cmm_core import kinematics as kin
-from cmm_core.compensate import compensate, model_from_dict, model_to_dict
-from cmm_core.diagnose import diagnose
-from cmm_core.effects import parse_spec
-from cmm_core.fit import fit
+from cmm_core.diagnosis import diagnose
+from cmm_core.export import compensate, model_from_dict, model_to_dict
 from cmm_core.io import DataError, read_setup
-from cmm_core.kinematics_layouts import forward_block, split_chain
-from cmm_core.simulate import simulate, thesis_machine_setup
-from cmm_core.uncertainty import evaluate, rigid_body_projector
+from cmm_core.machine import forward_block, split_chain
+from cmm_core.machine import kinematics as kin
+from cmm_core.model import (
+    evaluate,
+    fit,
+    parse_spec,
+    rigid_body_projector,
+    simulate,
+    thesis_machine_setup,
+)
 
 RANGE_MM = (1200.0, 1000.0, 700.0)
 # one layout per distinct chain (the gantries share the moving bridges' chains)

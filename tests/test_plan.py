@@ -10,12 +10,17 @@ import pytest
 from scipy import stats
 from scipy.linalg import subspace_angles
 
-from cmm_core.fit import fit
 from cmm_core.io import DataError
-from cmm_core.plan import evaluate, fit_plan_data, simulate_plan
-from cmm_core.plan_detect import detection_trial, noncentrality_for_power
-from cmm_core.plan_file import read_plan
-from cmm_core.uncertainty import evaluate as evaluate_u
+from cmm_core.model import evaluate as evaluate_u
+from cmm_core.model import fit
+from cmm_core.plan import (
+    detection_trial,
+    evaluate,
+    fit_plan_data,
+    noncentrality_for_power,
+    read_plan,
+    simulate_plan,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 PLAN = ROOT / "sample_data" / "plans" / "thesis_plan.json"
@@ -90,7 +95,7 @@ def test_detection_limits_follow_the_diagnosis_rules(plans, six):
     """The levels and the rank each effect adds are the diagnosis's own: a diagnosis of
     simulated data of the plan tries the same effects at the same levels, and each
     candidate adds the rank the plan predicts."""
-    from cmm_core.diagnose import diagnose
+    from cmm_core.diagnosis import diagnose
 
     plan = plans["thesis (all six)"]
     data = simulate_plan(plan, seed=3, noise_um=plan.noise_um, prior=True)
@@ -199,7 +204,7 @@ DESIGN = ROOT / "sample_data" / "plans" / "thesis_design.json"
 
 @pytest.fixture(scope="module")
 def designed():
-    from cmm_core.plan_file import design_from_file
+    from cmm_core.plan import design_from_file
 
     return design_from_file(read_plan(DESIGN))
 
@@ -209,7 +214,7 @@ def test_designer_meets_the_target_cheaper_than_random_plans(designed):
     sag detectable), the designer's plan is no larger than the best of 20 random plans of
     the same pool that meet it. The random plans here are drawn independently of the
     designer's own restarts (another seed)."""
-    from cmm_core.plan_design import PoolModel, meets, random_plans
+    from cmm_core.plan import PoolModel, meets, random_plans
 
     pf = read_plan(DESIGN)
     target = pf.design["target"]
@@ -231,7 +236,8 @@ def test_designer_meets_the_target_cheaper_than_random_plans(designed):
 def test_fast_figures_are_the_exact_evaluation(plans):
     """The designer's figures from summed unit Gram matrices equal the exact evaluation
     (noise-free fit, uncertainty.evaluate, plan_detect) to rounding."""
-    from cmm_core.plan_design import PoolModel, _as_plan, figures
+    from cmm_core.plan import PoolModel, figures
+    from cmm_core.plan.designer import _as_plan
 
     pf = read_plan(DESIGN)
     pool = {p: tuple(q) for p, q in pf.design["pool"].items()}
@@ -250,7 +256,7 @@ def test_dask_study_on_two_local_workers_equals_the_serial_loop(six):
     """The study maps independent tasks over a dask.distributed LocalCluster of 2 workers
     (threads here, to keep the test short); every record equals the serial loop's (same
     seeds), progress reaches 1, and the summary compares prediction with observation."""
-    from cmm_core.plan_study import check_plans, run_serial, run_tasks, summarise, tasks_for
+    from cmm_core.plan import check_plans, run_serial, run_tasks, summarise, tasks_for
 
     tasks = tasks_for([six], 2, ["plate_sag"])
     assert len(tasks) == 4
@@ -345,7 +351,7 @@ def test_a_misspelt_expected_effect_is_refused():
     import json
 
     from cmm_core.io import DataError
-    from cmm_core.plan_file import read_plan
+    from cmm_core.plan import read_plan
 
     raw = json.loads(PLAN.read_text())
     raw.setdefault("model", {})["expected"] = {"plate_sagg": 2}

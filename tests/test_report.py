@@ -13,7 +13,7 @@ import pytest
 from scenarios import simulated
 
 from cmm_core import analysis as A
-from cmm_core import report as rep
+from cmm_core.analysis import report as rep
 from cmm_core.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,9 +44,9 @@ def test_export_page_calls_the_cli_function_on_the_session_record():
     """No AppTest needed: the page builds the record with the core function and renders
     it with the function the CLI calls; it assembles no report arguments itself."""
     src = (ROOT / "pages" / "export.py").read_text()
-    assert "A.record_from_session, s," in src and "rep.analysis_report(_record)" in src
+    assert "A.record_from_session, s," in src and "A.analysis_report(_record)" in src
     assert "build_report" not in src
-    cli = (ROOT / "cmm_core" / "report.py").read_text()
+    cli = (ROOT / "cmm_core" / "analysis" / "report.py").read_text()
     assert "res = run(read_record(Path(analysis_path)))" in cli and "text = render(res)" in cli
     assert "def analysis_report" in cli
 

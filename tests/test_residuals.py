@@ -3,10 +3,9 @@
 import numpy as np
 import pytest
 
-from cmm_core.fit import fit
-from cmm_core.outliers import detect_outliers
-from cmm_core.residuals import against_coordinates, approach_split, breakdown, position_trends
-from cmm_core.simulate import simulate
+from cmm_core.analysis import against_coordinates, approach_split, breakdown, position_trends
+from cmm_core.diagnosis import detect_outliers
+from cmm_core.model import fit, simulate
 
 
 def test_breakdown_shares_sum_to_one_and_find_the_bad_position():

@@ -7,7 +7,7 @@ import re
 import pytest
 
 from cmm_core.io import DataError
-from cmm_core.simulate import simulate
+from cmm_core.model import simulate
 
 
 @pytest.mark.parametrize("effects, column, message", [

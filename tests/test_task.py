@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cmm_core import kinematics as kin
-from cmm_core.compensate import Model, load_model, save_model
-from cmm_core.fit import fit
+from cmm_core.export import Model, load_model, save_model
 from cmm_core.io import DataError
-from cmm_core.task import read_task, task_uncertainty
+from cmm_core.machine import kinematics as kin
+from cmm_core.model import fit
+from cmm_core.plan import read_task, task_uncertainty
 
 ROOT = Path(__file__).resolve().parents[1]
 PLANS = ROOT / "sample_data" / "plans"
@@ -174,7 +174,7 @@ def test_a_model_with_backlash_says_its_spans_are_not_applied():
     """Task points carry no measurement order or scale temperatures: the parts of the
     model that need them (backlash, machine_thermal) are left out, and the message says
     so instead of passing the result off as fully corrected."""
-    from cmm_core.compensate import load_model
+    from cmm_core.export import load_model
 
     model = load_model(ROOT / "tests" / "corpus" / "legacy_models" / "model_backlash.json")
     res = task_uncertainty(model, _task("task_distance.json", trials=200))

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from cmm_core import instruments as ins
-from cmm_core.io_instruments import write_laser, write_step_gauge
-from cmm_core.simulate import simulate
+from cmm_core.model import instruments as ins
+from cmm_core.model import simulate
+from cmm_core.model.instrument_files import write_laser, write_step_gauge
 
 HERE = Path(__file__).resolve().parent
 SIM = HERE.parent / "simulated"

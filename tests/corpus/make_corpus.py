@@ -8,9 +8,8 @@ import copy
 import json
 import pathlib
 
-from cmm_core.compensate import model_to_dict
-from cmm_core.fit import fit
-from cmm_core.simulate import simulate
+from cmm_core.export import model_to_dict
+from cmm_core.model import fit, simulate
 
 C = pathlib.Path("tests/corpus")
 SIM = pathlib.Path("sample_data/simulated")

@@ -12,9 +12,8 @@ import pathlib
 import numpy as np
 import pandas as pd
 
-from cmm_core.compensate import compensate, load_model, save_model
-from cmm_core.fit import fit
-from cmm_core.simulate import simulate
+from cmm_core.export import compensate, load_model, save_model
+from cmm_core.model import fit, simulate
 
 HERE = pathlib.Path(__file__).resolve().parent
 

@@ -1,0 +1,144 @@
+"""The analysis record's types and conventions (``analysis``): the files of an analysis,
+the record itself, the sign of the measured error and the outlier default, each defined
+once for the app, the command line and the report."""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..io import DataError
+from ..model import INSTRUMENT_KINDS, read_instrument
+
+__all__ = ["FORMAT", "VERSION", "DEFAULT_EXCLUDE_OUTLIERS", "ERROR_CONVENTION",
+           "PLATE_CHOICES", "GP_MEANS", "GP_KERNELS", "MPE_U_SOURCES", "measured_error_um",
+           "measured_error_from_residuals_um", "DataFile", "instrument_kinds",
+           "InstrumentFile", "DataSources", "AnalysisRecord"]
+
+FORMAT = "cmm-error-lab-analysis"
+"""Value of the ``format`` key of an analysis record file."""
+VERSION = 1
+"""Version of the record format written by this code."""
+DEFAULT_EXCLUDE_OUTLIERS = False
+"""Flagged outliers stay in the fit unless excluded by name or by ``exclude_outliers``:
+excluding silently what a robust check flags hides a real effect as easily as a gross
+error, so the app and the CLI both show the flags and exclude only what the record says."""
+ERROR_CONVENTION = ("measured error = true − reported (µm): the true point is the reported "
+                    "point plus the error, which is what compensation adds")
+"""The sign of every error shown by the app, the CLI and the report."""
+PLATE_CHOICES = ("auto", "fixed", "prior", "free")
+GP_MEANS = ("zero", "quadratic", "thesis_quadratic", "kinematic")
+GP_KERNELS, MPE_U_SOURCES = ("se_iso", "se_ard"), ("test", "cmm_spec")
+
+
+def measured_error_um(reported_mm, true_mm) -> np.ndarray:
+    """Measured error (µm, :data:`ERROR_CONVENTION`) of points as the CMM reports them
+    (``reported_mm``, (n, 3)) given their true or corrected positions (``true_mm``)."""
+    return (np.asarray(true_mm, float) - np.asarray(reported_mm, float)) * 1e3
+
+
+def measured_error_from_residuals_um(residuals_um) -> np.ndarray:
+    """Measured error (µm) from the residuals of a fit with no error model (``rigid``):
+    the residual is reported minus placed ball, so the error is its negative."""
+    return -np.asarray(residuals_um, float)
+
+
+@dataclass(frozen=True)
+class DataFile:
+    """One input file, by path or by content (exactly one of the two)."""
+
+    name: str
+    """File name used in messages; thesis-form measurement files name their position."""
+    path: str | None = None
+    """Path of the file (relative paths are resolved against the record's folder)."""
+    content: str | None = None
+    """The file's text, when the record carries it (the app's downloads do)."""
+
+    def text(self) -> str:
+        """The file's text (read from ``path`` when the record does not carry it)."""
+        if self.content is not None:
+            return self.content
+        try:
+            return Path(self.path).read_bytes().decode("utf-8-sig")
+        except (OSError, UnicodeDecodeError) as exc:
+            why = getattr(exc, "strerror", None) or "not UTF-8 text"
+            raise DataError(f"cannot be read ({why}).", file=Path(self.path).name) from None
+
+
+def instrument_kinds() -> tuple:
+    """The instrument kinds a record may name (``io_instruments.INSTRUMENT_KINDS``)."""
+    return tuple(INSTRUMENT_KINDS)
+
+
+@dataclass(frozen=True)
+class InstrumentFile:
+    """One instrument file of an analysis (docs/instruments.md)."""
+
+    kind: str
+    """Instrument kind, one of :func:`instrument_kinds` (``laser``, ``step_gauge``)."""
+    file: DataFile
+    """The file, by path or by content."""
+
+    def read(self):
+        """The instrument's readings (``io_instruments``); DataError when bad."""
+        return read_instrument(io.StringIO(self.file.text()), self.kind, name=self.file.name)
+
+
+@dataclass(frozen=True)
+class DataSources:
+    """The data of an analysis: measurements, setup, an optional certificate and
+    instrument files."""
+
+    name: str
+    """Dataset label shown in the app and the report."""
+    measurements: tuple
+    """:class:`DataFile` per measurement file (one long-form or one per position)."""
+    setup: DataFile
+    """The setup JSON."""
+    certificate: DataFile | None = None
+    """The plate certificate CSV; None: the plate is self-calibrated."""
+    instruments: tuple = ()
+    """:class:`InstrumentFile` per laser run or step-gauge file, fitted with the plate."""
+
+
+@dataclass(frozen=True)
+class AnalysisRecord:
+    """Everything that decides the numbers of an analysis (docs/report.md)."""
+
+    data: DataSources
+    """Input files."""
+    spec: str = "kinematic21"
+    """Model spec (docs/formats.md#model-specs)."""
+    order: int = 2
+    """Default polynomial order of the error functions, 1-5."""
+    plate: str = "auto"
+    """Plate geometry: auto (fixed with a certificate, else free), fixed, prior, free."""
+    sigma_um: float | str = 0.5
+    """Repeatability of one probed coordinate, µm, or "auto" (estimated from the data)."""
+    positions: tuple | None = None
+    """Positions fitted (None: all)."""
+    probes: tuple | None = None
+    """Probes fitted (None: all)."""
+    exclusions: tuple = ()
+    """``(position, probe, ball)`` observations the user excluded."""
+    exclude_outliers: bool = DEFAULT_EXCLUDE_OUTLIERS
+    """Also exclude every observation the robust outlier check flags."""
+    history: tuple = ()
+    """``(spec, change)`` steps of the diagnosis history, first the baseline."""
+    diagnose: bool = False
+    """Run the diagnosis (ranked missing effects) and report it."""
+    uncertainty_points: int = 200
+    """Random points of U2/U3 (thesis §4.5.3)."""
+    uncertainty_seed: int = 0
+    """Seed of those points."""
+    gp_mean: str | None = None
+    """GP of the measured errors with this mean (:data:`GP_MEANS`); None: no GP."""
+    gp_kernel: str = "se_iso"
+    """GP covariance: se_iso or se_ard."""
+    mpe_u_source: str = "test"
+    """U of the MPE decision: "test" (certificate and σ) or "cmm_spec"."""
+    magnification: float = 2000.0
+    """Magnification of the deviation plots."""

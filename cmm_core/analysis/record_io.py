@@ -1,0 +1,277 @@
+"""Reading and writing analysis records (``ANALYSIS.json``, docs/report.md), building one
+from the app session, and carrying one in a project file. Every refusal names the file,
+the key and what was expected."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import fields
+from pathlib import Path
+
+from ..export import project_from_json, project_to_json
+from ..io import DataError, read_json, refuse_unknown_keys
+from ..io.errors import cut_repr
+from ..model import MAX_ORDER, parse_spec
+from .record import (
+    FORMAT,
+    GP_KERNELS,
+    GP_MEANS,
+    MPE_U_SOURCES,
+    PLATE_CHOICES,
+    VERSION,
+    AnalysisRecord,
+    DataFile,
+    DataSources,
+    InstrumentFile,
+    instrument_kinds,
+)
+
+__all__ = ["KEYS", "instruments_from_list", "record_from_dict", "record_to_dict",
+           "record_to_json", "read_record", "record_from_session",
+           "record_to_project_json", "record_from_project"]
+
+KEYS = [f.name for f in fields(AnalysisRecord)]
+_DATA_KEYS = ("name", "measurements", "setup", "certificate", "instruments")
+_FILE_KEYS = ("name", "path", "content")
+
+
+def instruments_from_list(items, name, where="data.instruments", base=None) -> tuple:
+    """:class:`InstrumentFile` per entry of a JSON list (``{"kind", "path"}`` or ``{"kind",
+    "name", "content"}``); DataError naming ``name`` and the entry otherwise."""
+    _check(isinstance(items, list), name, where, "a list of instrument files", items)
+    return tuple(_instrument(x, name, f"{where}[{i}]", base) for i, x in enumerate(items))
+
+
+def _instrument(obj, name, where, base) -> InstrumentFile:
+    _check(isinstance(obj, dict) and "kind" in obj, name, where,
+           "an object {\"kind\": ..., \"path\": ...} or {\"kind\": ..., \"name\": ..., "
+           "\"content\": ...}", obj)
+    kind = obj["kind"]
+    try:
+        refuse_unknown_keys({str(kind): None}, instrument_kinds(), name,
+                            what="instrument kind")
+    except DataError as exc:
+        raise DataError(exc.detail, file=name, column=where + ".kind") from None
+    rest = {k: v for k, v in obj.items() if k != "kind"}
+    return InstrumentFile(str(kind), _file(rest, name, where, base))
+
+
+def _file(obj, name, where, base) -> DataFile:
+    if isinstance(obj, str):
+        obj = {"path": obj}
+    if not isinstance(obj, dict):
+        raise DataError(f"expected {{\"path\": ...}} or {{\"name\": ..., \"content\": ...}}, "
+                        f"found {cut_repr(obj)}.", file=name, column=where)
+    refuse_unknown_keys(obj, _FILE_KEYS, name, where + ".")
+    path, content = obj.get("path"), obj.get("content")
+    if (path is None) == (content is None) or not isinstance(path or content, str):
+        raise DataError("expected exactly one of path (text) and content (text).", file=name,
+                        column=where)
+    if path is not None and base is not None and not Path(path).is_absolute():
+        path = str(Path(base) / path)
+    label = obj.get("name") or (Path(path).name if path else None)
+    if not isinstance(label, str) or not label:
+        raise DataError("expected a file name (name) with the content.", file=name,
+                        column=where)
+    return DataFile(label, path, content)
+
+
+def _check(cond, name, key, expected, found):
+    if not cond:
+        t = json.dumps(found, ensure_ascii=False, default=str)  # as written in the file
+        raise DataError(f"{key} must be {expected}, found {t[:60]}.", file=name, column=key)
+
+
+def _num(lo, hi, whole=True):
+    return lambda v: (isinstance(v, int | float) and not isinstance(v, bool) and lo <= v <= hi
+                      and (not whole or float(v).is_integer()))
+
+
+def _one_of(choices, none=False):
+    return (lambda v: v in choices or (none and v is None),
+            ("null or " if none else "") + "one of " + ", ".join(choices), lambda v: v)
+
+
+_NAMES = (lambda v: v is None or (isinstance(v, list) and len(v) > 0
+                                  and all(isinstance(x, str | int) for x in v)),
+          "null (all) or a non-empty list of names",
+          lambda v: None if v is None else tuple(str(x) for x in v))
+_BOOL = (lambda v: isinstance(v, bool), "true or false", bool)
+_RULES = {  # key: (test, what is expected, conversion)
+    "spec": (lambda v: isinstance(v, str), "a model spec such as \"kinematic21,plate_sag\"",
+             str),
+    "order": (_num(1, MAX_ORDER), f"a whole number 1-{MAX_ORDER}", int),
+    "plate": _one_of(PLATE_CHOICES),
+    "sigma_um": (lambda v: v == "auto" or (_num(0, 1e3, False)(v) and v > 0),
+                 "a repeatability in µm between 0 and 1000, or \"auto\"",
+                 lambda v: v if v == "auto" else float(v)),
+    "positions": _NAMES, "probes": _NAMES, "exclude_outliers": _BOOL, "diagnose": _BOOL,
+    "uncertainty_points": (_num(20, 100_000), "a whole number 20-100000", int),
+    "uncertainty_seed": (_num(0, 2**31), "a whole number 0-2147483648", int),
+    "gp_mean": _one_of(GP_MEANS, none=True), "gp_kernel": _one_of(GP_KERNELS),
+    "mpe_u_source": _one_of(MPE_U_SOURCES),
+    "magnification": (_num(1, 1e6, False), "a number 1-1000000", float),
+}
+
+
+def record_from_dict(doc, name="ANALYSIS.json", base=None) -> AnalysisRecord:
+    """Check an analysis document (parsed JSON, docs/report.md) and build the record.
+
+    ``name`` is the file named in messages, ``base`` the folder relative data paths are
+    resolved against. Raises :class:`DataError` naming the key, what was expected and what
+    was found; an unknown key is refused with the known key it most likely misspells.
+    """
+    _check(isinstance(doc, dict), name, "(document)", "a JSON object", type(doc).__name__)
+    refuse_unknown_keys(doc, ["format", "version", *KEYS], name)
+    if doc.get("format") != FORMAT:
+        raise DataError(f"is not an analysis record (expected \"format\": \"{FORMAT}\", "
+                        f"found {cut_repr(doc.get('format'))!r}).", file=name, column="format")
+    _check(_num(1, VERSION)(doc.get("version", VERSION)), name, "version",
+           f"a whole number 1-{VERSION} (a newer file needs a newer cmm_core)",
+           doc.get("version"))
+    d = doc.get("data")
+    _check(isinstance(d, dict) and "setup" in d, name, "data",
+           "an object with measurements and setup", d)
+    refuse_unknown_keys(d, _DATA_KEYS, name, "data.")
+    meas = d.get("measurements")
+    _check(isinstance(meas, list) and len(meas) > 0, name, "data.measurements",
+           "a non-empty list of files", meas)
+    files = tuple(_file(m, name, f"data.measurements[{i}]", base) for i, m in enumerate(meas))
+    cert = d.get("certificate")
+    out = {"data": DataSources(
+        str(d.get("name") or ", ".join(f.name for f in files)), files,
+        _file(d["setup"], name, "data.setup", base),
+        None if cert is None else _file(cert, name, "data.certificate", base),
+        instruments_from_list(d.get("instruments") or [], name, base=base))}
+    for key, (ok, expected, convert) in _RULES.items():
+        if key in doc:
+            _check(ok(doc[key]), name, key, expected, doc[key])
+            out[key] = convert(doc[key])
+    if "spec" in out:
+        try:
+            parse_spec(out["spec"], default_order=out.get("order", 2))
+        except ValueError as exc:
+            raise DataError(str(exc), file=name, column="spec") from None
+    try:
+        out["exclusions"] = tuple(sorted((str(p), str(q), int(b))
+                                         for p, q, b in doc.get("exclusions") or []))
+    except (TypeError, ValueError):
+        raise DataError("exclusions must be [position, probe, ball] triples, found "
+                        f"{cut_repr(doc.get('exclusions'))}.", file=name,
+                        column="exclusions") from None
+    hist = doc.get("history") or []
+    _check(isinstance(hist, list) and all(isinstance(h, dict) and isinstance(
+        h.get("spec"), str) for h in hist), name, "history",
+        "a list of {\"spec\": ..., \"change\": ...} steps", hist)
+    out["history"] = tuple((h["spec"], str(h.get("change") or "")) for h in hist)
+    return AnalysisRecord(**out)
+
+
+def record_to_dict(record: AnalysisRecord, relative_to=None) -> dict:
+    """The record as a JSON-ready dict (inverse of :func:`record_from_dict`); paths are
+    written relative to ``relative_to`` when given."""
+    def file(f: DataFile):
+        if f.content is not None:
+            return {"name": f.name, "content": f.content}
+        p = f.path if relative_to is None else Path(os.path.relpath(
+            Path(f.path).resolve(), Path(relative_to).resolve())).as_posix()
+        return {"path": p} if Path(p).name == f.name else {"name": f.name, "path": p}
+
+    d = record.data
+    out = {"format": FORMAT, "version": VERSION,
+           "data": {"name": d.name, "measurements": [file(f) for f in d.measurements],
+                    "setup": file(d.setup),
+                    "certificate": None if d.certificate is None else file(d.certificate)}}
+    if d.instruments:  # written only when there are some: older records stay as they were
+        out["data"]["instruments"] = [{"kind": i.kind, **file(i.file)} for i in d.instruments]
+    for k in KEYS[1:]:
+        v = getattr(record, k)
+        out[k] = ([{"spec": s, "change": c} for s, c in v] if k == "history" else
+                  [list(e) for e in v] if k == "exclusions" else
+                  list(v) if isinstance(v, tuple) else v)
+    return out
+
+
+def record_to_json(record: AnalysisRecord, relative_to=None) -> str:
+    """JSON text of the record (``ANALYSIS.json``)."""
+    return json.dumps(record_to_dict(record, relative_to), indent=1, ensure_ascii=False)
+
+
+def read_record(source, name=None) -> AnalysisRecord:
+    """Read ``ANALYSIS.json`` (path, bytes or text); relative data paths are resolved
+    against the file's folder."""
+    doc, name = read_json(source, name)
+    base = Path(source).parent if isinstance(source, str | Path) and not str(
+        source).lstrip().startswith("{") else None
+    return record_from_dict(doc, name or "ANALYSIS.json", base)
+
+
+def _inline(name, measurements, setup, certificate, instruments=()) -> dict:
+    """The ``data`` block of a record that carries its files' text (``instruments``:
+    ``(kind, file name, text)`` triples)."""
+    return {"name": name, "measurements": [{"name": n, "content": c} for n, c in measurements],
+            "setup": {"name": "setup.json", "content": setup},
+            "certificate": certificate and {"name": certificate[0], "content": certificate[1]},
+            "instruments": [{"kind": k, "name": n, "content": c} for k, n, c in instruments]}
+
+
+def record_from_session(state) -> AnalysisRecord:
+    """The record of an app session (the Export page passes ``st.session_state``).
+
+    ``state`` is a mapping with the app's canonical keys: ``ds_files`` (name, measurements
+    as (file name, text) pairs, setup text, certificate pair or None), ``instruments``
+    (``(kind, file name, text)`` triples, optional), ``spec, order,
+    plate, sigma_um, positions, probes, exclusions, history, diag_on, magnification`` and,
+    when set, ``w_mpe_u, w_u_npts, w_u_seed`` and, with ``w_report_gp`` true, ``w_gp_mean,
+    w_gp_kernel``. Missing keys take the record's defaults.
+    """
+    f, g = state["ds_files"], state.get
+    keys = {"spec": "spec", "order": "order", "plate": "plate", "sigma_um": "sigma_um",
+            "positions": "positions", "probes": "probes", "diagnose": "diag_on",
+            "exclude_outliers": "exclude_outliers", "uncertainty_points": "w_u_npts",
+            "uncertainty_seed": "w_u_seed", "gp_kernel": "w_gp_kernel",
+            "mpe_u_source": "w_mpe_u", "magnification": "magnification"}
+    doc = {k: list(g(s)) if isinstance(g(s), tuple) else g(s) for k, s in keys.items()
+           if g(s) is not None or k in ("positions", "probes")}
+    hist = g("history") or [{"spec": doc.get("spec", "kinematic21"), "change": "baseline"}]
+    doc.update(format=FORMAT, exclusions=[list(e) for e in g("exclusions") or []],
+               history=[dict(h) for h in hist], gp_mean=g("w_gp_mean") if g("w_report_gp")
+               else None, data=_inline(f["name"], f["measurements"], f["setup"],
+                                       f.get("certificate"), g("instruments") or ()))
+    return record_from_dict(doc, "session")
+
+
+def record_to_project_json(record: AnalysisRecord) -> str:
+    """A project file (``cmm_core.export``) carrying the record: the model block, the
+    exclusions and history as ever, the other choices and the instrument files (their
+    text) under ``extra.analysis``."""
+
+    d, full = record.data, record_to_dict(record)
+    model = {k: full.pop(k) for k in ("spec", "order", "plate", "sigma_um", "positions",
+                                      "probes")}
+    rest = {k: v for k, v in full.items() if k not in ("data", "format", "version",
+                                                       "exclusions", "history")}
+    if d.instruments:
+        rest["instruments"] = [{"kind": i.kind, "name": i.file.name, "content": i.file.text()}
+                               for i in d.instruments]
+    return project_to_json(dataset_name=d.name, measurements=[(f.name, f.text()) for f in
+                                                              d.measurements],
+                           setup=d.setup.text(), certificate=d.certificate and (
+                               d.certificate.name, d.certificate.text()),
+                           model=model, exclusions=record.exclusions,
+                           history=full["history"], extra={"analysis": rest})
+
+
+def record_from_project(text, name="project.json") -> AnalysisRecord:
+    """The record a project file carries (its ``extra.analysis`` choices when present)."""
+
+    p = project_from_json(text, name)
+    extra = p["extra"].get("analysis") or {}
+    _check(isinstance(extra, dict), name, "extra.analysis", "an object", extra)
+    extra = dict(extra)
+    data = _inline(p["dataset_name"], p["measurements"], p["setup"], p["certificate"])
+    data["instruments"] = extra.pop("instruments", None) or []
+    doc = {**extra, **p["model"], "format": FORMAT, "exclusions": p["exclusions"],
+           "history": p["history"], "data": data}
+    return record_from_dict(doc, name)

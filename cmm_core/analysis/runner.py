@@ -1,0 +1,152 @@
+"""One analysis record: what was analysed and how, shared by the app, the CLI and the report.
+
+An :class:`AnalysisRecord` names the data, selection, exclusions, model (spec, order, plate
+mode, σ) and the diagnosis, GP, MPE and report choices. It is read and written as JSON
+(``ANALYSIS.json``, docs/report.md), built from the app session by the Export page and
+carried by the project file; :func:`run` turns it into numbers, so the same record gives
+the same numbers (and the same report) everywhere. Laser interferometer runs and step
+gauges (docs/instruments.md) ride along as :class:`InstrumentFile` and are fitted jointly
+with the plate in every fit of :func:`run`. Also defined once here: the sign of the
+measured error (:data:`ERROR_CONVENTION`) and the outlier default
+(:data:`DEFAULT_EXCLUDE_OUTLIERS`).
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..diagnosis import detect_outliers, diagnose, estimate_sigma
+from ..gp import gp_components
+from ..gum import check_dataset
+from ..io import load_dataset
+from ..model import check_selection, evaluate, fit, residuals_frame, select, summary
+from .record import (
+    AnalysisRecord,
+    measured_error_from_residuals_um,
+)
+
+__all__ = ["load_data", "load_instruments", "with_instruments", "AnalysisResult", "run"]
+
+
+def load_data(record: AnalysisRecord):
+    """The :class:`~cmm_core.dataset.Dataset` the record names."""
+
+    def src(f):
+        return io.BytesIO(f.text().encode()), f.name
+
+    d = record.data
+    return load_dataset([src(f) for f in d.measurements], src(d.setup)[0],
+                        d.certificate and src(d.certificate), name=d.name)
+
+
+def load_instruments(record: AnalysisRecord) -> tuple:
+    """The instrument readings the record names (``LaserRun``, ``StepGauge`` ...)."""
+    return tuple(i.read() for i in record.data.instruments)
+
+
+def with_instruments(ds, instruments, *, positions=None, probes=None, exclude=()):
+    """What the fits of an analysis take as data: ``ds`` itself without instruments, else
+    its selected observations carrying them, so every model built from them (the
+    diagnosis's scores and refits, the σ estimate) includes their rows
+    (docs/instruments.md#python)."""
+    if not instruments:
+        return ds
+
+    obs = select(ds, positions=positions and list(positions),
+                 probes=probes and list(probes), exclude=list(exclude))
+    return replace(obs, instruments=tuple(instruments))
+
+
+@dataclass(frozen=True)
+class AnalysisResult:
+    """The numbers of one record (:func:`run`)."""
+
+    record: AnalysisRecord
+    """The record these numbers come from."""
+    dataset: object
+    """The loaded :class:`~cmm_core.dataset.Dataset`."""
+    fit: object
+    """The :class:`~cmm_core.fit.FitResult` of the record's model."""
+    exclusions: tuple
+    """Observations left out: the record's and, with ``exclude_outliers``, the flagged."""
+    flagged: tuple
+    """``(position, probe, ball)`` the robust outlier check flags (excluded or not)."""
+    sigma: dict
+    """σ used: ``{"value_um", "auto"}`` plus the estimate's fields when auto."""
+    uncertainty: object
+    """:class:`~cmm_core.uncertainty.UncertaintySummary`, or None when it failed."""
+    history: tuple
+    """History rows: spec, change, rms_um, chi2_dof, bic, n_params."""
+    measured_error_um: np.ndarray
+    """(n, 3) measured error at the fitted observations (µm, :data:`ERROR_CONVENTION`)."""
+    diagnosis: object = None
+    """:class:`~cmm_core.diagnose.Diagnosis` when the record asks for it."""
+    mpe: object = None
+    """:class:`~cmm_core.mpe.MpeResult`, None without a 25-ball certificate."""
+    gp: object = None
+    """:class:`~cmm_core.gp_cmm.GPComponents` when the record names a GP mean."""
+    instruments: tuple = ()
+    """Per instrument file, its record of ``instruments.summary`` (kind, file, readings,
+    rows, χ², rms_um, max_abs_z ...); empty without instruments."""
+    instrument_residuals: object = None
+    """``instruments.residuals_frame`` of the fit (one row per reading), None without."""
+
+
+def _fit_kwargs(r: AnalysisRecord, exclude, **more) -> dict:
+    return {"order": r.order, "plate": None if r.plate == "auto" else r.plate,
+            "positions": r.positions and list(r.positions), "exclude": list(exclude),
+            "probes": r.probes and list(r.probes), **more}
+
+
+def run(record: AnalysisRecord) -> AnalysisResult:
+    """Dataset, fit, history, measured errors, uncertainty, and the optional diagnosis,
+    MPE check and GP of a record, every fit with the record's instruments. The app and
+    the CLI both call this."""
+
+    ds = load_data(record)
+    check_selection(ds, record.positions, record.probes, record.exclusions,
+                    "analysis record")
+    try:
+        flagged = tuple(tuple(e) for e in detect_outliers(ds).exclusions)
+    except ValueError:  # too few positions to compare: nothing flagged unless asked to
+        if record.exclude_outliers:
+            raise
+        flagged = ()
+    excl = tuple(sorted(set(record.exclusions) | (set(flagged) if record.exclude_outliers
+                                                 else set())))
+    inst = load_instruments(record)
+    data = with_instruments(ds, inst, positions=record.positions, probes=record.probes,
+                            exclude=excl)
+    if record.sigma_um == "auto":
+        est = estimate_sigma(data, record.spec, **_fit_kwargs(record, excl))
+        sigma = {**est.to_dict(), "value_um": float(est.value_um), "auto": True}
+    else:
+        sigma = {"value_um": float(record.sigma_um), "auto": False}
+    kw = _fit_kwargs(record, excl, sigma_um=sigma["value_um"])
+    r = fit(data, record.spec, **kw)
+    history = [{"spec": spec, "change": change, "rms_um": round(h.rms_um, 4),
+                "chi2_dof": round(h.chi2_dof, 3), "bic": round(h.bic, 1), "n_params": h.rank}
+               for spec, change in record.history
+               for h in [r if spec == record.spec else fit(data, spec, **kw)]]
+    rigid = fit(data, "rigid", **kw)
+    err = measured_error_from_residuals_um(rigid.residuals_um)
+    try:
+        unc = evaluate(r, n_random=record.uncertainty_points, seed=record.uncertainty_seed)
+    except (ValueError, np.linalg.LinAlgError):
+        unc = None
+    diag = diagnose(data, record.spec, **kw) if record.diagnose else None
+    mpe, _ = check_dataset(ds, u_source=record.mpe_u_source, sigma_um=r.sigma_um)
+    gp = None
+    if record.gp_mean is not None:
+
+        obs = rigid.problem.obs
+        kin = record.gp_mean == "kinematic"
+        vals = measured_error_from_residuals_um(r.residuals_um) if kin else err
+        gp = gp_components(obs.r_mm, vals, mean="zero" if kin else record.gp_mean,
+                           kernel=record.gp_kernel, restarts=1, probe_mm=obs.p_mm)
+    return AnalysisResult(record, ds, r, excl, flagged, sigma, unc, tuple(history), err,
+                          diag, mpe, gp, tuple(summary(r)) if inst else (),
+                          residuals_frame(r) if inst else None)

@@ -1,0 +1,49 @@
+"""The command line (``python -m cmm_core``): one subcommand per task, JSON on stdout with
+``--json``, one-line errors on stderr and a non-zero exit (``docs/formats.md``).
+
+Owns: :mod:`.commands` (the parser and :func:`main`), :mod:`.inputs` (shared arguments),
+:mod:`.plan` (plan and task), :mod:`.export` (comp-table, results). May import every wing.
+"""
+
+from __future__ import annotations
+
+from .commands import (
+    MAX_MESSAGE,
+    build_parser,
+    cmd_air,
+    cmd_budget,
+    cmd_compensate,
+    cmd_diagnose,
+    cmd_fit,
+    cmd_gp,
+    cmd_plan,
+    cmd_report,
+    cmd_simulate,
+    cmd_task,
+    main,
+)
+from .export import add_arguments, add_parser, command, run
+from .inputs import (
+    CERT_HELP,
+    MEAS_HELP,
+    ORDER_HELP,
+    PLATE_HELP,
+    SETUP_HELP,
+    add_fit_args,
+    add_instrument_args,
+    add_outlier_args,
+    dataset_of,
+    exclusions_of,
+    instruments_of,
+    sigma_of,
+)
+from .plan import add_plan_arguments, add_task_arguments, run_plan, run_task
+
+__all__ = [
+    "add_arguments", "add_fit_args", "add_instrument_args", "add_outlier_args", "add_parser",
+    "add_plan_arguments", "add_task_arguments", "build_parser", "CERT_HELP", "cmd_air",
+    "cmd_budget", "cmd_compensate", "cmd_diagnose", "cmd_fit", "cmd_gp", "cmd_plan",
+    "cmd_report", "cmd_simulate", "cmd_task", "command", "dataset_of", "exclusions_of",
+    "instruments_of", "main", "MAX_MESSAGE", "MEAS_HELP", "ORDER_HELP", "PLATE_HELP", "run",
+    "run_plan", "run_task", "SETUP_HELP", "sigma_of"
+]

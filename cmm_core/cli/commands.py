@@ -1,0 +1,318 @@
+"""Command line (docs/formats.md "Command line"): JSON to stdout or ``--json FILE``.
+
+Bad input exits with status 2 and one line on stderr naming the file, row and column.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..analysis import measured_error_from_residuals_um, write_report
+from ..diagnosis import diagnose, kinematic_basis
+from ..export import compensate, load_model, read_points, refuse_off_machine, save_model
+from ..gp import gp_components
+from ..gum import air_from_args, read_budget
+from ..io import DataError, read_json
+from ..model import fit, select, simulate, summary
+from .export import add_parser as add_export_parser
+from .inputs import (
+    CERT_HELP,
+    MEAS_HELP,
+    PLATE_HELP,
+    SETUP_HELP,
+    add_fit_args,
+    add_instrument_args,
+    add_outlier_args,
+    dataset_of,
+    exclusions_of,
+    instruments_of,
+    sigma_of,
+)
+from .plan import add_plan_arguments, add_task_arguments, run_plan, run_task
+
+
+def _jsonable(o):
+    if isinstance(o, dict):
+        return {str(k): _jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _jsonable(o.tolist())
+    if isinstance(o, (np.floating, float)):
+        return None if not np.isfinite(o) else float(o)
+    if isinstance(o, np.integer):
+        return int(o)
+    return o
+
+
+def cmd_simulate(args):
+
+    # read like every JSON input (a byte-order mark tolerated), refusals name the file
+    cfg, name = read_json(Path(args.config))
+    sim = simulate(cfg, name=name)
+    sim.write(args.out)
+    return {"out": str(args.out), "n_obs": len(sim.dataset.meas),
+            "files": ["measurements.csv", "setup.json", "certificate.csv", "truth.json"]}
+
+
+def cmd_fit(args):
+
+    data = dataset_of(args)
+    instruments = instruments_of(args)
+    outliers, exclude = exclusions_of(data, args.exclude_outliers)
+    sigma_um, sigma = sigma_of(args, data, exclude, args.model)
+    r = fit(data, args.model, order=args.order, plate=args.plate, sigma_um=sigma_um,
+            exclude=exclude, instruments=instruments or None)
+    if args.save:
+        save_model(r, args.save)
+    return {"model": r.spec, "status": r.status, "message": r.message,
+            "n_obs": r.n_obs, "n_params": r.rank, "rms_um": r.rms_um, "chi2_dof": r.chi2_dof,
+            "dof": r.dof, "chi2_p_value": r.chi2_p_value, "fails_chi2_test": r.fails_chi2_test,
+            "birge_ratio": r.birge_ratio, "sigma": sigma,
+            "bic": r.bic, "plate": r.plate, "layout": r.terms.layout,
+            "chi2_test_dof": r.chi2_test_dof, "dof_test": r.dof_test,
+            "parameters": {lab: {"value": v, "u": u, "u_inflated": ui, "unit": un}
+                           for lab, v, u, ui, un in zip(r.labels, r.values, r.u, r.u_inflated,
+                                                        r.units, strict=True)},
+            "unidentifiable": r.unidentifiable, "null_combinations": r.null_combinations,
+            "instruments": summary(r),
+            "outliers": outliers, "excluded": [list(e) for e in exclude]}
+
+
+def cmd_diagnose(args):
+
+    data = dataset_of(args)
+    instruments = instruments_of(args)
+    outliers, exclude = exclusions_of(data, args.exclude_outliers)
+    sigma_um, sigma = sigma_of(args, data, exclude, args.baseline)
+    if instruments:  # they ride on the observations into every model the diagnosis fits
+        from dataclasses import replace
+
+
+        data = replace(select(data, exclude=exclude), instruments=tuple(instruments))
+    d = diagnose(data, args.baseline, order=args.order, plate=args.plate,
+                 sigma_um=sigma_um, exclude=exclude)
+    out = d.to_dict()
+    out["sigma"] = sigma
+    out["outliers"] = outliers
+    return out
+
+
+def cmd_compensate(args):
+
+    model = load_model(args.model)
+    pts = read_points(args.points)
+    out = compensate(model, pts)
+    out.to_csv(args.out, index=False, float_format="%.6f")
+    if not args.allow_extrapolation:
+
+        refuse_off_machine(out, pts.attrs.get("source", Path(args.points).name))
+    return {"out": str(args.out), "n_points": len(out),
+            "max_correction_um": float(np.abs(out[["ex_um", "ey_um", "ez_um"]]).max().max())}
+
+
+def cmd_gp(args):
+
+    data = dataset_of(args)
+    _, exclude = exclusions_of(data, args.exclude_outliers)
+    r = fit(data, "kinematic21" if args.mean == "kinematic" else "rigid", order=args.order,
+            plate=args.plate, exclude=exclude)
+    obs = r.problem.obs
+    basis = None
+    if args.mean == "kinematic":
+
+        basis = kinematic_basis(r)
+    comps = gp_components(obs.r_mm, measured_error_from_residuals_um(r.residuals_um),
+                          mean="zero" if basis is not None
+                          else args.mean, kernel=args.kernel, basis=basis,
+                          probe_mm=obs.p_mm if args.inputs == "probe" else None)
+    return {"mean": args.mean, "kernel": args.kernel,
+            "inputs": "ram position and probe offset" if comps.probe_input else "tip",
+            "loo_coverage_95": comps.loo_coverage(0.95), "components": comps.summary()}
+
+
+def cmd_budget(args):
+
+    return read_budget(Path(args.budget))
+
+
+def cmd_report(args):
+
+    return write_report(args.analysis, args.out)
+
+
+def cmd_air(args):
+
+    return air_from_args(args.t_C, args.p_Pa, args.rh_percent, args.wavelength_nm)
+
+
+def cmd_plan(args):
+
+    return run_plan(args)
+
+
+def cmd_task(args):
+
+    return run_task(args)
+
+
+def build_parser():
+    """Argument parser with one sub-command per command of docs/formats.md."""
+    ap = argparse.ArgumentParser(prog="python -m cmm_core", description="CMM error lab")
+    ap.add_argument("--json", metavar="FILE",
+                    help="write the JSON result to FILE instead of stdout (default: stdout)")
+    sub = ap.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("simulate", help="simulate a virtual CMM")
+    p.add_argument("config", metavar="CONFIG.json",
+                   help="simulation config: seed, noise_um (µm), measurement order, plate "
+                        "form, true kinematic errors and hidden effects "
+                        "(docs/formats.md#simulation-config; example: "
+                        "sample_data/simulated/config.json)")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="directory to write measurements.csv, setup.json, certificate.csv "
+                        "and truth.json into (created if missing; required)")
+    p.set_defaults(func=cmd_simulate)
+    p = sub.add_parser("fit", help="fit the kinematic model")
+    add_fit_args(p)
+    add_instrument_args(p)
+    p.add_argument("--save", metavar="MODEL.json",
+                   help="write the fitted model to this JSON file, for 'compensate' "
+                        "(default: not saved)")
+    p.set_defaults(func=cmd_fit)
+    p = sub.add_parser("diagnose", help="rank the effects missing from a baseline model")
+    add_fit_args(p, baseline=True)
+    add_instrument_args(p)
+    p.set_defaults(func=cmd_diagnose)
+    p = sub.add_parser("compensate", help="correct points with a saved model")
+    p.add_argument("model", metavar="MODEL.json",
+                   help="fitted model written by 'fit --save'")
+    p.add_argument("points", metavar="POINTS.csv",
+                   help="points to correct: x_mm,y_mm,z_mm (reported tip centres, mm, "
+                        "machine frame) and probe (the stylus name, needed unless the "
+                        "model has one stylus); other columns are kept")
+    p.add_argument("--out", required=True, metavar="CORRECTED.csv",
+                   help="output CSV: the input columns plus corrected coordinates "
+                        "xc_mm,yc_mm,zc_mm (mm) and the corrections and their standard "
+                        "uncertainties (µm); required")
+    p.add_argument("--allow-extrapolation", action="store_true",
+                   help="accept points outside the machine's range (their corrections "
+                        "extrapolate the model and are flagged in the 'extrapolated' "
+                        "column); without it such points make the command fail (exit 2), "
+                        "the flagged output still written")
+    p.set_defaults(func=cmd_compensate)
+    p = sub.add_parser("gp", help="Gaussian-process model of the errors")
+    p.add_argument("meas", nargs="+", metavar="MEAS.csv", help=MEAS_HELP)
+    p.add_argument("--setup", required=True, metavar="SETUP.json", help=SETUP_HELP)
+    p.add_argument("--certificate", metavar="CERT.csv", help=CERT_HELP)
+    p.add_argument("--mean", choices=("zero", "quadratic", "kinematic"), default="zero",
+                   help="GP mean: 'zero' (the GP models the rigid-aligned errors), "
+                        "'quadratic' (full quadratic in the ram position, coefficients "
+                        "marginalised) or 'kinematic' (the GP models what the fitted "
+                        "kinematic model leaves; default: %(default)s)")
+    p.add_argument("--kernel", choices=("se_iso", "se_ard"), default="se_iso",
+                   help="squared-exponential covariance with one length scale (se_iso) or "
+                        "one per machine axis (se_ard); length scales in mm "
+                        "(default: %(default)s)")
+    p.add_argument("--inputs", choices=("probe", "tip"), default="probe",
+                   help="GP inputs: 'probe' = the ram position and the stylus offset (mm), "
+                        "one noise level per stylus, when the data carry several styli; "
+                        "'tip' = the tip coordinates only (default: %(default)s)")
+    add_outlier_args(p)
+    p.add_argument("--order", type=int, default=2, metavar="N",
+                   help="polynomial order of the kinematic model for --mean kinematic "
+                        "(default: %(default)s)")
+    p.add_argument("--plate", choices=("fixed", "prior", "free"), help=PLATE_HELP)
+    p.set_defaults(func=cmd_gp)
+    p = sub.add_parser("budget", help="GUM uncertainty budget")
+    p.add_argument("budget", metavar="BUDGET.json",
+                   help="uncertainty budget: contributions, each with a standard "
+                        "uncertainty u or a half_width, a distribution, a sensitivity c and "
+                        "optional degrees of freedom; coverage probability and Monte Carlo "
+                        "trials (docs/formats.md#uncertainty-budget; example: "
+                        "sample_data/budget/ballplate_budget.json)")
+    p.set_defaults(func=cmd_budget)
+    p = sub.add_parser("report", help="self-contained HTML report of an analysis record")
+    p.add_argument("analysis", metavar="ANALYSIS.json",
+                   help="analysis record: data files (paths relative to the record), model "
+                        "spec, order, plate mode, σ in µm, exclusions, exclude_outliers "
+                        "(default false: flagged outliers stay in the fit), diagnosis, GP, "
+                        "MPE and magnification choices (docs/report.md; example: "
+                        "sample_data/analysis/thesis.json)")
+    p.add_argument("--out", required=True, metavar="REPORT.html",
+                   help="HTML file to write (plotly inline, opens offline; about 2 MB); "
+                        "required. The χ² test of the fit is printed as JSON")
+    p.set_defaults(func=cmd_report)
+    p = sub.add_parser("air", help="refractive index of air (modified Edlén)")
+    p.add_argument("--t-C", type=float, required=True, dest="t_C", metavar="DEG_C",
+                   help="air temperature in °C (required)")
+    p.add_argument("--p-Pa", type=float, required=True, dest="p_Pa", metavar="PA",
+                   help="air pressure in Pa, e.g. 101325 (required)")
+    p.add_argument("--rh-percent", type=float, required=True, dest="rh_percent",
+                   metavar="PERCENT", help="relative humidity in %% (required)")
+    p.add_argument("--wavelength-nm", type=float, required=True, dest="wavelength_nm",
+                   metavar="NM", help="vacuum wavelength of the laser in nm, e.g. 632.99 "
+                                      "for a HeNe laser (required)")
+    p.set_defaults(func=cmd_air)
+
+    p = sub.add_parser("plan", help="evaluate, compare and design measurement plans "
+                                    "before measuring")
+    add_plan_arguments(p)
+    p.set_defaults(func=cmd_plan)
+    p = sub.add_parser("task", help="task-specific uncertainty of a distance, circle or "
+                                    "plane measured with a fitted machine")
+    add_task_arguments(p)
+    p.set_defaults(func=cmd_task)
+
+    add_export_parser(sub)
+    return ap
+
+
+MAX_MESSAGE = 400
+"""Longest error line (characters): a 1 MB cell must not become a 1 MB line."""
+
+
+def _input_name(args):
+    """The one input file of commands that read one (None for several or none): named in
+    messages that do not name a file themselves (simulation config, budget)."""
+    for attr in ("config", "budget"):
+        if isinstance(getattr(args, attr, None), str):
+            return Path(getattr(args, attr)).name
+    return None
+
+
+def _one_line(exc, name) -> str:
+    """An exception as one line of at most :data:`MAX_MESSAGE` characters, naming ``name``
+    when the message does not name a file."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, KeyError):
+        text = f"missing key {text}"
+    if isinstance(exc, OSError) and exc.filename:
+        text = f"{Path(str(exc.filename)).name}: {exc.strerror or text}"
+    if name and name not in text:
+        text = f"{name}: {text}"
+    return text if len(text) <= MAX_MESSAGE else text[:MAX_MESSAGE - 1] + "…"
+
+
+def main(argv=None) -> int:
+    """Run the CLI; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    try:
+        out = args.func(args)
+    except (DataError, ValueError, KeyError, OSError) as exc:
+        print(f"error: {_one_line(exc, _input_name(args))}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # noqa: BLE001 - a bug must still end in one line, not a traceback
+        print(f"error: internal error ({_one_line(exc, None)}); please report it with the "
+              "input files.", file=sys.stderr)
+        return 3
+    text = json.dumps(_jsonable(out), indent=1)
+    if args.json:
+        Path(args.json).write_text(text)
+    else:
+        print(text)
+    return 0

@@ -1,0 +1,51 @@
+"""The diagnosis: which physical effect is missing from the model, how sure we are, and
+what the data cannot tell apart (SPEC "The diagnosis"; thesis ch. 7 for the GP residual).
+
+Owns: :mod:`.search` (:func:`diagnose`, :class:`Diagnosis`, :class:`Candidate`, σ
+estimate), :mod:`.scoring` (the significance rule: Δχ², family-wise levels, BIC),
+:mod:`.verdict` (conclusion, aliases, encompassing), :mod:`.crossval` (leave-one-placement-
+out check), :mod:`.certificate_check`, :mod:`.discrepancy` (GP on the residuals),
+:mod:`.replicates` (σ from repeats and residuals), :mod:`.outliers`.
+May import: ``machine``, ``io``, ``model``, ``gp``.
+"""
+
+from __future__ import annotations
+
+from .certificate_check import ALPHA, CertificateCheck, check_certificate, released
+from .crossval import MATERIAL, MIN_PLACEMENTS, HoldoutCheck, check
+from .discrepancy import Discrepancy, discrepancy_gp, kinematic_basis
+from .outliers import OutlierReport, detect_outliers
+from .replicates import (
+    UNIFORM_ALPHA,
+    SigmaEstimate,
+    Uniformity,
+    axis_weights,
+    estimate,
+    flexible_spec,
+    from_repeats,
+    from_residuals,
+    uniformity,
+)
+from .scoring import (
+    FAMILY_ALPHA,
+    PHYSICAL_SHARE,
+    ScoreCache,
+    baseline_basis,
+    candidate_stats,
+    family_levels,
+    needs_met,
+    scan_period,
+    score,
+)
+from .search import Candidate, Diagnosis, diagnose, estimate_sigma, history_entry
+from .verdict import OUTSIDE, misfit_location
+
+__all__ = [
+    "ALPHA", "axis_weights", "baseline_basis", "Candidate", "candidate_stats",
+    "CertificateCheck", "check", "check_certificate", "detect_outliers", "diagnose",
+    "Diagnosis", "Discrepancy", "discrepancy_gp", "estimate", "estimate_sigma", "FAMILY_ALPHA",
+    "family_levels", "flexible_spec", "from_repeats", "from_residuals", "history_entry",
+    "HoldoutCheck", "kinematic_basis", "MATERIAL", "MIN_PLACEMENTS", "misfit_location",
+    "needs_met", "OutlierReport", "OUTSIDE", "PHYSICAL_SHARE", "released", "scan_period",
+    "score", "ScoreCache", "SigmaEstimate", "UNIFORM_ALPHA", "Uniformity", "uniformity"
+]

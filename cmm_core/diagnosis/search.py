@@ -1,0 +1,423 @@
+"""Which physical effect is missing? Rank candidates by the misfit they explain.
+
+For a baseline fit, every catalogue token not yet in the model (``effects.ModelSpec.
+candidates``) is scored by the χ² reduction of one Gauss-Newton step of the augmented
+model from the baseline solution (a score test; the model is nearly linear, so this is the
+refit's reduction to high accuracy), and the best few are confirmed by a full refit. Each
+candidate gets:
+
+- ``delta_bic = -Δχ² + Δk ln N`` (Δk the rank it adds, N the number of residuals);
+- an F-test p-value ``F = (Δχ²/Δk) / (χ²_new/ν_new)``, robust to a misstated σ;
+- its signature: the residual pattern its refit removes, to draw beside the residuals;
+- aliases: other candidates whose signatures are nearly the same pattern with this data.
+
+A candidate is significant when ``p`` is below its share of ``alpha`` (weighted
+Bonferroni, :data:`PHYSICAL_SHARE`: half for the physical effects and absent functions,
+half for the higher orders and periodic errors; the false-alarm rate of the verdict stays
+at most ``alpha``). Significant candidates are ranked by ΔBIC, then the best is checked
+against the other significant ones by nested F-tests on full refits (an encompassing
+test): when the best is no longer needed once another is in the model, but the other is
+still needed with the best in, the other is the better explanation and is promoted. Pairs
+where neither is needed once the other is in are reported as aliases; a periodic error
+whose signature a significant physical candidate reproduces yields to it.
+
+The verdict must then pass a leave-one-placement-out check (``holdout``): fitted on the
+other placements, the effect predicts the held-out one. The first significant candidate
+that passes (or that the check cannot judge) is the verdict; when all fail, or when none
+is significant while the baseline fails its χ² test with the misfit concentrated in some
+placements, styli, balls or regions, the verdict is ``"outside_catalogue"`` with where the
+residual lives. With nothing significant and the misfit spread evenly, the verdict is None
+and σ is the suspect (``repeatability``: estimated from repeats or the most flexible
+model). When the baseline uses a certificate and fails its χ² test, the certificate is
+checked against the self-calibrated plate (``certificate_check``).
+
+Guards: no period shorter than ``blocks.periodic.NYQUIST_FACTOR`` ball spacings is scanned; which
+parameters a candidate adds is decided at the nominal linearisation, as its refit decides
+it (``fit``'s frozen design null space); whatever ranks first is confirmed
+by a refit; a higher order must beat the next lower one by a nested F-test (Occam); and a
+baseline that does not converge names no effect, since its own unfinished descent would
+be credited to every candidate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from .._blas import single_blas_thread
+from ..model import (
+    PERIODIC,
+    FitResult,
+    catalogue_entry,
+    fit,
+)
+from ..units import label as unit_label
+from . import replicates as repeatability
+from .certificate_check import CertificateCheck, check_certificate
+from .scoring import (
+    FAMILY_ALPHA,
+    ScoreCache,
+    _Scored,
+    baseline_basis,
+    candidate_stats,
+    family_levels,
+    needs_met,
+    scan_period,
+    score,
+)
+from .verdict import (
+    OUTSIDE,
+    _checked_verdict,
+    _conclusion,
+    _encompassing,
+    _flexible_tokens,
+    _physical_before_periodic,
+    _refit,
+    _with_aliases,
+    misfit_location,
+)
+
+__all__ = ["Candidate", "Diagnosis", "diagnose", "estimate_sigma", "history_entry"]
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate effect scored against the baseline.
+
+    Attributes
+    ----------
+    effect : str
+        Model token (``plate_sag``, ``dyz:3``, ``sxy``).
+    title, explanation, needs, separate_by : str
+        From the effect catalogue.
+    rms_um, chi2_dof : float
+        Of the model with the effect added.
+    delta_chi2 : float
+        χ² reduction (baseline minus augmented).
+    n_params : int
+        Rank the effect adds (0: the data cannot determine it on top of the baseline).
+    delta_bic : float
+        BIC change; negative favours adding the effect.
+    p_value : float
+        F-test p-value of the χ² reduction.
+    significant : bool
+    confirmed : bool
+        True when the numbers come from a full refit, not only the one-step score.
+    signature_um : ndarray (n, 3)
+        Residual pattern the effect removes, aligned with the baseline's observations.
+    aliases : list of str
+        Candidates producing nearly the same pattern with this data.
+    detectable : dict
+        ``{label: (unit, size)}``: the size of each added parameter (µm, µrad, ...) above
+        which this data set finds it with 80 % probability at the test's level, from its
+        standard uncertainty in the augmented fit scaled by the residual scatter left
+        (``inf``: not determined). Tells what the
+        design can and cannot see, e.g. rotations of the ram with short styli.
+    level : float
+        The significance level this candidate was tested at (its share of the family-wise
+        false-alarm rate, weighted Bonferroni).
+    would_leave_undetermined : list of str
+        Parameter combinations the model with this effect added could not determine
+        (beyond the baseline's own): adding it as is leaves them unidentified. Fix by a
+        constraint (remove one of the named functions), another placement or stylus, or a
+        lower order.
+    """
+
+    effect: str
+    title: str
+    explanation: str
+    needs: str
+    separate_by: str
+    rms_um: float
+    chi2_dof: float
+    delta_chi2: float
+    n_params: int
+    delta_bic: float
+    p_value: float
+    significant: bool
+    confirmed: bool
+    signature_um: np.ndarray = field(repr=False)
+    aliases: list = field(default_factory=list)
+    detectable: dict = field(default_factory=dict)
+    level: float = 0.01
+    would_leave_undetermined: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (no arrays)."""
+        return {"effect": self.effect, "title": self.title, "rms_um": self.rms_um,
+                "chi2_dof": self.chi2_dof, "delta_chi2": self.delta_chi2,
+                "n_params": self.n_params, "delta_bic": self.delta_bic,
+                "p_value": self.p_value, "significant": self.significant,
+                "confirmed": self.confirmed, "aliases": self.aliases,
+                "explanation": self.explanation, "separate_by": self.separate_by,
+                "detectable": {k: {"unit": u, "size": v}
+                               for k, (u, v) in self.detectable.items()},
+                "level": self.level,
+                "would_leave_undetermined": self.would_leave_undetermined}
+
+    def detectable_text(self) -> str:
+        """``dxz[1] > 1.9 µm, dxz[2] > 2.3 µm`` (the first few parameters)."""
+        items = [f"{k} > {v:.3g} {unit_label(u)}"
+                 for k, (u, v) in list(self.detectable.items())[:4]]
+        more = len(self.detectable) - 4
+        return ", ".join(items) + (f" (+{more} more)" if more > 0 else "")
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """Ranked candidates and the verdict.
+
+    Attributes
+    ----------
+    baseline : FitResult
+    candidates : list of Candidate
+        Best first: significant ones by ΔBIC (after the nested-test check of the best),
+        then the rest by ΔBIC.
+    verdict : str or None
+        Best significant effect that passes the leave-one-placement-out check;
+        ``"outside_catalogue"`` when the misfit is significant and no catalogue effect
+        explains it (the significant ones fail the check, or none is significant while the
+        misfit is concentrated in some placements, probes or axes); None when nothing is
+        significant (explained to noise, or a stated σ that looks too small: ``sigma``).
+    skipped : dict
+        Tokens not tried, with the reason (data they need are absent).
+    message : str
+        Plain-language conclusion.
+    holdout : list of holdout.HoldoutCheck
+        Leave-one-placement-out checks of the significant candidates tried, best first.
+    sigma : repeatability.SigmaEstimate or None
+        σ estimated from the data when the baseline fails its χ² test and no effect is
+        named.
+    uniformity : repeatability.Uniformity or None
+        Whether that misfit is spread evenly (σ) or concentrated (a missing effect).
+    where : dict
+        Where the baseline's residual lives (``misfit_location``).
+    certificate : certificate_check.CertificateCheck or None
+        The certificate compared with the self-calibrated plate, when the baseline uses a
+        certificate (fixed or prior) and the design can self-calibrate.
+    """
+
+    baseline: FitResult
+    candidates: list
+    verdict: str | None
+    skipped: dict
+    message: str
+    holdout: list = field(default_factory=list)
+    sigma: repeatability.SigmaEstimate | None = None
+    uniformity: repeatability.Uniformity | None = None
+    where: dict = field(default_factory=dict)
+    certificate: CertificateCheck | None = None
+
+    def to_dict(self) -> dict:
+        """JSON-ready result in the ``diagnose`` shape (docs/formats.md)."""
+        b = self.baseline
+        return {"baseline": {"model": b.spec, "rms_um": b.rms_um, "chi2_dof": b.chi2_dof,
+                             "bic": b.bic, "dof": b.dof, "chi2_test_dof": b.chi2_test_dof,
+                             "dof_test": b.test_statistic[1], "chi2_p_value": b.chi2_p_value,
+                             "fails_chi2_test": b.fails_chi2_test},
+                "candidates": [c.to_dict() for c in self.candidates],
+                "verdict": self.verdict, "skipped": self.skipped, "message": self.message,
+                "holdout": [h.to_dict() for h in self.holdout],
+                "sigma_check": None if self.sigma is None else {
+                    **self.sigma.to_dict(),
+                    "uniform": None if self.uniformity is None else self.uniformity.uniform,
+                    "uniformity": None if self.uniformity is None else self.uniformity.to_dict()},
+                "where": self.where,
+                "certificate": None if self.certificate is None else self.certificate.to_dict()}
+
+
+@single_blas_thread
+def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
+             sigma_um: float = 0.5, exclude=(), positions=None, probes=None,
+             candidates=None, alpha: float = FAMILY_ALPHA, confirm: int = 3,
+             alias_corr: float = 0.9, progress=None) -> Diagnosis:
+    """Rank the catalogue effects missing from ``baseline`` (see module docstring).
+
+    Parameters
+    ----------
+    data : Dataset
+    baseline : str
+        Model spec of the baseline.
+    candidates : list of str, optional
+        Tokens to try (default: every catalogue token not in the baseline).
+    alpha : float
+        Family-wise false-alarm rate, shared over the candidates by weighted Bonferroni
+        (:data:`PHYSICAL_SHARE`); default :data:`scoring.FAMILY_ALPHA`.
+    confirm : int
+        How many of the best scored candidates are confirmed by a full refit.
+    alias_corr : float
+        Signature correlation above which two candidates are reported as aliases.
+    progress : callable, optional
+        ``progress(fraction, text)`` is called as candidates are scored and confirmed
+        (for a progress bar); exceptions it raises propagate.
+    """
+    def report(frac, text):
+        if progress is not None:
+            progress(float(min(max(frac, 0.0), 1.0)), text)
+
+    # weakly determined directions (one placement, high orders) can need many steps: the
+    # baseline gets a large budget (a converged fit stops early), and the candidates'
+    # refits the same one when the baseline needed more than fit's default
+    base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um, exclude=exclude,
+               positions=positions, probes=probes, max_iter=2000)
+    max_iter = 500 if base.iterations <= 500 else 2000
+    tokens = candidates if candidates is not None else base.problem.spec.candidates()
+    n_steps = len(tokens) + confirm
+    skipped, todo = _to_score(base, tokens, report)
+    # every candidate's columns from one evaluation of the model with all of them added
+    try:
+        cache = ScoreCache(base, [t[0] for t in todo]) if todo else None
+    except ValueError:  # a superset the spec grammar refuses: each candidate on its own
+        cache = None
+    scored = []
+    for i, (tok, n_scan, period_aliases, family) in enumerate(todo):
+        report(i / n_steps, f"scoring {tok} ({i + 1}/{len(todo)})")
+        scored.append(_Scored(tok, *score(base, tok, cache), n_scan=n_scan,
+                              period_aliases=period_aliases, family=family))
+    levels = family_levels([sc.family for sc in scored], alpha)
+    memo = {}
+
+    def stats_of(sc):  # sorted on several times: each F-test once
+        key = (sc.dchi2, sc.dk, sc.chi2_new, sc.n_scan)
+        if key not in memo:
+            memo[key] = candidate_stats(base, *key)
+        return memo[key]
+
+    def significant(sc):
+        return sc.dk > 0 and stats_of(sc)[1] < levels[sc.family]
+
+    def refit_candidate(sc, j):
+        report((len(tokens) + j) / n_steps, f"confirming {sc.token} by a full refit")
+        ref = _refit(base, base.problem.spec.with_token(sc.token), max_iter, cache)
+        sc.dchi2, sc.dk, sc.chi2_new, sc.refit = base.chi2 - ref.chi2, ref.rank - base.rank, \
+            ref.chi2, ref
+
+    scored.sort(key=lambda sc: stats_of(sc)[0])
+    for j, sc in enumerate(scored[:confirm]):
+        if sc.dk > 0:
+            refit_candidate(sc, j)
+    # A refit can still change a candidate's Δχ² and rank (nonlinearity, iterations), and
+    # so the order: whatever ends up first is confirmed too.
+    for j in range(confirm, confirm + 10):
+        scored.sort(key=lambda sc: (not significant(sc), stats_of(sc)[0]))
+        top = next((sc for sc in scored if sc.dk > 0), None)
+        if top is None or top.refit is not None or confirm == 0:
+            break
+        refit_candidate(top, j)
+    n_rows = base.dof + base.rank
+    out, k_of_level = [], {}
+    for sc in scored:
+        dbic, p, dof_new = stats_of(sc)
+        # Size at which a parameter alone is found with 80 % probability at its level:
+        # |θ| = u s (z_{1-level/2} + z_{0.8}), s² = χ²/ν left (normal approximation of the
+        # F-test, which measures the reduction against the residual scatter left)
+        lv = levels[sc.family]
+        if lv not in k_of_level:  # two levels in all (weighted Bonferroni)
+            k_of_level[lv] = float(stats.norm.isf(lv / 2) + stats.norm.isf(0.2))
+        k_detect = k_of_level[lv]
+        scale = float(np.sqrt(sc.chi2_new / dof_new))
+        e = catalogue_entry(sc.token)
+        # Unconfirmed candidates: RMS from the one-step χ² (prior rows are few).
+        rms = sc.refit.rms_um if sc.refit is not None else float(
+            np.sqrt(max(sc.chi2_new, 0) / n_rows) * sigma_um)
+        out.append(Candidate(
+            sc.token, e.title, e.explanation, e.needs, e.separate_by, rms,
+            sc.chi2_new / dof_new, float(sc.dchi2), int(sc.dk), float(dbic), p,
+            significant(sc), sc.refit is not None, sc.signature,
+            detectable={lab: (unit, k_detect * scale * ui)
+                        for lab, (unit, ui) in sc.u_new.items()},
+            level=levels[sc.family],
+            would_leave_undetermined=list(sc.combos)))
+    out.sort(key=lambda c: (not c.significant, c.delta_bic))
+    out = _with_aliases(out, alias_corr, {sc.token: sc.period_aliases for sc in scored})
+    note = ""
+    refits = {sc.token: sc.refit for sc in scored}
+    if out and out[0].significant:
+        report(0.99, "nested tests of the best candidates")
+        out, note = _encompassing(base, out, out[0].level, refits, alpha, max_iter=max_iter,
+                                  cache=cache)
+        out = _physical_before_periodic(out)
+    report(0.995, "leave-one-placement-out checks")
+    verdict, checks, out, note2 = _checked_verdict(base, out, cache=cache)
+    note += note2
+    sigma = uniform = None
+    if base.status == "converged" and base.fails_chi2_test and verdict in (None, OUTSIDE):
+        # nothing catalogued explains the misfit: σ, or something outside the catalogue?
+        # An understated σ spreads the misfit evenly; a missing effect concentrates it.
+        uniform = repeatability.uniformity(base)
+        sigma = repeatability.estimate(base, _flexible_tokens([sc.token for sc in scored]),
+                                       None if cache is None else cache.nominal)
+        if verdict is None and not uniform.uniform:
+            verdict = OUTSIDE
+    if base.status != "converged":
+        # the baseline's own unfinished improvement would be credited to every candidate
+        verdict = None
+        note = (f" The baseline fit did not converge ({base.status}, {base.iterations} "
+                 "iterations): the χ² reductions above include its unfinished improvement, "
+                 "so no effect is named. Simplify the baseline (lower order, fewer functions) "
+                 "or add placements, and diagnose again.")
+    where = misfit_location(base)
+    cert = None
+    if base.plate in ("fixed", "prior") and base.fails_chi2_test:
+        report(0.997, "the certificate against the self-calibrated plate")
+        cert = check_certificate(base.problem.obs, base.spec, sigma_um=base.sigma_um,
+                                 fitted=base)
+    msg = _message(base, out, verdict, sigma, uniform, where, note, checks, cert)
+    report(1.0, "done")
+    return Diagnosis(base, out, verdict, skipped, msg, checks, sigma, uniform, where, cert)
+
+
+def _to_score(base, tokens, report):
+    """``(skipped, todo)``: why the data cannot see some tokens, and for the others
+    ``(token, n_scan, period_aliases, family)`` with periodic errors' periods scanned."""
+    skipped, todo, U = {}, [], None
+    for tok in tokens:
+        why = needs_met(tok, base)
+        if why:
+            skipped[tok] = why
+            continue
+        n_scan, period_aliases, family = 1, [], tok
+        if tok in PERIODIC:
+            report(0.0, f"scanning the period of {tok}")
+            U = baseline_basis(base) if U is None else U
+            tok, periods, _, period_aliases = scan_period(base, tok, U)
+            n_scan = periods.size
+        todo.append((tok, n_scan, period_aliases, family))
+    return skipped, todo
+
+
+def _message(base, out, verdict, sigma, uniform, where, note, checks, cert) -> str:
+    """The diagnosis in words: the conclusion, what the holdout check could not judge,
+    and the certificate's suspect entries first."""
+    msg = _conclusion(base, out, verdict, sigma, uniform, where) + note
+    top = next((h for h in checks if h.effect == verdict), None)
+    if top is not None and not top.applicable:
+        msg += (f" The leave-one-placement-out check cannot judge {verdict} ({top.reason}): "
+                "an effect that differs from placement to placement, such as each placement's "
+                "own scale or temperature, can look the same; measuring the balls in another "
+                "order tells them apart.")
+    if cert is not None and cert.suspect:
+        msg = cert.message + " " + msg
+    return msg
+
+
+def estimate_sigma(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
+                   exclude=(), positions=None, probes=None) -> repeatability.SigmaEstimate:
+    """Repeatability estimated from the data (``--sigma-um auto``): from repeated balls
+    when the data have them, else from the residuals of the most flexible model the
+    diagnosis would try from ``baseline`` (every function one order up, every physical
+    effect whose data are present). The estimate does not depend on the σ assumed for
+    the fit it starts from."""
+    base = fit(data, baseline, order=order, plate=plate, exclude=exclude,
+               positions=positions, probes=probes)
+    tokens = [t for t in base.problem.spec.candidates()
+              if t not in PERIODIC and not needs_met(t, base)]
+    return repeatability.estimate(base, _flexible_tokens(tokens))
+
+
+def history_entry(result: FitResult, gp_amplitude_um=None) -> dict:
+    """One row of the add-and-watch history."""
+    return {"model": result.spec, "rms_um": result.rms_um, "chi2_dof": result.chi2_dof,
+            "bic": result.bic, "n_params": result.rank, "gp_amplitude_um": gp_amplitude_um}

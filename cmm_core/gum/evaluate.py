@@ -1,0 +1,179 @@
+"""GUM uncertainty budgets (JCGM 100:2008) and GUM Supplement 1 Monte Carlo (JCGM 101:2008).
+
+A budget is a sequence of :class:`Contribution` (one input quantity each: its estimate,
+standard uncertainty, probability distribution, sensitivity coefficient and degrees of
+freedom). :func:`gum_combine` applies the law of propagation of uncertainty for
+uncorrelated inputs (JCGM 100 5.1.2, eq. 10), the Welch-Satterthwaite formula (JCGM 100
+G.4.1, eq. G.2b) and the coverage factor from the t distribution (JCGM 100 G.3, G.4).
+:func:`monte_carlo` propagates the distributions themselves (JCGM 101 clause 7), with
+probabilistically symmetric and shortest coverage intervals (JCGM 101 7.7) and the adaptive
+procedure of JCGM 101 7.9. :func:`budget_from_dict` is the ``budget`` command of the CLI
+(SPEC "Command line").
+
+Without a measurement function the model is additive, ``Y = sum_i c_i X_i`` (``c_i``
+default 1), as in a classical budget table whose rows are already expressed in the unit of
+the measurand. With a measurement function ``Y = f(X_1, ..., X_N)`` the sensitivity
+coefficients are central differences (JCGM 100 5.1.3) and the Monte Carlo method evaluates
+``f`` on the sampled inputs.
+
+The code is split by concept; this module holds the ``budget`` command's contract
+(:func:`contribution_from_dict`, :func:`budget_from_dict`) and re-exports the public names
+of the others, so that ``from cmm_core.gum import ...`` finds them all:
+
+- ``cmm_core.gum_inputs``: :class:`Contribution`, ``DISTRIBUTIONS``,
+  :func:`half_width_divisor` (JCGM 100 4.1.5, 4.3.7-4.3.9);
+- ``cmm_core.gum_framework``: :func:`gum_combine`, :class:`GumResult`,
+  :func:`coverage_factor`, :func:`welch_satterthwaite`, :func:`sensitivity_coefficients`
+  (JCGM 100 clauses 5-6, annex G);
+- ``cmm_core.gum_mc``: :func:`monte_carlo`, :class:`MonteCarloResult`,
+  :func:`coverage_intervals` (JCGM 101 clause 7).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+from .framework import (
+    gum_combine,
+)
+from .inputs import DISTRIBUTIONS, Contribution, _check_number
+from .mc import monte_carlo
+
+__all__ = ["budget_from_dict", "contribution_from_dict"]
+
+
+# --------------------------------------------------------------------------- CLI contract
+
+_FIELDS = {"name", "u", "half_width", "distribution", "c", "dof", "k", "value", "unit"}
+
+
+def contribution_from_dict(d: dict, index: int = 0) -> Contribution:
+    """One SPEC budget contribution ``{"name", "u" | "half_width", "distribution", "c", "dof"}``.
+
+    ``half_width`` of a normal input needs ``k`` (it is then an expanded uncertainty);
+    ``dof`` null or absent means infinite; ``c`` absent means 1.
+    """
+    where = f"contributions[{index}]"
+    if not isinstance(d, dict):
+        raise ValueError(f"{where}: expected an object with 'name', 'u' or 'half_width', "
+                         f"'distribution', 'c', 'dof', got {type(d).__name__}.")
+    extra = sorted(set(d) - _FIELDS)
+    if extra:
+        raise ValueError(f"{where}: unknown field(s) {', '.join(extra)}; expected some of "
+                         f"{', '.join(sorted(_FIELDS))}.")
+    name = d.get("name", f"x{index + 1}")
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"{where}.name: expected a non-empty string, got {name!r}.")
+    where = f"{where} ({name!r})"
+    dist = d.get("distribution", "normal")
+    if dist not in DISTRIBUTIONS:
+        raise ValueError(f"{where}.distribution: expected one of {', '.join(DISTRIBUTIONS)}, "
+                         f"got {dist!r}.")
+    has_u, has_a = "u" in d, "half_width" in d
+    if has_u == has_a:
+        raise ValueError(f"{where}: expected exactly one of 'u' or 'half_width', got "
+                         f"{'both' if has_u else 'neither'}.")
+
+    def num(key, *, default=None, positive=False, allow_inf=False, nonneg=False):
+        v = d.get(key, default)
+        try:
+            x = _check_number(v, f"{where}.{key}", positive=positive, allow_inf=allow_inf)
+        except ValueError as exc:
+            raise ValueError(str(exc)) from None
+        if nonneg and x < 0:
+            raise ValueError(f"{where}.{key}: expected a number >= 0, got {v!r}.")
+        return x
+
+    c = num("c", default=1.0)
+    dof = math.inf if d.get("dof") is None else num("dof", positive=True, allow_inf=True)
+    value = num("value", default=0.0)
+    unit = str(d.get("unit", ""))
+    if has_u:
+        return Contribution(name, num("u", nonneg=True), dist, c=c, dof=dof, value=value,
+                            unit=unit)
+    a = num("half_width", nonneg=True)
+    if dist == "normal":
+        if "k" not in d:
+            raise ValueError(f"{where}: a normal contribution given by 'half_width' needs "
+                             "'k' (its coverage factor); or give 'u'.")
+        return Contribution.from_half_width(name, a, dist, k=num("k", positive=True), c=c,
+                                            dof=dof, value=value, unit=unit)
+    return Contribution.from_half_width(name, a, dist, c=c, dof=dof, value=value, unit=unit)
+
+
+def _finite_or_none(x: float):
+    return float(x) if math.isfinite(x) else None
+
+
+def budget_from_dict(d: dict, *, progress: Callable | None = None) -> dict:
+    """The ``budget`` command (SPEC): GUM result and optional JCGM 101 Monte Carlo result.
+
+    Parameters
+    ----------
+    d : dict
+        ``{"contributions": [...], "coverage_probability": 0.95, "monte_carlo_trials": N,
+        "seed": S, "dof_rounding": "truncate"}`` (see :func:`contribution_from_dict`).
+    progress : callable, optional
+        Passed to :func:`monte_carlo`.
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``y``, ``u_c``, ``nu_eff`` (null = infinite), ``nu_used``, ``k``, ``U``,
+        ``coverage_probability``, ``contributions`` (each with ``u``, ``c``, ``u_y``,
+        ``dof``, ``share``) and, when ``monte_carlo_trials`` > 0, ``mc`` with ``mean``,
+        ``u``, ``interval`` (shortest), ``interval_symmetric``, ``trials``, ``status``,
+        ``seed``.
+
+    Raises
+    ------
+    ValueError
+        One line naming the offending field and what was expected.
+    """
+    if not isinstance(d, dict):
+        raise ValueError(f"budget: expected a JSON object with 'contributions', got "
+                         f"{type(d).__name__}.")
+    known = {"contributions", "coverage_probability", "monte_carlo_trials", "seed",
+             "dof_rounding", "name", "unit", "description", "note", "source"}
+    extra = sorted(set(d) - known)
+    if extra:
+        raise ValueError(f"budget: unknown field(s) {', '.join(extra)}; expected some of "
+                         f"{', '.join(sorted(known))}.")
+    raw = d.get("contributions")
+    if not isinstance(raw, list) or not raw:
+        raise ValueError("contributions: expected a non-empty list of contributions, got "
+                         f"{raw!r:.60}.")
+    cts = [contribution_from_dict(c, i) for i, c in enumerate(raw)]
+    p = d.get("coverage_probability", 0.95)
+    p = _check_number(p, "coverage_probability")
+    if not 0 < p < 1:
+        raise ValueError(f"coverage_probability: expected a value in (0, 1), got {p}.")
+    rounding = d.get("dof_rounding", "truncate")
+    if rounding not in ("truncate", "none"):
+        raise ValueError(f"dof_rounding: expected 'truncate' or 'none', got {rounding!r}.")
+    g = gum_combine(cts, coverage_probability=p, dof_rounding=rounding)
+    out = {"y": g.y, "u_c": g.u_c, "nu_eff": _finite_or_none(g.nu_eff),
+           "nu_used": _finite_or_none(g.nu_used), "k": g.k, "U": g.U,
+           "coverage_probability": p,
+           "contributions": [{"name": r["name"], "distribution": r["distribution"],
+                              "u": r["u"], "c": r["c"], "u_y": r["u_y"],
+                              "dof": _finite_or_none(r["dof"]), "share": r["share"]}
+                             for r in g.table()]}
+    n = d.get("monte_carlo_trials", 0)
+    if n is None:
+        n = 0
+    if isinstance(n, bool) or not isinstance(n, int) or n < 0 or n == 1:
+        raise ValueError(f"monte_carlo_trials: expected 0 (none) or an integer >= 2, "
+                         f"got {n!r}.")
+    if n > 50_000_000:
+        raise ValueError(f"monte_carlo_trials: expected at most 50000000, got {n}.")
+    if n:
+        seed = d.get("seed", 1)
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ValueError(f"seed: expected a non-negative integer, got {seed!r}.")
+        mc = monte_carlo(cts, trials=n, coverage_probability=p, seed=seed, progress=progress)
+        out["mc"] = {"mean": mc.mean, "u": mc.u, "interval": list(mc.interval_shortest),
+                     "interval_symmetric": list(mc.interval_symmetric), "trials": mc.trials,
+                     "status": mc.status, "seed": seed}
+    return out

@@ -1,0 +1,93 @@
+"""A dataset: resolved measurements with their setup and certificate, ready to fit."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .certificate import Certificate, read_certificate
+from .matching import resolve
+from .measurements import read_measurement_files
+from .setup import Setup, read_setup
+
+SAMPLE_DIR = Path(__file__).resolve().parents[2] / "sample_data"
+THESIS_DIR = SAMPLE_DIR / "thesis"
+THESIS_POSITIONS = ("BP111", "BP112", "BP211", "BP212", "BP311", "BP312")
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """Measurements resolved against a setup (and certificate).
+
+    Attributes
+    ----------
+    meas : DataFrame
+        One row per probed ball centre: ``position, probe, ball, x_mm, y_mm, z_mm``, the
+        machine-frame tip centres ``mx_mm, my_mm, mz_mm``, optional ``time_min, temp_C``,
+        and the ``source`` file and ``row`` each came from.
+    setup : Setup
+    certificate : Certificate or None
+    name : str
+        Label shown in the app and reports.
+    """
+
+    meas: pd.DataFrame
+    setup: Setup
+    certificate: Certificate | None
+    name: str = "dataset"
+
+    @property
+    def positions(self) -> list:
+        """Position names in order of first appearance."""
+        return list(dict.fromkeys(self.meas["position"]))
+
+    @property
+    def probes(self) -> list:
+        """Probe names in order of first appearance."""
+        return list(dict.fromkeys(self.meas["probe"]))
+
+    def plate_frame_table(self, position: str, probe: str | None = None) -> np.ndarray:
+        """Ball centres (balls in certificate order) of one position in the plate frame, mm.
+
+        Machine-frame data are mapped back through the nominal placement; balls that were
+        not measured are NaN.
+        """
+        g = self.meas[self.meas["position"] == position]
+        if probe is not None:
+            g = g[g["probe"] == probe]
+        pl = self.setup.positions[position]
+        xyz = g[["mx_mm", "my_mm", "mz_mm"]].to_numpy() - pl.origin_mm
+        plate = xyz @ pl.rotation
+        balls = self.certificate.balls if self.certificate is not None else np.unique(
+            self.meas["ball"])
+        out = np.full((len(balls), 3), np.nan)
+        idx = {b: i for i, b in enumerate(balls)}
+        for b, row in zip(g["ball"], plate, strict=True):
+            out[idx[b]] = row
+        return out
+
+
+def load_dataset(meas_sources, setup_source, certificate_source=None, *, name=None) -> Dataset:
+    """Read and resolve measurement files, a setup and an optional certificate.
+
+    ``meas_sources`` is a list of paths or ``(file-like, name)`` pairs (one long-form file or
+    thesis-form files, one per position).
+    """
+    meas = read_measurement_files(meas_sources)
+    setup = read_setup(setup_source)
+    cert = certificate_source
+    if isinstance(cert, tuple):
+        cert = read_certificate(cert[0], name=cert[1])
+    elif cert is not None and not isinstance(cert, Certificate):
+        cert = read_certificate(cert)
+    return Dataset(resolve(meas, setup, cert), setup, cert, name or "dataset")
+
+
+def thesis_dataset() -> Dataset:
+    """The six ball-plate tables of thesis chapter 6 with the appendix 5 certificate."""
+    files = [THESIS_DIR / f"{p}.csv" for p in THESIS_POSITIONS]
+    return load_dataset(files, THESIS_DIR / "setup.json", THESIS_DIR / "certificate.csv",
+                        name="thesis tables 6.1-6.6")

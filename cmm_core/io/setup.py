@@ -1,0 +1,343 @@
+"""The setup JSON: machine, probes and plate placements, checked against what a CMM can be.
+
+Holds :class:`Placement` and :class:`Setup`, :func:`read_setup` with one helper per section
+of the file (machine, probes, positions, plate), the plausibility limits it checks against
+(:data:`LAYOUTS`, strokes, probe lengths, axis orthogonality, CTE, temperatures) and the
+small JSON value checks (:func:`_vector`, :func:`_record`, :func:`_json_object`).
+:func:`check_celsius`, :data:`TEMP_RANGE_C` and :func:`_range_tolerance` are shared with
+the measurement reader, the simulator config and :func:`~cmm_core.io_resolve.resolve`.
+"""
+
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..machine import LAYOUTS as _KINEMATIC_LAYOUTS
+from .delimited import read_json
+from .errors import DataError, _check_keys, cut_repr, likely_typo
+
+LAYOUTS = tuple(_KINEMATIC_LAYOUTS)
+"""Kinematic chains the model supports (``machine.layout``; ``kinematics.LAYOUTS``), the
+default first."""
+AXIS_TOLERANCE_DEG = 0.1
+"""Largest departure of a position's u and v axes from a right angle (degrees)."""
+MIN_STROKE_MM, MAX_STROKE_MM = 10.0, 50_000.0
+MAX_PROBE_MM = 2000.0
+CTE_RANGE_PER_K = (-1e-6, 3e-5)
+"""Plausible plate CTE: Zerodur's about ±0.1e-6 to aluminium's 23e-6 and a margin."""
+TEMP_RANGE_C = (0.0, 50.0)
+"""Plausible temperatures of a CMM room or a plate (°C)."""
+
+
+ARTEFACTS = ("ball_plate", "hole_plate")
+"""What the plate's features are (setup ``artefact``, default the first): balls, whose
+centres are points of the artefact, or holes probed from inside, whose centres give only
+the two in-plane coordinates (the coordinate along the hole axis is the probing height)."""
+
+SETUP_KEYS = {
+    "": ("units", "frame", "machine", "positions", "probes", "plate", "artefact"),
+    "machine": ("layout", "range_mm"),
+    "plate": ("cte_per_K", "balls", "pitch_mm"),
+    "position": ("origin_mm", "u_axis", "v_axis", "probe", "temp_C", "rh_percent"),
+}
+"""Keys the setup reader uses, per object; other keys are free (notes, names), but one
+that looks like a misspelt known key is refused (it would silently leave a default)."""
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Nominal placement of the plate in one position (plate -> machine frame).
+
+    Attributes
+    ----------
+    origin_mm : ndarray (3,)
+        Machine coordinates of the plate origin (ball 1).
+    rotation : ndarray (3, 3)
+        Columns are the plate axes u, v and u x v in machine axes.
+    probe : str or None
+        Stylus used for files without a probe column.
+    temp_C : tuple
+        Plate temperatures recorded at start and finish (may be empty).
+    rh_percent : tuple
+        Relative humidity at start and finish (may be empty).
+    """
+
+    origin_mm: np.ndarray
+    rotation: np.ndarray
+    probe: str | None = None
+    temp_C: tuple = ()
+    rh_percent: tuple = ()
+
+    @property
+    def horizontal(self) -> bool:
+        """True when the plate normal is within 10 degrees of machine Z."""
+        return abs(self.rotation[2, 2]) > np.cos(np.radians(10))
+
+    def to_machine(self, plate_mm: np.ndarray) -> np.ndarray:
+        """Map plate coordinates (n, 3) to machine coordinates."""
+        return self.origin_mm + np.asarray(plate_mm) @ self.rotation.T
+
+
+@dataclass(frozen=True)
+class Setup:
+    """Machine, plate placements and probe offsets (the setup JSON of docs/formats.md).
+
+    Attributes
+    ----------
+    frame : str
+        ``machine`` (tip centres in machine axes) or ``plate`` (already in the plate frame).
+    range_mm : ndarray (3,)
+        Axis strokes of the CMM in mm.
+    positions : dict
+        Position name -> :class:`Placement`.
+    probes : dict
+        Probe name -> offset (3,) in mm from the ram reference point to the tip centre.
+    cte_per_K : float
+        Thermal expansion coefficient of the plate.
+    raw : dict
+        The JSON as read, for round trips.
+    name : str or None
+        File name, for messages.
+    artefact : str
+        One of :data:`ARTEFACTS`: ``"ball_plate"`` (default) or ``"hole_plate"``.
+    """
+
+    frame: str
+    range_mm: np.ndarray
+    positions: dict
+    probes: dict
+    cte_per_K: float = 11.5e-6
+    raw: dict = field(default_factory=dict, repr=False)
+    name: str | None = field(default=None, repr=False, compare=False)
+    artefact: str = ARTEFACTS[0]
+
+
+def read_setup(source, *, name="setup.json") -> Setup:
+    """Read the setup JSON (path, dict, bytes or file-like) and check its fields.
+
+    Besides the structure, the values are checked against what a CMM setup can be:
+    ``machine.layout`` from :data:`LAYOUTS`; strokes, origins and probe offsets in mm (not
+    metres or µm); u and v axes of unit length and orthogonal within
+    :data:`AXIS_TOLERANCE_DEG`; temperatures in °C (not K); a plate CTE per K.
+    """
+    if isinstance(source, dict):
+        raw = source
+    else:
+        raw, name = read_json(source, None if isinstance(source, (str, Path)) else name)
+    if not isinstance(raw, dict):
+        raise DataError("expected a JSON object.", file=name)
+    _check_keys(raw, SETUP_KEYS[""], name, "")
+    for sub in ("machine", "plate"):
+        if isinstance(raw.get(sub), dict):
+            _check_keys(raw[sub], SETUP_KEYS[sub], name, sub)
+    units = raw.get("units", "mm")
+    if units != "mm":
+        raise DataError(f"units must be 'mm', found {cut_repr(units)}.", file=name, column="units")
+    frame = raw.get("frame", "machine")
+    if frame not in ("machine", "plate"):
+        raise DataError(f"frame must be 'machine' or 'plate', found {cut_repr(frame)}.", file=name,
+                        column="frame")
+    # the sections in file order, so the first problem reported stays the same
+    rng = _machine_range(_json_object(raw, "machine", name), name)
+    probes = _probes(_json_object(raw, "probes", name), name)
+    positions = {str(pos): _placement(spec, f"positions.{pos}", rng, probes, name)
+                 for pos, spec in _json_object(raw, "positions", name).items()}
+    if not positions:
+        raise DataError("no positions defined.", file=name, column="positions")
+    cte = _plate_cte(_json_object(raw, "plate", name), name)
+    return Setup(frame, rng, positions, probes, cte, raw, name, _artefact(raw, name))
+
+
+def _artefact(raw: dict, name) -> str:
+    """The ``artefact`` key: one of :data:`ARTEFACTS` (the first when absent); an unknown
+    value is refused naming the known ones and the one it most likely misspells."""
+    artefact = raw.get("artefact", ARTEFACTS[0])
+    if not isinstance(artefact, str) or artefact not in ARTEFACTS:
+        guess = likely_typo(str(artefact), ARTEFACTS, cutoff=0.6)
+        hint = f"did you mean {guess!r}? " if guess else ""
+        raise DataError(f"unknown artefact {cut_repr(artefact)}; {hint}expected one of "
+                        f"{', '.join(ARTEFACTS)}.", file=name, column="artefact")
+    return artefact
+
+
+def _machine_range(machine: dict, name) -> np.ndarray:
+    """The ``machine`` section: its layout checked, its strokes (mm) returned."""
+    layout = machine.get("layout", LAYOUTS[0])
+    if not isinstance(layout, str) or layout not in LAYOUTS:
+        close = difflib.get_close_matches(str(layout), list(LAYOUTS), n=1, cutoff=0.5)
+        raise DataError(f"machine.layout {cut_repr(layout)} is not a supported kinematic chain"
+                        + (f" (did you mean {close[0]!r}?)" if close else "")
+                        + f"; expected one of: {', '.join(LAYOUTS)}.", file=name,
+                        column="machine.layout",
+                        hint="the name gives the chain from the workpiece to the probe, F the "
+                             "foundation: 'moving_bridge_fxyz' (the bridge moves in x, the y "
+                             "carriage runs across it, z ram), 'fixed_bridge_xfyz' (the table "
+                             "moves in x); see docs/layouts.md.")
+    rng = _vector(machine.get("range_mm", [1200, 1000, 700]), name, "machine.range_mm",
+                  "three positive lengths (mm)")
+    if (rng <= 0).any():
+        raise DataError(f"machine.range_mm must be three positive lengths, found {rng}.",
+                        file=name, column="machine.range_mm")
+    if rng.min() < MIN_STROKE_MM or rng.max() > MAX_STROKE_MM:
+        raise DataError(f"machine.range_mm {rng.tolist()} is not a CMM's strokes in mm "
+                        f"(expected {MIN_STROKE_MM:g} to {MAX_STROKE_MM:g} mm per axis).",
+                        file=name, column="machine.range_mm",
+                        hint="strokes in metres (1.2) or inches are refused: write mm, e.g. "
+                             "[1200, 1000, 700].")
+    return rng
+
+
+def _probes(section: dict, name) -> dict:
+    """The ``probes`` section: name -> offset (mm), each of a stylus's length."""
+    probes = {}
+    for pname, vec in section.items():
+        col = f"probes.{pname}"
+        p = _vector(vec, name, col, "a vector of 3 numbers (mm)")
+        size = float(np.linalg.norm(p))
+        if 0 < size < 1.0 or size > MAX_PROBE_MM:
+            raise DataError(f"probe offset {p.tolist()} is {size:.4g} mm long; expected a "
+                            f"stylus offset in mm (0, or 1 to {MAX_PROBE_MM:g} mm).", file=name,
+                            column=col, hint="offsets in metres or µm are refused: write mm, "
+                            "e.g. [0, 0, -150].")
+        probes[str(pname)] = p
+    return probes
+
+
+def _placement(spec, key: str, rng, probes: dict, name) -> Placement:
+    """One entry of ``positions`` (``key`` is ``positions.<name>``) as a :class:`Placement`."""
+    if not isinstance(spec, dict):
+        raise DataError(f"expected an object with origin_mm, u_axis, v_axis, found "
+                        f"{type(spec).__name__} {cut_repr(spec)}.", file=name, column=key)
+    _check_keys(spec, SETUP_KEYS["position"], name, key)
+    if "origin_mm" not in spec:
+        raise DataError("position needs origin_mm (and u_axis, v_axis) as 3-vectors.",
+                        file=name, column=key)
+    origin = _vector(spec["origin_mm"], name, key + ".origin_mm", "3 numbers (mm)")
+    tol = _range_tolerance(rng)
+    if ((origin < -tol) | (origin > rng + tol)).any():
+        raise DataError(f"origin_mm {origin.tolist()} lies outside the machine's range "
+                        f"{rng.tolist()} mm.", file=name, column=key + ".origin_mm",
+                        hint="write the origin (ball 1) in machine coordinates in mm.")
+    if 0 < np.abs(origin).max() < 2.0 and rng.max() >= 100:
+        raise DataError(f"origin_mm {origin.tolist()} is within 2 mm of the machine zero; "
+                        "it looks like metres, not mm.", file=name,
+                        column=key + ".origin_mm", hint="multiply by 1000 (mm).")
+    rotation = _plate_axes(spec, key, name)
+    probe = spec.get("probe")
+    if probe is not None and str(probe) not in probes:
+        raise DataError(f"probe {cut_repr(probe)} is not among the probes {sorted(probes)}.",
+                        file=name, column=key + ".probe")
+    records = {rec: _record(spec.get(rec, ()), name, f"{key}.{rec}", rec)
+               for rec in ("temp_C", "rh_percent")}
+    return Placement(origin, rotation, None if probe is None else str(probe),
+                     records["temp_C"], records["rh_percent"])
+
+
+def _plate_axes(spec: dict, key: str, name) -> np.ndarray:
+    """The rotation (columns u, v, u x v) from a position's u_axis and v_axis."""
+    u = _vector(spec.get("u_axis", [1, 0, 0]), name, key + ".u_axis", "3 numbers")
+    v = _vector(spec.get("v_axis", [0, 1, 0]), name, key + ".v_axis", "3 numbers")
+    if np.linalg.norm(u) < 1e-12:
+        raise DataError("u_axis is the zero vector.", file=name, column=key + ".u_axis")
+    if np.linalg.norm(v) < 1e-12 or np.linalg.norm(np.cross(u, v)) < 1e-6 * (
+            np.linalg.norm(u) * np.linalg.norm(v)):
+        raise DataError("u_axis and v_axis are parallel (or v_axis is zero).", file=name,
+                        column=key)
+    off = abs(90.0 - np.degrees(np.arccos(np.clip(
+        u @ v / (np.linalg.norm(u) * np.linalg.norm(v)), -1, 1))))
+    if off > AXIS_TOLERANCE_DEG:
+        raise DataError(f"u_axis and v_axis are {90 - off:.3g}° apart; expected "
+                        f"orthogonal axes (within {AXIS_TOLERANCE_DEG:g}°).", file=name,
+                        column=key, hint="the plate axes are at right angles: check "
+                        "v_axis (e.g. u [1, 0, 0] with v [0, 1, 0] or [0, 0, 1]).")
+    for ax, vec in (("u_axis", u), ("v_axis", v)):
+        if abs(np.linalg.norm(vec) - 1) > 1e-3:
+            raise DataError(f"{ax} {vec.tolist()} has length {np.linalg.norm(vec):.4g}; "
+                            "expected a unit vector.", file=name, column=f"{key}.{ax}",
+                            hint="divide by its length (e.g. [0.7071, 0.7071, 0]).")
+    u = u / np.linalg.norm(u)
+    v = v - u * (u @ v)  # removes rounding below the tolerance only
+    v = v / np.linalg.norm(v)
+    return np.column_stack([u, v, np.cross(u, v)])
+
+
+def _plate_cte(plate: dict, name) -> float:
+    """The ``plate`` section: pitch and ball count checked, the CTE (1/K) returned."""
+    for key, lo in (("pitch_mm", 1.0), ("balls", 3)):
+        val = plate.get(key)
+        if val is not None and (isinstance(val, bool) or not isinstance(val, int | float)
+                                or not np.isfinite(val) or val < lo
+                                or (key == "balls" and not float(val).is_integer())):
+            raise DataError(f"plate.{key} must be {'a length >= 1 mm' if key == 'pitch_mm' else 'a whole number >= 3'} "
+                            f"(or absent), found {cut_repr(val)}.", file=name, column=f"plate.{key}")
+    cte = plate.get("cte_per_K", 11.5e-6)
+    if isinstance(cte, bool) or not isinstance(cte, int | float) or not np.isfinite(cte):
+        raise DataError(f"plate.cte_per_K must be a number (1/K, e.g. 11.5e-6), found "
+                        f"{cut_repr(cte)}.", file=name, column="plate.cte_per_K")
+    if not CTE_RANGE_PER_K[0] <= cte <= CTE_RANGE_PER_K[1]:
+        raise DataError(f"plate.cte_per_K {cte:g} is not a plate material's expansion per K; "
+                        f"expected {CTE_RANGE_PER_K[0]:g} to {CTE_RANGE_PER_K[1]:g} "
+                        "(steel 11.5e-6, Zerodur about 0).", file=name,
+                        column="plate.cte_per_K",
+                        hint="write it per K, not per MK or %/K: 11.5e-6 for steel.")
+    return float(cte)
+
+
+def _range_tolerance(rng):
+    """How far beyond the strokes a point may lie (styli reach past them)."""
+    return np.maximum(0.05 * np.asarray(rng, float), 100.0)
+
+
+def _record(val, name, column, what):
+    """Temperatures (°C) or humidities (%) of a setup position: a number or list."""
+    val = [val] if isinstance(val, int | float) and not isinstance(val, bool) else val
+    if not isinstance(val, list | tuple) or not all(
+            isinstance(t, int | float) and not isinstance(t, bool) for t in val):
+        raise DataError(f"{what} must be a number or a list of numbers, found {cut_repr(val)}.",
+                        file=name, column=column)
+    out = tuple(float(t) for t in val)
+    if what == "temp_C":
+        check_celsius(np.asarray(out), name, column)
+    elif any(not 0 <= t <= 100 for t in out):
+        raise DataError(f"relative humidity {list(out)} must be 0 to 100 %.", file=name,
+                        column=column, hint="write percent, not a fraction.")
+    return out
+
+
+def check_celsius(t, name, column, row=None):
+    """Temperatures must be finite °C in :data:`TEMP_RANGE_C`; kelvin named as such."""
+    bad = ~np.isfinite(t) | (t < TEMP_RANGE_C[0]) | (t > TEMP_RANGE_C[1])
+    if not bad.any():
+        return
+    x = float(t[bad][0])
+    kelvin = 253 < x < 343
+    raise DataError(f"temperature {x:g} is {'in kelvin' if kelvin else 'not plausible'}; "
+                    f"expected °C ({TEMP_RANGE_C[0]:g} to {TEMP_RANGE_C[1]:g}).", file=name,
+                    row=row, column=column,
+                    hint="subtract 273.15 (°C, not K)." if kelvin else
+                    "write the plate temperature in °C.")
+
+
+def _json_object(raw: dict, key: str, name) -> dict:
+    """``raw[key]`` when it is a JSON object (``{}`` when absent), else a DataError."""
+    val = raw.get(key, {})
+    if not isinstance(val, dict):
+        raise DataError(f"expected a JSON object for {key!r}, found {type(val).__name__} "
+                        f"{cut_repr(val)}.", file=name, column=key)
+    return val
+
+
+def _vector(val, name, column, expected) -> np.ndarray:
+    """A length-3 float vector from JSON, or a DataError saying what was expected."""
+    v = None
+    # JSON numbers only: np.asarray would read ["1", "0", "0"] or [true, 0, 0] silently
+    if isinstance(val, list | tuple) and all(isinstance(x, int | float) and not
+                                             isinstance(x, bool) for x in val):
+        v = np.asarray(val, float)
+    if v is None or v.shape != (3,) or not np.isfinite(v).all():
+        raise DataError(f"must be {expected}, found {cut_repr(val)}.", file=name, column=column)
+    return v

@@ -1,0 +1,105 @@
+"""Reversal error (backlash) of each axis: a reading approached from + is short by half
+the reversal span, one approached from - long by as much (µm, the full span fitted).
+The approach direction follows every move of the file's measurement order
+(``observations.approach_directions``).
+
+New points are corrected for the direction from which their axes last moved (their
+file order, or ``time_min``): ``e += span · d / 2`` per axis, d = ±1; an axis whose
+direction is unknown (before it first moves) gets no correction and half the span as
+standard uncertainty instead. The model file keeps ``backlash_um`` and
+``cov_with_backlash`` (the joint covariance of the kinematic coefficients and the spans),
+as it did before the blocks corrected new points.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...io import DataError
+from ...io.delimited import numeric_column
+from ...io.errors import cut_repr
+from ..observations import approach_directions
+from .base import Block, Correction, Effect, ModelPart, checked_cov, shared_cols
+
+LABELS = tuple(f"backlash.{a}" for a in "xyz")
+
+
+class Backlash(Block):
+    """Reversal span of each axis (µm)."""
+
+    token = "backlash"
+    entry = Effect(
+        "backlash", "backlash (reversal error)",
+        "an axis reads differently depending on the direction it last moved in (play in the "
+        "drive, friction hysteresis of the carriage): balls approached from opposite sides "
+        "along an axis differ by the reversal span, whatever their position.",
+        "a known measurement order (time_min or the file's row order) that reaches balls "
+        "from both directions along an axis: serpentine or random order.",
+        "drift and straightness when the direction alternates row by row (serpentine), and "
+        "the placement when every ball is approached from the same side.",
+        "the same balls in two orders (row-by-row and serpentine), or one ball approached "
+        "from both sides.")
+
+    sim_keys = frozenset({"x_um", "y_um", "z_um"})
+    sim_ranges = {f"{a}_um": (-1e3, 1e3) for a in "xyz"}
+
+    @classmethod
+    def draw(cls, cfg, sim, rng):
+        return {f"backlash.{a}": float(cfg.get(f"{a}_um", 0.0)) for a in "xyz"}
+
+    @staticmethod
+    def needs(obs):
+        if not (np.ptp(obs.approach, axis=0) == 2).any():
+            return "every ball was approached from the same side along each axis"
+        return None
+
+    def columns(self, obs):
+        return [("backlash", [f"backlash.{a}" for a in "xyz"], "um")]
+
+    def reading_stage(self, ev, d):
+        return d + ev.x("backlash") * ev.obs.approach / 2
+
+    def jacobian(self, ev):
+        o = ev.obs
+        return [(shared_cols(ev.start("backlash"), 3, len(o.pos)),
+                 np.eye(3)[None] * (o.approach / 2)[:, None, :])]
+
+    # --- compensation of new points -----------------------------------------------------
+    model_keys = ("backlash_um", "cov_with_backlash")
+    model_what = "backlash spans"
+
+    @classmethod
+    def part_to_file(cls, part):
+        return {"backlash_um": part.values.tolist(), "cov_with_backlash": part.cov.tolist()}
+
+    @classmethod
+    def part_from_file(cls, d, n_before, name):
+        if "backlash_um" not in d:
+            return None
+        try:
+            spans = np.asarray(d["backlash_um"], float)
+            joint = np.asarray(d["cov_with_backlash"], float)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"is not a model file written by 'fit --save' "
+                            f"({cut_repr(str(exc), 80)}).", file=name) from None
+        k = n_before + 3
+        if spans.shape != (3,) or joint.shape != (k, k):
+            raise DataError(f"expected 3 backlash spans and a {k}x{k} joint covariance, "
+                            f"found {spans.shape} and {joint.shape}.", file=name)
+        if not np.isfinite(spans).all():
+            raise DataError("backlash_um must be 3 finite spans (µm).", file=name,
+                            column="backlash_um")
+        checked_cov(joint, k, name, "cov_with_backlash")
+        return ModelPart(LABELS, spans, joint)
+
+    @classmethod
+    def correct(cls, part, points, x_mm, name):
+        t = None
+        if "time_min" in points:
+            t = numeric_column(points, "time_min", name, allow_missing=True)
+            t = t if np.isfinite(t).all() else None  # incomplete times: the file order
+        d = approach_directions(x_mm, t)
+        # unknown direction: the correction is ±span/2 with equal odds, σ = |span|/2
+        return Correction(part.values * d / 2, np.eye(3)[None] * (d / 2)[:, None, :],
+                          (d == 0) * (part.values / 2) ** 2,
+                          {f"approach_{a}": d[:, i].astype(int) for i, a in enumerate("xyz")})

@@ -1,0 +1,390 @@
+"""The protocol every effect block implements, and the evaluation context they share.
+
+The residual of an observation (µm) is built in stages (``fit`` module docstring)::
+
+    p' = probe stage(p)                    probe_offset
+    x* = kinematic model(r - p, p')        kinematic (thesis eq. 4.13)
+    c' = plate stage(c_b)                  plate_thermal, plate_sag
+    d  = (x* - (R_k c' + t_k)) / UM        placement
+    d  = reading stage(d)                  drift, backlash, machine_thermal
+
+A block takes part in the stages it overrides; each writes its own columns of the
+Jacobian. Adding an effect is adding one block module and listing it in
+``blocks.REGISTRY``. A block that also acts on new points (``compensate``: backlash,
+machine_thermal) says what the model file keeps of it (:meth:`Block.compensation`,
+:meth:`Block.part_to_file`, :meth:`Block.part_from_file`) and how it corrects a point
+(:meth:`Block.correct`); a block checks its own simulator configuration
+(:meth:`Block.check_sim`).
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...io import DataError
+from ...io.errors import cut_repr
+from ...io.setup import check_celsius
+
+
+@dataclass
+class Eval:
+    """Working values of one residual evaluation, shared by the blocks.
+
+    Attributes
+    ----------
+    problem : fit.Problem
+        The problem being evaluated (observations, layout, blocks).
+    state : fit_state.State
+        Plate coordinates, placements and the parameter vector.
+    want_jac : bool
+        Whether the Jacobian is wanted.
+    p_mm : ndarray (n, 3)
+        Probe offsets after the probe stage.
+    plate_mm : ndarray (n, 3)
+        Plate coordinates of each observation after the plate stage.
+    plate_scale : ndarray (n,) or float
+        Thermal scale factor applied to the plate coordinates (plate Jacobian).
+    Rk : ndarray (n, 3, 3)
+        Rotation of each observation's placement.
+    kin_jac : ndarray (n, 3, k) or None
+        Kinematic model Jacobian (mm per coefficient unit).
+    """
+
+    problem: object
+    state: object
+    want_jac: bool
+    p_mm: np.ndarray | None = None
+    plate_mm: np.ndarray | None = None
+    plate_scale: np.ndarray | float = 1.0
+    Rk: np.ndarray | None = None
+    kin_jac: np.ndarray | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def obs(self):
+        return self.problem.obs
+
+    def x(self, name):
+        """Parameters of one layout slice."""
+        return self.state.x[self.problem.layout.blocks[name]]
+
+    def start(self, name):
+        """First column of one layout slice."""
+        return self.problem.layout.blocks[name].start
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One catalogue entry: what it is, what it needs, what it is confused with.
+
+    Attributes
+    ----------
+    name : str
+        Catalogue name used in model specs (``dyz``, ``dyz:3``, ``plate_sag``).
+    title : str
+        Short human title.
+    explanation : str
+        What a metrologist would write about the physical effect.
+    needs : str
+        The data it needs to be identifiable.
+    confused_with : str
+        Effects it can be mistaken for with common measurement plans.
+    separate_by : str
+        The measurement that separates it from those.
+    """
+
+    name: str
+    title: str
+    explanation: str
+    needs: str
+    confused_with: str
+    separate_by: str
+
+
+@dataclass
+class SimContext:
+    """What a block's :meth:`Block.draw` sees of a simulation, and may set.
+
+    Attributes
+    ----------
+    positions, probes : list of str
+        Positions and probes of the setup.
+    temps_C : dict
+        Plate temperature of each position at its start and finish (°C); 20 °C unless a
+        block (plate_thermal) sets it.
+    columns : dict
+        Further columns a block records: column -> {position: (start, finish)},
+        interpolated over each position's measuring time like ``temp_C``.
+    """
+
+    positions: list
+    probes: list
+    temps_C: dict = field(default_factory=dict)
+    columns: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SimCheck:
+    """What a block's :meth:`Block.check_sim` checks its configuration against, and the
+    refusals it raises (every one a ``DataError`` naming the file and the key).
+
+    Attributes
+    ----------
+    name : str
+        The configuration's file name, for messages.
+    positions : tuple of str
+        Positions of the setup being simulated.
+    probes : tuple of str
+        Probes of that setup.
+    """
+
+    name: str
+    positions: tuple
+    probes: tuple
+
+    def bad(self, column, message, hint=None) -> DataError:
+        """A refusal of the key ``column``."""
+        return DataError(message, file=self.name, column=column, hint=hint)
+
+    def known(self, column, key, names, what):
+        """Refuse ``key`` unless it is one of ``names`` (a position or probe of the setup);
+        a close name is offered (a typo would silently drop the entry)."""
+        if str(key) not in names:
+            close = difflib.get_close_matches(str(key), list(names), n=1, cutoff=0.6)
+            raise self.bad(column, f"{what} {cut_repr(key)} is not in the setup (known: "
+                           f"{cut_repr(', '.join(names), 200)})" + (
+                               f"; did you mean {close[0]!r}?" if close else "."))
+
+    def vectors_by_name(self, cfg, where, skip, names, what):
+        """Every key of ``cfg`` but ``skip`` one of ``names`` (positions or probes of the
+        setup), each with a vector of 3 numbers (drift per position, offset per probe)."""
+        for key, v in cfg.items():
+            if key != skip:
+                self.known(f"{where}.{key}", key, names, what)
+                self.vector(f"{where}.{key}", v)
+
+    def vector(self, column, v):
+        """Refuse anything but 3 finite numbers."""
+        if not (isinstance(v, list | tuple) and len(v) == 3 and all(
+                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+                for x in v)):
+            raise self.bad(column, f"expected 3 finite numbers (µm or µm/h), found "
+                           f"{cut_repr(v)}.")
+
+    def start_finish_C(self, column, temps):
+        """Refuse ``temps`` unless it maps positions of the setup to [start, finish]
+        temperatures in °C."""
+        if temps is None:
+            return
+        if not isinstance(temps, dict):
+            raise self.bad(column, f"expected an object position: [start, finish] in °C, "
+                           f"found {cut_repr(temps)}.")
+        for pos, t in temps.items():
+            col = f"{column}.{pos}"
+            self.known(col, pos, self.positions, "position")
+            if not (isinstance(t, list) and len(t) == 2 and all(
+                    isinstance(x, int | float) and not isinstance(x, bool) for x in t)):
+                raise self.bad(col, f"expected [start, finish] in °C, found {cut_repr(t)}.")
+            check_celsius(np.asarray(t, float), self.name, col)
+
+
+@dataclass(frozen=True)
+class ModelPart:
+    """What a model file keeps of one block to correct new points (``compensate``).
+
+    Attributes
+    ----------
+    labels : tuple of str
+        The block's parameters applied to new points (fit labels: ``backlash.x``,
+        ``machine_thermal.cte_z``).
+    values : ndarray (k,)
+        Their fitted values, in the block's units.
+    cov : ndarray (n + m + k, n + m + k)
+        Joint covariance of the n kinematic coefficients, the m parameters of the
+        compensating blocks before this one in ``REGISTRY`` order, and these k: the
+        correction's uncertainty needs their correlations with the error map.
+    """
+
+    labels: tuple
+    values: np.ndarray
+    cov: np.ndarray
+
+
+@dataclass(frozen=True)
+class Correction:
+    """A block's correction of new points (:meth:`Block.correct`).
+
+    Attributes
+    ----------
+    delta_um : ndarray (m, 3)
+        Added to the kinematic correction ``e`` (true minus reported tip centre, µm).
+    jac : ndarray (m, 3, k)
+        Derivative of ``delta_um`` with respect to the part's values (µm per unit): the
+        columns that follow the kinematic Jacobian in the propagation through
+        :attr:`ModelPart.cov`.
+    var_um2 : ndarray (m, 3) or None
+        Variance the covariance does not hold (µm²), added to the propagated one.
+    columns : dict
+        Output columns the block adds (name -> (m,) array).
+    """
+
+    delta_um: np.ndarray
+    jac: np.ndarray
+    var_um2: np.ndarray | None = None
+    columns: dict = field(default_factory=dict)
+
+
+class Block:
+    """One physical effect: its parameters, the data it needs, its residual contribution,
+    Jacobian and gauge constraints.
+
+    Subclasses set :attr:`token` (the catalogue name that adds it to a model; ``None``
+    for blocks always present) and override what they take part in.
+    """
+
+    token: str | None = None
+    """Catalogue name that puts the block in a model (``None``: always in the model)."""
+    entry: Effect | None = None
+    """Its catalogue entry (what it is, needs, is confused with, is separated by)."""
+
+    sim_keys: frozenset | None = frozenset()
+    """Keys the simulator accepts under ``effects.<token>`` (None: position or probe names
+    besides those of :attr:`sim_ranges`, checked against the setup)."""
+    sim_ranges: dict = {}
+    """Numeric simulator keys and their allowed (low, high) range."""
+
+    def __init__(self, problem):
+        self.problem = problem
+
+    @classmethod
+    def draw(cls, cfg: dict, sim: SimContext, rng) -> dict:
+        """True parameter values (by fit label) for the simulator's ``effects.<token>``
+        configuration ``cfg``; random draws come from ``rng``."""
+        return {}
+
+    @classmethod
+    def wanted(cls, spec, plate: str) -> bool:
+        """Whether a model with this spec and plate mode contains the block."""
+        return cls.token is not None and cls.token in spec.effects
+
+    @staticmethod
+    def needs(obs) -> str | None:
+        """Why these observations cannot determine the effect (None: they can)."""
+        return None
+
+    def columns(self, obs) -> list:
+        """Layout entries ``(name, labels, unit)`` the block adds (unit: str or list)."""
+        return []
+
+    # --- stages ---------------------------------------------------------------------
+    def probe_stage(self, ev: Eval, p):
+        return p
+
+    def plate_stage(self, ev: Eval, c):
+        return c
+
+    def reading_stage(self, ev: Eval, d):
+        return d
+
+    def jacobian(self, ev: Eval) -> list:
+        """``[(cols (n, 3, k) or broadcastable, values (n, 3, k))]``: derivatives of the
+        three residual components with respect to ``k`` columns."""
+        return []
+
+    def constraints(self) -> np.ndarray | None:
+        """Gauge constraint rows on the block's own columns (``C x = 0``), or None."""
+        return None
+
+    # --- simulator configuration ------------------------------------------------------
+    @classmethod
+    def check_sim(cls, cfg: dict, where: str, check: SimCheck) -> None:
+        """Refuse what :attr:`sim_keys` and :attr:`sim_ranges` cannot say is wrong in
+        ``effects.<token>`` (``where``): names of positions or probes the setup lacks,
+        malformed vectors or temperatures (``check`` raises the refusals)."""
+
+    # --- compensation of new points -----------------------------------------------------
+    model_keys: tuple = ()
+    """Keys the block writes in a model file (empty: it does not act on new points)."""
+    model_what: str = ""
+    """What those keys hold, for messages ("backlash spans")."""
+    model_keys_optional: bool = False
+    """Whether a model file whose spec has the block may lack its keys (written before the
+    block kept them): it is then read without the part and corrects as it did; False:
+    such a file is refused."""
+
+    @classmethod
+    def compensation(cls, result, before) -> ModelPart | None:
+        """What a model file must keep of this block to correct new points (None: the
+        block is not in the fit, or does not act on new points).
+
+        Parameters
+        ----------
+        result : FitResult
+        before : ndarray of int
+            Parameter indices of the kinematic coefficients and of the compensating
+            blocks before this one (the leading rows of :attr:`ModelPart.cov`).
+        """
+        s = result.problem.layout.blocks.get(cls.token)
+        if not cls.model_keys or s is None:
+            return None
+        idx = np.r_[before, np.arange(s.start, s.stop)]
+        return ModelPart(tuple(result.labels[s]), result.values[s].copy(),
+                         result.covariance[np.ix_(idx, idx)].copy())
+
+    @classmethod
+    def part_to_file(cls, part: ModelPart) -> dict:
+        """The model-file keys (:attr:`model_keys`) holding ``part``."""
+        return {}
+
+    @classmethod
+    def part_from_file(cls, d: dict, n_before: int, name: str) -> ModelPart | None:
+        """The part a model file ``d`` holds (None: none), every field checked; a
+        ``DataError`` naming the file ``name`` and the key otherwise. ``n_before``: the
+        parameters before the block's in the joint covariance."""
+        return None
+
+    @classmethod
+    def correct(cls, part: ModelPart, points, x_mm: np.ndarray, name: str) -> Correction:
+        """The block's correction of new ``points`` (a table with ``x_mm, y_mm, z_mm``
+        and what the block needs) at scale readings ``x_mm`` (m, 3); refusals name the
+        points file ``name``."""
+        raise NotImplementedError(f"{cls.__name__} does not correct new points")
+
+
+def checked_cov(cov, n, name, column):
+    """Refuse a model file's covariance unless it is an n × n finite, symmetric, positive
+    semi-definite matrix: a NaN or a negative variance would give NaN or imaginary
+    uncertainties, silently."""
+    if cov.shape != (n, n):
+        raise DataError(f"expected a {n}x{n} covariance, found shape {cov.shape}.", file=name,
+                        column=column)
+    if not np.isfinite(cov).all():
+        raise DataError("the covariance holds NaN or infinite entries; expected finite "
+                        "numbers.", file=name, column=column,
+                        hint="refit and save the model again (fit --save).")
+    scale = max(float(np.abs(cov).max()), 1e-300) if n else 1.0
+    if n and np.abs(cov - cov.T).max() > 1e-9 * scale:
+        raise DataError("the covariance is not symmetric.", file=name, column=column,
+                        hint="refit and save the model again (fit --save).")
+    if n and (np.diag(cov) < 0).any():
+        k = int(np.flatnonzero(np.diag(cov) < 0)[0])
+        raise DataError(f"entry {k} of the covariance's diagonal is negative "
+                        f"({cov[k, k]:g}); expected variances >= 0.", file=name, column=column)
+    if n and np.linalg.eigvalsh((cov + cov.T) / 2).min() < -1e-8 * scale:
+        raise DataError("the covariance is not positive semi-definite; expected a "
+                        "covariance matrix.", file=name, column=column,
+                        hint="refit and save the model again (fit --save).")
+
+
+def per_group_cols(start: int, group: np.ndarray):
+    """Columns ``start + 3 g + (0, 1, 2)`` of per-group xyz parameters, (n, 3)."""
+    return start + 3 * group[:, None] + np.arange(3)
+
+
+def shared_cols(start: int, k: int, n: int):
+    """The same ``k`` columns for every observation, (n, k)."""
+    return np.broadcast_to(np.arange(start, start + k), (n, k))

@@ -1,0 +1,50 @@
+"""Sag of a horizontal plate: a bowl ``w = a·u² + b·u·v + c·v²`` along the plate normal,
+with (u, v) the plate coordinates normalised to [-1, 1] (``geometry.plate_effect_basis``),
+so that each coefficient is the bowl's height at the plate's edge (µm). Vertical
+placements do not sag."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...units import UM
+from .base import Block, Effect, shared_cols
+
+
+class PlateSag(Block):
+    """Bowl heights at the plate's edge (µm)."""
+
+    token = "plate_sag"
+    entry = Effect(
+        "plate_sag", "plate sag (gravity bending)",
+        "a horizontally supported plate bends under its own weight: the out-of-plane "
+        "coordinates follow a bowl shared by all horizontal placements and absent when the "
+        "plate stands vertically.",
+        "horizontal and vertical placements with a certificate (fixed or prior).",
+        "the straightness of the axes spanning the plate (dxz, dyz) and plate form.",
+        "the same horizontal placement at two heights or a vertical placement.")
+
+    sim_keys = frozenset({"uu", "uv", "vv"})
+    sim_ranges = {k: (-1e3, 1e3) for k in ("uu", "uv", "vv")}
+
+    @classmethod
+    def draw(cls, cfg, sim, rng):
+        return {f"plate_sag.{k}": float(cfg.get(k, 0.0)) for k in ("uu", "uv", "vv")}
+
+    @staticmethod
+    def needs(obs):
+        return None if obs.horizontal.any() else "needs at least one horizontal placement"
+
+    def columns(self, obs):
+        return [("plate_sag", ["plate_sag.uu", "plate_sag.uv", "plate_sag.vv"], "um")]
+
+    def plate_stage(self, ev, c):
+        o = ev.obs
+        w = self.problem.sag_basis[o.ball] @ ev.x("plate_sag") * UM
+        return c + np.outer(w * o.horizontal[o.pos], [0, 0, 1])
+
+    def jacobian(self, ev):
+        o = ev.obs
+        nrm = ev.Rk[:, :, 2] * o.horizontal[o.pos][:, None]
+        return [(shared_cols(ev.start("plate_sag"), 3, len(o.pos)),
+                 -nrm[:, :, None] * self.problem.sag_basis[o.ball][:, None, :])]

@@ -1,0 +1,225 @@
+"""The observations a fit uses: a selection of a dataset as arrays (machine frame, mm).
+
+``select`` picks positions and probes, drops excluded rows, and derives what the effect
+blocks need: plate temperatures (column or the setup's records), time within each
+position, the approach direction of each axis (backlash), nominal placements and the
+starting plate (certificate, or the mean measured plate).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from ..io import DataError, Dataset, refuse_unknown_keys
+from ..machine import DEFAULT_LAYOUT
+
+__all__ = ["Observations", "select", "approach_directions", "setup_layout"]
+
+
+def _plate_u_um(cert_xyz_mm):
+    """Certificate standard uncertainty when none is printed: thesis appendix 1 plate
+    specification U(k=2) = sqrt(0.26² + (1.9e-3 l)²) µm with l the distance from ball 1."""
+    length = np.linalg.norm(cert_xyz_mm - cert_xyz_mm[0], axis=1)
+    u = np.sqrt(0.26**2 + (1.9e-3 * length) ** 2) / 2
+    return np.repeat(u[:, None], 3, axis=1)
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Arrays of the observations a fit uses (a selection of a dataset).
+
+    Attributes
+    ----------
+    table : DataFrame
+        The selected rows (position, probe, ball, source, row ...).
+    r_mm, p_mm : ndarray (n, 3)
+        Measured tip centres and nominal probe offsets, machine frame.
+    pos, probe, ball : ndarray of int (n,)
+        Indices into ``positions``, ``probes``, ``balls``.
+    positions, probes : list of str
+    balls : ndarray of int
+    plate0_mm : ndarray (B, 3)
+        Starting plate coordinates (certificate, or the mean measured plate).
+    cert_u_um : ndarray (B, 3) or None
+    dT_K : ndarray (n,)
+        Plate temperature minus 20 °C (zero when not recorded).
+    has_temp : bool
+    hours : ndarray (n,)
+        Time minus the position's mean time, in hours.
+    horizontal : ndarray of bool (P,)
+    R0, t0_mm : ndarray (P, 3, 3), (P, 3)
+        Nominal placements from the setup.
+    range_mm : ndarray (3,)
+    has_certificate : bool
+    approach : ndarray (n, 3)
+        Direction of the last move of each axis before the point (+1, -1; 0 before the
+        axis first moved), from the measurement order of the whole file (``backlash``).
+    layout : str
+        Machine layout from the setup's ``machine.layout`` (``kinematics.LAYOUTS``): the
+        kinematic chain the fit models.
+    instruments : tuple
+        Laser runs and step gauges fitted with the plate (``instruments``; ``fit``'s
+        ``instruments=``). Kept here so that every model fitted or scored on these
+        observations (the diagnosis's candidates and refits) has their rows too.
+    artefact : str
+        ``"ball_plate"`` or ``"hole_plate"`` (the setup's ``artefact``): a hole plate's
+        observations give only the two coordinates in the plate's plane (``hole_plate``).
+    """
+
+    table: pd.DataFrame
+    r_mm: np.ndarray
+    p_mm: np.ndarray
+    pos: np.ndarray
+    probe: np.ndarray
+    ball: np.ndarray
+    positions: list
+    probes: list
+    balls: np.ndarray
+    plate0_mm: np.ndarray
+    cert_u_um: np.ndarray | None
+    dT_K: np.ndarray
+    has_temp: bool
+    hours: np.ndarray
+    horizontal: np.ndarray
+    R0: np.ndarray
+    t0_mm: np.ndarray
+    range_mm: np.ndarray
+    has_certificate: bool
+    approach: np.ndarray
+    layout: str = DEFAULT_LAYOUT
+    instruments: tuple = ()
+    artefact: str = "ball_plate"
+
+
+def setup_layout(setup) -> str:
+    """The setup's ``machine.layout``; the moving bridge FXYZ when it names none."""
+    machine = setup.raw.get("machine") if isinstance(setup.raw, dict) else None
+    return machine.get("layout", DEFAULT_LAYOUT) if isinstance(machine, dict) \
+        else DEFAULT_LAYOUT
+
+
+def approach_directions(ram_mm, time_min=None, *, min_move_mm=0.5):
+    """Direction from which each axis last moved before each point (backlash state).
+
+    Parameters
+    ----------
+    ram_mm : ndarray (n, 3)
+        Scale readings (tip centre minus probe offset) in file order, mm.
+    time_min : ndarray (n,), optional
+        Measurement times; without them the file order is the measurement order (docs/formats.md).
+    min_move_mm : float
+        Smaller steps (noise, a ball repeated in place) leave an axis's state unchanged.
+
+    Returns
+    -------
+    ndarray (n, 3)
+        +1 or -1 per axis, 0 until the axis has first moved.
+    """
+    n = len(ram_mm)
+    order = np.arange(n) if time_min is None else np.argsort(time_min, kind="stable")
+    step = np.diff(ram_mm[order], axis=0)
+    sign = np.where(np.abs(step) > min_move_mm, np.sign(step), 0.0)
+    sign = np.vstack([np.zeros((1, 3)), sign])
+    # an axis keeps the direction of its last real move: forward-fill the non-zero signs
+    idx = np.where(sign != 0, np.arange(n)[:, None], 0)
+    np.maximum.accumulate(idx, axis=0, out=idx)
+    out = np.empty((n, 3))
+    out[order] = np.take_along_axis(sign, idx, axis=0)
+    return out
+
+
+def select(data: Dataset, *, positions=None, probes=None, exclude=()) -> Observations:
+    """Observations of the chosen positions and probes, minus excluded rows.
+
+    ``exclude`` holds ``(position, probe, ball)`` triples (outliers the user removed).
+    """
+    df = data.meas
+    keep = np.ones(len(df), bool)
+    if positions is not None:
+        keep &= df["position"].isin(list(positions)).to_numpy()
+    if probes is not None:
+        keep &= df["probe"].isin(list(probes)).to_numpy()
+    ex = {(str(a), str(b), int(c)) for a, b, c in exclude}
+    if ex:
+        keep &= ~np.array([(p, q, int(b)) in ex for p, q, b in
+                           zip(df["position"], df["probe"], df["ball"], strict=True)])
+    t = df[keep].reset_index(drop=True)
+    # backlash state follows every move the machine made, excluded balls included
+    has_time = "time_min" in df and df["time_min"].notna().all()
+    codes, names = pd.factorize(df["probe"])
+    ram_all = df[["mx_mm", "my_mm", "mz_mm"]].to_numpy(float) - np.array(
+        [data.setup.probes[q] for q in names], float).reshape(-1, 3)[codes]
+    approach = approach_directions(
+        ram_all, df["time_min"].to_numpy(float) if has_time else None)[keep]
+    if len(t) == 0:
+        raise ValueError("no observations left after the selection; choose at least one "
+                         "position and probe.")
+    positions = list(dict.fromkeys(t["position"]))
+    probes = list(dict.fromkeys(t["probe"]))
+    setup = data.setup
+    pos = t["position"].map({p: i for i, p in enumerate(positions)}).to_numpy()
+    prb = t["probe"].map({p: i for i, p in enumerate(probes)}).to_numpy()
+    r = t[["mx_mm", "my_mm", "mz_mm"]].to_numpy(float)
+    pnom = np.array([setup.probes[q] for q in probes])
+    R0 = np.array([setup.positions[p].rotation for p in positions])
+    t0 = np.array([setup.positions[p].origin_mm for p in positions])
+    cert = data.certificate
+    if cert is not None:
+        balls = cert.balls
+        plate0 = cert.xyz_mm.copy()
+        cu = cert.u_um if cert.u_um is not None else _plate_u_um(cert.xyz_mm)
+    else:
+        balls = np.unique(t["ball"].to_numpy())
+        cu = None
+        plate0 = np.zeros((len(balls), 3))
+        bidx = np.searchsorted(balls, t["ball"].to_numpy())
+        local = np.einsum("nji,nj->ni", R0[pos], r - t0[pos])  # nominal plate frame
+        np.add.at(plate0, bidx, local)
+        plate0 /= np.bincount(bidx, minlength=len(balls))[:, None]
+    ball = np.searchsorted(balls, t["ball"].to_numpy())
+    # Temperatures: the column, else start/finish of the position interpolated over order.
+    dT = np.zeros(len(t))
+    has_temp = "temp_C" in t and t["temp_C"].notna().all()
+    if has_temp:
+        dT = t["temp_C"].to_numpy(float) - 20.0
+    else:
+        for i, p in enumerate(positions):
+            rec = setup.positions[p].temp_C
+            sel = np.flatnonzero(pos == i)
+            if len(rec) >= 1 and len(sel):
+                has_temp = True
+                frac = np.linspace(0, 1, len(sel)) if len(sel) > 1 else np.zeros(1)
+                dT[sel] = rec[0] + (rec[-1] - rec[0]) * frac - 20.0
+    # Time: the column, else the order of rows (one minute per probed ball, an assumption).
+    tm = (t["time_min"].to_numpy(float) if "time_min" in t and t["time_min"].notna().all()
+          else np.arange(len(t), dtype=float))
+    hours = np.zeros(len(t))
+    for i in range(len(positions)):
+        sel = pos == i
+        hours[sel] = (tm[sel] - tm[sel].mean()) / 60.0
+    horiz = np.array([setup.positions[p].horizontal for p in positions])
+    return Observations(t, r, pnom[prb], pos, prb, ball, positions, probes, balls, plate0, cu,
+                        dT, bool(has_temp), hours, horiz, R0, t0, setup.range_mm,
+                        cert is not None, approach, setup_layout(setup),
+                        artefact=getattr(setup, "artefact", "ball_plate"))
+
+
+def check_selection(data: Dataset, positions, probes, exclusions, name: str) -> None:
+    """Positions, probes and excluded ``(position, probe, ball)`` observations a saved
+    analysis names exist in its data: an unknown one would silently select or exclude
+    nothing. A DataError names the field and the name it most likely misspells."""
+
+    known = {"positions": [str(p) for p in data.positions],
+             "probes": [str(q) for q in dict.fromkeys(data.meas["probe"])]}
+    for field, names in (("positions", positions), ("probes", probes)):
+        refuse_unknown_keys(names or (), known[field], name, f"{field}.", field[:-1])
+    have = set(zip(data.meas["position"].astype(str), data.meas["probe"].astype(str),
+                   data.meas["ball"].astype(int), strict=True))
+    for e in exclusions:
+        if (str(e[0]), str(e[1]), int(e[2])) not in have:
+            raise DataError(f"excluded observation {list(e)} (position, probe, ball) is not "
+                            "in the data; expected one of its measured balls.", file=name,
+                            column="exclusions")

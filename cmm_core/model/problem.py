@@ -1,0 +1,245 @@
+"""One model on one selection of observations: the parameter layout of its effect blocks,
+residuals and their analytic Jacobian, gauge constraints and weighted residual rows
+(thesis eq. 4.13-4.15; the solver that uses them is ``fit.fit``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..machine import kinematics as kin
+from ..machine import plate_effect_basis, rigid_fit
+from ..units import UM
+from . import hole_plate
+from . import normal as _normal
+from .blocks import REGISTRY
+from .blocks.base import Eval
+from .blocks.kinematic import Kinematic
+from .blocks.plate import Plate
+from .effects import ModelSpec
+from .instruments import Instruments
+from .observations import Observations
+from .state import State
+
+__all__ = ["Problem", "held_constraints", "augmented_state", "weighted_residual"]
+
+
+@dataclass
+class _Layout:
+    """Column layout of the parameter vector: block name -> slice, plus labels/units."""
+
+    blocks: dict = field(default_factory=dict)
+    labels: list = field(default_factory=list)
+    units: list = field(default_factory=list)
+    groups: list = field(default_factory=list)
+
+    def add(self, name, labels, unit):
+        i = len(self.labels)
+        self.blocks[name] = slice(i, i + len(labels))
+        self.labels += labels
+        self.units += [unit] * len(labels) if isinstance(unit, str) else unit
+        self.groups += [name] * len(labels)
+
+    @property
+    def n(self):
+        return len(self.labels)
+
+
+class Problem:
+    """Parameter layout, residuals and analytic Jacobian of one model on one selection.
+
+    The model is the sum of its effect blocks (``cmm_core.blocks``): each lays out its
+    columns, takes part in the probe, plate and reading stages of the residual, writes its
+    Jacobian columns and its gauge constraints.
+    """
+
+    def __init__(self, obs: Observations, spec: ModelSpec, plate: str):
+        self.obs, self.spec, self.plate = obs, spec, plate
+        self.terms = kin.KinematicTerms(spec.active, tuple(obs.range_mm), spec.periods,
+                                        obs.layout)
+        self.plate_centre, self.sag_basis = plate_effect_basis(obs.plate0_mm)
+        self.n_obs = len(obs.r_mm)
+        self.B, self.P, self.Q = len(obs.balls), len(obs.positions), len(obs.probes)
+        self.blocks = [cls(self) for cls in REGISTRY if cls.wanted(spec, plate)]
+        L = _Layout()
+        for b in self.blocks:
+            for name, labels, unit in b.columns(obs):
+                L.add(name, labels, unit)
+        self.layout = L
+        self.instruments = Instruments(self)  # laser and step-gauge rows (their own module)
+        self._kinematic = next(b for b in self.blocks if isinstance(b, Kinematic))
+
+    def block(self, cls):
+        """The block of this class in the model, or None."""
+        return next((b for b in self.blocks if isinstance(b, cls)), None)
+
+    # --- state ---------------------------------------------------------------------
+    def initial_state(self):
+        """Nominal plate, placements by a rigid fit of the plate to each position."""
+        if hole_plate.is_hole_plate(self.obs):  # in-plane fit at the nominal tilt
+            return hole_plate.initial_state(self)
+        o = self.obs
+        R = np.empty((self.P, 3, 3))
+        t = np.empty((self.P, 3))
+        for k in range(self.P):
+            sel = o.pos == k
+            R[k], t[k] = rigid_fit(o.plate0_mm[o.ball[sel]], o.r_mm[sel])
+        return State(o.plate0_mm.copy(), R, t, np.zeros(self.layout.n))
+
+    def _placed(self, ev):
+        """Probe and plate stages, then the placed ball ``R_k c' + t_k`` (mm)."""
+        o, state = self.obs, ev.state
+        p = o.p_mm.copy()
+        for b in self.blocks:
+            p = b.probe_stage(ev, p)
+        ev.p_mm = p
+        c = state.c[o.ball]
+        for b in self.blocks:
+            c = b.plate_stage(ev, c)
+        ev.plate_mm = c
+        ev.Rk = state.R[o.pos]
+        return np.einsum("nij,nj->ni", ev.Rk, c) + state.t[o.pos]
+
+    def _reading(self, ev, d):
+        for b in self.blocks:
+            d = b.reading_stage(ev, d)
+        return d
+
+    def _evaluate(self, state, want_jac):
+        ev = Eval(self, state, want_jac)
+        placed = self._placed(ev)
+        xs = self._kinematic.model(ev)
+        return self._reading(ev, (xs - placed) / UM), ev
+
+    def targets(self, state):
+        """What the kinematic model must return for every residual to vanish (mm), and
+        the true probe offsets (mm): the simulator inverts the model to these
+        (``simulate``), so that it is the exact inverse of the fit's model."""
+        ev = Eval(self, state, False)
+        placed = self._placed(ev)
+        # the reading stage is linear in the residual: d = (x* - placed)/UM + L
+        L = self._reading(ev, np.zeros_like(placed))
+        return placed - L * UM, ev.p_mm
+
+    def plate_points(self, state):
+        """Plate coordinates of every observation after thermal and sag effects (mm)."""
+        ev = Eval(self, state, False)
+        c = state.c[self.obs.ball]
+        for b in self.blocks:
+            c = b.plate_stage(ev, c)
+        return c
+
+    def residual(self, state, want_jac=False):
+        """Residuals (n, 3) in µm and, if asked, the sparse Jacobian (3n, N); a hole
+        plate's without their components along the plate normal (``hole_plate``)."""
+        out = self._residual3(state, want_jac)
+        return hole_plate.in_plane(self, state, *out) if hole_plate.is_hole_plate(self.obs) \
+            else out
+
+    def _residual3(self, state, want_jac):
+        d, ev = self._evaluate(state, want_jac)
+        if not want_jac:
+            return d, None
+        n = self.n_obs
+        cols, vals = [], []
+        for b in self.blocks:
+            for block_cols, M in b.jacobian(ev):
+                # M: (n, 3, k) derivative of the 3 residual components wrt k columns. Every
+                # row has the same number of entries per block: CSR is assembled directly
+                cols.append(np.broadcast_to(block_cols[:, None, :], M.shape))
+                vals.append(M)
+        # fill one preallocated (n, 3, k) array per CSR field: concatenating broadcast
+        # blocks would copy the dense kinematic block twice (10^5 points: 0.5 s a call)
+        k = sum(c.shape[2] for c in cols)
+        itype = np.int32 if max(self.layout.n, 3 * n * k) < 2**31 - 1 else np.int64
+        data, index = np.empty((n, 3, k)), np.empty((n, 3, k), itype)
+        j = 0
+        for c, v in zip(cols, vals, strict=True):
+            data[:, :, j:j + c.shape[2]] = v
+            index[:, :, j:j + c.shape[2]] = c
+            j += c.shape[2]
+        J = sp.csr_matrix((data.reshape(-1), index.reshape(-1),
+                           np.arange(3 * n + 1, dtype=itype) * k), shape=(3 * n, self.layout.n))
+        return d, J
+
+    def normal_equations(self, state, sigma_um: float, rows: int = _normal.ROWS):
+        """Weighted normal equations ``JᵀJ``, ``Jᵀr`` at ``state``, accumulated over blocks
+        of ``rows`` observations without forming ``J`` (``normal.accumulate``): residuals
+        (µm), ``r·r``, N, g and the number of weighted rows."""
+        if hole_plate.is_hole_plate(self.obs):  # projected rows: J assembled
+            return _hole_plate_normal_equations(self, state, sigma_um)
+        return _normal.accumulate(self, state, sigma_um, rows)
+
+    def constraints(self):
+        """Gauge constraints C (rows) on the parameter vector: C x = 0."""
+        L, rows = self.layout, []
+        for b in self.blocks:
+            G = b.constraints()
+            if G is None:
+                continue
+            G = self.instruments.plate_gauge(b, G)
+            s = L.blocks[b.columns(self.obs)[0][0]]
+            C = np.zeros((G.shape[0], L.n))
+            C[:, s.start:s.start + G.shape[1]] = G  # G may span the block's next groups
+            rows.append(C)
+        return np.vstack(rows) if rows else np.zeros((0, L.n))
+
+    def update(self, state, step):
+        """Apply a step: placements are updated multiplicatively so the rotation
+        parameters stay small increments (exact Jacobian at zero), the plate into its
+        coordinates."""
+        new = state.with_x(state.x + step)
+        for b in self.blocks:
+            if hasattr(b, "update"):
+                new = b.update(new)
+        return new
+
+
+def held_constraints(labels, design_null, prob: Problem):
+    """Constraint rows, in ``prob``'s parameter vector, that hold the combinations a fit
+    with parameters ``labels`` could not determine (its ``design_null``): a model scored
+    or tested from that fit keeps them held, or it would be credited with them."""
+    col = {lab: i for i, lab in enumerate(prob.layout.labels)}
+    held = np.zeros((design_null.shape[0], prob.layout.n))
+    for j, lab in enumerate(labels):
+        held[:, col[lab]] = design_null[:, j]
+    return held
+
+
+def augmented_state(base, prob: Problem) -> State:
+    """A fit's solution expressed in another problem's parameter vector on the same
+    observations (parameters the fit does not have start at zero): the linearisation
+    point from which a candidate effect is scored (``diagnose.score``, ``holdout``)."""
+    return base.state.relabelled(base.labels, prob.layout.labels)
+
+
+def weighted_residual(prob: Problem, state, sigma_um: float, want_jac: bool):
+    """Residuals (µm, (n, 3)), the weighted residual vector and its Jacobian.
+
+    Observation rows are divided by σ; with a plate prior, rows ``(c - c_cert) / u_cert``
+    follow (the certificate weighted by its uncertainty), then the instruments' rows.
+    """
+    d, J = prob.residual(state, want_jac)
+    r = d.ravel() / sigma_um
+    if J is not None:
+        J.data /= sigma_um  # J is this call's own: scaled in place, not copied
+    if prob.plate == "prior":
+        rp, Jp = prob.block(Plate).prior_rows(state, want_jac)
+        r = np.concatenate([r, rp])
+        if J is not None:
+            J = sp.vstack([J, Jp]).tocsr()
+    r, J = prob.instruments.append(r, J, state, prob.layout.n)  # laser, step gauge rows
+    return d, r, J
+
+
+def _hole_plate_normal_equations(prob, state, sigma_um: float):
+    """Weighted normal equations of a hole plate (``Problem.normal_equations``): from the
+    assembled, projected Jacobian of :func:`weighted_residual` (the blocked accumulation
+    of ``normal`` evaluates the blocks' unprojected Jacobians), with two rows per
+    observation counted."""
+    d, r, J = weighted_residual(prob, state, sigma_um, True)
+    N = (J.T @ J).toarray()
+    return _normal.NormalEquations(d, float(r @ r), N, J.T @ r, r.size - prob.n_obs)

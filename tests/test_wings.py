@@ -1,0 +1,141 @@
+"""The core's structure, read from its own imports (issue 23): wings import only downhill,
+no project import inside a function but the justified lazy ones, every public name is
+importable from its wing's face, and no private name crosses a wing."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CORE = ROOT / "cmm_core"
+
+# Each wing and the wings it may import (README, "Layout"). Ground modules (units, _blas)
+# may be imported by every wing.
+ALLOWED = {
+    "machine": set(),
+    "gp": set(),
+    "io": {"machine"},
+    "gum": {"io"},
+    "model": {"machine", "io"},
+    "diagnosis": {"machine", "io", "model", "gp"},
+    "export": {"machine", "io", "model"},
+    "plan": {"machine", "io", "model", "diagnosis", "gum", "export"},
+    "analysis": {"machine", "io", "model", "diagnosis", "gp", "gum", "export"},
+    "cli": {"machine", "io", "model", "diagnosis", "gp", "gum", "export", "plan", "analysis"},
+}
+GROUND = {"units", "_blas", ""}
+WINGS = sorted(ALLOWED)
+
+
+def _modules():
+    for path in sorted(CORE.rglob("*.py")):
+        parts = path.relative_to(CORE).with_suffix("").parts
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        yield path, parts
+
+
+def _imports(path, parts):
+    """(target parts, imported names, node) for every project import in ``path``."""
+    tree = ast.parse(path.read_text())
+    is_pkg = path.name == "__init__.py"
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            base = list(parts if is_pkg else parts[:-1])
+            base = base[:len(base) - (node.level - 1)]
+            target = base + (node.module.split(".") if node.module else [])
+            yield target, [a.name for a in node.names], node, tree
+
+
+def _wing(parts):
+    return parts[0] if parts and parts[0] in ALLOWED else ""
+
+
+@pytest.mark.parametrize("wing", WINGS)
+def test_a_wing_imports_only_the_wings_below_it(wing):
+    wrong = []
+    for path, parts in _modules():
+        if _wing(parts) != wing:
+            continue
+        for target, _names, node, _tree in _imports(path, parts):
+            tw = _wing(target)
+            if tw and tw != wing and tw not in ALLOWED[wing]:
+                wrong.append(f"{path.relative_to(ROOT)}:{node.lineno} imports {'.'.join(target)}")
+            if not tw and target and target[0] not in GROUND:
+                wrong.append(f"{path.relative_to(ROOT)}:{node.lineno} imports {target}")
+    assert not wrong, wrong
+
+
+def test_the_allowed_wings_form_no_circle():
+    order = []
+    left = dict(ALLOWED)
+    while left:
+        ready = [w for w, deps in left.items() if deps <= set(order)]
+        assert ready, f"circle among {sorted(left)}"
+        order += sorted(ready)
+        for w in ready:
+            del left[w]
+
+
+def test_no_function_local_project_import_without_a_reason():
+    """A project import inside a function is allowed only with a comment on its line or
+    the line above saying why it is lazy (a heavy optional dependency)."""
+    unjustified = []
+    for path, parts in _modules():
+        lines = path.read_text().splitlines()
+        for _target, _names, node, tree in _imports(path, parts):
+            if node in tree.body or node.col_offset == 0:
+                continue
+            around = lines[node.lineno - 2] + lines[node.lineno - 1]
+            if "lazy" not in around:
+                unjustified.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not unjustified, unjustified
+
+
+def test_no_private_name_crosses_a_wing():
+    crossing = []
+    for path, parts in _modules():
+        for target, names, node, _tree in _imports(path, parts):
+            if _wing(target) and _wing(target) != _wing(parts):
+                crossing += [f"{path.relative_to(ROOT)}:{node.lineno} {n}" for n in names
+                             if n.startswith("_") and n != "__version__"]
+    assert not crossing, crossing
+
+
+@pytest.mark.parametrize("wing", WINGS)
+def test_every_public_name_is_importable_from_its_wing(wing):
+    """Every public top-level name a wing's modules define is in the face's ``__all__``
+    and is the very object of the module that defines it (names that two modules of a
+    wing define are listed in ``SHADOWED``)."""
+    face = importlib.import_module(f"cmm_core.{wing}")
+    missing = []
+    for path in sorted((CORE / wing).glob("*.py")):
+        if path.name == "__init__.py" or path.stem.startswith("_"):
+            continue
+        module = importlib.import_module(f"cmm_core.{wing}.{path.stem}")
+        for node in ast.parse(path.read_text()).body:
+            names = []
+            if isinstance(node, ast.FunctionDef | ast.ClassDef):
+                names = [node.name]
+            elif isinstance(node, ast.Assign):
+                names = [n.id for t in node.targets for n in ast.walk(t) if isinstance(n, ast.Name)]
+            for name in names:
+                if name.startswith("_") or (wing, name) in SHADOWED:
+                    continue
+                if name not in face.__all__ or getattr(face, name) is not getattr(module, name):
+                    missing.append(f"{path.stem}.{name}")
+    assert not missing, missing
+    for name in face.__all__:
+        assert hasattr(face, name), name
+
+
+SHADOWED = {
+    # the same name in two modules of one wing: the face carries the first, the other is
+    # imported from its module
+    ("diagnosis", "ALPHA"),
+    ("export", "read_points"),
+}
