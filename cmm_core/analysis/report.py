@@ -315,6 +315,7 @@ def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None
                 "none (plate self-calibrated)"),
                ("Setup frame", dataset.setup.frame),
                ("Model", r.spec), ("Plate geometry", r.plate),
+               ("Certificate uncertainty", r.certificate_u_source),
                ("Repeatability σ", f"{r.sigma_um:g} µm" + (
                    " (estimated from the data)" if sigma and sigma.get("auto") else "")),
                ("Observations", str(r.n_obs)), ("Status", r.status),

@@ -29,7 +29,9 @@ from .inputs import (
     ORDER_HELP,
     PLATE_HELP,
     SETUP_HELP,
+    add_data_args,
     add_fit_args,
+    add_foreign_args,
     add_instrument_args,
     add_outlier_args,
     dataset_of,
@@ -40,10 +42,10 @@ from .inputs import (
 from .plan import add_plan_arguments, add_task_arguments, run_plan, run_task
 
 __all__ = [
-    "add_arguments", "add_fit_args", "add_instrument_args", "add_outlier_args", "add_parser",
-    "add_plan_arguments", "add_task_arguments", "build_parser", "CERT_HELP", "cmd_air",
-    "cmd_budget", "cmd_compensate", "cmd_diagnose", "cmd_fit", "cmd_gp", "cmd_plan",
-    "cmd_report", "cmd_simulate", "cmd_task", "command", "dataset_of", "exclusions_of",
-    "instruments_of", "main", "MAX_MESSAGE", "MEAS_HELP", "ORDER_HELP", "PLATE_HELP", "run",
-    "run_plan", "run_task", "SETUP_HELP", "sigma_of"
+    "add_arguments", "add_data_args", "add_fit_args", "add_foreign_args", "add_instrument_args",
+    "add_outlier_args", "add_parser", "add_plan_arguments", "add_task_arguments",
+    "build_parser", "CERT_HELP", "cmd_air", "cmd_budget", "cmd_compensate", "cmd_diagnose",
+    "cmd_fit", "cmd_gp", "cmd_plan", "cmd_report", "cmd_simulate", "cmd_task", "command",
+    "dataset_of", "exclusions_of", "instruments_of", "main", "MAX_MESSAGE", "MEAS_HELP",
+    "ORDER_HELP", "PLATE_HELP", "run", "run_plan", "run_task", "SETUP_HELP", "sigma_of"
 ]

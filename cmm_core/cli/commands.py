@@ -21,10 +21,8 @@ from ..io import DataError, read_json
 from ..model import fit, select, simulate, summary
 from .export import add_parser as add_export_parser
 from .inputs import (
-    CERT_HELP,
-    MEAS_HELP,
     PLATE_HELP,
-    SETUP_HELP,
+    add_data_args,
     add_fit_args,
     add_instrument_args,
     add_outlier_args,
@@ -51,7 +49,6 @@ def _jsonable(o):
 
 
 def cmd_simulate(args):
-
     # read like every JSON input (a byte-order mark tolerated), refusals name the file
     cfg, name = read_json(Path(args.config))
     sim = simulate(cfg, name=name)
@@ -61,7 +58,6 @@ def cmd_simulate(args):
 
 
 def cmd_fit(args):
-
     data = dataset_of(args)
     instruments = instruments_of(args)
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
@@ -75,6 +71,7 @@ def cmd_fit(args):
             "dof": r.dof, "chi2_p_value": r.chi2_p_value, "fails_chi2_test": r.fails_chi2_test,
             "birge_ratio": r.birge_ratio, "sigma": sigma,
             "bic": r.bic, "plate": r.plate, "layout": r.terms.layout,
+            "certificate_u_source": r.certificate_u_source,
             "chi2_test_dof": r.chi2_test_dof, "dof_test": r.dof_test,
             "parameters": {lab: {"value": v, "u": u, "u_inflated": ui, "unit": un}
                            for lab, v, u, ui, un in zip(r.labels, r.values, r.u, r.u_inflated,
@@ -85,7 +82,6 @@ def cmd_fit(args):
 
 
 def cmd_diagnose(args):
-
     data = dataset_of(args)
     instruments = instruments_of(args)
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
@@ -93,18 +89,17 @@ def cmd_diagnose(args):
     if instruments:  # they ride on the observations into every model the diagnosis fits
         from dataclasses import replace
 
-
         data = replace(select(data, exclude=exclude), instruments=tuple(instruments))
     d = diagnose(data, args.baseline, order=args.order, plate=args.plate,
                  sigma_um=sigma_um, exclude=exclude)
     out = d.to_dict()
+    out["certificate_u_source"] = d.baseline.certificate_u_source
     out["sigma"] = sigma
     out["outliers"] = outliers
     return out
 
 
 def cmd_compensate(args):
-
     model = load_model(args.model)
     pts = read_points(args.points)
     out = compensate(model, pts)
@@ -117,7 +112,6 @@ def cmd_compensate(args):
 
 
 def cmd_gp(args):
-
     data = dataset_of(args)
     _, exclude = exclusions_of(data, args.exclude_outliers)
     r = fit(data, "kinematic21" if args.mean == "kinematic" else "rigid", order=args.order,
@@ -137,27 +131,22 @@ def cmd_gp(args):
 
 
 def cmd_budget(args):
-
     return read_budget(Path(args.budget))
 
 
 def cmd_report(args):
-
     return write_report(args.analysis, args.out)
 
 
 def cmd_air(args):
-
     return air_from_args(args.t_C, args.p_Pa, args.rh_percent, args.wavelength_nm)
 
 
 def cmd_plan(args):
-
     return run_plan(args)
 
 
 def cmd_task(args):
-
     return run_task(args)
 
 
@@ -206,9 +195,7 @@ def build_parser():
                         "the flagged output still written")
     p.set_defaults(func=cmd_compensate)
     p = sub.add_parser("gp", help="Gaussian-process model of the errors")
-    p.add_argument("meas", nargs="+", metavar="MEAS.csv", help=MEAS_HELP)
-    p.add_argument("--setup", required=True, metavar="SETUP.json", help=SETUP_HELP)
-    p.add_argument("--certificate", metavar="CERT.csv", help=CERT_HELP)
+    add_data_args(p)
     p.add_argument("--mean", choices=("zero", "quadratic", "kinematic"), default="zero",
                    help="GP mean: 'zero' (the GP models the rigid-aligned errors), "
                         "'quadratic' (full quadratic in the ram position, coefficients "

@@ -5,17 +5,64 @@ help texts a metrologist reads in ``--help``."""
 from __future__ import annotations
 
 import argparse
+import io
 from pathlib import Path
 
 from ..diagnosis import detect_outliers, estimate_sigma
-from ..io import load_dataset
+from ..io import (
+    DMIS_SUFFIXES,
+    DataError,
+    combine_plates,
+    load_dataset,
+    read_foreign,
+    read_mapping,
+    read_msl_bar,
+    read_msl_plate,
+)
 from ..model import read_instrument
 
 
 def dataset_of(args):
-
-    return load_dataset(args.meas, args.setup, args.certificate,
+    """The dataset the fitting commands read: this project's files, tables from other
+    software through ``--mapping`` or a DMIS pattern, or MSL cmm-error-map snapshots."""
+    if args.msl:
+        if args.meas:
+            raise DataError("give measurement files or --msl snapshots, not both.",
+                            file=str(args.meas[0]))
+        metas = args.msl_metadata or [None] * len(args.msl)
+        if len(metas) != len(args.msl):
+            raise DataError(f"{len(args.msl)} --msl snapshot(s) but {len(metas)} "
+                            "--msl-metadata file(s); give one metadata file per snapshot, "
+                            "in the same order.", file=str(args.msl[0]))
+        cu = _certificate_u_arg(args.msl_certificate_u)
+        return combine_plates([read_msl_plate(s, m, kind=args.msl_kind, certificate_u=cu)
+                               for s, m in zip(args.msl, metas, strict=True)]).to_dataset()
+    if not args.meas:
+        raise DataError("no measurement file given.", file="command line",
+                        hint="name MEAS.csv file(s), or --msl SNAPSHOT.csv for MSL files.")
+    if args.setup is None:
+        raise DataError("--setup is required with measurement files.", file="command line",
+                        hint="the setup JSON gives the layout, placements and styli "
+                             "(docs/formats.md#setup).")
+    mapping = read_mapping(args.mapping) if args.mapping else None
+    meas = [read_foreign(m, mapping=mapping, pattern=args.dmis_pattern,
+                         default_probe=args.default_probe).as_source()
+            if mapping is not None or str(m).lower().endswith(DMIS_SUFFIXES) else m
+            for m in args.meas]
+    return load_dataset(meas, args.setup, args.certificate,
                         name=", ".join(Path(m).name for m in args.meas))
+
+
+def _certificate_u_arg(text):
+    """``--msl-certificate-u A,B`` as the setup's certificate statement (k = 2)."""
+    if not text:
+        return None
+    try:
+        a, b = (float(v) for v in text.split(","))
+    except ValueError:
+        raise DataError(f"--msl-certificate-u expects A_UM,B_UM_PER_MM, found {text[:40]!r}.",
+                        file="command line") from None
+    return {"U_um": [a, b], "k": 2, "combine": "quadrature"}
 
 
 MEAS_HELP = ("measurement CSV file(s), coordinates in mm: one long-form file "
@@ -23,9 +70,13 @@ MEAS_HELP = ("measurement CSV file(s), coordinates in mm: one long-form file "
               "thesis-form file per position (ball,x_mm,y_mm,z_mm, named after the position); "
               "see docs/formats.md")
 SETUP_HELP = ("setup JSON: machine layout and range, each position's placement (mm) and "
-               "stylus, the probe offsets (mm); required (docs/formats.md#setup)")
+               "stylus, the probe offsets (mm), the certificate's uncertainty statement; "
+               "default: none, and then required with MEAS files (MSL snapshots bring "
+               "their own) (docs/formats.md#setup)")
 CERT_HELP = ("plate certificate CSV (ball,x_mm,y_mm,z_mm[,u_x_um,u_y_um,u_z_um]), mm and "
-              "µm; default: none, the plate geometry is then fitted (self-calibration)")
+              "µm; without the u columns the setup must state its uncertainty "
+              "(\"certificate\": {\"U_um\": [a, b], \"k\": 2}) or that it is exact; "
+              "default: none, the plate geometry is then fitted (self-calibration)")
 ORDER_HELP = ("polynomial order of each error function along its axis (1 = linear; "
                "default: %(default)s)")
 PLATE_HELP = ("plate geometry: 'fixed' to the certificate, the certificate as a 'prior' "
@@ -66,15 +117,62 @@ def instruments_of(args):
     """The instrument files of ``--laser``, ``--step-gauge`` and ``--ball-bar``, read
     (DataError if bad)."""
 
-    return [read_instrument(f, kind) for kind, files in
-            (("laser", args.laser), ("step_gauge", args.step_gauge),
-             ("ball_bar", args.ball_bar)) for f in files]
+    out = [read_instrument(f, kind) for kind, files in
+           (("laser", args.laser), ("step_gauge", args.step_gauge),
+            ("ball_bar", args.ball_bar)) for f in files]
+    for snapshot in getattr(args, "msl_bar", []):
+        bar = read_msl_bar(snapshot, kind=args.msl_kind,
+                           certificate_u=_certificate_u_arg(args.msl_certificate_u))
+        out.append(read_instrument(io.BytesIO(bar.step_gauge_csv.encode()), "step_gauge",
+                                   name=f"{bar.name} (as a step gauge)"))
+    return out
+
+
+def add_foreign_args(p):
+    """Files other tools write (docs/foreign-formats.md, docs/msl-format.md)."""
+    p.add_argument("--mapping", metavar="MAPPING.json",
+                   help="column mapping JSON: read every MEAS file as a table from other "
+                        "software (which column is position, probe, ball, x, y, z; the unit "
+                        "mm/um/inch; the decimal separator), see docs/foreign-formats.md. "
+                        "Default: none, MEAS files are in this project's long or thesis form")
+    p.add_argument("--dmis-pattern", metavar="REGEX",
+                   help="regular expression every sphere label of a DMIS output file (.dmo) "
+                        "must match, with named groups ball and optionally position and "
+                        "probe, e.g. 'BP(?P<position>\\w+)_(?P<ball>\\d+)'; default: none, "
+                        "required for .dmo files")
+    p.add_argument("--default-probe", default="1", metavar="NAME",
+                   help="probe of DMIS spheres whose label has no probe group (default: "
+                        "%(default)s)")
+    p.add_argument("--msl", action="append", default=[], metavar="SNAPSHOT.csv",
+                   help="MSL cmm-error-map plate snapshot, read with its conventions "
+                        "(ball numbering, origin = location + probe, angles, layout flags, "
+                        "sign; docs/msl-format.md) instead of MEAS files; repeatable, one "
+                        "placement each, with --msl-metadata in the same order (default: none)")
+    p.add_argument("--msl-metadata", action="append", default=[], metavar="METADATA.csv",
+                   help="MSL metadata file of each --msl/--msl-bar snapshot (layout flags, "
+                        "probe, machine size); default: none (then the snapshot alone)")
+    p.add_argument("--msl-bar", action="append", default=[], metavar="SNAPSHOT.csv",
+                   help="MSL bar (step gauge) snapshot, fitted as a step gauge; repeatable "
+                        "(default: none)")
+    p.add_argument("--msl-kind", choices=("simulated", "measured"),
+                   help="what the MSL files hold, required with --msl and --msl-bar (the "
+                        "files do not say): 'simulated' deviations (nominal + deviation, "
+                        "certificate exact) or 'measured' coordinates (default: none)")
+    p.add_argument("--msl-certificate-u", metavar="A_UM,B_UM_PER_MM",
+                   help="the artefact's certificate U(k=2) = sqrt(A² + (B·L)²) µm, L mm from "
+                        "ball 1, for --msl-kind measured (default: none; required then)")
+
+
+def add_data_args(p):
+    """The data files of every fitting command: this project's, or other tools'."""
+    p.add_argument("meas", nargs="*", metavar="MEAS.csv", help=MEAS_HELP)
+    p.add_argument("--setup", metavar="SETUP.json", help=SETUP_HELP)
+    p.add_argument("--certificate", metavar="CERT.csv", help=CERT_HELP)
+    add_foreign_args(p)
 
 
 def add_fit_args(p, *, baseline=False):
-    p.add_argument("meas", nargs="+", metavar="MEAS.csv", help=MEAS_HELP)
-    p.add_argument("--setup", required=True, metavar="SETUP.json", help=SETUP_HELP)
-    p.add_argument("--certificate", metavar="CERT.csv", help=CERT_HELP)
+    add_data_args(p)
     if baseline:
         p.add_argument("--baseline", default="kinematic21", metavar="SPEC",
                        help="model the diagnosis starts from, as a model spec "
@@ -136,7 +234,6 @@ def sigma_of(args, data, exclude, spec):
 
 
 def exclusions_of(data, exclude_flagged):
-
     rep = detect_outliers(data)
     out = [{k: o[k] for k in ("position", "probe", "ball", "axis", "deviation_um")}
            for o in rep.outliers]

@@ -112,6 +112,7 @@ def model_from_result(result: FitResult) -> Model:
                   "artefact": getattr(obs, "artefact", "ball_plate"),
                   "placements": [str(p) for p in obs.positions],
                   "plate": result.plate, "sigma_um": result.sigma_um,
+                  "certificate_u_source": result.certificate_u_source,
                   "region_mm": [np.min(obs.r_mm - obs.p_mm, axis=0).tolist(),
                                 np.max(obs.r_mm - obs.p_mm, axis=0).tolist()]},
                  parts)

@@ -40,7 +40,8 @@ def parameters_csv(result) -> str:
     df["identifiable"] = ~df["parameter"].isin(result.unidentifiable)
     head = [f"model {result.spec}; order per spec; plate {result.plate}; "
             f"sigma {result.sigma_um} um; RMS {result.rms_um:.4f} um; "
-            f"chi2/dof {result.chi2_dof:.3f}; status {result.status}"]
+            f"chi2/dof {result.chi2_dof:.3f}; status {result.status}",
+            f"certificate uncertainty: {result.certificate_u_source}"]
     return safe_csv(df, float_format="%.6g", header_lines=head)
 
 

@@ -123,6 +123,7 @@ def results_dict(obj: Model | FitResult, *, coverage_factor: float = DEFAULT_COV
         else "ball_plate"  # model files written before the key: ball plates
     artefact = {"type": kind.replace("_", " "), "plate_geometry": s.get("plate"),
                 "n_observations": s.get("n_obs"),
+                "certificate_uncertainty_source": s.get("certificate_u_source"),
                 "measured_region_mm": region}
     if isinstance(s.get("placements"), list):
         artefact["placements"] = [str(p) for p in s["placements"]]

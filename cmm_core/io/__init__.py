@@ -15,7 +15,15 @@ from files to a :class:`Dataset`). May import: ``machine`` (layout names).
 from __future__ import annotations
 
 from .certificate import MIN_CERTIFICATE_BALLS, Certificate, read_certificate, write_certificate
-from .dataset import SAMPLE_DIR, THESIS_DIR, THESIS_POSITIONS, Dataset, load_dataset, thesis_dataset
+from .dataset import (
+    SAMPLE_DIR,
+    THESIS_DIR,
+    THESIS_POSITIONS,
+    Dataset,
+    load_dataset,
+    stated_certificate,
+    thesis_dataset,
+)
 from .delimited import (
     MAX_BYTES,
     file_rows,
@@ -25,6 +33,7 @@ from .delimited import (
     require_columns,
     require_rows,
 )
+from .dmis import DMIS_SUFFIXES, DMIS_UNITS_MM, read_dmis, read_foreign
 from .errors import (
     COLUMN_ALIASES,
     MAX_PROBLEMS,
@@ -44,9 +53,27 @@ from .measurements import (
     read_measurements,
     write_long_csv,
 )
+from .msl import (
+    MSL_HEADER_KEYS,
+    MSL_KINDS,
+    MSL_LAYOUTS,
+    MSL_MAX_DEVIATION_MM,
+    MSL_PARAMETERS,
+    MSL_ROUNDING_U_UM,
+    ForeignDataset,
+    ForeignStepGauge,
+    combine_plates,
+    msl_coefficients,
+    msl_layout,
+    msl_rotation,
+    read_msl_bar,
+    read_msl_plate,
+    sniff,
+)
 from .setup import (
     ARTEFACTS,
     AXIS_TOLERANCE_DEG,
+    COMBINE,
     CTE_RANGE_PER_K,
     LAYOUTS,
     MAX_PROBE_MM,
@@ -54,20 +81,47 @@ from .setup import (
     MIN_STROKE_MM,
     SETUP_KEYS,
     TEMP_RANGE_C,
+    CertificateUncertainty,
     Placement,
     Setup,
     check_celsius,
+    range_tolerance,
+    reach_tolerance,
     read_setup,
+)
+from .table_mapping import (
+    DECIMALS,
+    DELIMITERS,
+    LABEL_GROUPS,
+    LENGTH_UNITS_MM,
+    TIME_UNITS_MIN,
+    ForeignTable,
+    Preview,
+    TableInfo,
+    TableMapping,
+    apply_mapping,
+    inspect_table,
+    preview,
+    read_mapping,
+    suggest_mapping,
 )
 
 __all__ = [
-    "ARTEFACTS", "AXIS_TOLERANCE_DEG", "Certificate", "check_celsius", "COLUMN_ALIASES",
-    "CTE_RANGE_PER_K", "cut_repr", "DataError", "Dataset", "file_rows", "LAYOUTS",
-    "likely_typo", "load_dataset", "LONG_COLUMNS", "MAX_BYTES", "MAX_PROBE_MM", "MAX_PROBLEMS",
+    "apply_mapping", "ARTEFACTS", "AXIS_TOLERANCE_DEG", "Certificate", "CertificateUncertainty",
+    "check_celsius", "COLUMN_ALIASES", "COMBINE", "combine_plates", "CTE_RANGE_PER_K",
+    "cut_repr", "DataError", "Dataset", "DECIMALS", "DELIMITERS", "DMIS_SUFFIXES",
+    "DMIS_UNITS_MM", "file_rows", "ForeignDataset", "ForeignStepGauge", "ForeignTable",
+    "inspect_table", "LABEL_GROUPS", "LAYOUTS", "LENGTH_UNITS_MM", "likely_typo",
+    "load_dataset", "LONG_COLUMNS", "MAX_BYTES", "MAX_PROBE_MM", "MAX_PROBLEMS",
     "MAX_STROKE_MM", "MIN_CERTIFICATE_BALLS", "MIN_STROKE_MM", "missing_balls",
-    "numeric_column", "OPTIONAL_COLUMNS", "Placement", "Problems", "read_certificate",
-    "read_csv_text", "read_json", "read_measurement_files", "read_measurements", "read_setup",
-    "refuse_unknown_keys", "require_columns", "require_rows", "resolve", "SAMPLE_DIR",
-    "SCALE_TEMP_COLUMNS", "Setup", "SETUP_KEYS", "TEMP_RANGE_C", "THESIS_COLUMNS",
-    "thesis_dataset", "THESIS_DIR", "THESIS_POSITIONS", "write_certificate", "write_long_csv"
+    "msl_coefficients", "MSL_HEADER_KEYS", "MSL_KINDS", "msl_layout", "MSL_LAYOUTS",
+    "MSL_MAX_DEVIATION_MM", "MSL_PARAMETERS", "msl_rotation", "MSL_ROUNDING_U_UM",
+    "numeric_column", "OPTIONAL_COLUMNS", "Placement", "Preview", "preview", "Problems",
+    "range_tolerance", "reach_tolerance", "read_certificate", "read_csv_text", "read_dmis",
+    "read_foreign", "read_json", "read_mapping", "read_measurement_files", "read_measurements",
+    "read_msl_bar", "read_msl_plate", "read_setup", "refuse_unknown_keys", "require_columns",
+    "require_rows", "resolve", "SAMPLE_DIR", "SCALE_TEMP_COLUMNS", "Setup", "SETUP_KEYS",
+    "sniff", "stated_certificate", "suggest_mapping", "TableInfo", "TableMapping",
+    "TEMP_RANGE_C", "THESIS_COLUMNS", "thesis_dataset", "THESIS_DIR", "THESIS_POSITIONS",
+    "TIME_UNITS_MIN", "write_certificate", "write_long_csv"
 ]

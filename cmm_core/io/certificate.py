@@ -28,7 +28,9 @@ class Certificate:
     balls : ndarray of int (n,)
     xyz_mm : ndarray (n, 3)
     u_um : ndarray (n, 3) or None
-        Standard uncertainties of the coordinates in µm, when the file gives them.
+        Standard uncertainties of the coordinates in µm: from the file's columns or the
+        setup's statement; None for an exact certificate or one whose uncertainty nobody
+        stated yet (``u_source`` tells which).
     rows : ndarray of int (n,) or None
         File row of each ball, when read from a file (for messages).
     name : str or None
@@ -40,6 +42,8 @@ class Certificate:
     u_um: np.ndarray | None = None
     rows: np.ndarray | None = field(default=None, repr=False, compare=False)
     name: str | None = field(default=None, repr=False, compare=False)
+    u_source: str = ""
+    """Where ``u_um`` came from, in words (empty: not stated; no fit may use it)."""
 
 
 def read_certificate(source, *, name=None) -> Certificate:
@@ -65,7 +69,8 @@ def read_certificate(source, *, name=None) -> Certificate:
     balls = balls.astype(int)
     order = np.argsort(balls)
     return Certificate(balls[order], xyz[order], None if u is None else u[order],
-                       rows=rows[order], name=name)
+                       rows=rows[order], name=name,
+                       u_source="" if u is None else f"{name}: columns u_x_um, u_y_um, u_z_um")
 
 
 def _check_isolated_balls(xyz, balls, rows, name):

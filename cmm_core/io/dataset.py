@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .certificate import Certificate, read_certificate
+from .errors import DataError
 from .matching import resolve
 from .measurements import read_measurement_files
 from .setup import Setup, read_setup
@@ -83,7 +84,37 @@ def load_dataset(meas_sources, setup_source, certificate_source=None, *, name=No
         cert = read_certificate(cert[0], name=cert[1])
     elif cert is not None and not isinstance(cert, Certificate):
         cert = read_certificate(cert)
-    return Dataset(resolve(meas, setup, cert), setup, cert, name or "dataset")
+    resolved = resolve(meas, setup, cert)  # the data's own problems are reported first
+    cert = stated_certificate(cert, setup)
+    return Dataset(resolved, setup, cert, name or "dataset")
+
+
+def stated_certificate(cert: Certificate | None, setup: Setup) -> Certificate | None:
+    """The certificate with the uncertainty its user stated, never an assumed one.
+
+    From the file's ``u_x_um, u_y_um, u_z_um`` columns, else from the setup's
+    ``certificate`` statement (``U(k) = a ⊕ b·L``, or exact for a noise-free simulation);
+    a certificate with neither is refused in one line with the fix. Every χ² test and
+    propagated uncertainty uses what is returned here, and ``u_source`` says where it came
+    from (the app, the CLI JSON, the report and exported results print it).
+    """
+    if cert is None:
+        return None
+    stated = setup.certificate_u
+    if cert.u_um is not None:
+        source = cert.u_source
+        if stated is not None:
+            source += "; the setup's certificate statement is not used (the file's columns are)"
+        return replace(cert, u_source=source)
+    if stated is None:
+        raise DataError(
+            "the certificate gives no uncertainty and the setup states none; no fit may "
+            "assume one.", file=cert.name or "certificate.csv", column="u_x_um",
+            hint="add columns u_x_um,u_y_um,u_z_um (standard uncertainties, µm), or state it "
+                 'in the setup: "certificate": {"U_um": [a, b_per_mm], "k": 2} (U = '
+                 'sqrt(a² + (b·L)²), L mm from ball 1), or "certificate": {"exact": true} '
+                 "for a noise-free simulation.")
+    return replace(cert, u_um=stated.u_um(cert.xyz_mm), u_source=stated.describe())
 
 
 def thesis_dataset() -> Dataset:

@@ -14,7 +14,7 @@ import pandas as pd
 from .certificate import Certificate
 from .errors import DataError, Problems, cut_repr
 from .measurements import _check_duplicates
-from .setup import Setup, _range_tolerance
+from .setup import Setup, range_tolerance, reach_tolerance
 
 
 def resolve(meas: pd.DataFrame, setup: Setup, certificate: Certificate | None = None):
@@ -75,8 +75,10 @@ def _check_certificate_in_machine(df, setup, cert):
     """Every certificate ball, placed by every position of the data, must lie in the
     machine: a ball outside says the certificate row (or the placement) is wrong."""
     rng = np.asarray(setup.range_mm, float)
-    tol = _range_tolerance(rng)
     for pos in dict.fromkeys(df["position"]):
+        # a certificate ball is a tip: it may lie as far out as this position's styli reach
+        used = df.loc[df["position"] == pos, "probe"].dropna().unique()
+        tol = reach_tolerance(rng, [setup.probes[q] for q in used if q in setup.probes])
         m = setup.positions[pos].to_machine(cert.xyz_mm)
         out = ((m < -tol) | (m > rng + tol)).any(axis=1)
         if out.any():
@@ -105,8 +107,12 @@ def _check_geometry(df, raw_xyz, xyz, setup, cert, found):
     is rough, a wrong unit or frame is not.
     """
     rng = np.asarray(setup.range_mm, float)
-    tol = _range_tolerance(rng)
-    outside = ((xyz < -tol) | (xyz > rng + tol)).any(axis=1)
+    tol = range_tolerance(rng)
+    # the machine's range bounds its scale readings, the carriage: tip minus probe offset
+    # (a 600 mm stylus reaches 600 mm past the strokes)
+    offsets = np.array([setup.probes[q] for q in df["probe"]], float).reshape(-1, 3)
+    carriage = xyz - offsets
+    outside = ((carriage < -tol) | (carriage > rng + tol)).any(axis=1)
     where = f"the setup {setup.name}" if setup.name else "the setup"
     frame_hint = (f"{where} has \"frame\": \"machine\""
                   f"{'' if 'frame' in setup.raw else ' (the default: no frame key)'}: if the "
@@ -116,7 +122,8 @@ def _check_geometry(df, raw_xyz, xyz, setup, cert, found):
                   "\"machine\".")
     found.add(outside & _first_rows(df, outside), None,
               lambda i: f"point {np.round(xyz[i], 1).tolist()} mm (machine frame) lies "
-              f"outside the machine's range {rng.tolist()} mm.",
+              f"outside the machine's range {rng.tolist()} mm: its scale reading (tip minus "
+              f"probe {df['probe'].iat[i]}) is {np.round(carriage[i], 1).tolist()} mm.",
               hint="coordinates must be in mm; " + frame_hint)
     if outside.any():
         return

@@ -4,7 +4,7 @@ Holds :class:`Placement` and :class:`Setup`, :func:`read_setup` with one helper 
 of the file (machine, probes, positions, plate), the plausibility limits it checks against
 (:data:`LAYOUTS`, strokes, probe lengths, axis orthogonality, CTE, temperatures) and the
 small JSON value checks (:func:`_vector`, :func:`_record`, :func:`_json_object`).
-:func:`check_celsius`, :data:`TEMP_RANGE_C` and :func:`_range_tolerance` are shared with
+:func:`check_celsius`, :data:`TEMP_RANGE_C` and :func:`range_tolerance` are shared with
 the measurement reader, the simulator config and :func:`~cmm_core.io_resolve.resolve`.
 """
 
@@ -39,7 +39,9 @@ centres are points of the artefact, or holes probed from inside, whose centres g
 the two in-plane coordinates (the coordinate along the hole axis is the probing height)."""
 
 SETUP_KEYS = {
-    "": ("units", "frame", "machine", "positions", "probes", "plate", "artefact"),
+    "": ("units", "frame", "machine", "positions", "probes", "plate", "artefact",
+         "certificate"),
+    "certificate": ("exact", "U_um", "k", "combine", "length_from", "source"),
     "machine": ("layout", "range_mm"),
     "plate": ("cte_per_K", "balls", "pitch_mm"),
     "position": ("origin_mm", "u_axis", "v_axis", "probe", "temp_C", "rh_percent"),
@@ -104,6 +106,9 @@ class Setup:
         File name, for messages.
     artefact : str
         One of :data:`ARTEFACTS`: ``"ball_plate"`` (default) or ``"hole_plate"``.
+    certificate_u : CertificateUncertainty or None
+        What the setup states about the certificate's uncertainty (``certificate``), or
+        None when it states nothing (the certificate file must then carry it).
     """
 
     frame: str
@@ -114,6 +119,7 @@ class Setup:
     raw: dict = field(default_factory=dict, repr=False)
     name: str | None = field(default=None, repr=False, compare=False)
     artefact: str = ARTEFACTS[0]
+    certificate_u: CertificateUncertainty | None = None
 
 
 def read_setup(source, *, name="setup.json") -> Setup:
@@ -131,7 +137,7 @@ def read_setup(source, *, name="setup.json") -> Setup:
     if not isinstance(raw, dict):
         raise DataError("expected a JSON object.", file=name)
     _check_keys(raw, SETUP_KEYS[""], name, "")
-    for sub in ("machine", "plate"):
+    for sub in ("machine", "plate", "certificate"):
         if isinstance(raw.get(sub), dict):
             _check_keys(raw[sub], SETUP_KEYS[sub], name, sub)
     units = raw.get("units", "mm")
@@ -149,7 +155,114 @@ def read_setup(source, *, name="setup.json") -> Setup:
     if not positions:
         raise DataError("no positions defined.", file=name, column="positions")
     cte = _plate_cte(_json_object(raw, "plate", name), name)
-    return Setup(frame, rng, positions, probes, cte, raw, name, _artefact(raw, name))
+    return Setup(frame, rng, positions, probes, cte, raw, name, _artefact(raw, name),
+                 _certificate_u(raw, name))
+
+
+COMBINE = ("quadrature", "linear")
+
+
+@dataclass(frozen=True)
+class CertificateUncertainty:
+    """The certificate's expanded uncertainty as the setup states it (``certificate``).
+
+    ``U(k) = sqrt(a² + (b L)²)`` (``combine = "quadrature"``) or ``a + b L``
+    (``"linear"``) in µm, ``L`` the distance of a ball from ball 1 in mm, the form
+    calibration certificates print (thesis appendix 1: ``a = 0.26 µm``, ``b = 1.9e-3 µm/mm``,
+    ``k = 2``, in quadrature); or an exact certificate (a noise-free simulation).
+
+    Attributes
+    ----------
+    exact : bool
+        The certificate is exact: no uncertainty enters a fit, test or budget.
+    a_um : float
+        Constant part of U in µm.
+    b_um_per_mm : float
+        Length-proportional part of U in µm per mm.
+    k : float
+        Coverage factor of the stated U; the standard uncertainty is U / k.
+    combine : str
+        ``"quadrature"`` or ``"linear"``.
+    source : str
+        Where the statement comes from, as the user wrote it (may be empty).
+    """
+
+    exact: bool = False
+    a_um: float = 0.0
+    b_um_per_mm: float = 0.0
+    k: float = 2.0
+    combine: str = "quadrature"
+    source: str = ""
+
+    def u_um(self, xyz_mm: np.ndarray) -> np.ndarray | None:
+        """Standard uncertainty (µm) of every coordinate, (n, 3); None when exact."""
+        if self.exact:
+            return None
+        length = np.linalg.norm(xyz_mm - xyz_mm[0], axis=1)
+        big_u = (np.hypot(self.a_um, self.b_um_per_mm * length) if self.combine == "quadrature"
+                 else self.a_um + self.b_um_per_mm * length)
+        return np.repeat((big_u / self.k)[:, None], 3, axis=1)
+
+    def describe(self) -> str:
+        """One line for the app, the CLI JSON and the report."""
+        if self.exact:
+            text = "exact, as the setup states (no certificate uncertainty enters)"
+        else:
+            form = (f"sqrt({self.a_um:g}² + ({self.b_um_per_mm:g}·L)²)"
+                    if self.combine == "quadrature"
+                    else f"{self.a_um:g} + {self.b_um_per_mm:g}·L")
+            text = (f"stated in the setup: U(k={self.k:g}) = {form} µm, L in mm from ball 1, "
+                    f"per coordinate")
+        return text + (f" ({self.source})" if self.source else "")
+
+
+def _certificate_u(raw: dict, name) -> CertificateUncertainty | None:
+    """The setup's ``certificate`` statement, checked; None when absent."""
+    if "certificate" not in raw:
+        return None
+    spec = _json_object(raw, "certificate", name)
+    col = "certificate"
+    source = str(spec.get("source", ""))[:200]
+    exact = spec.get("exact", False)
+    if not isinstance(exact, bool):
+        raise DataError(f"certificate.exact must be true or false, found {cut_repr(exact)}.",
+                        file=name, column=col + ".exact")
+    if exact:
+        if "U_um" in spec:
+            raise DataError("certificate states both exact and U_um; keep one.", file=name,
+                            column=col, hint="exact: true for a noise-free simulation, else "
+                            "U_um: [a, b] with k.")
+        return CertificateUncertainty(exact=True, source=source)
+    if "U_um" not in spec:
+        raise DataError("certificate needs U_um: [a_um, b_um_per_mm] (with k), or "
+                        "exact: true.", file=name, column=col,
+                        hint='e.g. "certificate": {"U_um": [0.26, 0.0019], "k": 2}.')
+    ab = spec["U_um"]
+    if not (isinstance(ab, list) and len(ab) == 2
+            and all(isinstance(v, int | float) and not isinstance(v, bool) for v in ab)):
+        raise DataError(f"certificate.U_um must be [a_um, b_um_per_mm], two numbers, found "
+                        f"{cut_repr(ab)}.", file=name, column=col + ".U_um")
+    a, b = float(ab[0]), float(ab[1])
+    if not (np.isfinite(a) and np.isfinite(b)) or a < 0 or b < 0 or a + b <= 0 or a > 100 \
+            or b > 1.0:
+        raise DataError(f"certificate.U_um {ab} is not a plate certificate's uncertainty; "
+                        "expected a in 0-100 µm and b in 0-1 µm per mm, not both zero.",
+                        file=name, column=col + ".U_um",
+                        hint="for an exact (simulated) certificate write exact: true.")
+    k = spec.get("k")
+    if not isinstance(k, int | float) or isinstance(k, bool) or not 1.0 <= k <= 4.0:
+        raise DataError(f"certificate.k must be the coverage factor of U_um (1 to 4), found "
+                        f"{cut_repr(k)}.", file=name, column=col + ".k",
+                        hint="certificates usually state k = 2.")
+    combine = spec.get("combine", "quadrature")
+    if combine not in COMBINE:
+        raise DataError(f"certificate.combine must be one of {', '.join(COMBINE)}, found "
+                        f"{cut_repr(combine)}.", file=name, column=col + ".combine")
+    length_from = spec.get("length_from", "ball_1")
+    if length_from != "ball_1":
+        raise DataError(f"certificate.length_from must be 'ball_1' (L from ball 1), found "
+                        f"{cut_repr(length_from)}.", file=name, column=col + ".length_from")
+    return CertificateUncertainty(False, a, b, float(k), combine, source)
 
 
 def _artefact(raw: dict, name) -> str:
@@ -217,20 +330,27 @@ def _placement(spec, key: str, rng, probes: dict, name) -> Placement:
         raise DataError("position needs origin_mm (and u_axis, v_axis) as 3-vectors.",
                         file=name, column=key)
     origin = _vector(spec["origin_mm"], name, key + ".origin_mm", "3 numbers (mm)")
-    tol = _range_tolerance(rng)
-    if ((origin < -tol) | (origin > rng + tol)).any():
+    probe = spec.get("probe")
+    if probe is not None and str(probe) not in probes:
+        raise DataError(f"probe {cut_repr(probe)} is not among the probes {sorted(probes)}.",
+                        file=name, column=key + ".probe")
+    # ball 1 is a tip position: with the position's stylus known its scale reading is
+    # checked, else the tip is bounded by what the longest stylus can reach
+    carriage = origin - probes[str(probe)] if probe is not None else origin
+    tol = (range_tolerance(rng) if probe is not None
+           else reach_tolerance(rng, probes.values()))
+    if ((carriage < -tol) | (carriage > rng + tol)).any():
+        what = (f"with probe {probe} the carriage stands at {np.round(carriage, 1).tolist()}"
+                if probe is not None else "no stylus reaches it")
         raise DataError(f"origin_mm {origin.tolist()} lies outside the machine's range "
-                        f"{rng.tolist()} mm.", file=name, column=key + ".origin_mm",
-                        hint="write the origin (ball 1) in machine coordinates in mm.")
+                        f"{rng.tolist()} mm ({what}).", file=name, column=key + ".origin_mm",
+                        hint="write the origin (ball 1 tip centre) in machine coordinates in "
+                             "mm.")
     if 0 < np.abs(origin).max() < 2.0 and rng.max() >= 100:
         raise DataError(f"origin_mm {origin.tolist()} is within 2 mm of the machine zero; "
                         "it looks like metres, not mm.", file=name,
                         column=key + ".origin_mm", hint="multiply by 1000 (mm).")
     rotation = _plate_axes(spec, key, name)
-    probe = spec.get("probe")
-    if probe is not None and str(probe) not in probes:
-        raise DataError(f"probe {cut_repr(probe)} is not among the probes {sorted(probes)}.",
-                        file=name, column=key + ".probe")
     records = {rec: _record(spec.get(rec, ()), name, f"{key}.{rec}", rec)
                for rec in ("temp_C", "rh_percent")}
     return Placement(origin, rotation, None if probe is None else str(probe),
@@ -287,9 +407,18 @@ def _plate_cte(plate: dict, name) -> float:
     return float(cte)
 
 
-def _range_tolerance(rng):
-    """How far beyond the strokes a point may lie (styli reach past them)."""
+def range_tolerance(rng):
+    """How far beyond the strokes a scale reading (the carriage: tip minus probe offset)
+    may lie, mm per axis: 5 % of the stroke, at least 100 mm (a nominal setup is rough)."""
     return np.maximum(0.05 * np.asarray(rng, float), 100.0)
+
+
+def reach_tolerance(rng, probes_mm) -> np.ndarray:
+    """How far beyond the strokes a stylus tip may lie, mm per axis: the scale tolerance
+    plus the longest of ``probes_mm`` (a plausibility bound on a tip whose stylus is not
+    known; a tip whose stylus is known is checked by its scale reading instead)."""
+    longest = max((float(np.linalg.norm(p)) for p in probes_mm), default=0.0)
+    return range_tolerance(rng) + longest
 
 
 def _record(val, name, column, what):

@@ -19,14 +19,6 @@ from ..machine import DEFAULT_LAYOUT
 __all__ = ["Observations", "select", "approach_directions", "setup_layout"]
 
 
-def _plate_u_um(cert_xyz_mm):
-    """Certificate standard uncertainty when none is printed: thesis appendix 1 plate
-    specification U(k=2) = sqrt(0.26² + (1.9e-3 l)²) µm with l the distance from ball 1."""
-    length = np.linalg.norm(cert_xyz_mm - cert_xyz_mm[0], axis=1)
-    u = np.sqrt(0.26**2 + (1.9e-3 * length) ** 2) / 2
-    return np.repeat(u[:, None], 3, axis=1)
-
-
 @dataclass(frozen=True)
 class Observations:
     """Arrays of the observations a fit uses (a selection of a dataset).
@@ -44,6 +36,7 @@ class Observations:
     plate0_mm : ndarray (B, 3)
         Starting plate coordinates (certificate, or the mean measured plate).
     cert_u_um : ndarray (B, 3) or None
+        Certificate standard uncertainties (µm); None: exact, or no certificate.
     dT_K : ndarray (n,)
         Plate temperature minus 20 °C (zero when not recorded).
     has_temp : bool
@@ -67,6 +60,8 @@ class Observations:
     artefact : str
         ``"ball_plate"`` or ``"hole_plate"`` (the setup's ``artefact``): a hole plate's
         observations give only the two coordinates in the plate's plane (``hole_plate``).
+    cert_u_source : str
+        Where the certificate's uncertainty came from, in words (``Certificate.u_source``).
     """
 
     table: pd.DataFrame
@@ -92,6 +87,7 @@ class Observations:
     layout: str = DEFAULT_LAYOUT
     instruments: tuple = ()
     artefact: str = "ball_plate"
+    cert_u_source: str = ""
 
 
 def setup_layout(setup) -> str:
@@ -170,7 +166,11 @@ def select(data: Dataset, *, positions=None, probes=None, exclude=()) -> Observa
     if cert is not None:
         balls = cert.balls
         plate0 = cert.xyz_mm.copy()
-        cu = cert.u_um if cert.u_um is not None else _plate_u_um(cert.xyz_mm)
+        if cert.u_um is None and not cert.u_source:
+            raise ValueError("the certificate's uncertainty is not stated; give it in the "
+                             "certificate's u columns or the setup's certificate statement "
+                             "(load_dataset refuses a certificate without either).")
+        cu = cert.u_um  # None: exact, as stated
     else:
         balls = np.unique(t["ball"].to_numpy())
         cu = None
@@ -204,7 +204,9 @@ def select(data: Dataset, *, positions=None, probes=None, exclude=()) -> Observa
     return Observations(t, r, pnom[prb], pos, prb, ball, positions, probes, balls, plate0, cu,
                         dT, bool(has_temp), hours, horiz, R0, t0, setup.range_mm,
                         cert is not None, approach, setup_layout(setup),
-                        artefact=getattr(setup, "artefact", "ball_plate"))
+                        artefact=getattr(setup, "artefact", "ball_plate"),
+                        cert_u_source=(cert.u_source if cert is not None else
+                                       "no certificate: the plate is self-calibrated"))
 
 
 def check_selection(data: Dataset, positions, probes, exclusions, name: str) -> None:

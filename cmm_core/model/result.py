@@ -122,6 +122,12 @@ class FitResult:
         """Kinematic terms of the model."""
         return self.problem.terms
 
+    @property
+    def certificate_u_source(self) -> str:
+        """Where the certificate's uncertainty, used by every χ² test and propagated
+        uncertainty of this fit, came from (the file, the setup's statement, exact)."""
+        return self.problem.obs.cert_u_source
+
     def block(self, name: str):
         """``(labels, values, u)`` of one parameter block."""
         s = self.problem.layout.blocks.get(name, slice(0, 0))

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from ..io import ARTEFACTS, DataError, refuse_unknown_keys
+from ..io import ARTEFACTS, DataError, range_tolerance, refuse_unknown_keys
 from ..io.errors import cut_repr
 from .blocks import BY_TOKEN
 from .blocks.base import SimCheck
@@ -208,13 +208,19 @@ def _check_against_setup(cfg, setup, terms, name, own_ppp):
         BY_TOKEN[token].check_sim(body, f"effects.{token}", check)
 
 
-def _check_plate_in_machine(setup, nominal, name):
-    """Every ball of the simulated plate, in every position, inside the machine."""
+def _check_plate_in_machine(setup, nominal, name, probes_per_position=None):
+    """Every ball of the simulated plate, in every position, within reach of the machine:
+    the scale reading (tip minus probe offset) of every stylus used there inside the
+    strokes, as the reader checks measured points (``io.matching``)."""
     rng = np.asarray(setup.range_mm, float)
-    tol = np.maximum(0.05 * rng, 100.0)
+    tol = range_tolerance(rng)
     for pos, pl in setup.positions.items():
         m = pl.to_machine(nominal)
-        out = ((m < -tol) | (m > rng + tol)).any(axis=1)
+        used = (probes_per_position or {}).get(pos) or list(setup.probes)
+        out = np.zeros(len(m), bool)
+        for q in used:
+            c = m - setup.probes[q] if q in setup.probes else m
+            out |= ((c < -tol) | (c > rng + tol)).any(axis=1)
         if out.any():
             i = int(np.flatnonzero(out)[0])
             raise DataError(f"ball {i + 1} of the plate reaches {np.round(m[i], 1).tolist()} "

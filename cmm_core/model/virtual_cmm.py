@@ -179,7 +179,7 @@ def simulate(config: dict | None = None, *, name: str = "simulation config") -> 
     if not setup.probes:
         raise DataError("the setup defines no probes; expected at least one offset.",
                         file=name, column="setup.probes")
-    _check_plate_in_machine(setup, nominal, name)
+    _check_plate_in_machine(setup, nominal, name, cfg["probes_per_position"])
     positions = list(setup.positions)
     ppp = cfg["probes_per_position"] or {}
     probes_of = {p: [str(q) for q in ppp.get(p, [setup.positions[p].probe

@@ -1,0 +1,805 @@
+"""Reader of the files of MSL cmm-error-map (Measurement Standards Laboratory of New Zealand).
+
+MSL writes a measurement as a *snapshot* (ball coordinates in the artefact frame) and a
+*metadata* file (machine, probe, model parameters), each behind the same eight header
+lines; ``docs/msl-format.md`` describes the format and every convention applied here:
+
+- **kind**: a file does not say whether it is simulated or measured, so the caller says
+  (``kind``). MSL's simulated snapshots hold ``nominal + deviation`` where the deviation is
+  its kinematic model's true minus indicated position; the reader reverses it (indicated
+  = nominal - deviation). Measured snapshots are indications and are taken as they are.
+- **origin**: MSL's ``location`` is the ram (scale) position of ball id 0; the ball's tip
+  centre, this project's ``origin_mm``, is ``location + probe.length``.
+- **angles**: ``rotation/deg`` ``(rx, ry, rz)`` gives ``R = Rz(rz) Ry(ry) Rx(rx)``.
+- **balls**: MSL id ``k`` (from 0, row-major, x fastest) is ball ``k + 1``.
+- **layout**: ``fixed_table`` and ``bridge_axis`` name one of four of this project's
+  layouts (:data:`MSL_LAYOUTS`); MSL evaluates a moving table's functions at the table's
+  own position, so odd powers of them change sign (:func:`msl_coefficients`).
+
+Every problem is a :class:`~cmm_core.io.DataError` naming file, row and column; the
+cell-level problems of a file are reported together.
+"""
+
+from __future__ import annotations
+
+import ast
+import io as _io
+import json
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pandas as pd
+from numpy.polynomial import Chebyshev, Polynomial
+
+from ..machine import LAYOUTS, split_chain
+from .dataset import Dataset, load_dataset
+from .delimited import _read_bytes
+from .errors import DataError, cut_repr, likely_typo
+
+__all__ = ["ForeignDataset", "ForeignStepGauge", "read_msl_plate", "read_msl_bar",
+           "combine_plates", "sniff", "msl_layout", "msl_rotation", "msl_coefficients",
+           "MSL_LAYOUTS", "MSL_KINDS", "MSL_PARAMETERS", "MSL_HEADER_KEYS", "MSL_ROUNDING_U_UM",
+           "MSL_MAX_DEVIATION_MM"]
+
+MSL_HEADER_KEYS = ("save time", "title", "name", "artefact.title", "artefact.nballs",
+               "artefact.ball_spacing", "location", "rotation/deg")
+"""The eight header lines every MSL CSV starts with, in order."""
+_SNAPSHOT_COLUMNS = ("id", "mmt_x", "mmt_y", "mmt_z")
+_METADATA_KEYS = ("cmm_model.title", "cmm_model.size", "cmm_model.fixed_table",
+                 "cmm_model.bridge_axis", "probe.title", "probe.name", "probe.length")
+MSL_PARAMETERS = ("Txx", "Txy", "Txz", "Tyx", "Tyy", "Tyz", "Tzx", "Tzy", "Tzz",
+                  "Rxx", "Rxy", "Rxz", "Ryx", "Ryy", "Ryz", "Rzx", "Rzy", "Rzz",
+                  "Wxy", "Wxz", "Wyz")
+"""MSL's 21 parameter names in file order (the W terms are unused by its current model)."""
+MSL_LAYOUTS = {(True, 0): "moving_bridge_fyxz", (True, 1): "moving_bridge_fxyz",
+               (False, 0): "fixed_bridge_yfxz", (False, 1): "fixed_bridge_xfyz"}
+"""``(fixed_table, bridge_axis)`` -> this project's layout. ``bridge_axis`` is the axis whose
+carriage runs across the bridge; with a moving table the table moves along the other
+horizontal axis."""
+MSL_KINDS = ("simulated", "measured")
+MSL_ROUNDING_U_UM = 0.01 / math.sqrt(12.0)
+"""Standard uncertainty of one coordinate printed to 5 decimals of a mm (0.01 µm steps)."""
+MSL_MAX_DEVIATION_MM = 1.0
+"""Largest plausible departure of a ball from MSL's nominal grid: more is a wrong pitch,
+ball order or unit, not a CMM error."""
+_FOREIGN_COLUMNS = {"id,mmt_x,mmt_y,mmt_z": "snapshot",
+                    "id,cmm_nom_x,cmm_nom_y,cmm_nom_z": "full-data",
+                    "cmm_model.title": "metadata"}
+
+
+@dataclass(frozen=True)
+class ForeignDataset:
+    """A plate measurement read from another tool, in this project's own formats.
+
+    Attributes
+    ----------
+    measurements_csv : str
+        Long-form measurement CSV (``position,probe,ball,x_mm,y_mm,z_mm``; machine-frame
+        tip centres, mm).
+    setup : dict
+        Setup JSON (``docs/formats.md#setup``), including the ``certificate`` statement.
+    certificate_csv : str
+        Certificate CSV ``ball,x_mm,y_mm,z_mm``: MSL's nominal grid in the plate frame.
+    notes : tuple of str
+        Each convention applied, in words (kind, origin, angles, balls, layout ...).
+    kind : str
+        ``"simulated"`` or ``"measured"`` (:data:`MSL_KINDS`).
+    name : str
+        Snapshot file name(s), for messages and the dataset's label.
+    parameters : dict
+        MSL's model parameters as the metadata lists them (power-series coefficients,
+        lowest power first); informative only (see ``docs/msl-format.md``).
+    """
+
+    measurements_csv: str
+    setup: dict
+    certificate_csv: str
+    notes: tuple
+    kind: str
+    name: str = "MSL snapshot"
+    parameters: dict = field(default_factory=dict)
+
+    def to_dataset(self, name: str | None = None) -> Dataset:
+        """Read the three texts with :func:`cmm_core.io.load_dataset` (every check of a
+        user's own files applies); raises its :class:`DataError`."""
+        label = name or f"MSL {self.kind}: {self.name}"
+        return load_dataset([(_io.BytesIO(self.measurements_csv.encode()),
+                              f"{self.name} (as measurements.csv)")],
+                            self.setup,
+                            (_io.BytesIO(self.certificate_csv.encode()),
+                             f"{self.name} (nominal grid as certificate.csv)"),
+                            name=label)
+
+    def setup_json(self) -> str:
+        """The setup as JSON text, to save beside the two CSV texts."""
+        return json.dumps(self.setup, indent=1)
+
+
+@dataclass(frozen=True)
+class ForeignStepGauge:
+    """A step-gauge (bar) measurement read from another tool, in this project's format.
+
+    Attributes
+    ----------
+    step_gauge_csv : str
+        Step-gauge CSV (``docs/instruments.md``): one length per row from ball 1 to each
+        other ball, indicated tip centres in machine axes (mm).
+    setup : dict
+        The machine (layout, range) and probe of the measurement, in setup JSON form
+        (no positions: a step gauge needs no plate).
+    notes, kind, name, parameters
+        As :class:`ForeignDataset`.
+
+    Read the text with ``cmm_core.model.read_instrument(io.BytesIO(text.encode()),
+    "step_gauge")`` (the model's reader; ``io`` does not import ``model``).
+    """
+
+    step_gauge_csv: str
+    setup: dict
+    notes: tuple
+    kind: str
+    name: str = "MSL bar snapshot"
+    parameters: dict = field(default_factory=dict)
+
+
+
+# --------------------------------------------------------------------------- conventions
+
+
+def msl_layout(fixed_table: bool, bridge_axis: int) -> str:
+    """This project's layout of MSL's ``(cmm_model.fixed_table, cmm_model.bridge_axis)``.
+
+    >>> msl_layout(False, 1)  # MSL's "old PMM866": table in x, y across a fixed bridge
+    'fixed_bridge_xfyz'
+    """
+    try:
+        return MSL_LAYOUTS[(bool(fixed_table), int(bridge_axis))]
+    except (KeyError, TypeError, ValueError):
+        raise ValueError(f"no layout for fixed_table={fixed_table!r}, bridge_axis="
+                         f"{bridge_axis!r}; MSL knows bridge_axis 0 (x) or 1 (y).") from None
+
+
+def msl_rotation(angles_deg) -> np.ndarray:
+    """``R = Rz(rz) Ry(ry) Rx(rx)`` of MSL's ``rotation/deg`` ``(rx, ry, rz)`` in degrees.
+
+    Columns are the artefact's x, y, z axes in machine axes; a plate point ``q`` is at
+    ``location + R q`` (ram position). Entries are rounded to 1e-12: MSL writes 90° as
+    89.99999999999999.
+    """
+    rx, ry, rz = np.radians(np.asarray(angles_deg, float))
+
+    def rot(axis, a):  # right-handed rotation by a about machine axis 0, 1 or 2
+        c, s = math.cos(a), math.sin(a)
+        i, j = (axis + 1) % 3, (axis + 2) % 3
+        m = np.eye(3)
+        m[i, i], m[i, j], m[j, i], m[j, j] = c, -s, s, c
+        return m
+
+    return np.round(rot(2, rz) @ rot(1, ry) @ rot(0, rx), 12) + 0.0
+
+
+def msl_coefficients(parameters: dict, layout: str, range_mm, order: int | None = None) -> dict:
+    """MSL model parameters as this project's kinematic coefficients (labels -> µm, µrad).
+
+    MSL's chain is this project's (``docs/msl-format.md``): its deviation is this project's
+    error ``e = x* - (x + p)`` with the same functions on the carriages that carry the
+    probe; a moving table's functions are evaluated there at ``-u``, so here a table
+    function is ``f(-u)``. Power series (mm, rad; per mm) become Chebyshev series over the
+    stroke (µm, µrad). A straightness function's linear part is a squareness here
+    (``Tyx`` or ``Txy`` -> ``sxy``, ``Tzx`` or ``Txz`` -> ``sxz``, ``Tzy`` or ``Tyz`` ->
+    ``syz``), up to a rotation of each placement, which the fit absorbs.
+
+    Parameters
+    ----------
+    parameters : dict
+        Name (``Txx`` ... ``Rzz``) -> coefficients ``[c0, c1, ...]`` or a bare ``c1``; the
+        unused ``W`` terms are ignored.
+    layout : str
+        This project's layout (:func:`msl_layout`).
+    range_mm : sequence of 3 float
+        Axis strokes, over which the Chebyshev series are defined.
+    order : int, optional
+        Order of the labels returned (default: the highest power given, at least 1).
+
+    Raises
+    ------
+    ValueError
+        A constant term (this project's functions are zero at the axis origin).
+    """
+    table = split_chain(LAYOUTS[layout])[0]
+    polys = {}
+    for name, c in parameters.items():
+        if name[0] == "W" or name not in MSL_PARAMETERS:
+            continue
+        c = [0.0, float(c)] if not isinstance(c, list | tuple) else [float(v) for v in c]
+        if c and c[0] != 0.0:
+            raise ValueError(f"{name} has a constant term {c[0]:g}; this project's error "
+                             "functions are zero at the axis origin.")
+        polys[name] = c
+    deg = max([len(c) - 1 for c in polys.values()] + [1])
+    order = order or deg
+    out = {}
+    square = {"sxy": 0.0, "sxz": 0.0, "syz": 0.0}
+    pair = {"yx": "sxy", "xy": "sxy", "zx": "sxz", "xz": "sxz", "zy": "syz", "yz": "syz"}
+    for name, c in polys.items():
+        a, b = name[1].lower(), name[2].lower()
+        on_table = a in table
+        if on_table:  # MSL evaluates a table function at -u
+            c = [v * (-1) ** k for k, v in enumerate(c)]
+        scale = 1e3 if name[0] == "T" else 1e6  # mm -> µm, rad -> µrad
+        stroke = float(range_mm["xyz".index(a)])
+        p = Polynomial(np.asarray(c) * scale)
+        cheb = p.convert(kind=Chebyshev, domain=[0.0, stroke]).coef
+        cheb = np.pad(cheb, (0, max(0, order + 1 - len(cheb))))
+        kind = "d" if name[0] == "T" else "r"
+        if kind == "d" and a != b:
+            slope = p(stroke) / stroke * 1e3  # chord slope: µm/mm -> µrad
+            square[pair[a + b]] += -slope if on_table else slope
+            first = 2
+        else:
+            first = 1
+        for j in range(first, order + 1):
+            out[f"{kind}{a}{b}[{j}]"] = float(cheb[j])
+    out.update(square)
+    return out
+
+
+# --------------------------------------------------------------------------- parsing
+
+
+@dataclass(frozen=True)
+class _Header:
+    name: str
+    rows: dict  # key -> (row, raw text)
+    nballs: tuple
+    pitch_mm: float
+    location_mm: np.ndarray
+    angles_deg: np.ndarray
+
+
+def _lines(source, name, what):
+    data, name = _read_bytes(source, name)
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise DataError("is not UTF-8 text; expected an MSL cmm-error-map CSV.",
+                        file=name) from None
+    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if not lines:
+        raise DataError(f"file is empty; expected an MSL {what} file.", file=name)
+    return lines, name
+
+
+def _numbers(text, n, name, row, column, what, integer=False):
+    parts = [t.strip() for t in text.split(",")]
+    try:
+        vals = [float(t) for t in parts]
+    except ValueError:
+        vals = None
+    if vals is None or len(vals) != n or not all(map(math.isfinite, vals)) or (
+            integer and not all(v.is_integer() for v in vals)):
+        raise DataError(f"expected {what}, found {cut_repr(text)}.", file=name, row=row,
+                        column=column)
+    return np.array(vals)
+
+
+def _header(lines, name, what, use) -> _Header:
+    """The eight header lines, checked key by key (row = line number)."""
+    rows = {}
+    for i, key in enumerate(MSL_HEADER_KEYS):
+        row = i + 1
+        if i >= len(lines):
+            raise DataError(f"ends after {len(lines)} lines; expected the {len(MSL_HEADER_KEYS)} "
+                            f"header lines of an MSL {what} file.", file=name, row=row,
+                            column=key)
+        got, _, rest = lines[i].partition(",")
+        if got.strip() != key:
+            raise DataError(f"expected the header key {key!r}, found {cut_repr(got)}; this "
+                            f"is not an MSL cmm-error-map {what} file.", file=name, row=row,
+                            column=key, hint=use)
+        rows[key] = (row, rest)
+    nb = _numbers(rows["artefact.nballs"][1], 2, name, 5, "artefact.nballs",
+                  "two whole numbers of balls (nx, ny)", integer=True)
+    if (nb < 1).any():
+        raise DataError(f"expected at least one ball in x and y, found {nb.astype(int).tolist()}.",
+                        file=name, row=5, column="artefact.nballs")
+    pitch = _numbers(rows["artefact.ball_spacing"][1], 1, name, 6, "artefact.ball_spacing",
+                     "one ball spacing in mm")[0]
+    if not 1.0 <= pitch <= 5000.0:
+        raise DataError(f"ball spacing {pitch:g} is not a spacing in mm (1 to 5000).",
+                        file=name, row=6, column="artefact.ball_spacing")
+    loc = _numbers(rows["location"][1], 3, name, 7, "location", "x, y, z in mm")
+    ang = _numbers(rows["rotation/deg"][1], 3, name, 8, "rotation/deg",
+                   "three angles rx, ry, rz in degrees")
+    if (np.abs(ang) > 360).any():
+        raise DataError(f"angles {ang.tolist()} are beyond ±360°; expected degrees.",
+                        file=name, row=8, column="rotation/deg")
+    return _Header(name, rows, tuple(int(v) for v in nb), float(pitch), loc, ang)
+
+
+def _snapshot(source, name, use):
+    """Header and ball coordinates (artefact frame, mm) of a snapshot file."""
+    lines, name = _lines(source, name, "snapshot")
+    head = _header(lines, name, "snapshot", use)
+    row = len(MSL_HEADER_KEYS) + 1
+    cols = lines[row - 1].strip().rstrip(",") if len(lines) >= row else ""
+    if cols != ",".join(_SNAPSHOT_COLUMNS):
+        other = next((k for c, k in _FOREIGN_COLUMNS.items() if cols.startswith(c)), None)
+        raise DataError(
+            (f"this is an MSL {other} file, not a snapshot" if other else
+             f"expected the columns {','.join(_SNAPSHOT_COLUMNS)}, found {cut_repr(cols)}")
+            + ".", file=name, row=row, column="id",
+            hint="give the snapshot.csv saved with it (and its metadata.csv).")
+    nx, ny = head.nballs
+    data = lines[row:]
+    problems = []
+    xyz = np.full((len(data), 3), np.nan)
+    for k, line in enumerate(data):
+        r = row + 1 + k
+        cells = [c.strip() for c in line.split(",")]
+        if cells and cells[-1] == "" and len(cells) == 5:
+            cells = cells[:4]
+        if len(cells) != 4:
+            problems.append(DataError(f"expected 4 fields ({','.join(_SNAPSHOT_COLUMNS)}), "
+                                      f"found {len(cells)}.", file=name, row=r))
+            continue
+        if cells[0] != str(k):
+            problems.append(DataError(f"expected id {k} (MSL numbers the balls from 0 in "
+                                      f"row order), found {cut_repr(cells[0])}.", file=name,
+                                      row=r, column="id"))
+        for j, c in enumerate(cells[1:]):
+            try:
+                v = float(c)
+            except ValueError:
+                v = math.nan
+            if not math.isfinite(v):
+                problems.append(DataError(f"expected a number (mm), found {cut_repr(c)}.",
+                                          file=name, row=r, column=_SNAPSHOT_COLUMNS[j + 1]))
+            xyz[k, j] = v
+    if problems:
+        raise DataError.collect(problems)
+    if len(data) != nx * ny:
+        raise DataError(f"has {len(data)} ball rows; the header says {nx} × {ny} = {nx * ny}.",
+                        file=name, row=row + min(len(data), nx * ny) + (len(data) > nx * ny),
+                        column="id", hint="the file is cut short or belongs to another "
+                        "artefact: check artefact.nballs.")
+    dev = xyz - _grid(nx, ny, head.pitch_mm)
+    far = np.argwhere(np.abs(dev) > MSL_MAX_DEVIATION_MM)
+    if far.size:
+        problems = [DataError(f"ball id {k} lies {dev[k, j]:+.4g} mm from its nominal "
+                              f"{_grid(nx, ny, head.pitch_mm)[k, j]:g} mm; expected "
+                              "micrometres.", file=name, row=row + 1 + int(k),
+                              column=_SNAPSHOT_COLUMNS[j + 1],
+                              hint="check the ball order, artefact.ball_spacing and units "
+                                   "(mm).") for k, j in far]
+        raise DataError.collect(problems)
+    return head, xyz
+
+
+def _grid(nx, ny, pitch):
+    """MSL's nominal grid: id k at (k mod nx, k div nx, 0) × pitch."""
+    k = np.arange(nx * ny)
+    return np.column_stack([(k % nx) * pitch, (k // nx) * pitch, np.zeros(k.size)])
+
+
+def _metadata(source, name, head: _Header, use):
+    """Machine, probe and model parameters of a metadata file, checked against the
+    snapshot's header."""
+    lines, name = _lines(source, name, "metadata")
+    meta = _header(lines, name, "metadata", use)
+    for key in MSL_HEADER_KEYS[2:]:
+        a, b = meta.rows[key][1].strip(), head.rows[key][1].strip()
+        if a != b:
+            raise DataError(f"{key} {cut_repr(a)} differs from the snapshot's {cut_repr(b)} "
+                            f"({head.name}); expected the metadata saved with it.", file=name,
+                            row=meta.rows[key][0], column=key)
+    vals, rows = {}, {}
+    i = len(MSL_HEADER_KEYS)
+    while i < len(lines) and lines[i].strip() != "model parameters":
+        key, _, rest = lines[i].partition(",")
+        key = key.strip()
+        if key not in _METADATA_KEYS:
+            guess = likely_typo(key, _METADATA_KEYS)
+            if lines[i].startswith("id,"):
+                raise DataError("this is an MSL snapshot or full-data file, not metadata.",
+                                file=name, row=i + 1, hint="give the metadata.csv saved "
+                                "with the snapshot.")
+            raise DataError(f"unknown metadata key {cut_repr(key)}"
+                            + (f"; did you mean {guess!r}?" if guess else
+                               f"; expected {', '.join(_METADATA_KEYS)}."),
+                            file=name, row=i + 1, column=key)
+        vals[key], rows[key] = rest, i + 1
+        i += 1
+    missing = [k for k in _METADATA_KEYS if k not in vals]
+    if missing:
+        raise DataError(f"has no {', '.join(missing)}; expected every machine and probe "
+                        "line of an MSL metadata file.", file=name, column=missing[0])
+    size = _numbers(vals["cmm_model.size"], 3, name, rows["cmm_model.size"],
+                    "cmm_model.size", "three strokes x, y, z in mm")
+    flag = vals["cmm_model.fixed_table"].strip()
+    if flag not in ("True", "False"):
+        raise DataError(f"expected True or False, found {cut_repr(flag)}.", file=name,
+                        row=rows["cmm_model.fixed_table"], column="cmm_model.fixed_table")
+    axis = vals["cmm_model.bridge_axis"].strip()
+    if axis not in ("0", "1"):
+        raise DataError(f"expected 0 (x) or 1 (y), found {cut_repr(axis)}.", file=name,
+                        row=rows["cmm_model.bridge_axis"], column="cmm_model.bridge_axis")
+    probe = _numbers(vals["probe.length"], 3, name, rows["probe.length"], "probe.length",
+                     "the probe vector x, y, z in mm")
+    params = _parameters(lines, i + 1, name)
+    return {"title": vals["cmm_model.title"].strip(), "size_mm": size,
+            "fixed_table": flag == "True", "bridge_axis": int(axis),
+            "probe_name": vals["probe.name"].strip() or "msl", "probe_mm": probe,
+            "parameters": params}
+
+
+def _parameters(lines, start, name):
+    params, problems = {}, []
+    for k in range(start, len(lines)):
+        key, _, rest = lines[k].partition(",")
+        key = key.strip()
+        if not key and not rest.strip():
+            continue
+        if key not in MSL_PARAMETERS:
+            problems.append(DataError(f"unknown model parameter {cut_repr(key)}; expected "
+                                      f"one of {', '.join(MSL_PARAMETERS)}.", file=name,
+                                      row=k + 1, column=key))
+            continue
+        try:
+            v = ast.literal_eval(rest.strip())
+            v = [float(x) for x in v] if isinstance(v, list | tuple) else [0.0, float(v)]
+        except (ValueError, SyntaxError, TypeError):
+            v = None
+        if v is None or not all(map(math.isfinite, v)):
+            problems.append(DataError(f"expected a list of polynomial coefficients, found "
+                                      f"{cut_repr(rest)}.", file=name, row=k + 1, column=key))
+            continue
+        params[key] = v
+    if problems:
+        raise DataError.collect(problems)
+    missing = [p for p in MSL_PARAMETERS if p not in params]
+    if start <= len(lines) and missing:
+        raise DataError(f"lists no {', '.join(missing)}; expected all 21 model parameters.",
+                        file=name, column=missing[0])
+    return params
+
+
+def _kind(kind, certificate_u, name):
+    if kind is None:
+        raise DataError("an MSL file does not say whether it is simulated or measured; "
+                        "give kind='simulated' or kind='measured'.", file=name,
+                        hint="simulated files hold nominal + (true - indicated): the reader "
+                             "must know which to apply the sign.")
+    if kind not in MSL_KINDS:
+        raise DataError(f"kind must be 'simulated' or 'measured', found {cut_repr(kind)}.",
+                        file=name)
+    if kind == "simulated":
+        if certificate_u is not None:
+            raise DataError("a simulated file's nominal grid is exact; certificate_u is for "
+                            "kind='measured'.", file=name)
+        return {"exact": True, "source": "MSL simulation: the nominal grid is exact"}
+    if certificate_u is None:
+        raise DataError("kind='measured' needs certificate_u, the artefact certificate's "
+                        "uncertainty; the MSL file does not state it.", file=name,
+                        hint='e.g. certificate_u={"U_um": [0.26, 0.0019], "k": 2, '
+                             '"combine": "quadrature"} (U = sqrt(a² + (b·L)²), L mm from '
+                             "ball 1).")
+    if not isinstance(certificate_u, dict) or "U_um" not in certificate_u or set(
+            certificate_u) - {"U_um", "k", "combine", "source"}:
+        raise DataError(f"certificate_u must be {{'U_um': [a_um, b_um_per_mm], 'k': 2, "
+                        f"'combine': 'quadrature'}}, found {cut_repr(certificate_u)}.",
+                        file=name)
+    ab = certificate_u["U_um"]
+    if not (isinstance(ab, list | tuple) and len(ab) == 2 and all(
+            isinstance(v, int | float) and not isinstance(v, bool) and v >= 0 for v in ab)):
+        raise DataError(f"certificate_u U_um must be [a_um, b_um_per_mm], two numbers >= 0, "
+                        f"found {cut_repr(ab)}.", file=name)
+    out = {"U_um": [float(ab[0]), float(ab[1])], "k": certificate_u.get("k", 2),
+           "combine": certificate_u.get("combine", "quadrature")}
+    if "source" in certificate_u:
+        out["source"] = str(certificate_u["source"])
+    return out
+
+
+def _use(what):
+    return (f"read an MSL {what} with cmm_core.io.msl.read_msl_"
+            f"{'bar' if what == 'bar' else 'plate'}(snapshot, metadata, kind=...)")
+
+
+def _machine(meta, head, layout, range_mm, probe_mm, name):
+    """Layout, strokes, probe vector and name, from the metadata or the caller."""
+    if meta is not None:
+        lay = msl_layout(meta["fixed_table"], meta["bridge_axis"])
+        note = (f"layout: MSL fixed_table={meta['fixed_table']}, bridge_axis="
+                f"{meta['bridge_axis']} ({'moving bridge' if meta['fixed_table'] else 'fixed bridge, moving table'}, "
+                f"{'xy'[meta['bridge_axis']]} across the bridge) is {lay}; MSL evaluates a "
+                "moving table's functions at the table's own position (-u), so odd powers "
+                "of them change sign between the two (msl_coefficients).")
+        return lay, meta["size_mm"], meta["probe_mm"], meta["probe_name"], note
+    missing = [k for k, v in (("layout", layout), ("range_mm", range_mm),
+                              ("probe_mm", probe_mm)) if v is None]
+    if missing:
+        raise DataError(f"without the metadata file the machine is unknown; give metadata "
+                        f"or {', '.join(missing)}.", file=head.name,
+                        hint="the metadata.csv saved with the snapshot holds the layout "
+                             "flags, the machine size and the probe vector.")
+    return (layout, np.asarray(range_mm, float), np.asarray(probe_mm, float), "msl",
+            f"layout: {layout}, as the caller gave it (no metadata file).")
+
+
+def _common_notes(head, kind, probe):
+    nx, ny = head.nballs
+    r = msl_rotation(head.angles_deg)
+    dev = ("simulated: the snapshot holds nominal + deviation, and MSL's deviation is its "
+           "kinematic model's true minus indicated position; the reader reverses it "
+           "(indicated = nominal - deviation), so a fit gives MSL's parameters with their "
+           "sign" if kind == "simulated" else
+           "measured: the snapshot's coordinates are the CMM's indications, taken as they "
+           "are")
+    return [
+        f"kind: {dev}.",
+        f"origin: ball 1's tip centre is location + probe.length = "
+        f"{_fmt(head.location_mm)} + {_fmt(probe)} = {_fmt(head.location_mm + probe)} mm "
+        "(MSL's location is the ram position of ball id 0, without the probe).",
+        f"angles: rotation/deg (rx, ry, rz) = {_fmt(head.angles_deg)}° applied as R = "
+        f"Rz(rz)·Ry(ry)·Rx(rx) (about the fixed x axis first): artefact x = {_fmt(r[:, 0])}, "
+        f"y = {_fmt(r[:, 1])} in machine axes.",
+        f"balls: MSL id k (from 0, row-major, x fastest, {nx} per row) is ball k + 1 at "
+        f"nominal ((k mod {nx})·{head.pitch_mm:g}, (k div {nx})·{head.pitch_mm:g}, 0) mm.",
+        "frame: the snapshot's artefact-frame coordinates (MSL re-aligns them on ids 0, "
+        f"{nx - 1}{'' if ny == 1 else f' and {nx * (ny - 1)}'}) are placed in machine axes by "
+        "the nominal placement; a fit's placement absorbs the re-alignment.",
+        "units: mm as in the file; its 5 decimals are steps of 0.01 µm.",
+    ]
+
+
+def _fmt(v):
+    return "(" + ", ".join(f"{x:.6g}" for x in np.asarray(v, float) + 0.0) + ")"
+
+
+def _parameter_notes(params, kind):
+    if not params:
+        return []
+    used = [p for p in MSL_PARAMETERS[:18] if any(params.get(p, [0.0]))]
+    if not used:
+        return ["parameters: the metadata lists all model parameters as zero (MSL's plate "
+                "validation metadata does so although its data were generated with "
+                "non-zero parameters: do not take them as the truth)."]
+    return [f"parameters: the metadata lists {', '.join(used)} as non-zero"
+            + (" (the generating parameters of a simulation)." if kind == "simulated"
+               else ".")]
+
+
+# --------------------------------------------------------------------------- readers
+
+
+def read_msl_plate(snapshot, metadata=None, *, kind: str | None = None, certificate_u=None,
+                   position: str | None = None, layout: str | None = None, range_mm=None,
+                   probe_mm=None, snapshot_name: str | None = None,
+                   metadata_name: str | None = None) -> ForeignDataset:
+    """Read an MSL cmm-error-map plate snapshot (and its metadata) as this project's files.
+
+    Parameters
+    ----------
+    snapshot, metadata : path, bytes or file-like
+        MSL's ``snapshot.csv`` and the ``metadata.csv`` saved with it.
+    kind : {"simulated", "measured"}
+        Required: the files do not say. Simulated snapshots hold nominal + (true -
+        indicated); the reader reverses the deviation (module docstring).
+    certificate_u : dict, required for kind="measured"
+        The artefact certificate's uncertainty, ``{"U_um": [a_um, b_um_per_mm], "k": 2,
+        "combine": "quadrature"}`` (the setup's ``certificate`` statement).
+    position : str, optional
+        Position name (default MSL's ``name``).
+    layout, range_mm, probe_mm : optional
+        The machine, when no metadata file is given (all three then required).
+    snapshot_name, metadata_name : str, optional
+        File names for messages when reading bytes.
+
+    Returns
+    -------
+    ForeignDataset
+
+    Raises
+    ------
+    DataError
+        Naming file, row and column: a missing kind, an unreadable or inconsistent file, a
+        bar file (read it with :func:`read_msl_bar`).
+    """
+    use = _use("plate")
+    head, xyz = _snapshot(snapshot, snapshot_name, use)
+    certificate = _kind(kind, certificate_u, head.name)
+    nx, ny = head.nballs
+    if ny < 2 or nx < 2:
+        raise DataError(f"has {nx} × {ny} balls: a bar or step gauge, not a plate.",
+                        file=head.name, row=5, column="artefact.nballs",
+                        hint="read it with cmm_core.io.msl.read_msl_bar.")
+    meta = None if metadata is None else _metadata(metadata, metadata_name, head, use)
+    lay, rng, probe, pname, lay_note = _machine(meta, head, layout, range_mm, probe_mm,
+                                                head.name)
+    pos = position or head.rows["name"][1].strip() or "msl"
+    nominal = _grid(nx, ny, head.pitch_mm)
+    plate = 2.0 * nominal - xyz if kind == "simulated" else xyz
+    R = msl_rotation(head.angles_deg)
+    origin = head.location_mm + probe
+    tips = origin + plate @ R.T
+    meas = pd.DataFrame({"position": pos, "probe": pname, "ball": np.arange(1, nx * ny + 1),
+                         "x_mm": tips[:, 0], "y_mm": tips[:, 1], "z_mm": tips[:, 2]})
+    cert = pd.DataFrame({"ball": np.arange(1, nx * ny + 1), "x_mm": nominal[:, 0],
+                         "y_mm": nominal[:, 1], "z_mm": nominal[:, 2]})
+    setup = {"units": "mm", "frame": "machine",
+             "machine": {"layout": lay, "range_mm": [float(v) for v in rng]},
+             "positions": {pos: {"origin_mm": [float(v) for v in origin],
+                                 "u_axis": [float(v) for v in R[:, 0]],
+                                 "v_axis": [float(v) for v in R[:, 1]], "probe": pname}},
+             "probes": {pname: [float(v) for v in probe]},
+             "certificate": certificate}
+    notes = _common_notes(head, kind, probe) + [lay_note]
+    notes.append("certificate: MSL's nominal grid, "
+                 + ("exact (a noise-free simulation): setup certificate.exact = true."
+                    if kind == "simulated" else
+                    f"with the uncertainty the caller stated: U_um = {certificate['U_um']}, "
+                    f"k = {certificate['k']}, {certificate['combine']}."))
+    params = meta["parameters"] if meta else {}
+    notes += _parameter_notes(params, kind)
+    return ForeignDataset(meas.to_csv(index=False, float_format="%.7f"), setup,
+                          cert.to_csv(index=False, float_format="%.6f"), tuple(notes), kind,
+                          head.name, params)
+
+
+def read_msl_bar(snapshot, metadata=None, *, kind: str | None = None, certificate_u=None,
+                 layout: str | None = None, range_mm=None, probe_mm=None,
+                 snapshot_name: str | None = None,
+                 metadata_name: str | None = None) -> ForeignStepGauge:
+    """Read an MSL cmm-error-map bar (step gauge) snapshot as this project's step-gauge file.
+
+    One length per row, from ball 1 (MSL id 0) to each other ball: the indicated tip
+    centres in machine axes (location + probe + R·q), the indicated length between them
+    and the nominal length ``k · ball_spacing`` as the certified one. A step gauge needs no
+    plate. ``u_um`` is the file's rounding (:data:`MSL_ROUNDING_U_UM`) for a simulation, and the
+    certificate's ``U(L) / k`` (``certificate_u``) for a measurement.
+
+    Parameters and errors as :func:`read_msl_plate`; a plate file is refused (read it with
+    :func:`read_msl_plate`).
+    """
+    use = _use("bar")
+    head, xyz = _snapshot(snapshot, snapshot_name, use)
+    certificate = _kind(kind, certificate_u, head.name)
+    nx, ny = head.nballs
+    if ny != 1 or nx < 2:
+        raise DataError(f"has {nx} × {ny} balls: a plate, not a bar or step gauge.",
+                        file=head.name, row=5, column="artefact.nballs",
+                        hint="read it with cmm_core.io.msl.read_msl_plate.")
+    meta = None if metadata is None else _metadata(metadata, metadata_name, head, use)
+    lay, rng, probe, pname, lay_note = _machine(meta, head, layout, range_mm, probe_mm,
+                                                head.name)
+    nominal = _grid(nx, 1, head.pitch_mm)
+    bar = 2.0 * nominal - xyz if kind == "simulated" else xyz
+    R = msl_rotation(head.angles_deg)
+    tips = head.location_mm + probe + bar @ R.T
+    length = np.arange(1, nx) * head.pitch_mm
+    if kind == "simulated":
+        u = np.full(nx - 1, MSL_ROUNDING_U_UM)
+        u_note = (f"u_um: {MSL_ROUNDING_U_UM:.4f} µm, the rounding of the file's 5 decimals "
+                  "(the nominal lengths of a simulation are exact).")
+    else:
+        a, b = certificate["U_um"]
+        big = (np.hypot(a, b * length) if certificate["combine"] == "quadrature"
+               else a + b * length)
+        u = big / float(certificate["k"])
+        u_note = ("u_um: the certificate's U(L)/k as the caller stated it; add the "
+                  "probing repeatability if it matters.")
+    label = head.rows["name"][1].strip() or "bar"
+    sg = pd.DataFrame({"gauge": [f"{label} 1-{k + 1}" for k in range(1, nx)]})
+    for a, axis in enumerate("xyz"):
+        sg[f"{axis}1_mm"] = tips[0, a]
+    for a, axis in enumerate("xyz"):
+        sg[f"{axis}2_mm"] = tips[1:, a]
+    sg["measured_mm"] = np.linalg.norm(tips[1:] - tips[0], axis=1)
+    sg["certified_mm"], sg["u_um"] = length, u
+    if np.any(probe):
+        for a, axis in enumerate("xyz"):
+            sg[f"offset_{axis}_mm"] = probe[a]
+    notes = [n for n in _common_notes(head, kind, probe) if not n.startswith("frame")]
+    notes += [lay_note, u_note,
+              f"lengths: from ball 1 to balls 2-{nx}, certified = k·{head.pitch_mm:g} mm "
+              "(MSL's nominal); measured = the distance of the indicated tip centres.",
+              "plate: a step gauge needs no plate; fit it with the plate data of the same "
+              "machine (cmm_core fit --step-gauge)."]
+    params = meta["parameters"] if meta else {}
+    notes += _parameter_notes(params, kind)
+    setup = {"units": "mm", "machine": {"layout": lay, "range_mm": [float(v) for v in rng]},
+             "probes": {pname: [float(v) for v in probe]}}
+    return ForeignStepGauge(sg.to_csv(index=False, float_format="%.7f"), setup, tuple(notes), kind, head.name, params)
+
+
+def combine_plates(datasets) -> ForeignDataset:
+    """Several MSL plate snapshots (one placement each) as one dataset.
+
+    The machine (layout, range), kind, certificate and plate must agree; positions and
+    probes are renamed with a suffix where their names repeat (a probe name that repeats
+    with the same vector is shared).
+
+    Raises
+    ------
+    DataError
+        Naming the snapshot that does not agree.
+    """
+    datasets = list(datasets)
+    if not datasets:
+        raise DataError("no MSL plate given.")
+    first = datasets[0]
+    frames, positions, probes, notes = [], {}, {}, []
+    for ds in datasets:
+        for key, what in (("machine", "machine"), ("certificate", "certificate statement")):
+            if ds.setup[key] != first.setup[key]:
+                raise DataError(f"its {what} {cut_repr(ds.setup[key])} differs from "
+                                f"{first.name}'s {cut_repr(first.setup[key])}; expected one "
+                                "machine and one artefact.", file=ds.name, column=key)
+        if ds.certificate_csv != first.certificate_csv or ds.kind != first.kind:
+            raise DataError(f"its artefact or kind differs from {first.name}'s; expected one "
+                            "plate, all simulated or all measured.", file=ds.name)
+        df = pd.read_csv(_io.StringIO(ds.measurements_csv), dtype={"position": str,
+                                                                   "probe": str})
+        rename = {}
+        for q, vec in ds.setup["probes"].items():
+            new = q
+            while new in probes and probes[new] != vec:
+                new += "'"
+            probes[new] = vec
+            rename[q] = new
+        for p, spec in ds.setup["positions"].items():
+            new = p
+            while new in positions:
+                new += "'"
+            positions[new] = dict(spec, probe=rename[spec["probe"]])
+            df.loc[df["position"] == p, "position"] = new
+        df["probe"] = df["probe"].map(rename)
+        frames.append(df)
+        notes += [f"{ds.name}: {n}" for n in ds.notes]
+    setup = dict(first.setup, positions=positions, probes=probes)
+    meas = pd.concat(frames, ignore_index=True)
+    return replace(first, measurements_csv=meas.to_csv(index=False, float_format="%.7f"),
+                   setup=setup, notes=tuple(notes),
+                   name=", ".join(ds.name for ds in datasets))
+
+
+# --------------------------------------------------------------------------- sniffing
+
+
+def sniff(source) -> str | None:
+    """A sentence naming the MSL reader when ``source`` is an MSL cmm-error-map file, else
+    None: for the plain readers, whose column checks would only say that columns are
+    missing. Never raises for unreadable input."""
+    try:
+        data, _ = _read_bytes(source, None)
+        text = data[:8192].decode("utf-8-sig", errors="replace")
+    except (DataError, OSError, AttributeError, TypeError):
+        return None
+    lines = text.replace("\r", "\n").split("\n")
+    if not lines[0].startswith("save time,") or not any(
+            ln.startswith("artefact.nballs,") for ln in lines[:8]):
+        return None
+    line9 = next((ln.strip() for ln in lines[8:9]), "")
+    what = next((k for c, k in _FOREIGN_COLUMNS.items() if line9.startswith(c)), "")
+    nb = next((ln.split(",", 1)[1] for ln in lines[:8] if ln.startswith("artefact.nballs,")),
+              "")
+    bar = nb.replace(" ", "").endswith(",1")
+    reader = "read_msl_bar" if bar else "read_msl_plate"
+    art = "bar (step gauge)" if bar else "plate"
+    if what == "snapshot":
+        return (f"this looks like an MSL cmm-error-map {art} snapshot file: read it with "
+                f"cmm_core.io.{reader} with its metadata.csv and kind='simulated' or "
+                f"'measured' (CLI: --msl{'-bar' if bar else ''} SNAPSHOT.csv --msl-metadata "
+                "METADATA.csv --msl-kind KIND).")
+    if what == "metadata":
+        return (f"this looks like an MSL cmm-error-map {art} metadata file: give it with its "
+                f"snapshot.csv to cmm_core.io.{reader} (CLI: --msl-metadata).")
+    if what == "full-data":
+        return (f"this looks like an MSL cmm-error-map {art} full-data file: read the "
+                f"snapshot.csv saved with it with cmm_core.io.{reader}.")
+    return (f"this looks like an MSL cmm-error-map file: read its snapshot with "
+            f"cmm_core.io.{reader}.")

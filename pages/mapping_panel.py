@@ -1,0 +1,207 @@
+"""The Data page's panel for foreign files: any delimited table through a column mapping,
+or a DMIS output file (.dmo) through a label pattern, previewed before anything is loaded.
+
+:func:`mapping_panel` only gathers inputs, calls the core (:mod:`cmm_core.io.table_mapping`,
+:mod:`cmm_core.io.dmis`) and draws; every core error is one ``st.error`` line.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import streamlit as st
+
+from cmm_core.io.dmis import DMIS_SUFFIXES, read_dmis
+from cmm_core.io.errors import DataError
+from cmm_core.io.table_mapping import (
+    DECIMALS,
+    LENGTH_UNITS_MM,
+    TIME_UNITS_MIN,
+    ForeignTable,
+    TableMapping,
+    apply_mapping,
+    inspect_table,
+    preview,
+)
+
+NONE = "(none)"
+PREVIEW_ROWS = 10
+PROBLEMS_SHOWN = 8
+DEFAULT_PATTERN = r"(?P<position>BP\d+)_(?P<ball>\d+)"
+_DELIMS = {"auto": "auto", ",": "comma", ";": "semicolon", "\t": "tab"}
+_UNIT_WORDS = {"mm": "mm", "um": "µm", "inch": "inch"}
+
+
+def _message(exc: Exception) -> str:
+    """One line for any failure: a DataError as the core words it."""
+    return str(exc) if isinstance(exc, DataError) else f"{type(exc).__name__}: {exc}"
+
+
+def _errors(lines) -> None:
+    """The first problems, one st.error line each, and how many are not shown."""
+    for line in lines[:PROBLEMS_SHOWN]:
+        st.error(line)
+    if len(lines) > PROBLEMS_SHOWN:
+        st.caption(f"... and {len(lines) - PROBLEMS_SHOWN} more problem(s): fix these and "
+                   "the preview shows the rest.")
+
+
+def _notes(notes) -> None:
+    for note in notes:
+        st.caption(note)
+
+
+def _pick(label, columns, key, default=None, help=None):
+    """A selectbox over the table's columns, ``(none)`` first; None when none is picked."""
+    options = [NONE, *columns]
+    index = options.index(default) if default in options else 0
+    value = st.selectbox(label, options, index=index, key=key, help=help)
+    return None if value == NONE else value
+
+
+def _dmis_panel(data: bytes, name: str, key: str):
+    """Pattern inputs, the preview of the spheres read, and the table (or None)."""
+    c1, c2, c3 = st.columns([3, 1, 1])
+    pattern = c1.text_input(
+        "DMIS label pattern", value=DEFAULT_PATTERN, key=f"{key}_pattern",
+        help="A regular expression a whole sphere label must match, with named groups "
+             "ball and optionally position and probe: (?P<position>BP\\d+)_(?P<ball>\\d+) "
+             "reads BP111_5 as position BP111, ball 5.")
+    probe = c2.text_input("Default probe", value="1", key=f"{key}_probe",
+                          help="Probe of spheres whose label has no probe group.")
+    position = c3.text_input("Default position", value="", key=f"{key}_position",
+                             help="Position of spheres whose label has no position group "
+                                  "(one file per placement).")
+    try:
+        table = read_dmis(data, name=name, pattern=pattern, default_probe=probe.strip() or "1",
+                          default_position=position.strip() or None)
+    except Exception as exc:  # noqa: BLE001 - a message, never a traceback
+        st.error(_message(exc))
+        return None
+    st.dataframe(table.meas.drop(columns="source").head(PREVIEW_ROWS), hide_index=True,
+                 key=f"{key}_preview")
+    st.caption(f"{len(table.meas)} sphere(s) read; the first {min(PREVIEW_ROWS, len(table.meas))} "
+               "shown (mm).")
+    _notes(table.notes)
+    return table
+
+
+def _mapping_inputs(info, key: str):
+    """The column pickers, unit, decimal and delimiter inputs: a TableMapping or None."""
+    cols, sug = info.columns, info.suggestion
+    c = st.columns(3)
+    with c[0]:
+        x = _pick("x column", cols, f"{key}_x", sug.get("x"))
+    with c[1]:
+        y = _pick("y column", cols, f"{key}_y", sug.get("y"))
+    with c[2]:
+        z = _pick("z column", cols, f"{key}_z", sug.get("z"))
+    c = st.columns(3)
+    with c[0]:
+        ball = _pick("Ball column", cols, f"{key}_ball", sug.get("ball"),
+                     help="Ball numbers 1..N; or leave (none) and read them from a label.")
+    with c[1]:
+        position = _pick("Position column", cols, f"{key}_pos", sug.get("position"))
+    with c[2]:
+        probe = _pick("Probe column", cols, f"{key}_probe", sug.get("probe"))
+    c = st.columns(3)
+    with c[0]:
+        label = _pick("Label column", cols, f"{key}_label", sug.get("label"),
+                      help="Feature names such as BP111_5, read with the pattern.")
+    pattern = c[1].text_input("Label pattern", value=DEFAULT_PATTERN, key=f"{key}_pattern",
+                              disabled=label is None,
+                              help="Named groups ball and optionally position and probe.")
+    const_pos = c[2].text_input("Constant position", value="", key=f"{key}_cpos",
+                                help="Position of every row when no column or label gives it.")
+    c = st.columns(3)
+    with c[0]:
+        time_col = _pick("Time column (optional)", cols, f"{key}_time", sug.get("time"))
+    time_unit = c[1].radio("Time unit", list(TIME_UNITS_MIN), key=f"{key}_tunit",
+                           horizontal=True)
+    with c[2]:
+        temp = _pick("Plate temperature column, °C (optional)", cols, f"{key}_temp",
+                     sug.get("temperature"))
+    c = st.columns(4)
+    const_probe = c[0].text_input("Constant probe", value="1", key=f"{key}_cprobe",
+                                  help="Probe of every row when no column or label gives it.")
+    unit = c[1].radio("Length unit", list(LENGTH_UNITS_MM), key=f"{key}_unit",
+                      format_func=_UNIT_WORDS.get, horizontal=True)
+    decimal = c[2].radio("Decimal separator", list(DECIMALS), key=f"{key}_dec",
+                         index=DECIMALS.index(info.decimal), horizontal=True)
+    delimiter = c[3].selectbox("Field delimiter", list(_DELIMS), key=f"{key}_delim",
+                               format_func=_DELIMS.get)
+    try:
+        return TableMapping(
+            x=x, y=y, z=z, position=position, probe=probe, ball=ball,
+            label=label, pattern=pattern if label is not None else None,
+            time=time_col, temperature=temp, constant_position=const_pos.strip() or None,
+            constant_probe=const_probe.strip() or None, unit=unit, time_unit=time_unit,
+            decimal=decimal, delimiter=delimiter)
+    except Exception as exc:  # noqa: BLE001 - a message, never a traceback
+        st.error(_message(exc))
+        return None
+
+
+def _table_panel(data: bytes, name: str, key: str):
+    """Mapping inputs and the preview; the mapping when the preview has no problem."""
+    try:
+        info = inspect_table(data, name=name)
+    except Exception as exc:  # noqa: BLE001 - a message, never a traceback
+        st.error(_message(exc))
+        return None
+    st.caption(f"{name}: {info.n_rows} row(s), columns {', '.join(info.columns)}.")
+    mapping = _mapping_inputs(info, key)
+    if mapping is None:
+        return None
+    pv = preview(data, mapping, name=name, n=PREVIEW_ROWS)
+    st.dataframe(pv.rows, hide_index=True, key=f"{key}_preview")
+    st.caption(f"Preview: {pv.n_rows} row(s) parsed, the first {len(pv.rows)} shown in the "
+               "long form (mm, minutes, °C); nothing is loaded yet.")
+    _notes(pv.notes)
+    _errors(list(pv.problems))
+    return mapping if pv.ok else None
+
+
+def mapping_panel(key_prefix: str) -> ForeignTable | None:
+    """Draw the foreign-file panel; the converted table when "Load mapped table" is pressed.
+
+    Parameters
+    ----------
+    key_prefix : str
+        Prefix of every widget key (the panel may be drawn more than once).
+
+    Returns
+    -------
+    ForeignTable or None
+        The file in the long form (``.meas``, ``.csv_text``, ``.as_source()``) in the run
+        in which the button was pressed and the file converted; None otherwise.
+    """
+    st.write("A table from other software (any columns, mm, µm or inch, decimal point or "
+             "comma) or a DMIS output file (.dmo): pick what each column means, check the "
+             "preview, then load (docs/foreign-formats.md).")
+    upload = st.file_uploader("Table (CSV/TXT) or DMIS output (.dmo)",
+                              type=["csv", "txt", "tsv", *(s[1:] for s in DMIS_SUFFIXES)],
+                              key=f"{key_prefix}_file")
+    if upload is None:
+        return None
+    data, name = upload.getvalue(), upload.name
+    # widgets keyed by the file: another file starts from its own suggestions
+    key = f"{key_prefix}_{hashlib.sha1(data).hexdigest()[:10]}"
+    is_dmis = name.lower().endswith(DMIS_SUFFIXES)
+    if is_dmis:
+        table = _dmis_panel(data, name, key)
+        ready = table is not None
+    else:
+        mapping = _table_panel(data, name, key)
+        ready = mapping is not None
+    pressed = st.button("Load mapped table", key=f"{key}_load", type="primary",
+                        disabled=not ready)
+    if not (pressed and ready):
+        return None
+    if is_dmis:
+        return table
+    try:
+        return apply_mapping(data, mapping, name=name)
+    except Exception as exc:  # noqa: BLE001 - a message, never a traceback
+        st.error(_message(exc))
+        return None
