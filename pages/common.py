@@ -12,7 +12,6 @@ import hashlib
 import html
 import inspect
 import io
-import json
 import sys
 from contextlib import contextmanager, nullcontext  # noqa: F401 - pages use C.nullcontext
 from dataclasses import dataclass, replace
@@ -656,6 +655,8 @@ def sidebar():
     files = s.get("ds_files", {})
     sb.caption(f"Setup: {files.get('setup_source', 'setup of the dataset')}.  \n"
                f"Certificate: {files.get('certificate_source') or _cert_words(ds)}."
+               + (f"  \nCertificate uncertainty: {ds.certificate.u_source}."
+                  if ds.certificate is not None else "")
                + ("  \nInstruments fitted with the plate: " + ", ".join(
                    f"{n} ({INSTRUMENT_NAMES.get(k, k)})" for k, n, _ in s["instruments"])
                   + "." if s.get("instruments") else ""))
@@ -702,15 +703,6 @@ def pending_outliers(ds) -> list:
         return []
     done = {tuple(e) for e in s["exclusions"]}
     return [tuple(f) for f in flagged if tuple(f) not in done]
-
-
-def frame_download(df: pd.DataFrame) -> pd.DataFrame:
-    return df
-
-
-def json_text(obj) -> str:
-    return json.dumps(obj, indent=1, default=str)
-
 
 # ---------------------------------------------------------------------------------------
 # Figures: plotly figure construction is slow (validation), so built figures are cached

@@ -14,7 +14,10 @@ from cmm_core import analysis as A
 from cmm_core import io as cio
 from cmm_core.io import THESIS_POSITIONS
 from cmm_core.machine import DEFAULT_LAYOUT, LAYOUTS
+from cmm_core.model import simulator_effects
 from pages import common as C
+from pages.mapping_panel import mapping_panel
+from pages.msl_panel import msl_section
 
 C.page_start()
 st.title("Data")
@@ -124,7 +127,10 @@ def _checked_measurements(meas_files, problems, notes):
             df = cio.read_measurements(io.BytesIO(data), name=f.name)
             meas.append((f.name, data.decode("utf-8-sig")))
         except Exception as exc:  # noqa: BLE001 - a message, never a traceback
-            problems.extend(_problem_rows(exc, f.name))
+            foreign = cio.sniff(data)  # another tool's file: say which reader takes it
+            problems.extend([_problem(f.name, foreign, "use the 'Other tools' tab or the "
+                                      "mapped import below.")] if foreign
+                            else _problem_rows(exc, f.name))
         else:
             notes.append(_read_note(f.name, df.attrs))
     return meas
@@ -152,7 +158,7 @@ def _dataset_name(label, meas):
     return f"{', '.join(name for name, _ in meas)[:60]} (upload {n})"
 
 
-def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label=""):
+def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label="", mapped=None):
     """Check every file on its own, then together.
 
     Returns
@@ -166,6 +172,9 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label=""):
     """
     problems, notes = [], []
     meas = _checked_measurements(meas_files, problems, notes)
+    if mapped is not None:  # a table from other software, already mapped to the long form
+        meas.append(mapped)
+        notes.append(f"{mapped[0]}: read through the column mapping.")
     thesis = C.thesis_files()
     setup_text, cert = None, None
     setup_source = cert_source = None
@@ -205,7 +214,7 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label=""):
         cert_source = "none (plate geometry self-calibrated)"
         notes.append("No certificate: the plate geometry is fitted from the positions "
                      "(self-calibration, plate free).")
-    if not meas_files:
+    if not meas_files and mapped is None:
         problems.append(_problem("", "no measurement file given.", "upload one long-form "
                                  "CSV or one thesis-form CSV per position."))
     if problems:
@@ -265,8 +274,9 @@ def _show_upload_report():
     C.dataframe(table, hide_index=True, key="upload_problems")
 
 
-tab_thesis, tab_upload, tab_sim, tab_proj = st.tabs(
-    ["Thesis sample", "Upload CSVs", "Simulate a virtual CMM", "Project file"])
+tab_thesis, tab_upload, tab_other, tab_sim, tab_proj = st.tabs(
+    ["Thesis sample", "Upload CSVs", "Other tools (MSL)", "Simulate a virtual CMM",
+     "Project file"])
 
 with tab_thesis:
     st.write("The six ball-plate tables of thesis chapter 6 (tables 6.1-6.6) with the appendix 5 "
@@ -285,6 +295,13 @@ with tab_upload:
     sfx = "" if gen == 0 else f"_{gen}"
     up_meas = st.file_uploader("Measurement CSV file(s)", type=["csv", "txt"],
                                accept_multiple_files=True, key=f"up_meas{sfx}")
+    with st.expander("A table from other software or a DMIS output file (.dmo), mapped"):
+        mapped_now = mapping_panel(f"map{sfx}")
+    if mapped_now is not None:
+        st.session_state["mapped_meas"] = (mapped_now.csv_name, mapped_now.csv_text)
+    if st.session_state.get("mapped_meas"):
+        st.caption(f"Mapped table ready: {st.session_state['mapped_meas'][0]} (loaded with "
+                   "the setup below by 'Load uploaded files').")
     c1, c2 = st.columns(2)
     up_setup = c1.file_uploader("Setup (JSON)", type=["json"], key=f"up_setup{sfx}")
     up_cert = c2.file_uploader("Certificate (CSV, optional)", type=["csv", "txt"],
@@ -301,7 +318,8 @@ with tab_upload:
     if st.button("Load uploaded files", key="load_upload", type="primary"):
         st.session_state.pop("upload_report", None)
         files, problems, notes = _validate_upload(up_meas or [], up_setup, up_cert,
-                                                  use_thesis, up_label)
+                                                  use_thesis, up_label,
+                                                  st.session_state.get("mapped_meas"))
         if problems:
             st.session_state["upload_report"] = {"problems": problems,
                                                  "count": _count(problems)}
@@ -309,11 +327,15 @@ with tab_upload:
             C.set_dataset(files)
             st.session_state["upload_count"] = st.session_state.get("upload_count", 0) + 1
             st.session_state["upload_gen"] = gen + 1
+            st.session_state.pop("mapped_meas", None)
             _loaded(" ".join([f"Loaded {len(files['measurements'])} uploaded file(s) as "
                               f"'{files['name']}'."] + notes
                              + ["The upload fields are cleared: the next upload replaces "
                                 "these files."]))
     _show_upload_report()
+
+with tab_other:
+    msl_section()
 
 with tab_sim:
     st.write("A virtual CMM with known errors measuring the thesis placements: choose the "
@@ -342,30 +364,19 @@ with tab_sim:
                                 "Kinematic model page then shows how much they lower each "
                                 "coefficient's uncertainty.")
     st.markdown("**Hidden effects**")
-    e1, e2, e3, e4 = st.columns(4)
+    # one checkbox per effect block of the registry (cmm_core.model.simulator_effects):
+    # a new effect appears here with its block, nothing to add to the page
     eff = {}
-    if e1.checkbox("Plate thermal expansion", key="sim_thermal"):
-        eff["plate_thermal"] = {"cte_per_K": 11.5e-6}
-    if e2.checkbox("Plate sag", key="sim_sag"):
-        eff["plate_sag"] = {"uu": e2.number_input("sag uu (µm)", -20.0, 20.0, 3.0,
-                                                  key="sim_sag_uu"), "uv": 0.0,
-                            "vv": e2.number_input("sag vv (µm)", -20.0, 20.0, 3.0,
-                                                  key="sim_sag_vv")}
-    if e3.checkbox("Probe offset errors", key="sim_probe"):
-        eff["probe_offset"] = {"sd_um": e3.number_input("sd (µm)", 0.0, 20.0, 2.0,
-                                                        key="sim_probe_sd")}
-    if e4.checkbox("Drift", key="sim_drift"):
-        eff["drift"] = {"sd_um_per_h": e4.number_input("sd (µm/h)", 0.0, 50.0, 2.0,
-                                                       key="sim_drift_sd")}
+    cols = st.columns(4)
+    for k, e in enumerate(simulator_effects()):
+        col = cols[k % 4]
+        if col.checkbox(e.label, key=f"sim_{e.token}", help=e.help or None):
+            eff[e.token] = e.config({p.key: col.number_input(
+                p.label, p.low, p.high, p.default, p.step, key=f"sim_{e.token}_{p.key}")
+                for p in e.params})
     kin_cfg = {"order": int(korder), "random_um": float(rnd_um),
                "random_urad": float(rnd_urad)}
-    p1, p2, p3, p4 = st.columns(4)
-    if p4.checkbox("Backlash", key="sim_backlash",
-                   help="Reversal error: each axis reads short by half the span in the "
-                        "direction it last moved. Visible with serpentine or random order."):
-        eff["backlash"] = {f"{a}_um": float(p4.number_input(
-            f"reversal span {a.upper()} (µm)", -20.0, 20.0, 1.5, key=f"sim_backlash_{a}"))
-            for a in "xyz"}
+    p1, p2, p3, _p4 = st.columns(4)
     if p1.checkbox("Periodic X scale error", key="sim_periodic",
                    help="A sine wave along X (lead screw, rack): not in the default model, "
                         "so the diagnosis has to find it and its period. The 133 mm ball "

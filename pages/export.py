@@ -8,6 +8,7 @@ import streamlit as st
 
 from cmm_core import analysis as A
 from cmm_core import export as ex
+from cmm_core.model import correction_columns
 from pages import common as C
 from pages.plan import task_section
 
@@ -36,10 +37,9 @@ if "backlash" in r.problem.layout.blocks:
                "axes last moved in, taken from the file's row order (or `time_min`); before "
                "an axis first moves its direction is unknown and half the span is added to "
                "the uncertainty (columns `approach_x/y/z`: +1, −1, 0 unknown).")
-# columns the model's own blocks read from the points besides the coordinates: the scale
-# temperatures of machine_thermal, the measurement order of backlash (time_min, else rows)
-NEEDS = {"machine_thermal": ("temp_x_C", "temp_y_C", "temp_z_C"), "backlash": ("time_min",)}
-extra_cols = [c for b, cols in NEEDS.items() if b in r.problem.layout.blocks for c in cols]
+# columns the model's own blocks read from the points besides the coordinates (each block
+# says which: the scale temperatures of machine_thermal, the order of backlash)
+extra_cols = correction_columns(r.problem.blocks)
 if "machine_thermal" in r.problem.layout.blocks:
     st.caption("This model has the scales' thermal expansion (machine_thermal): each point "
                "needs the scale temperatures of the fitted axes in columns `temp_x_C`, "

@@ -291,7 +291,7 @@ def test_the_same_file_uploaded_twice_is_one_problem():
 
 def test_simulate_a_virtual_cmm():
     at = _new()
-    at.checkbox(key="sim_sag").check()
+    at.checkbox(key="sim_plate_sag").check()
     at.run()
     at.button(key="simulate").click()
     at.run()
@@ -343,7 +343,7 @@ def test_simulator_settings_survive_a_visit_to_another_page():
     at.selectbox(key="sim_order").set_value("serpentine")
     at.checkbox(key="sim_backlash").check()
     at.run()
-    at.number_input(key="sim_backlash_y").set_value(2.5)
+    at.number_input(key="sim_backlash_y_um").set_value(2.5)
     at.run()
     at.switch_page("pages/kinematic.py")
     at.run()
@@ -351,7 +351,7 @@ def test_simulator_settings_survive_a_visit_to_another_page():
     at.run()
     _ok(at)
     assert at.checkbox(key="sim_backlash").value
-    assert at.number_input(key="sim_backlash_y").value == 2.5
+    assert at.number_input(key="sim_backlash_y_um").value == 2.5
     assert at.selectbox(key="sim_order").value == "serpentine"
 
 
@@ -391,7 +391,7 @@ def test_hidden_backlash_seen_by_direction_named_added_and_error_falls():
     at.checkbox(key="sim_backlash").check()
     at.run()
     for a in "xyz":
-        at.number_input(key=f"sim_backlash_{a}").set_value(2.0)
+        at.number_input(key=f"sim_backlash_{a}_um").set_value(2.0)
     at.button(key="simulate").click()
     at.run()
     at.switch_page("pages/diagnose.py")

@@ -10,15 +10,18 @@ from cmm_core.export import compensate, model_from_dict, model_to_dict
 from cmm_core.io import DataError
 from cmm_core.machine import kinematics as kin
 from cmm_core.model import (
+    REGISTRY,
     approach_directions,
     error_at,
     evaluate,
     fit,
     rigid_body_projector,
     simulate,
+    simulator_effects,
     weighted_residual,
 )
 
+SIM_EFFECTS = {e.token: e for e in simulator_effects()}
 EXACT_PLATE = {"plate": {"form_um": 2.0, "certificate_u_um": 0.0}}
 
 
@@ -62,17 +65,18 @@ def test_plate_prior_and_free_modes_also_recover():
         assert 0.75 <= r.chi2_dof <= 1.3
 
 
-def test_problem_jacobian_matches_finite_differences():
-    """Every block (plate, placement, kinematic, probe offsets, thermal, sag, drift,
-    backlash, machine thermal)."""
+@pytest.mark.parametrize("token", [None, *(b.token for b in REGISTRY if b.token), "all"])
+def test_problem_jacobian_matches_finite_differences(token):
+    """Every block of the registry (``blocks.REGISTRY``): the blocks always present
+    (plate, placement, kinematic) in every case, each physical effect added with its
+    simulator panel's default values (``simulator_effects``), then all of them at once,
+    on a free plate."""
+    tokens = [] if token is None else list(SIM_EFFECTS) if token == "all" else [token]
     sim = simulate({"seed": 7, "order": "serpentine",
-                    "effects": {"plate_sag": {"uu": -2}, "drift": {"sd_um_per_h": 2},
-                                "plate_thermal": {}, "probe_offset": {"sd_um": 1},
-                                "backlash": {"x_um": 1.0, "y_um": 2.0},
-                                "machine_thermal": {"x_cte_per_K": 2e-6, "z_cte_per_K": 1e-6}}})
-    r = fit(sim.dataset, "kinematic21,plate_thermal,plate_sag,probe_offset,drift,backlash,"
-            "machine_thermal", plate="free")
-    assert "machine_thermal.cte_z" in r.labels and "machine_thermal.cte_y" not in r.labels
+                    "effects": {t: SIM_EFFECTS[t].config() for t in tokens}})
+    r = fit(sim.dataset, ",".join(["kinematic21", *tokens]), plate="free")
+    for t in tokens:
+        assert r.problem.layout.blocks[t].stop > r.problem.layout.blocks[t].start, t
     prob, st = r.problem, r.state
     _, J = prob.residual(st, True)
     J = J.toarray()
@@ -85,6 +89,12 @@ def test_problem_jacobian_matches_finite_differences():
         fd = (dp - dm).ravel() / (2 * h)
         np.testing.assert_allclose(J[:, j], fd, atol=2e-7, rtol=1e-6,
                                    err_msg=prob.layout.labels[j])
+
+
+def test_every_physical_block_is_in_the_simulator_panel():
+    """The Jacobian test above draws each effect from its panel entry: every physical
+    block has one."""
+    assert set(SIM_EFFECTS) == {b.token for b in REGISTRY if b.token}
 
 
 def test_location_0_alone_is_rank_deficient(thesis):

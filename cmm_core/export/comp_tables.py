@@ -32,7 +32,7 @@ from .. import __version__
 from ..io import DataError
 from ..machine import kinematics as kin
 from ..machine import split_chain
-from ..model import CHI2_ALPHA, FitResult, propagate_error
+from ..model import BY_TOKEN, CHI2_ALPHA, FitResult, propagate_error
 from .correction import Model, extrapolation_note, model_from_result
 from .safe import MAX_GRID_NODES, safe_csv
 
@@ -286,7 +286,9 @@ def _g(v) -> str:
     return "unknown" if v is None else f"{float(v):.4g}"
 
 
-_EXTRA_UNITS = {"backlash": "um", "machine_thermal": "1e-6/K"}
+_EXTRA_UNITS = {t: b.comp_units for t, b in BY_TOKEN.items() if b.model_keys}
+"""Unit of the parameters each compensating block applies to new points (its
+``comp_units``)."""
 
 
 def model_extras(m: Model) -> list[tuple[str, str, float, float]]:
@@ -296,10 +298,10 @@ def model_extras(m: Model) -> list[tuple[str, str, float, float]]:
     out = []
     parts = getattr(m, "parts", None)
     if parts:
-        for part in parts.values():
+        for token, part in parts.items():
             k = len(part.labels)
             u = np.sqrt(np.clip(np.diag(part.cov)[-k:], 0, None))
-            out += [(str(lab), _EXTRA_UNITS.get(str(lab).split(".")[0], ""), float(v),
+            out += [(str(lab), _EXTRA_UNITS.get(token, ""), float(v),
                      float(s)) for lab, v, s in zip(part.labels, part.values, u, strict=True)]
     elif getattr(m, "backlash_um", None) is not None:
         u = np.sqrt(np.clip(np.diag(m.cov_with_backlash)[-3:], 0, None))

@@ -16,11 +16,19 @@ from __future__ import annotations
 from . import blocks
 from .ballbar import BallBar, simulate_ball_bar
 from .blocks import BY_TOKEN, REGISTRY, Block, Eval, needs
-from .blocks.base import checked_cov
+from .blocks.base import SimParam, SimulatorEffect, checked_cov
 from .blocks.periodic import PERIOD_SCAN, PERIODIC, shortest_resolvable_period
 from .blocks.plate import Plate
 from .certificate_prior import certificate_terms, held_prior_rows, residual_u_um
-from .effects import GROUPS, MAX_ORDER, PHYSICAL, ModelSpec, catalogue_entry, parse_spec
+from .effects import (
+    GROUPS,
+    MAX_ORDER,
+    PHYSICAL,
+    ModelSpec,
+    catalogue_entry,
+    correction_columns,
+    parse_spec,
+)
 from .fitting import PLATE_MODES, fit
 from .hole_plate import (
     ROUNDING,
@@ -71,7 +79,7 @@ from .normal import ROWS, NormalEquations, accumulate, cost_of, dense_rows, rows
 from .observations import Observations, approach_directions, check_selection, select, setup_layout
 from .problem import Problem, augmented_state, held_constraints, weighted_residual
 from .result import CHI2_ALPHA, IMPLAUSIBLE, FitResult
-from .simulation_config import DEFAULT_CONFIG
+from .simulation_config import DEFAULT_CONFIG, simulator_effects
 from .solver import Normal, describe_null, normal_equations, signed_sum, solve, surely_determined
 from .state import State
 from .uncertainty import (
@@ -108,5 +116,6 @@ __all__ = [
     "STEP_GAUGE_COLUMNS", "STEP_GAUGE_OPTIONAL", "StepGauge", "summary", "surely_determined",
     "thesis_machine_setup", "tilt_note", "TILT_NOTE_RAD", "TILT_USE_RAD", "truth_of",
     "UncertaintySummary", "weighted_residual", "write_ball_bar", "write_instrument",
-    "write_laser", "write_step_gauge", "blocks"
+    "write_laser", "write_step_gauge", "blocks", "correction_columns", "SimParam",
+    "SimulatorEffect", "simulator_effects",
 ]

@@ -12,8 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..machine import ERROR_NAMES, ROTATIONAL, SQUARENESS, TRANSLATIONAL
-from .blocks import BY_TOKEN
-from .blocks.base import Effect
+from .blocks import BY_TOKEN, REGISTRY
+from .blocks.base import Block, Effect
 from .blocks.periodic import PERIODIC
 
 GROUPS = {
@@ -250,3 +250,34 @@ def parse_spec(spec: str, *, default_order: int = 2) -> ModelSpec:
     return ModelSpec(tuple(orders.items()), tuple(e for e in PHYSICAL if e in effects),
                      default_order, tuple((n, periods[n]) for n in PERIODIC.values()
                                           if n in periods))
+
+
+def correction_columns(model) -> tuple:
+    """Columns (besides ``x_mm, y_mm, z_mm, probe``) that points need to be corrected by a
+    model: each compensating block's :meth:`~blocks.base.Block.correction_columns`, in
+    ``blocks.REGISTRY`` order, without repeats.
+
+    ``model``: a spec string or :class:`ModelSpec`; an iterable of tokens, block classes
+    or block instances (a fit's ``problem.layout.blocks`` or ``problem.blocks``; names that
+    are not effect tokens are skipped); or a saved model's ``parts`` (token -> part: then
+    only the fitted axes' columns of ``machine_thermal``)."""
+    labels = {}
+    if isinstance(model, str):
+        model = parse_spec(model)
+    if isinstance(model, ModelSpec):
+        tokens = set(model.effects)
+    else:
+        tokens = set()
+        for item in model:
+            if isinstance(item, Block) or (isinstance(item, type) and issubclass(item, Block)):
+                item = item.token
+            if isinstance(item, str) and item in BY_TOKEN:
+                tokens.add(item)
+                part = model[item] if isinstance(model, dict) else None
+                if hasattr(part, "labels"):  # a saved model's part: its fitted labels
+                    labels[item] = part.labels
+    out = []
+    for b in REGISTRY:
+        if b.token in tokens and b.model_keys:
+            out += [c for c in b.correction_columns(labels.get(b.token)) if c not in out]
+    return tuple(out)

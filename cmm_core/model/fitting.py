@@ -194,6 +194,5 @@ def _report_values(prob, state):
     """Parameter values relative to the nominal setup / certificate, in their units."""
     v = state.x.copy()
     for b in prob.blocks:
-        if hasattr(b, "report"):
-            b.report(state, v)
+        b.report(state, v)
     return v

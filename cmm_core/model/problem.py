@@ -193,8 +193,7 @@ class Problem:
         coordinates."""
         new = state.with_x(state.x + step)
         for b in self.blocks:
-            if hasattr(b, "update"):
-                new = b.update(new)
+            new = b.update(new)
         return new
 
 

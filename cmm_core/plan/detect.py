@@ -36,7 +36,15 @@ from scipy import linalg, optimize, stats
 from .._blas import single_blas_thread
 from ..diagnosis import scan_period, score
 from ..diagnosis import scoring as sc
-from ..model import PERIODIC, FitResult, Problem, augmented_state, parse_spec, weighted_residual
+from ..model import (
+    BY_TOKEN,
+    PERIODIC,
+    FitResult,
+    Problem,
+    augmented_state,
+    parse_spec,
+    weighted_residual,
+)
 from .plans import fit_plan_data, simulate_plan
 
 POWER = 0.8
@@ -138,27 +146,15 @@ def baseline_basis(base: FitResult) -> tuple:
 
 
 def _shapes(token, labels, base_spec, positions, probes):
-    """Candidate shapes ``(name, {label: weight})`` of an effect (see docs/planning.md)."""
+    """Candidate shapes ``(name, {label: weight})`` of an effect (see docs/planning.md):
+    a physical effect's are its block's (``Block.detection_shapes``; by default each of
+    its parameters alone, the worst reported)."""
     name = token.partition(":")[0]
-    if name == "plate_sag":
-        return [("bowl uu = vv", {"plate_sag.uu": 1.0, "plate_sag.vv": 1.0})]
-    if name == "probe_offset":
-        q0, rest = probes[0], probes[1:]
-        return [(f"stylus {q0} along {a}", {f"probe{q0}.{a}": 1.0,
-                                            **{f"probe{q}.{a}": -1.0 / len(rest)
-                                               for q in rest}}) for a in "xyz"]
-    if name == "drift":
-        return [(f"every placement along {a}", {f"{p}.drift_{a}": 1.0 for p in positions})
-                for a in "xyz"]
-    if name == "backlash":
-        return [(f"{a} axis", {f"backlash.{a}": 1.0}) for a in "xyz"]
+    if name in BY_TOKEN:
+        return BY_TOKEN[name].detection_shapes(labels, positions, probes)
     if name in PERIODIC:
         return [("sine term", {labels[0]: 1.0})]
-    if name == "plate_thermal":
-        return [("expansion coefficient", {labels[0]: 1.0})]
     if name not in dict(base_spec.orders):
-        # an effect without a documented shape (a new catalogue block): each of its
-        # parameters alone, the worst reported
         return [(f"{lab} alone", {lab: 1.0}) for lab in labels]
     present = base_spec.order(name) > 0
     lab = labels[-1] if present else labels[0]
@@ -273,24 +269,12 @@ def injection(limit: DetectionLimit, plan, size: float) -> dict:
 
     fam, token = limit.family or limit.effect, limit.effect
     vals = {lab: size * w for lab, w in limit.shape.items()}
-    if fam == "plate_sag":
-        return {"effects": {"plate_sag": {k.split(".")[1]: v for k, v in vals.items()}}}
-    if fam == "plate_thermal":
-        return {"effects": {"plate_thermal": {"cte_per_K": size * 1e-6}}}
-    if fam == "probe_offset":
-        vec = {}
-        for lab, v in vals.items():
-            q, a = lab[len("probe"):].rsplit(".", 1)
-            vec.setdefault(q, [0.0, 0.0, 0.0])["xyz".index(a)] = v
-        return {"effects": {"probe_offset": vec}}
-    if fam == "drift":
-        vec = {}
-        for lab, v in vals.items():
-            p, a = lab.rsplit(".drift_", 1)
-            vec.setdefault(p, [0.0, 0.0, 0.0])["xyz".index(a)] = v
-        return {"effects": {"drift": vec}}
-    if fam == "backlash":
-        return {"effects": {"backlash": {f"{k[-1]}_um": v for k, v in vals.items()}}}
+    if fam in BY_TOKEN:  # a physical effect: its block's simulator keys
+        body = BY_TOKEN[fam].injection(vals)
+        if body is None:
+            raise ValueError(f"the effect {fam!r} cannot be hidden in simulated data (its "
+                             "block has no injection).")
+        return {"effects": {fam: body}}
     spec = parse_spec(plan.model["spec"], default_order=plan.model["order"]).with_token(token)
     return {"spec": spec.to_string(), "coefficients": vals}
 

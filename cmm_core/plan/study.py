@@ -25,12 +25,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._blas import single_blas_thread
+from ..model import BY_TOKEN
 from ..model import evaluate as evaluate_u
 from .detect import detection_trial
 from .plans import fit_plan_data, simulate_plan
 
-PHYSICAL_CHECKS = ("plate_sag", "plate_thermal", "probe_offset", "drift", "backlash")
-"""Effects checked by default (those whose limit is finite for the plan)."""
+PHYSICAL_CHECKS = tuple(t for t, b in BY_TOKEN.items() if b.physical_check)
+"""Effects checked by default (those whose limit is finite for the plan): the blocks with
+``physical_check`` (``blocks.REGISTRY`` order)."""
 
 
 @dataclass(frozen=True)

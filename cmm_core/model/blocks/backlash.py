@@ -19,7 +19,7 @@ from ...io import DataError
 from ...io.delimited import numeric_column
 from ...io.errors import cut_repr
 from ..observations import approach_directions
-from .base import Block, Correction, Effect, ModelPart, checked_cov, shared_cols
+from .base import Block, Correction, Effect, ModelPart, SimParam, checked_cov, shared_cols
 
 LABELS = tuple(f"backlash.{a}" for a in "xyz")
 
@@ -42,6 +42,20 @@ class Backlash(Block):
 
     sim_keys = frozenset({"x_um", "y_um", "z_um"})
     sim_ranges = {f"{a}_um": (-1e3, 1e3) for a in "xyz"}
+    sim_label = "Backlash"
+    sim_help = ("Reversal error: each axis reads short by half the span in the direction it "
+                "last moved. Visible with serpentine or random order.")
+    sim_params = tuple(SimParam(f"{a}_um", f"reversal span {a.upper()} (µm)", "um", 1.5,
+                                -20.0, 20.0) for a in "xyz")
+    physical_check = True
+
+    @classmethod
+    def detection_shapes(cls, labels, positions, probes):
+        return [(f"{a} axis", {f"backlash.{a}": 1.0}) for a in "xyz"]
+
+    @classmethod
+    def injection(cls, values):
+        return {f"{lab[-1]}_um": v for lab, v in values.items()}
 
     @classmethod
     def draw(cls, cfg, sim, rng):
@@ -67,6 +81,12 @@ class Backlash(Block):
     # --- compensation of new points -----------------------------------------------------
     model_keys = ("backlash_um", "cov_with_backlash")
     model_what = "backlash spans"
+    comp_units = "um"
+
+    @classmethod
+    def correction_columns(cls, labels=None):
+        """``time_min``: the points' measurement order (else their file order)."""
+        return ("time_min",)
 
     @classmethod
     def part_to_file(cls, part):

@@ -212,6 +212,71 @@ class ModelPart:
     labels: tuple
     values: np.ndarray
     cov: np.ndarray
+    context: dict = field(default_factory=dict, compare=False)
+    """What else the block's :meth:`Block.correct` needs of the fit (the machine's
+    range and layout: ``bridge_twist``), written and read by the block with its keys."""
+
+
+@dataclass(frozen=True)
+class SimParam:
+    """One number of a simulator panel's effect: what a UI needs to draw its input.
+
+    Attributes
+    ----------
+    key : str
+        Key under ``effects.<token>`` in the simulator configuration.
+    label : str
+        Input label, with its unit (``"sag uu (µm)"``).
+    unit : str
+        Unit of the value as the configuration takes it (``um``, ``urad``, ``1/K``).
+    default, low, high : float
+        Default value and the input's range, in the input's unit (times ``scale``:
+        within the block's ``sim_ranges``).
+    step : float
+        Input step.
+    """
+
+    key: str
+    label: str
+    unit: str
+    default: float
+    low: float
+    high: float
+    step: float = 0.1
+    scale: float = 1.0
+    """The configuration's value is the input times ``scale`` (an input in 10⁻⁶/K for a
+    key in 1/K: 1e-6)."""
+
+
+@dataclass(frozen=True)
+class SimulatorEffect:
+    """One hidden effect of the simulator panel (:func:`simulator_effects`): a checkbox
+    labelled ``label`` (tooltip ``help``) and an input per parameter.
+
+    Attributes
+    ----------
+    token : str
+        The effect's token: the key of ``effects`` in the simulator configuration.
+    label, help : str
+        Checkbox label and tooltip.
+    params : tuple of SimParam
+        The inputs to draw when the box is ticked (may be empty: defaults only).
+    fixed : dict
+        Keys always passed besides the inputs (``plate_sag``: ``uv`` 0).
+    """
+
+    token: str
+    label: str
+    help: str
+    params: tuple = ()
+    fixed: dict = field(default_factory=dict)
+
+    def config(self, values: dict | None = None) -> dict:
+        """The ``effects.<token>`` body for the inputs' ``values`` (key -> number; the
+        defaults for keys not given)."""
+        values = values or {}
+        return {**self.fixed, **{p.key: float(values.get(p.key, p.default)) * p.scale
+                                 for p in self.params}}
 
 
 @dataclass(frozen=True)
@@ -240,10 +305,23 @@ class Correction:
 
 class Block:
     """One physical effect: its parameters, the data it needs, its residual contribution,
-    Jacobian and gauge constraints.
+    Jacobian and gauge constraints, its simulation, its planning knowledge and its
+    correction of new points.
 
     Subclasses set :attr:`token` (the catalogue name that adds it to a model; ``None``
-    for blocks always present) and override what they take part in.
+    for blocks always present) and override what they take part in. Every hook the fit,
+    the simulator, the planner and the compensation call is declared here with a no-op
+    default, so that callers never ask ``hasattr`` (docs/effects.md lists them):
+
+    - model: :meth:`wanted`, :meth:`needs`, :meth:`columns`, the stages
+      :meth:`probe_stage`, :meth:`plate_stage`, :meth:`reading_stage`, :meth:`jacobian`,
+      :meth:`constraints`, :meth:`update`, :meth:`report`;
+    - simulation: :attr:`sim_keys`, :attr:`sim_ranges`, :meth:`draw`, :meth:`check_sim`,
+      :attr:`sim_label`, :attr:`sim_help`, :attr:`sim_params`, :attr:`sim_fixed`;
+    - planning: :meth:`detection_shapes`, :meth:`injection`, :attr:`physical_check`;
+    - compensation: :attr:`model_keys`, :meth:`compensation`, :meth:`part_to_file`,
+      :meth:`part_from_file`, :meth:`correct`, :attr:`comp_units`,
+      :meth:`correction_columns`.
     """
 
     token: str | None = None
@@ -282,12 +360,18 @@ class Block:
 
     # --- stages ---------------------------------------------------------------------
     def probe_stage(self, ev: Eval, p):
+        """Probe offsets (n, 3) mm after the block's change (``probe_offset``)."""
         return p
 
     def plate_stage(self, ev: Eval, c):
+        """Plate coordinates of every observation (n, 3) mm after the block's change
+        (``plate_thermal``, ``plate_sag``)."""
         return c
 
     def reading_stage(self, ev: Eval, d):
+        """Residuals (n, 3) µm after the block's term on the readings (``drift``,
+        ``backlash``, ``machine_thermal``, ``bridge_twist``); linear in ``d`` (the
+        simulator inverts it: ``Problem.targets``)."""
         return d
 
     def jacobian(self, ev: Eval) -> list:
@@ -298,6 +382,49 @@ class Block:
     def constraints(self) -> np.ndarray | None:
         """Gauge constraint rows on the block's own columns (``C x = 0``), or None."""
         return None
+
+    def update(self, new):
+        """The state after a Gauss-Newton step ``new`` (``Problem.update``): a block whose
+        parameters are increments moves them into the state (placements, plate) and
+        zeroes them; the default keeps the step in the parameter vector."""
+        return new
+
+    def report(self, state, v) -> None:
+        """Write the block's reported values into ``v`` (the parameter vector in the
+        block's units, ``fitting._report_values``) where they differ from
+        ``state.x`` (placements and plate relative to the nominal setup); the default
+        reports ``state.x`` as it is."""
+
+    # --- planning (plan.detect, plan.study) -------------------------------------------
+    physical_check: bool = False
+    """Whether plan studies check the effect by default (``plan.PHYSICAL_CHECKS``): its
+    detection limit is hidden in simulated data (:meth:`injection`) and the diagnosis's
+    test of it is run."""
+
+    @classmethod
+    def detection_shapes(cls, labels, positions, probes) -> list:
+        """Shapes ``[(name, {label: weight})]`` along which the planner computes the
+        effect's detection limit (largest weight 1; the worst shape is reported).
+        ``labels``: the effect's new parameters in the plan's model; ``positions``,
+        ``probes``: the plan's. Default: each parameter alone."""
+        return [(f"{lab} alone", {lab: 1.0}) for lab in labels]
+
+    @classmethod
+    def injection(cls, values: dict) -> dict | None:
+        """The simulator's ``effects.<token>`` body that hides the effect with these
+        parameter values (fit label -> value in the block's units); None: the block cannot
+        be simulated from its parameters."""
+        return None
+
+    # --- simulator panel (simulation_config.simulator_effects) ---------------------------
+    sim_label: str = ""
+    """Checkbox label of the simulator panel ("" : not offered in the panel)."""
+    sim_help: str = ""
+    """Tooltip of that checkbox."""
+    sim_params: tuple = ()
+    """:class:`SimParam` inputs drawn when the box is ticked."""
+    sim_fixed: dict = {}
+    """Keys always passed with the inputs."""
 
     # --- simulator configuration ------------------------------------------------------
     @classmethod
@@ -311,6 +438,9 @@ class Block:
     """Keys the block writes in a model file (empty: it does not act on new points)."""
     model_what: str = ""
     """What those keys hold, for messages ("backlash spans")."""
+    comp_units: str = ""
+    """Unit of every parameter the block applies to new points (the compensation tables'
+    extra rows: ``export.model_extras``)."""
     model_keys_optional: bool = False
     """Whether a model file whose spec has the block may lack its keys (written before the
     block kept them): it is then read without the part and corrects as it did; False:
@@ -353,6 +483,13 @@ class Block:
         and what the block needs) at scale readings ``x_mm`` (m, 3); refusals name the
         points file ``name``."""
         raise NotImplementedError(f"{cls.__name__} does not correct new points")
+
+    @classmethod
+    def correction_columns(cls, labels=None) -> tuple:
+        """Columns (besides ``x_mm, y_mm, z_mm, probe``) that points need to be corrected
+        by this block; ``labels``: the part's fitted labels when known (a block may need
+        columns only for some of them). Default: none."""
+        return ()
 
 
 def checked_cov(cov, n, name, column):

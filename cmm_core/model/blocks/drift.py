@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Block, Effect, per_group_cols
+from .base import Block, Effect, SimParam, per_group_cols
 
 
 class Drift(Block):
@@ -25,6 +25,24 @@ class Drift(Block):
 
     sim_keys = None
     sim_ranges = {"sd_um_per_h": (0, 1e4)}
+    sim_label = "Drift"
+    sim_help = "A random linear drift of each position's readings in time."
+    sim_params = (SimParam("sd_um_per_h", "sd (µm/h)", "um/h", 2.0, 0.0, 50.0),)
+    physical_check = True
+
+    @classmethod
+    def detection_shapes(cls, labels, positions, probes):
+        """Every placement drifting alike, along each axis."""
+        return [(f"every placement along {a}", {f"{p}.drift_{a}": 1.0 for p in positions})
+                for a in "xyz"]
+
+    @classmethod
+    def injection(cls, values):
+        vec = {}
+        for lab, v in values.items():
+            p, a = lab.rsplit(".drift_", 1)
+            vec.setdefault(p, [0.0, 0.0, 0.0])["xyz".index(a)] = v
+        return vec
 
     @classmethod
     def draw(cls, cfg, sim, rng):

@@ -22,7 +22,7 @@ from ...io.delimited import file_rows, numeric_column
 from ...io.errors import cut_repr
 from ...io.setup import check_celsius
 from ...units import PPM, UM
-from .base import Block, Correction, Effect, ModelPart, checked_cov, shared_cols
+from .base import Block, Correction, Effect, ModelPart, SimParam, checked_cov, shared_cols
 
 AXES = "xyz"
 SECTION_KEYS = ("axes", "cte_ppm_per_K", "cov_joint")
@@ -56,6 +56,17 @@ class MachineThermal(Block):
     sim_keys = frozenset({f"{a}_cte_per_K" for a in AXES} | {"temp_C"})
     # an error of a compensated coefficient can have either sign
     sim_ranges = {f"{a}_cte_per_K": (-3e-5, 3e-5) for a in AXES}
+    sim_label = "Machine scale expansion"
+    sim_help = ("Each scale's expansion error with its temperature (recorded in temp_x_C, "
+                "temp_y_C, temp_z_C; 20.5-20.8 °C, warmer at each position).")
+    sim_params = tuple(SimParam(f"{a}_cte_per_K", f"{a.upper()} scale CTE error (10⁻⁶/K)",
+                                "1e-6/K", 2.0, -30.0, 30.0, 0.5, 1e-6) for a in AXES)
+    # plans simulate no scale temperatures: the planner skips it, so no default check
+    physical_check = False
+
+    @classmethod
+    def injection(cls, values):
+        return {f"{lab[-1]}_cte_per_K": v * 1e-6 for lab, v in values.items()}
 
     @classmethod
     def draw(cls, cfg, sim, rng):
@@ -123,6 +134,13 @@ class MachineThermal(Block):
     # model files of earlier releases kept only the kinematic coefficients (fitted jointly
     # with the scale term, so they correct as at 20 °C scales): they read as before
     model_keys_optional = True
+    comp_units = "1e-6/K"
+
+    @classmethod
+    def correction_columns(cls, labels=None):
+        """The scale temperature of every fitted axis (all three when not known)."""
+        axes = [AXES.index(lab[-1]) for lab in labels] if labels is not None else range(3)
+        return tuple(SCALE_TEMP_COLUMNS[a] for a in axes)
 
     @classmethod
     def part_to_file(cls, part):

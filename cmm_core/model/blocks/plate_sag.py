@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...units import UM
-from .base import Block, Effect, shared_cols
+from .base import Block, Effect, SimParam, shared_cols
 
 
 class PlateSag(Block):
@@ -26,6 +26,20 @@ class PlateSag(Block):
 
     sim_keys = frozenset({"uu", "uv", "vv"})
     sim_ranges = {k: (-1e3, 1e3) for k in ("uu", "uv", "vv")}
+    sim_label = "Plate sag"
+    sim_help = "A bowl of the horizontal placements (height at the plate's edge)."
+    sim_params = (SimParam("uu", "sag uu (µm)", "um", 3.0, -20.0, 20.0),
+                  SimParam("vv", "sag vv (µm)", "um", 3.0, -20.0, 20.0))
+    sim_fixed = {"uv": 0.0}
+    physical_check = True
+
+    @classmethod
+    def detection_shapes(cls, labels, positions, probes):
+        return [("bowl uu = vv", {"plate_sag.uu": 1.0, "plate_sag.vv": 1.0})]
+
+    @classmethod
+    def injection(cls, values):
+        return {lab.split(".")[1]: v for lab, v in values.items()}
 
     @classmethod
     def draw(cls, cfg, sim, rng):

@@ -8,7 +8,7 @@ import numpy as np
 
 from ...io import CTE_RANGE_PER_K
 from ...units import PPM, UM
-from .base import Block, Effect, shared_cols
+from .base import Block, Effect, SimParam, shared_cols
 
 
 class PlateThermal(Block):
@@ -25,6 +25,19 @@ class PlateThermal(Block):
 
     sim_keys = frozenset({"cte_per_K", "temp_C"})
     sim_ranges = {"cte_per_K": CTE_RANGE_PER_K}
+    sim_label = "Plate thermal expansion"
+    sim_help = "The plate 20.0-20.2 °C, 0.4 K warmer at each position."
+    sim_params = (SimParam("cte_per_K", "CTE (10⁻⁶/K)", "1e-6/K", 11.5, 0.0, 30.0, 0.5,
+                           1e-6),)
+    physical_check = True
+
+    @classmethod
+    def detection_shapes(cls, labels, positions, probes):
+        return [("expansion coefficient", {labels[0]: 1.0})]
+
+    @classmethod
+    def injection(cls, values):
+        return {"cte_per_K": float(sum(values.values())) * 1e-6}
 
     @classmethod
     def draw(cls, cfg, sim, rng):

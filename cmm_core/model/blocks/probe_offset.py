@@ -10,7 +10,7 @@ import numpy as np
 
 from ...machine import kinematics as kin
 from ...units import UM
-from .base import Block, Effect, per_group_cols
+from .base import Block, Effect, SimParam, per_group_cols
 
 
 class ProbeOffset(Block):
@@ -28,6 +28,26 @@ class ProbeOffset(Block):
 
     sim_keys = None
     sim_ranges = {"sd_um": (0, 1e3)}
+    sim_label = "Probe offset errors"
+    sim_help = "Random offset errors of the styli (summing to zero)."
+    sim_params = (SimParam("sd_um", "sd (µm)", "um", 2.0, 0.0, 20.0),)
+    physical_check = True
+
+    @classmethod
+    def detection_shapes(cls, labels, positions, probes):
+        """The first stylus against the mean of the others, along each axis."""
+        q0, rest = probes[0], probes[1:]
+        return [(f"stylus {q0} along {a}", {f"probe{q0}.{a}": 1.0,
+                                            **{f"probe{q}.{a}": -1.0 / len(rest)
+                                               for q in rest}}) for a in "xyz"]
+
+    @classmethod
+    def injection(cls, values):
+        vec = {}
+        for lab, v in values.items():
+            q, a = lab[len("probe"):].rsplit(".", 1)
+            vec.setdefault(q, [0.0, 0.0, 0.0])["xyz".index(a)] = v
+        return vec
 
     @classmethod
     def draw(cls, cfg, sim, rng):

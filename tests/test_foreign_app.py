@@ -1,0 +1,105 @@
+"""Other tools' files in the app (issue 24): MSL snapshots on their own tab, a DMIS file
+through the mapped import on the upload tab, each loaded as the dataset and fitted, and a
+foreign file given to the plain uploader named with the reader that takes it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from streamlit.testing.v1 import AppTest
+from test_foreign_tables import _dmo
+from test_msl import msl_files_of, simulated_machine
+
+from cmm_core.model import simulate
+
+ROOT = Path(__file__).resolve().parents[1]
+APP = str(ROOT / "app.py")
+
+
+def _new():
+    at = AppTest.from_file(APP, default_timeout=90)
+    at.run()
+    return at
+
+
+def _ok(at):
+    assert not at.exception, [e.message for e in at.exception]
+    assert not at.error, [e.value for e in at.error]
+
+
+def _files(paths):
+    return [(Path(p).name, Path(p).read_bytes(), "text/csv") for p in paths]
+
+
+def test_msl_snapshots_load_on_their_tab_and_fit(tmp_path):
+    sim, _coef = simulated_machine("fixed_bridge_xfyz")
+    pairs = msl_files_of(sim, tmp_path, "simulated", "fixed_bridge_xfyz")
+    at = _new()
+    at.switch_page("pages/data.py")
+    at.run()
+    at.file_uploader(key="msl_snapshots").set_value(_files([s for s, _m in pairs]))
+    at.file_uploader(key="msl_metadata").set_value(_files([m for _s, m in pairs]))
+    at.button(key="load_msl").click()
+    at.run()
+    # the kind is not guessed: nothing loads until the user says what the files hold
+    assert any("simulated or measured" in e.value for e in at.error)
+    at.radio(key="msl_kind").set_value("simulated")
+    at.button(key="load_msl").click()
+    at.run()
+    _ok(at)
+    assert at.session_state["ds_files"]["name"].startswith("MSL simulated")
+    at.run()  # the sidebar is drawn before the page: the next run shows the new dataset
+    assert any("exact" in c.value for c in at.sidebar.caption)  # where u came from
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    _ok(at)
+
+
+def test_a_dmis_file_loads_through_the_mapped_import_and_fits():
+    sim = simulate({"seed": 4, "noise_um": 0.3})
+    meas = sim.dataset.meas[["position", "probe", "ball", "time_min", "x_mm", "y_mm", "z_mm"]]
+    at = _new()
+    at.switch_page("pages/data.py")
+    at.run()
+    at.file_uploader(key="map_file").set_value(("run.dmo", _dmo(meas), "text/plain"))
+    at.run()
+    pattern = next(t for t in at.text_input if t.key.endswith("_pattern"))
+    pattern.set_value(r"(?P<position>BP\d+)_P(?P<probe>\w+)_B(?P<ball>\d+)")
+    at.run()
+    _ok(at)
+    next(b for b in at.button if b.key.endswith("_load") and b.key.startswith("map")).click()
+    at.run()
+    _ok(at)
+    setup = json.dumps(sim.dataset.setup.raw).encode()
+    at.file_uploader(key="up_setup").set_value(("setup.json", setup, "application/json"))
+    cert = sim.dataset.certificate
+    text = "ball,x_mm,y_mm,z_mm,u_x_um,u_y_um,u_z_um\n" + "\n".join(
+        f"{b},{x:.6f},{y:.6f},{z:.6f},0.1,0.1,0.1"
+        for b, (x, y, z) in zip(cert.balls, cert.xyz_mm, strict=True))
+    at.file_uploader(key="up_cert").set_value(("cert.csv", text.encode(), "text/csv"))
+    at.button(key="load_upload").click()
+    at.run()
+    _ok(at)
+    assert "run.dmo" in at.session_state["ds_files"]["name"]
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    _ok(at)
+    rms = [m.value for m in at.metric if "RMS" in m.label]
+    assert rms and float(str(rms[0]).split()[0]) < 0.6  # σ 0.3 µm simulated
+
+
+def test_an_msl_file_given_to_the_plain_uploader_is_named(tmp_path):
+    sim, _coef = simulated_machine("fixed_bridge_xfyz")
+    snapshot, _meta = msl_files_of(sim, tmp_path, "simulated", "fixed_bridge_xfyz")[0]
+    at = _new()
+    at.switch_page("pages/data.py")
+    at.run()
+    at.file_uploader(key="up_meas").set_value(_files([snapshot]))
+    at.button(key="load_upload").click()
+    at.run()
+    assert not at.exception
+    probs = next(d.value for d in at.dataframe if "hint" in d.value.columns)
+    assert "MSL" in probs.iloc[0]["problem"] and "Other tools" in probs.iloc[0]["hint"]
+    assert np.all(probs["file"] == Path(snapshot).name)
