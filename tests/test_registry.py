@@ -80,6 +80,7 @@ def test_correction_columns_come_from_the_blocks():
     assert correction_columns(["plate", "rotation", "machine_thermal"]) == (
         "temp_x_C", "temp_y_C", "temp_z_C")
     assert correction_columns([BY_TOKEN["backlash"]]) == ("time_min",)
+    assert correction_columns("kinematic21,bridge_twist,drift") == ()
 
 
 def test_a_fit_and_a_saved_model_need_the_fitted_axes_columns_only():
@@ -95,9 +96,10 @@ def test_a_fit_and_a_saved_model_need_the_fitted_axes_columns_only():
 
 def test_planner_and_tables_read_the_registry():
     assert set(PHYSICAL_CHECKS) == {b.token for b in PHYSICAL_BLOCKS if b.physical_check}
-    assert {"plate_sag", "plate_thermal", "probe_offset", "drift", "backlash"} <= set(
-        PHYSICAL_CHECKS)
-    assert comp_tables._EXTRA_UNITS == {"backlash": "um", "machine_thermal": "1e-6/K"}
+    assert {"plate_sag", "plate_thermal", "probe_offset", "drift", "backlash",
+            "bridge_twist"} <= set(PHYSICAL_CHECKS)
+    assert comp_tables._EXTRA_UNITS == {"backlash": "um", "machine_thermal": "1e-6/K",
+                                        "bridge_twist": "urad"}
     spec = parse_spec("kinematic21")
     for b in PHYSICAL_BLOCKS:
         labels = [f"{b.token}.a", f"{b.token}.b"]

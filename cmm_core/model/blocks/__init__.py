@@ -11,6 +11,7 @@ from __future__ import annotations
 from . import periodic
 from .backlash import Backlash
 from .base import Block, Eval
+from .bridge_twist import BridgeTwist
 from .drift import Drift
 from .kinematic import Kinematic
 from .machine_thermal import MachineThermal
@@ -23,7 +24,7 @@ from .probe_offset import ProbeOffset
 __all__ = ["REGISTRY", "BY_TOKEN", "Block", "Eval", "needs"]
 
 REGISTRY = (Plate, Placement, Kinematic, PlateThermal, PlateSag, ProbeOffset, Drift,
-            Backlash, MachineThermal)
+            Backlash, MachineThermal, BridgeTwist)
 """Blocks in parameter-layout order, which is also the catalogue's order of physical
 effects (``effects.PHYSICAL``, model specs written out) and the order in which the stages
 run (thermal expansion before sag)."""

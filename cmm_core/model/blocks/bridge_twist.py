@@ -1,0 +1,243 @@
+"""Bridge twist under the moving carriage (issue 26): a non-rigid roll of the bridge about
+its travel axis whose size depends on where the carriage stands on the bridge.
+
+Mechanics, for the moving bridge and the gantry (``moving_bridge_fxyz``, ``gantry_fxyz``:
+the bridge travels along x and the y carriage runs across it; ``*_fyxz``: x and y
+swapped). Write a for the bridge's travel axis and b for the carriage's axis across the
+bridge, with the readings normalised to the strokes, ``s = 2a/A − 1`` and
+``v = 2b/B − 1`` in [−1, 1]. The carriage and ram, of weight W, stand at b on a beam of
+span ≈ B carried by two legs (moving bridge: on the granite; gantry: on raised rails).
+
+1. The beam bends under the point load: the carriage drops by ``W b²(B−b)²/(3EIB)`` and
+   tilts with the beam's slope ``∝ b(B−b)(B−2b)``; with the carriage hanging off the
+   beam's shear centre by e, the torque ``W e`` twists the beam at the carriage by
+   ``∝ b(B−b)/B`` (torsion of a beam held at both legs). All of these depend on b
+   alone: they are the carriage axis's own straightness and rotations (``dbz``, ``rba``,
+   ``rbb``), which the kinematic model already holds at the next orders.
+2. The load goes to the legs in the ratio of the lever arms: ``F_far = W b/B``,
+   ``F_near = W (B − b)/B``. A leg whose support has the compliance ``c(a)`` (air
+   bearings, granite, a rail between its pillars) sinks by ``c(a) F``, so the bridge
+   rolls about its travel axis by ``θ = (c_near F_near − c_far F_far)/B``. With
+   ``c_near = c_far = c(a)`` this is ``θ(a, b) = −c(a) W v / B``: the bridge's weight
+   part (b-independent) is the rigid roll ``raa(a)``, a compliance constant along the
+   travel gives ``θ ∝ v`` (again rigid: ``rba`` and ``dbz`` of the carriage axis, as a
+   roll depending on b alone acts on the lever ``b e_b`` as a straightness of b), and
+   what no rigid model holds is the product of how the compliance changes along the
+   travel with the load share: ``θ(a, b) = v · g(s)``.
+
+The block fits the two lowest shapes of g that a rigid model cannot take (µrad, the
+roll at the stroke's corners):
+
+- ``bridge_twist.lin``: ``θ = t_lin · s · v``, a compliance growing steadily along the
+  travel (one end of the granite or rail stiffer, an off-centre support);
+- ``bridge_twist.mid``: ``θ = t_mid · (1 − s²)² · v``, a rail simply supported at the
+  ends of the travel (a gantry's rail between its pillars), whose deflection under a
+  moving point load is ``∝ s²(1 − s)²`` in the travel fraction, i.e. ``(1 − s²)²``.
+
+The roll turns everything the bridge carries about the bridge's reference line: the
+lever is the tip relative to it, ``w = (carried readings) + p`` (the tip with its a
+coordinate replaced by the probe's), and the true tip moves by ``θ e_a × w`` (first
+order; the products with the other errors, µrad × µm, are dropped). It is a reading
+stage term like ``machine_thermal``'s, evaluated at the scale readings.
+
+Fixed bridges (``fixed_bridge_*``) do not move: their deflection under the carriage
+depends on the carriage alone (rigid, item 1); the horizontal arm's column bends under
+the arm (another effect). There the block adds no parameter and says why.
+
+New points are corrected with the same term at their readings (``compensate``): no
+further columns are needed. The model file keeps the section ``bridge_twist``: the
+fitted ``twist_urad`` and ``cov_joint``, the joint covariance of the kinematic
+coefficients, the compensating blocks before it and these two; the strokes and the
+layout are the model's own ``range_mm`` and ``layout``. A layout without a bridge keeps
+no section (a file of a bridge layout whose spec has the block must have it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...io import DataError
+from ...io.errors import cut_repr
+from ...machine import kinematics as kin
+from ...units import UM, URAD
+from .base import Block, Correction, Effect, ModelPart, SimParam, checked_cov, shared_cols
+
+LABELS = ("bridge_twist.lin", "bridge_twist.mid")
+SECTION_KEYS = ("twist_urad", "cov_joint")
+"""Keys of the model file's ``bridge_twist`` section."""
+BRIDGES = {name: chain for name, chain in kin.LAYOUTS.items()
+           if name.startswith(("moving_bridge", "gantry"))}
+"""Layouts whose first tool carriage is a moving bridge carrying the second."""
+
+
+def _axes(layout):
+    """``(a, b)``: indices of the bridge's travel axis and the carriage's axis on it."""
+    chain = BRIDGES[layout]
+    return "xyz".index(chain[1]), "xyz".index(chain[2])
+
+
+def basis(u_mm, range_mm, layout):
+    """The two twist shapes at scale readings ``u_mm`` (n, 3): (n, 2), ``s·v`` and
+    ``(1 − s²)² v`` (module docstring)."""
+    a, b = _axes(layout)
+    rng = np.asarray(range_mm, float)
+    s = 2.0 * u_mm[:, a] / rng[a] - 1.0
+    v = 2.0 * u_mm[:, b] / rng[b] - 1.0
+    return np.column_stack([s * v, (1.0 - s**2) ** 2 * v])
+
+
+def direction_um(r_mm, u_mm, layout):
+    """``e_a × w`` in µm per µrad of roll: the tip's motion for a unit roll of the bridge,
+    ``w`` the tip relative to the bridge's reference line (reported tip ``r_mm`` with its
+    a coordinate replaced by the probe's, ``r_a − u_a``)."""
+    a, _ = _axes(layout)
+    w = np.array(r_mm, float, copy=True)
+    w[:, a] -= u_mm[:, a]
+    return np.cross(np.eye(3)[a], w) * (URAD / UM)
+
+
+class BridgeTwist(Block):
+    """Roll of the bridge about its travel axis that grows with the carriage's load share
+    (µrad at the corners of the strokes)."""
+
+    token = "bridge_twist"
+    entry = Effect(
+        "bridge_twist", "bridge twist under the carriage (non-rigid)",
+        "the carriage's weight loads the bridge's two legs in the ratio of its position "
+        "across the bridge, and the legs' supports yield differently along the travel: the "
+        "bridge rolls about its travel axis by an angle that depends on both the bridge's "
+        "and the carriage's position, which no sum of single-axis (rigid) errors holds.",
+        "placements spread along both the bridge's travel and the carriage's axis, with "
+        "lever arms across the bridge (points at several heights or probe offsets), on a "
+        "moving bridge or gantry.",
+        "higher orders of the bridge's roll (rxx:3 ...), the carriage's straightness dyz and "
+        "roll ryx when the placements cover few bridge positions, and plate sag (a twisted "
+        "plate) on horizontal placements alone.",
+        "the same horizontal placement at the two ends of the travel (or a vertical "
+        "placement across the bridge at two bridge positions): a rigid roll is the same "
+        "at both, the twist changes sign with the carriage's side.")
+
+    sim_keys = frozenset({"lin_urad", "mid_urad"})
+    sim_ranges = {"lin_urad": (-1e3, 1e3), "mid_urad": (-1e3, 1e3)}
+    sim_label = "Bridge twist (carriage load)"
+    sim_help = ("A roll of a moving bridge or gantry about its travel axis that depends on "
+                "where the carriage stands on it (non-rigid; other layouts: no effect).")
+    sim_params = (SimParam("lin_urad", "twist s·v (µrad)", "urad", 3.0, -20.0, 20.0, 0.5),
+                  SimParam("mid_urad", "twist (1−s²)²·v (µrad)", "urad", 0.0, -20.0, 20.0,
+                           0.5))
+    physical_check = True
+
+    @classmethod
+    def draw(cls, cfg, sim, rng):
+        return {"bridge_twist.lin": float(cfg.get("lin_urad", 0.0)),
+                "bridge_twist.mid": float(cfg.get("mid_urad", 0.0))}
+
+    @classmethod
+    def injection(cls, values):
+        return {f"{lab.split('.')[1]}_urad": v for lab, v in values.items()}
+
+    @staticmethod
+    def needs(obs):
+        if obs.layout not in BRIDGES:
+            return (f"the {obs.layout} layout has no moving bridge carrying a carriage (a fixed "
+                    "bridge's deflection under its carriage is a rigid error of that axis)")
+        a, b = _axes(obs.layout)
+        u = obs.r_mm - obs.p_mm
+        rng = np.asarray(obs.range_mm, float)
+        if np.ptp(u[:, a]) < 0.2 * rng[a] or np.ptp(u[:, b]) < 0.2 * rng[b]:
+            return (f"the balls cover less than a fifth of the {'xyz'[a]} or {'xyz'[b]} "
+                    "stroke, where the twist is a rigid roll")
+        return None
+
+    def columns(self, obs):
+        return [("bridge_twist", list(LABELS), "urad")] if obs.layout in BRIDGES else []
+
+    def _terms(self, ev):
+        """``(basis (n, 2), direction (n, 3))`` at the observations' readings."""
+        o = ev.obs
+        u = o.r_mm - o.p_mm
+        return basis(u, o.range_mm, o.layout), direction_um(o.r_mm, u, o.layout)
+
+    def reading_stage(self, ev, d):
+        if ev.obs.layout not in BRIDGES:
+            return d
+        B, g = self._terms(ev)
+        return d + (B @ ev.x("bridge_twist"))[:, None] * g
+
+    def jacobian(self, ev):
+        if ev.obs.layout not in BRIDGES:
+            return []
+        B, g = self._terms(ev)
+        return [(shared_cols(ev.start("bridge_twist"), 2, len(B)),
+                 g[:, :, None] * B[:, None, :])]
+
+    # --- compensation of new points -----------------------------------------------------
+    model_keys = ("bridge_twist",)
+    model_what = "bridge twist"
+    comp_units = "urad"
+
+    # a layout without a bridge fits no twist (the spec may still name it): its file has
+    # no section, which part_from_file refuses on a bridge
+    model_keys_optional = True
+
+    @classmethod
+    def compensation(cls, result, before):
+        """The fitted twist with the strokes and layout it is normalised to (None on a
+        layout without a bridge: no parameter)."""
+        obs = result.problem.obs
+        ctx = {"range_mm": tuple(map(float, obs.range_mm)), "layout": obs.layout}
+        s = result.problem.layout.blocks.get(cls.token)
+        if s is None:
+            return None
+        idx = np.r_[before, np.arange(s.start, s.stop)]
+        return ModelPart(tuple(result.labels[s]), result.values[s].copy(),
+                         result.covariance[np.ix_(idx, idx)].copy(), ctx)
+
+    @classmethod
+    def part_to_file(cls, part):
+        return {"bridge_twist": {"twist_urad": part.values.tolist(),
+                                 "cov_joint": part.cov.tolist()}}
+
+    @classmethod
+    def part_from_file(cls, d, n_before, name):
+        sec = d.get("bridge_twist")
+        layout = d.get("layout", kin.DEFAULT_LAYOUT)
+        if sec is None:
+            spec = d.get("spec")
+            if layout in BRIDGES and isinstance(spec, str) and "bridge_twist" in spec:
+                raise DataError("the model's spec has bridge_twist but the file holds no "
+                                "bridge twist.", file=name, hint="refit and save the model "
+                                "again (fit --save); do not edit it.")
+            return None
+        col = "bridge_twist"
+        if not isinstance(sec, dict) or set(map(str, sec)) != set(SECTION_KEYS):
+            raise DataError(f"expected an object with the keys {', '.join(SECTION_KEYS)}, "
+                            f"found {cut_repr(sec)}.", file=name, column=col,
+                            hint="refit and save the model again (fit --save); do not edit it.")
+        if layout not in BRIDGES:
+            raise DataError(f"the {cut_repr(layout)} layout has no bridge twist; the file "
+                            "holds one.", file=name, column=col,
+                            hint="refit and save the model again (fit --save).")
+        k = len(LABELS)
+        try:
+            t = np.asarray(sec["twist_urad"], float)
+            cov = np.asarray(sec["cov_joint"], float)
+            rng = tuple(float(x) for x in d["range_mm"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"expected numbers ({cut_repr(str(exc), 80)}).", file=name,
+                            column=col) from None
+        if t.shape != (k,) or not np.isfinite(t).all():
+            raise DataError(f"expected {k} finite twists (µrad), "
+                            f"found {cut_repr(sec['twist_urad'])}.", file=name,
+                            column=f"{col}.twist_urad")
+        checked_cov(cov, n_before + k, name, f"{col}.cov_joint")
+        return ModelPart(LABELS[:k], t, cov, {"range_mm": rng, "layout": layout})
+
+    @classmethod
+    def correct(cls, part, points, x_mm, name):
+        layout = part.context["layout"]
+        r = points[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+        B = basis(x_mm, part.context["range_mm"], layout)
+        g = direction_um(r, x_mm, layout)
+        # the fit's reading stage (module docstring), per point
+        return Correction((B @ part.values)[:, None] * g, g[:, :, None] * B[:, None, :])
