@@ -23,7 +23,7 @@ import plotly.io as pio
 from plotly.offline import get_plotlyjs, get_plotlyjs_version
 
 from .. import __version__
-from ..io import DataError
+from ..io import DataError, atomic_write_text
 from .figures import (
     fig_deviation,
     fig_error_functions,
@@ -223,7 +223,7 @@ def write_report(analysis_path, out_path) -> dict:
                         file=Path(out_path).name, hint="create it or write elsewhere.")
     res = run(read_record(Path(analysis_path)))
     text = render(res)
-    Path(out_path).write_text(text, encoding="utf-8")
+    atomic_write_text(out_path, text)  # temporary file + rename: never half a report
     r = res.fit
     return {"out": str(out_path), "bytes": len(text.encode()), "model": r.spec,
             "n_obs": r.n_obs, "rms_um": r.rms_um, "chi2_dof": r.chi2_dof, "dof": r.dof,

@@ -22,7 +22,7 @@ from .commands import (
     cmd_task,
     main,
 )
-from .export import add_arguments, add_parser, command, run
+from .export import AXIS_TABLE_FILES, add_arguments, add_parser, command, output_files, run
 from .inputs import (
     CERT_HELP,
     MEAS_HELP,
@@ -39,10 +39,20 @@ from .inputs import (
     instruments_of,
     sigma_of,
 )
-from .plan import add_plan_arguments, add_task_arguments, run_plan, run_task
+from .plan import (
+    MAX_CHECK_TRIALS,
+    MAX_TRIALS,
+    MAX_WORKERS,
+    MIN_TRIALS,
+    add_plan_arguments,
+    add_task_arguments,
+    run_plan,
+    run_task,
+)
 
 __all__ = [
-    "add_arguments", "add_data_args", "add_fit_args", "add_foreign_args", "add_instrument_args",
+    "add_arguments", "add_data_args", "AXIS_TABLE_FILES", "MAX_CHECK_TRIALS", "MAX_TRIALS",
+    "MAX_WORKERS", "MIN_TRIALS", "output_files", "add_fit_args", "add_foreign_args", "add_instrument_args",
     "add_outlier_args", "add_parser", "add_plan_arguments", "add_task_arguments",
     "build_parser", "CERT_HELP", "cmd_air", "cmd_budget", "cmd_compensate", "cmd_diagnose",
     "cmd_fit", "cmd_gp", "cmd_plan", "cmd_report", "cmd_simulate", "cmd_task", "command",

@@ -1,25 +1,38 @@
 """Command line (docs/formats.md "Command line"): JSON to stdout or ``--json FILE``.
 
-Bad input exits with status 2 and one line on stderr naming the file, row and column.
+Bad input exits with status 2 and one line on stderr naming the file, row and column;
+so does a usage error (``error: ...; see ... --help``). Outputs never destroy inputs:
+before any work, an output that is one of the command's inputs, a folder, or the same file
+as another output is refused; every file is written to a temporary file in its folder and
+renamed into place (``io.atomic_write_text``), so a failed run leaves an old file intact.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from ..analysis import measured_error_from_residuals_um, write_report
+from ..analysis import measured_error_from_residuals_um, read_record, write_report
 from ..diagnosis import diagnose, kinematic_basis
 from ..export import compensate, load_model, read_points, refuse_off_machine, save_model
 from ..gp import gp_components
 from ..gum import air_from_args, read_budget
-from ..io import DataError, read_json
-from ..model import fit, select, simulate, summary
+from ..io import (
+    DataError,
+    atomic_write_bytes,
+    atomic_write_text,
+    check_outputs,
+    read_json,
+)
+from ..model import MAX_ORDER, fit, select, simulate, summary
 from .export import add_parser as add_export_parser
+from .export import output_files as export_output_files
 from .inputs import (
     PLATE_HELP,
     add_data_args,
@@ -48,16 +61,24 @@ def _jsonable(o):
     return o
 
 
+_SIM_FILES = ("measurements.csv", "setup.json", "certificate.csv", "truth.json")
+
+
 def cmd_simulate(args):
     # read like every JSON input (a byte-order mark tolerated), refusals name the file
     cfg, name = read_json(Path(args.config))
     sim = simulate(cfg, name=name)
-    sim.write(args.out)
-    return {"out": str(args.out), "n_obs": len(sim.dataset.meas),
-            "files": ["measurements.csv", "setup.json", "certificate.csv", "truth.json"]}
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:  # all four made before the first is replaced
+        sim.write(tmp)
+        for f in _SIM_FILES:
+            atomic_write_bytes(out / f, (Path(tmp) / f).read_bytes())
+    return {"out": str(args.out), "n_obs": len(sim.dataset.meas), "files": list(_SIM_FILES)}
 
 
 def cmd_fit(args):
+    _refuse_empty_spec(args.model, "--model")
     data = dataset_of(args)
     instruments = instruments_of(args)
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
@@ -82,6 +103,7 @@ def cmd_fit(args):
 
 
 def cmd_diagnose(args):
+    _refuse_empty_spec(args.baseline, "--baseline")
     data = dataset_of(args)
     instruments = instruments_of(args)
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
@@ -103,7 +125,7 @@ def cmd_compensate(args):
     model = load_model(args.model)
     pts = read_points(args.points)
     out = compensate(model, pts)
-    out.to_csv(args.out, index=False, float_format="%.6f")
+    atomic_write_text(args.out, out.to_csv(index=False, float_format="%.6f"))
     if not args.allow_extrapolation:
 
         refuse_off_machine(out, pts.attrs.get("source", Path(args.points).name))
@@ -142,6 +164,13 @@ def cmd_air(args):
     return air_from_args(args.t_C, args.p_Pa, args.rh_percent, args.wavelength_nm)
 
 
+def _refuse_empty_spec(spec, option):
+    """An empty model spec would silently fit the rigid alignment only: refused."""
+    if not any(t.strip() for t in str(spec).split(",")):
+        raise DataError(f"{option} is empty; give a model spec such as 'kinematic21' "
+                        "(docs/formats.md#model-specs).", file="command line")
+
+
 def cmd_plan(args):
     return run_plan(args)
 
@@ -150,11 +179,51 @@ def cmd_task(args):
     return run_task(args)
 
 
+MAX_MESSAGE = 400
+"""Longest error line (characters): a 1 MB cell must not become a 1 MB line."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """A usage error is one line, ``error: ...; see PROG --help``, and exit status 2 (not
+    argparse's whole usage); the sub-command parsers are of this class too."""
+
+    def error(self, message):
+        text = " ".join(str(message).split())
+        if len(text) > MAX_MESSAGE:
+            text = text[:MAX_MESSAGE - 1] + "…"
+        self.exit(2, f"error: {text}; see {self.prog} --help\n")
+
+
+_JSON_HELP = ("write the JSON result to FILE instead of stdout, whole or not at all (never "
+              "one of the command's inputs or another output; accepted before or after "
+              "the command; default: stdout)")
+
+
+def _number(kind, lo, hi, unit=""):
+    """An argparse type: a ``kind`` (int or float) from ``lo`` to ``hi``, refused in one
+    line with the range otherwise."""
+    what = "a whole number" if kind is int else "a number"
+    unit = f" {unit}" if unit else ""
+
+    def parse(text):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected {what} from {lo:g} to {hi:g}{unit}, found {text[:40]!r}") from None
+        if not (math.isfinite(v) and lo <= v <= hi):
+            raise argparse.ArgumentTypeError(
+                f"expected {what} from {lo:g} to {hi:g}{unit}, found {v:g}")
+        return v
+
+    parse.__name__ = kind.__name__  # argparse names the type in its own messages
+    return parse
+
+
 def build_parser():
     """Argument parser with one sub-command per command of docs/formats.md."""
-    ap = argparse.ArgumentParser(prog="python -m cmm_core", description="CMM error lab")
-    ap.add_argument("--json", metavar="FILE",
-                    help="write the JSON result to FILE instead of stdout (default: stdout)")
+    ap = _Parser(prog="python -m cmm_core", description="CMM error lab")
+    ap.add_argument("--json", metavar="FILE", help=_JSON_HELP)
     sub = ap.add_subparsers(dest="command", required=True)
     p = sub.add_parser("simulate", help="simulate a virtual CMM")
     p.add_argument("config", metavar="CONFIG.json",
@@ -210,9 +279,9 @@ def build_parser():
                         "one noise level per stylus, when the data carry several styli; "
                         "'tip' = the tip coordinates only (default: %(default)s)")
     add_outlier_args(p)
-    p.add_argument("--order", type=int, default=2, metavar="N",
-                   help="polynomial order of the kinematic model for --mean kinematic "
-                        "(default: %(default)s)")
+    p.add_argument("--order", type=_number(int, 1, MAX_ORDER), default=2, metavar="N",
+                   help=f"polynomial order of the kinematic model for --mean kinematic, 1 "
+                        f"to {MAX_ORDER} (default: %(default)s)")
     p.add_argument("--plate", choices=("fixed", "prior", "free"), help=PLATE_HELP)
     p.set_defaults(func=cmd_gp)
     p = sub.add_parser("budget", help="GUM uncertainty budget")
@@ -235,15 +304,19 @@ def build_parser():
                         "required. The χ² test of the fit is printed as JSON")
     p.set_defaults(func=cmd_report)
     p = sub.add_parser("air", help="refractive index of air (modified Edlén)")
-    p.add_argument("--t-C", type=float, required=True, dest="t_C", metavar="DEG_C",
-                   help="air temperature in °C (required)")
-    p.add_argument("--p-Pa", type=float, required=True, dest="p_Pa", metavar="PA",
-                   help="air pressure in Pa, e.g. 101325 (required)")
-    p.add_argument("--rh-percent", type=float, required=True, dest="rh_percent",
-                   metavar="PERCENT", help="relative humidity in %% (required)")
-    p.add_argument("--wavelength-nm", type=float, required=True, dest="wavelength_nm",
-                   metavar="NM", help="vacuum wavelength of the laser in nm, e.g. 632.99 "
-                                      "for a HeNe laser (required)")
+    # the ranges of the modified Edlén equation (gum.refractive_index_edlen checks them too)
+    p.add_argument("--t-C", type=_number(float, 0, 40, "°C"), required=True, dest="t_C",
+                   metavar="DEG_C", help="air temperature in °C, 0 to 40 (required)")
+    p.add_argument("--p-Pa", type=_number(float, 60_000, 120_000, "Pa"), required=True,
+                   dest="p_Pa", metavar="PA",
+                   help="air pressure in Pa, 60000 to 120000, e.g. 101325 (required)")
+    p.add_argument("--rh-percent", type=_number(float, 0, 100, "%"), required=True,
+                   dest="rh_percent", metavar="PERCENT",
+                   help="relative humidity in %%, 0 to 100 (required)")
+    p.add_argument("--wavelength-nm", type=_number(float, 350, 1100, "nm"), required=True,
+                   dest="wavelength_nm", metavar="NM",
+                   help="vacuum wavelength of the laser in nm, 350 to 1100, e.g. 632.99 "
+                        "for a HeNe laser (required)")
     p.set_defaults(func=cmd_air)
 
     p = sub.add_parser("plan", help="evaluate, compare and design measurement plans "
@@ -256,11 +329,52 @@ def build_parser():
     p.set_defaults(func=cmd_task)
 
     add_export_parser(sub)
+    for p in sub.choices.values():  # --json after the command too (SUPPRESS: no override)
+        p.add_argument("--json", metavar="FILE", default=argparse.SUPPRESS, help=_JSON_HELP)
     return ap
 
 
-MAX_MESSAGE = 400
-"""Longest error line (characters): a 1 MB cell must not become a 1 MB line."""
+_DATA_FILES = ("meas", "setup", "certificate", "mapping", "msl", "msl_metadata", "msl_bar",
+               "laser", "step_gauge", "ball_bar")
+"""The options of the fitting commands that name files they read."""
+
+
+def _files(args):
+    """``(outputs, folders, inputs)`` of a parsed command, for ``io.check_outputs``:
+    option -> file(s) written, option -> folder created, every file read."""
+    outs, folders, ins = {}, {}, []
+    for attr in _DATA_FILES:
+        v = getattr(args, attr, None)
+        ins += v if isinstance(v, list) else [v]
+    cmd = args.command
+    if cmd == "simulate":
+        ins.append(args.config)
+        folders["--out"] = args.out
+        outs["--out"] = [Path(args.out) / f for f in _SIM_FILES]
+    elif cmd == "fit":
+        outs["--save"] = args.save
+    elif cmd == "compensate":
+        ins += [args.model, args.points]
+        outs["--out"] = args.out
+    elif cmd == "budget":
+        ins.append(args.budget)
+    elif cmd == "report":
+        ins.append(args.analysis)
+        data = read_record(Path(args.analysis)).data  # the files the record reads
+        ins += [f.path for f in (*data.measurements, data.setup, data.certificate) if f]
+        ins += [i.file.path for i in data.instruments]
+        outs["--out"] = args.out
+    elif cmd == "plan":
+        ins.append(args.plan)
+    elif cmd == "task":
+        ins += [args.model, args.task]
+    elif cmd == "export":
+        ins.append(args.model)
+        o, f = export_output_files(args)
+        outs.update(o)
+        folders.update(f)
+    outs["--json"] = args.json
+    return outs, folders, ins
 
 
 def _input_name(args):
@@ -286,8 +400,14 @@ def _one_line(exc, name) -> str:
 
 
 def main(argv=None) -> int:
-    """Run the CLI; returns the exit status."""
+    """Run the CLI; returns the exit status (a usage error exits 2 from argparse)."""
     args = build_parser().parse_args(argv)
+    try:  # before any work: outputs that would destroy an input or each other
+        outs, folders, ins = _files(args)
+        check_outputs(outs, ins, folders=folders)
+    except (DataError, ValueError, KeyError, OSError) as exc:
+        print(f"error: {_one_line(exc, None)}", file=sys.stderr)
+        return 2
     try:
         out = args.func(args)
     except (DataError, ValueError, KeyError, OSError) as exc:
@@ -299,7 +419,11 @@ def main(argv=None) -> int:
         return 3
     text = json.dumps(_jsonable(out), indent=1)
     if args.json:
-        Path(args.json).write_text(text)
+        try:
+            atomic_write_text(args.json, text)
+        except (DataError, OSError) as exc:
+            print(f"error: {_one_line(exc, None)}", file=sys.stderr)
+            return 2
     else:
         print(text)
     return 0

@@ -3,7 +3,9 @@
 Formats in docs/compensation.md. :func:`add_parser` adds the sub-command to the main
 parser (its ``func`` returns the JSON summary ``cli.main`` prints); :func:`run` runs it on
 its own: the summary on stdout, exit status 0; bad input exits with status 2 and one line
-on stderr naming the file, row and column.
+on stderr naming the file, row and column. No output may be the model file or another
+output (:func:`output_files`, ``io.check_outputs``); each file is written whole or not at
+all (``io.atomic_write_text``).
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ from pathlib import Path
 from ..export import comp_tables as ct
 from ..export import load_model
 from ..export import results as rx
-from ..io import DataError
+from ..io import DataError, atomic_write_text, check_outputs
+from ..machine import AXES
 
 _MODEL_HELP = ("fitted model written by 'fit --save' (its kinematic coefficients, their "
                "covariance, the layout, strokes and probe offsets). At least one of --grid, "
@@ -106,11 +109,29 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
+AXIS_TABLE_FILES = (*(f"axis_{a}.csv" for a in AXES), "squareness.csv")
+"""The files ``--axis-tables DIR`` writes into its folder."""
+
+
+def output_files(args) -> tuple[dict, dict]:
+    """``(outputs, folders)`` of ``export`` for ``io.check_outputs``: option -> file(s)
+    written, option -> folder created."""
+    outs = {"--grid": args.grid, "--results-json": args.results_json,
+            "--results-xml": args.results_xml}
+    folders = {}
+    if args.axis_tables:
+        folders["--axis-tables"] = args.axis_tables
+        outs["--axis-tables"] = [Path(args.axis_tables) / f for f in AXIS_TABLE_FILES]
+    return outs, folders
+
+
 def command(args) -> dict:
     """Write the files asked for; the JSON summary (what was written where).
 
-    Raises DataError / OSError on bad input (one line each). Every file is computed
-    before the first is written, so a refusal leaves none behind.
+    Raises DataError / OSError on bad input (one line each): an output that is the model
+    file, a folder or another output is refused before any work. Every file is computed
+    before the first is written, so a refusal leaves none behind, and each is written
+    whole or not at all.
     """
 
     source = Path(args.model).name
@@ -118,6 +139,8 @@ def command(args) -> dict:
     if not any(outs):
         raise DataError("nothing to write: give --grid, --axis-tables, --results-json "
                         "and/or --results-xml.", file=source)
+    files, folders = output_files(args)
+    check_outputs(files, [args.model], folders=folders)
     model = load_model(args.model)
     try:
         return _write(args, model, source)
@@ -160,7 +183,7 @@ def _write(args, model, source) -> dict:
     if args.axis_tables:
         Path(args.axis_tables).mkdir(parents=True, exist_ok=True)
     for path, text in texts.items():
-        path.write_text(text, encoding="utf-8", newline="")
+        atomic_write_text(path, text)
     return out
 
 

@@ -6,6 +6,7 @@ JSON-ready result (``cli.main`` prints it and turns errors into one line on stde
 
 from __future__ import annotations
 
+import argparse
 import sys
 
 from ..export import load_model
@@ -18,17 +19,31 @@ def _progress(frac: float, text: str) -> None:
     print(f"[{100 * frac:5.1f} %] {text}", file=sys.stderr, flush=True)
 
 
-def _positive_int(text):
-    import argparse
+MAX_TRIALS = 10**7
+"""Most Monte Carlo trials of ``task --trials`` (the task file's ``trials`` has the same
+range, from :data:`MIN_TRIALS`)."""
+MIN_TRIALS = 100
+MAX_CHECK_TRIALS = 10**5
+"""Most simulated data sets per strategy of ``plan --check-trials``."""
+MAX_WORKERS = 1024
+"""Most local Dask workers of ``plan --workers``."""
 
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, found {text[:40]!r}") \
-            from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, found {v}")
-    return v
+
+def _whole(lo, hi):
+    """An argparse type: a whole number from ``lo`` to ``hi``."""
+
+    def parse(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected a whole number from {lo} to {hi}, found {text[:40]!r}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(
+                f"expected a whole number from {lo} to {hi}, found {v}")
+        return v
+
+    return parse
 
 
 def add_plan_arguments(p) -> None:
@@ -42,19 +57,20 @@ def add_plan_arguments(p) -> None:
     p.add_argument("--no-detection", action="store_true",
                    help="skip the detection limits of the catalogue effects (default: "
                         "computed for every effect the diagnosis would try)")
-    p.add_argument("--check-trials", type=_positive_int, default=0, metavar="N",
+    p.add_argument("--check-trials", type=_whole(0, MAX_CHECK_TRIALS), default=0,
+                   metavar="N",
                    help="Monte Carlo check of each strategy (and of the designed plan): "
                         "simulate N data sets with noise and the prior errors, run the real "
                         "fit and the diagnosis's tests, and compare the observed U2/U3 and "
-                        "detection rates with the predictions; runs on Dask (default: "
-                        "%(default)s, no check)")
+                        "detection rates with the predictions; runs on Dask; 0 to "
+                        f"{MAX_CHECK_TRIALS} (default: %(default)s, no check)")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="Dask scheduler address for the Monte Carlo check, e.g. "
                         "tcp://10.0.0.5:8786 (default: a local cluster of --workers "
                         "processes on this machine)")
-    p.add_argument("--workers", type=_positive_int, default=2, metavar="N",
-                   help="workers of the local Dask cluster when no --scheduler is given "
-                        "(default: %(default)s)")
+    p.add_argument("--workers", type=_whole(1, MAX_WORKERS), default=2, metavar="N",
+                   help="workers of the local Dask cluster when no --scheduler is given, "
+                        f"1 to {MAX_WORKERS} (default: %(default)s)")
 
 
 def run_plan(args) -> dict:
@@ -91,9 +107,11 @@ def add_task_arguments(p) -> None:
                         "the stylus) and the influences (probing noise in µm, workpiece "
                         "temperature in °C, optional discrepancy); docs/planning.md, "
                         "example: sample_data/plans/task_distance.json; required")
-    p.add_argument("--trials", type=_positive_int, default=None, metavar="N",
-                   help="Monte Carlo trials (JCGM 101), overriding the task file's "
-                        "'trials' (default: the task file's value, else 20000)")
+    p.add_argument("--trials", type=_whole(MIN_TRIALS, MAX_TRIALS), default=None,
+                   metavar="N",
+                   help=f"Monte Carlo trials (JCGM 101), {MIN_TRIALS} to {MAX_TRIALS}, "
+                        "overriding the task file's 'trials' (default: the task file's "
+                        "value, else 20000)")
 
 
 def run_task(args) -> dict:
@@ -101,4 +119,8 @@ def run_task(args) -> dict:
 
     model = load_model(args.model)
     task = read_task(args.task)
-    return task_uncertainty(model, task, trials=args.trials).to_dict()
+    trials = args.trials
+    if trials is not None and not MIN_TRIALS <= trials <= MAX_TRIALS:  # called without argparse
+        raise DataError(f"--trials: expected {MIN_TRIALS} to {MAX_TRIALS}, found {trials}.",
+                        file="command line")
+    return task_uncertainty(model, task, trials=trials).to_dict()

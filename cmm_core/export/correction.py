@@ -21,7 +21,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..io import MAX_PROBE_MM, MAX_STROKE_MM, MIN_STROKE_MM, DataError, read_json
+from ..io import (
+    MAX_PROBE_MM,
+    MAX_STROKE_MM,
+    MIN_STROKE_MM,
+    DataError,
+    atomic_write_text,
+    read_json,
+)
 from ..io.delimited import file_rows, numeric_column, read_csv_text, require_columns, require_rows
 from ..io.errors import cut_repr
 from ..machine import kinematics as kin
@@ -338,8 +345,9 @@ def extrapolation_note(m: Model, x_mm: np.ndarray) -> np.ndarray:
 
 
 def save_model(model: Model | FitResult, path) -> None:
-    """Write a model JSON file."""
-    Path(path).write_text(json.dumps(model_to_dict(model), indent=1))
+    """Write a model JSON file (atomically: a reader never sees half of it, a failed
+    write leaves an existing file as it was)."""
+    atomic_write_text(path, json.dumps(model_to_dict(model), indent=1))
 
 
 def load_model(path) -> Model:

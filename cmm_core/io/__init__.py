@@ -70,6 +70,7 @@ from .msl import (
     read_msl_plate,
     sniff,
 )
+from .output import atomic_write_bytes, atomic_write_text, check_outputs
 from .setup import (
     ARTEFACTS,
     AXIS_TOLERANCE_DEG,
@@ -107,8 +108,9 @@ from .table_mapping import (
 )
 
 __all__ = [
-    "apply_mapping", "ARTEFACTS", "AXIS_TOLERANCE_DEG", "Certificate", "CertificateUncertainty",
-    "check_celsius", "COLUMN_ALIASES", "COMBINE", "combine_plates", "CTE_RANGE_PER_K",
+    "apply_mapping", "ARTEFACTS", "atomic_write_bytes", "atomic_write_text",
+    "AXIS_TOLERANCE_DEG", "Certificate", "CertificateUncertainty", "check_celsius",
+    "check_outputs", "COLUMN_ALIASES", "COMBINE", "combine_plates", "CTE_RANGE_PER_K",
     "cut_repr", "DataError", "Dataset", "DECIMALS", "DELIMITERS", "DMIS_SUFFIXES",
     "DMIS_UNITS_MM", "file_rows", "ForeignDataset", "ForeignStepGauge", "ForeignTable",
     "inspect_table", "LABEL_GROUPS", "LAYOUTS", "LENGTH_UNITS_MM", "likely_typo",

@@ -1,0 +1,169 @@
+"""Writing output files without destroying anything (issue 25).
+
+Every file the command line writes goes through :func:`atomic_write_bytes` (or
+:func:`atomic_write_text`): the data go to a temporary file in the same folder, are
+flushed to disk, and the temporary file is renamed over the target (``os.replace``, atomic
+on one file system). A reader sees the old file or the new one, never half of one; a run
+that fails mid-write leaves the old file as it was and no temporary file behind. Two runs
+writing the same file: the last rename wins, and each version is whole.
+
+:func:`check_outputs` refuses, before any work, an output that is one of the command's
+inputs, an existing folder, or the same file as another output, in one line naming the
+option and the file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import secrets
+import stat
+from pathlib import Path
+
+from .errors import DataError
+
+
+def _target(path) -> Path:
+    """The file a write to ``path`` replaces: a symbolic link is followed, so the link
+    stays and the file it points to is replaced."""
+    return Path(os.path.realpath(os.fspath(path)))
+
+
+def atomic_write_bytes(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically: a temporary file in the same folder, fsync,
+    ``os.replace``. On any failure the temporary file is removed and an existing ``path``
+    is left untouched.
+
+    Raises
+    ------
+    DataError
+        ``path`` is a folder, or its folder does not exist.
+    OSError
+        The write failed (disk full, no permission); ``filename`` is ``path``, not the
+        temporary file.
+    """
+    shown = Path(path)
+    target = _target(path)
+    if target.is_dir():
+        raise DataError("is a folder, not a file; name a file to write.", file=str(shown))
+    folder = target.parent
+    if not folder.is_dir():
+        raise DataError(f"No such file or directory: the folder {shown.parent} does not "
+                        "exist.", file=str(shown),
+                        hint="create it or write elsewhere.")
+    try:
+        mode = stat.S_IMODE(target.stat().st_mode)  # an existing file keeps its mode
+    except OSError:
+        mode = None
+    tmp = None
+    try:
+        for _ in range(100):
+            tmp = folder / f".{target.name}.{secrets.token_hex(4)}.tmp"
+            try:  # 0o666 less the umask, as a new file gets
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL
+                             | getattr(os, "O_BINARY", 0), 0o666)
+                break
+            except FileExistsError:
+                continue
+        else:  # pragma: no cover - 100 collisions of 32 random bits
+            raise FileExistsError(errno.EEXIST, "no free temporary name", str(tmp))
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        if mode is not None:
+            os.chmod(tmp, mode)
+        os.replace(tmp, target)
+        tmp = None
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), str(shown)) from exc
+    finally:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+    _sync_folder(folder)
+
+
+def atomic_write_text(path, text: str, encoding: str = "utf-8") -> None:
+    """Write ``text`` to ``path`` atomically (:func:`atomic_write_bytes`), encoded as is:
+    line ends are written as they are in ``text``."""
+    atomic_write_bytes(path, text.encode(encoding))
+
+
+def _sync_folder(folder: Path) -> None:
+    """Make the rename durable (POSIX); a no-op where folders cannot be opened."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        with contextlib.suppress(OSError):
+            os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _same(a: Path, b: Path) -> bool:
+    """True when ``a`` and ``b`` are one file: ``os.path.samefile`` when both exist (hard
+    links, case-insensitive file systems), else the resolved paths."""
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+    except OSError:
+        pass
+    return os.path.normcase(os.path.realpath(a)) == os.path.normcase(os.path.realpath(b))
+
+
+def check_outputs(outputs: dict, inputs=(), *, folders: dict | None = None) -> None:
+    """Refuse outputs that would destroy an input or each other, before any work.
+
+    Parameters
+    ----------
+    outputs : dict
+        Option (as the user typed it, e.g. ``"--json"``) -> file path, or a list of
+        paths (the files an option writes into its folder); None entries are skipped.
+    inputs : iterable of path
+        Every file the command reads (None entries skipped).
+    folders : dict, optional
+        Option -> folder the command creates (with its parents) and writes into: it must
+        not be an existing file, and the files in it are exempt from the check that an
+        output's folder exists.
+
+    Raises
+    ------
+    DataError
+        One line naming the option and the file: an output is one of the inputs, an
+        existing folder, in a folder that does not exist, or the same file as another
+        output (a folder of ``folders`` an existing file).
+    """
+    ins = [Path(p) for p in inputs if p is not None and not isinstance(p, bool)]
+    made = {opt: Path(d) for opt, d in (folders or {}).items() if d is not None}
+    for opt, d in made.items():
+        if d.exists() and not d.is_dir():
+            raise DataError(f"{opt} names a file, not a folder; name a folder to write "
+                            "into (created if missing).", file=str(d))
+    seen = []  # (option, path)
+    for opt, value in outputs.items():
+        if value is None:
+            continue
+        for p in ([value] if isinstance(value, str | os.PathLike) else value):
+            p = Path(p)
+            if p.is_dir():
+                raise DataError(f"{opt} names a folder, not a file; name a file to "
+                                "write.", file=str(p))
+            if not any(_same(p.parent, d) for d in made.values()) and not p.parent.is_dir():
+                raise DataError(f"No such file or directory: the folder {p.parent} does "
+                                f"not exist ({opt}).", file=str(p),
+                                hint="create it or write elsewhere.")
+            for src in ins:
+                if _same(p, src):
+                    also = "" if str(src) == str(p) else f" ({src})"
+                    raise DataError(f"{opt} names an input of this command{also}; writing "
+                                    "it would destroy it. Name another file.", file=str(p))
+            for other, q in seen:
+                if _same(p, q):
+                    what = (f"{opt} names the same file twice" if other == opt
+                            else f"{other} and {opt} name the same file")
+                    raise DataError(f"{what}. Name different files.", file=str(p))
+            seen.append((opt, p))

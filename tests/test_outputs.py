@@ -1,0 +1,326 @@
+"""Outputs never destroy inputs (issue 25): an output that is an input, a folder or another
+output is refused in one line before any work; every file is written to a temporary file
+in its folder and renamed into place, so a failed run leaves the old file intact; usage
+errors are one line; numbers are range-checked where they enter."""
+
+import contextlib
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import pytest
+from conftest import ROOT
+
+from cmm_core.cli import MAX_MESSAGE, build_parser, main
+from cmm_core.io import DataError, atomic_write_bytes, atomic_write_text, check_outputs
+from cmm_core.io import output as output_module
+
+SIM = ROOT / "sample_data" / "simulated"
+GOOD_MODEL = ROOT / "tests" / "corpus" / "good_model.json"
+POINTS = "probe,x_mm,y_mm,z_mm\n1,500,400,100\n2,650,420,300\n"
+AIR = ["air", "--t-C", "20", "--p-Pa", "101325", "--rh-percent", "50",
+       "--wavelength-nm", "632.99"]
+
+
+def _run(argv):
+    """(exit status, stderr lines, stdout) of the CLI in this process."""
+    err, out = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
+        rc = main([str(a) for a in argv])
+    return rc, err.getvalue().strip().splitlines(), out.getvalue()
+
+
+def _usage(argv, capsys):
+    """The one stderr line of a usage error (exit status 2)."""
+    with pytest.raises(SystemExit) as exc:
+        main([str(a) for a in argv])
+    assert exc.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("error: ") and lines[0].endswith("--help"), lines[0]
+    return lines[0]
+
+
+def _refused(rc, lines, *needles):
+    assert rc == 2, (rc, lines)
+    assert len(lines) == 1, lines
+    assert len(lines[0]) <= MAX_MESSAGE + len("error: ")
+    for n in needles:
+        assert n in lines[0], (n, lines[0])
+    return lines[0]
+
+
+@pytest.fixture
+def model(tmp_path):
+    m = tmp_path / "model.json"
+    shutil.copy(GOOD_MODEL, m)
+    return m
+
+
+@pytest.fixture
+def points(tmp_path):
+    p = tmp_path / "points.csv"
+    p.write_text(POINTS)
+    return p
+
+
+def _leftovers(folder):
+    return [p.name for p in folder.iterdir() if p.name.endswith(".tmp")]
+
+
+# --- an output that is an input --------------------------------------------------------
+
+def test_export_refuses_the_model_as_its_own_grid(model):
+    before = model.read_bytes()
+    line = _refused(*_run(["export", model, "--grid", model])[:2], "--grid", "model.json",
+                    "input")
+    assert "destroy" in line
+    assert model.read_bytes() == before
+    for opt in ("--results-json", "--results-xml"):
+        _refused(*_run(["export", model, opt, model])[:2], opt)
+    assert model.read_bytes() == before
+
+
+def test_export_standalone_refuses_too(model, capsys):
+    from cmm_core.cli import run
+
+    args = build_parser().parse_args(["export", str(model), "--results-json", str(model)])
+    before = model.read_bytes()
+    assert run(args) == 2
+    assert "--results-json" in capsys.readouterr().err
+    assert model.read_bytes() == before
+
+
+def test_compensate_refuses_its_own_inputs_as_out(model, points):
+    before_m, before_p = model.read_bytes(), points.read_bytes()
+    _refused(*_run(["compensate", model, points, "--out", points])[:2], "--out", "points.csv")
+    _refused(*_run(["compensate", model, points, "--out", model])[:2], "--out", "model.json")
+    # the same file by another spelling, and through a hard link
+    other = points.parent / "sub"
+    other.mkdir()
+    _refused(*_run(["compensate", model, points, "--out", other / ".." / "points.csv"])[:2],
+             "--out")
+    os.link(points, points.parent / "link.csv")
+    _refused(*_run(["compensate", model, points, "--out", points.parent / "link.csv"])[:2],
+             "--out")
+    assert model.read_bytes() == before_m and points.read_bytes() == before_p
+
+
+def test_json_and_save_refuse_inputs(tmp_path, model, points):
+    before = model.read_bytes()
+    _refused(*_run(["--json", model, "compensate", model, points, "--out",
+                    tmp_path / "c.csv"])[:2], "--json", "input")
+    _refused(*_run(["task", model, ROOT / "sample_data" / "plans" / "task_distance.json",
+                    "--json", model])[:2], "--json")
+    assert model.read_bytes() == before
+    setup = tmp_path / "setup.json"
+    shutil.copy(SIM / "setup.json", setup)
+    before = setup.read_bytes()
+    _refused(*_run(["fit", SIM / "measurements.csv", "--setup", setup, "--save", setup])[:2],
+             "--save", "setup.json")
+    assert setup.read_bytes() == before
+
+
+def test_report_refuses_a_data_file_of_its_record(tmp_path):
+    shutil.copytree(ROOT / "sample_data" / "thesis", tmp_path / "thesis")
+    (tmp_path / "analysis").mkdir()
+    record = tmp_path / "analysis" / "thesis.json"
+    shutil.copy(ROOT / "sample_data" / "analysis" / "thesis.json", record)
+    target = tmp_path / "thesis" / "BP111.csv"
+    before = target.read_bytes()
+    _refused(*_run(["report", record, "--out", target])[:2], "--out", "BP111.csv")
+    _refused(*_run(["report", record, "--out", record])[:2], "--out", "thesis.json")
+    assert target.read_bytes() == before
+
+
+def test_simulate_refuses_a_config_it_would_overwrite(tmp_path):
+    cfg = tmp_path / "setup.json"
+    cfg.write_text(json.dumps({"seed": 3}))
+    _refused(*_run(["simulate", cfg, "--out", tmp_path])[:2], "--out", "setup.json")
+    assert json.loads(cfg.read_text()) == {"seed": 3}
+
+
+# --- two outputs, one file ------------------------------------------------------------
+
+def test_two_outputs_naming_one_file_are_refused(tmp_path, model, points):
+    out = tmp_path / "out.csv"
+    _refused(*_run(["compensate", model, points, "--out", out, "--json", out])[:2],
+             "--out", "--json", "same file")
+    _refused(*_run(["export", model, "--grid", out, "--results-json", out])[:2],
+             "--grid", "--results-json")
+    _refused(*_run(["export", model, "--axis-tables", tmp_path / "ax", "--grid",
+                    tmp_path / "ax" / "axis_x.csv"])[:2], "--axis-tables", "axis_x.csv")
+    assert not out.exists() and not (tmp_path / "ax").exists()
+
+
+# --- folders ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("after", [False, True], ids=["before", "after"])
+def test_json_naming_a_folder_is_refused_in_one_line(tmp_path, after):
+    argv = [*AIR, "--json", tmp_path] if after else ["--json", tmp_path, *AIR]
+    line = _refused(*_run(argv)[:2], "--json", "folder")
+    assert "Traceback" not in line
+
+
+def test_folders_given_as_files_and_files_as_folders(tmp_path, model, points):
+    _refused(*_run(["compensate", model, points, "--out", tmp_path])[:2], "--out", "folder")
+    _refused(*_run(["export", model, "--grid", tmp_path])[:2], "--grid", "folder")
+    _refused(*_run(["export", model, "--axis-tables", points])[:2], "--axis-tables",
+             "not a folder")
+    _refused(*_run(["compensate", model, points, "--out", tmp_path / "no" / "c.csv"])[:2],
+             "--out", "does not exist")
+    with pytest.raises(DataError, match="folder"):
+        atomic_write_text(tmp_path, "x")
+
+
+# --- atomic writes ---------------------------------------------------------------------
+
+def test_atomic_write_replaces_whole_and_keeps_the_mode(tmp_path):
+    f = tmp_path / "a.txt"
+    atomic_write_text(f, "one\r\ntwo\n")
+    assert f.read_bytes() == b"one\r\ntwo\n"  # written as given
+    f.chmod(0o640)
+    atomic_write_bytes(f, b"new")
+    assert f.read_bytes() == b"new" and (f.stat().st_mode & 0o777) == 0o640
+    assert _leftovers(tmp_path) == []
+
+
+def test_a_reader_sees_the_old_file_until_the_rename(tmp_path, monkeypatch):
+    f = tmp_path / "a.json"
+    f.write_text("old")
+    seen = []
+    real = os.fsync
+
+    def fsync(fd):
+        seen.append(f.read_text())  # mid-write: the new data are in the temporary file
+        return real(fd)
+
+    monkeypatch.setattr(output_module.os, "fsync", fsync)
+    atomic_write_text(f, "new")
+    assert seen[0] == "old" and f.read_text() == "new"
+
+
+def _fail_mid_write(monkeypatch):
+    def fsync(fd):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(output_module.os, "fsync", fsync)
+
+
+def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path, monkeypatch):
+    f = tmp_path / "a.json"
+    f.write_text("old")
+    _fail_mid_write(monkeypatch)
+    with pytest.raises(OSError) as exc:
+        atomic_write_text(f, "new" * 1000)
+    assert exc.value.filename == str(f)  # named as the user named it, not the temp file
+    assert f.read_text() == "old" and _leftovers(tmp_path) == []
+
+
+def test_a_failed_run_leaves_existing_outputs_intact(tmp_path, model, points, monkeypatch):
+    out, js = tmp_path / "c.csv", tmp_path / "r.json"
+    out.write_text("previous result\n")
+    js.write_text("{}")
+    _fail_mid_write(monkeypatch)
+    _refused(*_run(["compensate", model, points, "--out", out])[:2], "c.csv", "No space")
+    _refused(*_run([*AIR, "--json", js])[:2], "r.json", "No space")
+    _refused(*_run(["export", model, "--results-json", js])[:2], "r.json")
+    assert out.read_text() == "previous result\n" and js.read_text() == "{}"
+    assert _leftovers(tmp_path) == []
+    monkeypatch.undo()
+    rc, lines, _ = _run(["compensate", model, points, "--out", out, "--json", js])
+    assert rc == 0, lines
+    assert out.read_text().startswith("probe,x_mm") and json.loads(js.read_text())["n_points"] == 2
+
+
+def test_export_writes_every_file_atomically(tmp_path, model):
+    rc, lines, stdout = _run(["export", model, "--grid", tmp_path / "g.csv", "--axis-tables",
+                              tmp_path / "ax", "--results-json", tmp_path / "r.json",
+                              "--json", tmp_path / "summary.json"])
+    assert rc == 0, lines
+    assert stdout == ""
+    assert json.loads((tmp_path / "summary.json").read_text())["grid"]["nodes"] > 0
+    assert sorted(p.name for p in (tmp_path / "ax").iterdir()) == [
+        "axis_x.csv", "axis_y.csv", "axis_z.csv", "squareness.csv"]
+    assert _leftovers(tmp_path) == [] and _leftovers(tmp_path / "ax") == []
+
+
+def test_check_outputs_directly(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.write_text("x")
+    check_outputs({"--o": b, "--p": None}, [a, None])
+    with pytest.raises(DataError, match="--o names an input"):
+        check_outputs({"--o": a}, [a])
+    (tmp_path / "ln").symlink_to(a)
+    with pytest.raises(DataError, match="--o names an input"):
+        check_outputs({"--o": tmp_path / "ln"}, [a])
+    with pytest.raises(DataError, match="--o and --p name the same file"):
+        check_outputs({"--o": b, "--p": tmp_path / "." / "b"})
+    check_outputs({"--o": [tmp_path / "new" / "f"]}, folders={"--o": tmp_path / "new"})
+
+
+# --- the command line: usage errors, --json after the command, ranges -----------------
+
+def test_usage_errors_are_one_line(capsys):
+    assert "invalid choice" in _usage(["bogus"], capsys)
+    assert "required" in _usage(["compensate"], capsys)
+    line = _usage(["fit", "--plate", "loose"], capsys)
+    assert "--plate" in line and "python -m cmm_core fit --help" in line
+    assert "unrecognized arguments: --nope" in _usage([*AIR, "--nope"], capsys)
+
+
+def test_usage_error_exit_status_from_the_shell():
+    p = subprocess.run([sys.executable, "-m", "cmm_core", "task", "m.json", "t.json",
+                        "--trials", "0"], cwd=ROOT, capture_output=True, text=True,
+                       timeout=120)
+    assert p.returncode == 2 and p.stdout == ""
+    assert p.stderr.count("\n") == 1 and "100 to 10000000" in p.stderr
+
+
+def test_json_after_the_command_and_in_every_help(tmp_path):
+    rc, lines, stdout = _run([*AIR, "--json", tmp_path / "air.json"])
+    assert rc == 0, lines
+    assert stdout == "" and json.loads((tmp_path / "air.json").read_text())["n"] > 1
+    # after wins over before: the one given last on the line
+    rc, _, _ = _run(["--json", tmp_path / "x.json", *AIR, "--json", tmp_path / "y.json"])
+    assert rc == 0 and (tmp_path / "y.json").exists()
+    ap = build_parser()
+    sub = next(a for a in ap._actions if a.dest == "command")
+    for name, p in sub.choices.items():
+        assert "--json FILE" in p.format_help(), name
+
+
+@pytest.mark.parametrize("option,command", [("--model", "fit"), ("--baseline", "diagnose")])
+@pytest.mark.parametrize("spec", ["", " ", ","])
+def test_an_empty_model_spec_is_refused(option, command, spec):
+    rc, lines, _ = _run([command, SIM / "measurements.csv", "--setup", SIM / "setup.json",
+                         option, spec])
+    _refused(rc, lines, option, "empty")
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["task", "m.json", "t.json", "--trials", "0"], "100 to 10000000"),
+    (["task", "m.json", "t.json", "--trials", "x"], "whole number"),
+    (["plan", "p.json", "--workers", "0"], "1 to 1024"),
+    (["plan", "p.json", "--check-trials", "-1"], "0 to 100000"),
+    (["gp", "--order", "9"], "1 to 5"),
+    (["air", "--t-C", "90", "--p-Pa", "1e5", "--rh-percent", "50", "--wavelength-nm", "633"],
+     "0 to 40"),
+    (["air", "--t-C", "nan", "--p-Pa", "1e5", "--rh-percent", "50", "--wavelength-nm",
+      "633"], "0 to 40"),
+])
+def test_numbers_are_range_checked_where_they_enter(argv, needle, capsys):
+    assert needle in _usage(argv, capsys)
+
+
+def test_help_states_the_allowed_ranges():
+    ap = build_parser()
+    sub = next(a for a in ap._actions if a.dest == "command")
+    helps = {n: " ".join(p.format_help().split()) for n, p in sub.choices.items()}
+    assert "100 to 10000000" in helps["task"]
+    assert "1 to 1024" in helps["plan"] and "0 to 100000" in helps["plan"]
+    assert "1 to 5" in helps["gp"]
+    assert "0 to 40" in helps["air"] and "60000 to 120000" in helps["air"]
