@@ -78,7 +78,6 @@ def cmd_simulate(args):
 
 
 def cmd_fit(args):
-    _refuse_empty_spec(args.model, "--model")
     data = dataset_of(args)
     instruments = instruments_of(args)
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
@@ -103,7 +102,6 @@ def cmd_fit(args):
 
 
 def cmd_diagnose(args):
-    _refuse_empty_spec(args.baseline, "--baseline")
     data = dataset_of(args)
     instruments = instruments_of(args)
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
@@ -162,13 +160,6 @@ def cmd_report(args):
 
 def cmd_air(args):
     return air_from_args(args.t_C, args.p_Pa, args.rh_percent, args.wavelength_nm)
-
-
-def _refuse_empty_spec(spec, option):
-    """An empty model spec would silently fit the rigid alignment only: refused."""
-    if not any(t.strip() for t in str(spec).split(",")):
-        raise DataError(f"{option} is empty; give a model spec such as 'kinematic21' "
-                        "(docs/formats.md#model-specs).", file="command line")
 
 
 def cmd_plan(args):

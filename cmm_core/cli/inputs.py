@@ -19,7 +19,7 @@ from ..io import (
     read_msl_bar,
     read_msl_plate,
 )
-from ..model import read_instrument
+from ..model import MAX_ORDER, read_instrument
 
 
 def dataset_of(args):
@@ -77,8 +77,8 @@ CERT_HELP = ("plate certificate CSV (ball,x_mm,y_mm,z_mm[,u_x_um,u_y_um,u_z_um])
               "µm; without the u columns the setup must state its uncertainty "
               "(\"certificate\": {\"U_um\": [a, b], \"k\": 2}) or that it is exact; "
               "default: none, the plate geometry is then fitted (self-calibration)")
-ORDER_HELP = ("polynomial order of each error function along its axis (1 = linear; "
-               "default: %(default)s)")
+ORDER_HELP = (f"polynomial order of each error function along its axis, 1 (linear) to "
+              f"{MAX_ORDER} (default: %(default)s)")
 PLATE_HELP = ("plate geometry: 'fixed' to the certificate, the certificate as a 'prior' "
                "with its uncertainties, or 'free' (self-calibrated). Default: fixed with a "
                "certificate, free without")
@@ -174,19 +174,20 @@ def add_data_args(p):
 def add_fit_args(p, *, baseline=False):
     add_data_args(p)
     if baseline:
-        p.add_argument("--baseline", default="kinematic21", metavar="SPEC",
+        p.add_argument("--baseline", default="kinematic21", metavar="SPEC", type=_spec_arg,
                        help="model the diagnosis starts from, as a model spec "
                             "(docs/formats.md#model-specs), e.g. 'kinematic21,-sxy' "
                             "(default: %(default)s, the 21 errors)")
     else:
-        p.add_argument("--model", default="kinematic21", metavar="SPEC",
+        p.add_argument("--model", default="kinematic21", metavar="SPEC", type=_spec_arg,
                        help="model to fit, as a model spec (docs/formats.md#model-specs), "
                             "e.g. 'kinematic21,plate_sag' or 'translational,squareness' "
                             "(default: %(default)s, the 21 errors)")
-    p.add_argument("--order", type=int, default=2, metavar="N", help=ORDER_HELP)
+    p.add_argument("--order", type=_order_arg, default=2, metavar="N", help=ORDER_HELP)
     p.add_argument("--plate", choices=("fixed", "prior", "free"), help=PLATE_HELP)
     p.add_argument("--sigma-um", type=_sigma_arg, default=0.5, metavar="UM|auto",
-                   help="repeatability of one probed coordinate, standard deviation in µm: "
+                   help="repeatability of one probed coordinate, standard deviation in µm "
+                        "(0.001 to 1000): "
                         "weights the fit and scales every uncertainty (default: "
                         "%(default)s µm). 'auto' estimates it from the data (repeated "
                         "balls where the file has a repeat column, else the residuals of "
@@ -207,6 +208,28 @@ def add_outlier_args(p):
                    help="fit the flagged observations: what happens without "
                         "--exclude-outliers (accepted for scripts written when exclusion "
                         "was the command line's default)")
+
+
+def _spec_arg(text):
+    """A model spec that names something: an empty one would silently fit the rigid
+    alignment alone."""
+    if not any(t.strip() for t in str(text).split(",")):
+        raise argparse.ArgumentTypeError(
+            "the model spec is empty; give one such as 'kinematic21' "
+            "(docs/formats.md#model-specs)")
+    return text
+
+
+def _order_arg(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a polynomial order 1 to {MAX_ORDER}, found {text[:40]!r}") from None
+    if not 1 <= value <= MAX_ORDER:
+        raise argparse.ArgumentTypeError(
+            f"expected a polynomial order 1 to {MAX_ORDER}, found {value}")
+    return value
 
 
 def _sigma_arg(text):
