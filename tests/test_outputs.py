@@ -295,10 +295,10 @@ def test_json_after_the_command_and_in_every_help(tmp_path):
 
 @pytest.mark.parametrize("option,command", [("--model", "fit"), ("--baseline", "diagnose")])
 @pytest.mark.parametrize("spec", ["", " ", ","])
-def test_an_empty_model_spec_is_refused(option, command, spec):
-    rc, lines, _ = _run([command, SIM / "measurements.csv", "--setup", SIM / "setup.json",
-                         option, spec])
-    _refused(rc, lines, option, "empty")
+def test_an_empty_model_spec_is_refused(option, command, spec, capsys):
+    line = _usage([command, SIM / "measurements.csv", "--setup", SIM / "setup.json",
+                   option, spec], capsys)
+    assert option in line and "empty" in line
 
 
 @pytest.mark.parametrize("argv,needle", [
