@@ -61,7 +61,8 @@ def true_function_curve(truth: dict, name: str, u_mm, range_mm):
     coefficient labels (``dyz[3]``, ``dxx[sin180]``); None when the truth has none."""
     if name in kin.SQUARENESS:
         return None if name not in truth else np.full(len(u_mm), float(truth[name]))
-    poly, per = {}, {}
+    poly: dict[int, float] = {}
+    per: dict[float, dict[str, float]] = {}
     for lab, v in truth.items():
         base, _, rest = lab.partition("[")
         if base != name or not rest.endswith("]"):

@@ -7,8 +7,10 @@ from __future__ import annotations
 import io
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..io import DataError
 from ..model import INSTRUMENT_KINDS, read_instrument
@@ -34,13 +36,13 @@ GP_MEANS = ("zero", "quadratic", "thesis_quadratic", "kinematic")
 GP_KERNELS, MPE_U_SOURCES = ("se_iso", "se_ard"), ("test", "cmm_spec")
 
 
-def measured_error_um(reported_mm, true_mm) -> np.ndarray:
+def measured_error_um(reported_mm: ArrayLike, true_mm: ArrayLike) -> np.ndarray:
     """Measured error (µm, :data:`ERROR_CONVENTION`) of points as the CMM reports them
     (``reported_mm``, (n, 3)) given their true or corrected positions (``true_mm``)."""
     return (np.asarray(true_mm, float) - np.asarray(reported_mm, float)) * 1e3
 
 
-def measured_error_from_residuals_um(residuals_um) -> np.ndarray:
+def measured_error_from_residuals_um(residuals_um: ArrayLike) -> np.ndarray:
     """Measured error (µm) from the residuals of a fit with no error model (``rigid``):
     the residual is reported minus placed ball, so the error is its negative."""
     return -np.asarray(residuals_um, float)
@@ -61,6 +63,8 @@ class DataFile:
         """The file's text (read from ``path`` when the record does not carry it)."""
         if self.content is not None:
             return self.content
+        if self.path is None:
+            raise DataError("names neither a path nor its content.", file=self.name)
         try:
             return Path(self.path).read_bytes().decode("utf-8-sig")
         except (OSError, UnicodeDecodeError) as exc:
@@ -82,7 +86,7 @@ class InstrumentFile:
     file: DataFile
     """The file, by path or by content."""
 
-    def read(self):
+    def read(self) -> Any:
         """The instrument's readings (``io_instruments``); DataError when bad."""
         return read_instrument(io.StringIO(self.file.text()), self.kind, name=self.file.name)
 

@@ -6,11 +6,14 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import fields
 from pathlib import Path
+from typing import Any
 
 from ..export import project_from_json, project_to_json
 from ..io import DataError, read_json, refuse_unknown_keys
+from ..io.delimited import FileSource
 from ..io.errors import cut_repr
 from ..model import MAX_ORDER, parse_spec
 from .record import (
@@ -36,7 +39,8 @@ _DATA_KEYS = ("name", "measurements", "setup", "certificate", "instruments")
 _FILE_KEYS = ("name", "path", "content")
 
 
-def instruments_from_list(items, name, where="data.instruments", base=None) -> tuple:
+def instruments_from_list(items: Iterable[dict], name: str | None, where: str = "data.instruments",
+                      base: Path | None = None) -> tuple:
     """:class:`InstrumentFile` per entry of a JSON list (``{"kind", "path"}`` or ``{"kind",
     "name", "content"}``); DataError naming ``name`` and the entry otherwise."""
     _check(isinstance(items, list), name, where, "a list of instrument files", items)
@@ -115,7 +119,8 @@ _RULES = {  # key: (test, what is expected, conversion)
 }
 
 
-def record_from_dict(doc, name="ANALYSIS.json", base=None) -> AnalysisRecord:
+def record_from_dict(doc: Any, name: str = "ANALYSIS.json", base: Path | None = None
+                 ) -> AnalysisRecord:
     """Check an analysis document (parsed JSON, docs/report.md) and build the record.
 
     ``name`` is the file named in messages, ``base`` the folder relative data paths are
@@ -139,7 +144,7 @@ def record_from_dict(doc, name="ANALYSIS.json", base=None) -> AnalysisRecord:
            "a non-empty list of files", meas)
     files = tuple(_file(m, name, f"data.measurements[{i}]", base) for i, m in enumerate(meas))
     cert = d.get("certificate")
-    out = {"data": DataSources(
+    out: dict[str, Any] = {"data": DataSources(
         str(d.get("name") or ", ".join(f.name for f in files)), files,
         _file(d["setup"], name, "data.setup", base),
         None if cert is None else _file(cert, name, "data.certificate", base),
@@ -168,18 +173,20 @@ def record_from_dict(doc, name="ANALYSIS.json", base=None) -> AnalysisRecord:
     return AnalysisRecord(**out)
 
 
-def record_to_dict(record: AnalysisRecord, relative_to=None) -> dict:
+def record_to_dict(record: AnalysisRecord, relative_to: str | Path | None = None) -> dict:
     """The record as a JSON-ready dict (inverse of :func:`record_from_dict`); paths are
     written relative to ``relative_to`` when given."""
-    def file(f: DataFile):
+    def file(f: DataFile) -> dict:
         if f.content is not None:
             return {"name": f.name, "content": f.content}
+        if f.path is None:
+            raise ValueError(f"data file {f.name!r} has neither a path nor its content")
         p = f.path if relative_to is None else Path(os.path.relpath(
             Path(f.path).resolve(), Path(relative_to).resolve())).as_posix()
         return {"path": p} if Path(p).name == f.name else {"name": f.name, "path": p}
 
     d = record.data
-    out = {"format": FORMAT, "version": VERSION,
+    out: dict[str, Any] = {"format": FORMAT, "version": VERSION,
            "data": {"name": d.name, "measurements": [file(f) for f in d.measurements],
                     "setup": file(d.setup),
                     "certificate": None if d.certificate is None else file(d.certificate)}}
@@ -193,12 +200,12 @@ def record_to_dict(record: AnalysisRecord, relative_to=None) -> dict:
     return out
 
 
-def record_to_json(record: AnalysisRecord, relative_to=None) -> str:
+def record_to_json(record: AnalysisRecord, relative_to: str | Path | None = None) -> str:
     """JSON text of the record (``ANALYSIS.json``)."""
     return json.dumps(record_to_dict(record, relative_to), indent=1, ensure_ascii=False)
 
 
-def read_record(source, name=None) -> AnalysisRecord:
+def read_record(source: FileSource, name: str | None = None) -> AnalysisRecord:
     """Read ``ANALYSIS.json`` (path, bytes or text); relative data paths are resolved
     against the file's folder."""
     doc, name = read_json(source, name)
@@ -216,7 +223,7 @@ def _inline(name, measurements, setup, certificate, instruments=()) -> dict:
             "instruments": [{"kind": k, "name": n, "content": c} for k, n, c in instruments]}
 
 
-def record_from_session(state) -> AnalysisRecord:
+def record_from_session(state: Mapping[str, Any]) -> AnalysisRecord:
     """The record of an app session (the Export page passes ``st.session_state``).
 
     ``state`` is a mapping with the app's canonical keys: ``ds_files`` (name, measurements
@@ -226,7 +233,8 @@ def record_from_session(state) -> AnalysisRecord:
     when set, ``w_mpe_u, w_u_npts, w_u_seed`` and, with ``w_report_gp`` true, ``w_gp_mean,
     w_gp_kernel``. Missing keys take the record's defaults.
     """
-    f, g = state["ds_files"], state.get
+    f = state["ds_files"]
+    g: Callable[[str], Any] = state.get  # a value, or None when the key is unset
     keys = {"spec": "spec", "order": "order", "plate": "plate", "sigma_um": "sigma_um",
             "positions": "positions", "probes": "probes", "diagnose": "diag_on",
             "exclude_outliers": "exclude_outliers", "uncertainty_points": "w_u_npts",
@@ -257,13 +265,13 @@ def record_to_project_json(record: AnalysisRecord) -> str:
                                for i in d.instruments]
     return project_to_json(dataset_name=d.name, measurements=[(f.name, f.text()) for f in
                                                               d.measurements],
-                           setup=d.setup.text(), certificate=d.certificate and (
+                           setup=d.setup.text(), certificate=None if d.certificate is None else (
                                d.certificate.name, d.certificate.text()),
                            model=model, exclusions=record.exclusions,
                            history=full["history"], extra={"analysis": rest})
 
 
-def record_from_project(text, name="project.json") -> AnalysisRecord:
+def record_from_project(text: str | bytes, name: str = "project.json") -> AnalysisRecord:
     """The record a project file carries (its ``extra.analysis`` choices when present)."""
 
     p = project_from_json(text, name)

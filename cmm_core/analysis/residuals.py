@@ -9,6 +9,8 @@ instruments of a joint fit, the uncertainty gain the instruments bring).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 import pandas as pd
 
@@ -76,7 +78,7 @@ def approach_split(result: FitResult) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def position_trends(data: Dataset, exclude=()) -> pd.DataFrame:
+def position_trends(data: Dataset, exclude: Iterable[tuple[str, str, int]] = ()) -> pd.DataFrame:
     """Each position's in-plane scale (ppm) and out-of-plane bowl (µm) against the
     certificate, with standard uncertainties from the least-squares scatter.
 
@@ -130,7 +132,7 @@ def _lsq(A, b):
     return sol, s2 * np.linalg.pinv(A.T @ A), float(np.sqrt(np.mean(r**2)))
 
 
-def residual_summary(result) -> pd.DataFrame:
+def residual_summary(result: FitResult) -> pd.DataFrame:
     """RMS of the residuals (µm) per position and probe and axis."""
     df = result.residuals_frame()
     g = df.groupby(["position", "probe"], sort=False)[["rx_um", "ry_um", "rz_um"]]
@@ -139,7 +141,8 @@ def residual_summary(result) -> pd.DataFrame:
     return out
 
 
-def instrument_tables(summary, residuals: pd.DataFrame) -> tuple:
+def instrument_tables(summary: Iterable[dict], residuals: pd.DataFrame
+                  ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The instruments of a joint fit as two tables (app and report alike): per
     instrument its kind, file, readings, rows, χ² and the RMS of the normalised residuals
     (residual / u, near 1 when the model explains the instrument as its u says); and per
@@ -156,7 +159,7 @@ def instrument_tables(summary, residuals: pd.DataFrame) -> tuple:
     return table, readings
 
 
-def uncertainty_gain(joint, plate_only) -> pd.DataFrame:
+def uncertainty_gain(joint: FitResult, plate_only: FitResult) -> pd.DataFrame:
     """Per kinematic coefficient its standard uncertainty from the plate alone
     (``plate_only``, a FitResult) and with the instruments (``joint``, the same model, σ
     and selection) and the gain, their ratio (how many times smaller u gets), largest

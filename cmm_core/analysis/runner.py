@@ -14,32 +14,45 @@ measured error (:data:`ERROR_CONVENTION`) and the outlier default
 from __future__ import annotations
 
 import io
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+import pandas as pd
 
-from ..diagnosis import detect_outliers, diagnose, estimate_sigma
-from ..gp import gp_components
-from ..gum import check_dataset
-from ..io import load_dataset
-from ..model import check_selection, evaluate, fit, residuals_frame, select, summary
+from ..diagnosis import Diagnosis, detect_outliers, diagnose, estimate_sigma
+from ..gp import GPComponents, gp_components
+from ..gum import MpeResult, check_dataset
+from ..io import Dataset, load_dataset
+from ..model import (
+    FitResult,
+    Observations,
+    UncertaintySummary,
+    check_selection,
+    evaluate,
+    fit,
+    residuals_frame,
+    select,
+    summary,
+)
 from .record import (
     AnalysisRecord,
+    DataFile,
     measured_error_from_residuals_um,
 )
 
 __all__ = ["load_data", "load_instruments", "with_instruments", "AnalysisResult", "run"]
 
 
-def load_data(record: AnalysisRecord):
+def load_data(record: AnalysisRecord) -> Dataset:
     """The :class:`~cmm_core.dataset.Dataset` the record names."""
 
-    def src(f):
+    def src(f: DataFile) -> tuple[io.BytesIO, str]:
         return io.BytesIO(f.text().encode()), f.name
 
     d = record.data
     return load_dataset([src(f) for f in d.measurements], src(d.setup)[0],
-                        d.certificate and src(d.certificate), name=d.name)
+                        None if d.certificate is None else src(d.certificate), name=d.name)
 
 
 def load_instruments(record: AnalysisRecord) -> tuple:
@@ -47,7 +60,9 @@ def load_instruments(record: AnalysisRecord) -> tuple:
     return tuple(i.read() for i in record.data.instruments)
 
 
-def with_instruments(ds, instruments, *, positions=None, probes=None, exclude=()):
+def with_instruments(ds: Dataset, instruments: Sequence, *, positions: Sequence[str] | None = None,
+                 probes: Sequence[str] | None = None,
+                 exclude: Iterable[tuple[str, str, int]] = ()) -> Dataset | Observations:
     """What the fits of an analysis take as data: ``ds`` itself without instruments, else
     its selected observations carrying them, so every model built from them (the
     diagnosis's scores and refits, the σ estimate) includes their rows
@@ -66,9 +81,9 @@ class AnalysisResult:
 
     record: AnalysisRecord
     """The record these numbers come from."""
-    dataset: object
+    dataset: Dataset
     """The loaded :class:`~cmm_core.dataset.Dataset`."""
-    fit: object
+    fit: FitResult
     """The :class:`~cmm_core.fit.FitResult` of the record's model."""
     exclusions: tuple
     """Observations left out: the record's and, with ``exclude_outliers``, the flagged."""
@@ -76,22 +91,22 @@ class AnalysisResult:
     """``(position, probe, ball)`` the robust outlier check flags (excluded or not)."""
     sigma: dict
     """σ used: ``{"value_um", "auto"}`` plus the estimate's fields when auto."""
-    uncertainty: object
+    uncertainty: UncertaintySummary | None
     """:class:`~cmm_core.uncertainty.UncertaintySummary`, or None when it failed."""
     history: tuple
     """History rows: spec, change, rms_um, chi2_dof, bic, n_params."""
     measured_error_um: np.ndarray
     """(n, 3) measured error at the fitted observations (µm, :data:`ERROR_CONVENTION`)."""
-    diagnosis: object = None
+    diagnosis: Diagnosis | None = None
     """:class:`~cmm_core.diagnose.Diagnosis` when the record asks for it."""
-    mpe: object = None
+    mpe: MpeResult | None = None
     """:class:`~cmm_core.mpe.MpeResult`, None without a 25-ball certificate."""
-    gp: object = None
+    gp: GPComponents | None = None
     """:class:`~cmm_core.gp_cmm.GPComponents` when the record names a GP mean."""
     instruments: tuple = ()
     """Per instrument file, its record of ``instruments.summary`` (kind, file, readings,
     rows, χ², rms_um, max_abs_z ...); empty without instruments."""
-    instrument_residuals: object = None
+    instrument_residuals: pd.DataFrame | None = None
     """``instruments.residuals_frame`` of the fit (one row per reading), None without."""
 
 

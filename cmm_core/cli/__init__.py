@@ -51,11 +51,11 @@ from .plan import (
 )
 
 __all__ = [
-    "add_arguments", "add_data_args", "AXIS_TABLE_FILES", "MAX_CHECK_TRIALS", "MAX_TRIALS",
-    "MAX_WORKERS", "MIN_TRIALS", "output_files", "add_fit_args", "add_foreign_args", "add_instrument_args",
+    "add_arguments", "add_data_args", "add_fit_args", "add_foreign_args", "add_instrument_args",
     "add_outlier_args", "add_parser", "add_plan_arguments", "add_task_arguments",
-    "build_parser", "CERT_HELP", "cmd_air", "cmd_budget", "cmd_compensate", "cmd_diagnose",
-    "cmd_fit", "cmd_gp", "cmd_plan", "cmd_report", "cmd_simulate", "cmd_task", "command",
-    "dataset_of", "exclusions_of", "instruments_of", "main", "MAX_MESSAGE", "MEAS_HELP",
-    "ORDER_HELP", "PLATE_HELP", "run", "run_plan", "run_task", "SETUP_HELP", "sigma_of"
+    "AXIS_TABLE_FILES", "build_parser", "CERT_HELP", "cmd_air", "cmd_budget", "cmd_compensate",
+    "cmd_diagnose", "cmd_fit", "cmd_gp", "cmd_plan", "cmd_report", "cmd_simulate", "cmd_task",
+    "command", "dataset_of", "exclusions_of", "instruments_of", "main", "MAX_CHECK_TRIALS",
+    "MAX_MESSAGE", "MAX_TRIALS", "MAX_WORKERS", "MEAS_HELP", "MIN_TRIALS", "ORDER_HELP",
+    "output_files", "PLATE_HELP", "run", "run_plan", "run_task", "SETUP_HELP", "sigma_of"
 ]

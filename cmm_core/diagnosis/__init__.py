@@ -37,15 +37,15 @@ from .scoring import (
     scan_period,
     score,
 )
-from .search import Candidate, Diagnosis, diagnose, estimate_sigma, history_entry
+from .search import Candidate, Diagnosis, diagnose, estimate_sigma
 from .verdict import OUTSIDE, misfit_location
 
 __all__ = [
     "ALPHA", "axis_weights", "baseline_basis", "Candidate", "candidate_stats",
     "CertificateCheck", "check", "check_certificate", "detect_outliers", "diagnose",
     "Diagnosis", "Discrepancy", "discrepancy_gp", "estimate", "estimate_sigma", "FAMILY_ALPHA",
-    "family_levels", "flexible_spec", "from_repeats", "from_residuals", "history_entry",
-    "HoldoutCheck", "kinematic_basis", "MATERIAL", "MIN_PLACEMENTS", "misfit_location",
-    "needs_met", "OutlierReport", "OUTSIDE", "PHYSICAL_SHARE", "released", "scan_period",
-    "score", "ScoreCache", "SigmaEstimate", "UNIFORM_ALPHA", "Uniformity", "uniformity"
+    "family_levels", "flexible_spec", "from_repeats", "from_residuals", "HoldoutCheck",
+    "kinematic_basis", "MATERIAL", "MIN_PLACEMENTS", "misfit_location", "needs_met",
+    "OutlierReport", "OUTSIDE", "PHYSICAL_SHARE", "released", "scan_period", "score",
+    "ScoreCache", "SigmaEstimate", "UNIFORM_ALPHA", "Uniformity", "uniformity"
 ]

@@ -18,11 +18,13 @@ released (``release``: no prior row for them).
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import stats
 
+from ..io import Dataset
 from ..model import FitResult, Observations, fit, select
 
 ALPHA = 0.01
@@ -75,9 +77,11 @@ class CertificateCheck:
                 "z_limit": self.z_limit, "fixes": self.fixes, "message": self.message}
 
 
-def released(obs: Observations, entries) -> Observations:
+def released(obs: Observations, entries: Iterable[tuple[int, str]]) -> Observations:
     """Observations whose certificate has no prior on ``entries`` ((ball, axis) pairs):
     with ``plate="prior"`` those coordinates are fitted from the measurements alone."""
+    if obs.cert_u_um is None:
+        raise ValueError("the observations have no certificate to release entries of")
     u = obs.cert_u_um.copy()
     col = {b: i for i, b in enumerate(obs.balls)}
     for ball, axis in entries:
@@ -92,9 +96,10 @@ def _summary(r: FitResult, release=()) -> dict:
             "status": r.status}
 
 
-def check_certificate(data, spec: str = "kinematic21", *, order: int = 2,
-                      sigma_um: float = 0.5, exclude=(), positions=None,
-                      probes=None, fitted: FitResult | None = None) -> CertificateCheck | None:
+def check_certificate(data: Dataset | Observations, spec: str = "kinematic21", *, order: int = 2,
+                  sigma_um: float = 0.5, exclude: Iterable[tuple[str, str, int]] = (),
+                  positions: Sequence[str] | None = None, probes: Sequence[str] | None = None,
+                  fitted: FitResult | None = None) -> CertificateCheck | None:
     """Test the certificate against the self-calibrated plate (module docstring).
 
     ``fitted`` is a fit of ``spec`` on the same observations and σ already at hand (the
@@ -104,7 +109,7 @@ def check_certificate(data, spec: str = "kinematic21", *, order: int = 2,
     """
     obs = data if isinstance(data, Observations) else select(
         data, positions=positions, probes=probes, exclude=exclude)
-    if not obs.has_certificate:
+    if not obs.has_certificate or obs.cert_u_um is None:
         return None
     kw = {"order": order, "sigma_um": sigma_um}
     have = {fitted.plate: fitted} if fitted is not None else {}

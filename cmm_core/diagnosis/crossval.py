@@ -35,12 +35,16 @@ than its own noise passes (the data cannot tell it from a real effect).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg as sla
 from scipy import stats
 
 from ..model import FitResult, Normal, Problem, augmented_state, weighted_residual
+
+if TYPE_CHECKING:
+    from .scoring import ScoreCache
 
 ALPHA = 0.01
 """Rate at which a real effect fails the check (one-sided level of the ``z`` test in the
@@ -237,7 +241,7 @@ def _real_effect_test(r, X, folds, maps, Jb, cov, gain, s2=1.0):
     return gain - D, sd, z
 
 
-def check(base: FitResult, token: str, cache=None) -> HoldoutCheck:
+def check(base: FitResult, token: str, cache: ScoreCache | None = None) -> HoldoutCheck:
     """Leave-one-placement-out check of adding ``token`` to ``base`` (module docstring);
     ``cache``: the diagnosis's ``scoring.ScoreCache``, if at hand."""
     o = base.problem.obs
@@ -282,7 +286,7 @@ def check(base: FitResult, token: str, cache=None) -> HoldoutCheck:
                f"real effect of the fitted size gives {expected:.1f} ± {sd:.1f} (z = {z:.1f}; "
                f"in sample it falls by {gain_in:.1f})")
     else:
-        worst = min(per, key=per.get)
+        worst = min(per, key=lambda k: per[k])
         why = (f"fitted on the other placements it does not predict the held-out ones: the "
                f"held-out χ² changes by {-gain:+.1f} where a real effect of the fitted size "
                f"would lower it by {expected:.1f} ± {sd:.1f} (z = {z:.1f}; in sample it "

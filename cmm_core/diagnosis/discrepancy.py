@@ -13,7 +13,7 @@ from ..gp import gp_components
 from ..model import FitResult
 
 
-def kinematic_basis(result: FitResult):
+def kinematic_basis(result: FitResult) -> list[np.ndarray]:
     """Per-component design matrices of a fit at its observations, for a GP mean.
 
     Returns a list of three arrays (n, m_c): an orthonormal basis of the columns of the

@@ -15,6 +15,7 @@ the plate, so it is set to zero (the plate-frame ``z``, reported as 0 and never 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,7 +52,7 @@ class OutlierReport:
     threshold_um: dict
     reference: str
     deviations: pd.DataFrame
-    certificate_suspects: list = ()
+    certificate_suspects: Sequence[dict] = ()
 
     @property
     def exclusions(self) -> list:
@@ -96,7 +97,7 @@ def detect_outliers(data: Dataset, *, k: float = 5.0, floor_um: float = 10.0,
     flagged = np.zeros(tables.shape, bool)
     aligned = tables.copy()
     for _ in range(iterations):
-        if use_median:
+        if use_median or cert_ref is None:  # no certificate: use_median is True
             ref = np.nanmedian(np.where(flagged, np.nan, aligned), axis=0)
         else:
             ref = cert_ref

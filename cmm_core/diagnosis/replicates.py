@@ -12,13 +12,17 @@ each group's share of the degrees of freedom).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 from scipy import stats
 
-from ..model import ROUNDING, FitResult, fit
+from ..model import ROUNDING, FitResult, NormalEquations, Problem, fit
+
+_NominalFn = Callable[[Problem], NormalEquations | None]
+"""``fit``'s ``nominal``: a problem's normal equations at its initial state, or None."""
 
 UNIFORM_ALPHA = 0.01
 """Family level of the uniformity tests (Bonferroni over the groupings tried)."""
@@ -198,7 +202,7 @@ def _hole_normals(base: FitResult) -> dict | None:
     return {p: base.state.R[k][:, 2] for k, p in enumerate(o.positions)}
 
 
-def flexible_spec(base: FitResult, tokens) -> str:
+def flexible_spec(base: FitResult, tokens: Iterable[str]) -> str:
     """The most flexible model the diagnosis tries: the baseline with every candidate
     token of ``tokens`` added (one order up per function, every physical effect whose
     data are present)."""
@@ -208,7 +212,8 @@ def flexible_spec(base: FitResult, tokens) -> str:
     return spec.to_string(explicit=True)
 
 
-def from_residuals(base: FitResult, tokens, nominal=None) -> SigmaEstimate:
+def from_residuals(base: FitResult, tokens: Iterable[str],
+               nominal: _NominalFn | None = None) -> SigmaEstimate:
     """σ from the residuals of the most flexible model (:func:`flexible_spec`): what that
     model cannot explain stands in for pure error. Biased high if the truth is outside it."""
     flex = fit(base.problem.obs, flexible_spec(base, tokens), plate=base.plate,
@@ -222,7 +227,8 @@ def from_residuals(base: FitResult, tokens, nominal=None) -> SigmaEstimate:
                          f"{best.dof} degrees of freedom)")
 
 
-def estimate(base: FitResult, tokens=(), nominal=None) -> SigmaEstimate:
+def estimate(base: FitResult, tokens: Iterable[str] = (),
+         nominal: _NominalFn | None = None) -> SigmaEstimate:
     """σ from repeats when the data have them, else from the most flexible model
     (``nominal``: ``fit``'s, when the caller has the normal equations at the start)."""
     return (from_repeats(base.table, _hole_normals(base))

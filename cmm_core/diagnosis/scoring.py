@@ -20,6 +20,7 @@ evaluating its model again.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,6 +33,7 @@ from ..model import (
     PHYSICAL,
     FitResult,
     Normal,
+    NormalEquations,
     Problem,
     augmented_state,
     describe_null,
@@ -65,7 +67,7 @@ rate stays at most ``alpha``). A handful of physical effects would otherwise pay
 ~40 order increases tried beside them."""
 
 
-def needs_met(token, base: FitResult):
+def needs_met(token: str, base: FitResult) -> str | None:
     """Why the baseline's data cannot see ``token`` (None: they can); the block says."""
     return needs(token, base.problem.obs)
 
@@ -89,7 +91,7 @@ class ScoreCache:
         Normal equations at the baseline's solution and at the nominal linearisation.
     """
 
-    def __init__(self, base: FitResult, tokens):
+    def __init__(self, base: FitResult, tokens: Sequence[str]) -> None:
         spec = base.problem.spec
         for tok in tokens:
             spec = spec.with_token(tok)
@@ -101,7 +103,7 @@ class ScoreCache:
         self.ne0 = prob.normal_equations(prob.initial_state(), base.sigma_um)
         self.N0, self.g0 = self.ne0.N, self.ne0.g
 
-    def columns(self, prob: Problem):
+    def columns(self, prob: Problem) -> np.ndarray | None:
         """Superset columns of ``prob``'s parameters, or None when ``prob`` does not
         extend the baseline within the superset (it is then scored on its own)."""
         labels = prob.layout.labels
@@ -110,7 +112,7 @@ class ScoreCache:
             return None
         return np.array([self.col[lab] for lab in labels])
 
-    def nominal(self, prob: Problem):
+    def nominal(self, prob: Problem) -> NormalEquations | None:
         """``prob``'s normal equations at the initial state (the same for every model on
         these observations: all parameters zero), or None (``fit``'s ``nominal``)."""
         idx = self.columns(prob) if prob.plate == self.base.plate else None
@@ -120,7 +122,8 @@ class ScoreCache:
         return e._replace(N=e.N[np.ix_(idx, idx)], g=e.g[idx])
 
 
-def score(base: FitResult, token: str, cache: ScoreCache | None = None):
+def score(base: FitResult, token: str, cache: ScoreCache | None = None
+          ) -> tuple[float, int, np.ndarray, float, dict[str, tuple[str, float]], list]:
     """One-step score of adding ``token``.
 
     Returns (Δχ², Δrank, signature µm (n, 3), χ² new, u_new, combos) where ``u_new`` maps
@@ -141,7 +144,8 @@ def score(base: FitResult, token: str, cache: ScoreCache | None = None):
     # ... and what the candidate adds is decided at the nominal linearisation, as its
     # refit decides it (fit's frozen design null): at the baseline's solution the
     # nonlinearity of fitted rotations lends weakly coupled columns a small, spurious rank
-    if idx is None:
+    ne0: Normal | None
+    if cache is None or idx is None:
         st = augmented_state(base, prob)
         _, r, J = weighted_residual(prob, st, base.sigma_um, True)
         _, r0, J0 = weighted_residual(prob, prob.initial_state(), base.sigma_um, True)
@@ -175,14 +179,15 @@ def score(base: FitResult, token: str, cache: ScoreCache | None = None):
     return base.chi2 - chi2_new, rank - base.rank, sig, chi2_new, u_new, combos
 
 
-def baseline_basis(base: FitResult):
+def baseline_basis(base: FitResult) -> np.ndarray:
     """Orthonormal basis of the baseline's determined column space (weighted J)."""
     J = weighted_residual(base.problem, base.state, base.sigma_um, True)[2]
     U, sv, _ = np.linalg.svd(J.toarray(), full_matrices=False)
     return U[:, sv > base.rank_rtol * sv.max()]
 
 
-def scan_period(base: FitResult, token: str, U=None):
+def scan_period(base: FitResult, token: str, U: np.ndarray | None = None
+            ) -> tuple[str, np.ndarray, np.ndarray, list[str]]:
     """Best period of a periodic scale error (``periodic_x`` ...) for this residual.
 
     Score test for every period of the scan: the χ² reduction of adding the two periodic
@@ -224,7 +229,8 @@ def scan_period(base: FitResult, token: str, U=None):
     return f"{token}:{best:.0f}", periods, gains, aliases
 
 
-def candidate_stats(base: FitResult, dchi2, dk, chi2_new, n_scan=1):
+def candidate_stats(base: FitResult, dchi2: float, dk: int, chi2_new: float, n_scan: int = 1
+                ) -> tuple[float, float, int]:
     """ΔBIC, F-test p-value and residual dof of adding ``dk`` parameters. A candidate
     chosen as the best of ``n_scan`` (a scanned period) pays for the choice: one more
     parameter in the BIC and a Bonferroni factor ``n_scan`` on p (conservative: the
@@ -255,7 +261,7 @@ class _Scored:
     family: str = ""
 
 
-def family_levels(tokens, alpha):
+def family_levels(tokens: Sequence[str], alpha: float) -> dict[str, float]:
     """Weighted Bonferroni levels (:data:`PHYSICAL_SHARE`): ``{token: level}``."""
     def physical(t):
         return t in PHYSICAL or ":" not in t and t not in PERIODIC

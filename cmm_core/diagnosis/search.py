@@ -41,15 +41,18 @@ be credited to every candidate.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
 
 from .._blas import single_blas_thread
+from ..io import Dataset
 from ..model import (
     PERIODIC,
     FitResult,
+    Observations,
     catalogue_entry,
     fit,
 )
@@ -79,7 +82,7 @@ from .verdict import (
     misfit_location,
 )
 
-__all__ = ["Candidate", "Diagnosis", "diagnose", "estimate_sigma", "history_entry"]
+__all__ = ["Candidate", "Diagnosis", "diagnose", "estimate_sigma"]
 
 
 @dataclass(frozen=True)
@@ -229,10 +232,12 @@ class Diagnosis:
 
 
 @single_blas_thread
-def diagnose(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
-             sigma_um: float = 0.5, exclude=(), positions=None, probes=None,
-             candidates=None, alpha: float = FAMILY_ALPHA, confirm: int = 3,
-             alias_corr: float = 0.9, progress=None) -> Diagnosis:
+def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, order: int = 2,
+         plate: str | None = None, sigma_um: float = 0.5,
+         exclude: Iterable[tuple[str, str, int]] = (), positions: Sequence[str] | None = None,
+         probes: Sequence[str] | None = None, candidates: Sequence[str] | None = None,
+         alpha: float = FAMILY_ALPHA, confirm: int = 3, alias_corr: float = 0.9,
+         progress: Callable[[float, str], object] | None = None) -> Diagnosis:
     """Rank the catalogue effects missing from ``baseline`` (see module docstring).
 
     Parameters
@@ -403,8 +408,11 @@ def _message(base, out, verdict, sigma, uniform, where, note, checks, cert) -> s
     return msg
 
 
-def estimate_sigma(data, baseline: str = "kinematic21", *, order: int = 2, plate=None,
-                   exclude=(), positions=None, probes=None) -> repeatability.SigmaEstimate:
+def estimate_sigma(data: Dataset | Observations, baseline: str = "kinematic21", *,
+               order: int = 2, plate: str | None = None,
+               exclude: Iterable[tuple[str, str, int]] = (),
+               positions: Sequence[str] | None = None, probes: Sequence[str] | None = None
+               ) -> repeatability.SigmaEstimate:
     """Repeatability estimated from the data (``--sigma-um auto``): from repeated balls
     when the data have them, else from the residuals of the most flexible model the
     diagnosis would try from ``baseline`` (every function one order up, every physical
@@ -415,9 +423,3 @@ def estimate_sigma(data, baseline: str = "kinematic21", *, order: int = 2, plate
     tokens = [t for t in base.problem.spec.candidates()
               if t not in PERIODIC and not needs_met(t, base)]
     return repeatability.estimate(base, _flexible_tokens(tokens))
-
-
-def history_entry(result: FitResult, gp_amplitude_um=None) -> dict:
-    """One row of the add-and-watch history."""
-    return {"model": result.spec, "rms_um": result.rms_um, "chi2_dof": result.chi2_dof,
-            "bic": result.bic, "n_params": result.rank, "gp_amplitude_um": gp_amplitude_um}

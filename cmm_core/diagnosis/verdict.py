@@ -60,7 +60,8 @@ def _checked_verdict(base: FitResult, cands, max_checks: int = 3, cache=None):
     sig = [c for c in cands if c.significant][:max_checks]
     if not sig:
         return None, [], cands, ""
-    checks, failed = [], []
+    checks: list = []
+    failed: list = []
     for c in sig:
         h = holdout.check(base, c.effect, cache)
         checks.append(h)

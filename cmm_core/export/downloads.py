@@ -20,21 +20,24 @@ from __future__ import annotations
 import io
 import json
 import math
+from collections.abc import Iterable
 from datetime import UTC, datetime
+from typing import Any
 
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike
 
 from .. import __version__
 from ..io import DataError, read_json, read_measurement_files, read_setup
-from ..model import MAX_ORDER, PLATE_MODES, parse_spec
+from ..model import MAX_ORDER, PLATE_MODES, FitResult, parse_spec
 from .comp_tables import as_model, compensation_grid
-from .correction import compensate
+from .correction import Model, compensate
 from .safe import safe_csv
 
 PROJECT_FORMAT = "cmm-error-lab-project"
 PROJECT_VERSION = 1
-def parameters_csv(result) -> str:
+def parameters_csv(result: FitResult) -> str:
     """Fitted parameters with standard uncertainties (µm, µrad), one row per parameter."""
     df = result.parameters_frame().rename(columns={"u": "u_standard"})
     df["identifiable"] = ~df["parameter"].isin(result.unidentifiable)
@@ -45,13 +48,15 @@ def parameters_csv(result) -> str:
     return safe_csv(df, float_format="%.6g", header_lines=head)
 
 
-def residuals_csv(result) -> str:
+def residuals_csv(result: FitResult) -> str:
     """Residuals per observation (µm) with position, probe, ball, source file and row."""
     return safe_csv(result.residuals_frame(), float_format="%.4f")
 
 
-def error_map_grid(result, *, step_mm=(100.0, 100.0, 100.0), lower_mm=None, upper_mm=None,
-                   probe=None) -> pd.DataFrame:
+def error_map_grid(result: Model | FitResult, *,
+               step_mm: float | tuple[float, float, float] = (100.0, 100.0, 100.0),
+               lower_mm: ArrayLike | None = None, upper_mm: ArrayLike | None = None,
+               probe: str | None = None) -> pd.DataFrame:
     """Error map on a regular grid of scale readings: an ISG-style compensation table.
 
     :func:`comp_table.compensation_grid` (the one grid: same nodes, each axis ending at
@@ -85,7 +90,7 @@ def error_map_grid(result, *, step_mm=(100.0, 100.0, 100.0), lower_mm=None, uppe
     return g[["x_mm", "y_mm", "z_mm", *names, "extrapolated"]].rename(columns=names)
 
 
-def error_map_csv(result, grid: pd.DataFrame, probe=None) -> str:
+def error_map_csv(result: FitResult, grid: pd.DataFrame, probe: str | None = None) -> str:
     """The error-map grid as CSV with a comment header stating model, probe and units."""
     obs = result.problem.obs
     head = ["CMM error map (ISG-style compensation table), cmm_core " + __version__,
@@ -113,7 +118,7 @@ def error_map_csv(result, grid: pd.DataFrame, probe=None) -> str:
 # Compensation (adapter until / unless cmm_core.compensate provides it)
 # ---------------------------------------------------------------------------------------
 
-def compensate_points(result, points: pd.DataFrame) -> pd.DataFrame:
+def compensate_points(result: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
     """Corrected tip centres ``xc_mm, yc_mm, zc_mm``, errors and ``u_x_um, u_y_um,
     u_z_um`` (``compensate.compensate``), with an ``extrapolated`` note per point."""
 
@@ -140,8 +145,9 @@ def _clean(obj):
 
 
 def project_to_json(*, dataset_name: str, measurements: list, setup: str,
-                    certificate=None, model: dict, exclusions=(), history=(),
-                    extra: dict | None = None) -> str:
+                certificate: tuple[str, str] | None = None, model: dict,
+                exclusions: Iterable[tuple[str, str, int]] = (), history: Iterable[dict] = (),
+                extra: dict | None = None) -> str:
     """Serialise a session to a project file (JSON text).
 
     Parameters
@@ -177,7 +183,7 @@ def _checked_model(model, name) -> dict:
     (a bad field would otherwise break every page of the restored session)."""
     if not isinstance(model, dict):
         raise DataError("model must be an object.", file=name, column="model")
-    out = {}
+    out: dict[str, Any] = {}
 
     def bad(key, expected):
         return DataError(f"{key} must be {expected}, found {model[key]!r}.", file=name,
@@ -238,7 +244,7 @@ def _check_model_names(model, meas, setup, name):
                                 hint=f"remove it from model.{key}, or use null for all.")
 
 
-def project_from_json(text, name="project.json") -> dict:
+def project_from_json(text: str | bytes, name: str = "project.json") -> dict:
     """Parse and check a project file; returns the document with tuples restored.
 
     Raises :class:`DataError` naming the field that is wrong.

@@ -29,6 +29,7 @@ import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from typing import Any
 
 import numpy as np
 
@@ -119,7 +120,7 @@ def results_dict(obj: Model | FitResult, *, coverage_factor: float = DEFAULT_COV
     s = m.summary if isinstance(m.summary, dict) else {}
     t = chi2_status(obj)
     region = s.get("region_mm")
-    kind = s.get("artefact") if s.get("artefact") in ("ball_plate", "hole_plate") \
+    kind = s["artefact"] if s.get("artefact") in ("ball_plate", "hole_plate") \
         else "ball_plate"  # model files written before the key: ball plates
     artefact = {"type": kind.replace("_", " "), "plate_geometry": s.get("plate"),
                 "n_observations": s.get("n_obs"),
@@ -150,7 +151,7 @@ def results_dict(obj: Model | FitResult, *, coverage_factor: float = DEFAULT_COV
             "characteristics": chars}
 
 
-def results_json(obj: Model | FitResult, **kw) -> str:
+def results_json(obj: Model | FitResult, **kw: Any) -> str:
     """:func:`results_dict` as JSON text (no NaN: undetermined numbers are ``null``)."""
     return json.dumps(results_dict(obj, **kw), indent=1, allow_nan=False, ensure_ascii=False)
 
@@ -169,7 +170,7 @@ def _text(parent, tag, value, **attrib):
     return el
 
 
-def results_xml(obj: Model | FitResult, **kw) -> str:
+def results_xml(obj: Model | FitResult, **kw: Any) -> str:
     """The results document as QIF-like XML (UTF-8, ``MeasurementResults`` root).
 
     Structure (docs/compensation.md): ``Header``, ``MeasurementDevice`` (machine layout,

@@ -4,6 +4,7 @@ injection neutralised) and the largest grid a download may hold."""
 from __future__ import annotations
 
 import io
+from collections.abc import Iterable
 
 import pandas as pd
 
@@ -18,7 +19,7 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def neutralise(value):
+def neutralise(value: object) -> object:
     """A cell value safe for a spreadsheet: dangerous text gets a leading apostrophe."""
     if isinstance(value, str) and value.startswith(_DANGEROUS) and not _is_number(value):
         return "'" + value
@@ -35,7 +36,8 @@ def safe_frame(df: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def safe_csv(df: pd.DataFrame, *, float_format: str = "%.6g", header_lines=()) -> str:
+def safe_csv(df: pd.DataFrame, *, float_format: str = "%.6g", header_lines: Iterable[str] = ()
+         ) -> str:
     """CSV text of ``df`` safe against formula injection, optional ``#`` comment lines first.
 
     Lines end in CRLF (RFC 4180), so a carriage return inside a text cell is quoted.

@@ -20,6 +20,7 @@ two means) in data units, with the source's defects corrected and listed in its 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -286,8 +287,9 @@ def _axis(rng, n, name):
     return np.linspace(lo, hi, int(n))
 
 
-def plate_grid(u_range_mm, v_range_mm, n: int = 21, *, origin_mm=None, u_axis=None,
-               v_axis=None) -> Grid:
+def plate_grid(u_range_mm: tuple[float, float], v_range_mm: tuple[float, float],
+               n: int | tuple[int, int] = 21, *, origin_mm: np.ndarray | None = None,
+               u_axis: np.ndarray | None = None, v_axis: np.ndarray | None = None) -> Grid:
     """Grid over a plate's plane.
 
     Without ``origin_mm`` the points are plate coordinates ``(u, v)`` (n², 2); with it they
@@ -295,7 +297,7 @@ def plate_grid(u_range_mm, v_range_mm, n: int = 21, *, origin_mm=None, u_axis=No
     ``n`` may be an int or ``(n_u, n_v)``. The thesis grid is ``plate_grid((400, 600),
     (400, 600), 21)`` (appendix 3, step 10 mm).
     """
-    nu, nv = (n, n) if np.ndim(n) == 0 else n
+    nu, nv = cast("tuple[int, int]", (n, n) if np.ndim(n) == 0 else n)
     if min(nu, nv) < 2:
         raise ValueError(f"n = {n}: expected at least 2 points per axis")
     u = _axis(u_range_mm, nu, "u_range_mm")

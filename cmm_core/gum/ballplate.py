@@ -41,6 +41,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, field, fields, replace
+from typing import Any
 
 import numpy as np
 
@@ -224,7 +225,7 @@ def inputs_from_record(record: EnvironmentRecord, **overrides) -> BallPlateBudge
     start-to-finish change (at least 0.05 °C, half the 0.1 °C step of the records); Δt for
     δα is the largest |t - 20 °C| of the record.
     """
-    base = {
+    base: dict[str, Any] = {
         "t_C": record.t_mean_C,
         "rh_percent": record.rh_mean_percent,
         "t_distribution_C": max(0.5 * abs(record.t_finish_C - record.t_start_C), 0.05),

@@ -199,7 +199,7 @@ def mpe_check(tables: Mapping[str, np.ndarray], certificate, *, n: int = 5,
          else uncertainty_um(L_cert, U_a_um, U_b_per_mm))
     U = np.broadcast_to(np.asarray(U, float), L_cert.shape)
     lim = mpe_um(L_cert, mpe_a_um, mpe_per_mm)
-    cols = {k: [] for k in ("position", "a", "b", "d", "L", "e", "U", "m")}
+    cols: dict[str, list[np.ndarray]] = {k: [] for k in ("position", "a", "b", "d", "L", "e", "U", "m")}
     for name, pts in tables.items():
         pts = _as_points(pts, f"tables[{name!r}]", n * n)
         L_meas = np.linalg.norm(pts[ib] - pts[ia], axis=1)

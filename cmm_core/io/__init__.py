@@ -26,6 +26,7 @@ from .dataset import (
 )
 from .delimited import (
     MAX_BYTES,
+    FileSource,
     file_rows,
     numeric_column,
     read_csv_text,
@@ -112,9 +113,9 @@ __all__ = [
     "AXIS_TOLERANCE_DEG", "Certificate", "CertificateUncertainty", "check_celsius",
     "check_outputs", "COLUMN_ALIASES", "COMBINE", "combine_plates", "CTE_RANGE_PER_K",
     "cut_repr", "DataError", "Dataset", "DECIMALS", "DELIMITERS", "DMIS_SUFFIXES",
-    "DMIS_UNITS_MM", "file_rows", "ForeignDataset", "ForeignStepGauge", "ForeignTable",
-    "inspect_table", "LABEL_GROUPS", "LAYOUTS", "LENGTH_UNITS_MM", "likely_typo",
-    "load_dataset", "LONG_COLUMNS", "MAX_BYTES", "MAX_PROBE_MM", "MAX_PROBLEMS",
+    "DMIS_UNITS_MM", "file_rows", "FileSource", "ForeignDataset", "ForeignStepGauge",
+    "ForeignTable", "inspect_table", "LABEL_GROUPS", "LAYOUTS", "LENGTH_UNITS_MM",
+    "likely_typo", "load_dataset", "LONG_COLUMNS", "MAX_BYTES", "MAX_PROBE_MM", "MAX_PROBLEMS",
     "MAX_STROKE_MM", "MIN_CERTIFICATE_BALLS", "MIN_STROKE_MM", "missing_balls",
     "msl_coefficients", "MSL_HEADER_KEYS", "MSL_KINDS", "msl_layout", "MSL_LAYOUTS",
     "MSL_MAX_DEVIATION_MM", "MSL_PARAMETERS", "msl_rotation", "MSL_ROUNDING_U_UM",

@@ -8,11 +8,20 @@ far from the others) and :func:`write_certificate`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
 
 import numpy as np
 import pandas as pd
 
-from .delimited import file_rows, numeric_column, read_csv_text, require_columns, require_rows
+from .delimited import (
+    FileSource,
+    file_rows,
+    numeric_column,
+    read_csv_text,
+    require_columns,
+    require_rows,
+)
 from .errors import DataError, Problems
 from .measurements import THESIS_COLUMNS, _ball_numbers, _check_duplicates, _check_units
 
@@ -46,7 +55,7 @@ class Certificate:
     """Where ``u_um`` came from, in words (empty: not stated; no fit may use it)."""
 
 
-def read_certificate(source, *, name=None) -> Certificate:
+def read_certificate(source: FileSource, *, name: str | None = None) -> Certificate:
     """Read a certificate CSV ``ball,x_mm,y_mm,z_mm[,u_x_um,u_y_um,u_z_um]``.
 
     Every cell is checked (see :func:`read_measurements`); the certificate must then give
@@ -132,7 +141,7 @@ def _check_plate_frame(xyz, name):
                         hint="check the coordinates, or give more balls of the plate.")
 
 
-def write_certificate(cert: Certificate, path) -> None:
+def write_certificate(cert: Certificate, path: str | Path | IO[str]) -> None:
     """Write a certificate CSV (with uncertainty columns when present)."""
     df = pd.DataFrame({"ball": cert.balls, "x_mm": cert.xyz_mm[:, 0],
                        "y_mm": cert.xyz_mm[:, 1], "z_mm": cert.xyz_mm[:, 2]})

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -9,6 +10,7 @@ import numpy as np
 import pandas as pd
 
 from .certificate import Certificate, read_certificate
+from .delimited import FileSource
 from .errors import DataError
 from .matching import resolve
 from .measurements import read_measurement_files
@@ -71,7 +73,10 @@ class Dataset:
         return out
 
 
-def load_dataset(meas_sources, setup_source, certificate_source=None, *, name=None) -> Dataset:
+def load_dataset(meas_sources: Iterable[FileSource | tuple[FileSource, str | None]],
+             setup_source: FileSource | dict,
+             certificate_source: FileSource | tuple[FileSource, str | None] | Certificate
+             | None = None, *, name: str | None = None) -> Dataset:
     """Read and resolve measurement files, a setup and an optional certificate.
 
     ``meas_sources`` is a list of paths or ``(file-like, name)`` pairs (one long-form file or

@@ -15,7 +15,9 @@ import csv
 import io as _io
 import json
 import re
+from collections.abc import Iterable
 from pathlib import Path
+from typing import IO, Any, TypeAlias
 
 import numpy as np
 import pandas as pd
@@ -30,12 +32,17 @@ _DELIM_NAMES = {",": "comma", ";": "semicolon", "\t": "tab"}
 _DECIMAL_COMMA = re.compile(r"^(\s*[+-]?\d*),(\d+(?:[eE][+-]?\d+)?\s*)$")
 
 
+FileSource: TypeAlias = str | Path | bytes | IO[bytes] | IO[str]
+"""What the readers accept as a file: a path (``str`` or ``Path``), the file's bytes, or an
+open file-like object (binary or text, e.g. an upload)."""
+
+
 _COLUMNS_HINT = ("Columns: position,probe,ball,x_mm,y_mm,z_mm (long form) or "
                  "ball,x_mm,y_mm,z_mm (one file per position), optional time_min, temp_C, "
                  "repeat, temp_x_C, temp_y_C, temp_z_C (scale temperatures); lengths in mm, time in minutes, temperature in °C.")
 
 
-def _read_bytes(source, name):
+def _read_bytes(source: FileSource, name: str | None) -> tuple[bytes, str]:
     """The raw bytes of a path, bytes or file-like object, refusing oversized files."""
     if isinstance(source, (str, Path)):
         path = Path(source)
@@ -53,9 +60,8 @@ def _read_bytes(source, name):
     elif isinstance(source, bytes):
         data = source
     else:
-        data = source.read()
-        if isinstance(data, str):
-            data = data.encode()
+        raw = source.read()
+        data = raw.encode() if isinstance(raw, str) else raw
     name = name or "uploaded file"
     if len(data) > MAX_BYTES:
         raise DataError(f"file is {len(data) / 1e6:.0f} MB; the limit is "
@@ -74,7 +80,7 @@ def _delimiter(header: str) -> str:
     if "," in header:
         return ","
     counts = {d: header.count(d) for d in (";", "\t")}
-    best = max(counts, key=counts.get)
+    best = max(counts, key=lambda d: counts[d])
     return best if counts[best] else ","
 
 
@@ -89,7 +95,7 @@ def _too_many_fields(header, bad, delim, name) -> DataError:
     return DataError.collect(found.found, found.total)
 
 
-def read_csv_text(source, name):
+def read_csv_text(source: FileSource, name: str | None) -> tuple[pd.DataFrame, str]:
     """Read a CSV from a path, bytes or file-like object into strings (nothing coerced).
 
     The separator is taken from the header line (see :func:`_delimiter`); in a file
@@ -177,13 +183,15 @@ def read_csv_text(source, name):
     return df, name
 
 
-def file_rows(df) -> np.ndarray:
+def file_rows(df: pd.DataFrame) -> np.ndarray:
     """File row of each data row of a :func:`read_csv_text` frame (header = row 1)."""
     rows = df.attrs.get("rows")
     return np.arange(2, len(df) + 2) if rows is None else np.asarray(rows)
 
 
-def numeric_column(df, column, name, *, integer=False, allow_missing=False, problems=None):
+def numeric_column(df: pd.DataFrame, column: str, name: str | None, *, integer: bool = False,
+                   allow_missing: bool = False,
+                   problems: Problems | None = None) -> np.ndarray:
     """The cells of ``column`` as numbers, every unreadable cell reported with its row.
 
     Parameters
@@ -206,7 +214,7 @@ def numeric_column(df, column, name, *, integer=False, allow_missing=False, prob
         Floats, NaN where a cell was reported; ints for ``integer`` when raising here.
     """
     own = problems is None
-    if own:
+    if problems is None:
         problems = Problems(name, file_rows(df), df.columns)
     text = df[column].fillna("").astype(str).str.strip()
     vals = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float, copy=True)
@@ -242,7 +250,8 @@ def _names(df, column, problems):
     return names
 
 
-def require_columns(df, columns, name, form):
+def require_columns(df: pd.DataFrame, columns: Iterable[str], name: str | None,
+                    form: str) -> None:
     missing = [c for c in columns if c not in df.columns]
     if not missing:
         return
@@ -259,7 +268,7 @@ def require_columns(df, columns, name, form):
                     hint=_COLUMNS_HINT)
 
 
-def require_rows(df, name, what):
+def require_rows(df: pd.DataFrame, name: str | None, what: str) -> None:
     """A file with a header but no data would load as an empty dataset: refuse it."""
     if len(df) == 0:
         raise DataError(f"has no data rows; expected a header followed by one row per "
@@ -267,7 +276,7 @@ def require_rows(df, name, what):
                         hint="export the measured values, not only the column names.")
 
 
-def read_json(source, name=None):
+def read_json(source: FileSource, name: str | None = None) -> tuple[Any, str]:
     """Parse JSON from a path, bytes, text or file-like object; every failure a DataError.
 
     A UTF-8 byte-order mark is tolerated as in CSV files; binary or non-UTF-8 content,

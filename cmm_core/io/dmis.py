@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .delimited import _read_bytes
+from .delimited import FileSource, _read_bytes
 from .errors import DataError, Problems, cut_repr
 from .table_mapping import (
     ForeignTable,
@@ -254,8 +254,8 @@ def _minutes(rd: _Reader, spheres):
     return np.array([(t - t0) / timedelta(minutes=1) for t in when]), None
 
 
-def read_dmis(source, *, name=None, pattern, default_probe="1", default_position=None
-              ) -> ForeignTable:
+def read_dmis(source: FileSource, *, name: str | None = None, pattern: str,
+          default_probe: str = "1", default_position: str | None = None) -> ForeignTable:
     """Read the spheres of a DMIS output file into the project's long form.
 
     Parameters
@@ -361,8 +361,9 @@ def _unit_notes(rd: _Reader) -> list:
     return notes
 
 
-def read_foreign(source, *, name=None, mapping=None, pattern=None, default_probe="1",
-                 default_position=None) -> ForeignTable:
+def read_foreign(source: FileSource, *, name: str | None = None,
+             mapping: TableMapping | dict | None = None, pattern: str | None = None,
+             default_probe: str = "1", default_position: str | None = None) -> ForeignTable:
     """A DMIS output file or a mapped delimited table, by its name, as a ForeignTable.
 
     Parameters

@@ -13,6 +13,8 @@ This is the bottom of the ``cmm_core.io_*`` modules: it imports none of them. Im
 from __future__ import annotations
 
 import difflib
+from collections.abc import Callable, Collection, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -32,7 +34,8 @@ class DataError(ValueError):
         How many problems were found, including those beyond the cap.
     """
 
-    def __init__(self, message, *, file=None, row=None, column=None, hint=None):
+    def __init__(self, message: str, *, file: str | None = None, row: int | None = None,
+                 column: str | None = None, hint: str | None = None) -> None:
         self.file, self.row, self.column, self.hint = file, row, column, hint
         self.detail = message
         self.problems = [self]
@@ -48,7 +51,7 @@ class DataError(ValueError):
         super().__init__(text)
 
     @classmethod
-    def collect(cls, problems, total=None) -> DataError:
+    def collect(cls, problems: Sequence[DataError], total: int | None = None) -> DataError:
         """One error reporting several ``problems`` (DataErrors), the first in its message.
 
         ``total`` is the number found when ``problems`` holds only the first of them.
@@ -84,21 +87,24 @@ class Problems:
         File name of each row, when the rows come from several files.
     """
 
-    def __init__(self, name, rows, columns=(), files=None):
+    def __init__(self, name: str | None, rows: Any, columns: Iterable[str] = (),
+                 files: Any = None) -> None:
         self.name, self.rows, self.columns = name, np.asarray(rows), list(columns)
         self.files = files
-        self.found, self.total = [], 0
+        self.found: list[DataError] = []
+        self.total = 0
 
-    def file(self, i):
+    def file(self, i: int) -> str | None:
         """File name of data row ``i``."""
         return self.name if self.files is None else self.files[i]
 
-    def where(self, j, i):
+    def where(self, j: int, i: int) -> str:
         """'row N' of data row ``j``, with its file when that differs from row ``i``'s."""
         row = f"row {self.rows[j]}"
         return row if self.file(j) == self.file(i) else f"{self.file(j)}, {row}"
 
-    def add(self, mask, column, message, hint=None):
+    def add(self, mask: Any, column: str | None, message: Callable[..., str],
+            hint: str | None = None) -> None:
         """Report every True entry of ``mask``; ``message(i)`` words the problem of row i."""
         idx = np.flatnonzero(np.asarray(mask))
         self.total += len(idx)
@@ -106,22 +112,23 @@ class Problems:
             self.found.append(DataError(message(i), file=self.file(i),
                                         row=int(self.rows[i]), column=column, hint=hint))
 
-    def add_file(self, message, column=None, hint=None):
+    def add_file(self, message: str, column: str | None = None,
+                 hint: str | None = None) -> None:
         """Report a problem of the file as a whole (no row)."""
         self.total += 1
         self.found.append(DataError(message, file=self.name, column=column, hint=hint))
 
-    def raise_if_any(self, sort=True):
+    def raise_if_any(self, sort: bool = True) -> None:
         """Raise one :class:`DataError` listing the problems (by row when ``sort``)."""
         if not self.found:
             return
         if sort:
-            order = {c: k for k, c in enumerate(self.columns)}
+            order: dict[str | None, int] = {c: k for k, c in enumerate(self.columns)}
             self.found.sort(key=lambda e: (e.row or 0, order.get(e.column, len(order))))
         raise DataError.collect(self.found, self.total)
 
 
-def cut_repr(value, limit: int = 60) -> str:
+def cut_repr(value: object, limit: int = 60) -> str:
     """``repr`` of a value for a message, cut to ``limit`` characters: a 1 MB cell or a
     binary blob must not become a 1 MB error line."""
     text = repr(value)
@@ -146,7 +153,7 @@ def _fold(key: str) -> str:
     return str(key).lower().replace("-", "_").replace(" ", "_")
 
 
-def likely_typo(key: str, known, cutoff: float = 0.85):
+def likely_typo(key: str, known: Collection[Any], cutoff: float = 0.85) -> Any:
     """The known key ``key`` most likely misspells (case, a dropped letter), or None."""
     if key in known:
         return None
@@ -159,7 +166,8 @@ def likely_typo(key: str, known, cutoff: float = 0.85):
     return low[close[0]] if close else None
 
 
-def refuse_unknown_keys(obj: dict, known, name, where: str = "", what: str = "key") -> None:
+def refuse_unknown_keys(obj: Iterable[Any], known: Collection[Any], name: str | None,
+                        where: str = "", what: str = "key") -> None:
     """Refuse any key of ``obj`` not in ``known``: a DataError naming the file and the key
     (``where`` + key), the known key it most likely misspells, and the known keys. The one
     validator of JSON inputs (analysis record, plan, task, simulation config): an unknown

@@ -17,7 +17,8 @@ from .measurements import _check_duplicates
 from .setup import Setup, range_tolerance, reach_tolerance
 
 
-def resolve(meas: pd.DataFrame, setup: Setup, certificate: Certificate | None = None):
+def resolve(meas: pd.DataFrame, setup: Setup, certificate: Certificate | None = None
+        ) -> pd.DataFrame:
     """Attach probes from the setup, check names and balls, map to machine coordinates.
 
     Returns a copy of ``meas`` with the probe filled in and columns ``mx_mm, my_mm,

@@ -8,13 +8,16 @@ row checks the certificate reader and :func:`~cmm_core.io_resolve.resolve` share
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 import pandas as pd
 
 from .delimited import (
     _COLUMNS_HINT,
+    FileSource,
     _names,
     file_rows,
     numeric_column,
@@ -32,7 +35,8 @@ OPTIONAL_COLUMNS = ("time_min", "temp_C", "repeat", *SCALE_TEMP_COLUMNS)
 THESIS_COLUMNS = ("ball", "x_mm", "y_mm", "z_mm")
 
 
-def read_measurements(source, *, name=None, position=None) -> pd.DataFrame:
+def read_measurements(source: FileSource, *, name: str | None = None,
+                  position: str | None = None) -> pd.DataFrame:
     """Read one measurement CSV in long or thesis form, checking every cell.
 
     Parameters
@@ -104,7 +108,8 @@ def read_measurements(source, *, name=None, position=None) -> pd.DataFrame:
     return out
 
 
-def read_measurement_files(sources) -> pd.DataFrame:
+def read_measurement_files(sources: Iterable[FileSource | tuple[FileSource, str | None]]
+                       ) -> pd.DataFrame:
     """Read several files (one long-form file or thesis-form files, one per position)."""
     frames = [read_measurements(s, name=(n if n else None)) for s, n in _named(sources)]
     if not frames:
@@ -169,7 +174,7 @@ def _check_units(xyz, found):
                   "CMM's range; it looks like µm.", hint="divide by 1000 (files are in mm).")
 
 
-def write_long_csv(df: pd.DataFrame, path) -> None:
+def write_long_csv(df: pd.DataFrame, path: str | Path | IO[str]) -> None:
     """Write measurements in long form (mm, 6 decimals = 1 nm)."""
     cols = [c for c in LONG_COLUMNS + OPTIONAL_COLUMNS if c in df.columns]
     df[cols].to_csv(path, index=False, float_format="%.6f")

@@ -26,15 +26,17 @@ import ast
 import io as _io
 import json
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
 from numpy.polynomial import Chebyshev, Polynomial
+from numpy.typing import ArrayLike
 
 from ..machine import LAYOUTS, split_chain
 from .dataset import Dataset, load_dataset
-from .delimited import _read_bytes
+from .delimited import FileSource, _read_bytes
 from .errors import DataError, cut_repr, likely_typo
 
 __all__ = ["ForeignDataset", "ForeignStepGauge", "read_msl_plate", "read_msl_bar",
@@ -160,7 +162,7 @@ def msl_layout(fixed_table: bool, bridge_axis: int) -> str:
                          f"{bridge_axis!r}; MSL knows bridge_axis 0 (x) or 1 (y).") from None
 
 
-def msl_rotation(angles_deg) -> np.ndarray:
+def msl_rotation(angles_deg: ArrayLike) -> np.ndarray:
     """``R = Rz(rz) Ry(ry) Rx(rx)`` of MSL's ``rotation/deg`` ``(rx, ry, rz)`` in degrees.
 
     Columns are the artefact's x, y, z axes in machine axes; a plate point ``q`` is at
@@ -179,7 +181,8 @@ def msl_rotation(angles_deg) -> np.ndarray:
     return np.round(rot(2, rz) @ rot(1, ry) @ rot(0, rx), 12) + 0.0
 
 
-def msl_coefficients(parameters: dict, layout: str, range_mm, order: int | None = None) -> dict:
+def msl_coefficients(parameters: dict, layout: str, range_mm: Sequence[float] | np.ndarray,
+                 order: int | None = None) -> dict:
     """MSL model parameters as this project's kinematic coefficients (labels -> µm, µrad).
 
     MSL's chain is this project's (``docs/msl-format.md``): its deviation is this project's
@@ -576,10 +579,12 @@ def _parameter_notes(params, kind):
 # --------------------------------------------------------------------------- readers
 
 
-def read_msl_plate(snapshot, metadata=None, *, kind: str | None = None, certificate_u=None,
-                   position: str | None = None, layout: str | None = None, range_mm=None,
-                   probe_mm=None, snapshot_name: str | None = None,
-                   metadata_name: str | None = None) -> ForeignDataset:
+def read_msl_plate(snapshot: FileSource, metadata: FileSource | None = None, *,
+               kind: str | None = None, certificate_u: dict | None = None,
+               position: str | None = None, layout: str | None = None,
+               range_mm: ArrayLike | None = None, probe_mm: ArrayLike | None = None,
+               snapshot_name: str | None = None,
+               metadata_name: str | None = None) -> ForeignDataset:
     """Read an MSL cmm-error-map plate snapshot (and its metadata) as this project's files.
 
     Parameters
@@ -612,6 +617,7 @@ def read_msl_plate(snapshot, metadata=None, *, kind: str | None = None, certific
     use = _use("plate")
     head, xyz = _snapshot(snapshot, snapshot_name, use)
     certificate = _kind(kind, certificate_u, head.name)
+    assert kind is not None  # _kind refused a missing kind
     nx, ny = head.nballs
     if ny < 2 or nx < 2:
         raise DataError(f"has {nx} × {ny} balls: a bar or step gauge, not a plate.",
@@ -650,10 +656,11 @@ def read_msl_plate(snapshot, metadata=None, *, kind: str | None = None, certific
                           head.name, params)
 
 
-def read_msl_bar(snapshot, metadata=None, *, kind: str | None = None, certificate_u=None,
-                 layout: str | None = None, range_mm=None, probe_mm=None,
-                 snapshot_name: str | None = None,
-                 metadata_name: str | None = None) -> ForeignStepGauge:
+def read_msl_bar(snapshot: FileSource, metadata: FileSource | None = None, *,
+             kind: str | None = None, certificate_u: dict | None = None,
+             layout: str | None = None, range_mm: ArrayLike | None = None,
+             probe_mm: ArrayLike | None = None, snapshot_name: str | None = None,
+             metadata_name: str | None = None) -> ForeignStepGauge:
     """Read an MSL cmm-error-map bar (step gauge) snapshot as this project's step-gauge file.
 
     One length per row, from ball 1 (MSL id 0) to each other ball: the indicated tip
@@ -668,6 +675,7 @@ def read_msl_bar(snapshot, metadata=None, *, kind: str | None = None, certificat
     use = _use("bar")
     head, xyz = _snapshot(snapshot, snapshot_name, use)
     certificate = _kind(kind, certificate_u, head.name)
+    assert kind is not None  # _kind refused a missing kind
     nx, ny = head.nballs
     if ny != 1 or nx < 2:
         raise DataError(f"has {nx} × {ny} balls: a plate, not a bar or step gauge.",
@@ -716,7 +724,7 @@ def read_msl_bar(snapshot, metadata=None, *, kind: str | None = None, certificat
     return ForeignStepGauge(sg.to_csv(index=False, float_format="%.7f"), setup, tuple(notes), kind, head.name, params)
 
 
-def combine_plates(datasets) -> ForeignDataset:
+def combine_plates(datasets: Iterable[ForeignDataset]) -> ForeignDataset:
     """Several MSL plate snapshots (one placement each) as one dataset.
 
     The machine (layout, range), kind, certificate and plate must agree; positions and
@@ -732,7 +740,10 @@ def combine_plates(datasets) -> ForeignDataset:
     if not datasets:
         raise DataError("no MSL plate given.")
     first = datasets[0]
-    frames, positions, probes, notes = [], {}, {}, []
+    frames: list[pd.DataFrame] = []
+    positions: dict[str, dict] = {}
+    probes: dict[str, list[float]] = {}
+    notes: list[str] = []
     for ds in datasets:
         for key, what in (("machine", "machine"), ("certificate", "certificate statement")):
             if ds.setup[key] != first.setup[key]:
@@ -770,7 +781,7 @@ def combine_plates(datasets) -> ForeignDataset:
 # --------------------------------------------------------------------------- sniffing
 
 
-def sniff(source) -> str | None:
+def sniff(source: FileSource) -> str | None:
     """A sentence naming the MSL reader when ``source`` is an MSL cmm-error-map file, else
     None: for the plain readers, whose column checks would only say that columns are
     missing. Never raises for unreadable input."""

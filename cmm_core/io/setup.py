@@ -11,13 +11,15 @@ the measurement reader, the simulator config and :func:`~cmm_core.io_resolve.res
 from __future__ import annotations
 
 import difflib
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..machine import LAYOUTS as _KINEMATIC_LAYOUTS
-from .delimited import read_json
+from .delimited import FileSource, read_json
 from .errors import DataError, _check_keys, cut_repr, likely_typo
 
 LAYOUTS = tuple(_KINEMATIC_LAYOUTS)
@@ -122,7 +124,7 @@ class Setup:
     certificate_u: CertificateUncertainty | None = None
 
 
-def read_setup(source, *, name="setup.json") -> Setup:
+def read_setup(source: FileSource | dict, *, name: str | None = "setup.json") -> Setup:
     """Read the setup JSON (path, dict, bytes or file-like) and check its fields.
 
     Besides the structure, the values are checked against what a CMM setup can be:
@@ -407,13 +409,13 @@ def _plate_cte(plate: dict, name) -> float:
     return float(cte)
 
 
-def range_tolerance(rng):
+def range_tolerance(rng: ArrayLike) -> np.ndarray:
     """How far beyond the strokes a scale reading (the carriage: tip minus probe offset)
     may lie, mm per axis: 5 % of the stroke, at least 100 mm (a nominal setup is rough)."""
     return np.maximum(0.05 * np.asarray(rng, float), 100.0)
 
 
-def reach_tolerance(rng, probes_mm) -> np.ndarray:
+def reach_tolerance(rng: ArrayLike, probes_mm: Iterable[ArrayLike]) -> np.ndarray:
     """How far beyond the strokes a stylus tip may lie, mm per axis: the scale tolerance
     plus the longest of ``probes_mm`` (a plausibility bound on a tip whose stylus is not
     known; a tip whose stylus is known is checked by its scale reading instead)."""
@@ -437,7 +439,7 @@ def _record(val, name, column, what):
     return out
 
 
-def check_celsius(t, name, column, row=None):
+def check_celsius(t: np.ndarray, name: str | None, column: str, row: int | None = None) -> None:
     """Temperatures must be finite °C in :data:`TEMP_RANGE_C`; kelvin named as such."""
     bad = ~np.isfinite(t) | (t < TEMP_RANGE_C[0]) | (t > TEMP_RANGE_C[1])
     if not bad.any():

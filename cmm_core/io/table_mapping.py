@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import io as _io
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -33,6 +34,7 @@ import pandas as pd
 from .delimited import (
     _DECIMAL_COMMA,
     _DELIM_NAMES,
+    FileSource,
     file_rows,
     numeric_column,
     read_csv_text,
@@ -217,7 +219,7 @@ class TableMapping:
     decimal: str = "."
     delimiter: str = "auto"
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _check_mapping(self.to_dict(), "column mapping")
 
     def to_dict(self) -> dict:
@@ -225,7 +227,7 @@ class TableMapping:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
     @classmethod
-    def from_dict(cls, obj, *, name: str = "column mapping") -> TableMapping:
+    def from_dict(cls, obj: dict, *, name: str = "column mapping") -> TableMapping:
         """A mapping from a JSON object, every key checked.
 
         Parameters
@@ -258,7 +260,7 @@ class TableMapping:
         return cls(**obj)
 
 
-def read_mapping(source, name=None) -> TableMapping:
+def read_mapping(source: FileSource, name: str | None = None) -> TableMapping:
     """Read a column mapping from a JSON file (path, bytes, text or file-like).
 
     Raises
@@ -386,7 +388,7 @@ def _check_mapping(d: dict, name) -> None:
 # From a table to long-form values
 # ---------------------------------------------------------------------------------------
 
-def suggest_mapping(columns) -> dict:
+def suggest_mapping(columns: Iterable[str]) -> dict[str, str]:
     """The column most likely holding each mapping key, by its name.
 
     Recognises the project's own names (``x_mm``), bare axis letters (``X``, ``X-Wert``,
@@ -404,7 +406,7 @@ def suggest_mapping(columns) -> dict:
         "time": r"(time_?min|time|zeit|t_?min|minutes)",
         "temperature": r"(temp_?c|temp|temperature|temperatur)",
     }
-    out = {}
+    out: dict[str, str] = {}
     for key, rx in words.items():
         for c in columns:
             bare = re.sub(r"\s*[\[(].*?[\])]\s*$", "", str(c)).strip().lower()
@@ -416,7 +418,7 @@ def suggest_mapping(columns) -> dict:
     return out
 
 
-def inspect_table(source, *, name=None) -> TableInfo:
+def inspect_table(source: FileSource, *, name: str | None = None) -> TableInfo:
     """Read a delimited table's header and rows for mapping (nothing converted).
 
     Raises
@@ -454,6 +456,8 @@ def _check_table(df, m: TableMapping, name):
 def _label_rows(df, m: TableMapping):
     """Which rows' labels match the pattern, their groups, and the labels left out."""
     labels = df[m.label].fillna("").astype(str).str.strip()
+    if m.pattern is None:  # the caller reads labels only for a mapping with a pattern
+        raise ValueError("the mapping has no label pattern")
     rx = re.compile(m.pattern)
     hits = [rx.fullmatch(s) for s in labels]
     keep = np.array([h is not None for h in hits], bool)
@@ -638,7 +642,7 @@ def _remapped(exc: DataError, name, colmap, prefix, rows, padded) -> DataError:
         detail = p.detail
         if not padded:
             detail = re.sub(r"\brow (\d+)", lambda g: f"row {row_of(int(g[1])) or g[1]}", detail)
-        i = by_csv_row.get(p.row)
+        i = None if p.row is None else by_csv_row.get(p.row)
         if prefix is not None and i is not None and prefix[i]:
             detail = f"{prefix[i]}: {detail}"
         hint = p.hint
@@ -707,7 +711,8 @@ def _as_mapping(mapping) -> TableMapping:
     return mapping if isinstance(mapping, TableMapping) else TableMapping.from_dict(mapping)
 
 
-def apply_mapping(source, mapping, *, name=None) -> ForeignTable:
+def apply_mapping(source: FileSource, mapping: TableMapping | dict, *,
+              name: str | None = None) -> ForeignTable:
     """Convert a whole delimited table through a column mapping to the long form.
 
     Parameters
@@ -764,7 +769,8 @@ def _lines(exc: DataError) -> list:
     return out
 
 
-def preview(source, mapping, *, name=None, n: int = 10) -> Preview:
+def preview(source: FileSource, mapping: TableMapping | dict, *, name: str | None = None,
+        n: int = 10) -> Preview:
     """The first rows of a table converted through a mapping, and every problem, without
     loading anything and without raising.
 

@@ -23,6 +23,7 @@ is the default and is evaluated by the code below unchanged.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..units import UM, URAD
 from .layouts import forward_block, probe_rotation
@@ -58,7 +59,8 @@ __all__ = ["model_point", "error", "jacobian", "probe_jacobian", "invert",
            "check_layout", "direction_of", "n_coefficients", "periodic_basis", "UM", "URAD"]
 
 
-def model_point(terms: KinematicTerms, coef, x_mm, p_mm):
+def model_point(terms: KinematicTerms, coef: ArrayLike, x_mm: ArrayLike,
+            p_mm: ArrayLike) -> np.ndarray:
     """Modelled tip centre ``x*(x, p)`` in mm (thesis eq. 4.13), exact rotations.
 
     Parameters
@@ -76,7 +78,8 @@ def model_point(terms: KinematicTerms, coef, x_mm, p_mm):
                     np.asarray(p_mm, float))[0]
 
 
-def error(terms: KinematicTerms, coef, x_mm, p_mm):
+def error(terms: KinematicTerms, coef: ArrayLike, x_mm: ArrayLike, p_mm: ArrayLike
+      ) -> np.ndarray:
     """Kinematic error ``e = x* - (x + p)`` in µm, shape (n, 3)."""
     x_mm = np.asarray(x_mm, float)
     p_mm = np.asarray(p_mm, float)
@@ -152,7 +155,8 @@ def _forward_block(terms, sl, coef, x_mm, p_mm, xs_out, J_out):
                 np.multiply(col[c], D[:, j], out=J_out[:, c, sl[name].start + j])
 
 
-def jacobian(terms: KinematicTerms, coef, x_mm, p_mm):
+def jacobian(terms: KinematicTerms, coef: ArrayLike, x_mm: ArrayLike, p_mm: ArrayLike
+         ) -> tuple[np.ndarray, np.ndarray]:
     """Model point and its analytic Jacobian.
 
     Returns
@@ -166,7 +170,7 @@ def jacobian(terms: KinematicTerms, coef, x_mm, p_mm):
                     np.asarray(p_mm, float), want_jac=True)
 
 
-def probe_jacobian(terms: KinematicTerms, coef, x_mm):
+def probe_jacobian(terms: KinematicTerms, coef: ArrayLike, x_mm: ArrayLike) -> np.ndarray:
     """``d x* / d p`` at the scale readings, shape (n, 3, 3): Rx Ry Rz on the moving
     bridge FXYZ, the chain's rotations for other layouts (``kinematics_layouts``)."""
     ev = _Evaluation(terms, np.asarray(coef, float), np.asarray(x_mm, float),
@@ -176,7 +180,8 @@ def probe_jacobian(terms: KinematicTerms, coef, x_mm):
     return _to_rows(_mm(_mm(ev.R["x"], ev.R["y"]), ev.R["z"]))
 
 
-def invert(terms: KinematicTerms, coef, s_mm, p_mm, iterations: int = 6):
+def invert(terms: KinematicTerms, coef: ArrayLike, s_mm: ArrayLike, p_mm: ArrayLike,
+       iterations: int = 6) -> np.ndarray:
     """Scale readings ``x`` at which the CMM reaches true tip ``s``: solve x*(x, p) = s.
 
     Fixed-point iteration ``x <- x + (s - x*(x, p))``; the map is a contraction because the

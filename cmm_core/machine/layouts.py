@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..units import UM, URAD
-from .terms import AXES, SQUARENESS, _dmv, _Evaluation, _mm, _mv
+from .terms import AXES, SQUARENESS, KinematicTerms, _dmv, _Evaluation, _mm, _mv
 
 __all__ = ["split_chain", "forward_block", "probe_rotation"]
 
@@ -110,7 +110,9 @@ def _squareness_axis(name):
     return ("y", 0) if name == "sxy" else ("z", 0 if name == "sxz" else 1)
 
 
-def forward_block(terms, sl, coef, x_mm, p_mm, xs_out, J_out):
+def forward_block(terms: KinematicTerms, sl: dict[str, slice], coef: np.ndarray,
+              x_mm: np.ndarray, p_mm: np.ndarray, xs_out: np.ndarray,
+              J_out: np.ndarray | None) -> None:
     """Eq. (L1)-(L2) on one block of points: fills ``xs_out`` (m, 3) in mm and, when given,
     ``J_out`` (m, 3, terms.n), d x*/d coefficient in mm per µm or µrad.
 
@@ -138,12 +140,15 @@ def forward_block(terms, sl, coef, x_mm, p_mm, xs_out, J_out):
     xs_out[:] = X.T
     if J_out is None:
         return
-    H, HV, acc = {}, {}, None
+    H: dict[str, np.ndarray | None] = {}
+    HV: dict[str, np.ndarray | None] = {}
+    acc: np.ndarray | None = None
     for b in reversed(table):
         H[b] = acc
         acc = _compose(acc, _t(R[b]))
         HV[b] = acc  # d x*/d V_b = H_b R_b^T
-    G, TU, acc = acc, {}, None
+    G, acc = acc, None
+    TU: dict[str, np.ndarray | None] = {}
     for a in tool:
         TU[a] = _compose(G, acc)  # d x*/d U_a = G Q_a
         acc = _compose(acc, R[a])
@@ -169,7 +174,7 @@ def forward_block(terms, sl, coef, x_mm, p_mm, xs_out, J_out):
                 np.multiply(col[k], D[:, j], out=J_out[:, k, sl[name].start + j])
 
 
-def probe_rotation(chain, R):
+def probe_rotation(chain: str, R: dict[str, np.ndarray]) -> np.ndarray:
     """``d x*/d p`` of a chain, (3, 3, m): the table rotations transposed (workpiece first)
     times the tool rotations (foundation first)."""
     table, tool = split_chain(chain)

@@ -131,7 +131,7 @@ class KinematicTerms:
     periods: tuple = ()
     layout: str = DEFAULT_LAYOUT
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         check_layout(self.layout)
 
     @property

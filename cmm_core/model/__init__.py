@@ -16,7 +16,7 @@ from __future__ import annotations
 from . import blocks
 from .ballbar import BallBar, simulate_ball_bar
 from .blocks import BY_TOKEN, REGISTRY, Block, Eval, needs
-from .blocks.base import SimParam, SimulatorEffect, checked_cov
+from .blocks.base import checked_cov
 from .blocks.periodic import PERIOD_SCAN, PERIODIC, shortest_resolvable_period
 from .blocks.plate import Plate
 from .certificate_prior import certificate_terms, held_prior_rows, residual_u_um
@@ -99,9 +99,9 @@ from .virtual_cmm import Simulation, simulate, thesis_machine_setup
 __all__ = [
     "accumulate", "aligned_error_u", "approach_directions", "augmented_state",
     "BALL_BAR_COLUMNS", "BALL_BAR_OPTIONAL", "BallBar", "Block", "BY_TOKEN", "catalogue_entry",
-    "certificate_terms", "check_selection", "checked_cov", "CHI2_ALPHA", "cost_of",
-    "DEFAULT_CONFIG", "dense_rows", "describe_null", "error_at", "error_covariance", "Eval",
-    "evaluate", "fit", "FitResult", "GROUPS", "held_constraints", "held_prior_rows",
+    "certificate_terms", "check_selection", "checked_cov", "CHI2_ALPHA", "correction_columns",
+    "cost_of", "DEFAULT_CONFIG", "dense_rows", "describe_null", "error_at", "error_covariance",
+    "Eval", "evaluate", "fit", "FitResult", "GROUPS", "held_constraints", "held_prior_rows",
     "IMPLAUSIBLE", "in_plane", "initial_state", "INSTRUMENT_KINDS", "Instruments",
     "is_hole_plate", "LASER_COLUMNS", "LASER_OPTIONAL", "LaserRun", "length_change",
     "LINE_TOLERANCE_MM", "MAX_ERROR_UM", "MAX_LENGTH_DIFF_MM", "MAX_ORDER", "MAX_STYLUS_MM",
@@ -112,10 +112,9 @@ __all__ = [
     "REGISTRY", "residual_u", "residual_u_um", "residuals_frame", "rigid_body_projector",
     "rigid_removed_error_u", "ROUNDING", "ROWS", "rows_of", "select", "setup_layout",
     "shortest_resolvable_period", "signed_sum", "simulate", "simulate_ball_bar",
-    "simulate_laser", "simulate_step_gauge", "Simulation", "solve", "State",
-    "STEP_GAUGE_COLUMNS", "STEP_GAUGE_OPTIONAL", "StepGauge", "summary", "surely_determined",
-    "thesis_machine_setup", "tilt_note", "TILT_NOTE_RAD", "TILT_USE_RAD", "truth_of",
-    "UncertaintySummary", "weighted_residual", "write_ball_bar", "write_instrument",
-    "write_laser", "write_step_gauge", "blocks", "correction_columns", "SimParam",
-    "SimulatorEffect", "simulator_effects",
+    "simulate_laser", "simulate_step_gauge", "Simulation", "simulator_effects", "solve",
+    "State", "STEP_GAUGE_COLUMNS", "STEP_GAUGE_OPTIONAL", "StepGauge", "summary",
+    "surely_determined", "thesis_machine_setup", "tilt_note", "TILT_NOTE_RAD", "TILT_USE_RAD",
+    "truth_of", "UncertaintySummary", "weighted_residual", "write_ball_bar", "write_instrument",
+    "write_laser", "write_step_gauge", "blocks"
 ]

@@ -18,14 +18,20 @@ motion (no placement, no zero). Format and what it separates: ``docs/instruments
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..machine import kinematics as kin
 from ..units import UM
 from .instruments import length_change, truth_of
+
+if TYPE_CHECKING:
+    from .virtual_cmm import Simulation
 
 __all__ = ["BallBar", "simulate_ball_bar"]
 
@@ -69,30 +75,33 @@ class BallBar:
         """The length the CMM indicates: the distance of the two indicated centres, mm."""
         return np.linalg.norm(self.r2_mm - self.r1_mm, axis=1)
 
-    def points(self):
+    def points(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """``(scale readings mm, offsets mm)`` of the two centres, where the model is
         evaluated."""
         return [(self.r1_mm - self.p_mm, self.p_mm), (self.r2_mm - self.p_mm, self.p_mm)]
 
     @cached_property
-    def transform(self):
+    def transform(self) -> tuple[np.ndarray, np.ndarray]:
         """``(T, Q)``: each length is one row weighted by ``1 / u`` (no nuisance)."""
         w = 1.0 / self.u_um
         return np.diag(w), np.eye(w.size)
 
-    def predict(self, terms, coef, want_jac):
+    def predict(self, terms: kin.KinematicTerms, coef: np.ndarray, want_jac: bool
+            ) -> tuple[np.ndarray, np.ndarray | None]:
         """Eq. 3 in µm and its Jacobian (µm per coefficient unit, (m, terms.n)) when
         wanted."""
         change, Jp = length_change(terms, coef, self.r1_mm, self.r2_mm, self.p_mm, want_jac)
         return (self.measured_mm - self.certified_mm + change) / UM, Jp
 
-    def labels(self):
+    def labels(self) -> list[str]:
         """Label of each length (the report's per-reading label)."""
         return list(self.bar)
 
 
-def simulate_ball_bar(sim, start_mm, end_mm, *, offset_mm=(0.0, 0.0, 0.0), u_um: float = 0.3,
-                      seed=None, labels=None, source: str = "simulated ball bar") -> BallBar:
+def simulate_ball_bar(sim: Simulation, start_mm: ArrayLike, end_mm: ArrayLike, *,
+                  offset_mm: ArrayLike = (0.0, 0.0, 0.0), u_um: float = 0.3,
+                  seed: int | None = None, labels: Sequence[str] | None = None,
+                  source: str = "simulated ball bar") -> BallBar:
     """Ball-bar lengths on ``sim``'s true machine: each row of ``start_mm``, ``end_mm``
     ((m, 3) or (3,), machine axes, mm) holds the true centres of the two balls of one
     placement of the bar; the certified length is their distance. Each centre is probed

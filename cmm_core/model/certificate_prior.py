@@ -20,16 +20,30 @@ numbers must count them:
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .blocks.plate import Plate
 from .problem import Problem, held_constraints, weighted_residual
 from .solver import Normal
+from .state import State
+
+if TYPE_CHECKING:
+    from .result import FitResult
 
 __all__ = ["certificate_terms", "held_prior_rows"]
 
 
-def certificate_terms(prob, state, design_null, sigma_um, rank_rtol, cov):
+def _cert_u_um(prob: Problem) -> np.ndarray:
+    """The certificate's standard uncertainties (B, 3) µm; a plate prior needs them."""
+    if prob.obs.cert_u_um is None:
+        raise ValueError("the observations have no certificate uncertainties")
+    return prob.obs.cert_u_um
+
+
+def certificate_terms(prob: Problem, state: State, design_null: np.ndarray, sigma_um: float,
+                  rank_rtol: float, cov: np.ndarray) -> tuple[float, int, np.ndarray]:
     """``(χ² test statistic, its dof, covariance)`` of a fit with the certificate fixed,
     the covariance with the certificate's uncertainty propagated.
 
@@ -56,12 +70,12 @@ def certificate_terms(prob, state, design_null, sigma_um, rank_rtol, cov):
     rows = np.array([col[lab] for lab in prob.layout.labels])
     plate = pp.layout.blocks["plate"]
     G = N[np.ix_(rows, np.arange(plate.start, plate.stop))]
-    u2 = np.nan_to_num(prob.obs.cert_u_um.ravel() ** 2, posinf=0.0)  # released: no value
+    u2 = np.nan_to_num(_cert_u_um(prob).ravel() ** 2, posinf=0.0)  # released: no value
     CG = cov @ G
     return chi2, dof, cov + (CG * u2) @ CG.T
 
 
-def residual_u_um(result, chunk: int = 30000):
+def residual_u_um(result: FitResult, chunk: int = 30000) -> np.ndarray:
     """Standard uncertainty (µm, (n, 3)) the certificate's errors add to each residual of
     a fit with the certificate fixed (zeros otherwise): the residual ``r = (I - J C Jᵀ)
     (e + J_c ε)`` (weighted) carries, besides the noise's ``σ²(1 - h_ii)``, the
@@ -79,7 +93,7 @@ def residual_u_um(result, chunk: int = 30000):
     Jp = J[:, [col[lab] for lab in prob.layout.labels]].tocsr()
     Jc = J[:, plate.start:plate.stop].tocsr()
     CG = np.nan_to_num(result.covariance_noise) @ (Jp.T @ Jc).toarray()
-    u2 = np.nan_to_num(prob.obs.cert_u_um.ravel() ** 2, posinf=0.0)
+    u2 = np.nan_to_num(_cert_u_um(prob).ravel() ** 2, posinf=0.0)
     var = np.empty(Jc.shape[0])
     for i in range(0, var.size, chunk):
         R = Jc[i:i + chunk].toarray() - Jp[i:i + chunk] @ CG
@@ -87,7 +101,7 @@ def residual_u_um(result, chunk: int = 30000):
     return (np.sqrt(var) * result.sigma_um).reshape(-1, 3)
 
 
-def held_prior_rows(prob) -> int:
+def held_prior_rows(prob: Problem) -> int:
     """Certificate-prior rows that are zero whatever the data: the plate's gauge
     constraints (translations, rotations, scale) hold the plate's deviation from the
     certificate at zero along those modes, so those prior rows carry no residual and no
@@ -96,5 +110,5 @@ def held_prior_rows(prob) -> int:
         return 0
     plate = prob.block(Plate)
     G = prob.instruments.plate_gauge(plate, plate.constraints())  # as the fit applies it
-    keep = np.isfinite(prob.obs.cert_u_um.ravel())
+    keep = np.isfinite(_cert_u_um(prob).ravel())
     return int(np.linalg.matrix_rank(G[:, keep])) if keep.any() else 0

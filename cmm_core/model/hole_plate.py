@@ -38,12 +38,17 @@ kinematic model's evaluation point.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
 import scipy.sparse as sp
 
 from ..machine import skew
 from ..units import URAD
 from .state import State
+
+if TYPE_CHECKING:
+    from .problem import Problem
 
 __all__ = ["is_hole_plate", "in_plane", "initial_state", "measured_normal", "tilt_note",
            "ROUNDING", "TILT_NOTE_RAD", "TILT_USE_RAD"]
@@ -67,12 +72,12 @@ nominal tilt would have shortened in-plane lengths by ``θ²/2`` = 0.045 µm per
 the uncertainty of a well-determined scale."""
 
 
-def is_hole_plate(obs) -> bool:
+def is_hole_plate(obs: object) -> bool:
     """Whether the observations are of a hole plate (setup ``artefact``)."""
     return getattr(obs, "artefact", "ball_plate") == "hole_plate"
 
 
-def in_plane(prob, state, d, J):
+def in_plane(prob: Problem, state: State, d: np.ndarray, J: Any) -> tuple[np.ndarray, Any]:
     """Eq. 1: the residuals ``d`` (µm, (n, 3)) without their component along each
     placement's plate normal, and the Jacobian ``J`` (CSR, (3n, N)) of those, or None.
 
@@ -104,7 +109,7 @@ def in_plane(prob, state, d, J):
     return out, J
 
 
-def measured_normal(r_mm, nominal):
+def measured_normal(r_mm: np.ndarray, nominal: np.ndarray) -> np.ndarray:
     """Unit normal of the least-squares plane through the points ``r_mm`` ((m, 3), mm),
     on the side of ``nominal``; ``nominal`` itself when that plane is within
     :data:`TILT_USE_RAD` of it, or when the points span no plane (fewer
@@ -130,7 +135,7 @@ def _turn(a, b):
     return np.eye(3) + sn * K + (1 - cs) * K @ K
 
 
-def initial_state(prob):
+def initial_state(prob: Problem) -> State:
     """Starting state of a hole plate: the nominal plate, and each placement tilted into
     the plane of its measured centres (:func:`measured_normal`: the in-plane residuals
     never see the tilt, which is then held), with its in-plane rotation and translation
@@ -155,7 +160,7 @@ def initial_state(prob):
     return State(o.plate0_mm.copy(), R, t, np.zeros(prob.layout.n))
 
 
-def tilt_note(prob, state) -> str:
+def tilt_note(prob: Problem, state: State) -> str:
     """A sentence for the fit message naming the placements whose plane (the normal of
     ``state``, held from :func:`initial_state`) is more than :data:`TILT_NOTE_RAD` from the
     setup's normal, or "" (also for a ball plate)."""

@@ -15,13 +15,22 @@ what was expected; the cell-level problems of a file are reported together.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
+from typing import IO, Any
 
 import numpy as np
 import pandas as pd
 
 from ..io import MAX_PROBE_MM, TEMP_RANGE_C, DataError, refuse_unknown_keys
-from ..io.delimited import file_rows, numeric_column, read_csv_text, require_columns, require_rows
+from ..io.delimited import (
+    FileSource,
+    file_rows,
+    numeric_column,
+    read_csv_text,
+    require_columns,
+    require_rows,
+)
 from ..io.errors import Problems, cut_repr, likely_typo
 from .ballbar import BallBar
 from .instruments import LaserRun, StepGauge
@@ -108,7 +117,7 @@ def _positive_um(df, col, name, found, what):
     return v
 
 
-def read_laser(source, name=None) -> LaserRun:
+def read_laser(source: FileSource, name: str | None = None) -> LaserRun:
     """Read a laser interferometer file (module docstring; ``docs/instruments.md``).
 
     Without a ``run`` column, consecutive rows on one line (same axis, component and
@@ -201,7 +210,7 @@ def _check_runs(name, rows, run, runs, axis, comp, r, p, run_col):
                 column=run_col)
 
 
-def read_step_gauge(source, name=None) -> StepGauge:
+def read_step_gauge(source: FileSource, name: str | None = None) -> StepGauge:
     """Read a step-gauge / gauge-block file (module docstring; ``docs/instruments.md``).
 
     With ``temp_C`` and ``cte_per_K`` the certified length (at 20 °C) is expanded to the
@@ -268,7 +277,7 @@ def _temperature(df, name, found, cert, hint=_SG_HINT):
     return cert * (1 + cte * (t - 20.0))
 
 
-def read_ball_bar(source, name=None) -> BallBar:
+def read_ball_bar(source: FileSource, name: str | None = None) -> BallBar:
     """Read a ball-bar file (module docstring; ``docs/instruments.md``): one length per row,
     the indicated centres of the bar's two balls and its certified length.
 
@@ -313,7 +322,7 @@ def read_ball_bar(source, name=None) -> BallBar:
     return BallBar(name, file_rows(df), labels, r1, r2, p, cert, u)
 
 
-def write_laser(run: LaserRun, path) -> None:
+def write_laser(run: LaserRun, path: str | Path | IO[str]) -> None:
     """Write a laser run in the format :func:`read_laser` reads."""
     df = pd.DataFrame({"run": [run.runs[k] for k in run.run],
                        "axis": ["xyz"[a] for a in run.axis],
@@ -326,7 +335,7 @@ def write_laser(run: LaserRun, path) -> None:
     df.to_csv(path, index=False, float_format="%.6f")
 
 
-def write_step_gauge(sg: StepGauge, path) -> None:
+def write_step_gauge(sg: StepGauge, path: str | Path | IO[str]) -> None:
     """Write step-gauge lengths in the format :func:`read_step_gauge` reads (certified
     lengths as stored: at the measuring temperature)."""
     df = pd.DataFrame({"gauge": list(sg.gauge)})
@@ -340,7 +349,7 @@ def write_step_gauge(sg: StepGauge, path) -> None:
     df.to_csv(path, index=False, float_format="%.7f")
 
 
-def write_ball_bar(bb: BallBar, path) -> None:
+def write_ball_bar(bb: BallBar, path: str | Path | IO[str]) -> None:
     """Write ball-bar lengths in the format :func:`read_ball_bar` reads (certified lengths
     as stored: at the measuring temperature)."""
     df = pd.DataFrame({"bar": list(bb.bar)})
@@ -354,7 +363,8 @@ def write_ball_bar(bb: BallBar, path) -> None:
     df.to_csv(path, index=False, float_format="%.7f")
 
 
-INSTRUMENT_KINDS = {"laser": (read_laser, write_laser),
+INSTRUMENT_KINDS: dict[str, tuple[Callable[..., Any], Callable[..., None]]] = {
+                    "laser": (read_laser, write_laser),
                     "step_gauge": (read_step_gauge, write_step_gauge),
                     "ball_bar": (read_ball_bar, write_ball_bar)}
 """Instrument kind (``LaserRun.kind`` ...) -> its reader and writer; the CLI's flags
@@ -362,7 +372,8 @@ INSTRUMENT_KINDS = {"laser": (read_laser, write_laser),
 record) read a file of a named kind through :func:`read_instrument`."""
 
 
-def read_instrument(source, kind: str, name=None):
+def read_instrument(source: FileSource, kind: str, name: str | None = None
+                ) -> LaserRun | StepGauge | BallBar:
     """Read an instrument file of ``kind`` (one of :data:`INSTRUMENT_KINDS`).
 
     Raises
@@ -377,6 +388,6 @@ def read_instrument(source, kind: str, name=None):
     return INSTRUMENT_KINDS[kind][0](source, name)
 
 
-def write_instrument(item, path) -> None:
+def write_instrument(item: LaserRun | StepGauge | BallBar, path: str | Path | IO[str]) -> None:
     """Write an instrument (``LaserRun``, ``StepGauge``, ``BallBar``) in its own format."""
     INSTRUMENT_KINDS[item.kind][1](item, path)

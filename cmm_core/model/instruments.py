@@ -38,11 +38,14 @@ two probed ball centres, eq. 3) are in :mod:`cmm_core.instruments_ballbar`.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike
 
 from ..io import DataError
 from ..machine import kinematics as kin
@@ -50,6 +53,12 @@ from ..units import UM
 from .blocks.plate import Plate
 from .effects import parse_spec
 from .observations import setup_layout
+from .state import State
+
+if TYPE_CHECKING:
+    from .problem import Problem
+    from .result import FitResult
+    from .virtual_cmm import Simulation
 
 __all__ = ["LaserRun", "StepGauge", "Instruments", "RANGE_MARGIN", "summary",
            "residuals_frame", "truth_of", "simulate_laser", "simulate_step_gauge",
@@ -111,12 +120,12 @@ class LaserRun:
         """A positioning run measures lengths along its axis."""
         return bool(np.any(self.axis == self.component))
 
-    def points(self):
+    def points(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """``(scale readings mm, offsets mm)`` of the points the model is evaluated at."""
         return [(self.r_mm - self.p_mm, self.p_mm)]
 
     @cached_property
-    def transform(self):
+    def transform(self) -> tuple[np.ndarray, np.ndarray]:
         """``(T, Q)``: rows = ``T (pred - measured)`` (eq. 1), block-diagonal over runs."""
         m = len(self.run)
         T, Q = [], []
@@ -134,7 +143,8 @@ class LaserRun:
             Q.append(Qk)
         return np.vstack(T), np.hstack(Q)
 
-    def predict(self, terms, coef, want_jac):
+    def predict(self, terms: kin.KinematicTerms, coef: np.ndarray, want_jac: bool
+            ) -> tuple[np.ndarray, np.ndarray | None]:
         """Predicted error readings (µm, eq. 1 without the nuisances) minus the measured
         ones, and their Jacobian (µm per coefficient unit, (m, terms.n)) when wanted."""
         (x, p), = self.points()
@@ -146,7 +156,7 @@ class LaserRun:
             xs, Jp = kin.model_point(terms, coef, x, p), None
         return (self.r_mm - xs)[i, self.component] / UM - self.error_um, Jp
 
-    def labels(self):
+    def labels(self) -> list[str]:
         """Run name of each reading (the report's per-reading label)."""
         return [self.runs[k] for k in self.run]
 
@@ -181,24 +191,27 @@ class StepGauge:
     kind = "step_gauge"
     sees_scale = True
 
-    def points(self):
+    def points(self) -> list[tuple[np.ndarray, np.ndarray]]:
         return [(self.r1_mm - self.p_mm, self.p_mm), (self.r2_mm - self.p_mm, self.p_mm)]
 
     @cached_property
-    def transform(self):
+    def transform(self) -> tuple[np.ndarray, np.ndarray]:
         w = 1.0 / self.u_um
         return np.diag(w), np.eye(w.size)
 
-    def predict(self, terms, coef, want_jac):
+    def predict(self, terms: kin.KinematicTerms, coef: np.ndarray, want_jac: bool
+            ) -> tuple[np.ndarray, np.ndarray | None]:
         """Eq. 2 in µm and its Jacobian (µm per coefficient unit)."""
         change, Jp = length_change(terms, coef, self.r1_mm, self.r2_mm, self.p_mm, want_jac)
         return (self.measured_mm - self.certified_mm + change) / UM, Jp
 
-    def labels(self):
+    def labels(self) -> list[str]:
         return list(self.gauge)
 
 
-def length_change(terms, coef, r1_mm, r2_mm, p_mm, want_jac):
+def length_change(terms: kin.KinematicTerms, coef: np.ndarray, r1_mm: np.ndarray,
+              r2_mm: np.ndarray, p_mm: np.ndarray, want_jac: bool
+              ) -> tuple[np.ndarray, np.ndarray | None]:
     """The model's change of the distance between two indicated points (mm),
     ``|x*(r2 - p, p) - x*(r1 - p, p)| - |r2 - r1|``, and its Jacobian (µm per coefficient
     unit, (m, terms.n)) when wanted: the length terms of eq. 2 and 3."""
@@ -226,7 +239,7 @@ class Instruments:
         kinematic terms and layout fix the model and the columns.
     """
 
-    def __init__(self, problem):
+    def __init__(self, problem: Problem) -> None:
         self.items = tuple(getattr(problem.obs, "instruments", ()) or ())
         self.terms = problem.terms
         self.cols = problem.layout.blocks.get("kinematic", slice(0, 0))
@@ -244,7 +257,7 @@ class Instruments:
         """Number of weighted rows the instruments add (the last rows of the fit's)."""
         return sum(it.transform[0].shape[0] for it in self.items)
 
-    def plate_gauge(self, block, G):
+    def plate_gauge(self, block: Plate, G: np.ndarray) -> np.ndarray:
         """A self-calibrated plate's gauge constraints ``G`` (``Plate.constraints``: rigid
         motions, then the isotropic scale, always last) without the scale when an
         instrument gives the machine's scale: the scale is then determined, and holding it
@@ -254,7 +267,7 @@ class Instruments:
             return G[:-1]
         return G
 
-    def evaluate(self, state, want_jac=False):
+    def evaluate(self, state: State, want_jac: bool = False) -> list[tuple[Any, np.ndarray, Any]]:
         """Per instrument: ``(item, weighted rows, Jacobian over the kinematic columns or
         None)``."""
         coef = state.x[self.cols]
@@ -265,7 +278,7 @@ class Instruments:
             out.append((it, T @ d, None if Jp is None else T @ Jp))
         return out
 
-    def rows(self, state, want_jac=False):
+    def rows(self, state: State, want_jac: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """All weighted rows (m,) and their Jacobian over ``self.cols`` (m, k) or None."""
         parts = self.evaluate(state, want_jac)
         k = self.cols.stop - self.cols.start
@@ -274,7 +287,7 @@ class Instruments:
             return r, None
         return r, (np.vstack([p[2] for p in parts]) if parts else np.zeros((0, k)))
 
-    def append(self, r, J, state, n_params):
+    def append(self, r: np.ndarray, J: Any, state: State, n_params: int) -> tuple[np.ndarray, Any]:
         """``r`` and the sparse ``J`` of ``fit.weighted_residual`` with the instrument rows
         appended (J in CSR over all ``n_params`` columns, or None)."""
         if not self.items:
@@ -312,7 +325,7 @@ def _per_reading(it, state_rows):
     return it.u_um * (Q @ state_rows)
 
 
-def summary(result) -> list:
+def summary(result: FitResult) -> list:
     """Each instrument of a fit (``FitResult``) with its readings, rows, χ² and χ² share.
 
     ``rows`` counts the weighted rows the instrument adds (readings minus the eliminated
@@ -343,7 +356,7 @@ def summary(result) -> list:
     return out
 
 
-def residuals_frame(result) -> pd.DataFrame:
+def residuals_frame(result: FitResult) -> pd.DataFrame:
     """One row per instrument reading: kind, file, row, run or gauge label, residual (µm,
     the model's prediction minus the reading, nuisances removed) and u (µm)."""
     frames = []
@@ -357,7 +370,7 @@ def residuals_frame(result) -> pd.DataFrame:
 
 # --- simulation from a Simulation's truth ------------------------------------------------
 
-def truth_of(sim):
+def truth_of(sim: Simulation) -> tuple[kin.KinematicTerms, np.ndarray]:
     """``(KinematicTerms, coefficients)`` of a ``simulate.Simulation``'s true machine: its
     kinematic spec, order, strokes and layout, the coefficients from ``sim.truth``."""
 
@@ -368,9 +381,11 @@ def truth_of(sim):
     return terms, np.array([sim.truth[lab] for lab in terms.labels])
 
 
-def simulate_laser(sim, axis: str, line_mm, positions_mm, *, component: str | None = None,
-                   offset_mm=(0.0, 0.0, 0.0), u_um: float = 0.2, seed=None,
-                   run: str = "run1", source: str = "simulated laser") -> LaserRun:
+def simulate_laser(sim: Simulation, axis: str, line_mm: ArrayLike,
+                   positions_mm: Sequence[float] | np.ndarray, *,
+               component: str | None = None, offset_mm: ArrayLike = (0.0, 0.0, 0.0),
+               u_um: float = 0.2, seed: int | None = None, run: str = "run1",
+               source: str = "simulated laser") -> LaserRun:
     """A laser run on ``sim``'s true machine: readings (eq. 1) with noise N(0, u).
 
     Parameters
@@ -408,9 +423,10 @@ def simulate_laser(sim, axis: str, line_mm, positions_mm, *, component: str | No
                     np.full(m, c), r, p, e - e[0] + noise, np.full(m, float(u_um)))
 
 
-def simulate_step_gauge(sim, start_mm, end_mm, lengths_mm, *, offset_mm=(0.0, 0.0, 0.0),
-                        u_um: float = 0.3, seed=None,
-                        source: str = "simulated step gauge") -> StepGauge:
+def simulate_step_gauge(sim: Simulation, start_mm: ArrayLike, end_mm: ArrayLike,
+                    lengths_mm: ArrayLike, *, offset_mm: ArrayLike = (0.0, 0.0, 0.0),
+                    u_um: float = 0.3, seed: int | None = None,
+                    source: str = "simulated step gauge") -> StepGauge:
     """Lengths of a step gauge on ``sim``'s true machine: true faces at ``start + L n``
     (``n`` the unit vector towards ``end_mm``) for each certified length ``L``, probed where
     the CMM indicates ``r = x + p`` with ``x*(x, p)`` the true face (``kinematics.invert``);

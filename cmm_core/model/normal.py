@@ -16,13 +16,19 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from typing import NamedTuple
+from collections.abc import Iterable
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import pandas as pd
 
 from .blocks.kinematic import Kinematic
 from .blocks.plate import Plate
+from .observations import Observations
+from .state import State
+
+if TYPE_CHECKING:
+    from .problem import Problem
 
 __all__ = ["NormalEquations", "accumulate", "rows_of", "dense_rows"]
 
@@ -57,7 +63,7 @@ class NormalEquations(NamedTuple):
     rows: int
 
 
-def rows_of(obs, idx):
+def rows_of(obs: Observations, idx: np.ndarray) -> Observations:
     """The observations ``idx`` of ``obs`` (every per-observation field sliced)."""
     n = len(obs.r_mm)
     change = {}
@@ -82,7 +88,7 @@ def _subproblem(prob, idx):
     return sub
 
 
-def dense_rows(prob, ev):
+def dense_rows(prob: Problem, ev: Any) -> tuple[np.ndarray, np.ndarray]:
     """Jacobian rows of one evaluation ``ev`` of ``prob`` as a dense ``(3 n, k)`` array
     over the ``k`` columns they touch, and those columns (sorted)."""
     n, p = prob.n_obs, prob.layout.n
@@ -129,7 +135,8 @@ def _block_key(prob):
     return prob.obs.ball if per_ball > per_pos else prob.obs.pos
 
 
-def accumulate(prob, state, sigma_um: float, rows: int = ROWS) -> NormalEquations:
+def accumulate(prob: Problem, state: State, sigma_um: float, rows: int = ROWS
+           ) -> NormalEquations:
     """Weighted normal equations of ``prob`` at ``state`` (``fit.Problem.normal_equations``).
 
     Residual rows are divided by σ; with a plate prior its rows ``(c - c_cert)/u`` are
@@ -144,6 +151,7 @@ def accumulate(prob, state, sigma_um: float, rows: int = ROWS) -> NormalEquation
     if prob.plate == "prior":
         rp, Jp = prob.block(Plate).prior_rows(state, True)
         Jp = Jp.toarray()
+    parts: Iterable[tuple[Any, Any]]
     if n <= rows:
         parts = [(slice(None), prob)]
     else:
@@ -165,12 +173,13 @@ def accumulate(prob, state, sigma_um: float, rows: int = ROWS) -> NormalEquation
         g[u] += A.T @ rb
         cost += float(rb @ rb)
         del A
-    if Jp is not None:
+    if Jp is not None and rp is not None:  # set together by the prior
         N += Jp.T @ Jp
         g += Jp.T @ rp
         cost += float(rp @ rp)
     ri, Ji = prob.instruments.rows(state, True)
     if ri.size:
+        assert Ji is not None  # rows(..., want_jac=True) gives the Jacobian
         k = prob.instruments.cols
         N[k, k] += Ji.T @ Ji
         g[k] += Ji.T @ ri
@@ -178,7 +187,7 @@ def accumulate(prob, state, sigma_um: float, rows: int = ROWS) -> NormalEquation
     return NormalEquations(d, cost, N, g, 3 * n + (0 if rp is None else rp.size) + ri.size)
 
 
-def cost_of(prob, state, sigma_um: float):
+def cost_of(prob: Problem, state: State, sigma_um: float) -> tuple[np.ndarray, float]:
     """Residuals (µm, (n, 3)) and ``r·r`` of the weighted residual, without a Jacobian."""
     d, _ = prob.residual(state, False)
     r = d.ravel() / sigma_um

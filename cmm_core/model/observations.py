@@ -8,12 +8,13 @@ starting plate (certificate, or the mean measured plate).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
-from ..io import DataError, Dataset, refuse_unknown_keys
+from ..io import DataError, Dataset, Setup, refuse_unknown_keys
 from ..machine import DEFAULT_LAYOUT
 
 __all__ = ["Observations", "select", "approach_directions", "setup_layout"]
@@ -90,14 +91,15 @@ class Observations:
     cert_u_source: str = ""
 
 
-def setup_layout(setup) -> str:
+def setup_layout(setup: Setup) -> str:
     """The setup's ``machine.layout``; the moving bridge FXYZ when it names none."""
     machine = setup.raw.get("machine") if isinstance(setup.raw, dict) else None
     return machine.get("layout", DEFAULT_LAYOUT) if isinstance(machine, dict) \
         else DEFAULT_LAYOUT
 
 
-def approach_directions(ram_mm, time_min=None, *, min_move_mm=0.5):
+def approach_directions(ram_mm: np.ndarray, time_min: np.ndarray | None = None, *,
+                    min_move_mm: float = 0.5) -> np.ndarray:
     """Direction from which each axis last moved before each point (backlash state).
 
     Parameters
@@ -127,7 +129,9 @@ def approach_directions(ram_mm, time_min=None, *, min_move_mm=0.5):
     return out
 
 
-def select(data: Dataset, *, positions=None, probes=None, exclude=()) -> Observations:
+def select(data: Dataset, *, positions: Iterable[str] | None = None,
+       probes: Iterable[str] | None = None,
+       exclude: Iterable[tuple[str, str, int]] = ()) -> Observations:
     """Observations of the chosen positions and probes, minus excluded rows.
 
     ``exclude`` holds ``(position, probe, ball)`` triples (outliers the user removed).
@@ -209,7 +213,9 @@ def select(data: Dataset, *, positions=None, probes=None, exclude=()) -> Observa
                                        "no certificate: the plate is self-calibrated"))
 
 
-def check_selection(data: Dataset, positions, probes, exclusions, name: str) -> None:
+def check_selection(data: Dataset, positions: Iterable[str] | None,
+                probes: Iterable[str] | None,
+                exclusions: Iterable[tuple[str, str, int]], name: str) -> None:
     """Positions, probes and excluded ``(position, probe, ball)`` observations a saved
     analysis names exist in its data: an unknown one would silently select or exclude
     nothing. A DataError names the field and the name it most likely misspells."""

@@ -12,6 +12,7 @@ from scipy import stats
 
 from ..machine import kinematics as kin
 from .problem import Problem
+from .state import State
 
 CHI2_ALPHA = 0.01
 """Level of the χ² (model adequacy) test behind ``FitResult.fails_chi2_test``."""
@@ -69,7 +70,7 @@ class FitResult:
         Observations (probed ball centres) used.
     problem : Problem
         The problem (layout, observations, kinematic terms) for prediction.
-    state : dict
+    state : State
         Final plate coordinates, placements and parameter vector.
     design_null : ndarray (k, n_params)
         Rows ``N`` of the constraints ``N x = 0`` that hold the combinations this design
@@ -111,7 +112,7 @@ class FitResult:
     null_combinations: list
     n_obs: int
     problem: Problem = field(repr=False)
-    state: dict = field(repr=False)
+    state: State = field(repr=False)
     design_null: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
     chi2_test: float | None = None
     dof_test: int | None = None
@@ -128,7 +129,7 @@ class FitResult:
         uncertainty of this fit, came from (the file, the setup's statement, exact)."""
         return self.problem.obs.cert_u_source
 
-    def block(self, name: str):
+    def block(self, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(labels, values, u)`` of one parameter block."""
         s = self.problem.layout.blocks.get(name, slice(0, 0))
         return self.labels[s], self.values[s], self.u[s]

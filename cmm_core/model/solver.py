@@ -9,6 +9,9 @@ combinations the data determine. Those it does not are written out by
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
+from typing import Any
+
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
@@ -17,7 +20,7 @@ __all__ = ["Normal", "normal_equations", "solve", "describe_null", "signed_sum",
            "surely_determined"]
 
 
-def normal_equations(J, d, chunk=30000):
+def normal_equations(J: Any, d: np.ndarray, chunk: int = 30000) -> tuple[np.ndarray, np.ndarray]:
     """``JᵀJ`` and ``Jᵀd`` accumulated over dense row chunks (BLAS), far faster than a
     sparse-sparse product when a dense kinematic block sits in every row."""
     n = J.shape[1]
@@ -62,8 +65,14 @@ class Normal:
         Numerical rank of the reduced problem.
     """
 
-    def __init__(self, J, d, C, rank_rtol, normal=None):
-        N0, g0 = normal if normal is not None else normal_equations(J, d)
+    def __init__(self, J: Any, d: np.ndarray | None, C: np.ndarray, rank_rtol: float,
+             normal: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        if normal is not None:
+            N0, g0 = normal
+        elif d is None:
+            raise ValueError("Normal needs J and d, or the normal equations")
+        else:
+            N0, g0 = normal_equations(J, d)
         self.S, self.Z, Nr = _reduced(N0, C)
         lam, V = np.linalg.eigh(Nr)
         lam = np.clip(lam, 0, None)
@@ -74,18 +83,18 @@ class Normal:
         self.rank = int(keep.sum())
         self.proj_g = self.Vk.T @ (self.Z.T @ (self.S * g0))
 
-    def step(self, mu=0.0):
+    def step(self, mu: float = 0.0) -> np.ndarray:
         """Minimum-norm step; ``mu`` > 0 damps it (scaled space, where JᵀJ has unit
         diagonal): the poorly determined directions shrink first."""
         return -(self.S * (self.Z @ (self.Vk @ (self.proj_g / (self.lam + mu)))))
 
-    def cov(self):
+    def cov(self) -> np.ndarray:
         """Covariance of the parameters (unit-weighted residuals): the pseudo-inverse of
         the reduced normal matrix mapped back to the parameters."""
         ZV = self.Z @ self.Vk
         return (self.S[:, None] * ((ZV / self.lam) @ ZV.T)) * self.S[None, :]
 
-    def freeze_null(self, C):
+    def freeze_null(self, C: np.ndarray) -> np.ndarray:
         """``C`` with the undetermined directions appended as constraints: what the design
         cannot determine is held (decided once, at the nominal linearisation)."""
         return np.vstack([C, (self.null / self.S[:, None]).T]) if self.null.shape[1] else C
@@ -106,7 +115,7 @@ def _reduced(N0, C):
     return S, Z, (Nr + Nr.T) / 2
 
 
-def surely_determined(N0, C, rank_rtol) -> bool:
+def surely_determined(N0: np.ndarray, C: np.ndarray, rank_rtol: float) -> bool:
     """True when :class:`Normal` of the normal matrix ``N0`` under ``C`` would find no
     undetermined direction, decided without an eigendecomposition: a Cholesky factorisation
     of the reduced matrix minus ``rank_rtol²`` times its trace (which bounds its largest
@@ -123,20 +132,23 @@ def surely_determined(N0, C, rank_rtol) -> bool:
     return True
 
 
-def solve(J, d, C, rank_rtol):
+def solve(J: Any, d: np.ndarray | None, C: np.ndarray, rank_rtol: float
+      ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
     """Minimum-norm Gauss-Newton step under constraints C x = 0. Returns step, covariance,
     rank, null vectors (see :class:`Normal`)."""
     ne = Normal(J, d, C, rank_rtol)
     return ne.step(), ne.cov(), ne.rank, ne.null
 
 
-def describe_null(null, labels, limit=6):
+def describe_null(null: np.ndarray, labels: Sequence[str], limit: int = 6
+              ) -> tuple[list[str], set[str]]:
     """Undetermined combinations written out, and the labels carrying weight in any.
 
     Returns ``(combos, names)``: one string per null vector with its loadings of at least
     0.2 (of the largest), and the set of labels with a loading of at least 0.05.
     """
-    combos, names = [], set()
+    combos: list[str] = []
+    names: set[str] = set()
     for j in range(null.shape[1]):
         w = null[:, j] / np.abs(null[:, j]).max()
         idx = np.argsort(-np.abs(w))
@@ -146,7 +158,7 @@ def describe_null(null, labels, limit=6):
     return combos, names
 
 
-def signed_sum(terms) -> str:
+def signed_sum(terms: Iterable[tuple[float, str]]) -> str:
     """``0.50·a − 0.77·b``: a linear combination written as a metrologist would."""
     out = ""
     for k, (w, lab) in enumerate(terms):

@@ -9,9 +9,11 @@ makes a new one (``fit.Problem.update``), each block replacing what it owns.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = ["State"]
 
@@ -29,11 +31,11 @@ class State:
     x: np.ndarray
     """Parameter vector in the layout's units (µm, µrad, ...)."""
 
-    def with_x(self, x) -> State:
+    def with_x(self, x: ArrayLike) -> State:
         """The same plate and placements with another parameter vector."""
         return replace(self, x=np.asarray(x, dtype=float))
 
-    def relabelled(self, labels, new_labels) -> State:
+    def relabelled(self, labels: Sequence[str], new_labels: Sequence[str]) -> State:
         """The same point expressed in another layout's parameter vector: parameters of
         ``new_labels`` that ``labels`` does not have start at zero (a model with an
         effect added, linearised at the solution of the model without it)."""

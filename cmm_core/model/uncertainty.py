@@ -16,9 +16,11 @@ because the frame of the workpiece is always re-established.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..machine import kinematics as kin
 from .certificate_prior import residual_u_um
@@ -63,7 +65,9 @@ def _probe_vector(result: FitResult, probe):
     return p
 
 
-def propagate_error(terms, coef, cov, x_mm, p_mm, extra_jac=None):
+def propagate_error(terms: kin.KinematicTerms, coef: np.ndarray, cov: np.ndarray,
+                x_mm: np.ndarray, p_mm: np.ndarray, extra_jac: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Error ``e(x, p)`` (µm) and its standard uncertainty ``sqrt(diag(J V Jᵀ))`` per
     component, J the analytic Jacobian of the error with respect to the coefficients.
 
@@ -81,7 +85,8 @@ def propagate_error(terms, coef, cov, x_mm, p_mm, extra_jac=None):
     return e, u
 
 
-def error_at(result: FitResult, x_mm, probe=None):
+def error_at(result: FitResult, x_mm: ArrayLike, probe: str | None = None
+         ) -> tuple[np.ndarray, np.ndarray]:
     """Kinematic error and its standard uncertainty at scale readings ``x_mm``.
 
     Parameters
@@ -106,8 +111,10 @@ def error_at(result: FitResult, x_mm, probe=None):
     return e, u
 
 
-def monte_carlo_error(result: FitResult, x_mm, probe=None, *, trials: int = 1000,
-                      seed: int = 1, chunk: int = 2000, progress=None):
+def monte_carlo_error(result: FitResult, x_mm: ArrayLike, probe: str | None = None, *,
+                  trials: int = 1000, seed: int = 1, chunk: int = 2000,
+                  progress: Callable[[float, str], object] | None = None
+                  ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """Monte Carlo check of :func:`error_at` (JCGM 101 §7: propagation of distributions).
 
     Draws the kinematic coefficients from N(estimate, covariance), evaluates the error
@@ -156,7 +163,8 @@ def _undetermined(result: FitResult, block: str) -> bool:
                for g, lab in zip(result.groups, result.labels, strict=True))
 
 
-def error_covariance(result: FitResult, x_mm, probe=None, kinematic_cov=None):
+def error_covariance(result: FitResult, x_mm: ArrayLike, probe: str | None = None,
+                 kinematic_cov: np.ndarray | None = None) -> np.ndarray:
     """Full covariance (3m × 3m, µm²) of the error at the points, for maps and U2/U3
     (``kinematic_cov``: another covariance of the kinematic coefficients, e.g. the noise
     part alone)."""
@@ -233,7 +241,8 @@ def residual_u(result: FitResult, *, chunk: int = 30000) -> np.ndarray:
     return np.sqrt(u2).reshape(-1, 3)
 
 
-def rigid_removed_error_u(result: FitResult, x_mm, probe=None) -> np.ndarray:
+def rigid_removed_error_u(result: FitResult, x_mm: ArrayLike, probe: str | None = None
+                      ) -> np.ndarray:
     """Standard uncertainty (µm) of the error at scale readings ``x_mm`` (one probe) with
     the rigid-body part of the whole point set removed: the uncertainty of the error's
     shape over those points (lengths, flatness), for maps. NaN when undetermined."""
@@ -295,7 +304,7 @@ def _avg(V, m, Vn=None, b2=1.0):
 
 
 def evaluate(result: FitResult, *, n_random: int = 200, seed: int = 0,
-             probe=None) -> UncertaintySummary:
+         probe: str | None = None) -> UncertaintySummary:
     """U1, U2 and U3 as thesis §4.5.3 defines them, rigid-body freedoms removed.
 
     A model whose parameters the data do not all determine gets no numbers: the message

@@ -88,12 +88,14 @@ class Simulation:
     true_plate_mm: np.ndarray
     config: dict
 
-    def write(self, out_dir) -> None:
+    def write(self, out_dir: str | Path) -> None:
         """Write ``measurements.csv``, ``setup.json``, ``certificate.csv``, ``truth.json``."""
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         write_long_csv(self.dataset.meas, out / "measurements.csv")
         (out / "setup.json").write_text(json.dumps(self.dataset.setup.raw, indent=1))
+        if self.dataset.certificate is None:
+            raise ValueError("a simulation's dataset has a certificate; this one has none")
         write_certificate(self.dataset.certificate, out / "certificate.csv")
         (out / "truth.json").write_text(json.dumps({"truth": self.truth,
                                                     "config": self.config}, indent=1))

@@ -89,7 +89,7 @@ class PoolModel:
         self.C = prob.constraints()
         self.labels = L.labels
         # columns that belong to one placement or stylus (inactive when it is not measured)
-        owner = [None] * L.n
+        owner: list[tuple[str, str] | None] = [None] * L.n
         for i, lab in enumerate(L.labels):
             head = lab.split(".")[0]
             if L.groups[i] in ("rotation", "translation", "drift"):
@@ -319,11 +319,11 @@ def figures(ev: PlanEvaluation, target: dict) -> dict:
 def random_plans(pm: PoolModel, target: dict, n: int, rng) -> list:
     """``n`` random plans of the pool meeting the target: units in random order, added
     until the target is met (the fast figures)."""
-    out = []
+    out: list[list[int]] = []
     for _ in range(50 * n):
         if len(out) == n:
             break
-        sel = []
+        sel: list[int] = []
         for u in rng.permutation(len(pm.units)):
             sel = sorted([*sel, int(u)])
             if meets(pm.check(sel), target):
@@ -337,7 +337,7 @@ def _label(pm, sel):
 
 
 def _as_plan(pm: PoolModel, sel, name) -> Plan:
-    probes_of = {}
+    probes_of: dict[str, list[str]] = {}
     for u in sel:
         p, q = pm.units[u]
         probes_of.setdefault(p, []).append(q)
@@ -360,7 +360,7 @@ def design(plan: Plan, pool: dict, target: dict, *, criterion: str = "D",
                          f"{pm.cost(everything):.0f} min) fails the target: "
                          f"{', '.join(short)}; add placements or styli to the pool, or relax "
                          "the target.")
-    steps = []
+    steps: list = []
 
     def add_best(sel):
         rest = [u for u in everything if u not in sel]
@@ -392,7 +392,8 @@ def design(plan: Plan, pool: dict, target: dict, *, criterion: str = "D",
     # order until the target is met), each improved by the local search; the cheapest
     # wins, the criterion breaking ties
     starts = []
-    sel, log = [], []
+    sel: list[int] = []
+    log: list = []
     while not meets(pm.check(sel), target):
         nxt = add_best(sel)
         log.append({"add": _label(pm, sorted(set(nxt) - set(sel))), "time_min": pm.cost(nxt)})

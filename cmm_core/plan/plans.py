@@ -151,6 +151,8 @@ def simulate_plan(plan: Plan, *, with_truth: bool = False, **kwargs):
     if kwargs.get("noise_um", 0.0) > 0:
         rng = np.random.default_rng([int(kwargs.get("seed", 0)), 20261124])
         xyz = xyz + rng.normal(0.0, u_um * 1e-3, xyz.shape)
+    if d.certificate is None:
+        raise ValueError("the simulated dataset has no certificate")
     cert = Certificate(d.certificate.balls, xyz, np.full(xyz.shape, u_um))
     data = Dataset(d.meas, d.setup, cert, name=f"plan {plan.name}")
     return (data, sim.truth) if with_truth else data

@@ -144,16 +144,17 @@ def read_task(source, *, name=None) -> Task:
     if not isinstance(pts, list) or len(pts) < need or (kind == "distance" and len(pts) != 2):
         raise DataError(f"a {kind} needs {'exactly 2' if kind == 'distance' else f'at least {need}'} "
                         f"points, found {cut_repr(pts)}.", file=name, column="points")
-    xyz, probes = [], []
+    rows: list[list[float]] = []
+    probes: list[str | None] = []
     for i, p in enumerate(pts):
         col = f"points[{i}]"
         if not isinstance(p, dict) or not {"x_mm", "y_mm", "z_mm"} <= set(p):
             raise DataError(f"expected {{\"x_mm\", \"y_mm\", \"z_mm\", \"probe\"}}, found "
                             f"{cut_repr(p)}.", file=name, column=col)
-        xyz.append([_num(name, f"{col}.{c}", p[c], -1e5, 1e5) for c in ("x_mm", "y_mm",
+        rows.append([_num(name, f"{col}.{c}", p[c], -1e5, 1e5) for c in ("x_mm", "y_mm",
                                                                          "z_mm")])
         probes.append(None if p.get("probe") is None else str(p["probe"]))
-    xyz = np.array(xyz)
+    xyz = np.array(rows)
     if kind == "distance" and np.linalg.norm(xyz[1] - xyz[0]) < MIN_LENGTH_MM:
         raise DataError(f"points[0] and points[1] are {np.linalg.norm(xyz[1] - xyz[0]):.2g} "
                         f"mm apart; a distance needs two distinct points (at least "
