@@ -22,10 +22,12 @@ run: $(VENV)/.runtime
 
 test: $(VENV)/.test
 	$(BIN)/ruff check .
+	$(BIN)/mypy
 	$(BIN)/python -m pytest -q tests
 
 test-fast: $(VENV)/.test
 	$(BIN)/ruff check .
+	$(BIN)/mypy
 	$(BIN)/python -m pytest -q tests -m "not slow"
 
 lint: $(VENV)/.test

@@ -295,7 +295,8 @@ def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None
     str
         One HTML document; plotly.js is embedded once, compressed (no network needed).
     """
-    parts, figures = [], {}
+    parts: list[str] = []
+    figures: dict[str, str] = {}
 
     def fig_html(fig):
         return figure_html(fig, f"fig{len(figures) + 1}", figures)

@@ -78,7 +78,7 @@ def run_plan(args) -> dict:
 
     pf = read_plan(args.plan)
     evals = [evaluate(p, detection=not args.no_detection) for p in pf.strategies]
-    out = {"strategies": [e.to_dict() for e in evals]}
+    out: dict = {"strategies": [e.to_dict() for e in evals]}
     if pf.design is not None:
 
         try:

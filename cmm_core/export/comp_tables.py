@@ -303,10 +303,6 @@ def model_extras(m: Model) -> list[tuple[str, str, float, float]]:
             u = np.sqrt(np.clip(np.diag(part.cov)[-k:], 0, None))
             out += [(str(lab), _EXTRA_UNITS.get(token, ""), float(v),
                      float(s)) for lab, v, s in zip(part.labels, part.values, u, strict=True)]
-    elif getattr(m, "backlash_um", None) is not None:
-        u = np.sqrt(np.clip(np.diag(m.cov_with_backlash)[-3:], 0, None))
-        out += [(f"backlash.{a}", "um", float(v), float(s))
-                for a, v, s in zip("xyz", m.backlash_um, u, strict=True)]
     return out
 
 

@@ -143,7 +143,7 @@ def check_outputs(outputs: dict, inputs=(), *, folders: dict | None = None) -> N
         if d.exists() and not d.is_dir():
             raise DataError(f"{opt} names a file, not a folder; name a folder to write "
                             "into (created if missing).", file=str(d))
-    seen = []  # (option, path)
+    seen: list[tuple[str, Path]] = []  # (option, path)
     for opt, value in outputs.items():
         if value is None:
             continue

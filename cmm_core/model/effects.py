@@ -66,7 +66,8 @@ def _kinematic_effect(name: str) -> Effect:
                   "two probe offsets or two heights of the plate.")
 
 
-_PHYSICAL = {token: block.entry for token, block in BY_TOKEN.items()}
+_PHYSICAL: dict[str, Effect] = {token: block.entry for token, block in BY_TOKEN.items()
+                                 if block.entry is not None}
 
 
 def _periodic_effect(name: str, period: str) -> Effect:
@@ -206,7 +207,8 @@ def parse_spec(spec: str, *, default_order: int = 2) -> ModelSpec:
     if not 1 <= default_order <= MAX_ORDER:
         raise ValueError(f"order must be 1-{MAX_ORDER}, got {default_order}.")
     orders = dict.fromkeys(ERROR_NAMES, 0)
-    effects, periods = set(), {}
+    effects: set[str] = set()
+    periods: dict[str, float] = {}
     for raw in str(spec).split(","):
         tok = raw.strip().lower()  # "Kinematic21", "DYZ:3" read as the SPEC names
         if not tok or tok == "rigid":
@@ -274,10 +276,10 @@ def correction_columns(model) -> tuple:
             if isinstance(item, str) and item in BY_TOKEN:
                 tokens.add(item)
                 part = model[item] if isinstance(model, dict) else None
-                if hasattr(part, "labels"):  # a saved model's part: its fitted labels
+                if part is not None and hasattr(part, "labels"):  # a saved model's part
                     labels[item] = part.labels
     out = []
     for b in REGISTRY:
-        if b.token in tokens and b.model_keys:
+        if b.token is not None and b.token in tokens and b.model_keys:
             out += [c for c in b.correction_columns(labels.get(b.token)) if c not in out]
     return tuple(out)

@@ -27,8 +27,8 @@ import numpy as np
 from .._blas import single_blas_thread
 from ..model import BY_TOKEN
 from ..model import evaluate as evaluate_u
-from .detect import detection_trial
-from .plans import fit_plan_data, simulate_plan
+from .detect import DetectionLimit, detection_trial
+from .plans import Plan, fit_plan_data, simulate_plan
 
 PHYSICAL_CHECKS = tuple(t for t, b in BY_TOKEN.items() if b.physical_check)
 """Effects checked by default (those whose limit is finite for the plan): the blocks with
@@ -50,9 +50,9 @@ class StudyTask:
         Index of the plan in the study (for the summaries).
     """
 
-    plan: object
+    plan: Plan
     seed: int
-    limit: object = None
+    limit: DetectionLimit | None = None
     plan_index: int = 0
 
 
