@@ -16,7 +16,7 @@ from __future__ import annotations
 from . import blocks
 from .ballbar import BallBar, simulate_ball_bar
 from .blocks import BY_TOKEN, REGISTRY, Block, Eval, needs
-from .blocks.base import checked_cov
+from .blocks.base import SimParam, SimulatorEffect, checked_cov
 from .blocks.periodic import PERIOD_SCAN, PERIODIC, shortest_resolvable_period
 from .blocks.plate import Plate
 from .certificate_prior import certificate_terms, held_prior_rows, residual_u_um
@@ -111,10 +111,10 @@ __all__ = [
     "RANGE_MARGIN", "read_ball_bar", "read_instrument", "read_laser", "read_step_gauge",
     "REGISTRY", "residual_u", "residual_u_um", "residuals_frame", "rigid_body_projector",
     "rigid_removed_error_u", "ROUNDING", "ROWS", "rows_of", "select", "setup_layout",
-    "shortest_resolvable_period", "signed_sum", "simulate", "simulate_ball_bar",
-    "simulate_laser", "simulate_step_gauge", "Simulation", "simulator_effects", "solve",
-    "State", "STEP_GAUGE_COLUMNS", "STEP_GAUGE_OPTIONAL", "StepGauge", "summary",
-    "surely_determined", "thesis_machine_setup", "tilt_note", "TILT_NOTE_RAD", "TILT_USE_RAD",
-    "truth_of", "UncertaintySummary", "weighted_residual", "write_ball_bar", "write_instrument",
-    "write_laser", "write_step_gauge", "blocks"
+    "shortest_resolvable_period", "signed_sum", "SimParam", "simulate", "simulate_ball_bar",
+    "simulate_laser", "simulate_step_gauge", "Simulation", "simulator_effects",
+    "SimulatorEffect", "solve", "State", "STEP_GAUGE_COLUMNS", "STEP_GAUGE_OPTIONAL",
+    "StepGauge", "summary", "surely_determined", "thesis_machine_setup", "tilt_note",
+    "TILT_NOTE_RAD", "TILT_USE_RAD", "truth_of", "UncertaintySummary", "weighted_residual",
+    "write_ball_bar", "write_instrument", "write_laser", "write_step_gauge", "blocks"
 ]
