@@ -148,3 +148,32 @@ def test_a_ball_two_metres_outside_the_machine_is_still_refused(tmp_path):
         load_dataset([tmp_path / "measurements.csv"], tmp_path / "setup.json",
                      tmp_path / "certificate.csv")
     assert exc.value.row == 6 and "scale reading" in str(exc.value)
+
+
+# ------------------------------------------------------------------ other tools' files, CLI
+
+def _cli(argv, capsys):
+    from cmm_core.cli import main
+
+    rc = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return rc, out.out, out.err.strip().splitlines()
+
+
+def test_msl_files_fit_from_the_command_line_and_are_named_when_given_as_ours(tmp_path,
+                                                                                capsys):
+    from test_msl import msl_files_of, simulated_machine
+
+    sim, coef = simulated_machine("fixed_bridge_xfyz")
+    pairs = msl_files_of(sim, tmp_path, "simulated", "fixed_bridge_xfyz")
+    argv = ["fit", "--order", "1", "--sigma-um", "0.01", "--msl-kind", "simulated"]
+    for snapshot, meta in pairs:
+        argv += ["--msl", snapshot, "--msl-metadata", meta]
+    rc, out, _ = _cli(argv, capsys)
+    assert rc == 0
+    res = json.loads(out)
+    assert res["status"] == "converged" and "exact" in res["certificate_u_source"]
+    got = res["parameters"]["dxx[1]"]
+    assert got["value"] == pytest.approx(coef["dxx[1]"], abs=max(3 * got["u"], 0.02))
+    rc, _, err = _cli(["fit", pairs[0][0], "--setup", THESIS_DIR / "setup.json"], capsys)
+    assert rc == 2 and len(err) == 1 and "MSL" in err[0] and "--msl" in err[0]

@@ -18,6 +18,7 @@ from ..io import (
     read_mapping,
     read_msl_bar,
     read_msl_plate,
+    sniff,
 )
 from ..model import MAX_ORDER, read_instrument
 
@@ -49,8 +50,15 @@ def dataset_of(args):
                          default_probe=args.default_probe).as_source()
             if mapping is not None or str(m).lower().endswith(DMIS_SUFFIXES) else m
             for m in args.meas]
-    return load_dataset(meas, args.setup, args.certificate,
-                        name=", ".join(Path(m).name for m in args.meas))
+    try:
+        return load_dataset(meas, args.setup, args.certificate,
+                            name=", ".join(Path(m).name for m in args.meas))
+    except DataError:
+        for m in args.meas:  # another tool's file given as ours: name the reader that takes it
+            foreign = sniff(m) if isinstance(m, str | Path) else None
+            if foreign:
+                raise DataError(foreign, file=Path(m).name) from None
+        raise
 
 
 def _certificate_u_arg(text):

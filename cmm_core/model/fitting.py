@@ -85,14 +85,16 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     obs = data if isinstance(data, Observations) else select(
         data, positions=positions, probes=probes, exclude=exclude)
     obs = obs if instruments is None else replace(obs, instruments=tuple(instruments))
-    instrument_only = len(obs.r_mm) == 0
-    if instrument_only and not obs.instruments:
-        raise ValueError("no observations: give ball-plate data or instrument files.")
-    if plate is None or instrument_only:  # no plate: nothing of it to fix or fit
-        plate = "fixed" if obs.has_certificate or instrument_only else "free"
+    if len(obs.r_mm) == 0:
+        # the rank rule and the gauge constraints are the plate's: an instrument-only
+        # fit needs its own (next work); refused rather than reported wrongly
+        raise ValueError("no ball-plate observations: instrument files are fitted with a "
+                         "plate (an instrument-only fit is not supported yet).")
+    if plate is None:
+        plate = "fixed" if obs.has_certificate else "free"
     if plate not in PLATE_MODES:
         raise ValueError(f"plate must be one of {PLATE_MODES}, got {plate!r}.")
-    if plate in ("fixed", "prior") and not obs.has_certificate and not instrument_only:
+    if plate in ("fixed", "prior") and not obs.has_certificate:
         raise ValueError(f"plate={plate!r} needs a certificate; load one or use plate='free'.")
     prob = Problem(obs, spec, plate)
     L = prob.layout
