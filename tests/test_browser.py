@@ -42,12 +42,12 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _start_server():
-    """``streamlit run app.py`` on a free port: (process, url) once it answers."""
+def _start_server(script: Path = ROOT / "app.py"):
+    """``streamlit run SCRIPT`` (the app) on a free port: (process, url) once it answers."""
     port = _free_port()
     env = {**os.environ, "STREAMLIT_BROWSER_GATHER_USAGE_STATS": "false"}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "streamlit", "run", str(ROOT / "app.py"), "--server.headless",
+        [sys.executable, "-m", "streamlit", "run", str(script), "--server.headless",
          "true", "--server.port", str(port), "--server.address", "127.0.0.1",
          "--server.fileWatcherType", "none"],
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)

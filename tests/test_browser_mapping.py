@@ -6,15 +6,11 @@ Uploads a vendor CSV with decimal commas in µm, picks the columns, sees the pre
 parsed rows, loads and sees the loaded row count; then a .dmo file and a bad pattern.
 """
 
-import os
-import socket
 import subprocess
-import sys
-import time
-import urllib.request
 from pathlib import Path
 
 import pytest
+from test_browser import _start_server
 
 pytestmark = pytest.mark.slow  # a real browser: seconds a test (`make test-fast` skips)
 
@@ -44,35 +40,9 @@ DMO = ("FILNAM/'plate',05.3\nUNITS/INCH,ANGDEC\nDATE=2026/11/24\nTIME=14:05:33\n
        "TIME=14:06:03\nFA(BP111_2)=FEAT/SPHERE,CART,18.385827,9.212598,0.000000,1.0\n")
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def server():
-    port = _free_port()
-    env = {**os.environ, "STREAMLIT_BROWSER_GATHER_USAGE_STATS": "false"}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "streamlit", "run", str(APP), "--server.headless", "true",
-         "--server.port", str(port), "--server.address", "127.0.0.1",
-         "--server.fileWatcherType", "none"],
-        cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.time() + 60
-    while time.time() < deadline:
-        try:
-            with urllib.request.urlopen(url + "/_stcore/health", timeout=2) as r:
-                if r.status == 200:
-                    break
-        except OSError:
-            time.sleep(0.3)
-        if proc.poll() is not None:
-            raise RuntimeError("streamlit exited: " + proc.stdout.read().decode()[-2000:])
-    else:
-        proc.terminate()
-        raise RuntimeError("streamlit did not start within 60 s")
+    proc, url = _start_server(APP)  # the one server start of the browser tests
     yield url
     proc.terminate()
     try:
