@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -29,9 +29,6 @@ from numpy.typing import ArrayLike
 from ..machine import kinematics as kin
 from ..units import UM
 from .instruments import length_change, truth_of
-
-if TYPE_CHECKING:
-    from .virtual_cmm import Simulation
 
 __all__ = ["BallBar", "simulate_ball_bar"]
 
@@ -98,7 +95,7 @@ class BallBar:
         return list(self.bar)
 
 
-def simulate_ball_bar(sim: Simulation, start_mm: ArrayLike, end_mm: ArrayLike, *,
+def simulate_ball_bar(sim: Any, start_mm: ArrayLike, end_mm: ArrayLike, *,
                   offset_mm: ArrayLike = (0.0, 0.0, 0.0), u_um: float = 0.3,
                   seed: int | None = None, labels: Sequence[str] | None = None,
                   source: str = "simulated ball bar") -> BallBar:

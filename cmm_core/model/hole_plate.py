@@ -38,7 +38,7 @@ kinematic model's evaluation point.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -46,9 +46,6 @@ import scipy.sparse as sp
 from ..machine import skew
 from ..units import URAD
 from .state import State
-
-if TYPE_CHECKING:
-    from .problem import Problem
 
 __all__ = ["is_hole_plate", "in_plane", "initial_state", "measured_normal", "tilt_note",
            "ROUNDING", "TILT_NOTE_RAD", "TILT_USE_RAD"]
@@ -77,7 +74,7 @@ def is_hole_plate(obs: object) -> bool:
     return getattr(obs, "artefact", "ball_plate") == "hole_plate"
 
 
-def in_plane(prob: Problem, state: State, d: np.ndarray, J: Any) -> tuple[np.ndarray, Any]:
+def in_plane(prob: Any, state: State, d: np.ndarray, J: Any) -> tuple[np.ndarray, Any]:
     """Eq. 1: the residuals ``d`` (µm, (n, 3)) without their component along each
     placement's plate normal, and the Jacobian ``J`` (CSR, (3n, N)) of those, or None.
 
@@ -135,7 +132,7 @@ def _turn(a, b):
     return np.eye(3) + sn * K + (1 - cs) * K @ K
 
 
-def initial_state(prob: Problem) -> State:
+def initial_state(prob: Any) -> State:
     """Starting state of a hole plate: the nominal plate, and each placement tilted into
     the plane of its measured centres (:func:`measured_normal`: the in-plane residuals
     never see the tilt, which is then held), with its in-plane rotation and translation
@@ -160,7 +157,7 @@ def initial_state(prob: Problem) -> State:
     return State(o.plate0_mm.copy(), R, t, np.zeros(prob.layout.n))
 
 
-def tilt_note(prob: Problem, state: State) -> str:
+def tilt_note(prob: Any, state: State) -> str:
     """A sentence for the fit message naming the placements whose plane (the normal of
     ``state``, held from :func:`initial_state`) is more than :data:`TILT_NOTE_RAD` from the
     setup's normal, or "" (also for a ball plate)."""

@@ -41,7 +41,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -54,11 +54,6 @@ from .blocks.plate import Plate
 from .effects import parse_spec
 from .observations import setup_layout
 from .state import State
-
-if TYPE_CHECKING:
-    from .problem import Problem
-    from .result import FitResult
-    from .virtual_cmm import Simulation
 
 __all__ = ["LaserRun", "StepGauge", "Instruments", "RANGE_MARGIN", "summary",
            "residuals_frame", "truth_of", "simulate_laser", "simulate_step_gauge",
@@ -239,7 +234,7 @@ class Instruments:
         kinematic terms and layout fix the model and the columns.
     """
 
-    def __init__(self, problem: Problem) -> None:
+    def __init__(self, problem: Any) -> None:
         self.items = tuple(getattr(problem.obs, "instruments", ()) or ())
         self.terms = problem.terms
         self.cols = problem.layout.blocks.get("kinematic", slice(0, 0))
@@ -325,7 +320,7 @@ def _per_reading(it, state_rows):
     return it.u_um * (Q @ state_rows)
 
 
-def summary(result: FitResult) -> list:
+def summary(result: Any) -> list:
     """Each instrument of a fit (``FitResult``) with its readings, rows, χ² and χ² share.
 
     ``rows`` counts the weighted rows the instrument adds (readings minus the eliminated
@@ -356,7 +351,7 @@ def summary(result: FitResult) -> list:
     return out
 
 
-def residuals_frame(result: FitResult) -> pd.DataFrame:
+def residuals_frame(result: Any) -> pd.DataFrame:
     """One row per instrument reading: kind, file, row, run or gauge label, residual (µm,
     the model's prediction minus the reading, nuisances removed) and u (µm)."""
     frames = []
@@ -370,7 +365,7 @@ def residuals_frame(result: FitResult) -> pd.DataFrame:
 
 # --- simulation from a Simulation's truth ------------------------------------------------
 
-def truth_of(sim: Simulation) -> tuple[kin.KinematicTerms, np.ndarray]:
+def truth_of(sim: Any) -> tuple[kin.KinematicTerms, np.ndarray]:
     """``(KinematicTerms, coefficients)`` of a ``simulate.Simulation``'s true machine: its
     kinematic spec, order, strokes and layout, the coefficients from ``sim.truth``."""
 
@@ -381,7 +376,7 @@ def truth_of(sim: Simulation) -> tuple[kin.KinematicTerms, np.ndarray]:
     return terms, np.array([sim.truth[lab] for lab in terms.labels])
 
 
-def simulate_laser(sim: Simulation, axis: str, line_mm: ArrayLike,
+def simulate_laser(sim: Any, axis: str, line_mm: ArrayLike,
                    positions_mm: Sequence[float] | np.ndarray, *,
                component: str | None = None, offset_mm: ArrayLike = (0.0, 0.0, 0.0),
                u_um: float = 0.2, seed: int | None = None, run: str = "run1",
@@ -423,7 +418,7 @@ def simulate_laser(sim: Simulation, axis: str, line_mm: ArrayLike,
                     np.full(m, c), r, p, e - e[0] + noise, np.full(m, float(u_um)))
 
 
-def simulate_step_gauge(sim: Simulation, start_mm: ArrayLike, end_mm: ArrayLike,
+def simulate_step_gauge(sim: Any, start_mm: ArrayLike, end_mm: ArrayLike,
                     lengths_mm: ArrayLike, *, offset_mm: ArrayLike = (0.0, 0.0, 0.0),
                     u_um: float = 0.3, seed: int | None = None,
                     source: str = "simulated step gauge") -> StepGauge:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 from collections.abc import Iterable
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -26,9 +26,6 @@ from .blocks.kinematic import Kinematic
 from .blocks.plate import Plate
 from .observations import Observations
 from .state import State
-
-if TYPE_CHECKING:
-    from .problem import Problem
 
 __all__ = ["NormalEquations", "accumulate", "rows_of", "dense_rows"]
 
@@ -88,7 +85,7 @@ def _subproblem(prob, idx):
     return sub
 
 
-def dense_rows(prob: Problem, ev: Any) -> tuple[np.ndarray, np.ndarray]:
+def dense_rows(prob: Any, ev: Any) -> tuple[np.ndarray, np.ndarray]:
     """Jacobian rows of one evaluation ``ev`` of ``prob`` as a dense ``(3 n, k)`` array
     over the ``k`` columns they touch, and those columns (sorted)."""
     n, p = prob.n_obs, prob.layout.n
@@ -135,7 +132,7 @@ def _block_key(prob):
     return prob.obs.ball if per_ball > per_pos else prob.obs.pos
 
 
-def accumulate(prob: Problem, state: State, sigma_um: float, rows: int = ROWS
+def accumulate(prob: Any, state: State, sigma_um: float, rows: int = ROWS
            ) -> NormalEquations:
     """Weighted normal equations of ``prob`` at ``state`` (``fit.Problem.normal_equations``).
 
@@ -187,7 +184,7 @@ def accumulate(prob: Problem, state: State, sigma_um: float, rows: int = ROWS
     return NormalEquations(d, cost, N, g, 3 * n + (0 if rp is None else rp.size) + ri.size)
 
 
-def cost_of(prob: Problem, state: State, sigma_um: float) -> tuple[np.ndarray, float]:
+def cost_of(prob: Any, state: State, sigma_um: float) -> tuple[np.ndarray, float]:
     """Residuals (µm, (n, 3)) and ``r·r`` of the weighted residual, without a Jacobian."""
     d, _ = prob.residual(state, False)
     r = d.ravel() / sigma_um
