@@ -86,24 +86,25 @@ def _dmis_panel(data: bytes, name: str, key: str):
     return table
 
 
+_COLUMN_PICKERS = (
+    ("x", "x column", "x", None), ("y", "y column", "y", None), ("z", "z column", "z", None),
+    ("ball", "Ball column", "ball",
+     "Ball numbers 1..N; or leave (none) and read them from a label."),
+    ("position", "Position column", "pos", None), ("probe", "Probe column", "probe", None))
+"""(TableMapping field, picker label, widget key suffix, help) of the column pickers."""
+
+
 def _mapping_inputs(info, key: str):
     """The column pickers, unit, decimal and delimiter inputs: a TableMapping or None."""
     cols, sug = info.columns, info.suggestion
-    c = st.columns(3)
-    with c[0]:
-        x = _pick("x column", cols, f"{key}_x", sug.get("x"))
-    with c[1]:
-        y = _pick("y column", cols, f"{key}_y", sug.get("y"))
-    with c[2]:
-        z = _pick("z column", cols, f"{key}_z", sug.get("z"))
-    c = st.columns(3)
-    with c[0]:
-        ball = _pick("Ball column", cols, f"{key}_ball", sug.get("ball"),
-                     help="Ball numbers 1..N; or leave (none) and read them from a label.")
-    with c[1]:
-        position = _pick("Position column", cols, f"{key}_pos", sug.get("position"))
-    with c[2]:
-        probe = _pick("Probe column", cols, f"{key}_probe", sug.get("probe"))
+    picked = {}
+    for k, (field, label, suffix, hint) in enumerate(_COLUMN_PICKERS):
+        if k % 3 == 0:
+            c = st.columns(3)
+        with c[k % 3]:
+            picked[field] = _pick(label, cols, f"{key}_{suffix}", sug.get(field), help=hint)
+    x, y, z, ball, position, probe = (picked[f] for f in ("x", "y", "z", "ball", "position",
+                                                          "probe"))
     c = st.columns(3)
     with c[0]:
         label = _pick("Label column", cols, f"{key}_label", sug.get("label"),

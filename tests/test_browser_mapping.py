@@ -6,11 +6,10 @@ Uploads a vendor CSV with decimal commas in µm, picks the columns, sees the pre
 parsed rows, loads and sees the loaded row count; then a .dmo file and a bad pattern.
 """
 
-import subprocess
 from pathlib import Path
 
 import pytest
-from test_browser import _start_server
+from test_browser import _browser_context, _idle, _start_server, _stop_server
 
 pytestmark = pytest.mark.slow  # a real browser: seconds a test (`make test-fast` skips)
 
@@ -44,21 +43,14 @@ DMO = ("FILNAM/'plate',05.3\nUNITS/INCH,ANGDEC\nDATE=2026/11/24\nTIME=14:05:33\n
 def server():
     proc, url = _start_server(APP)  # the one server start of the browser tests
     yield url
-    proc.terminate()
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
+    _stop_server(proc)
 
 
 @pytest.fixture()
 def page(server):
     ART.mkdir(parents=True, exist_ok=True)
     with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True,
-                                     args=["--no-sandbox", "--disable-gpu",
-                                           "--disable-background-networking"])
-        ctx = browser.new_context(viewport={"width": 1400, "height": 1800})
+        browser, ctx = _browser_context(pw)
         pg = ctx.new_page()
         pg.set_default_timeout(60_000)
         pg.goto(server)
@@ -66,14 +58,6 @@ def page(server):
         yield pg
         ctx.close()
         browser.close()
-
-
-def _idle(pg):
-    """Wait until the app has finished running (no 'running' status widget)."""
-    pg.wait_for_timeout(300)
-    pg.wait_for_function(
-        "() => !document.querySelector('[data-testid=\"stStatusWidget\"]')", timeout=90_000)
-    pg.wait_for_timeout(300)
 
 
 def _upload(pg, name: str, text: str):

@@ -167,12 +167,12 @@ def test_no_module_imports_itself_round_a_circle():
             base = ".".join(target)
             for n in imported:  # ``from . import blocks`` names a module
                 edges.add(f"{base}.{n}" if f"{base}.{n}" in names else base)
-    edges_to_faces = {m: {t for t in ts if t in names and t != m} for m, ts in graph.items()}
+    within = {m: {t for t in ts if t in names and t != m} for m, ts in graph.items()}
     state: dict[str, int] = {}
 
     def visit(m, stack):
         state[m] = 1
-        for t in edges_to_faces.get(m, ()):
+        for t in within.get(m, ()):
             if state.get(t) == 1:
                 raise AssertionError(" -> ".join(stack[stack.index(t):] + [t]))
             if t not in state:

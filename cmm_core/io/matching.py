@@ -111,7 +111,8 @@ def _check_geometry(df, raw_xyz, xyz, setup, cert, found):
     tol = range_tolerance(rng)
     # the machine's range bounds its scale readings, the carriage: tip minus probe offset
     # (a 600 mm stylus reaches 600 mm past the strokes)
-    offsets = np.array([setup.probes[q] for q in df["probe"]], float).reshape(-1, 3)
+    codes, probes = pd.factorize(df["probe"])  # one lookup per stylus, not per row
+    offsets = np.array([setup.probes[q] for q in probes], float).reshape(-1, 3)[codes]
     carriage = xyz - offsets
     outside = ((carriage < -tol) | (carriage > rng + tol)).any(axis=1)
     where = f"the setup {setup.name}" if setup.name else "the setup"

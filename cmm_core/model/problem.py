@@ -60,11 +60,7 @@ class Problem:
         self.obs, self.spec, self.plate = obs, spec, plate
         self.terms = kin.KinematicTerms(spec.active, tuple(obs.range_mm), spec.periods,
                                         obs.layout)
-        # an instrument-only fit (a laser run, a step gauge, no plate) has no balls
-        self.plate_centre: np.ndarray = np.zeros(3)
-        self.sag_basis: np.ndarray = np.zeros((0, 3))
-        if len(obs.plate0_mm):
-            self.plate_centre, self.sag_basis = plate_effect_basis(obs.plate0_mm)
+        self.plate_centre, self.sag_basis = plate_effect_basis(obs.plate0_mm)
         self.n_obs = len(obs.r_mm)
         self.B, self.P, self.Q = len(obs.balls), len(obs.positions), len(obs.probes)
         self.blocks = [cls(self) for cls in REGISTRY if cls.wanted(spec, plate)]
