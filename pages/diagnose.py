@@ -5,6 +5,7 @@ import pandas as pd
 import streamlit as st
 
 from cmm_core.analysis import residuals as res_mod
+from cmm_core.diagnosis import BLUNDERS
 from cmm_core.model import PERIODIC, catalogue_entry, parse_spec
 from pages import common as C
 
@@ -119,7 +120,16 @@ if s["diag_on"]:
         st.info("No candidate effect left to try.")
     else:
         best = cands[0]
-        if info.get("verdict") == "outside_catalogue":
+        if info.get("verdict") == BLUNDERS:
+            # the outliers are the misfit: the one action before any effect or σ
+            b1, b2 = st.columns([4, 1])
+            b1.error("**Flagged outlier(s) first**: they hold most of the misfit, so no "
+                     "effect is named and σ is not estimated from these residuals. "
+                     "Exclude them and run the diagnosis again (read which below).")
+            b2.button("Exclude the flagged outliers", key="diag_exclude_blunders",
+                      on_click=C.set_exclusions, args=(pending, True), type="primary",
+                      disabled=not pending)
+        elif info.get("verdict") == "outside_catalogue":
             st.warning("**Outside the catalogue**: the misfit is significant and no catalogue "
                      "effect explains it (read why below; the residual maps above show where "
                      "it lives).")

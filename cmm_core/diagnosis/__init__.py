@@ -5,12 +5,14 @@ Owns: :mod:`.search` (:func:`diagnose`, :class:`Diagnosis`, :class:`Candidate`, 
 estimate), :mod:`.scoring` (the significance rule: Δχ², family-wise levels, BIC),
 :mod:`.verdict` (conclusion, aliases, encompassing), :mod:`.crossval` (leave-one-placement-
 out check), :mod:`.certificate_check`, :mod:`.discrepancy` (GP on the residuals),
-:mod:`.replicates` (σ from repeats and residuals), :mod:`.outliers`.
+:mod:`.replicates` (σ from repeats and residuals), :mod:`.outliers`, :mod:`.blunders`
+(flagged outliers that dominate the misfit are the verdict before any effect).
 May import: ``machine``, ``io``, ``model``, ``gp``.
 """
 
 from __future__ import annotations
 
+from .blunders import ACTION, BLUNDERS, DOMINANT_SHARE, BlunderCheck, blunder_check
 from .certificate_check import ALPHA, CertificateCheck, check_certificate, released
 from .crossval import MATERIAL, MIN_PLACEMENTS, HoldoutCheck, check
 from .discrepancy import Discrepancy, discrepancy_gp, kinematic_basis
@@ -41,7 +43,8 @@ from .search import Candidate, Diagnosis, diagnose, estimate_sigma
 from .verdict import OUTSIDE, misfit_location
 
 __all__ = [
-    "ALPHA", "axis_weights", "baseline_basis", "Candidate", "candidate_stats",
+    "ACTION", "ALPHA", "axis_weights", "blunder_check", "BlunderCheck", "BLUNDERS",
+    "DOMINANT_SHARE", "baseline_basis", "Candidate", "candidate_stats",
     "CertificateCheck", "check", "check_certificate", "detect_outliers", "diagnose",
     "Diagnosis", "Discrepancy", "discrepancy_gp", "estimate", "estimate_sigma", "FAMILY_ALPHA",
     "family_levels", "flexible_spec", "from_repeats", "from_residuals", "HoldoutCheck",

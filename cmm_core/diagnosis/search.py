@@ -58,6 +58,7 @@ from ..model import (
 )
 from ..units import label as unit_label
 from . import replicates as repeatability
+from .blunders import BLUNDERS, BlunderCheck, blunder_check
 from .certificate_check import CertificateCheck, check_certificate
 from .scoring import (
     FAMILY_ALPHA,
@@ -200,6 +201,10 @@ class Diagnosis:
     certificate : certificate_check.CertificateCheck or None
         The certificate compared with the self-calibrated plate, when the baseline uses a
         certificate (fixed or prior) and the design can self-calibrate.
+    blunders : blunders.BlunderCheck or None
+        Flagged outliers still in the fit and their share of its misfit; when they
+        dominate it (``dominant``) the verdict is ``"flagged_outliers"`` and no effect is
+        named nor σ estimated.
     """
 
     baseline: FitResult
@@ -212,6 +217,7 @@ class Diagnosis:
     uniformity: repeatability.Uniformity | None = None
     where: dict = field(default_factory=dict)
     certificate: CertificateCheck | None = None
+    blunders: BlunderCheck | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready result in the ``diagnose`` shape (docs/formats.md)."""
@@ -228,7 +234,8 @@ class Diagnosis:
                     "uniform": None if self.uniformity is None else self.uniformity.uniform,
                     "uniformity": None if self.uniformity is None else self.uniformity.to_dict()},
                 "where": self.where,
-                "certificate": None if self.certificate is None else self.certificate.to_dict()}
+                "certificate": None if self.certificate is None else self.certificate.to_dict(),
+                "blunders": None if self.blunders is None else self.blunders.to_dict()}
 
 
 @single_blas_thread
@@ -344,9 +351,8 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
         out, note = _encompassing(base, out, out[0].level, refits, alpha, max_iter=max_iter,
                                   cache=cache)
         out = _physical_before_periodic(out)
-    report(0.995, "leave-one-placement-out checks")
-    verdict, checks, out, note2 = _checked_verdict(base, out, cache=cache)
-    note += note2
+    blunders, verdict, checks, out, note = _first_verdict(data, base, out, exclude, note,
+                                                          cache, report)
     sigma = uniform = None
     if base.status == "converged" and base.fails_chi2_test and verdict in (None, OUTSIDE):
         # nothing catalogued explains the misfit: σ, or something outside the catalogue?
@@ -369,9 +375,24 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
         report(0.997, "the certificate against the self-calibrated plate")
         cert = check_certificate(base.problem.obs, base.spec, sigma_um=base.sigma_um,
                                  fitted=base)
-    msg = _message(base, out, verdict, sigma, uniform, where, note, checks, cert)
+    msg = _message(base, out, verdict, sigma, uniform, where, note, checks, cert, blunders)
     report(1.0, "done")
-    return Diagnosis(base, out, verdict, skipped, msg, checks, sigma, uniform, where, cert)
+    return Diagnosis(base, out, verdict, skipped, msg, checks, sigma, uniform, where, cert,
+                     blunders)
+
+
+def _first_verdict(data, base, out, exclude, note, cache, report):
+    """Dominant flagged outliers (``blunders``) before anything else, else the first
+    significant candidate passing the leave-one-placement-out check.
+    Returns ``(blunders, verdict, checks, candidates, note)``."""
+    blunders = (blunder_check(data, base, exclude)
+                if base.status == "converged" and base.fails_chi2_test else None)
+    if blunders is not None and blunders.dominant:
+        # neither a holdout check nor a σ estimate on residuals the outliers dominate
+        return blunders, BLUNDERS, [], out, ""
+    report(0.995, "leave-one-placement-out checks")
+    verdict, checks, out, note2 = _checked_verdict(base, out, cache=cache)
+    return blunders, verdict, checks, out, note + note2
 
 
 def _to_score(base, tokens, report):
@@ -393,10 +414,19 @@ def _to_score(base, tokens, report):
     return skipped, todo
 
 
-def _message(base, out, verdict, sigma, uniform, where, note, checks, cert) -> str:
+def _message(base, out, verdict, sigma, uniform, where, note, checks, cert,
+             blunders=None) -> str:
     """The diagnosis in words: the conclusion, what the holdout check could not judge,
-    and the certificate's suspect entries first."""
+    the certificate's suspect entries before it, and dominant flagged outliers first of
+    all (a blunder also makes the certificate look wrong)."""
+    if verdict == BLUNDERS:
+        return blunders.message() + " " + _conclusion(base, out, verdict)
     msg = _conclusion(base, out, verdict, sigma, uniform, where) + note
+    if blunders is not None:
+        msg += (f" {len(blunders.exclusions)} flagged outlier(s) are still in the fit "
+                f"({blunders.text()}), holding {100 * blunders.chi2_share:.0f} % of the "
+                "baseline's χ², too little to be the misfit; excluding them is still "
+                "advised.")
     top = next((h for h in checks if h.effect == verdict), None)
     if top is not None and not top.applicable:
         msg += (f" The leave-one-placement-out check cannot judge {verdict} ({top.reason}): "

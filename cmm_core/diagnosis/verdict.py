@@ -17,6 +17,7 @@ from scipy import stats
 
 from ..model import PERIODIC, FitResult, fit
 from . import crossval as holdout
+from .blunders import BLUNDERS
 from .replicates import axis_weights
 
 OUTSIDE = "outside_catalogue"
@@ -264,7 +265,7 @@ def _conclusion(base, cands, verdict, sigma=None, uniform=None, where=None):
         head += (f" This design leaves {len(base.null_combinations)} combination(s) of the "
                  "baseline undetermined; candidates are judged only on what it can see, "
                  "and more placements would change the picture.")
-    if base.status != "converged":
+    if base.status != "converged" or verdict == BLUNDERS:
         return head
     sig_text = "" if sigma is None else (
         f" Estimated from the data, σ = {sigma.value_um:.3g} ± {sigma.u_um:.2g} µm "
