@@ -18,7 +18,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import streamlit as st
 
 from cmm_core import analysis as A
@@ -717,73 +716,6 @@ def _cached_figure(kind: str, key: tuple, _builder, _args):
 def figure(kind: str, key: tuple, builder, *args):
     """``builder(*args)``, cached under ``(kind, key)``; key must identify the inputs."""
     return _cached_figure(kind, key, builder, args)
-
-
-def coverage_reasons(coverage_pct: float, z_loo, meta: pd.DataFrame, noise_by_probe=None,
-                     probe_names=(), several_probes: bool = False,
-                     degenerate: bool = False) -> list:
-    """Why a GP's leave-one-out 95 % coverage is off 95 %, in sentences driven by the
-    numbers: the standardised leave-one-out errors ``z_loo`` (one per point, rows of
-    ``meta``: position, probe, ball), the noise level per stylus and the point count.
-
-    Checks, each reported only when it applies: the count alone (one point is 100/n %);
-    points far outside their interval (|z| > 4: blunders or local errors); a misfit that is
-    not stationary (the RMS z of the worst placement against the best: one signal and
-    noise level do not fit every placement); noise levels that differ between styli (or
-    one level shared by several); an RMS z far from 1 (intervals too narrow or too wide
-    overall); a degenerate optimum.
-    """
-    z = np.asarray(z_loo, float)
-    ok = np.isfinite(z)
-    n = int(ok.sum())
-    out = []
-    if n == 0:
-        return ["no finite leave-one-out prediction to judge it by."]
-    z, m = z[ok], meta.reset_index(drop=True)[ok]
-    one = 100.0 / n
-    rms = float(np.sqrt(np.mean(z**2)))
-    low = coverage_pct < 95
-    miss = abs(coverage_pct - 95) - 2
-    if miss <= one:
-        out.append(f"it is {miss:.1f} % outside the band with one point worth {one:.1f} % "
-                   f"({n} points): a single point decides it, chance alone can explain it.")
-    big = np.flatnonzero(np.abs(z) > 4)
-    if big.size:
-        w = big[np.argmax(np.abs(z[big]))]
-        out.append(f"{big.size} point(s) lie more than 4 leave-one-out sd from their "
-                   f"prediction (worst |z| = {abs(z[w]):.1f} at {m['position'].iloc[w]} probe "
-                   f"{m['probe'].iloc[w]} ball {m['ball'].iloc[w]}): blunders or a local "
-                   "error the GP cannot follow (see the outliers on the Data page).")
-    by = pd.Series(z**2).groupby(m["position"].to_numpy()).mean() ** 0.5
-    if len(by) > 1 and by.max() > 2 * max(by.min(), 1e-9) and by.max() > 1.3:
-        out.append(f"the misfit is not stationary: the RMS z of the leave-one-out errors is "
-                   f"{by.max():.2f} at {by.idxmax()} but {by.min():.2f} at {by.idxmin()}, "
-                   "so one signal amplitude and noise level cannot fit every placement "
-                   "(an error tied to a placement or stylus that the GP's inputs do not "
-                   "carry).")
-    if noise_by_probe is not None and len(noise_by_probe) > 1:
-        nb = np.asarray(noise_by_probe, float)
-        if nb.max() > 3 * max(nb.min(), 1e-3):
-            names = list(probe_names) or [str(i) for i in range(len(nb))]
-            out.append(f"the noise level differs between styli ({nb.min():.2f} µm for "
-                       f"{names[int(nb.argmin())]} to {nb.max():.2f} µm for "
-                       f"{names[int(nb.argmax())]}): with so few points per stylus the "
-                       "levels are poorly determined.")
-    elif several_probes:
-        out.append("one noise level is shared by several styli (tick 'Probe offset as "
-                   "input' to give each its own).")
-    if low and rms > 1.2:
-        out.append(f"the RMS z is {rms:.2f}: overall the GP's intervals are narrower than "
-                   "the errors it makes on points it has not seen.")
-    elif not low and rms < 0.8:
-        out.append(f"the RMS z is {rms:.2f}: overall the intervals are wider than the "
-                   "errors need (a noise level inflated by a few large points).")
-    if degenerate:
-        out.append("the optimum is degenerate (see the warning above).")
-    if not out:
-        out.append(f"no single cause stands out (RMS z {rms:.2f}, {n} points, one point = "
-                   f"{one:.1f} %).")
-    return out
 
 
 def beside_map(fig):

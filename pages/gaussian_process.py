@@ -7,9 +7,14 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
-from cmm_core.analysis import measured_error_from_residuals_um
+from cmm_core.analysis import (
+    compare_models,
+    coverage_reasons,
+    measured_error_from_residuals_um,
+    placement_plane_grid,
+)
 from cmm_core.gp import gp_components, predict_grid
-from cmm_core.units import UM
+from cmm_core.model import residual_u
 from pages import common as C
 
 C.page_start()
@@ -37,8 +42,6 @@ def kinematic_residual_u(args, _r):
     That difference is the fit's residual: the model was fitted to this very ball, so
     the two share its noise and the difference varies as σ√(1 − h_ii), less than
     √(u_model² + σ²) (``uncertainty.residual_u``)."""
-    from cmm_core.model import residual_u
-
     return residual_u(_r)
 
 
@@ -59,6 +62,12 @@ def fit_gp_component(args, target, mean, kernel, restarts, comp, probe_input, _p
 def gp_predict(args, mean, kernel, comp, grid_key, _comp, _grid, _probe):
     m, sd = predict_grid(_comp, _grid, probe_mm=_probe if _comp.probe_input else None)
     return np.asarray(m, float)[:, 0], np.asarray(sd, float)[:, 0]
+
+
+@st.cache_data(show_spinner=False, max_entries=32)
+def plane_grid(args, position, _r, _kinematic_um):
+    """The chosen placement's plate-plane grid with the kinematic error on it."""
+    return placement_plane_grid(_r, position, _kinematic_um)
 
 
 def _probe_names(comp, obs) -> list:
@@ -126,28 +135,11 @@ probe_input = st.checkbox(
          + ("" if several_probes else " These data carry one stylus: nothing to add."))
 probe_input = bool(probe_input and several_probes)
 
-# Grid over the plate plane of the chosen position (plate u, v -> machine coordinates).
 obs = r.problem.obs
-k = obs.positions.index(position)
-R, t = r.state.R[k], r.state.t[k]
-plate = r.state.c
-n = 21
-uu = np.linspace(plate[:, 0].min(), plate[:, 0].max(), n)
-vv = np.linspace(plate[:, 1].min(), plate[:, 1].max(), n)
-U, V = np.meshgrid(uu, vv)
-grid_plate = np.column_stack([U.ravel(), V.ravel(), np.zeros(U.size)])
-grid_m = grid_plate @ R.T + t
-sel = (meta["position"] == position).to_numpy()
-probe_k = str(meta["probe"][sel].iloc[0])
-pk = obs.p_mm[sel][0]
-from cmm_core.model import error_at  # noqa: E402
-
-e_kin_grid, u_kin_grid = error_at(r, grid_m - pk, probe_k)
-# remove the part the placement absorbs: align the kinematic surface like the data
-e_at_obs, _ = error_at(r, obs.r_mm[sel] - pk, probe_k)
-offset = np.mean(pred_kin[sel] - e_at_obs, axis=0)
-e_kin_grid = e_kin_grid + offset
-pts_plate = (pts[sel] - t) @ R
+plane = plane_grid(args, position, r, pred_kin)
+uu, vv, n, sel = plane.u_mm, plane.v_mm, len(plane.u_mm), plane.selected
+grid_m, e_kin_grid, pk, probe_k = plane.machine_mm, plane.kinematic_um, plane.probe_mm, plane.probe
+pts_plate = plane.balls_plate_mm
 
 # one symmetric colour range for the model and GP mean maps: compare them by colour
 zlim = float(np.nanmax(np.abs(np.concatenate([e_kin_grid[:, a], err[sel, a]])))) or 1.0
@@ -271,7 +263,7 @@ if s.get("gp_on"):
                 g = comps[i].results[0]
                 z_loo = ((np.asarray(g.loo_mean_um, float) - loo_target[:, i])
                          / np.asarray(g.loo_sd_um, float))
-                why = C.coverage_reasons(
+                why = coverage_reasons(
                     v, z_loo, meta, g.noise_sd_by_group_um if probe_names else None,
                     probe_names, several_probes, bool(g.degenerate))
                 st.caption(f"**Why e{c_} covers {v:.1f} % rather than 95 ± 2 %:** "
@@ -296,51 +288,14 @@ st.caption("Plate plane of the chosen position (plate u and v in mm); × marks t
 st.subheader("Kinematic vs GP vs measurement (thesis chapter 7)")
 # the kinematic z-scores are σ-based: say whether σ describes the scatter
 C.misfit_banner(r)
-sigma = float(s["sigma_um"])
-rows = pd.DataFrame({"position": meta["position"].to_numpy(), "probe": meta["probe"].to_numpy(),
-                     "ball": meta["ball"].to_numpy()})
-rows["measured_um"] = err[:, a]
-rows["kinematic_um"] = pred_kin[:, a]
-rows["kin_minus_meas_um"] = pred_kin[:, a] - err[:, a]
-# the kinematic difference at a fitted ball is its residual: z against σ√(1 − h_ii)
-with np.errstate(divide="ignore", invalid="ignore"):
-    rows["kin_z"] = rows["kin_minus_meas_um"] / np.where(u_res[:, a] > 0, u_res[:, a], np.nan)
-if gp_mean_obs is not None:
-    rows["gp_um"] = gp_mean_obs[:, a]
-    rows["gp_minus_meas_um"] = gp_mean_obs[:, a] - err[:, a]
-    # the GP's in-sample difference has the same problem, and no closed-form sd: its z
-    # is the leave-one-out one (each ball predicted from the others, noise included)
-    rows["gp_loo_minus_meas_um"] = loo[:, a] - err[:, a]
-    rows["gp_loo_z"] = rows["gp_loo_minus_meas_um"] / loo_sd[:, a]
-# Thesis eq. 7.1: |model - measurement| / measurement x 100 %, with the measurement taken
-# as the ball coordinate (mm) in the plate frame. Shown only beside the honest numbers.
-plate_pts = np.einsum("nji,nj->ni", r.state.R[obs.pos], pts - r.state.t[obs.pos])
-coord = np.abs(plate_pts[:, a])
-with np.errstate(divide="ignore", invalid="ignore"):
-    pct = np.where(coord > 1.0, np.abs(rows["kin_minus_meas_um"]) * UM / coord * 100, np.nan)
-rows["thesis_pct_kin"] = pct
-if gp_mean_obs is not None:
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rows["thesis_pct_gp"] = np.where(coord > 1.0, np.abs(rows["gp_minus_meas_um"]) * UM
-                                         / coord * 100, np.nan)
-fin_k = np.isfinite(rows["kin_z"])
-# short labels (five cards in a row), each with its meaning as help
-summ = {"kin. RMS Δ (µm)": (float(np.sqrt(np.mean(rows["kin_minus_meas_um"]**2))),
-                            "kinematic model − measured, RMS over every ball"),
-        "kin. RMS z": (float(np.sqrt(np.mean(rows["kin_z"][fin_k] ** 2))),
-                       "RMS of (kinematic − measured) / σ√(1 − h_ii), the residual's sd")}
-if gp_mean_obs is not None:
-    fin = np.isfinite(rows["gp_loo_z"])
-    summ["GP RMS Δ (µm)"] = (float(np.sqrt(np.mean(rows["gp_minus_meas_um"] ** 2))),
-                             "GP posterior mean − measured, RMS over every ball")
-    summ["GP LOO RMS Δ (µm)"] = (float(np.sqrt(np.mean(rows["gp_loo_minus_meas_um"][fin] ** 2))),
-                                 "each ball predicted by the GP from all the others, RMS")
-    summ["GP LOO RMS z"] = (float(np.sqrt(np.mean(rows["gp_loo_z"][fin] ** 2))),
-                            "RMS of the leave-one-out difference / its sd (noise included)")
+ch7 = compare_models(r, err, pred_kin, u_res, comp, points_mm=pts, meta=meta,
+                     gp_mean_um=gp_mean_obs, gp_loo_mean_um=loo, gp_loo_sd_um=loo_sd)
+rows = ch7.table
+sigma = ch7.sigma_um
 st.caption(f"All positions, component {comp}:")
-mc = st.columns(len(summ))
-for c_, (lab, (v, what)) in zip(mc, summ.items(), strict=True):
-    c_.metric(lab, f"{v:.3f}", help=what)
+mc = st.columns(len(ch7.summary))
+for c_, f in zip(mc, ch7.summary, strict=True):
+    c_.metric(f.label, f"{f.value:.3f}", help=f.meaning)
 only = st.checkbox("Table: only the chosen position", value=True, key="w_gp_only_pos")
 C.dataframe(rows[rows["position"] == position] if only else rows, hide_index=True,
              key="ch7_table",

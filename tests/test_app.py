@@ -827,39 +827,6 @@ def test_kinematic_z_on_clean_simulated_data_has_rms_one():
         assert rms == pytest.approx(np.sqrt(mean_z2), abs=2e-3)
 
 
-def test_coverage_reasons_name_the_cause_from_the_numbers():
-    """The caption that explains a leave-one-out coverage outside 95 ± 2 %: each reason
-    appears when its numbers say so, and only then."""
-    import pandas as pd
-
-    from pages.common import coverage_reasons
-
-    rng = np.random.default_rng(3)
-    meta = pd.DataFrame({"position": np.repeat(["P1", "P2", "P3"], 50),
-                         "probe": np.repeat(["1", "2", "3"], 50),
-                         "ball": np.tile(np.arange(1, 51), 3)})
-    # non-stationary: P3's errors three times the others'
-    z = rng.standard_normal(150) * np.repeat([0.7, 0.7, 2.1], 50)
-    text = " ".join(coverage_reasons(85.0, z, meta))
-    assert "not stationary" in text and "at P3" in text
-    assert "4 leave-one-out sd" not in text or (np.abs(z) > 4).any()
-    # one blunder, stationary otherwise
-    z = rng.standard_normal(150) * 0.9
-    z[17] = 9.0
-    text = " ".join(coverage_reasons(92.0, z, meta, noise_by_probe=(0.5, 0.6, 0.5),
-                                     probe_names=("1", "2", "3")))
-    assert "1 point(s) lie more than 4" in text and "P1 probe 1 ball 18" in text
-    assert "not stationary" not in text and "differs between styli" not in text
-    # styli of very different noise; too wide intervals overall
-    z = rng.standard_normal(150) * 0.5
-    text = " ".join(coverage_reasons(99.5, z, meta, noise_by_probe=(0.2, 3.0, 0.3),
-                                     probe_names=("1", "2", "3")))
-    assert "0.20 µm for 1 to 3.00 µm for 2" in text and "wider than" in text
-    # just outside the band by less than a point: said to be chance
-    text = " ".join(coverage_reasons(92.9, rng.standard_normal(150), meta))
-    assert "chance alone" in text
-
-
 def test_gp_coverage_outside_the_band_is_explained_on_the_page():
     """Issue 16: when a component's leave-one-out coverage is outside 93-97 %, the page
     says why in a caption driven by the numbers. The six thesis placements are within

@@ -3,12 +3,21 @@ the same way by the app, the CLI and the report, and the report with its figures
 
 Owns: :mod:`.record` (:class:`AnalysisRecord`), :mod:`.record_io` (JSON and project
 files), :mod:`.runner` (:func:`run`, :class:`AnalysisResult`), :mod:`.residuals`,
-:mod:`.figures` (plotly figures), :mod:`.report` (HTML report). May import every wing
+:mod:`.comparison` (thesis chapter 7: kinematic vs GP vs measurement), :mod:`.figures` (plotly figures), :mod:`.report` (HTML report). May import every wing
 below it except ``cli``.
 """
 
 from __future__ import annotations
 
+from .comparison import (
+    ComparisonFigure,
+    ModelComparison,
+    PlaneGrid,
+    compare_models,
+    coverage_reasons,
+    placement_plane_grid,
+    plate_coordinates_mm,
+)
 from .figures import (
     AXIS_COLOURS,
     FUNCTION_UNITS,
@@ -80,14 +89,15 @@ from .runner import AnalysisResult, load_data, load_instruments, run, with_instr
 __all__ = [
     "against_coordinates", "analysis_report", "AnalysisRecord", "AnalysisResult",
     "approach_split", "AXIS_COLOURS", "breakdown", "build_report", "chi2_html",
-    "chi2_test_numbers", "DataFile", "DataSources", "DEFAULT_EXCLUDE_OUTLIERS",
+    "chi2_test_numbers", "compare_models", "ComparisonFigure", "coverage_reasons", "DataFile", "DataSources", "DEFAULT_EXCLUDE_OUTLIERS",
     "deviations_plate_frame", "diagnosis_conclusion", "diagnosis_rows", "ERROR_CONVENTION",
     "error_function_curves", "fig_deviation", "fig_error_functions", "fig_history", "fig_mpe",
     "fig_pattern", "fig_placements", "fig_residual_map", "fig_signature_scatter",
     "fig_surface_grid", "figure_html", "FORMAT", "FUNCTION_UNITS", "GP_KERNELS", "GP_MEANS",
     "instrument_kinds", "instrument_tables", "InstrumentFile", "instruments_from_list", "KEYS",
     "load_data", "load_instruments", "measured_error_from_residuals_um", "measured_error_um",
-    "MPE_U_SOURCES", "PLATE_CHOICES", "plotly_loader", "position_trends", "read_record",
+    "ModelComparison", "MPE_U_SOURCES", "placement_plane_grid", "PlaneGrid", "PLATE_CHOICES",
+    "plate_coordinates_mm", "plotly_loader", "position_trends", "read_record",
     "record_from_dict", "record_from_project", "record_from_session", "record_to_dict",
     "record_to_json", "record_to_project_json", "render", "residual_summary", "run",
     "TIMESTAMP", "true_function_curve", "uncertainty_gain", "VERSION", "with_instruments",
