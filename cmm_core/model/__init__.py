@@ -76,7 +76,15 @@ from .instruments import (
     truth_of,
 )
 from .normal import ROWS, NormalEquations, accumulate, cost_of, dense_rows, rows_of
-from .observations import Observations, approach_directions, check_selection, select, setup_layout
+from .observations import (
+    Observations,
+    approach_directions,
+    check_selection,
+    has_plate,
+    instrument_observations,
+    select,
+    setup_layout,
+)
 from .problem import Problem, augmented_state, held_constraints, weighted_residual
 from .result import CHI2_ALPHA, IMPLAUSIBLE, FitResult
 from .simulation_config import DEFAULT_CONFIG, simulator_effects
@@ -101,8 +109,8 @@ __all__ = [
     "BALL_BAR_COLUMNS", "BALL_BAR_OPTIONAL", "BallBar", "Block", "BY_TOKEN", "catalogue_entry",
     "certificate_terms", "check_selection", "checked_cov", "CHI2_ALPHA", "correction_columns",
     "cost_of", "DEFAULT_CONFIG", "dense_rows", "describe_null", "error_at", "error_covariance",
-    "Eval", "evaluate", "fit", "FitResult", "GROUPS", "held_constraints", "held_prior_rows",
-    "IMPLAUSIBLE", "in_plane", "initial_state", "INSTRUMENT_KINDS", "Instruments",
+    "Eval", "evaluate", "fit", "FitResult", "GROUPS", "has_plate", "held_constraints", "held_prior_rows",
+    "IMPLAUSIBLE", "in_plane", "initial_state", "instrument_observations", "INSTRUMENT_KINDS", "Instruments",
     "is_hole_plate", "LASER_COLUMNS", "LASER_OPTIONAL", "LaserRun", "length_change",
     "LINE_TOLERANCE_MM", "MAX_ERROR_UM", "MAX_LENGTH_DIFF_MM", "MAX_ORDER", "MAX_STYLUS_MM",
     "measured_normal", "MIN_BAR_MM", "ModelSpec", "monte_carlo_error", "needs", "Normal",

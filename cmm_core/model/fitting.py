@@ -27,13 +27,15 @@ from . import hole_plate
 from . import normal as _normal
 from .certificate_prior import certificate_terms, held_prior_rows
 from .effects import ModelSpec, parse_spec
-from .observations import Observations, select
+from .observations import Observations, has_plate, select
 from .problem import Problem
 from .result import IMPLAUSIBLE, FitResult, _message
 from .solver import Normal, describe_null
 
 __all__ = ["fit", "PLATE_MODES"]
-PLATE_MODES = ("fixed", "prior", "free")
+PLATE_MODES = ("fixed", "prior", "free", "none")
+"""Plate geometry modes of :func:`fit`; ``"none"`` is an instrument-only fit's (no plate
+observation) and no other's."""
 
 
 @single_blas_thread
@@ -46,13 +48,18 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     Parameters
     ----------
     data : Dataset or Observations
+        Ball-plate measurements, or ``instrument_observations`` for an instrument-only fit
+        (laser runs, step gauges, ball bars without a plate): the kinematic parameters no
+        instrument sees at first order are held and named, each on its own, and the rank
+        rule decides among the others (``_unseen_columns``).
     spec : str or ModelSpec
         Model spec (docs/formats.md "Model specs"), e.g. ``"kinematic21"``, ``"kinematic21,plate_sag"``.
     order : int
         Default Chebyshev order (1-5).
-    plate : {"fixed", "prior", "free"}, optional
+    plate : {"fixed", "prior", "free", "none"}, optional
         Plate geometry: certificate fixed (default with a certificate), certificate as a
-        prior weighted by its uncertainty, or free (self-calibration; default without).
+        prior weighted by its uncertainty, or free (self-calibration; default without);
+        ``"none"`` (the only one, and the default) for an instrument-only fit.
     sigma_um : float
         Measurement repeatability (µm) for the weights, χ² and covariance.
     positions, probes : list of str, optional
@@ -85,26 +92,32 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     obs = data if isinstance(data, Observations) else select(
         data, positions=positions, probes=probes, exclude=exclude)
     obs = obs if instruments is None else replace(obs, instruments=tuple(instruments))
-    if len(obs.r_mm) == 0:
-        # the rank rule and the gauge constraints are the plate's: an instrument-only
-        # fit needs its own (next work); refused rather than reported wrongly
-        raise ValueError("no ball-plate observations: instrument files are fitted with a "
-                         "plate (an instrument-only fit is not supported yet).")
-    if plate is None:
-        plate = "fixed" if obs.has_certificate else "free"
-    if plate not in PLATE_MODES:
-        raise ValueError(f"plate must be one of {PLATE_MODES}, got {plate!r}.")
-    if plate in ("fixed", "prior") and not obs.has_certificate:
-        raise ValueError(f"plate={plate!r} needs a certificate; load one or use plate='free'.")
+    plate = _plate_mode(obs, plate)
     prob = Problem(obs, spec, plate)
     L = prob.layout
     C = prob.constraints()
     state = prob.initial_state()
+    n_gauge = C.shape[0]
 
     status, it = "max_iterations", 0
     # only the normal equations are formed, block by block of observations: never J
     ne0 = nominal(prob) if nominal is not None else None
     d, cost, N, g, n_rows = ne0 if ne0 is not None else prob.normal_equations(state, sigma_um)
+    unseen = np.zeros((0, L.n))
+    if not has_plate(obs):
+        unseen = _unseen_columns(N, rank_rtol)
+        C = np.vstack([C, unseen])
+    seen = ~unseen.any(axis=0)
+
+    def normal_equations(at):
+        """The problem's normal equations at ``at``, the unseen columns emptied: held by
+        their unit rows, and with their (second-order) entries gone the column scaling
+        keeps those rows of one size (a column norm of 1e-20 scaled them out of the
+        constraints' rank)."""
+        d, cost, N, g, rows = prob.normal_equations(at, sigma_um)
+        return d, cost, N * np.outer(seen, seen), g * seen, rows
+
+    N, g = N * np.outer(seen, seen), g * seen
     # Gauss-Newton with Levenberg-Marquardt damping on rejection: a line search along the
     # full step fails when nearly undetermined directions (a single placement) ask for
     # rotations of radians, where the linearisation no longer holds.
@@ -125,7 +138,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
             trial = prob.update(state, ne.step(mu))
             # the undamped step is nearly always accepted: its normal equations at once
             if attempt == 0:
-                dt, new_cost, Nt, gt, _ = prob.normal_equations(trial, sigma_um)
+                dt, new_cost, Nt, gt, _ = normal_equations(trial)
             else:
                 (dt, new_cost), Nt = _normal.cost_of(prob, trial, sigma_um), None
             if new_cost <= cost * (1 + 1e-12):
@@ -139,7 +152,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
         mu = mu / 10 if mu > 1e-6 else 0.0
         state = trial
         if Nt is None:
-            dt, new_cost, Nt, gt, _ = prob.normal_equations(state, sigma_um)
+            dt, new_cost, Nt, gt, _ = normal_equations(state)
         d, N, g = dt, Nt, gt
         done = cost - new_cost <= tol * max(cost, 1.0)
         cost = new_cost
@@ -152,7 +165,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     if plate == "fixed" and obs.cert_u_um is not None and certificate_test:
         # the certificate's own uncertainty: in the χ² test and in every parameter's u
         cert = certificate_terms(prob, state, C_run[C.shape[0]:], sigma_um, rank_rtol, cov)
-    null = np.hstack([null0, ne.null]) if null0.shape[1] else ne.null
+    null = np.hstack([unseen.T, null0, ne.null])
     cov_noise = None
     if cert is not None:
         cov_noise, cov = cov, cert[2]
@@ -164,7 +177,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     chi2 = float(cost)
     dof = n_rows - rank - held_prior_rows(prob)
     bic = chi2 + rank * np.log(n_rows)
-    rms = float(np.sqrt(np.mean(d**2)))
+    rms = float(np.sqrt(np.mean(d**2))) if d.size else float("nan")  # no plate: no RMS
     if hole_plate.is_hole_plate(obs):  # two components of three per observation
         rms *= np.sqrt(1.5)
     chi2_test, dof_test = (chi2, dof) if cert is None else cert[:2]
@@ -191,8 +204,46 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
         table=obs.table, rms_um=rms, chi2=chi2, dof=int(dof), chi2_dof=chi2 / max(dof, 1),
         bic=float(bic), rank=rank, rank_rtol=rank_rtol, unidentifiable=unident,
         null_combinations=combos, n_obs=prob.n_obs, problem=prob, state=state,
-        design_null=C_run[C.shape[0]:], chi2_test=float(chi2_test), dof_test=int(dof_test),
+        design_null=C_run[n_gauge:], chi2_test=float(chi2_test), dof_test=int(dof_test),
         covariance_noise=cov_noise)
+
+
+def _plate_mode(obs, plate):
+    """The plate mode of :func:`fit` (None: its default), checked against the data."""
+    if not has_plate(obs):  # instruments only: no plate, placement or certificate
+        if plate not in (None, "none"):
+            raise ValueError(f"plate={plate!r} needs ball-plate observations; an "
+                             "instrument-only fit has no plate (plate='none').")
+        return "none"
+    if plate is None:
+        return "fixed" if obs.has_certificate else "free"
+    if plate not in PLATE_MODES:
+        raise ValueError(f"plate must be one of {PLATE_MODES}, got {plate!r}.")
+    if plate == "none":
+        raise ValueError("plate='none' is for instrument-only fits; these observations have "
+                         "a plate: use 'fixed', 'prior' or 'free'.")
+    if plate in ("fixed", "prior") and not obs.has_certificate:
+        raise ValueError(f"plate={plate!r} needs a certificate; load one or use plate='free'.")
+    return plate
+
+
+def _unseen_columns(N, rank_rtol):
+    """Constraint rows (unit rows) holding the parameters an instrument-only fit does not
+    see: those whose column norm ``sqrt(N_jj)`` is at most ``rank_rtol`` times the largest.
+
+    The rank rule of :class:`Normal` scales every column to unit norm, which is right when
+    each parameter moves the plate's residuals at first order. Without a plate, most
+    parameters move no instrument row at all, or only at second order (a step gauge along
+    x sees the z errors through the micrometre tilt of its indicated line, 1e-6 of its
+    scale): scaled to unit norm those columns looked determined and their values ran to
+    10^11 µm. Held here, each is named on its own, and the rank rule decides among the
+    columns the instruments see at first order."""
+    norms = np.sqrt(np.clip(np.diag(N), 0, None))
+    idx = np.flatnonzero(norms <= rank_rtol * norms.max()) if norms.max() > 0 \
+        else np.arange(N.shape[0])
+    rows = np.zeros((idx.size, N.shape[0]))
+    rows[np.arange(idx.size), idx] = 1.0
+    return rows
 
 
 def _report_values(prob, state):

@@ -15,9 +15,10 @@ import numpy as np
 import pandas as pd
 
 from ..io import DataError, Dataset, Setup, refuse_unknown_keys
-from ..machine import DEFAULT_LAYOUT
+from ..machine import DEFAULT_LAYOUT, LAYOUTS
 
-__all__ = ["Observations", "select", "approach_directions", "setup_layout"]
+__all__ = ["Observations", "select", "approach_directions", "setup_layout",
+           "instrument_observations", "has_plate"]
 
 
 @dataclass(frozen=True)
@@ -211,6 +212,50 @@ def select(data: Dataset, *, positions: Iterable[str] | None = None,
                         artefact=getattr(setup, "artefact", "ball_plate"),
                         cert_u_source=(cert.u_source if cert is not None else
                                        "no certificate: the plate is self-calibrated"))
+
+
+def instrument_observations(instruments: Iterable, range_mm, layout: str = DEFAULT_LAYOUT,
+                        *, name: str = "setup") -> Observations:
+    """Observations of an instrument-only fit: laser runs, step gauges or ball bars on a
+    machine of strokes ``range_mm`` (mm) and ``layout``, with no ball-plate observation
+    (no plate, placement or probe).
+
+    ``fit`` then determines the kinematic combinations the instruments see and names the
+    others (docs/instruments.md, "Instruments without a plate").
+
+    Parameters
+    ----------
+    instruments : iterable of LaserRun, StepGauge or BallBar
+        As read by ``read_instrument``; at least one.
+    range_mm : array (3,)
+        Axis strokes of the machine, mm (a setup's ``machine.range_mm``).
+    layout : str
+        Kinematic chain (``machine.LAYOUTS``; a setup's ``machine.layout``).
+    name : str
+        Where ``range_mm`` and ``layout`` came from, for messages.
+    """
+    items = tuple(instruments)
+    if not items:
+        raise DataError("no ball-plate measurements and no instrument files: nothing to fit.",
+                        file=name, hint="give measurement files, or laser, step-gauge or "
+                        "ball-bar files (docs/instruments.md).")
+    if layout not in LAYOUTS:
+        raise DataError(f"machine.layout {layout!r} is not one of: {', '.join(LAYOUTS)}.",
+                        file=name, column="machine.layout")
+    rng = np.asarray(range_mm, float)
+    if rng.shape != (3,) or not np.all(rng > 0):
+        raise DataError(f"machine.range_mm must be three positive strokes in mm, found "
+                        f"{np.ravel(rng).tolist()}.", file=name, column="machine.range_mm")
+    z3, zi = np.zeros((0, 3)), np.zeros(0, int)
+    return Observations(pd.DataFrame(columns=["position", "probe", "ball"]), z3, z3, zi, zi,
+                        zi, [], [], zi, z3, None, np.zeros(0), False, np.zeros(0),
+                        np.zeros(0, bool), np.zeros((0, 3, 3)), z3, rng, False, z3, layout,
+                        instruments=items, cert_u_source="no plate: instruments only")
+
+
+def has_plate(obs: Observations) -> bool:
+    """Whether ``obs`` holds ball-plate observations (False: an instrument-only fit)."""
+    return len(obs.r_mm) > 0
 
 
 def check_selection(data: Dataset, positions: Iterable[str] | None,

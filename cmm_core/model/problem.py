@@ -60,8 +60,12 @@ class Problem:
         self.obs, self.spec, self.plate = obs, spec, plate
         self.terms = kin.KinematicTerms(spec.active, tuple(obs.range_mm), spec.periods,
                                         obs.layout)
-        self.plate_centre, self.sag_basis = plate_effect_basis(obs.plate0_mm)
         self.n_obs = len(obs.r_mm)
+        # an instrument-only fit has no plate (instrument_observations)
+        self.plate_centre: np.ndarray = np.zeros(3)
+        self.sag_basis: np.ndarray = np.zeros((0, 3))
+        if self.n_obs:
+            self.plate_centre, self.sag_basis = plate_effect_basis(obs.plate0_mm)
         self.B, self.P, self.Q = len(obs.balls), len(obs.positions), len(obs.probes)
         self.blocks = [cls(self) for cls in REGISTRY if cls.wanted(spec, plate)]
         L = _Layout()
@@ -169,6 +173,8 @@ class Problem:
         """Weighted normal equations ``JᵀJ``, ``Jᵀr`` at ``state``, accumulated over blocks
         of ``rows`` observations without forming ``J`` (``normal.accumulate``): residuals
         (µm), ``r·r``, N, g and the number of weighted rows."""
+        if not self.n_obs:  # instruments only: no plate rows to accumulate
+            return _instrument_normal_equations(self, state)
         if hole_plate.is_hole_plate(self.obs):  # projected rows: J assembled
             return _hole_plate_normal_equations(self, state, sigma_um)
         return _normal.accumulate(self, state, sigma_um, rows)
@@ -242,3 +248,17 @@ def _hole_plate_normal_equations(prob, state, sigma_um: float):
     d, r, J = weighted_residual(prob, state, sigma_um, True)
     N = (J.T @ J).toarray()
     return _normal.NormalEquations(d, float(r @ r), N, J.T @ r, r.size - prob.n_obs)
+
+
+def _instrument_normal_equations(prob, state):
+    """Normal equations of an instrument-only problem (``Problem.normal_equations`` with
+    no plate observation): the instruments' weighted rows alone, on the kinematic
+    columns; every other column (placements, plate effects) stays empty and is named
+    undetermined by the fit's rank rule."""
+    p = prob.layout.n
+    N, g = np.zeros((p, p)), np.zeros(p)
+    r, J = prob.instruments.rows(state, True)
+    k = prob.instruments.cols
+    N[k, k] = J.T @ J
+    g[k] = J.T @ r
+    return _normal.NormalEquations(np.zeros((0, 3)), float(r @ r), N, g, r.size)

@@ -35,7 +35,7 @@ class FitResult:
     spec : str
         Canonical model spec.
     plate : str
-        Plate geometry mode: fixed, prior or free.
+        Plate geometry mode: fixed, prior or free; none in an instrument-only fit.
     sigma_um : float
         Stated measurement repeatability used for weights and χ².
     labels, units, groups : list of str
@@ -53,7 +53,8 @@ class FitResult:
     table : DataFrame
         The observations used (position, probe, ball, source file and row).
     rms_um : float
-        RMS of all residual components.
+        RMS of all residual components of the plate observations (NaN in an
+        instrument-only fit: ``instruments.summary`` gives each instrument's).
     chi2, dof, chi2_dof : float
         χ² against ``sigma_um`` (plus prior terms), degrees of freedom, and their ratio.
     bic : float
@@ -234,7 +235,9 @@ def _message(status, it, rms, chi2_dof, combos, chi2_p=1.0, dof=0, test_dof=None
     head = {"converged": f"Converged in {it} iterations",
             "max_iterations": f"Stopped after {it} iterations without converging",
             "failed": "No step reduced the misfit"}[status]
-    msg = f"{head}: RMS {rms:.3f} µm, χ²/dof {chi2_dof:.2f}."
+    # an instrument-only fit has no plate residual to take an RMS of
+    spread = f"RMS {rms:.3f} µm" if np.isfinite(rms) else "instruments only, no plate"
+    msg = f"{head}: {spread}, χ²/dof {chi2_dof:.2f}."
     test_dof = chi2_dof if test_dof is None else test_dof
     if chi2_p < CHI2_ALPHA:
         cert = ("" if abs(test_dof - chi2_dof) < 0.005 else

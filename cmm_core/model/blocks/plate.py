@@ -20,7 +20,7 @@ class Plate(Block):
 
     @classmethod
     def wanted(cls, spec, plate):
-        return plate != "fixed"
+        return plate not in ("fixed", "none")  # "none": instruments only
 
     def columns(self, obs):
         return [("plate", [f"ball{b}.{a}" for b in obs.balls for a in "xyz"], "um")]
