@@ -201,6 +201,9 @@ class Diagnosis:
     certificate : certificate_check.CertificateCheck or None
         The certificate compared with the self-calibrated plate, when the baseline uses a
         certificate (fixed or prior) and the design can self-calibrate.
+    unseen : dict
+        Candidates this design cannot see (no parameter determinable on top of the
+        baseline), with the reason: listed, never ranked, given no detection limit.
     blunders : blunders.BlunderCheck or None
         Flagged outliers still in the fit and their share of its misfit; when they
         dominate it (``dominant``) the verdict is ``"flagged_outliers"`` and no effect is
@@ -218,6 +221,7 @@ class Diagnosis:
     where: dict = field(default_factory=dict)
     certificate: CertificateCheck | None = None
     blunders: BlunderCheck | None = None
+    unseen: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """JSON-ready result in the ``diagnose`` shape (docs/formats.md)."""
@@ -235,7 +239,8 @@ class Diagnosis:
                     "uniformity": None if self.uniformity is None else self.uniformity.to_dict()},
                 "where": self.where,
                 "certificate": None if self.certificate is None else self.certificate.to_dict(),
-                "blunders": None if self.blunders is None else self.blunders.to_dict()}
+                "blunders": None if self.blunders is None else self.blunders.to_dict(),
+                "cannot_see": self.unseen}
 
 
 @single_blas_thread
@@ -338,10 +343,12 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
             sc.token, e.title, e.explanation, e.needs, e.separate_by, rms,
             sc.chi2_new / dof_new, float(sc.dchi2), int(sc.dk), float(dbic), p,
             significant(sc), sc.refit is not None, sc.signature,
-            detectable={lab: (unit, k_detect * scale * ui)
+            # an undetermined parameter has no limit (u reported as 0): inf, never 0
+            detectable={lab: (unit, k_detect * scale * ui if ui > 0 else np.inf)
                         for lab, (unit, ui) in sc.u_new.items()},
             level=levels[sc.family],
             would_leave_undetermined=list(sc.combos)))
+    out, unseen = _seen(base, out)
     out.sort(key=lambda c: (not c.significant, c.delta_bic))
     out = _with_aliases(out, alias_corr, {sc.token: sc.period_aliases for sc in scored})
     note = ""
@@ -375,10 +382,38 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
         report(0.997, "the certificate against the self-calibrated plate")
         cert = check_certificate(base.problem.obs, base.spec, sigma_um=base.sigma_um,
                                  fitted=base)
-    msg = _message(base, out, verdict, sigma, uniform, where, note, checks, cert, blunders)
+    msg = _message(base, out, verdict, sigma, uniform, where, note, checks, cert,
+                   blunders) + _unseen_text(unseen)
     report(1.0, "done")
     return Diagnosis(base, out, verdict, skipped, msg, checks, sigma, uniform, where, cert,
-                     blunders)
+                     blunders, unseen)
+
+
+def _seen(base, cands):
+    """``(ranked, unseen)``: a candidate that adds no determinable parameter to the
+    baseline on this design is not ranked (its ΔBIC of 0 and detection limits of 0 would
+    read as "seen, and absent"); it is listed with the reason instead."""
+    ranked, unseen = [], {}
+    for c in cands:
+        if c.n_params > 0:
+            ranked.append(c)
+            continue
+        why = ("none of its parameters is determined by this design on top of the "
+               "baseline: the design does not measure what it changes, or the baseline's "
+               "own terms absorb it")
+        if base.problem.obs.artefact == "hole_plate":
+            why += ("; a hole plate gives only the two coordinates in its plane, so an "
+                    "effect normal to the plate (a sag) is invisible to it")
+        unseen[c.effect] = why
+    return ranked, unseen
+
+
+def _unseen_text(unseen: dict) -> str:
+    """`` Cannot be seen with this design: plate_sag (why).`` or nothing."""
+    if not unseen:
+        return ""
+    return (" Cannot be seen with this design: "
+            + "; ".join(f"{k} ({v})" for k, v in unseen.items()) + ".")
 
 
 def _first_verdict(data, base, out, exclude, note, cache, report):
