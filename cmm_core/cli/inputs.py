@@ -5,6 +5,7 @@ help texts a metrologist reads in ``--help``."""
 from __future__ import annotations
 
 import argparse
+import hashlib
 import io
 from pathlib import Path
 
@@ -125,15 +126,34 @@ def instruments_of(args):
     """The instrument files of ``--laser``, ``--step-gauge`` and ``--ball-bar``, read
     (DataError if bad)."""
 
-    out = [read_instrument(f, kind) for kind, files in
-           (("laser", args.laser), ("step_gauge", args.step_gauge),
-            ("ball_bar", args.ball_bar)) for f in files]
+    given = [(kind, f) for kind, files in (("laser", args.laser),
+                                           ("step_gauge", args.step_gauge),
+                                           ("ball_bar", args.ball_bar)) for f in files]
+    out = [read_instrument(f, kind) for kind, f in given]  # each reader bounds the size
+    _refuse_twice([f for _, f in given])
     for snapshot in getattr(args, "msl_bar", []):
         bar = read_msl_bar(snapshot, kind=args.msl_kind,
                            certificate_u=_certificate_u_arg(args.msl_certificate_u))
         out.append(read_instrument(io.BytesIO(bar.step_gauge_csv.encode()), "step_gauge",
                                    name=f"{bar.name} (as a step gauge)"))
     return out
+
+
+def _refuse_twice(files: list) -> None:
+    """The same instrument file (one path, or two files of the same content) given twice
+    would be fitted twice, its readings counted double and every u it gives divided by
+    √2 without a word: refused naming both."""
+    seen: dict[str, str] = {}
+    for f in files:
+        digest = hashlib.sha256(Path(f).read_bytes()).hexdigest()
+        if digest in seen:
+            same = Path(seen[digest]).resolve() == Path(f).resolve()
+            raise DataError(f"{'is given twice' if same else 'has the same content as '}"
+                            f"{'' if same else seen[digest]}; each instrument file may be "
+                            "fitted once (twice would count its readings double).",
+                            file=str(f), hint="drop the repeated --laser/--step-gauge/"
+                            "--ball-bar option.")
+        seen[digest] = str(f)
 
 
 def add_foreign_args(p):

@@ -106,6 +106,17 @@ def _finite_or_none(x: float):
     return float(x) if math.isfinite(x) else None
 
 
+def _min_trials(coverage_probability: float) -> int:
+    """Fewest Monte Carlo trials a budget may ask for: ``max(10⁴, 100 / (1 − p))``.
+
+    JCGM 101:2008 7.2.2 asks for M large compared with ``1 / (1 − p)``; with fewer than
+    100 trials beyond the coverage interval its ends are order statistics of a handful of
+    draws, and below 10⁴ trials the standard uncertainty itself is uncertain by more than
+    0.7 % (``1 / sqrt(2 M)``). A budget of 3 trials would print an interval of noise.
+    """
+    return max(10_000, math.ceil(100 / (1 - coverage_probability)))
+
+
 def budget_from_dict(d: dict, *, progress: Callable | None = None) -> dict:
     """The ``budget`` command (SPEC): GUM result and optional JCGM 101 Monte Carlo result.
 
@@ -153,6 +164,9 @@ def budget_from_dict(d: dict, *, progress: Callable | None = None) -> dict:
     if rounding not in ("truncate", "none"):
         raise ValueError(f"dof_rounding: expected 'truncate' or 'none', got {rounding!r}.")
     g = gum_combine(cts, coverage_probability=p, dof_rounding=rounding)
+    if not g.u_c > 0:
+        raise ValueError("contributions: every contribution is zero (u or half_width 0, or "
+                         "c 0), so U = 0; expected at least one uncertainty above zero.")
     out = {"y": g.y, "u_c": g.u_c, "nu_eff": _finite_or_none(g.nu_eff),
            "nu_used": _finite_or_none(g.nu_used), "k": g.k, "U": g.U,
            "coverage_probability": p,
@@ -164,10 +178,14 @@ def budget_from_dict(d: dict, *, progress: Callable | None = None) -> dict:
     if n is None:
         n = 0
     if isinstance(n, bool) or not isinstance(n, int) or n < 0 or n == 1:
-        raise ValueError(f"monte_carlo_trials: expected 0 (none) or an integer >= 2, "
-                         f"got {n!r}.")
+        raise ValueError(f"monte_carlo_trials: expected 0 (none) or a whole number of "
+                         f"at least {_min_trials(p)}, got {n!r}.")
     if n > 50_000_000:
         raise ValueError(f"monte_carlo_trials: expected at most 50000000, got {n}.")
+    least = _min_trials(p)
+    if 0 < n < least:
+        raise ValueError(f"monte_carlo_trials: expected 0 (none) or at least {least} for "
+                         f"a coverage probability of {p:g}, got {n}.")
     if n:
         seed = d.get("seed", 1)
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:

@@ -43,30 +43,45 @@ _COLUMNS_HINT = ("Columns: position,probe,ball,x_mm,y_mm,z_mm (long form) or "
 
 
 def _read_bytes(source: FileSource, name: str | None) -> tuple[bytes, str]:
-    """The raw bytes of a path, bytes or file-like object, refusing oversized files."""
+    """The raw bytes of a path, bytes or file-like object, refusing oversized files.
+
+    At most :data:`MAX_BYTES` + 1 bytes are ever read: a device or pipe (``/dev/zero``),
+    whose size the file system does not know, or an endless upload stream is refused at
+    the limit instead of filling the memory.
+    """
     if isinstance(source, (str, Path)):
         path = Path(source)
         name = name or path.name
         if not path.exists():
             raise DataError("file not found.", file=name, hint="check the path.")
-        if path.stat().st_size > MAX_BYTES:
-            raise DataError(f"file is {path.stat().st_size / 1e6:.0f} MB; the limit is "
-                            f"{MAX_BYTES / 1e6:.0f} MB.", file=name)
+        if path.is_dir():
+            raise DataError("is a folder; expected a file.", file=name,
+                            hint="name the file inside the folder.")
+        _refuse_size(path.stat().st_size, name)
         try:
-            data = path.read_bytes()
+            with path.open("rb") as fh:
+                data = fh.read(MAX_BYTES + 1)
         except OSError as exc:
             raise DataError(f"cannot read ({exc.strerror}).", file=name,
                             hint="check the path and that it is a file.") from None
     elif isinstance(source, bytes):
         data = source
     else:
-        raw = source.read()
+        raw = source.read(MAX_BYTES + 1)
         data = raw.encode() if isinstance(raw, str) else raw
     name = name or "uploaded file"
-    if len(data) > MAX_BYTES:
-        raise DataError(f"file is {len(data) / 1e6:.0f} MB; the limit is "
-                        f"{MAX_BYTES / 1e6:.0f} MB.", file=name)
+    _refuse_size(len(data), name)
     return data, name
+
+
+def _refuse_size(size: int, name: str) -> None:
+    """Refuse a file of more than :data:`MAX_BYTES` (``size`` may be the cap + 1 read)."""
+    if size > MAX_BYTES:
+        raise DataError(f"file is more than {MAX_BYTES / 1e6:.0f} MB (the limit of every "
+                        "reader)." if size == MAX_BYTES + 1 else
+                        f"file is {size / 1e6:.0f} MB; the limit is {MAX_BYTES / 1e6:.0f} MB.",
+                        file=name, hint="split the data into several files, or thin them "
+                        "out (docs/formats.md#size-limits).")
 
 
 def _delimiter(header: str) -> str:

@@ -124,6 +124,39 @@ class Setup:
     certificate_u: CertificateUncertainty | None = None
 
 
+_FREE_KEYS = ("source", "name", "note", "notes", "description")
+"""Keys free at any level (a note): never taken for a key of another section."""
+
+
+def _home(key: str) -> str | None:
+    """Where a setup key belongs (``machine.layout``, ``positions.<name>.probe``), or None
+    for a key of no section (free)."""
+    folded = str(key).lower().replace("-", "_")
+    for section, keys in SETUP_KEYS.items():
+        for k in keys:
+            if k.lower() == folded and k not in _FREE_KEYS:
+                prefix = {"": "", "position": "positions.<name>."}.get(section,
+                                                                      section + ".")
+                return prefix + k
+    return None
+
+
+def _refuse_misplaced(obj: dict, where: str, name) -> None:
+    """Refuse a key of another section placed here (``where``: ``""`` for the top level,
+    ``machine``, ``positions.BP1`` ...): read at the wrong level it would be ignored and
+    its default used silently (a top-level ``layout`` fits the default layout)."""
+    own = SETUP_KEYS["position" if where.startswith("positions.") else where]
+    for k in obj:
+        home = _home(str(k))
+        if k in own or home is None or home.rsplit(".", 1)[-1] in own:
+            continue
+        here = f"{where}.{k}" if where else str(k)
+        raise DataError(f"key {cut_repr(k)} does not belong {'at the top level' if not where else 'in ' + where}; "
+                        f"did you mean {home!r}?", file=name, column=here,
+                        hint="move it into its section (docs/formats.md#setup); at the wrong "
+                             "level it would be ignored and its default used.")
+
+
 def read_setup(source: FileSource | dict, *, name: str | None = "setup.json") -> Setup:
     """Read the setup JSON (path, dict, bytes or file-like) and check its fields.
 
@@ -139,9 +172,11 @@ def read_setup(source: FileSource | dict, *, name: str | None = "setup.json") ->
     if not isinstance(raw, dict):
         raise DataError("expected a JSON object.", file=name)
     _check_keys(raw, SETUP_KEYS[""], name, "")
+    _refuse_misplaced(raw, "", name)
     for sub in ("machine", "plate", "certificate"):
         if isinstance(raw.get(sub), dict):
             _check_keys(raw[sub], SETUP_KEYS[sub], name, sub)
+            _refuse_misplaced(raw[sub], sub, name)
     units = raw.get("units", "mm")
     if units != "mm":
         raise DataError(f"units must be 'mm', found {cut_repr(units)}.", file=name, column="units")
@@ -328,6 +363,7 @@ def _placement(spec, key: str, rng, probes: dict, name) -> Placement:
         raise DataError(f"expected an object with origin_mm, u_axis, v_axis, found "
                         f"{type(spec).__name__} {cut_repr(spec)}.", file=name, column=key)
     _check_keys(spec, SETUP_KEYS["position"], name, key)
+    _refuse_misplaced(spec, key, name)
     if "origin_mm" not in spec:
         raise DataError("position needs origin_mm (and u_axis, v_axis) as 3-vectors.",
                         file=name, column=key)

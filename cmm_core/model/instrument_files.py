@@ -62,6 +62,27 @@ MAX_STYLUS_MM = 50.0
 probed centres (mm): the stylus diameter, added for a bidirectional measurement."""
 MIN_BAR_MM = 1.0
 """Shortest distance of a ball bar's two centres (mm): closer, the row names one ball twice."""
+_U_RANGE_UM = (0.001, 100.0)
+"""Standard uncertainty of one instrument reading or length a real instrument has (µm).
+
+Below 1 nm no CMM calibration instrument reads: a laser interferometer's wavelength in air
+is known to about 1e-7 (Edlén's equation, a 0.1 K or 30 Pa air reading), 10 nm over
+100 mm, and its resolution is about 1 nm; step gauges and ball bars are certified to
+tens of nm at best. A smaller u (1e-12 written for 1e-6 mm, or a u in mm) would weight
+the reading a million times above the plate and wreck the fit. Above 100 µm the reading
+carries nothing about errors of a few µm: a unit slip (nm or mm written for µm)."""
+_MIN_OFFSET_MM = 1.0
+"""Shortest non-zero stylus or reflector offset (mm), as for the setup's probes: a real
+offset is zero or at least a stylus's length; 0.15 is a 150 mm stylus in metres."""
+_METRE_SPAN_MM = 2.0
+"""An instrument file whose points span less than this in every axis is in metres (as
+the measurement reader judges a plate): instrument lines and gauges span decimetres."""
+_MAX_READINGS = 20_000
+"""Most rows of one instrument file. A laser run in steps has tens to hundreds of
+targets (ISO 230-2: at least five per metre, five times in each direction), step gauges
+and ball bars tens of lengths; every row adds a dense row of the fit's Jacobian, so a
+file of 10⁶ readings (a continuous-mode log) would ask the fit for gigabytes. Every
+reader also refuses a file above ``io.MAX_BYTES`` (50 MB) before reading it."""
 
 _LASER_HINT = ("Columns: [run,]axis[,component],x_mm,y_mm,z_mm,error_um,u_um"
                "[,offset_x_mm,offset_y_mm,offset_z_mm]; docs/instruments.md.")
@@ -84,6 +105,11 @@ def _columns(df, name, required, optional, form, hint):
                             column=str(c), hint=hint)
     require_columns(df, list(required), name, form)
     require_rows(df, name, "reading" if "error_um" in required else "length")
+    if len(df) > _MAX_READINGS:
+        raise DataError(f"has {len(df)} rows; expected at most {_MAX_READINGS} readings or "
+                        "lengths per instrument file.", file=name,
+                        hint="thin the run out (every tenth reading) or split it into "
+                             "several files; docs/instruments.md#limits.")
 
 
 def _axes(df, column, name, found, default=None):
@@ -102,18 +128,43 @@ def _offsets(df, name, found):
     for a, col in enumerate(OFFSET_COLUMNS):
         if col in df:
             p[:, a] = numeric_column(df, col, name, problems=found)
-    big = np.linalg.norm(np.nan_to_num(p), axis=1) > MAX_PROBE_MM
-    found.add(big, OFFSET_COLUMNS[0], lambda i: f"the offset is {np.linalg.norm(p[i]):.4g} "
-              f"mm long; expected a stylus or reflector offset in mm (at most "
-              f"{MAX_PROBE_MM:g}).")
+    size = np.linalg.norm(np.nan_to_num(p), axis=1)
+    bad = (size > MAX_PROBE_MM) | ((size > 0) & (size < _MIN_OFFSET_MM))
+    found.add(bad, OFFSET_COLUMNS[0], lambda i: f"the offset is {size[i]:.4g} mm long; "
+              f"expected a stylus or reflector offset in mm (0, or {_MIN_OFFSET_MM:g} to "
+              f"{MAX_PROBE_MM:g}).", hint="offsets in metres or µm are refused: write mm, "
+              "e.g. 0,0,-150.")
     return p
 
 
+def _check_mm(found, points, columns):
+    """Points (each (m, 3), with their column names) that look like metres or µm, as
+    the measurement reader judges a plate: all of them within :data:`_METRE_SPAN_MM` in
+    every axis (metres), or a coordinate beyond 1e5 mm (µm)."""
+    xyz = np.vstack(points)
+    ok = np.isfinite(xyz).all(axis=1)
+    if ok.sum() >= 2 and np.ptp(xyz[ok], axis=0).max() < _METRE_SPAN_MM:
+        found.add_file(f"the points span only {np.ptp(xyz[ok], axis=0).max():.3g} in every "
+                       "axis; they look like metres, not mm.", column=columns[0],
+                       hint="multiply by 1000 (instrument files are in mm).")
+    for pts, cols in zip(points, (columns[k:k + 3] for k in range(0, len(columns), 3)),
+                         strict=True):
+        big = np.abs(np.nan_to_num(pts)) > 1e5
+        for j, col in enumerate(cols):
+            found.add(big[:, j], col, lambda i, j=j, pts=pts: f"value {pts[i, j]:g} mm is "
+                      "beyond any CMM's range; it looks like µm.",
+                      hint="divide by 1000 (instrument files are in mm).")
+
+
 def _positive_um(df, col, name, found, what):
+    """The ``u_um`` column, each within :data:`_U_RANGE_UM` (what a real instrument has)."""
     v = numeric_column(df, col, name, problems=found)
-    bad = np.isfinite(v) & ~((v > 0) & (v <= MAX_ERROR_UM))
-    found.add(bad, col, lambda i: f"expected {what} in µm, above 0 and at most "
-              f"{MAX_ERROR_UM:g}, found {v[i]:g}.", hint="write standard uncertainties in µm.")
+    lo, hi = _U_RANGE_UM
+    bad = np.isfinite(v) & ~((v >= lo) & (v <= hi))
+    found.add(bad, col, lambda i: f"expected {what} in µm, {lo:g} to {hi:g} (what an "
+              f"instrument can have), found {v[i]:g}.",
+              hint="write standard uncertainties in µm (not nm or mm); "
+                   "docs/instruments.md#limits.")
     return v
 
 
@@ -143,6 +194,7 @@ def read_laser(source: FileSource, name: str | None = None) -> LaserRun:
               f"µm, at most {MAX_ERROR_UM:g} in size.", hint="convert nm or mm to µm.")
     u = _positive_um(df, "u_um", name, found, "the reading's standard uncertainty")
     p = _offsets(df, name, found)
+    _check_mm(found, [r], ["x_mm", "y_mm", "z_mm"])
     found.raise_if_any()
     rows = file_rows(df)
     if "run" in df:
@@ -233,6 +285,7 @@ def read_step_gauge(source: FileSource, name: str | None = None) -> StepGauge:
     meas, cert = num["measured_mm"], num["certified_mm"]
     u = _positive_um(df, "u_um", name, found, "the length's standard uncertainty")
     p = _offsets(df, name, found)
+    _check_mm(found, [r1, r2], list(STEP_GAUGE_COLUMNS[:6]))
     found.add(np.isfinite(cert) & (cert <= 0), "certified_mm",
               lambda i: f"expected a positive length in mm, found {cert[i]:g}.")
     diff = np.abs(meas - cert)
@@ -301,6 +354,7 @@ def read_ball_bar(source: FileSource, name: str | None = None) -> BallBar:
     cert = num["certified_mm"]
     u = _positive_um(df, "u_um", name, found, "the length's standard uncertainty")
     p = _offsets(df, name, found)
+    _check_mm(found, [r1, r2], list(STEP_GAUGE_COLUMNS[:6]))
     found.add(np.isfinite(cert) & (cert <= 0), "certified_mm",
               lambda i: f"expected a positive length in mm, found {cert[i]:g}.")
     dist = np.linalg.norm(r2 - r1, axis=1)

@@ -26,6 +26,9 @@ TOP_KEYS = ("name", "setup", "plate", "model", "noise_um", "measurement", "strat
             "design", "seed")
 PLATE_DEFAULTS = {"rows": 5, "cols": 5, "pitch_mm": 133.0, "certificate_u_um": 0.13,
                   "geometry": "fixed"}
+_MIN_PRIOR = 0.01
+"""Smallest expected size of the kinematic coefficients (µm, µrad) a plan may state:
+a CMM's errors are tens of nanometres at the least."""
 MODEL_DEFAULTS = {"spec": "kinematic21", "order": 2, "prior_um": 1.0, "prior_urad": 1.0,
                   "alpha": FAMILY_ALPHA, "periods_mm": {}, "expected": {}}
 MEASUREMENT_DEFAULTS = {"order": "row", "probes_interleaved": False, "repeats": 1,
@@ -139,7 +142,9 @@ def _plan_model(raw, name):
     except ValueError as exc:
         raise _bad(name, "model.spec", str(exc)) from None
     for k in ("prior_um", "prior_urad"):
-        model[k] = _number(name, f"model.{k}", model[k], 0, 1e4)
+        # the expected size of a CMM's errors: 0 would say the machine is perfect, and the
+        # simulations and the designer's weights would be void (the designer took 0 for 1)
+        model[k] = _number(name, f"model.{k}", model[k], _MIN_PRIOR, 1e4)
     model["alpha"] = _number(name, "model.alpha", model["alpha"], 1e-6, 0.5)
     per = model["periods_mm"]
     if not isinstance(per, dict) or set(per) - set("xyz"):

@@ -177,7 +177,7 @@ def read_task(source, *, name=None) -> Task:
     if not isinstance(inc, bool):
         raise DataError(f"expected true or false, found {cut_repr(inc)}.", file=name,
                         column="include_model")
-    return Task(kind, xyz, probes,
+    task = Task(kind, xyz, probes,
                 None if sigma is None else _num(name, "probing_sigma_um", sigma, 0, 1000),
                 _num(name, "temperature.temp_C", t.get("temp_C", 20.0), 0, 50),
                 _num(name, "temperature.u_temp_C", t.get("u_temp_C", 0.0), 0, 10),
@@ -190,6 +190,14 @@ def read_task(source, *, name=None) -> Task:
                 _num(name, "seed", raw.get("seed", 1), 0, 2**32 - 1, True),
                 _num(name, "coverage_probability", raw.get("coverage_probability", 0.95),
                      0.5, 0.999), name)
+    if not inc and not any((task.sigma_um is None, task.sigma_um,
+                            task.u_temp_C, task.u_cte_per_K, task.scale_u_ppm,
+                            task.discrepancy_sd_um)):
+        raise DataError("include_model is false and every other influence is zero, so "
+                        "U = 0; expected at least one uncertainty above zero.", file=name,
+                        column="include_model",
+                        hint="keep include_model true, or state the probing noise.")
+    return task
 
 
 def feature(kind: str, P: np.ndarray) -> np.ndarray:
