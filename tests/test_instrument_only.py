@@ -12,7 +12,8 @@ sign), a regression through the origin: ``ĉ1 = −(R/2)·ΣL·y/ΣL²`` and
 import numpy as np
 import pytest
 
-from cmm_core.io import DataError
+from cmm_core.diagnosis import diagnose
+from cmm_core.io import DataError, read_machine
 from cmm_core.model import (
     fit,
     instrument_observations,
@@ -136,3 +137,26 @@ def test_instrument_only_refusals_are_one_line():
         fit(instrument_observations([sg], RANGE), "kinematic21", plate="free")
     with pytest.raises(DataError, match="outside the machine's stroke"):
         fit(instrument_observations([sg], [800.0, 1000.0, 700.0]), "dxx")
+
+
+def test_the_machine_of_a_setup_without_positions():
+    rng, layout = read_machine({"machine": {"layout": "fixed_bridge_xfyz",
+                                            "range_mm": [800, 600, 500]}})
+    assert rng.tolist() == [800.0, 600.0, 500.0] and layout == "fixed_bridge_xfyz"
+    with pytest.raises(DataError, match="machine.layout"):
+        read_machine({"machine": {"layout": "fixed_bridge"}})
+    with pytest.raises(DataError, match="range_mm"):
+        read_machine({"machine": {"range_mm": [1.2, 1.0, 0.7]}})  # metres
+
+
+def test_the_diagnosis_runs_on_instruments_alone_and_names_what_they_cannot_see():
+    sim = _sim()
+    runs = [simulate_laser(sim, "x", [0, 500, 350], np.linspace(0, 1200, 21), u_um=0.2,
+                           seed=3, run="x"), _gauge_along_x(sim, seed=4)]
+    d = diagnose(instrument_observations(runs, RANGE), "kinematic21", order=2,
+                 sigma_um=0.5)
+    out = d.to_dict()
+    assert d.baseline.plate == "none"
+    for token in ("plate_sag", "drift", "probe_offset"):
+        assert "instrument-only" in out["skipped"][token]
+    assert out["verdict"] is None  # the true machine is kinematic21: nothing missing

@@ -11,8 +11,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cmm_core.io import DataError, msl
-from cmm_core.model import fit, read_instrument, simulate
+from cmm_core.io import DataError, msl, read_machine
+from cmm_core.model import (
+    fit,
+    instrument_observations,
+    read_instrument,
+    simulate,
+    simulate_step_gauge,
+)
 
 RANGE = [800.0, 600.0, 600.0]
 PITCH = 110.0
@@ -259,6 +265,57 @@ def test_bar_becomes_a_step_gauge_file(tmp_path):
         msl.read_msl_plate(s, m, kind="simulated")
     with pytest.raises(DataError, match="read_msl_plate"):
         msl.read_msl_bar(*_plate_files(tmp_path / "p"), kind="simulated")
+
+
+@pytest.mark.parametrize("kind", msl.MSL_KINDS)
+def test_a_bar_written_from_the_simulator_gives_its_x_scale_alone(tmp_path, kind):
+    """A step gauge of 31 balls at 20 mm along x, measured by this project's simulator on
+    a machine whose only error is an x scale of −1.2 µm/m (MSL's validation bar's figure),
+    written in MSL's bar format, read back by ``read_msl_bar`` and fitted without a plate.
+
+    Hand reference: ``dxx = c1·2x/R`` (order 1, ``machine.terms.basis``), so the scale is
+    ``2000 c1 / R`` µm/m; lengths k·20 mm, k = 1..30, each rounded by the file to 0.01 µm
+    (u = 0.01/√12 µm): a slope through the origin has ``u = u_L / √ΣL²`` = 0.0015 µm/m,
+    the figure MSL's file gives."""
+    scale_um_per_m = -1.2
+    c1 = scale_um_per_m * RANGE[0] / 2000.0
+    setup = {"units": "mm", "frame": "machine",
+             "machine": {"layout": "fixed_bridge_xfyz", "range_mm": RANGE},
+             "positions": {p: {"origin_mm": o, "u_axis": u, "v_axis": v, "probe": q}
+                           for p, (o, u, v, q) in POSITIONS.items()},
+             "probes": PROBES}
+    sim = simulate({"seed": 1, "noise_um": 0.0, "setup": setup,
+                    "kinematic": {"spec": "kinematic21", "order": 1, "random_um": 0.0,
+                                  "random_urad": 0.0, "coefficients": {"dxx[1]": c1}},
+                    "plate": {"form_um": 0.0, "certificate_u_um": 0.0}})
+    probe = np.array([0.0, 0.0, -100.0])
+    start = np.array([100.0, 300.0, 150.0])  # tip centre of ball 1
+    lengths = np.arange(1, 31) * 20.0
+    sg = simulate_step_gauge(sim, start, start + [600.0, 0, 0], lengths, offset_mm=probe,
+                             u_um=0.0, seed=1)
+    tips = np.vstack([sg.r1_mm[:1], sg.r2_mm])  # indicated: on the x line (no other error)
+    bar = tips - tips[0]  # MSL's bar frame: ball 1 at the origin, x along the bar
+    if kind == "simulated":  # nominal + (true - indicated)
+        bar = 2.0 * msl._grid(31, 1, 20.0) - bar
+    cu = None if kind == "simulated" else {"U_um": [0.0058, 0.0], "k": 2,
+                                            "combine": "quadrature"}
+    snap, meta = write_msl(tmp_path, "bar", np.round(bar, 5), 31, 1, 20.0, tips[0] - probe,
+                           (0, 0, 0), "fixed_bridge_xfyz", probe)
+    read = msl.read_msl_bar(snap, meta, kind=kind, certificate_u=cu)
+    gauge = read_instrument(io.BytesIO(read.step_gauge_csv.encode()), "step_gauge")
+    obs = instrument_observations([gauge], *read_machine(read.setup))
+    res = fit(obs, "dxx", order=1, sigma_um=msl.MSL_ROUNDING_U_UM)
+    assert res.status == "converged" and res.plate == "none"
+    got, u = res.values[0] * 2000.0 / RANGE[0], res.u[0] * 2000.0 / RANGE[0]
+    u_hand = 1e3 * gauge.u_um[0] / np.sqrt(lengths @ lengths)
+    assert u == pytest.approx(u_hand, rel=1e-3)  # the fit's u is the hand formula's
+    assert u == pytest.approx(0.0015, abs=0.0001)
+    assert abs(got - scale_um_per_m) < 4 * u  # rounding of 0.01 µm: within 4 u
+    # the 21 errors: the bar sees the x scale with its Abbe terms, nothing else
+    full = fit(obs, "kinematic21", order=1, sigma_um=msl.MSL_ROUNDING_U_UM)
+    alone = {c.split("·")[1] for c in full.null_combinations if c.count("·") == 1}
+    assert {"dyy[1]", "dzz[1]", "sxy", "sxz", "syz"} <= alone
+    assert "dxx[1]" not in alone and full.rank == 1
 
 
 # ------------------------------------------------------------------ bad files, sniffing

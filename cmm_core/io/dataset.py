@@ -10,11 +10,11 @@ import numpy as np
 import pandas as pd
 
 from .certificate import Certificate, read_certificate
-from .delimited import FileSource
-from .errors import DataError
+from .delimited import FileSource, read_json
+from .errors import DataError, _check_keys
 from .matching import resolve
 from .measurements import read_measurement_files
-from .setup import Setup, read_setup
+from .setup import LAYOUTS, SETUP_KEYS, Setup, _json_object, _machine_range, read_setup
 
 SAMPLE_DIR = Path(__file__).resolve().parents[2] / "sample_data"
 THESIS_DIR = SAMPLE_DIR / "thesis"
@@ -120,6 +120,27 @@ def stated_certificate(cert: Certificate | None, setup: Setup) -> Certificate | 
                  'sqrt(a² + (b·L)²), L mm from ball 1), or "certificate": {"exact": true} '
                  "for a noise-free simulation.")
     return replace(cert, u_um=stated.u_um(cert.xyz_mm), u_source=stated.describe())
+
+
+def read_machine(source: FileSource | dict, *, name: str | None = "setup.json"
+                 ) -> tuple[np.ndarray, str]:
+    """The machine of a setup JSON, ``(range_mm, layout)``, for a fit without a plate.
+
+    An instrument-only fit (laser runs, step gauges, ball bars: ``cmm_core.model.
+    instrument_observations``) needs the machine's strokes and kinematic chain only, so a
+    setup with no ``positions`` is accepted here (``read_setup`` requires them); the keys
+    and the ``machine`` section are checked as ``read_setup`` checks them.
+    """
+    if isinstance(source, dict):
+        raw = source
+    else:
+        raw, name = read_json(source, None if isinstance(source, str | Path) else name)
+    if not isinstance(raw, dict):
+        raise DataError("expected a JSON object.", file=name)
+    _check_keys(raw, SETUP_KEYS[""], name, "")
+    machine = _json_object(raw, "machine", name)
+    _check_keys(machine, SETUP_KEYS["machine"], name, "machine")
+    return _machine_range(machine, name), str(machine.get("layout", LAYOUTS[0]))
 
 
 def thesis_dataset() -> Dataset:

@@ -25,6 +25,7 @@ from ..io import Dataset
 from ..units import label as unit_label
 from . import hole_plate
 from . import normal as _normal
+from .blocks import needs
 from .certificate_prior import certificate_terms, held_prior_rows
 from .effects import ModelSpec, parse_spec
 from .observations import Observations, has_plate, select
@@ -186,7 +187,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
                    chi2_test / max(dof_test, 1)) + hole_plate.tilt_note(prob, state)
     # an effect the data cannot see adds nothing (or no parameter at all): say so
     msg += "".join(f" {b.token} adds nothing determinable: {why}." for b in prob.blocks
-                   if b.token and (why := type(b).needs(obs)))
+                   if b.token and (why := needs(b.token, obs)))
     kin_block = L.blocks["kinematic"]
     wild = [(L.labels[i], values[i], L.units[i]) for i in range(kin_block.start, kin_block.stop)
             if abs(values[i]) > IMPLAUSIBLE]

@@ -35,8 +35,14 @@ BY_TOKEN = {b.token: b for b in REGISTRY if b.token}
 def needs(token: str, obs) -> str | None:
     """Why ``obs`` cannot determine the effect ``token`` adds (None: they can)."""
     name = token.partition(":")[0]
+    if name in BY_TOKEN and not len(obs.r_mm):
+        # instruments see the kinematic terms only (periodic ones included)
+        return "it acts on ball-plate observations, and an instrument-only fit has none"
     if name in BY_TOKEN:
         return BY_TOKEN[name].needs(obs)
+    if name in periodic.PERIODIC and not len(obs.r_mm):
+        return ("its period is scanned over the ball spacing, and an instrument-only fit "
+                "has no ball; a stated period (periodic_x:180) is fitted")
     if name in periodic.PERIODIC:
         return periodic.needs(obs, name)
     return None
