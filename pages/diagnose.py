@@ -23,7 +23,13 @@ c = st.columns(4)
 # the model as the user wrote it, wrapped at its commas (a metric would cut it)
 c[0].markdown(f"Model  \n{C.spec_markup(s['spec'])}", unsafe_allow_html=True)
 c[1].metric("RMS residual", f"{r.rms_um:.3f} µm")
-c[2].metric("χ²/dof", f"{r.chi2_dof:.2f}")
+# one χ²/dof is the headline: the one the χ² test decides on (with a fixed certificate
+# it counts the certificate's uncertainty; the fit's own value is named in the help)
+c[2].metric("χ²/dof (tested)", f"{r.chi2_test_dof:.2f}",
+            help=("The statistic the χ² test decides on." + (
+                f" The fit's own χ²/dof, {r.chi2_dof:.2f}, leaves out the certificate's "
+                "uncertainty that the test counts with a fixed certificate."
+                if r.test_counts_certificate else "")))
 c[3].metric("BIC", f"{r.bic:.1f}")
 # reversal and certificate uncertainties below are σ-based
 C.misfit_banner(r)

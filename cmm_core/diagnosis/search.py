@@ -122,6 +122,10 @@ class Candidate:
     level : float
         The significance level this candidate was tested at (its share of the family-wise
         false-alarm rate, weighted Bonferroni).
+    fitted : dict
+        ``{label: (unit, value, u)}``: the added parameters as the full refit of the
+        baseline with this effect estimates them (empty when not confirmed by a refit).
+        The verdict quotes them (a probe offset names its stylus and vector).
     would_leave_undetermined : list of str
         Parameter combinations the model with this effect added could not determine
         (beyond the baseline's own): adding it as is leaves them unidentified. Fix by a
@@ -147,6 +151,7 @@ class Candidate:
     detectable: dict = field(default_factory=dict)
     level: float = 0.01
     would_leave_undetermined: list = field(default_factory=list)
+    fitted: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """JSON-ready summary (no arrays)."""
@@ -159,7 +164,9 @@ class Candidate:
                 "detectable": {k: {"unit": u, "size": v}
                                for k, (u, v) in self.detectable.items()},
                 "level": self.level,
-                "would_leave_undetermined": self.would_leave_undetermined}
+                "would_leave_undetermined": self.would_leave_undetermined,
+                "fitted": {k: {"unit": unit, "value": v, "u": u}
+                           for k, (unit, v, u) in self.fitted.items()}}
 
     def detectable_text(self) -> str:
         """``dxz[1] > 1.9 µm, dxz[2] > 2.3 µm`` (the first few parameters)."""
@@ -347,7 +354,7 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
             detectable={lab: (unit, k_detect * scale * ui if ui > 0 else np.inf)
                         for lab, (unit, ui) in sc.u_new.items()},
             level=levels[sc.family],
-            would_leave_undetermined=list(sc.combos)))
+            would_leave_undetermined=list(sc.combos), fitted=_fitted(sc)))
     out, unseen = _seen(base, out)
     out.sort(key=lambda c: (not c.significant, c.delta_bic))
     out = _with_aliases(out, alias_corr, {sc.token: sc.period_aliases for sc in scored})
@@ -387,6 +394,15 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
     report(1.0, "done")
     return Diagnosis(base, out, verdict, skipped, msg, checks, sigma, uniform, where, cert,
                      blunders, unseen)
+
+
+def _fitted(sc) -> dict:
+    """``{label: (unit, value, u)}`` of a candidate's added parameters from its refit."""
+    if sc.refit is None:
+        return {}
+    idx = {lab: i for i, lab in enumerate(sc.refit.labels)}
+    return {lab: (unit, float(sc.refit.values[idx[lab]]), float(sc.refit.u[idx[lab]]))
+            for lab, (unit, _) in sc.u_new.items() if lab in idx}
 
 
 def _seen(base, cands):

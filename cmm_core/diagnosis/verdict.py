@@ -16,6 +16,7 @@ import numpy as np
 from scipy import stats
 
 from ..model import PERIODIC, FitResult, fit
+from ..units import label as unit_label
 from . import crossval as holdout
 from .blunders import BLUNDERS
 from .replicates import axis_weights
@@ -236,6 +237,38 @@ def _with_aliases(cands, threshold, extra=None):
     return res
 
 
+def stylus_offsets(fitted: dict) -> dict:
+    """``{stylus: (vector µm (3,), u µm (3,))}`` from a probe offset's fitted
+    parameters (labels ``probe<name>.<axis>``)."""
+    out: dict = {}
+    for lab, (_, v, u) in fitted.items():
+        q, _, a = lab[len("probe"):].rpartition(".")
+        vec = out.setdefault(q, (np.zeros(3), np.zeros(3)))
+        vec[0]["xyz".index(a)], vec[1]["xyz".index(a)] = v, u
+    return out
+
+
+def fitted_text(c) -> str:
+    """The named effect's numbers: a probe offset names the stylus furthest off (the
+    largest offset vector, with u), other effects their parameters largest against u."""
+    if not c.fitted:
+        return ""
+    if c.effect == "probe_offset":
+        off = stylus_offsets(c.fitted)
+        q = max(off, key=lambda k: float(np.linalg.norm(off[k][0])))
+        v, u = off[q]
+        vec = ", ".join(f"{a} {x:+.2f} ± {s:.2f}" for a, x, s in zip("xyz", v, u,
+                                                                     strict=True))
+        return (f" Stylus {q} is the furthest off: its offset error is ({vec}) µm "
+                f"(|e| = {np.linalg.norm(v):.2f} µm; u standard uncertainties, each stylus "
+                "relative to the mean of all, since the fit only sees their differences); "
+                "requalify it. Every stylus's vector is in the candidate's fitted "
+                "parameters.")
+    top = sorted(c.fitted.items(), key=lambda kv: -abs(kv[1][1]) / max(kv[1][2], 1e-300))
+    return " Fitted: " + ", ".join(f"{lab} = {v:.3g} ± {u:.2g} {unit_label(unit)}"
+                                    for lab, (unit, v, u) in top[:3]) + "."
+
+
 def _where_text(where: dict) -> str:
     """``BP112 carries 30 % of χ² (17 % of the observations); ...``"""
     parts = []
@@ -253,8 +286,9 @@ def _test_text(base) -> str:
     certificate fixed, its uncertainty counted) beside the fit's own χ²/dof."""
     verdict = "fails" if base.fails_chi2_test else "passes"
     val, dof = base.chi2_test_dof, base.test_statistic[1]
-    own = (f" with the certificate's uncertainty counted (the fit's own χ²/dof "
-           f"{base.chi2_dof:.2f})" if base.test_counts_certificate else "")
+    own = (f" with the certificate's uncertainty counted (this is the value the test "
+           f"decides on; the fit's own χ²/dof, {base.chi2_dof:.2f}, leaves that uncertainty "
+           "out)" if base.test_counts_certificate else "")
     return (f"χ²/dof {val:.2f} at {dof} degrees of freedom against σ = "
             f"{base.sigma_um:.3g} µm{own} {verdict} the χ² test (p = {base.chi2_p_value:.2g})")
 
@@ -306,7 +340,7 @@ def _conclusion(base, cands, verdict, sigma=None, uniform=None, where=None):
     expl = best.explanation[:1].upper() + best.explanation[1:]
     text = (f" Most likely missing: {name}: adding it lowers χ² by "
             f"{best.delta_chi2:.1f} for {best.n_params} parameter(s), ΔBIC "
-            f"{best.delta_bic:.1f}, p = {best.p_value:.2g}. {expl}")
+            f"{best.delta_bic:.1f}, p = {best.p_value:.2g}. {expl}{fitted_text(best)}")
     if best.delta_bic > 0:
         text += (f" Its ΔBIC is positive: BIC charges ln N = "
                  f"{np.log(base.dof + base.rank):.1f} per parameter and would rather not add "
