@@ -20,7 +20,7 @@ import numpy as np
 
 from ..analysis import measured_error_from_residuals_um, read_record, write_report
 from ..diagnosis import diagnose, kinematic_basis
-from ..export import compensate, load_model, read_points, refuse_off_machine, save_model
+from ..export import compensate, load_model, save_model
 from ..gp import gp_components
 from ..gum import air_from_args, read_budget
 from ..io import (
@@ -120,15 +120,9 @@ def cmd_diagnose(args):
 
 
 def cmd_compensate(args):
-    model = load_model(args.model)
-    pts = read_points(args.points)
-    out = compensate(model, pts)
-    atomic_write_text(args.out, out.to_csv(index=False, float_format="%.6f"))
-    if not args.allow_extrapolation:
-
-        refuse_off_machine(out, pts.attrs.get("source", Path(args.points).name))
-    return {"out": str(args.out), "n_points": len(out),
-            "max_correction_um": float(np.abs(out[["ex_um", "ey_um", "ez_um"]]).max().max())}
+    # streamed a chunk at a time: the memory does not grow with the number of points
+    return compensate(load_model(args.model), args.points, out=args.out,
+                      allow_extrapolation=args.allow_extrapolation)
 
 
 def cmd_gp(args):

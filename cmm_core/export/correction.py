@@ -14,14 +14,24 @@ part's parameters through their joint covariance (JCGM 100 eq. 13):
 
 from __future__ import annotations
 
+import codecs
+import contextlib
+import errno
+import io
 import json
+import os
+import secrets
+import stat
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import overload
 
 import numpy as np
 import pandas as pd
 
 from ..io import (
+    MAX_BYTES,
     MAX_PROBE_MM,
     MAX_STROKE_MM,
     MIN_STROKE_MM,
@@ -32,7 +42,7 @@ from ..io import (
 from ..io.delimited import file_rows, numeric_column, read_csv_text, require_columns, require_rows
 from ..io.errors import cut_repr
 from ..machine import kinematics as kin
-from ..model import MAX_ORDER, REGISTRY, FitResult, checked_cov, parse_spec, propagate_error
+from ..model import MAX_ORDER, REGISTRY, FitResult, checked_cov, parse_spec
 
 COMPENSATING = tuple(b for b in REGISTRY if b.model_keys)
 """Blocks that act on new points, in the order of their parameters in the joint
@@ -291,6 +301,8 @@ def _checked_model_values(d, terms, coef, cov, probes, name):
                         "number.", file=name, column="coef",
                         hint="refit and save the model again (fit --save).")
     _checked_cov(cov, terms.n, name, "cov")
+    if d.get("undetermined") is False:
+        _checked_definite(cov, name, "cov")
     if not probes:
         raise DataError("the model has no probes; expected probes_mm with one offset per "
                         "stylus.", file=name, column="probes_mm")
@@ -298,6 +310,73 @@ def _checked_model_values(d, terms, coef, cov, probes, name):
         if p.shape != (3,) or not np.isfinite(p).all() or np.linalg.norm(p) > MAX_PROBE_MM:
             raise DataError(f"expected 3 finite numbers (mm), found {cut_repr(d['probes_mm'][q])}.",
                             file=name, column=f"probes_mm.{q}")
+    _checked_magnitudes(terms, coef, cov, probes, name)
+
+
+_MAX_ERROR_UM = 10_000.0
+"""Largest error (µm) a model term may contribute anywhere in the machine's range, and
+largest standard uncertainty of that contribution: 10 mm.
+
+A CMM's geometric errors are micrometres to a few tens of micrometres per metre (ISO
+10360-2 MPEs of a few µm + L/300 µm); a controller's uncompensated errors rarely exceed a
+fraction of a millimetre. The kinematic model itself is a small-angle linearisation
+(thesis eq. 4.1-4.3: rotations enter as first-order terms), which no longer holds at
+10 mm over a metre (10 mrad). A term beyond this bound is a file in the wrong units, or
+corrupt: finite but huge coefficients (1e308) would turn every correction and grid node
+into ±inf or NaN."""
+
+
+def _sample_points(terms, probes):
+    """Scale readings on a 5 × 5 × 5 grid over the strokes (corners included), with each
+    probe's offset: where the model's terms are evaluated to bound their size. The
+    polynomial bases reach their extremes at the stroke ends; a periodic term may peak
+    between nodes, by less than the bound's margin."""
+    g = [np.linspace(0.0, r, 5) for r in terms.range_mm]
+    x = np.stack(np.meshgrid(*g, indexing="ij"), -1).reshape(-1, 3)
+    offsets = np.array(list(probes.values()), float).reshape(-1, 3)
+    return np.tile(x, (len(offsets), 1)), np.repeat(offsets, len(x), axis=0)
+
+
+def _checked_magnitudes(terms, coef, cov, probes, name):
+    """Refuse a coefficient whose contribution to the error anywhere in the machine's
+    range (its value times the largest sensitivity of a tip-centre coordinate to it,
+    thesis eq. 4.13 linearised at zero) exceeds :data:`_MAX_ERROR_UM`, and the same for
+    its standard uncertainty (``sqrt(cov_kk)`` times that sensitivity)."""
+    if not terms.n:
+        return
+    x, p = _sample_points(terms, probes)
+    _, J = kin.jacobian(terms, np.zeros(terms.n), x, p)
+    sens = np.abs(J).max(axis=(0, 1)) / kin.UM  # µm of error per unit coefficient
+    for what, size, col in (("coefficient", np.abs(coef), "coef"),
+                            ("standard uncertainty of coefficient",
+                             np.sqrt(np.clip(np.diag(cov), 0, None)), "cov")):
+        big = size * sens > _MAX_ERROR_UM
+        if big.any():
+            k = int(np.flatnonzero(big)[0])
+            raise DataError(f"{what} {terms.labels[k]} ({size[k]:.3g}) makes an error of "
+                            f"{size[k] * sens[k] / 1e3:.3g} mm within the machine's range; "
+                            f"expected at most {_MAX_ERROR_UM / 1e3:g} mm (a CMM's errors are "
+                            "micrometres).", file=name, column=col,
+                            hint="check the units; refit and save the model again "
+                                 "(fit --save).")
+
+
+def _checked_definite(cov, name, column):
+    """Refuse a covariance that is not positive definite (a determined model's: every
+    coefficient combination has a finite, non-zero variance). Tested on the correlation
+    matrix, so that the variances' units and scales do not matter: its Cholesky factor
+    exists."""
+    d = np.diag(cov)
+    try:
+        if (d <= 0).any():
+            raise np.linalg.LinAlgError
+        s = 1 / np.sqrt(d)
+        np.linalg.cholesky(cov * s[:, None] * s[None, :])
+    except np.linalg.LinAlgError:
+        raise DataError("the covariance is not positive definite, yet the model says every "
+                        "coefficient is determined (\"undetermined\": false).", file=name,
+                        column=column, hint="refit and save the model again "
+                                            "(fit --save); do not edit it.") from None
 
 
 OFF_MACHINE = "outside the machine's range"
@@ -310,17 +389,20 @@ def refuse_off_machine(corrected: pd.DataFrame, name: str = "points") -> None:
     result. The CLI calls this unless ``--allow-extrapolation`` is given."""
     off = (corrected["extrapolated"] == OFF_MACHINE).to_numpy()
     if off.any():
-        rows = file_rows(corrected)
         i = int(np.flatnonzero(off)[0])
-        n = int(off.sum())
-        raise DataError(f"{n} point{'s' * (n > 1)} lie outside the machine's range, where "
-                        "the model is not defined (this one at "
-                        f"{corrected[['x_mm', 'y_mm', 'z_mm']].to_numpy(float)[i].round(1).tolist()}"
-                        " mm); expected points in mm, machine frame.", file=name,
-                        row=int(rows[i]), column="x_mm",
-                        hint="check units and frame; to keep such points anyway, use "
-                             "--allow-extrapolation (they are flagged in the 'extrapolated' "
-                             "column).")
+        raise _off_machine_error(int(off.sum()), int(file_rows(corrected)[i]),
+                                 corrected[["x_mm", "y_mm", "z_mm"]].to_numpy(float)[i], name)
+
+
+def _off_machine_error(n: int, row: int, r_mm: np.ndarray, name: str) -> DataError:
+    """The refusal of ``n`` points off the machine, the first at file ``row``."""
+    return DataError(f"{n} point{'s' * (n > 1)} lie outside the machine's range, where "
+                     "the model is not defined (this one at "
+                     f"{np.round(r_mm, 1).tolist()} mm); expected points in mm, machine "
+                     "frame.", file=name, row=row, column="x_mm",
+                     hint="check units and frame; to keep such points anyway, use "
+                          "--allow-extrapolation (they are flagged in the 'extrapolated' "
+                          "column).")
 
 
 def extrapolation_note(m: Model, x_mm: np.ndarray) -> np.ndarray:
@@ -358,8 +440,16 @@ def load_model(path) -> Model:
 
 
 def read_points(source, *, name=None) -> pd.DataFrame:
-    """Read points to correct: ``x_mm,y_mm,z_mm`` and ``probe`` (plus any other columns)."""
+    """Read points to correct: ``x_mm,y_mm,z_mm`` and ``probe`` (plus any other columns),
+    the whole file at once (at most :data:`cmm_core.io.MAX_BYTES`); :func:`compensate` with
+    ``out`` streams a file of any size instead."""
     df, name = read_csv_text(source, name)
+    return _points_table(df, name)
+
+
+def _points_table(df: pd.DataFrame, name: str) -> pd.DataFrame:
+    """The points of a table of strings (:func:`read_csv_text`): coordinates as numbers,
+    every unreadable cell refused with its row."""
     require_columns(df, ("x_mm", "y_mm", "z_mm"), name, "points")
     require_rows(df, name, "point to correct")
     out = df.copy()
@@ -369,7 +459,27 @@ def read_points(source, *, name=None) -> pd.DataFrame:
     return out
 
 
-def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
+_CHUNK_POINTS = 20_000
+"""Points corrected at a time. A chunk's Jacobian holds points × 3 × parameters numbers
+(16 MB for the 33 coefficients of ``kinematic21`` at order 2), so the memory a correction
+takes does not grow with the number of points; larger chunks gain little time."""
+
+_NOT_UTF8 = "is not UTF-8 text (a binary file, or another encoding)."
+
+
+@overload
+def compensate(model: Model | FitResult, points: pd.DataFrame, *, out: None = None,
+               allow_extrapolation: bool = True,
+               chunk_points: int = _CHUNK_POINTS) -> pd.DataFrame: ...
+
+
+@overload
+def compensate(model: Model | FitResult, points: str | os.PathLike, *, out: str | os.PathLike,
+               allow_extrapolation: bool = True, chunk_points: int = _CHUNK_POINTS) -> dict: ...
+
+
+def compensate(model, points, *, out=None, allow_extrapolation=True,
+               chunk_points=_CHUNK_POINTS):
     """Corrected points ``xc_mm, yc_mm, zc_mm`` with standard uncertainties in µm.
 
     ``points`` needs ``x_mm, y_mm, z_mm`` (reported tip centres, machine frame) and a
@@ -381,48 +491,134 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
 
     The correction is ``e + Σ δ_block`` (kinematic error, thesis eq. 4.13, plus each
     part's :meth:`blocks.base.Block.correct`), its uncertainty the propagation of the
-    joint covariance (module docstring) plus any variance a part adds.
+    joint covariance (module docstring) plus any variance a part adds. Both are
+    evaluated ``chunk_points`` points at a time, so memory stays bounded.
+
+    Parameters
+    ----------
+    model : Model or FitResult
+    points : DataFrame, or path of a points CSV file when ``out`` is given
+    out : path, optional
+        Stream ``points`` (a file) to this CSV file, a chunk at a time: the memory taken
+        does not depend on the file's size. Written as the CLI's ``--out``: through a
+        temporary file in the same folder renamed into place at the end, so a failed run
+        leaves no half file and an existing file as it was. Models with ``backlash`` read
+        the file whole (the approach directions follow the points' order over the whole
+        file), within the size limit of every reader.
+    allow_extrapolation : bool
+        With ``out``: when False, points outside the machine's range are refused
+        (:func:`refuse_off_machine`) after the flagged output is written.
+    chunk_points : int
+        Points evaluated (and, with ``out``, read) at a time.
+
+    Returns
+    -------
+    DataFrame
+        The input columns plus ``xc_mm, yc_mm, zc_mm``, ``ex_um, ey_um, ez_um``,
+        ``u_x_um, u_y_um, u_z_um`` and ``extrapolated`` (and each part's columns).
+    dict
+        With ``out``: ``out``, ``n_points`` and ``max_correction_um``.
+
+    Raises
+    ------
+    DataError
+        A point the model cannot correct (unknown probe, non-finite or metre coordinates,
+        a missing column a part needs), or a correction that is not a finite number.
     """
     m = model_from_result(model) if isinstance(model, FitResult) else model
+    if out is not None:
+        return _compensate_file(m, Path(points), out, allow_extrapolation, chunk_points)
     name = points.attrs.get("source", "points")
-    if "probe" in points:
-        probes = points["probe"].astype(str).str.strip().to_numpy()
-    elif len(m.probes_mm) == 1:
-        probes = np.full(len(points), next(iter(m.probes_mm)))
-    else:
-        raise DataError(f"missing column 'probe'; the model has probes "
-                        f"{', '.join(m.probes_mm)}.", file=name, column="probe")
-    rows_in_file = file_rows(points)
-    for i, q in enumerate(probes):
-        if q not in m.probes_mm:
-            raise DataError(f"probe {cut_repr(q)} is not in the model {m.name} (known: "
-                            f"{', '.join(m.probes_mm)}).", file=name, row=int(rows_in_file[i]),
-                            column="probe")
+    r = _coordinates(points, name)
+    _refuse_metres(m, float(np.abs(r).max()) if len(r) else 0.0, name)
+    return _corrected(m, _Factor.of(m), points, r, name, chunk_points)
+
+
+@dataclass(frozen=True)
+class _Factor:
+    """A factor ``L`` of the model's joint covariance, ``V = L Lᵀ``: the uncertainty of
+    a correction is then the norm of ``J L`` per coordinate, one matrix product per
+    chunk (``diag(J V Jᵀ)`` term by term costs k² per coordinate)."""
+
+    L: np.ndarray
+    """(k, k) factor (eigen-decomposition, so that a semi-definite V has one too)."""
+
+    @staticmethod
+    def of(m: Model) -> _Factor:
+        """The factor of ``m.joint_cov``."""
+        V = m.joint_cov
+        w, Q = np.linalg.eigh((V + V.T) / 2)
+        return _Factor(Q * np.sqrt(np.clip(w, 0, None)))
+
+
+def _coordinates(points: pd.DataFrame, name: str) -> np.ndarray:
+    """The reported tip centres (mm), finite, as an (m, 3) array."""
     r = points[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
-    if not np.isfinite(r).all():
-        i = int(np.flatnonzero(~np.isfinite(r).all(axis=1))[0])
+    bad = ~np.isfinite(r).all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
         raise DataError("expected finite coordinates (mm), found "
-                        f"{r[i].tolist()}.", file=name, row=int(rows_in_file[i]), column="x_mm")
+                        f"{r[i].tolist()}.", file=name, row=int(file_rows(points)[i]),
+                        column="x_mm")
+    return r
+
+
+def _refuse_metres(m: Model, max_abs_mm: float, name: str) -> None:
+    """Refuse points that all lie within 2 mm of the origin of a machine of 100 mm or
+    more: they are metres (``max_abs_mm``: the largest |coordinate| of all the points)."""
     rng = np.asarray(m.terms.range_mm, float)
-    if len(r) and rng.max() >= 100 and np.nanmax(np.abs(r)) <= 2.0:
+    if rng.max() >= 100 and max_abs_mm <= 2.0:
         raise DataError(f"every coordinate is within 2 mm of the origin of a "
                         f"{rng.max():.0f} mm machine: the points look like metres.",
                         file=name, column="x_mm", hint="write the points in mm.")
-    p = np.array([m.probes_mm[q] for q in probes]).reshape(-1, 3)
+
+
+def _probe_offsets(m: Model, points: pd.DataFrame, name: str) -> np.ndarray:
+    """Each point's probe offset (mm), (m, 3); an unknown probe refused with its row."""
+    if "probe" not in points:
+        if len(m.probes_mm) == 1:
+            return np.broadcast_to(next(iter(m.probes_mm.values())), (len(points), 3))
+        raise DataError(f"missing column 'probe'; the model has probes "
+                        f"{', '.join(m.probes_mm)}.", file=name, column="probe")
+    names, inverse = np.unique(points["probe"].astype(str).str.strip().to_numpy(),
+                               return_inverse=True)
+    for k, q in enumerate(names):
+        if q not in m.probes_mm:
+            i = int(np.flatnonzero(inverse == k)[0])
+            raise DataError(f"probe {cut_repr(q)} is not in the model {m.name} (known: "
+                            f"{', '.join(m.probes_mm)}).", file=name,
+                            row=int(file_rows(points)[i]), column="probe")
+    table = np.array([m.probes_mm[q] for q in names], float).reshape(-1, 3)
+    return table[inverse.ravel()]
+
+
+def _corrected(m: Model, factor: _Factor, points: pd.DataFrame, r: np.ndarray, name: str,
+               chunk_points: int) -> pd.DataFrame:
+    """:func:`compensate` of a table whose coordinates ``r`` are checked."""
+    p = _probe_offsets(m, points, name)
     x = r - p
     fixes = [b.correct(part, points, x, name) for b in COMPENSATING
              if (part := m.parts.get(b.token)) is not None]
-    if not fixes:
-        e_um, u = propagate_error(m.terms, m.coef, m.cov, x, p)
-    else:
-        # each part enters linearly: its Jacobian columns follow the kinematic ones
-        e_um, u = propagate_error(m.terms, m.coef, m.joint_cov, x, p,
-                                  extra_jac=np.concatenate([f.jac for f in fixes], axis=2))
-        for f in fixes:
-            e_um = e_um + f.delta_um
-        extra = [f.var_um2 for f in fixes if f.var_um2 is not None]
-        if extra:
-            u = np.sqrt(u**2 + sum(extra))
+    e_um = np.empty_like(r)
+    u = np.empty_like(r)
+    step = max(int(chunk_points), 1)
+    for a in range(0, len(r), step):
+        s = slice(a, a + step)
+        xs, J = kin.jacobian(m.terms, m.coef, x[s], p[s])
+        e_um[s] = (xs - x[s] - p[s]) / kin.UM  # as propagate_error: the same doubles
+        if fixes:
+            # each part enters linearly: its Jacobian columns follow the kinematic ones
+            J = np.concatenate([J / kin.UM, *(f.jac[s] for f in fixes)], axis=2)
+        else:
+            J = J / kin.UM
+        JL = J.reshape(-1, J.shape[2]) @ factor.L
+        u[s] = np.sqrt(np.einsum("ij,ij->i", JL, JL)).reshape(-1, 3)
+    for f in fixes:
+        e_um += f.delta_um
+    extra = [f.var_um2 for f in fixes if f.var_um2 is not None]
+    if extra:
+        u = np.sqrt(u**2 + sum(extra))
+    _refuse_non_finite(m, points, e_um, u, name)
     if m.undetermined:
         u[:] = np.nan
     out = points.copy()
@@ -434,3 +630,231 @@ def compensate(model: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
         for col, v in f.columns.items():
             out[col] = v
     return out
+
+
+def _refuse_non_finite(m: Model, points: pd.DataFrame, e_um: np.ndarray, u: np.ndarray,
+                       name: str) -> None:
+    """No NaN or inf leaves :func:`compensate`: a correction or uncertainty that is not
+    finite (a corrupt model, or a part's input such as a temperature far out of range)
+    is refused at its point, naming the model."""
+    bad = ~(np.isfinite(e_um) & np.isfinite(u)).all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise DataError(f"the model {m.name} gives a correction of {e_um[i].tolist()} µm "
+                        f"± {u[i].tolist()} µm here; expected finite numbers.", file=name,
+                        row=int(file_rows(points)[i]), column="x_mm",
+                        hint="check this point's columns; refit and save the model again "
+                             "(fit --save).")
+
+
+def _compensate_file(m: Model, path: Path, out, allow_extrapolation: bool,
+                     chunk_points: int) -> dict:
+    """:func:`compensate` of the points file ``path`` streamed to ``out``."""
+    name = path.name
+    factor = _Factor.of(m)
+    whole = "backlash" in m.parts  # directions follow the order over the whole file
+    tables = iter([read_points(path)]) if whole else _point_chunks(path, name, chunk_points)
+    n, n_off, first_off, max_abs, max_corr = 0, 0, None, 0.0, 0.0
+    with _atomic_stream(out) as fh:
+        for table in tables:
+            r = _coordinates(table, name)
+            res = _corrected(m, factor, table, r, name, chunk_points)
+            fh.write(_csv_text(res, header=n == 0))
+            off = (res["extrapolated"] == OFF_MACHINE).to_numpy()
+            if off.any() and first_off is None:
+                i = int(np.flatnonzero(off)[0])
+                first_off = (int(file_rows(table)[i]), r[i])
+            n, n_off = n + len(res), n_off + int(off.sum())
+            max_abs = max(max_abs, float(np.abs(r).max()))
+            max_corr = max(max_corr, float(np.abs(res[["ex_um", "ey_um", "ez_um"]]
+                                                  .to_numpy()).max()))
+        # a check of all the points: raised before the output is renamed into place
+        _refuse_metres(m, max_abs, name)
+    if first_off is not None and not allow_extrapolation:
+        raise _off_machine_error(n_off, *first_off, name)
+    return {"out": str(out), "n_points": n, "max_correction_um": max_corr}
+
+
+def _point_chunks(path: Path, name: str, chunk_points: int) -> Iterator[pd.DataFrame]:
+    """The points of a CSV file, about ``chunk_points`` rows at a time, read as
+    :func:`read_points` reads a whole file (the same separators, decimal commas, blank
+    lines, quotes, refusals, and the file's row numbers in ``attrs``). A chunk ends at a
+    line end outside quotes; the header line is given to every chunk."""
+    if not path.exists():
+        raise DataError("file not found.", file=name, hint="check the path.")
+    if path.is_dir():
+        raise DataError("is a folder; expected a file.", file=name,
+                        hint="name the file inside the folder.")
+    block = int(min(1 << 20, max(256, 32 * chunk_points)))
+    decoder = codecs.getincrementaldecoder("utf-8-sig")()
+    pending, header, first_row, columns = "", None, 1, None
+    try:
+        fh = path.open("rb")
+    except OSError as exc:
+        raise DataError(f"cannot read ({exc.strerror}).", file=name,
+                        hint="check the path and that it is a file.") from None
+    with fh:
+        while True:
+            raw = fh.read(block)
+            try:
+                pending += decoder.decode(raw, final=not raw)
+            except UnicodeDecodeError:
+                raise DataError(_NOT_UTF8, file=name,
+                                hint="export the table as CSV (UTF-8).") from None
+            if "\x00" in pending:
+                raise DataError("contains NUL bytes; it is not a text table.", file=name,
+                                hint="export the table as CSV (UTF-8).")
+            # one line end everywhere, as read_csv_text; a CR ending the block may be
+            # the first half of a CRLF
+            keep_cr = bool(raw) and pending.endswith("\r")
+            text = (pending[:-1] if keep_cr else pending).replace("\r\n", "\n") \
+                .replace("\r", "\n")
+            cut = len(text) if not raw else _chunk_end(text, chunk_points,
+                                                      blank=header is None)
+            if cut == 0:
+                if len(text) > MAX_BYTES:
+                    raise DataError(f"has a line or quoted cell longer than "
+                                    f"{MAX_BYTES / 1e6:.0f} MB; it is not a points table.",
+                                    file=name, row=first_row)
+                pending = text + ("\r" if keep_cr else "")
+                continue
+            chunk, pending = text[:cut], text[cut:] + ("\r" if keep_cr else "")
+            if header is not None and not chunk.strip(" \t\n,;"):
+                if not raw:  # blank lines after the last chunk
+                    return
+                first_row += chunk.count("\n")
+                continue
+            if header is None:
+                df, _ = read_csv_text(chunk.encode(), name)
+                header = _header_line(chunk)
+                columns = list(df.columns) if df.attrs.get("delimiter") == "," else None
+            else:
+                df = _chunk_table(header, chunk, first_row, columns, name)
+            first_row += chunk.count("\n")
+            if len(df) or not raw:
+                yield _points_table(df, name)
+            if not raw:
+                return
+
+
+def _chunk_end(text: str, chunk_points: int, *, blank: bool) -> int:
+    """Where a chunk of ``text`` (lines of a CSV file) may end: after its last line end
+    outside quotes once it holds ``chunk_points`` lines; 0 to read on. The first chunk
+    (``blank``) also waits for a line that is not blank (the header)."""
+    if text.count("\n") < chunk_points or (blank and not text.strip()):
+        return 0
+    cut = text.rfind("\n") + 1
+    while cut > 0 and text.count('"', 0, cut) % 2:
+        cut = text.rfind("\n", 0, cut - 1) + 1
+    return cut
+
+
+def _header_line(chunk: str) -> str:
+    """The header line of a file's first chunk: its first line with a cell."""
+    return next(line for line in chunk.split("\n") if line.strip(" \t,;"))
+
+
+def _chunk_table(header: str, chunk: str, first_row: int, columns: list | None,
+                 name: str) -> pd.DataFrame:
+    """A later chunk as :func:`read_csv_text` reads it with the header line before it, its
+    rows numbered in the file (``first_row``: the file row of its first line). A chunk of
+    plain comma-separated cells (no quotes, no blank line, the header's number of cells
+    on every line) goes through pandas' C reader, which gives the same strings faster."""
+    n_lines = chunk.count("\n") + (not chunk.endswith("\n"))
+    if columns is not None and '"' not in chunk:
+        try:
+            df = pd.read_csv(io.StringIO(chunk), header=None, names=columns, dtype=str,
+                             na_filter=False, skipinitialspace=True, engine="c")
+        except (ValueError, pd.errors.ParserError):
+            df = None
+        if df is not None and len(df) == n_lines and \
+                chunk.count(",") == n_lines * (len(columns) - 1):
+            df.attrs.update(delimiter=",", decimal_comma=False,
+                            rows=np.arange(first_row, first_row + n_lines))
+            return df
+    df, _ = read_csv_text((header + "\n" + chunk).encode(), name)
+    df.attrs["rows"] = np.asarray(df.attrs["rows"]) + first_row - 2
+    return df
+
+
+def _csv_text(df: pd.DataFrame, *, header: bool) -> str:
+    """``df.to_csv(index=False, float_format="%.6f")`` (without or with the header line),
+    written a row at a time through one format string: the same text several times
+    faster. NaN cells are empty; text cells are quoted when they hold a comma, a quote or
+    a line end."""
+    cells, fmt = [], []
+    for c in df.columns:
+        v = df[c].to_numpy()
+        if v.dtype.kind == "f" and np.isfinite(v).all():
+            cells.append(v.tolist())
+            fmt.append("%.6f")
+        elif v.dtype.kind in "iub":
+            cells.append(v.astype(np.int64).tolist())
+            fmt.append("%d")
+        else:
+            if v.dtype.kind == "f":
+                text = pd.Series(["" if x != x else f"{x:.6f}" for x in v.tolist()])
+            else:
+                text = pd.Series(v, dtype=object).where(pd.notna(v), "").astype(str)
+                odd = text.str.contains(r'[,"\n\r]', regex=True).to_numpy()
+                if odd.any():
+                    text[odd] = text[odd].map(_quoted)
+            cells.append(text.tolist())
+            fmt.append("%s")
+    line = ",".join(fmt) + "\n"
+    head = ",".join(_quoted(str(c)) for c in df.columns) + "\n" if header else ""
+    return head + "".join(line % row for row in zip(*cells, strict=True))
+
+
+def _quoted(cell: str) -> str:
+    """A CSV cell as pandas writes it (minimal quoting)."""
+    if any(ch in cell for ch in ',"\n\r'):
+        return '"' + cell.replace('"', '""') + '"'
+    return cell
+
+
+@contextlib.contextmanager
+def _atomic_stream(path) -> Iterator[io.TextIOWrapper]:
+    """A text file whose content replaces ``path`` when the ``with`` block ends without
+    an exception: written to a temporary file in the same folder, flushed to disk and
+    renamed into place (``os.replace``), the rule of :func:`cmm_core.io.atomic_write_bytes`
+    for an output too large to hold in memory. On an exception the temporary file is
+    removed and an existing ``path`` is left as it was."""
+    shown = Path(path)
+    target = Path(os.path.realpath(os.fspath(path)))  # a link stays a link
+    if target.is_dir():
+        raise DataError("is a folder, not a file; name a file to write.", file=str(shown))
+    folder = target.parent
+    if not folder.is_dir():
+        raise DataError(f"No such file or directory: the folder {shown.parent} does not "
+                        "exist.", file=str(shown), hint="create it or write elsewhere.")
+    try:
+        mode: int | None = stat.S_IMODE(target.stat().st_mode)
+    except OSError:
+        mode = None
+    tmp = None
+    try:
+        for _ in range(100):
+            tmp = folder / f".{target.name}.{secrets.token_hex(4)}.tmp"
+            try:  # 0o666 less the umask, as a new file gets
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL
+                             | getattr(os, "O_BINARY", 0), 0o666)
+                break
+            except FileExistsError:
+                continue
+        else:  # pragma: no cover - 100 collisions of 32 random bits
+            raise FileExistsError(errno.EEXIST, "no free temporary name", str(tmp))
+        with open(fd, "w", encoding="utf-8", newline="") as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        if mode is not None:
+            os.chmod(tmp, mode)
+        os.replace(tmp, target)
+        tmp = None
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), str(shown)) from exc
+    finally:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
