@@ -12,6 +12,12 @@ included, so the app draws its own with ``st.page_link``. Every page has its own
 (``/data``, ``/kinematic`` ...): Streamlit serves its default page at ``/`` only, not at
 its ``url_path``, so the default page is a small redirect to the Data page rather than the
 Data page itself (``/data`` then opens it directly instead of "page not found").
+
+A session survives a reload: the URL carries the analysis's id (``?session=...``), every
+link between pages keeps it, and the analysis is saved as a project file in a per-user
+folder whenever it changes (``common.session_start``, ``common.autosave``,
+``cmm_core.analysis.sessions``); F5, or the URL in a new tab, restores it with a note and a
+"Start afresh" button.
 """
 
 from pathlib import Path
@@ -26,6 +32,7 @@ ROOT = Path(__file__).resolve().parent
 # internet (an emoji or icon name would be, and fails offline)
 st.set_page_config(page_title="CMM error lab", page_icon=str(ROOT / ".streamlit" / "favicon.png"),
                    layout="wide")
+common.session_start()
 common.init_state()
 
 PAGES = [
@@ -46,7 +53,7 @@ PAGES = [
 
 def _home():
     """The app's root URL opens the Data page (at its own URL, /data)."""
-    st.switch_page(PAGES[0])
+    st.switch_page(PAGES[0], query_params=common.session_query())
 
 
 HOME = st.Page(_home, title="CMM error lab", url_path="home", default=True,
@@ -57,10 +64,13 @@ deep_link = st.session_state.pop("_deep_link", None)
 if deep_link and (ROOT / "pages" / deep_link).is_file():
     # a deep link opened on a fresh server, before this script ever ran (see
     # common.page_start): open the page asked for, now inside the app
-    st.switch_page(f"pages/{deep_link}")
+    st.switch_page(f"pages/{deep_link}", query_params=common.session_query())
 st.sidebar.title("CMM error lab")
 with st.sidebar.container(key="app_nav"):
     for p in PAGES:
-        st.page_link(p, label=p.title, icon=p.icon, width="stretch")
+        st.page_link(p, label=p.title, icon=p.icon, width="stretch",
+                     query_params=common.session_query())
 st.sidebar.divider()
 page.run()
+# what the page changed without a rerun (a button's direct effect) is saved now
+common.autosave()

@@ -142,7 +142,7 @@ def _expect_page(pg, title, path):
     dialog, no exception."""
     expect(pg.locator("h1", has_text=title).first).to_be_visible(timeout=90_000)
     _idle(pg)
-    assert pg.url.rstrip("/").endswith(path), pg.url
+    assert pg.url.split("?")[0].rstrip("/").endswith(path), pg.url
     nav = pg.locator(NAV)
     expect(nav.filter(has_text="Compare and diagnose")).to_be_visible()
     assert nav.all_inner_texts() and not any("common" in t for t in nav.all_inner_texts())
@@ -246,6 +246,65 @@ def test_other_pages_render(page):
         _goto(page, title)
         _no_exception(page)
         page.screenshot(path=str(ART / shot), full_page=True)
+
+
+def _analysis_lines(pg) -> list:
+    """The sidebar's dataset and model lines and its fit figures: what a restore must bring
+    back."""
+    sidebar = pg.locator('[data-testid="stSidebar"]')
+    expect(sidebar.get_by_text("RMS (µm)")).to_be_visible(timeout=90_000)
+    lines = [ln.strip() for ln in sidebar.inner_text().splitlines() if ln.strip()]
+    keep = [ln for ln in lines if ln.startswith(("Dataset:", "Model:", "order "))]
+    assert "RMS (µm)" in lines, lines
+    i = lines.index("RMS (µm)")
+    return keep + lines[i:i + 4]
+
+
+def test_a_reload_restores_the_analysis_and_other_sessions_never_see_it(page, server):
+    """Issue 27: F5 kept the URL but replaced the user's data with the thesis data. Now the
+    URL names the analysis (?session=...), which is saved whenever it changes: a reload,
+    and the same URL in a new tab, restore the uploaded tables and the model the
+    diagnosis grew (tests above), with a note saying so; a browser context of its own
+    opening the app gets a new analysis with another id and the thesis data; "Start
+    afresh" (in the second tab: this page's analysis goes on to the tests below) leaves the
+    restored analysis for a new one with a new id."""
+    _goto(page, "Kinematic model")
+    url = page.url
+    assert "session=" in url, url
+    sid = url.split("session=")[1][:32]
+    before = _analysis_lines(page)
+    assert "thesis" not in before[0] and "," in before[1], before  # uploads, grown model
+    page.reload()
+    _idle(page)
+    expect(page.get_by_text("Restored from").first).to_be_visible()
+    assert _analysis_lines(page) == before
+    assert sid in page.url
+    _no_exception(page)
+    page.screenshot(path=str(ART / "07b_restored.png"), full_page=True)
+    tab = page.context.new_page()
+    try:
+        tab.goto(url)
+        expect(tab.get_by_text("Restored from").first).to_be_visible(timeout=90_000)
+        _idle(tab)
+        assert _analysis_lines(tab) == before
+        tab.get_by_role("button", name="Start afresh").click()
+        _idle(tab)
+        expect(tab.get_by_text("Restored from")).to_have_count(0)
+        assert "thesis" in _analysis_lines(tab)[0] and sid not in tab.url
+        _no_exception(tab)
+    finally:
+        tab.close()
+    other = page.context.browser.new_context(viewport={"width": 1500, "height": 1800})
+    try:
+        other.add_init_script(RAW_NAV_WATCH)
+        pg = other.new_page()
+        pg.goto(server + "/kinematic")
+        _expect_page(pg, "Kinematic model", "/kinematic")
+        assert "session=" in pg.url and sid not in pg.url
+        assert pg.get_by_text("Restored from").count() == 0
+        assert "thesis" in _analysis_lines(pg)[0]
+    finally:
+        other.close()
 
 
 def _download(pg, name):

@@ -3,7 +3,9 @@ the same way by the app, the CLI and the report, and the report with its figures
 
 Owns: :mod:`.record` (:class:`AnalysisRecord`), :mod:`.record_io` (JSON and project
 files), :mod:`.runner` (:func:`run`, :class:`AnalysisResult`), :mod:`.residuals`,
-:mod:`.comparison` (thesis chapter 7: kinematic vs GP vs measurement), :mod:`.figures` (plotly figures), :mod:`.report` (HTML report). May import every wing
+:mod:`.comparison` (thesis chapter 7: kinematic vs GP vs measurement), :mod:`.figures`
+(plotly figures), :mod:`.report` (HTML report), :mod:`.sessions` (analyses kept on disk
+between browser sessions). May import every wing
 below it except ``cli``.
 """
 
@@ -85,16 +87,25 @@ from .residuals import (
     uncertainty_gain,
 )
 from .runner import AnalysisResult, load_data, load_instruments, run, with_instruments
+from .sessions import (
+    KEEP_DAYS,
+    SavedSession,
+    SessionStore,
+    default_session_folder,
+    new_session_id,
+    valid_session_id,
+)
 
 __all__ = [
     "against_coordinates", "analysis_report", "AnalysisRecord", "AnalysisResult",
     "approach_split", "AXIS_COLOURS", "breakdown", "build_report", "chi2_html",
-    "chi2_test_numbers", "compare_models", "ComparisonFigure", "coverage_reasons", "DataFile", "DataSources", "DEFAULT_EXCLUDE_OUTLIERS",
+    "chi2_test_numbers", "compare_models", "ComparisonFigure", "coverage_reasons", "DataFile", "DataSources", "default_session_folder", "DEFAULT_EXCLUDE_OUTLIERS",
     "deviations_plate_frame", "diagnosis_conclusion", "diagnosis_rows", "ERROR_CONVENTION",
     "error_function_curves", "fig_deviation", "fig_error_functions", "fig_history", "fig_mpe",
     "fig_pattern", "fig_placements", "fig_residual_map", "fig_signature_scatter",
     "fig_surface_grid", "figure_html", "FORMAT", "FUNCTION_UNITS", "GP_KERNELS", "GP_MEANS",
-    "instrument_kinds", "instrument_tables", "InstrumentFile", "instruments_from_list", "KEYS",
+    "instrument_kinds", "instrument_tables", "InstrumentFile", "instruments_from_list", "KEEP_DAYS",
+    "KEYS", "new_session_id", "SavedSession", "SessionStore", "valid_session_id",
     "load_data", "load_instruments", "measured_error_from_residuals_um", "measured_error_um",
     "ModelComparison", "MPE_U_SOURCES", "placement_plane_grid", "PlaneGrid", "PLATE_CHOICES",
     "plate_coordinates_mm", "plotly_loader", "position_trends", "read_record",

@@ -1,0 +1,125 @@
+"""Analyses kept on disk between browser sessions: a reload (F5), or the same URL opened in
+a new tab, finds the analysis where it was left.
+
+The app names each analysis by a random session id carried in the URL (``?session=...``)
+and keeps its project file (:func:`cmm_core.analysis.record_to_project_json`, the format a
+user downloads from *Compensate and export*) in a per-user folder, one file per id. Only
+whoever has the URL reaches an analysis: the id is 128 random bits, and a browser that
+opens the app without one starts a new analysis. The files are written atomically
+(:func:`cmm_core.io.atomic_write_text`), so a reload during a save finds the previous
+state, never half a file.
+
+Folder: ``$CMM_LAB_SESSIONS`` when set, else ``$XDG_STATE_HOME/cmm-error-lab/sessions``,
+else ``~/.local/state/cmm-error-lab/sessions``. Files not written for
+:data:`KEEP_DAYS` days are removed when a new analysis starts.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import secrets
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..io import atomic_write_text
+
+__all__ = ["KEEP_DAYS", "SavedSession", "SessionStore", "default_session_folder",
+           "new_session_id", "valid_session_id"]
+
+KEEP_DAYS = 30
+"""Days an analysis nobody has opened is kept (a month of a calibration campaign)."""
+
+_ID = re.compile(r"[0-9a-f]{32}")
+
+
+def new_session_id() -> str:
+    """A fresh id: 32 hex digits (128 random bits from :mod:`secrets`)."""
+    return secrets.token_hex(16)
+
+
+def valid_session_id(sid: object) -> bool:
+    """Whether ``sid`` has the form :func:`new_session_id` gives; anything else (a path, a
+    guess of another form) is never turned into a file name."""
+    return isinstance(sid, str) and _ID.fullmatch(sid) is not None
+
+
+def default_session_folder() -> Path:
+    """The per-user folder of saved analyses (see the module docstring)."""
+    env = os.environ.get("CMM_LAB_SESSIONS")
+    if env:
+        return Path(env)
+    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(state) / "cmm-error-lab" / "sessions"
+
+
+@dataclass(frozen=True)
+class SavedSession:
+    """An analysis found on disk."""
+
+    session_id: str
+    """Its id (the URL's ``session`` parameter)."""
+    path: Path
+    """The project file it is kept in."""
+    text: str
+    """The project file's content (JSON)."""
+    saved: float
+    """When it was last written (seconds since the epoch)."""
+
+    @property
+    def saved_text(self) -> str:
+        """The save time in local time, ``YYYY-MM-DD HH:MM``."""
+        return time.strftime("%Y-%m-%d %H:%M", time.localtime(self.saved))
+
+
+@dataclass(frozen=True)
+class SessionStore:
+    """The folder of saved analyses, one project file per session id."""
+
+    folder: Path
+    """Where the files are (created on the first save)."""
+
+    def path(self, sid: str) -> Path:
+        """The file of session ``sid``; a malformed id is refused (ValueError)."""
+        if not valid_session_id(sid):
+            raise ValueError(f"session id: expected 32 hex digits, found {sid!r}.")
+        return self.folder / f"{sid}.json"
+
+    def save(self, sid: str, text: str) -> Path:
+        """Write the analysis of ``sid`` (atomically) and return its path."""
+        p = self.path(sid)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(p, text)
+        return p
+
+    def load(self, sid: str) -> SavedSession | None:
+        """The analysis saved under ``sid``, or None when there is none (or the id is
+        malformed: a URL edited by hand starts a new analysis, it never reads a file)."""
+        if not valid_session_id(sid):
+            return None
+        p = self.path(sid)
+        try:
+            return SavedSession(sid, p, p.read_text(encoding="utf-8"), p.stat().st_mtime)
+        except (OSError, UnicodeDecodeError):
+            return None
+
+    def forget(self, sid: str) -> None:
+        """Remove the file of ``sid`` (nothing happens when there is none)."""
+        if valid_session_id(sid):
+            self.path(sid).unlink(missing_ok=True)
+
+    def prune(self, keep_days: float = KEEP_DAYS, now: float | None = None) -> int:
+        """Remove analyses not written for ``keep_days`` days; returns how many."""
+        if not self.folder.is_dir():
+            return 0
+        limit = (time.time() if now is None else now) - keep_days * 86400
+        gone = 0
+        for p in self.folder.glob("*.json"):
+            try:
+                if valid_session_id(p.stem) and p.stat().st_mtime < limit:
+                    p.unlink()
+                    gone += 1
+            except OSError:  # another server pruned it first
+                continue
+        return gone

@@ -1,0 +1,121 @@
+"""An analysis survives a reload (issue 27): the store of saved sessions
+(``cmm_core.analysis.sessions``) and the app's restore through it, in AppTest (the browser's
+F5 and second tab are in tests/test_browser.py)."""
+
+import os
+import time
+from pathlib import Path
+
+import pytest
+from streamlit.testing.v1 import AppTest
+
+from cmm_core.analysis import SessionStore, new_session_id, valid_session_id
+
+ROOT = Path(__file__).resolve().parents[1]
+APP = str(ROOT / "app.py")
+
+
+@pytest.fixture
+def store(tmp_path):
+    return SessionStore(tmp_path / "sessions")
+
+
+def test_ids_are_random_and_only_their_own_form_becomes_a_file(store):
+    ids = {new_session_id() for _ in range(100)}
+    assert len(ids) == 100 and all(valid_session_id(i) for i in ids)
+    for bad in ("../../etc/passwd", "A" * 32, "0" * 31, "0" * 33, "", None, 12,
+                "0" * 32 + "/x", "0" * 16 + ".." + "0" * 14):
+        assert not valid_session_id(bad)
+        assert store.load(bad) is None
+    with pytest.raises(ValueError, match="expected 32 hex digits"):
+        store.save("../evil", "{}")
+    assert not store.folder.exists()  # nothing written for a refused id
+
+
+def test_save_load_forget_and_no_temporary_file_left(store):
+    sid = new_session_id()
+    assert store.load(sid) is None
+    p = store.save(sid, '{"a": 1}')
+    store.save(sid, '{"a": 2}')  # atomic replace
+    got = store.load(sid)
+    assert got.text == '{"a": 2}' and got.path == p and got.session_id == sid
+    assert abs(got.saved - time.time()) < 60
+    assert [q.name for q in store.folder.iterdir()] == [f"{sid}.json"]
+    store.forget(sid)
+    assert store.load(sid) is None
+    store.forget(sid)  # twice: nothing to do
+
+
+def test_prune_removes_only_old_analyses(store):
+    old, new = new_session_id(), new_session_id()
+    store.save(old, "{}")
+    store.save(new, "{}")
+    foreign = store.folder / "notes.json"  # not a session file: never touched
+    foreign.write_text("{}")
+    month = time.time() - 31 * 86400
+    os.utime(store.path(old), (month, month))
+    os.utime(foreign, (month, month))
+    assert store.prune() == 1
+    assert store.load(old) is None and store.load(new) is not None and foreign.exists()
+    assert SessionStore(store.folder / "missing").prune() == 0
+
+
+def _app(sid=None):
+    at = AppTest.from_file(APP, default_timeout=120)
+    if sid is not None:
+        at.query_params["session"] = sid
+    at.run()
+    assert not at.exception, at.exception
+    return at
+
+
+def _store():
+    return SessionStore(Path(os.environ["CMM_LAB_SESSIONS"]))
+
+
+def test_a_changed_analysis_is_restored_by_a_new_session_with_its_id():
+    at = _app()
+    sid = at.session_state["session_id"]
+    assert at.query_params["session"] == sid
+    assert _store().load(sid) is None  # the untouched default analysis is not written
+    at.switch_page("pages/kinematic.py").run()
+    at.text_input(key="w_spec").set_value("kinematic21,plate_sag").run()
+    at.session_state["exclusions"] = [["BP112", "2", 7]]
+    at.session_state["history"] = [{"spec": "kinematic21", "change": "baseline"},
+                                   {"spec": "kinematic21,plate_sag", "change": "+ plate_sag"}]
+    at.run()
+    assert _store().load(sid) is not None
+    again = _app(sid)  # F5: a new browser session on the same URL
+    s = again.session_state
+    assert s["session_id"] == sid and s["spec"] == "kinematic21,plate_sag"
+    assert s["exclusions"] == [["BP112", "2", 7]]
+    assert [h["change"] for h in s["history"]] == ["baseline", "+ plate_sag"]
+    note = " ".join(i.value for i in again.info)
+    assert "Restored from" in note and sid in note
+    fresh = _app()  # another browser: its own analysis
+    assert fresh.session_state["session_id"] != sid
+    assert fresh.session_state["spec"] == "kinematic21"
+    assert not any("Restored" in i.value for i in fresh.info)
+    # start afresh: the saved file goes, a new id, the thesis defaults
+    again.button(key="start_afresh").click().run()
+    assert not again.exception
+    assert again.session_state["session_id"] != sid and again.session_state["spec"] == "kinematic21"
+    assert _store().load(sid) is None
+    assert not any("Restored" in i.value for i in again.info)
+
+
+def test_a_damaged_saved_file_is_said_and_kept_and_a_new_analysis_starts():
+    sid = new_session_id()
+    path = _store().save(sid, '{"format": "not a project"')
+    at = _app(sid)
+    msg = " ".join(e.value for e in at.error)
+    assert "could not be restored" in msg and str(path) in msg
+    assert at.session_state["session_id"] != sid and path.exists()
+    assert at.session_state["spec"] == "kinematic21"
+
+
+def test_a_link_with_a_malformed_id_never_reads_a_file_and_gets_a_new_id():
+    at = _app("../../etc/passwd")
+    sid = at.session_state["session_id"]
+    assert valid_session_id(sid) and at.query_params["session"] == sid
+    assert not at.error
