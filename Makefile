@@ -9,12 +9,15 @@ PORT ?= 8501
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
 
-$(VENV)/.runtime: requirements.txt | $(BIN)/python
+# the package itself too (editable): `.venv/bin/cmm-error-lab` runs the CLI from anywhere
+$(VENV)/.runtime: requirements.txt pyproject.toml | $(BIN)/python
 	$(BIN)/pip install -q -r requirements.txt
+	$(BIN)/pip install -q --no-deps -e .
 	touch $@
 
-$(VENV)/.test: requirements.txt requirements-test.txt | $(BIN)/python
+$(VENV)/.test: requirements.txt requirements-test.txt pyproject.toml | $(BIN)/python
 	$(BIN)/pip install -q -r requirements-test.txt
+	$(BIN)/pip install -q --no-deps -e .
 	touch $@
 
 run: $(VENV)/.runtime
