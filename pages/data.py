@@ -173,7 +173,7 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label="", ma
     problems, notes = [], []
     meas = _checked_measurements(meas_files, problems, notes)
     if mapped is not None:  # a table from other software, already mapped to the long form
-        meas.append(mapped)
+        meas.append(tuple(mapped[:2]))
         notes.append(f"{mapped[0]}: read through the column mapping.")
     thesis = C.thesis_files()
     setup_text, cert = None, None
@@ -222,6 +222,9 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label="", ma
     files = {"name": _dataset_name(label, meas), "kind": "upload",
              "measurements": meas, "setup": setup_text, "certificate": cert,
              "setup_source": setup_source, "certificate_source": cert_source}
+    if mapped is not None and len(mapped) == 5 and None not in (mapped[3], mapped[4]):
+        # the source table and its mapping travel into the analysis record and project
+        files["mapped"] = {mapped[0]: tuple(mapped[2:])}
     try:
         C._load(C.files_key(files), files)
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback
@@ -298,7 +301,9 @@ with tab_upload:
     with st.expander("A table from other software or a DMIS output file (.dmo), mapped"):
         mapped_now = mapping_panel(f"map{sfx}")
     if mapped_now is not None:
-        st.session_state["mapped_meas"] = (mapped_now.csv_name, mapped_now.csv_text)
+        st.session_state["mapped_meas"] = (mapped_now.csv_name, mapped_now.csv_text,
+                                           mapped_now.name, mapped_now.source_text,
+                                           mapped_now.mapping)
     if st.session_state.get("mapped_meas"):
         st.caption(f"Mapped table ready: {st.session_state['mapped_meas'][0]} (loaded with "
                    "the setup below by 'Load uploaded files').")

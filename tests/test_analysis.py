@@ -195,3 +195,69 @@ def test_record_run_with_instruments_equals_a_direct_joint_fit():
     assert [s["kind"] for s in res.instruments] == ["laser", "step_gauge"]
     assert res.instrument_residuals.equals(ins.residuals_frame(direct))
     assert not A.run(A.read_record(SAMPLE)).instruments  # none: nothing added
+
+
+# --- a table from other software, kept with its column mapping (issue 24) ---------------
+
+_VENDOR_PATTERN = r"(?P<position>BP\d+)_P(?P<probe>\w+)_B(?P<ball>\d+)"
+
+
+def _mapped_session():
+    """An app session whose measurements came through the column mapping: a vendor table
+    (Feature;X;Y;Z in µm, decimal commas) of the thesis files' coordinates, converted as
+    the Data page does it (``mapping_panel`` -> ``ForeignTable``)."""
+    from cmm_core.io import TableMapping, apply_mapping
+    from pages import common as C
+
+    thesis = C.thesis_files()
+    ds = A.load_data(A.record_from_session(_session()))
+    lines = ["Feature;X;Y;Z"] + [
+        f"{r.position}_P{r.probe}_B{r.ball};" + ";".join(
+            f"{v * 1e3:.3f}".replace(".", ",") for v in (r.x_mm, r.y_mm, r.z_mm))
+        for r in ds.meas.itertuples()]
+    table_text = "\n".join(lines) + "\n"
+    mapping = TableMapping(x="X", y="Y", z="Z", label="Feature", pattern=_VENDOR_PATTERN,
+                           unit="um", decimal=",", delimiter=";")
+    t = apply_mapping(table_text.encode(), mapping, name="vendor.csv")
+    files = {**thesis, "measurements": [(t.csv_name, t.csv_text)],
+             "mapped": {t.csv_name: (t.name, t.source_text, t.mapping)}}
+    return _session(ds_files=files), ds, table_text, mapping
+
+
+def test_a_mapped_table_round_trips_with_its_mapping_and_reloads():
+    state, ds, table_text, mapping = _mapped_session()
+    rec = A.record_from_session(state)
+    (f,) = rec.data.measurements
+    assert f.name == "vendor.csv" and f.content == table_text
+    assert f.mapping == mapping.to_dict()
+    assert A.read_record(A.record_to_json(rec)) == rec
+    doc = json.loads(A.record_to_json(rec))
+    assert doc["data"]["measurements"][0]["mapping"]["unit"] == "um"
+    project = A.record_to_project_json(rec)
+    assert A.record_from_project(project) == rec
+    # the project's measurements are the long form (any reader loads them), the source
+    # table and its mapping ride under extra.analysis.mappings
+    pdoc = json.loads(project)
+    assert pdoc["extra"]["analysis"]["mappings"][0]["mapping"] == mapping.to_dict()
+    # reloaded through the mapping: the thesis coordinates to the table's 1 nm
+    again = A.load_data(A.record_from_project(project))
+    xyz = ["x_mm", "y_mm", "z_mm"]  # as the file gives them (the thesis's plate frame)
+    np.testing.assert_allclose(again.meas[xyz].to_numpy(), ds.meas[xyz].to_numpy(),
+                               atol=0.5e-6, rtol=0)
+    assert again.meas["position"].tolist() == ds.meas["position"].tolist()
+
+
+def test_a_bad_mapping_in_a_record_is_refused_naming_the_key():
+    state, *_ = _mapped_session()
+    doc = A.record_to_dict(A.record_from_session(state))
+    doc["data"]["measurements"][0]["mapping"]["unit"] = "furlong"
+    with pytest.raises(DataError, match="unit") as exc:
+        A.record_from_dict(doc, "a.json")
+    assert exc.value.column.startswith("data.measurements[0].mapping")
+    doc["data"]["measurements"][0]["mapping"] = {"x": "X", "y": "Y"}
+    with pytest.raises(DataError, match="missing key 'z'"):
+        A.record_from_dict(doc, "a.json")
+    del doc["data"]["measurements"][0]["mapping"]
+    doc["data"]["measurements"][0]["mappnig"] = {}
+    with pytest.raises(DataError, match="did you mean 'mapping'"):
+        A.record_from_dict(doc, "a.json")

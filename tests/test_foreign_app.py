@@ -103,3 +103,45 @@ def test_an_msl_file_given_to_the_plain_uploader_is_named(tmp_path):
     probs = next(d.value for d in at.dataframe if "hint" in d.value.columns)
     assert "MSL" in probs.iloc[0]["problem"] and "Other tools" in probs.iloc[0]["hint"]
     assert np.all(probs["file"] == Path(snapshot).name)
+
+
+def test_a_mapped_vendor_table_keeps_its_mapping_in_the_record():
+    """A vendor table through the column mapping: the session keeps the source table and
+    its mapping, so the analysis record and the project file reload it through them."""
+    from test_foreign_tables import PATTERN, _vendor_feature_csv
+
+    from cmm_core import analysis as A
+
+    sim = simulate({"seed": 4, "noise_um": 0.3})
+    meas = sim.dataset.meas[["position", "probe", "ball", "x_mm", "y_mm", "z_mm"]]
+    table = _vendor_feature_csv(meas)
+    at = _new()
+    at.switch_page("pages/data.py")
+    at.run()
+    at.file_uploader(key="map_file").set_value(("vendor.csv", table, "text/csv"))
+    at.run()
+    next(t for t in at.text_input if t.key.endswith("_pattern")).set_value(PATTERN)
+    at.run()
+    _ok(at)
+    next(b for b in at.button if b.key.endswith("_load") and b.key.startswith("map")).click()
+    at.run()
+    _ok(at)
+    setup = json.dumps(sim.dataset.setup.raw).encode()
+    at.file_uploader(key="up_setup").set_value(("setup.json", setup, "application/json"))
+    cert = sim.dataset.certificate
+    text = "ball,x_mm,y_mm,z_mm,u_x_um,u_y_um,u_z_um\n" + "\n".join(
+        f"{b},{x:.6f},{y:.6f},{z:.6f},0.1,0.1,0.1"
+        for b, (x, y, z) in zip(cert.balls, cert.xyz_mm, strict=True))
+    at.file_uploader(key="up_cert").set_value(("cert.csv", text.encode(), "text/csv"))
+    at.button(key="load_upload").click()
+    at.run()
+    _ok(at)
+    files = at.session_state["ds_files"]
+    ((source, source_text, mapping),) = files["mapped"].values()
+    assert source == "vendor.csv" and source_text == table.decode()
+    assert mapping["label"] == "Feature" and mapping["pattern"] == PATTERN
+    rec = A.record_from_session({"ds_files": files})
+    assert rec.data.measurements[0].mapping == mapping
+    back = A.load_data(A.record_from_project(A.record_to_project_json(rec)))
+    np.testing.assert_allclose(back.meas[["x_mm", "y_mm", "z_mm"]].to_numpy(),
+                               meas[["x_mm", "y_mm", "z_mm"]].to_numpy(), atol=1e-6, rtol=0)

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..io import DataError
+from ..io import DataError, apply_mapping
 from ..model import INSTRUMENT_KINDS, read_instrument
 
 __all__ = ["FORMAT", "VERSION", "DEFAULT_EXCLUDE_OUTLIERS", "ERROR_CONVENTION",
@@ -58,9 +58,21 @@ class DataFile:
     """Path of the file (relative paths are resolved against the record's folder)."""
     content: str | None = None
     """The file's text, when the record carries it (the app's downloads do)."""
+    mapping: dict | None = None
+    """For a measurement table from other software: the column mapping it is read through
+    (``TableMapping.to_dict()``, docs/foreign-formats.md), the file then being that
+    table; None: the file is in this project's own format."""
 
     def text(self) -> str:
-        """The file's text (read from ``path`` when the record does not carry it)."""
+        """The file's text as this project reads it: the file itself, or with a
+        :attr:`mapping` the long form the mapping converts it to (DataError when bad)."""
+        raw = self.source_text()
+        if self.mapping is None:
+            return raw
+        return apply_mapping(raw.encode(), self.mapping, name=self.name).csv_text
+
+    def source_text(self) -> str:
+        """The file's own text (read from ``path`` when the record does not carry it)."""
         if self.content is not None:
             return self.content
         if self.path is None:

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ..export import project_from_json, project_to_json
-from ..io import DataError, read_json, refuse_unknown_keys
+from ..io import DataError, TableMapping, read_json, refuse_unknown_keys
 from ..io.delimited import FileSource
 from ..io.errors import cut_repr
 from ..model import MAX_ORDER, parse_spec
@@ -37,6 +37,7 @@ __all__ = ["KEYS", "instruments_from_list", "record_from_dict", "record_to_dict"
 KEYS = [f.name for f in fields(AnalysisRecord)]
 _DATA_KEYS = ("name", "measurements", "setup", "certificate", "instruments")
 _FILE_KEYS = ("name", "path", "content")
+_MEASUREMENT_KEYS = (*_FILE_KEYS, "mapping")
 
 
 def instruments_from_list(items: Iterable[dict], name: str | None, where: str = "data.instruments",
@@ -61,13 +62,13 @@ def _instrument(obj, name, where, base) -> InstrumentFile:
     return InstrumentFile(str(kind), _file(rest, name, where, base))
 
 
-def _file(obj, name, where, base) -> DataFile:
+def _file(obj, name, where, base, keys=_FILE_KEYS) -> DataFile:
     if isinstance(obj, str):
         obj = {"path": obj}
     if not isinstance(obj, dict):
         raise DataError(f"expected {{\"path\": ...}} or {{\"name\": ..., \"content\": ...}}, "
                         f"found {cut_repr(obj)}.", file=name, column=where)
-    refuse_unknown_keys(obj, _FILE_KEYS, name, where + ".")
+    refuse_unknown_keys(obj, keys, name, where + ".")
     path, content = obj.get("path"), obj.get("content")
     if (path is None) == (content is None) or not isinstance(path or content, str):
         raise DataError("expected exactly one of path (text) and content (text).", file=name,
@@ -78,7 +79,19 @@ def _file(obj, name, where, base) -> DataFile:
     if not isinstance(label, str) or not label:
         raise DataError("expected a file name (name) with the content.", file=name,
                         column=where)
-    return DataFile(label, path, content)
+    return DataFile(label, path, content, _mapping(obj.get("mapping"), name, where))
+
+
+def _mapping(obj, name, where) -> dict | None:
+    """A measurement file's column mapping, checked (``TableMapping.from_dict``) with the
+    key named under ``where``; None when absent."""
+    if obj is None:
+        return None
+    try:
+        return TableMapping.from_dict(obj, name=name).to_dict()
+    except DataError as exc:
+        col = f"{where}.mapping" + (f".{exc.column}" if exc.column else "")
+        raise DataError(exc.detail, file=name, column=col, hint=exc.hint) from None
 
 
 def _check(cond, name, key, expected, found):
@@ -142,7 +155,8 @@ def record_from_dict(doc: Any, name: str = "ANALYSIS.json", base: Path | None = 
     meas = d.get("measurements")
     _check(isinstance(meas, list) and len(meas) > 0, name, "data.measurements",
            "a non-empty list of files", meas)
-    files = tuple(_file(m, name, f"data.measurements[{i}]", base) for i, m in enumerate(meas))
+    files = tuple(_file(m, name, f"data.measurements[{i}]", base, _MEASUREMENT_KEYS)
+                  for i, m in enumerate(meas))
     cert = d.get("certificate")
     out: dict[str, Any] = {"data": DataSources(
         str(d.get("name") or ", ".join(f.name for f in files)), files,
@@ -177,13 +191,15 @@ def record_to_dict(record: AnalysisRecord, relative_to: str | Path | None = None
     """The record as a JSON-ready dict (inverse of :func:`record_from_dict`); paths are
     written relative to ``relative_to`` when given."""
     def file(f: DataFile) -> dict:
+        mapping = {} if f.mapping is None else {"mapping": f.mapping}
         if f.content is not None:
-            return {"name": f.name, "content": f.content}
+            return {"name": f.name, "content": f.content, **mapping}
         if f.path is None:
             raise ValueError(f"data file {f.name!r} has neither a path nor its content")
         p = f.path if relative_to is None else Path(os.path.relpath(
             Path(f.path).resolve(), Path(relative_to).resolve())).as_posix()
-        return {"path": p} if Path(p).name == f.name else {"name": f.name, "path": p}
+        return ({"path": p} if Path(p).name == f.name else {"name": f.name, "path": p}) \
+            | mapping
 
     d = record.data
     out: dict[str, Any] = {"format": FORMAT, "version": VERSION,
@@ -215,9 +231,12 @@ def read_record(source: FileSource, name: str | None = None) -> AnalysisRecord:
 
 
 def _inline(name, measurements, setup, certificate, instruments=()) -> dict:
-    """The ``data`` block of a record that carries its files' text (``instruments``:
-    ``(kind, file name, text)`` triples)."""
-    return {"name": name, "measurements": [{"name": n, "content": c} for n, c in measurements],
+    """The ``data`` block of a record that carries its files' text (``measurements``:
+    ``(file name, text)`` pairs, or ``(file name, source table, column mapping)``;
+    ``instruments``: ``(kind, file name, text)`` triples)."""
+    return {"name": name, "measurements": [{"name": m[0], "content": m[1]}
+                                           | ({"mapping": m[2]} if len(m) > 2 else {})
+                                           for m in measurements],
             "setup": {"name": "setup.json", "content": setup},
             "certificate": certificate and {"name": certificate[0], "content": certificate[1]},
             "instruments": [{"kind": k, "name": n, "content": c} for k, n, c in instruments]}
@@ -227,13 +246,17 @@ def record_from_session(state: Mapping[str, Any]) -> AnalysisRecord:
     """The record of an app session (the Export page passes ``st.session_state``).
 
     ``state`` is a mapping with the app's canonical keys: ``ds_files`` (name, measurements
-    as (file name, text) pairs, setup text, certificate pair or None), ``instruments``
+    as (file name, text) pairs, setup text, certificate pair or None, and ``mapped``:
+    file name -> (source name, source table text, column mapping) for the measurement
+    files converted from another tool's table, kept so that the record reloads them
+    through their mapping), ``instruments``
     (``(kind, file name, text)`` triples, optional), ``spec, order,
     plate, sigma_um, positions, probes, exclusions, history, diag_on, magnification`` and,
     when set, ``w_mpe_u, w_u_npts, w_u_seed`` and, with ``w_report_gp`` true, ``w_gp_mean,
     w_gp_kernel``. Missing keys take the record's defaults.
     """
     f = state["ds_files"]
+    mapped = {k: tuple(v) for k, v in (f.get("mapped") or {}).items()}
     g: Callable[[str], Any] = state.get  # a value, or None when the key is unset
     keys = {"spec": "spec", "order": "order", "plate": "plate", "sigma_um": "sigma_um",
             "positions": "positions", "probes": "probes", "diagnose": "diag_on",
@@ -245,7 +268,8 @@ def record_from_session(state: Mapping[str, Any]) -> AnalysisRecord:
     hist = g("history") or [{"spec": doc.get("spec", "kinematic21"), "change": "baseline"}]
     doc.update(format=FORMAT, exclusions=[list(e) for e in g("exclusions") or []],
                history=[dict(h) for h in hist], gp_mean=g("w_gp_mean") if g("w_report_gp")
-               else None, data=_inline(f["name"], f["measurements"], f["setup"],
+               else None, data=_inline(f["name"], [mapped.get(m[0], m) for m in
+                                                   f["measurements"]], f["setup"],
                                        f.get("certificate"), g("instruments") or ()))
     return record_from_dict(doc, "session")
 
@@ -263,6 +287,10 @@ def record_to_project_json(record: AnalysisRecord) -> str:
     if d.instruments:
         rest["instruments"] = [{"kind": i.kind, "name": i.file.name, "content": i.file.text()}
                                for i in d.instruments]
+    mapped = [{"index": k, "name": f.name, "content": f.source_text(), "mapping": f.mapping}
+              for k, f in enumerate(d.measurements) if f.mapping is not None]
+    if mapped:  # the measurements hold the long form; the source table and its mapping too
+        rest["mappings"] = mapped
     return project_to_json(dataset_name=d.name, measurements=[(f.name, f.text()) for f in
                                                               d.measurements],
                            setup=d.setup.text(), certificate=None if d.certificate is None else (
@@ -280,6 +308,15 @@ def record_from_project(text: str | bytes, name: str = "project.json") -> Analys
     extra = dict(extra)
     data = _inline(p["dataset_name"], p["measurements"], p["setup"], p["certificate"])
     data["instruments"] = extra.pop("instruments", None) or []
+    mapped = extra.pop("mappings", None) or []
+    _check(isinstance(mapped, list), name, "extra.analysis.mappings",
+           "a list of {\"index\", \"name\", \"content\", \"mapping\"} objects", mapped)
+    for k, m in enumerate(mapped):
+        where = f"extra.analysis.mappings[{k}]"
+        _check(isinstance(m, dict) and _num(0, len(data["measurements"]) - 1)(m.get("index")),
+               name, where, "an object whose index names one of the project's "
+               f"{len(data['measurements'])} measurement file(s)", m)
+        data["measurements"][int(m["index"])] = {x: v for x, v in m.items() if x != "index"}
     doc = {**extra, **p["model"], "format": FORMAT, "exclusions": p["exclusions"],
            "history": p["history"], "data": data}
     return record_from_dict(doc, name)

@@ -26,7 +26,7 @@ from __future__ import annotations
 import io as _io
 import re
 from collections.abc import Iterable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import pandas as pd
@@ -35,6 +35,7 @@ from .delimited import (
     _DECIMAL_COMMA,
     _DELIM_NAMES,
     FileSource,
+    _read_bytes,
     file_rows,
     numeric_column,
     read_csv_text,
@@ -89,6 +90,13 @@ class ForeignTable:
         out), one line each.
     unmatched : tuple of str
         Every label that did not match the pattern (not loaded), in file order.
+    mapping : dict or None
+        The column mapping the table was read through (``TableMapping.to_dict()``); None
+        for a file read otherwise (DMIS).
+    source_text : str or None
+        The source table's text, kept with ``mapping`` so that a project file or an
+        analysis record reloads the table through it; None when not UTF-8 text (the
+        converted ``csv_text`` is kept then).
     """
 
     meas: pd.DataFrame
@@ -97,6 +105,8 @@ class ForeignTable:
     name: str
     notes: tuple = ()
     unmatched: tuple = ()
+    mapping: dict | None = None
+    source_text: str | None = None
 
     def as_source(self) -> tuple:
         """``(file-like, name)`` of the CSV, as :func:`~cmm_core.io.load_dataset` takes a
@@ -736,7 +746,8 @@ def apply_mapping(source: FileSource, mapping: TableMapping | dict, *,
         units that look wrong.
     """
     m = _as_mapping(mapping)
-    df, name = read_csv_text(source, name)
+    raw, name = _read_bytes(source, name)
+    df, name = read_csv_text(raw, name)
     if len(df) == 0:
         raise DataError("has no data rows; expected a header followed by one row per "
                         "probed ball.", file=name,
@@ -751,8 +762,13 @@ def apply_mapping(source: FileSource, mapping: TableMapping | dict, *,
                         hint="the pattern must match a whole label, e.g. "
                         "(?P<position>BP\\d+)_(?P<ball>\\d+) for BP111_5.")
     prefix = None if labels is None else [repr(s) for s in labels]
-    return _finish(long, rows, name, colmap=_colmap(m), notes=notes, unmatched=unmatched,
-                  labels=labels, prefix=prefix)
+    table = _finish(long, rows, name, colmap=_colmap(m), notes=notes, unmatched=unmatched,
+                    labels=labels, prefix=prefix)
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:  # kept converted only: the record's files are text
+        text = None
+    return replace(table, mapping=m.to_dict(), source_text=text)
 
 
 def _empty_rows() -> pd.DataFrame:
