@@ -12,14 +12,21 @@ from cmm_core.model import correction_columns
 from pages import common as C
 from pages.plan import task_section
 
-MODEL_FILE = "cmm_model.json"  # the fitted model's download name, the results' source
-
 C.page_start()
 st.title("Compensate and export")
 ds, r = C.require_fit()
 s = st.session_state
 args = C.fit_key()
 obs = r.problem.obs
+
+
+def fname(name: str) -> str:
+    """A download's file name, prefixed with the dataset's: two datasets' downloads never
+    overwrite each other in one folder."""
+    return ex.download_name(ds.name, name)
+
+
+MODEL_FILE = fname("cmm_model.json")  # the fitted model's download name, the results' source
 
 st.subheader("Correct measured points")
 st.write("Upload reported tip centres `probe,x_mm,y_mm,z_mm` (machine axes, mm; extra columns "
@@ -93,7 +100,7 @@ if corr is not None:
                    "use an arbitrary (minimum-norm) choice for them and carry no "
                    "uncertainty. Add placements on the Kinematic model page first.")
     st.download_button("Download corrected points (CSV)",
-                       ex.safe_csv(corr, float_format="%.6f"), "corrected_points.csv",
+                       ex.safe_csv(corr, float_format="%.6f"), fname("corrected_points.csv"),
                        "text/csv", key="dl_corrected", on_click="ignore")
 
 task_section()
@@ -101,8 +108,8 @@ task_section()
 st.subheader("Downloads")
 c1, c2, c3 = st.columns(3)
 c1.download_button("Fitted parameters with uncertainties (CSV)", ex.parameters_csv(r),
-                   "parameters.csv", "text/csv", key="dl_parameters", on_click="ignore")
-c2.download_button("Residuals (CSV)", ex.residuals_csv(r), "residuals.csv", "text/csv",
+                   fname("parameters.csv"), "text/csv", key="dl_parameters", on_click="ignore")
+c2.download_button("Residuals (CSV)", ex.residuals_csv(r), fname("residuals.csv"), "text/csv",
                    key="dl_residuals", on_click="ignore")
 
 with st.container(border=True):
@@ -125,7 +132,7 @@ with st.container(border=True):
         text, n_nodes = out
         st.caption(f"{n_nodes} grid nodes over the working volume "
                    f"{' × '.join(f'{v:g}' for v in obs.range_mm)} mm.")
-        st.download_button("Download error-map grid (CSV)", text, "error_map.csv", "text/csv",
+        st.download_button("Download error-map grid (CSV)", text, fname("error_map.csv"), "text/csv",
                            key="dl_grid", on_click="ignore")
 
 with st.container(border=True):
@@ -166,11 +173,11 @@ with st.container(border=True):
     files = C.safe(results_files, args, float(kfac), r, what="Results files")
     t1, t2, t3, t4 = st.columns(4)
     if tables is not None:
-        t1.download_button("Grid compensation table (CSV)", tables[0], "compensation_grid.csv",
+        t1.download_button("Grid compensation table (CSV)", tables[0], fname("compensation_grid.csv"),
                            "text/csv", key="dl_comp_grid", on_click="ignore",
                            help=f"{tables[2]} nodes; header: units, sign, layout, probe, "
                                 "grid, model and its χ² test.")
-        t2.download_button("Per-axis tables (zip of CSV)", tables[1], "axis_tables.zip",
+        t2.download_button("Per-axis tables (zip of CSV)", tables[1], fname("axis_tables.zip"),
                            "application/zip", key="dl_axis_tables", on_click="ignore",
                            help="axis_x/y/z.csv: the six error functions of each axis; "
                                 "squareness.csv.")
@@ -178,9 +185,9 @@ with st.container(border=True):
         t1.info("No compensation tables: the data do not determine every kinematic "
                 "combination, so the corrections would be an arbitrary choice.")
     if files is not None:
-        t3.download_button("Results (JSON)", files[0], "cmm_results.json", "application/json",
+        t3.download_button("Results (JSON)", files[0], fname("cmm_results.json"), "application/json",
                            key="dl_results_json", on_click="ignore")
-        t4.download_button("Results (QIF-like XML)", files[1], "cmm_results.xml",
+        t4.download_button("Results (QIF-like XML)", files[1], fname("cmm_results.xml"),
                            "application/xml", key="dl_results_xml", on_click="ignore")
 
 
@@ -208,18 +215,18 @@ def _project_text():
 
 
 if record is not None:
-    c3.download_button("HTML report (self-contained)", _report_bytes, "cmm_report.html",
+    c3.download_button("HTML report (self-contained)", _report_bytes, fname("cmm_report.html"),
                        "text/html", key="dl_report", on_click="ignore",
                        help="Summary with the fit's χ² test, figures (plotly embedded once, "
                             "no network needed), uncertainty, parameter and residual tables. "
                             "The same as `python -m cmm_core report ANALYSIS.json`.")
     c2.download_button("Analysis record (ANALYSIS.json)", A.record_to_json(record),
-                       "ANALYSIS.json", "application/json", key="dl_analysis",
+                       fname("ANALYSIS.json"), "application/json", key="dl_analysis",
                        on_click="ignore",
                        help="Data, selection, exclusions, model, σ and report choices: "
                             "`python -m cmm_core report ANALYSIS.json --out REPORT.html` "
                             "reproduces this report.")
-    c1.download_button("Project file (JSON)", _project_text, "cmm_project.json",
+    c1.download_button("Project file (JSON)", _project_text, fname("cmm_project.json"),
                        "application/json", key="dl_project", on_click="ignore",
                        help="Restores the dataset, model, exclusions and history on the "
                             "Data page.")

@@ -238,6 +238,18 @@ if s.get("gp_on"):
             c_: st.column_config.NumberColumn(format="%.3f") for c_ in
             ("signal sd (µm)", "noise sd (µm)", "log marginal likelihood", "LOO RMS (µm)")}
             | {"LOO 95 % coverage (%)": st.column_config.NumberColumn(format="%.1f")})
+        # a length scale far beyond the data is legitimate but reads like a bug: say what it is
+        span_mm = float(np.max(np.ptp(pts, axis=0)))
+        very_long = [f"e{'xyz'[i]} ({_fmt_lengths(c_.results[0].length_scale_mm)} mm)"
+                     for i, c_ in enumerate(comps)
+                     if np.nanmax(np.atleast_1d(np.asarray(
+                         c_.results[0].length_scale_mm, float))) > 10 * span_mm]
+        if very_long:
+            st.caption(f"Length scale more than ten times the measured volume ({span_mm:.0f} mm "
+                       "across) for " + ", ".join(very_long) + ": along that input the GP "
+                       "is a nearly straight trend over the whole volume (the data show no "
+                       "curvature it could follow); this is what the marginal likelihood "
+                       "prefers, not a failed fit.")
         cov_cols = st.columns(3)
         for col, (c_, v) in zip(cov_cols, coverage.items(), strict=True):
             col.metric(f"e{c_}: LOO 95 % coverage", f"{v:.1f} %",

@@ -116,17 +116,7 @@ def _detection_plot(evals: list) -> None:
     effects = list(dict.fromkeys(k for e in evals for k in e["detection_limits"]))
     physical = [k for k in effects if ":" not in k or k.startswith("periodic")]
     pick = st.multiselect("Effects", effects, default=physical, key="w_plan_effects")
-    fig = go.Figure()
-    for e in evals:
-        lim = e["detection_limits"]
-        fig.add_bar(name=e["name"], x=pick,
-                    y=[(lim.get(k) or {}).get("size") for k in pick],
-                    text=[_fmt((lim.get(k) or {}).get("size")) + " "
-                          + unit_label((lim.get(k) or {}).get("unit", "")) for k in pick])
-    fig.update_layout(barmode="group", yaxis_type="log", height=380,
-                      yaxis_title="detection limit (effect unit, log)",
-                      margin={"t": 30})
-    st.plotly_chart(fig, width="stretch")
+    st.plotly_chart(C.rep.fig_detection_limits(evals, pick), width="stretch")
     rows = [{"strategy": e["name"], "effect": k, "expected": v["expected"],
              "detection limit": _fmt(v["limit"]), "unit": unit_label(v["unit"]),
              "seen": "yes" if v["detectable"] else "no"}

@@ -279,7 +279,7 @@ def show_mpe(out, skipped, u_src, sig):
                     "there.")
 
 
-st.subheader("MPE check (0.6 µm + L/600)")
+st.subheader("MPE check (0.6 µm + L/600, L in mm)")
 if ds.certificate is None or len(ds.certificate.balls) != 25:
     st.info("The MPE check needs a certificate of a 5 × 5 ball plate.")
 else:

@@ -149,3 +149,23 @@ def test_coverage_reasons_name_the_cause_from_the_numbers():
     assert "chance alone" in text
 
 
+
+
+def test_detection_limit_chart_has_one_axis_per_unit_and_room_above_the_tallest_bar():
+    """Issue 27: µm and 10⁻⁶/K shared one axis and the tallest bar's label was cut. Each
+    unit now has its own log panel reaching a factor 4 above its tallest bar."""
+    from cmm_core.analysis import fig_detection_limits
+
+    evals = [{"name": "A", "detection_limits": {"dzz:3": {"size": 0.6, "unit": "um"},
+                                                "plate_thermal": {"size": 2.5,
+                                                                  "unit": "1e-6/K"}}},
+             {"name": "B", "detection_limits": {"dzz:3": {"size": 1.8, "unit": "um"}}}]
+    fig = fig_detection_limits(evals, ["dzz:3", "plate_thermal"])
+    assert len(fig.layout.annotations) == 2  # one titled panel per unit
+    ranges = [fig.layout.yaxis.range, fig.layout.yaxis2.range]
+    assert ranges[0][1] == pytest.approx(np.log10(1.8 * 4))
+    assert ranges[1][1] == pytest.approx(np.log10(2.5 * 4))
+    panel = {t.xaxis: [t.name for t in fig.data if t.xaxis == t.xaxis] for t in fig.data}
+    assert set(panel) == {"x", "x2"}
+    b_thermal = [t for t in fig.data if t.name == "B" and t.xaxis == "x2"][0]
+    assert b_thermal.y == (None,) and b_thermal.text == ("—",)  # B cannot see it

@@ -49,3 +49,19 @@ def test_export_page_corrects_its_example_points_with_a_machine_thermal_model(tm
     assert table["xc_mm"].notna().all()
     cap = " ".join(c.value for c in at.caption)
     assert "temp_x_C" in cap and "machine_thermal" in cap
+
+
+@pytest.mark.parametrize("dataset, expected", [
+    ("thesis tables 6.1-6.6", "thesis_tables_6.1-6.6_cmm_model.json"),
+    ("../../etc/passwd", "etc_passwd_cmm_model.json"),  # no path ever leaves the folder
+    ("C:\\lab\\run 3", "C_lab_run_3_cmm_model.json"),
+    ("", "cmm_model.json"),
+    ("x" * 100, "x" * 40 + "_cmm_model.json"),
+])
+def test_download_names_carry_the_dataset(dataset, expected):
+    """Issue 27: every download was named the same for every dataset, so two datasets'
+    downloads overwrote each other; the name now starts with the dataset's, made safe for
+    any file system (no separators or spaces, at most 40 characters of prefix)."""
+    from cmm_core.export import download_name
+
+    assert download_name(dataset, "cmm_model.json") == expected

@@ -14,6 +14,7 @@ from plotly.subplots import make_subplots
 from ..machine import kinematics as kin
 from ..machine import rigid_fit
 from ..units import UM
+from ..units import label as unit_label
 
 AXIS_COLOURS = {"x": "#1f77b4", "y": "#2ca02c", "z": "#d62728"}
 FUNCTION_UNITS = {"d": "µm", "r": "µrad", "s": "µrad"}
@@ -301,7 +302,7 @@ def fig_signature_scatter(residuals_um, signature_um, title: str, height: int = 
     return _layout(fig, title, height=height)
 
 
-def fig_mpe(result, title: str = "Length errors against the MPE (0.6 µm + L/600)"):
+def fig_mpe(result, title: str = "Length errors against the MPE (0.6 µm + L/600, L in mm)"):
     """Length errors E (µm) against the certificate length L (mm): each with its ±U bar
     (k = 2), coloured by its ISO 14253-1 decision, between the ±MPE(L) lines."""
     colours = {"conforms": "#2ca02c", "inconclusive": "#ff7f0e",
@@ -332,8 +333,12 @@ def fig_mpe(result, title: str = "Length errors against the MPE (0.6 µm + L/600
 
 
 def fig_history(history: list):
-    """RMS, χ²/dof, BIC and GP discrepancy amplitude as effects are added or removed."""
-    fig = make_subplots(rows=1, cols=4, subplot_titles=("RMS (µm)", "χ²/dof", "BIC",
+    """RMS, χ²/dof, BIC and GP discrepancy amplitude as effects are added or removed.
+
+    BIC is drawn relative to the first step: its absolute value (tens of thousands) only
+    means something in differences, and an axis of "49.0645k / 49.065k" hid them."""
+    fig = make_subplots(rows=1, cols=4, subplot_titles=("RMS (µm)", "χ²/dof",
+                                                       "BIC − BIC of step 0",
                                                        "GP discrepancy (µm)"))
     if not history:
         return _layout(fig, "Diagnosis history (empty)", height=320)
@@ -343,6 +348,8 @@ def fig_history(history: list):
     for c, key in enumerate(("rms_um", "chi2_dof", "bic", "gp_amplitude_um"), start=1):
         y = [h.get(key) for h in history]
         y = [np.nan if v is None else v for v in y]
+        if key == "bic":
+            y = list(np.asarray(y, float) - y[0])
         fig.add_trace(go.Scatter(x=list(range(len(history))), y=y, mode="lines+markers",
                                  text=steps, showlegend=False,
                                  hovertemplate="%{text}<br>%{y:.4g}<extra></extra>"),
@@ -355,6 +362,42 @@ def fig_history(history: list):
                                x=(len(history) - 1) / 2, y=0.5,
                                yref="y domain" if c == 1 else f"y{c} domain")
     return _layout(fig, "Diagnosis history: fit quality as effects are added", height=360)
+
+
+def fig_detection_limits(evals: list, effects: list, height: int = 380):
+    """Detection limits of plan evaluations (``plan`` JSON: each with ``name`` and
+    ``detection_limits`` {effect: {"size", "unit"}}) as grouped bars, one panel per unit.
+
+    Limits in µm, µrad, 10⁻⁶/K ... are not comparable, so each unit has its own log axis;
+    each axis reaches a factor 4 above its tallest bar so that the value printed above it
+    is never cut. A missing bar: the design cannot see that effect."""
+    def limit(e, k):
+        return (e["detection_limits"].get(k) or {})
+
+    units = list(dict.fromkeys(next((limit(e, k)["unit"] for e in evals if limit(e, k)), "")
+                               for k in effects))
+    by_unit = {u: [k for k in effects if next((limit(e, k)["unit"] for e in evals
+                                               if limit(e, k)), "") == u] for u in units}
+    widths = [max(len(v), 1) for v in by_unit.values()] or [1]
+    fig = make_subplots(rows=1, cols=max(len(units), 1), column_widths=widths,
+                        subplot_titles=[unit_label(u) or "—" for u in units] or [""],
+                        horizontal_spacing=0.06)
+    colours = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b")
+    for c, (u, ks) in enumerate(by_unit.items(), start=1):
+        top = 0.0
+        for j, e in enumerate(evals):
+            y = [limit(e, k).get("size") for k in ks]
+            top = max([top, *[v for v in y if v]])
+            fig.add_bar(name=e["name"], x=ks, y=y, legendgroup=e["name"], showlegend=c == 1,
+                        marker_color=colours[j % len(colours)], cliponaxis=False,
+                        text=["—" if v is None else f"{v:.3g}" for v in y],
+                        textposition="outside", row=1, col=c)
+        if top > 0:
+            bottom = min([limit(e, k).get("size") or top for e in evals for k in ks])
+            fig.update_yaxes(type="log", range=[np.log10(bottom / 3), np.log10(top * 4)],
+                             title_text=f"detection limit ({unit_label(u)})", row=1, col=c)
+    fig.update_layout(barmode="group")
+    return _layout(fig, "", height=height)
 
 
 def fig_placements(dataset, certificate_xyz=None):

@@ -359,7 +359,7 @@ def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None
                 f"<p class='note'>The 10 best of {len(diagnosis)} candidates.</p>")
     if mpe is not None:
         counts = pd.DataFrame([{"decision": k, "lengths": v} for k, v in mpe.counts.items()])
-        section("MPE check (0.6 µm + L/600, ISO 14253-1 decision rule)", chi2_html(r),
+        section("MPE check (0.6 µm + L/600 with L in mm, ISO 14253-1 decision rule)", chi2_html(r),
                 fig_html(fig_mpe(mpe)), _table_html(counts),
                 "<p class='note'>Conforms when |E| + U ≤ MPE, does not conform when |E| − U "
                 "> MPE, otherwise inconclusive; U (k = 2) from the record's MPE uncertainty source "

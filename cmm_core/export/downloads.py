@@ -13,6 +13,8 @@ and uncertainties are µm.
   when it is available; otherwise a thin adapter over ``uncertainty.error_at``).
 - :func:`project_to_json` / :func:`project_from_json` save and restore a session: the
   dataset files' content, setup, certificate, model, exclusions and history.
+- :func:`download_name` prefixes a download's file name with its dataset's name, so the
+  downloads of two datasets never overwrite each other in one folder.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import re
 from collections.abc import Iterable
 from datetime import UTC, datetime
 from typing import Any
@@ -34,6 +37,19 @@ from ..model import MAX_ORDER, PLATE_MODES, FitResult, parse_spec
 from .comp_tables import as_model, compensation_grid
 from .correction import Model, compensate
 from .safe import safe_csv
+
+_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+def download_name(dataset_name: str, file_name: str, max_stem: int = 40) -> str:
+    """``file_name`` prefixed with a file-system-safe form of ``dataset_name``:
+    ``download_name("thesis tables 6.1-6.6", "cmm_model.json")`` is
+    ``"thesis_tables_6.1-6.6_cmm_model.json"``. Characters other than letters, digits,
+    ``. _ -`` become ``_`` (no path separators, no spaces a shell must quote); the prefix
+    is cut to ``max_stem`` characters so that names stay within any file system's limit."""
+    stem = _UNSAFE.sub("_", str(dataset_name)).strip("._-")[:max_stem].rstrip("._-")
+    return f"{stem}_{file_name}" if stem else file_name
+
 
 PROJECT_FORMAT = "cmm-error-lab-project"
 PROJECT_VERSION = 1
