@@ -65,12 +65,82 @@ the Chebyshev error functions would be extrapolated (and a point that far out is
 likely in another frame or unit than a real reading)."""
 
 
+_MAX_READINGS = 100_000
+"""Most readings (or lengths) of one instrument file that are fitted. A laser calibration
+takes tens to a few hundred readings per run; each reading costs a row of the kinematic
+Jacobian (8 bytes per coefficient) in every iteration of the fit, so a file of 10^6
+readings would take gigabytes for no gain in what the model can tell."""
+
+
+class _Rows:
+    """A linear map applied to a vector ``(m,)`` or to columns ``(m, k)`` through
+    ``apply``, without its matrix (the matrices of eq. 1 are ``m × m``): ``T @ d``."""
+
+    def __init__(self, shape: tuple[int, int], apply) -> None:
+        self.shape = shape
+        self._apply = apply
+
+    def __matmul__(self, y):
+        y = np.asarray(y, float)
+        if y.shape[0] != self.shape[1]:
+            raise ValueError(f"expected {self.shape[1]} rows, found {y.shape[0]}")
+        return self._apply(y)
+
+
 def _orthocomplement(V, w):
-    """``Q2ᵀ W`` (rows, m) and ``Q2`` (m, rows): orthonormal basis of the complement of
-    ``range(W V)`` with ``W = diag(w)``, applied to the weights (module docstring, eq. 1)."""
-    Q = np.linalg.qr(w[:, None] * V, mode="complete")[0]
-    Q2 = Q[:, V.shape[1]:]
-    return Q2.T * w, Q2
+    """``(Q2ᵀ W, Q2)`` as maps (:class:`_Rows`): ``Q2`` (m, m - k) an orthonormal basis of
+    the complement of ``range(W V)`` with ``W = diag(w)`` (module docstring, eq. 1).
+
+    ``Q`` is kept as its Householder reflectors ``H_j = I - τ_j v_j v_jᵀ`` (LAPACK geqrf,
+    ``numpy.linalg.qr(mode="raw")``, the factorisation ``mode="complete"`` forms ``Q``
+    from): applying them costs O(m k) time and memory, where the complete ``Q`` took
+    ``m²`` numbers (7.4 GiB for a run of 10^6 readings). ``Q = H_0 … H_{k-1}``, so
+    ``Qᵀ y`` applies ``H_0`` first and ``Q y`` last; ``Q2ᵀ y`` is ``Qᵀ y`` without its
+    first k rows."""
+    h, tau = np.linalg.qr(w[:, None] * V, mode="raw")
+    m, k = len(w), len(tau)
+    refl = []
+    for j in range(k):
+        v = h[j].copy()  # raw mode: row j holds the reflector below the diagonal
+        v[:j] = 0.0
+        v[j] = 1.0
+        refl.append((v, tau[j]))
+
+    def reflect(y, order):
+        y = y.copy()
+        for v, t in order:
+            y -= t * np.outer(v, v @ y).reshape(y.shape) if y.ndim > 1 else t * v * (v @ y)
+        return y
+
+    def rows(d):
+        y = d * (w[:, None] if d.ndim > 1 else w)
+        return reflect(y, refl)[k:]
+
+    def back(z):
+        y = np.zeros((m, *z.shape[1:]))
+        y[k:] = z
+        return reflect(y, refl[::-1])
+
+    return _Rows((m - k, m), rows), _Rows((m, m - k), back)
+
+
+def _stacked(parts, m):
+    """``(T, Q)`` of a file from each run's ``(selection, T_k, Q_k)``: T block-diagonal
+    over the runs (rows run after run), Q its transpose's layout."""
+    n_rows = sum(t.shape[0] for _, t, _ in parts)
+
+    def rows(d):
+        return np.concatenate([t @ d[sel] for sel, t, _ in parts]) if parts else d[:0]
+
+    def back(z):
+        out = np.zeros((m, *z.shape[1:]))
+        at = 0
+        for sel, t, q in parts:
+            out[sel] = q @ z[at:at + t.shape[0]]
+            at += t.shape[0]
+        return out
+
+    return _Rows((n_rows, m), rows), _Rows((m, n_rows), back)
 
 
 @dataclass(frozen=True, eq=False)
@@ -120,23 +190,21 @@ class LaserRun:
         return [(self.r_mm - self.p_mm, self.p_mm)]
 
     @cached_property
-    def transform(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(T, Q)``: rows = ``T (pred - measured)`` (eq. 1), block-diagonal over runs."""
-        m = len(self.run)
-        T, Q = [], []
+    def transform(self) -> tuple[_Rows, _Rows]:
+        """``(T, Q)``: rows = ``T @ (pred - measured)`` (eq. 1), block-diagonal over runs;
+        maps, not matrices (:func:`_orthocomplement`)."""
+        parts = []
         for k in range(len(self.runs)):
             sel = np.flatnonzero(self.run == k)
+            if not sel.size:
+                continue
             a = self.axis[sel[0]]
             cols = [np.ones(sel.size)]
             if self.component[sel[0]] != a:
                 u = self.r_mm[sel, a]
                 cols.append((u - u.mean()) / max(np.ptp(u), 1e-9))
-            t, q = _orthocomplement(np.column_stack(cols), 1.0 / self.u_um[sel])
-            Tk, Qk = np.zeros((t.shape[0], m)), np.zeros((m, t.shape[0]))
-            Tk[:, sel], Qk[sel] = t, q
-            T.append(Tk)
-            Q.append(Qk)
-        return np.vstack(T), np.hstack(Q)
+            parts.append((sel, *_orthocomplement(np.column_stack(cols), 1.0 / self.u_um[sel])))
+        return _stacked(parts, len(self.run))
 
     def predict(self, terms: kin.KinematicTerms, coef: np.ndarray, want_jac: bool
             ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -190,9 +258,12 @@ class StepGauge:
         return [(self.r1_mm - self.p_mm, self.p_mm), (self.r2_mm - self.p_mm, self.p_mm)]
 
     @cached_property
-    def transform(self) -> tuple[np.ndarray, np.ndarray]:
+    def transform(self) -> tuple[_Rows, _Rows]:
+        """``(diag(1/u), I)`` as maps: each length is its own row."""
         w = 1.0 / self.u_um
-        return np.diag(w), np.eye(w.size)
+        m = w.size
+        return (_Rows((m, m), lambda d: d * (w[:, None] if d.ndim > 1 else w)),
+                _Rows((m, m), lambda z: z.copy()))
 
     def predict(self, terms: kin.KinematicTerms, coef: np.ndarray, want_jac: bool
             ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -239,6 +310,7 @@ class Instruments:
         self.terms = problem.terms
         self.cols = problem.layout.blocks.get("kinematic", slice(0, 0))
         if self.items:
+            _check_size(self.items)
             _check_in_range(self.items, np.asarray(problem.obs.range_mm, float))
 
     @property
@@ -295,6 +367,17 @@ class Instruments:
             full[:, self.cols] = Ji
             J = sp.vstack([J, sp.csr_matrix(full)]).tocsr()
         return np.concatenate([r, ri]), J
+
+
+def _check_size(items):
+    """Refuse an instrument file of more than :data:`_MAX_READINGS` readings, naming it."""
+    for it in items:
+        if len(it.rows) > _MAX_READINGS:
+            raise DataError(f"{len(it.rows):,} readings; at most {_MAX_READINGS:,} of one "
+                            f"instrument file are fitted (a calibration takes tens to "
+                            "hundreds per run, and each costs a row of the fit's Jacobian "
+                            "in every iteration).", file=it.source,
+                            hint="thin the readings out (keep every n-th row).")
 
 
 def _check_in_range(items, range_mm):
