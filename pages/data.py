@@ -158,7 +158,55 @@ def _dataset_name(label, meas):
     return f"{', '.join(name for name, _ in meas)[:60]} (upload {n})"
 
 
-def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label="", mapped=None):
+CERT_U_CHOICES = ("As the certificate's u columns or the setup state it",
+                  "U(k) = a ⊕ b·L, entered here", "Exact (a noise-free simulation)")
+"""How the upload states the certificate's uncertainty (issue 24: never assumed)."""
+CERT_U_SOURCE = "entered on the Data page"
+
+
+def _certificate_statement_inputs(sfx):
+    """The certificate statement of the setup's ``certificate`` section, as entered (None:
+    the file's u columns or the setup's own statement)."""
+    choice = st.radio("Certificate uncertainty (for a certificate without u_x_um, u_y_um, "
+                      "u_z_um columns)", CERT_U_CHOICES, key=f"up_cert_u{sfx}",
+                      help="No fit assumes a certificate uncertainty: it comes from the "
+                           "file's u columns, the setup's certificate statement, or what "
+                           "you enter here (it replaces the setup's statement).")
+    if choice == CERT_U_CHOICES[2]:
+        return {"exact": True, "source": CERT_U_SOURCE}
+    if choice != CERT_U_CHOICES[1]:
+        return None
+    c1, c2, c3, c4 = st.columns(4)
+    a = c1.number_input("a (µm)", min_value=0.0, max_value=100.0, value=0.0, step=0.01,
+                        format="%.3f", key=f"up_cert_a{sfx}",
+                        help="constant part of the expanded uncertainty U, µm")
+    b = c2.number_input("b (µm per mm)", min_value=0.0, max_value=1.0, value=0.0,
+                        step=1e-4, format="%.5f", key=f"up_cert_b{sfx}",
+                        help="length part of U, µm per mm of the distance L from ball 1")
+    k = c3.number_input("k", min_value=1.0, max_value=3.0, value=2.0, step=0.5,
+                        key=f"up_cert_k{sfx}", help="coverage factor of U")
+    combine = c4.selectbox("⊕", ("quadrature", "linear"), key=f"up_cert_combine{sfx}",
+                           help="quadrature: U = sqrt(a² + (b·L)²); linear: U = a + b·L")
+    return {"U_um": [float(a), float(b)], "k": float(k), "combine": combine,
+            "source": CERT_U_SOURCE}
+
+
+def _with_statement(setup_text, statement, problems):
+    """The setup text with the entered certificate statement as its ``certificate``
+    section, checked by the setup reader (None with the problem noted when refused)."""
+    raw = json.loads(setup_text)
+    raw["certificate"] = statement
+    text = json.dumps(raw, indent=1)
+    try:
+        cio.read_setup(io.StringIO(text), name="setup.json")
+    except Exception as exc:  # noqa: BLE001 - a message, never a traceback
+        problems.extend(_problem_rows(exc, "certificate uncertainty (entered)"))
+        return None
+    return text
+
+
+def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label="", mapped=None,
+                     cert_statement=None):
     """Check every file on its own, then together.
 
     Returns
@@ -199,6 +247,14 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label="", ma
         problems.append(_problem("setup.json", "no setup given.",
                                  "upload a setup JSON (docs/formats.md#setup) or tick 'use "
                                  "the thesis setup'."))
+    if cert_statement is not None and setup_text is not None:
+        setup_text = _with_statement(setup_text, cert_statement, problems)
+        notes.append("Certificate uncertainty: " + (
+            "exact" if cert_statement.get("exact") else
+            "U(k={k:g}) = {a:g} ⊕ {b:g}·L µm ({c})".format(
+                k=cert_statement["k"], a=cert_statement["U_um"][0],
+                b=cert_statement["U_um"][1], c=cert_statement["combine"]))
+            + f", {CERT_U_SOURCE}; a certificate's own u columns take precedence.")
     if cert_file is not None:
         text = _checked_text(cert_file, cio.read_certificate, problems)
         cert = None if text is None else (cert_file.name, text)
@@ -311,6 +367,7 @@ with tab_upload:
     up_setup = c1.file_uploader("Setup (JSON)", type=["json"], key=f"up_setup{sfx}")
     up_cert = c2.file_uploader("Certificate (CSV, optional)", type=["csv", "txt"],
                                key=f"up_cert{sfx}")
+    cert_statement = _certificate_statement_inputs(sfx)
     up_label = st.text_input("Dataset name (optional)", key=f"up_label{sfx}",
                              placeholder="e.g. the folder or job name",
                              help="Shown in the sidebar, the report and the project file. "
@@ -324,7 +381,8 @@ with tab_upload:
         st.session_state.pop("upload_report", None)
         files, problems, notes = _validate_upload(up_meas or [], up_setup, up_cert,
                                                   use_thesis, up_label,
-                                                  st.session_state.get("mapped_meas"))
+                                                  st.session_state.get("mapped_meas"),
+                                                  cert_statement)
         if problems:
             st.session_state["upload_report"] = {"problems": problems,
                                                  "count": _count(problems)}

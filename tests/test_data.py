@@ -334,3 +334,49 @@ def test_free_notes_in_a_setup_are_kept_and_a_misspelt_column_is_refused():
     with pytest.raises(DataError) as exc:
         read_measurements(io.BytesIO(text.encode()), name="m.csv")
     assert "did you mean 'temp_C'" in str(exc.value) and exc.value.column == "tempC"
+
+
+def test_the_data_page_takes_a_certificate_statement_for_a_certificate_without_u():
+    """Issue 24: a certificate without u columns and a setup that states nothing are
+    refused; the statement entered on the Data page (U(k) = a ⊕ b·L, or exact) goes into
+    the setup's certificate section and is what the dataset uses, source named. Reference:
+    thesis appendix 1, U(k=2) = sqrt(0.26² + (1.9e-3 L)²) µm, L from ball 1."""
+    raw = json.loads((THESIS / "setup.json").read_text())
+    del raw["certificate"]
+    setup = ("setup.json", json.dumps(raw).encode(), "application/json")
+    cert = ("certificate.csv", (THESIS / "certificate.csv").read_bytes(), "text/csv")
+    meas = [(p + ".csv", (THESIS / f"{p}.csv").read_bytes(), "text/csv")
+            for p in THESIS_POSITIONS]
+    at = _upload_app()
+    at.switch_page("pages/data.py")
+    at.run()
+
+    def load(sfx, choice, a=0.0, b=0.0):
+        """Upload the three kinds of file (widget keys of upload generation ``sfx``)."""
+        at.file_uploader(key=f"up_meas{sfx}").set_value(meas)
+        at.file_uploader(key=f"up_setup{sfx}").set_value(setup)
+        at.file_uploader(key=f"up_cert{sfx}").set_value(cert)
+        radio = at.radio(key=f"up_cert_u{sfx}")
+        radio.set_value(radio.options[choice]).run()
+        if choice == 1:
+            at.number_input(key=f"up_cert_a{sfx}").set_value(a)
+            at.number_input(key=f"up_cert_b{sfx}").set_value(b).run()
+        at.button(key="load_upload").click()
+        at.run()
+        assert not at.exception
+
+    load("", 0)  # as the file or setup states it: neither does
+    assert "gives no uncertainty" in " ".join(_problem_table(at)["problem"])
+    load("", 2)  # exact
+    assert _problem_table(at) is None and not at.error
+    assert json.loads(at.session_state["ds_files"]["setup"])["certificate"]["exact"] is True
+    load("_1", 1, 0.26, 0.0019)  # the fields of the next upload generation
+    assert _problem_table(at) is None and not at.error
+    files = at.session_state["ds_files"]
+    ds = load_dataset([(io.StringIO(t), n) for n, t in files["measurements"]],
+                      io.StringIO(files["setup"]), (io.StringIO(files["certificate"][1]),
+                                                    files["certificate"][0]))
+    c = ds.certificate
+    L = np.linalg.norm(c.xyz_mm - c.xyz_mm[0], axis=1)
+    np.testing.assert_allclose(c.u_um[:, 0], np.hypot(0.26, 1.9e-3 * L) / 2, rtol=1e-12)
+    assert "entered on the Data page" in c.u_source
