@@ -13,7 +13,8 @@ import numpy as np
 
 from cmm_core.model import instruments as ins
 from cmm_core.model import simulate
-from cmm_core.model.instrument_files import write_laser, write_step_gauge
+from cmm_core.model import simulate_ball_bar
+from cmm_core.model.instrument_files import write_ball_bar, write_laser, write_step_gauge
 
 HERE = Path(__file__).resolve().parent
 SIM = HERE.parent / "simulated"
@@ -35,3 +36,13 @@ sg = ins.simulate_step_gauge(sim, [100, 150, 100], [1100, 850, 400],
                              np.arange(1, 12) * 100.0, offset_mm=(0, 0, -150), u_um=0.3,
                              seed=4)
 write_step_gauge(sg, HERE / "step_gauge.csv")
+
+# A 400 mm ball bar in the six directions of ISO 10360-2 (three axes, three face
+# diagonals) about the middle of the volume, each placement measured once.
+centre = np.array([600.0, 500.0, 300.0])
+dirs = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0], [1, 0, 1], [0, 1, 1]], float)
+dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+bb = simulate_ball_bar(sim, centre - 200 * dirs, centre + 200 * dirs, offset_mm=(0, 0, -150),
+                       u_um=0.3, seed=5, labels=["x", "y", "z", "xy", "xz", "yz"],
+                       source="ball_bar.csv")
+write_ball_bar(bb, HERE / "ball_bar.csv")
