@@ -26,12 +26,13 @@ _MODEL_HELP = ("fitted model written by 'fit --save' (its kinematic coefficients
                "covariance, the layout, strokes and probe offsets). At least one of --grid, "
                "--axis-tables, --results-json, --results-xml is required; formats in "
                "docs/compensation.md")
-_GRID_STEP_HELP = ("spacing of the 3-D compensation grid along each axis, mm; one number "
-                   "for all axes or three (x,y,z), e.g. 100 or 100,100,50. Each axis runs "
+_GRID_STEP_HELP = ("spacing of the 3-D compensation grid along each axis, mm, 0.1 to 10000; "
+                   "one number for all axes or three (x,y,z), e.g. 100 or 100,100,50. Each "
+                   "axis runs "
                    "from 0 to its stroke, the last interval shorter when the stroke is not "
                    "a multiple (default: %(default)s mm)")
-_AXIS_STEP_HELP = ("spacing of the rows of the per-axis tables, mm (default: the grid "
-                   "step; the first of three)")
+_AXIS_STEP_HELP = ("spacing of the rows of the per-axis tables, mm, 0.1 to 10000 (default: "
+                   "the grid step; the first of three)")
 _PROBE_HELP = ("stylus of the model whose tip the grid corrects; default: none, the ram "
                "reference point (offset 0 0 0 mm), as a controller's table. The per-axis "
                "tables do not depend on the stylus")

@@ -188,7 +188,8 @@ def add_foreign_args(p):
                         "certificate exact) or 'measured' coordinates (default: none)")
     p.add_argument("--msl-certificate-u", metavar="A_UM,B_UM_PER_MM",
                    help="the artefact's certificate U(k=2) = sqrt(A² + (B·L)²) µm, L mm from "
-                        "ball 1, for --msl-kind measured (default: none; required then)")
+                        "ball 1, A 0 to 100 µm and B 0 to 1 µm/mm, not both 0, for "
+                        "--msl-kind measured (default: none; required then)")
 
 
 def add_data_args(p):

@@ -33,6 +33,9 @@ CTE_RANGE_PER_K = (-1e-6, 3e-5)
 """Plausible plate CTE: Zerodur's about ±0.1e-6 to aluminium's 23e-6 and a margin."""
 TEMP_RANGE_C = (0.0, 50.0)
 """Plausible temperatures of a CMM room or a plate (°C)."""
+_MAX_PLATE_BALLS = 10_000
+"""Most balls a setup's plate may state (``plate.balls``): ball plates have 9 to a few
+hundred."""
 
 
 ARTEFACTS = ("ball_plate", "hole_plate")
@@ -425,13 +428,16 @@ def _plate_axes(spec: dict, key: str, name) -> np.ndarray:
 
 def _plate_cte(plate: dict, name) -> float:
     """The ``plate`` section: pitch and ball count checked, the CTE (1/K) returned."""
-    for key, lo in (("pitch_mm", 1.0), ("balls", 3)):
+    # a plate's pitch lies within a machine's stroke, and a plate of more balls than
+    # MAX_PLATE_BALLS would be a table of its own
+    for key, lo, hi, what in (("pitch_mm", 1.0, MAX_STROKE_MM, "a length in mm"),
+                              ("balls", 3, _MAX_PLATE_BALLS, "a whole number")):
         val = plate.get(key)
         if val is not None and (isinstance(val, bool) or not isinstance(val, int | float)
-                                or not np.isfinite(val) or val < lo
+                                or not np.isfinite(val) or not lo <= val <= hi
                                 or (key == "balls" and not float(val).is_integer())):
-            raise DataError(f"plate.{key} must be {'a length >= 1 mm' if key == 'pitch_mm' else 'a whole number >= 3'} "
-                            f"(or absent), found {cut_repr(val)}.", file=name, column=f"plate.{key}")
+            raise DataError(f"plate.{key} must be {what} from {lo:g} to {hi:g} (or absent), "
+                            f"found {cut_repr(val)}.", file=name, column=f"plate.{key}")
     cte = plate.get("cte_per_K", 11.5e-6)
     if isinstance(cte, bool) or not isinstance(cte, int | float) or not np.isfinite(cte):
         raise DataError(f"plate.cte_per_K must be a number (1/K, e.g. 11.5e-6), found "

@@ -93,6 +93,11 @@ _BB_HINT = ("Columns: [bar,]x1_mm,y1_mm,z1_mm,x2_mm,y2_mm,z2_mm,certified_mm,u_u
             "[,offset_x_mm,offset_y_mm,offset_z_mm][,temp_C,cte_per_K]; docs/instruments.md.")
 
 
+_QUIET = np.errstate(over="ignore", invalid="ignore")
+"""The readers' arithmetic on cells such as 1e308 (reported as out of range, one line)
+must not print numpy's overflow warnings beside that line."""
+
+
 def _columns(df, name, required, optional, form, hint):
     """Refuse unknown (likely misspelt) columns, then missing ones and an empty file."""
     known = required + optional
@@ -168,6 +173,7 @@ def _positive_um(df, col, name, found, what):
     return v
 
 
+@_QUIET
 def read_laser(source: FileSource, name: str | None = None) -> LaserRun:
     """Read a laser interferometer file (module docstring; ``docs/instruments.md``).
 
@@ -262,6 +268,7 @@ def _check_runs(name, rows, run, runs, axis, comp, r, p, run_col):
                 column=run_col)
 
 
+@_QUIET
 def read_step_gauge(source: FileSource, name: str | None = None) -> StepGauge:
     """Read a step-gauge / gauge-block file (module docstring; ``docs/instruments.md``).
 
@@ -330,6 +337,7 @@ def _temperature(df, name, found, cert, hint=_SG_HINT):
     return cert * (1 + cte * (t - 20.0))
 
 
+@_QUIET
 def read_ball_bar(source: FileSource, name: str | None = None) -> BallBar:
     """Read a ball-bar file (module docstring; ``docs/instruments.md``): one length per row,
     the indicated centres of the bar's two balls and its certified length.

@@ -233,6 +233,10 @@ def units_of(spec, setup, defaults, name, column) -> dict:
     """Placements and styli of a strategy: a list of placement names (each with its
     setup stylus) or an object placement: [styli]; every name checked against the setup."""
     if isinstance(spec, list):
+        for i, p in enumerate(spec):
+            if not isinstance(p, str):  # a list or object is no placement name
+                raise _bad(name, f"{column}[{i}]", f"expected a placement name, found "
+                           f"{cut_repr(p)}.")
         spec = {p: list(defaults.get(p, ())) for p in spec}
     if not isinstance(spec, dict) or not spec:
         raise _bad(name, column, f"expected a non-empty list of placements or an object "
