@@ -20,6 +20,9 @@ folder whenever it changes (``common.session_start``, ``common.autosave``,
 "Start afresh" button.
 """
 
+import json
+import os
+import time
 from pathlib import Path
 
 import streamlit as st
@@ -27,6 +30,10 @@ import streamlit as st
 from pages import common
 
 ROOT = Path(__file__).resolve().parent
+RUN_LOG = os.environ.get("CMM_LAB_RUN_LOG")
+"""When set, a file each script run appends its page and wall time to (bench/browser.py
+reads it: the server's share of what a person waits for)."""
+_t0 = time.perf_counter()
 
 # the favicon is a local file, served by Streamlit itself: nothing is fetched from the
 # internet (an emoji or icon name would be, and fails offline)
@@ -71,6 +78,12 @@ with st.sidebar.container(key="app_nav"):
         st.page_link(p, label=p.title, icon=p.icon, width="stretch",
                      query_params=common.session_query())
 st.sidebar.divider()
-page.run()
-# what the page changed without a rerun (a button's direct effect) is saved now
-common.autosave()
+try:
+    page.run()
+    # what the page changed without a rerun (a button's direct effect) is saved now
+    common.autosave()
+finally:
+    if RUN_LOG:  # a rerun or stop ends the run here too: it is timed all the same
+        with open(RUN_LOG, "a", encoding="utf-8") as log:
+            log.write(json.dumps({"page": page.url_path, "t_end": time.time(),
+                                  "s": time.perf_counter() - _t0}) + "\n")
