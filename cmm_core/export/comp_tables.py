@@ -32,8 +32,15 @@ from .. import __version__
 from ..io import DataError
 from ..machine import kinematics as kin
 from ..machine import split_chain
-from ..model import BY_TOKEN, CHI2_ALPHA, FitResult, propagate_error
-from .correction import Model, extrapolation_note, model_from_result
+from ..model import BY_TOKEN, CHI2_ALPHA, FitResult
+from .correction import (
+    Model,
+    _Factor,
+    _propagated,
+    _refuse_non_finite,
+    extrapolation_note,
+    model_from_result,
+)
 from .safe import MAX_GRID_NODES, safe_csv
 
 GRID_FORMAT = "cmm-error-lab compensation grid 1"
@@ -151,7 +158,7 @@ def compensation_grid(obj: Model | FitResult, step_mm=100.0, *, probe: str | Non
         ``x_mm, y_mm, z_mm`` (node: scale readings), ``tip_x_mm, tip_y_mm, tip_z_mm``
         (indicated tip centre, node + offset), ``cx_um, cy_um, cz_um`` (correction,
         ``e = x* - (x + p)`` of ``kinematics.error``), ``u_cx_um, u_cy_um, u_cz_um``
-        (standard uncertainty by the law of propagation, ``uncertainty.propagate_error``)
+        (standard uncertainty by the law of propagation, ``correction._propagated``)
         and ``extrapolated`` (1 where the node is outside the region the fit measured).
         Rows run x fastest, then y, then z.
     """
@@ -176,7 +183,8 @@ def compensation_grid(obj: Model | FitResult, step_mm=100.0, *, probe: str | Non
                          f"step of about {math.ceil(hint):d} mm or more, or a smaller box.")
     Z, Y, X = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
     x = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
-    e, u = propagate_error(m.terms, m.coef, m.cov, x, np.broadcast_to(p, x.shape))
+    e, u = _propagated(m, _Factor.of(m, joint=False), x, np.broadcast_to(p, x.shape))
+    _refuse_non_finite(m, None, e, u, m.name)
     if m.undetermined:
         u[:] = np.nan
     out = pd.DataFrame(x, columns=["x_mm", "y_mm", "z_mm"])

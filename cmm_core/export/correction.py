@@ -544,11 +544,36 @@ class _Factor:
     """(k, k) factor (eigen-decomposition, so that a semi-definite V has one too)."""
 
     @staticmethod
-    def of(m: Model) -> _Factor:
-        """The factor of ``m.joint_cov``."""
-        V = m.joint_cov
+    def of(m: Model, joint: bool = True) -> _Factor:
+        """The factor of ``m.joint_cov`` (of ``m.cov``, the kinematic coefficients',
+        when not ``joint``)."""
+        V = m.joint_cov if joint else m.cov
         w, Q = np.linalg.eigh((V + V.T) / 2)
         return _Factor(Q * np.sqrt(np.clip(w, 0, None)))
+
+
+def _propagated(m: Model, factor: _Factor, x: np.ndarray, p: np.ndarray,
+                extra_jac: list | None = None, chunk_points: int = _CHUNK_POINTS
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Kinematic error ``e(x, p)`` (µm, thesis eq. 4.13) at scale readings ``x`` with
+    offsets ``p`` (mm), and the standard uncertainty of ``e`` plus the linear terms whose
+    Jacobians (µm per unit, (m, 3, k) each) ``extra_jac`` holds: ``u² = diag(J V Jᵀ)``
+    (JCGM 100 eq. 13) as the squared row norms of ``J L``, ``chunk_points`` points at a
+    time (the memory of one chunk's Jacobian)."""
+    e_um = np.empty_like(x)
+    u = np.empty_like(x)
+    step = max(int(chunk_points), 1)
+    for a in range(0, len(x), step):
+        s = slice(a, a + step)
+        xs, J = kin.jacobian(m.terms, m.coef, x[s], p[s])
+        e_um[s] = (xs - x[s] - p[s]) / kin.UM  # as propagate_error: the same doubles
+        J = J / kin.UM
+        if extra_jac:
+            # each part enters linearly: its Jacobian columns follow the kinematic ones
+            J = np.concatenate([J, *(j[s] for j in extra_jac)], axis=2)
+        JL = J.reshape(-1, J.shape[2]) @ factor.L
+        u[s] = np.sqrt(np.einsum("ij,ij->i", JL, JL)).reshape(-1, 3)
+    return e_um, u
 
 
 def _coordinates(points: pd.DataFrame, name: str) -> np.ndarray:
@@ -599,20 +624,7 @@ def _corrected(m: Model, factor: _Factor, points: pd.DataFrame, r: np.ndarray, n
     x = r - p
     fixes = [b.correct(part, points, x, name) for b in COMPENSATING
              if (part := m.parts.get(b.token)) is not None]
-    e_um = np.empty_like(r)
-    u = np.empty_like(r)
-    step = max(int(chunk_points), 1)
-    for a in range(0, len(r), step):
-        s = slice(a, a + step)
-        xs, J = kin.jacobian(m.terms, m.coef, x[s], p[s])
-        e_um[s] = (xs - x[s] - p[s]) / kin.UM  # as propagate_error: the same doubles
-        if fixes:
-            # each part enters linearly: its Jacobian columns follow the kinematic ones
-            J = np.concatenate([J / kin.UM, *(f.jac[s] for f in fixes)], axis=2)
-        else:
-            J = J / kin.UM
-        JL = J.reshape(-1, J.shape[2]) @ factor.L
-        u[s] = np.sqrt(np.einsum("ij,ij->i", JL, JL)).reshape(-1, 3)
+    e_um, u = _propagated(m, factor, x, p, [f.jac for f in fixes], chunk_points)
     for f in fixes:
         e_um += f.delta_um
     extra = [f.var_um2 for f in fixes if f.var_um2 is not None]
@@ -632,19 +644,22 @@ def _corrected(m: Model, factor: _Factor, points: pd.DataFrame, r: np.ndarray, n
     return out
 
 
-def _refuse_non_finite(m: Model, points: pd.DataFrame, e_um: np.ndarray, u: np.ndarray,
-                       name: str) -> None:
-    """No NaN or inf leaves :func:`compensate`: a correction or uncertainty that is not
-    finite (a corrupt model, or a part's input such as a temperature far out of range)
-    is refused at its point, naming the model."""
+def _refuse_non_finite(m: Model, points: pd.DataFrame | None, e_um: np.ndarray,
+                       u: np.ndarray, name: str) -> None:
+    """No NaN or inf leaves :func:`compensate` or a grid: a correction or uncertainty that
+    is not finite (a model built in code with absurd numbers, or a part's input such as
+    a temperature far out of range) is refused at its point (its file row when
+    ``points`` is a table, else its index), naming the model."""
     bad = ~(np.isfinite(e_um) & np.isfinite(u)).all(axis=1)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
+        where = "" if points is not None else f" at node {i} ({m.terms.range_mm} mm box)"
         raise DataError(f"the model {m.name} gives a correction of {e_um[i].tolist()} µm "
-                        f"± {u[i].tolist()} µm here; expected finite numbers.", file=name,
-                        row=int(file_rows(points)[i]), column="x_mm",
-                        hint="check this point's columns; refit and save the model again "
-                             "(fit --save).")
+                        f"± {u[i].tolist()} µm{where}; expected finite numbers.",
+                        file=name, row=None if points is None else int(file_rows(points)[i]),
+                        column="x_mm" if points is not None else None,
+                        hint="check the point's columns and the model (refit and save it "
+                             "again, fit --save).")
 
 
 def _compensate_file(m: Model, path: Path, out, allow_extrapolation: bool,
