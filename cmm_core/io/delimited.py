@@ -110,7 +110,8 @@ def _too_many_fields(header, bad, delim, name) -> DataError:
     return DataError.collect(found.found, found.total)
 
 
-def read_csv_text(source: FileSource, name: str | None) -> tuple[pd.DataFrame, str]:
+def read_csv_text(source: FileSource, name: str | None, *,
+                  max_rows: int | None = None) -> tuple[pd.DataFrame, str]:
     """Read a CSV from a path, bytes or file-like object into strings (nothing coerced).
 
     The separator is taken from the header line (see :func:`_delimiter`); in a file
@@ -119,7 +120,9 @@ def read_csv_text(source: FileSource, name: str | None) -> tuple[pd.DataFrame, s
     ends, blank lines (they keep their place in the row numbering), and a separator at
     the end of every line (a common export) as long as nothing follows it. A row with
     more fields than the header, a header naming a column twice, or cells the CSV
-    grammar cannot read are refused with their rows.
+    grammar cannot read are refused with their rows. With ``max_rows``, a file of more
+    data rows is refused as soon as the row after the limit is met (the rest is never
+    parsed into cells: a 10⁶-row log costs no more than the limit).
 
     Returns
     -------
@@ -142,7 +145,7 @@ def read_csv_text(source: FileSource, name: str | None) -> tuple[pd.DataFrame, s
     # one line end everywhere: a bare CR (old Mac export, or a stray one in a cell) would
     # otherwise end a line for one reader and not for another
     text = text.replace("\r\n", "\n").replace("\r", "\n")
-    first_line = next(line for line in text.split("\n") if line.strip())
+    first_line = next(line for line in _io.StringIO(text) if line.strip()).rstrip("\n")
     delim = _delimiter(first_line)
     reader = csv.reader(_io.StringIO(text), delimiter=delim, skipinitialspace=True)
     header, records, rows, bad = None, [], [], []
@@ -164,6 +167,11 @@ def read_csv_text(source: FileSource, name: str | None) -> tuple[pd.DataFrame, s
                 rec = rec[:len(header)]  # a trailing separator with nothing after it
             records.append(rec + [""] * (len(header) - len(rec)))
             rows.append(start)
+            if max_rows is not None and len(records) > max_rows:
+                raise DataError(f"has more than {max_rows} data rows (row {start} is beyond "
+                                "the limit for this kind of file).", file=name,
+                                hint="thin the data out or split them into several files "
+                                     "(docs/formats.md#size-limits).")
     except csv.Error as exc:
         big = "field larger" in str(exc)
         raise DataError(f"cannot be read as a CSV table ({cut_repr(str(exc), 80)}).", file=name,

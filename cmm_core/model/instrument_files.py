@@ -110,11 +110,6 @@ def _columns(df, name, required, optional, form, hint):
                             column=str(c), hint=hint)
     require_columns(df, list(required), name, form)
     require_rows(df, name, "reading" if "error_um" in required else "length")
-    if len(df) > _MAX_READINGS:
-        raise DataError(f"has {len(df)} rows; expected at most {_MAX_READINGS} readings or "
-                        "lengths per instrument file.", file=name,
-                        hint="thin the run out (every tenth reading) or split it into "
-                             "several files; docs/instruments.md#limits.")
 
 
 def _axes(df, column, name, found, default=None):
@@ -187,7 +182,7 @@ def read_laser(source: FileSource, name: str | None = None) -> LaserRun:
         axis other than x/y/z, u not positive, an error reading beyond
         :data:`MAX_ERROR_UM`, a run that leaves its line or has too few readings.
     """
-    df, name = read_csv_text(source, name)
+    df, name = read_csv_text(source, name, max_rows=_MAX_READINGS)
     _columns(df, name, LASER_COLUMNS, LASER_OPTIONAL, "laser", _LASER_HINT)
     found = Problems(name, file_rows(df), df.columns)
     axis = _axes(df, "axis", name, found)
@@ -283,7 +278,7 @@ def read_step_gauge(source: FileSource, name: str | None = None) -> StepGauge:
         :data:`MAX_LENGTH_DIFF_MM` apart, a measured length that is not the distance of the
         probed points (within :data:`MAX_STYLUS_MM`), a temperature without a CTE.
     """
-    df, name = read_csv_text(source, name)
+    df, name = read_csv_text(source, name, max_rows=_MAX_READINGS)
     _columns(df, name, STEP_GAUGE_COLUMNS, STEP_GAUGE_OPTIONAL, "step-gauge", _SG_HINT)
     found = Problems(name, file_rows(df), df.columns)
     num = {c: numeric_column(df, c, name, problems=found) for c in STEP_GAUGE_COLUMNS[:8]}
@@ -353,7 +348,7 @@ def read_ball_bar(source: FileSource, name: str | None = None) -> BallBar:
         :data:`MIN_BAR_MM` (one ball named twice), a distance of the centres more than
         :data:`MAX_LENGTH_DIFF_MM` from the certified length, a temperature without a CTE.
     """
-    df, name = read_csv_text(source, name)
+    df, name = read_csv_text(source, name, max_rows=_MAX_READINGS)
     _columns(df, name, BALL_BAR_COLUMNS, BALL_BAR_OPTIONAL, "ball-bar", _BB_HINT)
     found = Problems(name, file_rows(df), df.columns)
     num = {c: numeric_column(df, c, name, problems=found) for c in BALL_BAR_COLUMNS[:7]}
