@@ -14,7 +14,15 @@ from __future__ import annotations
 
 from .blunders import ACTION, BLUNDERS, DOMINANT_SHARE, BlunderCheck, blunder_check
 from .certificate_check import ALPHA, CertificateCheck, check_certificate, released
-from .crossval import MATERIAL, MIN_PLACEMENTS, HoldoutCheck, check
+from .crossval import (
+    MATERIAL,
+    MIN_PLACEMENTS,
+    SCALE_ALPHA,
+    HoldoutCheck,
+    check,
+    placement_scale_columns,
+    placement_scale_test,
+)
 from .discrepancy import Discrepancy, discrepancy_gp, kinematic_basis
 from .outliers import OutlierReport, detect_outliers
 from .replicates import (
@@ -40,15 +48,15 @@ from .scoring import (
     score,
 )
 from .search import Candidate, Diagnosis, diagnose, estimate_sigma
-from .verdict import OUTSIDE, misfit_location
+from .verdict import OUTSIDE, evidence, fitted_text, misfit_location, stylus_offsets
 
 __all__ = [
     "ACTION", "ALPHA", "axis_weights", "blunder_check", "BlunderCheck", "BLUNDERS",
     "DOMINANT_SHARE", "baseline_basis", "Candidate", "candidate_stats",
     "CertificateCheck", "check", "check_certificate", "detect_outliers", "diagnose",
-    "Diagnosis", "Discrepancy", "discrepancy_gp", "estimate", "estimate_sigma", "FAMILY_ALPHA",
+    "Diagnosis", "Discrepancy", "discrepancy_gp", "estimate", "estimate_sigma", "evidence", "fitted_text", "FAMILY_ALPHA",
     "family_levels", "flexible_spec", "from_repeats", "from_residuals", "HoldoutCheck",
     "kinematic_basis", "MATERIAL", "MIN_PLACEMENTS", "misfit_location", "needs_met",
-    "OutlierReport", "OUTSIDE", "PHYSICAL_SHARE", "released", "scan_period", "score",
-    "ScoreCache", "SigmaEstimate", "UNIFORM_ALPHA", "Uniformity", "uniformity"
+    "OutlierReport", "OUTSIDE", "PHYSICAL_SHARE", "placement_scale_columns", "placement_scale_test", "SCALE_ALPHA", "released", "scan_period", "score",
+    "ScoreCache", "SigmaEstimate", "stylus_offsets", "UNIFORM_ALPHA", "Uniformity", "uniformity"
 ]

@@ -34,7 +34,7 @@ than its own noise passes (the data cannot tell it from a real effect).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -56,6 +56,11 @@ not held against the effect. A large real effect predicts so precisely that the
 linearisation or a residual that is not quite white can push ``z`` below the level while
 it keeps nearly all its held-out gain; an alias loses most of it. Only relaxes the test:
 a real effect still fails at most at the rate :data:`ALPHA`."""
+
+SCALE_ALPHA = ALPHA
+"""Level of the placement-scale test (:func:`placement_scale_test`): a real catalogue
+effect, with no placement-dependent scale in the data, fails it at most at this rate
+(the F-test of the scales given the effect is then a null test)."""
 
 MIN_PLACEMENTS = 3
 """With two placements, one placement alone rarely determines an effect's coefficients."""
@@ -91,6 +96,12 @@ class HoldoutCheck:
         Its standard deviation under that hypothesis (noise and estimation).
     z : float
         ``(gain_held_out - expected_held_out) / sd_held_out`` (NaN when not applicable).
+    scale_p : float
+        p-value of each placement's own scale (three per placement, along the machine
+        axes) added once the effect is in the model (:func:`placement_scale_test`; NaN
+        when not run: a hole plate, or one placement).
+    effect_given_scale_p : float
+        p-value of the effect added once the placements' own scales are in the model.
     """
 
     effect: str
@@ -103,6 +114,8 @@ class HoldoutCheck:
     expected_held_out: float = float("nan")
     sd_held_out: float = float("nan")
     z: float = float("nan")
+    scale_p: float = float("nan")
+    effect_given_scale_p: float = float("nan")
 
     @property
     def share(self) -> float:
@@ -120,7 +133,75 @@ class HoldoutCheck:
                 "expected_held_out": self.expected_held_out if self.applicable else None,
                 "sd_held_out": self.sd_held_out if self.applicable else None,
                 "z": self.z if self.applicable else None, "level": ALPHA,
-                "per_placement": self.per_placement, "reason": self.reason}
+                "per_placement": self.per_placement, "reason": self.reason,
+                "placement_scale": {"scale_given_effect_p": _nan_none(self.scale_p),
+                                    "effect_given_scale_p":
+                                        _nan_none(self.effect_given_scale_p),
+                                    "level": SCALE_ALPHA}}
+
+
+def _nan_none(x: float):
+    return None if not np.isfinite(x) else float(x)
+
+
+def placement_scale_columns(base: FitResult, n_rows: int) -> tuple[np.ndarray, list]:
+    """Weighted columns of each placement's own scale along each machine axis (1 ppm:
+    the reading of axis ``a`` moves by 1e-3 µm per mm from the placement's mean ``a``),
+    rows as the weighted residual's (three per observation first). Returns ``(S,
+    labels)``, labels ``(position, axis)``; an empty ``S`` for a hole plate, whose
+    residuals live in its plane (the test is not run there)."""
+    o = base.problem.obs
+    if o.artefact == "hole_plate" or len(o.positions) < 2:
+        return np.zeros((n_rows, 0)), []
+    cols, labels = [], []
+    for k, name in enumerate(o.positions):
+        sel = np.flatnonzero(o.pos == k)
+        for a in range(3):
+            c = np.zeros(n_rows)
+            x = o.r_mm[sel, a]
+            c[3 * sel + a] = (x - x.mean()) * 1e-3 / base.sigma_um
+            cols.append(c)
+            labels.append((str(name), "xyz"[a]))
+    return np.column_stack(cols), labels
+
+
+def _rss(r, A):
+    """Residual sum of squares of ``r`` on the columns ``A`` and their rank."""
+    if A.shape[1] == 0:
+        return float(r @ r), 0
+    Q, R, _ = sla.qr(A, mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    k = int(np.sum(d > 1e-9 * max(d.max(initial=0.0), 1e-300)))
+    Q = Q[:, :k]
+    e = r - Q @ (Q.T @ r)
+    return float(e @ e), k
+
+
+def placement_scale_test(r, X, S, dof: int) -> tuple[float, float]:
+    """Does the effect stand in for each placement's own scale? ``(p_S|E, p_E|S)``.
+
+    ``r``, ``X``, ``S``: the baseline's weighted residual, the effect's columns and the
+    placement-scale columns (:func:`placement_scale_columns`), all with the baseline's
+    columns projected out (Frisch-Waugh-Lovell); ``dof``: the baseline's degrees of
+    freedom. Two nested F-tests (linearised at the baseline, as the diagnosis's score):
+    of the scales once the effect is in, and of the effect once the scales are in. The
+    effect is an alias of placement scales when the scales are still needed with it
+    (``p_S|E`` below :data:`SCALE_ALPHA`) while it adds nothing once they are in. Under a
+    real effect with no placement scale in the data the first test is a null F-test, so a
+    real effect fails at most at the rate :data:`SCALE_ALPHA` (Scheffé 1959, §2.3)."""
+    rss_e, ke = _rss(r, X)
+    rss_s, ks = _rss(r, S)
+    rss_es, kes = _rss(r, np.hstack([X, S]))
+    nu = max(dof - kes, 1)
+    s2 = max(rss_es / nu, 1e-300)
+
+    def p_of(rss_small, k_small):
+        dk = kes - k_small
+        if dk <= 0:
+            return 1.0
+        return float(stats.f.sf(max(rss_small - rss_es, 0.0) / dk / s2, dk, nu))
+
+    return p_of(rss_e, ke), p_of(rss_s, ks)
 
 
 def _effect_columns(base: FitResult, prob: Problem, cache=None):
@@ -241,13 +322,37 @@ def _real_effect_test(r, X, folds, maps, Jb, cov, gain, s2=1.0):
     return gain - D, sd, z
 
 
-def check(base: FitResult, token: str, cache: ScoreCache | None = None) -> HoldoutCheck:
-    """Leave-one-placement-out check of adding ``token`` to ``base`` (module docstring);
-    ``cache``: the diagnosis's ``scoring.ScoreCache``, if at hand."""
+def check(base: FitResult, token: str, cache: ScoreCache | None = None,
+          level: float = ALPHA) -> HoldoutCheck:
+    """Leave-one-placement-out check of adding ``token`` to ``base`` (module docstring),
+    and whether it stands in for each placement's own scale (:func:`placement_scale_test`;
+    ``level``: the effect's own level in the diagnosis, at which "adds nothing once the
+    scales are in" is judged). ``cache``: the diagnosis's ``scoring.ScoreCache``."""
     o = base.problem.obs
     prob = Problem(o, base.problem.spec.with_token(token), base.plate)
     added = {g for g, lab in zip(prob.layout.groups, prob.layout.labels, strict=True)
              if lab not in set(base.labels)}
+    r, X, pos_of_row, Jb, cov = _effect_columns(base, prob, cache)
+    S, _ = placement_scale_columns(base, r.size)
+    p_s = p_e = float("nan")
+    if S.shape[1]:
+        S = S - Jb @ (cov @ (Jb.T @ S))
+        p_s, p_e = placement_scale_test(r, X, S, base.dof)
+    h = _held_out(base, token, added, r, X, pos_of_row, Jb, cov)
+    h = replace(h, scale_p=p_s, effect_given_scale_p=p_e)
+    if p_s < SCALE_ALPHA and p_e >= level:
+        h = replace(h, passed=False, reason=(
+            f"it stands in for each placement's own scale: once the placements' own "
+            f"scales are in the model it adds nothing (p = {p_e:.2g} against its level "
+            f"{level:.2g}), while the scales are still needed with it in (p = {p_s:.2g} < "
+            f"{SCALE_ALPHA:g}; a real effect fails this at most {100 * SCALE_ALPHA:g} % of "
+            f"the time). Leave-one-placement-out: {h.reason}"))
+    return h
+
+
+def _held_out(base, token, added, r, X, pos_of_row, Jb, cov) -> HoldoutCheck:
+    """The leave-one-placement-out part of :func:`check` (module docstring)."""
+    o = base.problem.obs
     if len(o.positions) < MIN_PLACEMENTS:
         return HoldoutCheck(token, False, True, float("nan"), float("nan"), {},
                             f"needs at least {MIN_PLACEMENTS} placements")
@@ -255,7 +360,6 @@ def check(base: FitResult, token: str, cache: ScoreCache | None = None) -> Holdo
         return HoldoutCheck(token, False, True, float("nan"), float("nan"), {},
                             "its parameters belong to single placements (the drift of each "
                             "position), so no other placement can predict them")
-    r, X, pos_of_row, Jb, cov = _effect_columns(base, prob, cache)
     # instrument rows (laser, step gauge) train every fold and are held out in none: the
     # in-sample gain compared is that on the rows that are held out
     on = pos_of_row != -2

@@ -80,6 +80,7 @@ from .verdict import (
     _physical_before_periodic,
     _refit,
     _with_aliases,
+    evidence,
     misfit_location,
 )
 
@@ -247,7 +248,8 @@ class Diagnosis:
                 "where": self.where,
                 "certificate": None if self.certificate is None else self.certificate.to_dict(),
                 "blunders": None if self.blunders is None else self.blunders.to_dict(),
-                "cannot_see": self.unseen}
+                "cannot_see": self.unseen,
+                "evidence": evidence(b) if self.verdict == OUTSIDE else None}
 
 
 @single_blas_thread
@@ -417,6 +419,9 @@ def _seen(base, cands):
         why = ("none of its parameters is determined by this design on top of the "
                "baseline: the design does not measure what it changes, or the baseline's "
                "own terms absorb it")
+        if c.would_leave_undetermined:
+            why += ("; adding it as is would leave undetermined: "
+                    + "; ".join(c.would_leave_undetermined[:2]))
         if base.problem.obs.artefact == "hole_plate":
             why += ("; a hole plate gives only the two coordinates in its plane, so an "
                     "effect normal to the plate (a sag) is invisible to it")

@@ -65,7 +65,7 @@ def _checked_verdict(base: FitResult, cands, max_checks: int = 3, cache=None):
     checks: list = []
     failed: list = []
     for c in sig:
-        h = holdout.check(base, c.effect, cache)
+        h = holdout.check(base, c.effect, cache, c.level)
         checks.append(h)
         if h.passed:
             if failed:
@@ -269,6 +269,61 @@ def fitted_text(c) -> str:
                                     for lab, (unit, v, u) in top[:3]) + "."
 
 
+def evidence(base: FitResult) -> dict:
+    """What an outside-catalogue misfit is, in the tables a person reads: each
+    placement's own scale along each machine axis (the slope of the baseline's residual
+    of that axis against the coordinate within the placement, ppm, with u from σ) and each
+    stylus's mean residual vector (µm, with u = σ/√n), each largest against its u first.
+    Axes a placement spans less than a quarter of its longest extent are left out. A hole
+    plate's residuals live in its plane: its table has the styli only."""
+    o, res, sig = base.problem.obs, base.residuals_um, base.sigma_um
+    scales = []
+    if o.artefact != "hole_plate":
+        for k, name in enumerate(o.positions):
+            sel = o.pos == k
+            span = np.ptp(o.r_mm[sel], axis=0)
+            for a in range(3):
+                # an axis the placement hardly spans (a horizontal plate's z) has no
+                # scale worth the name: its slope is the residual over a few mm
+                if span[a] < 0.25 * span.max():
+                    continue
+                dx = (o.r_mm[sel, a] - o.r_mm[sel, a].mean()) * 1e-3  # µm per ppm
+                sxx = float(dx @ dx)
+                v = float(dx @ res[sel, a]) / sxx
+                scales.append({"position": str(name), "axis": "xyz"[a], "scale_ppm": v,
+                               "u_ppm": sig / np.sqrt(sxx)})
+    styli = []
+    for k, name in enumerate(o.probes):
+        sel = o.probe == k
+        n = int(sel.sum())
+        if n:
+            m = res[sel].mean(axis=0)
+            styli.append({"probe": str(name), "mean_um": [float(x) for x in m],
+                          "u_um": sig / np.sqrt(n)})
+    scales.sort(key=lambda e: -abs(e["scale_ppm"]) / e["u_ppm"])
+    styli.sort(key=lambda e: -float(np.linalg.norm(e["mean_um"])) / e["u_um"])
+    return {"placement_scales_ppm": scales, "stylus_mean_residual_um": styli}
+
+
+def _evidence_text(ev: dict) -> str:
+    """The evidence tables named, with their largest entries."""
+    parts = []
+    if ev.get("placement_scales_ppm"):
+        top = ev["placement_scales_ppm"][:3]
+        parts.append("each placement's own scale along the machine axes (largest: "
+                     + ", ".join(f"{e['position']} {e['axis']} {e['scale_ppm']:+.1f} ± "
+                                 f"{e['u_ppm']:.1f} ppm" for e in top) + ")")
+    if ev.get("stylus_mean_residual_um"):
+        e = ev["stylus_mean_residual_um"][0]
+        vec = ", ".join(f"{x:+.2f}" for x in e["mean_um"])
+        parts.append(f"each stylus's mean residual (largest: stylus {e['probe']} "
+                     f"({vec}) ± {e['u_um']:.2f} µm)")
+    if not parts:
+        return ""
+    return (" Evidence of what it is (the diagnosis's evidence tables, JSON 'evidence'; in "
+            "the app the 'Per position and probe' tab): " + "; ".join(parts) + ".")
+
+
 def _where_text(where: dict) -> str:
     """``BP112 carries 30 % of χ² (17 % of the observations); ...``"""
     parts = []
@@ -330,6 +385,7 @@ def _conclusion(base, cands, verdict, sigma=None, uniform=None, where=None):
         loc = _where_text(where or {})
         if loc:
             text += f" Where the residual lives: {loc}."
+        text += _evidence_text(evidence(base))
         text += (" Look at the residual maps there: a blunder, a certificate entry, or an "
                  "effect the catalogue does not hold (a local error of one axis, a placement's "
                  "own scale or temperature)." + sig_text)
