@@ -24,8 +24,10 @@ ALLOWED = {
     "diagnosis": {"machine", "io", "model", "gp"},
     "export": {"machine", "io", "model"},
     "plan": {"machine", "io", "model", "diagnosis", "gum", "export"},
-    "analysis": {"machine", "io", "model", "diagnosis", "gp", "gum", "export"},
-    "cli": {"machine", "io", "model", "diagnosis", "gp", "gum", "export", "plan", "analysis"},
+    "monitor": {"machine", "io", "model", "diagnosis", "gum", "export"},
+    "analysis": {"machine", "io", "model", "diagnosis", "gp", "gum", "export", "monitor"},
+    "cli": {"machine", "io", "model", "diagnosis", "gp", "gum", "export", "plan", "monitor",
+            "analysis"},
 }
 GROUND = {"units", "_blas", ""}
 WINGS = sorted(ALLOWED)
