@@ -350,11 +350,13 @@ def _checked_magnitudes(terms, coef, cov, probes, name):
     for what, size, col in (("coefficient", np.abs(coef), "coef"),
                             ("standard uncertainty of coefficient",
                              np.sqrt(np.clip(np.diag(cov), 0, None)), "cov")):
-        big = size * sens > _MAX_ERROR_UM
+        with np.errstate(over="ignore"):  # 1e308 × a sensitivity: inf, refused
+            error_um = size * sens
+        big = error_um > _MAX_ERROR_UM
         if big.any():
             k = int(np.flatnonzero(big)[0])
             raise DataError(f"{what} {terms.labels[k]} ({size[k]:.3g}) makes an error of "
-                            f"{size[k] * sens[k] / 1e3:.3g} mm within the machine's range; "
+                            f"{error_um[k] / 1e3:.3g} mm within the machine's range; "
                             f"expected at most {_MAX_ERROR_UM / 1e3:g} mm (a CMM's errors are "
                             "micrometres).", file=name, column=col,
                             hint="check the units; refit and save the model again "
@@ -565,14 +567,16 @@ def _propagated(m: Model, factor: _Factor, x: np.ndarray, p: np.ndarray,
     step = max(int(chunk_points), 1)
     for a in range(0, len(x), step):
         s = slice(a, a + step)
-        xs, J = kin.jacobian(m.terms, m.coef, x[s], p[s])
+        with np.errstate(over="ignore", invalid="ignore"):  # refused after, one line
+            xs, J = kin.jacobian(m.terms, m.coef, x[s], p[s])
         e_um[s] = (xs - x[s] - p[s]) / kin.UM  # as propagate_error: the same doubles
         J = J / kin.UM
         if extra_jac:
             # each part enters linearly: its Jacobian columns follow the kinematic ones
             J = np.concatenate([J, *(j[s] for j in extra_jac)], axis=2)
-        JL = J.reshape(-1, J.shape[2]) @ factor.L
-        u[s] = np.sqrt(np.einsum("ij,ij->i", JL, JL)).reshape(-1, 3)
+        with np.errstate(over="ignore", invalid="ignore"):
+            JL = J.reshape(-1, J.shape[2]) @ factor.L
+            u[s] = np.sqrt(np.einsum("ij,ij->i", JL, JL)).reshape(-1, 3)
     return e_um, u
 
 
