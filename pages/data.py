@@ -497,66 +497,14 @@ with tab_proj:
              "exclusions and diagnosis history.")
     up_proj = st.file_uploader("Project file (JSON)", type=["json"], key="up_project")
     if st.button("Restore project", key="restore_project", disabled=up_proj is None):
-        from cmm_core.export import project_from_json
-
-        doc = C.safe(project_from_json, up_proj.getvalue(), up_proj.name,
-                     what="Reading the project")
-        if doc is not None:
-            files = {"name": doc["dataset_name"], "kind": "project",
-                     "measurements": doc["measurements"], "setup": doc["setup"],
-                     "certificate": doc["certificate"],
-                     "setup_source": f"from the project file {up_proj.name}",
-                     "certificate_source": (f"from the project file {up_proj.name}"
-                                            if doc["certificate"] else None)}
-            try:
-                new_ds = C._load(C.files_key(files), files)
-                have = set(zip(new_ds.meas["position"].astype(str),
-                               new_ds.meas["probe"].astype(str),
-                               new_ds.meas["ball"].astype(int), strict=True))
-                unknown = [e for e in doc["exclusions"] if tuple(e) not in have]
-                if unknown:
-                    raise ValueError(
-                        f"{up_proj.name}, column 'exclusions': the project excludes "
-                        "observations its data do not have: " + "; ".join(
-                            f"{p} probe {q} ball {b}" for p, q, b in unknown[:10])
-                        + ". Remove them from the file or restore it with its own data.")
-                inst = [(i.kind, i.file.name, i.file.text()) for i in A.instruments_from_list(
-                    (doc["extra"].get("analysis") or {}).get("instruments") or [],
-                    up_proj.name, "extra.analysis.instruments")]
-                C.check_instruments(inst, new_ds)  # before anything changes
-                C.set_dataset(files)
-            except Exception as exc:  # noqa: BLE001
-                st.error(f"The project does not restore: {C.describe_error(exc)}")
-            else:
-                m = doc["model"]
-                s = st.session_state
-                for k in ("spec", "order", "plate", "sigma_um", "positions", "probes"):
-                    if k in m:
-                        s[k] = m[k]
-                s["exclusions"] = [list(e) for e in doc["exclusions"]]
-                s["history"] = [{"spec": h.get("spec", s["spec"]),
-                                 "change": h.get("change", "")} for h in doc["history"]
-                                if isinstance(h, dict)]
-                if s["history"] and s["history"][-1]["spec"] != s["spec"]:
-                    # the model was edited by hand after the last recorded step
-                    s["history"].append({"spec": s["spec"], "change": "edited by hand"})
-                s["reset_note"] = []  # the project's own settings, not defaults
-                note = ""
-                if s["sigma_um"] == "auto":  # a record written by the command line
-                    from cmm_core.diagnosis import estimate_sigma
-
-                    est = C.safe(estimate_sigma, C.dataset(), s["spec"], order=int(s["order"]),
-                                 plate=None if s["plate"] == "auto" else s["plate"],
-                                 exclude=[tuple(e) for e in s["exclusions"]],
-                                 what="Estimating σ")
-                    s["sigma_um"] = 0.5 if est is None else round(float(est.value_um), 4)
-                    note = (f" Its σ is 'auto': estimated from the data as "
-                            f"{s['sigma_um']:.4g} ± {est.u_um:.2g} µm ({est.method})."
-                            if est is not None else " Its σ is 'auto' and could not be "
-                            "estimated: 0.5 µm is used; set it in the sidebar.")
-                C.set_instruments(inst)
-                C.reset_widgets()
-                _loaded(f"Restored project '{doc['dataset_name']}'.{note}")
+        # the core reads the whole file (analysis.record_from_project: every part's shape
+        # and value, one line naming the key) before anything of the session changes
+        try:
+            note = C.restore_project(up_proj.getvalue(), up_proj.name)
+        except Exception as exc:  # noqa: BLE001 - a message, never a traceback
+            st.error(f"The project does not restore: {C.describe_error(exc)}")
+        else:
+            _loaded(f"Restored project '{st.session_state['ds_files']['name']}'.{note}")
 
 # ---------------------------------------------------------------------------------------
 # Instruments: laser runs and step gauges fitted jointly with the plate

@@ -261,3 +261,31 @@ def test_a_bad_mapping_in_a_record_is_refused_naming_the_key():
     doc["data"]["measurements"][0]["mappnig"] = {}
     with pytest.raises(DataError, match="did you mean 'mapping'"):
         A.record_from_dict(doc, "a.json")
+
+
+@pytest.mark.parametrize("path, value, column", [
+    (("dataset", "measurements"), 5, "dataset.measurements"),
+    (("dataset", "measurements"), True, "dataset.measurements"),
+    (("dataset", "setup"), [5], "dataset.setup"),
+    (("history",), 5, "history"),
+    (("history",), [5], "history"),
+    (("history",), [{"spec": 5}], "history"),
+    (("extra",), [5], "extra"),
+    (("extra",), "x", "extra"),
+    (("extra", "analysis"), 5, "extra.analysis"),
+    (("extra", "analysis", "instruments"), 5, "data.instruments"),
+    (("extra", "analysis", "mappings"), [{"index": 9}], "extra.analysis.mappings[0]"),
+    (("model",), [1], "model"),
+])
+def test_a_project_file_of_the_wrong_shape_is_one_line_naming_the_key(path, value, column):
+    """Issue 25: a wrong type anywhere in a project file is a DataError naming the key,
+    never a Python TypeError or AttributeError (the app shows the same line)."""
+    doc = json.loads(A.record_to_project_json(A.record_from_session(_session())))
+    parent = doc
+    for key in path[:-1]:
+        parent = parent.setdefault(key, {})
+    parent[path[-1]] = value
+    with pytest.raises(DataError) as exc:
+        A.record_from_project(json.dumps(doc), "p.json")
+    assert exc.value.column.startswith(column) and "\n" not in str(exc.value)
+    assert str(exc.value).startswith("p.json")

@@ -380,3 +380,33 @@ def test_the_data_page_takes_a_certificate_statement_for_a_certificate_without_u
     L = np.linalg.norm(c.xyz_mm - c.xyz_mm[0], axis=1)
     np.testing.assert_allclose(c.u_um[:, 0], np.hypot(0.26, 1.9e-3 * L) / 2, rtol=1e-12)
     assert "entered on the Data page" in c.u_source
+
+
+@pytest.mark.parametrize("part, value", [("measurements", 5), ("history", 5),
+                                         ("extra", [1])])
+def test_a_project_file_of_the_wrong_shape_restores_nothing_and_says_why(part, value):
+    """Issue 25: the Data page restores a project through the core's reader: a wrong type
+    in dataset.measurements, history or extra is the core's one line naming the key (no
+    Python error text), and the session keeps its data."""
+    from cmm_core import analysis as A
+    from cmm_core.io import thesis_dataset
+
+    rec = A.read_record(ROOT / "sample_data" / "analysis" / "thesis.json")
+    doc = json.loads(A.record_to_project_json(rec))
+    (doc["dataset"] if part == "measurements" else doc)[part] = value
+    at = _upload_app()
+    at.switch_page("pages/data.py")
+    at.run()
+    at.file_uploader(key="up_project").set_value(
+        ("p.json", json.dumps(doc).encode(), "application/json"))
+    at.run()
+    at.button(key="restore_project").click()
+    at.run()
+    assert not at.exception
+    (err,) = [e.value for e in at.error]
+    where = "dataset.measurements" if part == "measurements" else part
+    assert f"p.json, column '{where}'" in err or f"p.json, column {where}" in err, err
+    assert not any(e in err for e in ("TypeError", "AttributeError", "KeyError"))
+    assert "\n" not in err
+    assert len(at.session_state["ds_files"]["measurements"]) == len(
+        thesis_dataset().positions)  # the thesis data still loaded

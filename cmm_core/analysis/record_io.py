@@ -11,7 +11,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
-from ..export import project_from_json, project_to_json
+from ..export import PROJECT_FORMAT, project_from_json, project_to_json
 from ..io import DataError, TableMapping, read_json, refuse_unknown_keys
 from ..io.delimited import FileSource
 from ..io.errors import cut_repr
@@ -302,6 +302,7 @@ def record_to_project_json(record: AnalysisRecord) -> str:
 def record_from_project(text: str | bytes, name: str = "project.json") -> AnalysisRecord:
     """The record a project file carries (its ``extra.analysis`` choices when present)."""
 
+    _check_project_shape(text, name)
     p = project_from_json(text, name)
     extra = p["extra"].get("analysis") or {}
     _check(isinstance(extra, dict), name, "extra.analysis", "an object", extra)
@@ -320,3 +321,38 @@ def record_from_project(text: str | bytes, name: str = "project.json") -> Analys
     doc = {**extra, **p["model"], "format": FORMAT, "exclusions": p["exclusions"],
            "history": p["history"], "data": data}
     return record_from_dict(doc, name)
+
+
+_SHAPES = (  # (path, test, what is expected): the shape of a project file's parts
+    (("dataset",), lambda v: isinstance(v, dict), "an object with measurements and setup"),
+    (("dataset", "measurements"), lambda v: isinstance(v, list) and len(v) > 0,
+     "a non-empty list of {\"name\": ..., \"content\": ...} files"),
+    (("dataset", "setup"), lambda v: isinstance(v, dict | str), "the setup (an object)"),
+    (("model",), lambda v: v is None or isinstance(v, dict), "an object"),
+    (("exclusions",), lambda v: v is None or isinstance(v, list),
+     "a list of [position, probe, ball] triples"),
+    (("history",), lambda v: v is None or isinstance(v, list) and all(
+        isinstance(h, dict) and isinstance(h.get("spec"), str) for h in v),
+     "a list of {\"spec\": ..., \"change\": ...} steps"),
+    (("extra",), lambda v: v is None or isinstance(v, dict), "an object"),
+    (("extra", "analysis"), lambda v: v is None or isinstance(v, dict), "an object"),
+)
+
+
+def _check_project_shape(text: str | bytes, name: str) -> None:
+    """Refuse a project file whose parts have the wrong type, one line naming the key
+    (the project reader would stumble on them with a Python error); what it checks
+    itself (format, version, entries) is left to it."""
+    doc, _ = read_json(text.encode() if isinstance(text, str) else text, name)
+    if not isinstance(doc, dict) or doc.get("format") != PROJECT_FORMAT:
+        return  # not a project: its reader says so
+    for path, ok, expected in _SHAPES:
+        parent: Any = doc
+        for key in path[:-1]:
+            parent = parent.get(key)
+            if not isinstance(parent, dict):
+                break
+        else:
+            if path[-1] in parent or len(path) == 1 and path[0] == "dataset":
+                _check(ok(parent.get(path[-1])), name, ".".join(path), expected,
+                       parent.get(path[-1]))
