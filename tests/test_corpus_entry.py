@@ -318,6 +318,19 @@ def _json_inputs(rng):
                                                               ("machine", "layout"),
                                                               v)).encode())
             for v in ("banana", "fixed_bridge", "moving-bridge", "FIXED_BRIDGE_XFYZ ", "")]
+    # a budget (issue 25: 3 trials or U = 0 were accepted); a dof of 1e308 or inf is
+    # infinite degrees of freedom, which a budget may state
+    budget = json.loads((ROOT / "sample_data" / "budget" / "ballplate_budget.json").read_text())
+    out += [c for c in _json_cases("budget", budget, rng, 40,
+                                   skip=("name", "unit", "description"))
+            if not re.search(r"dof=(1e\+308|inf)", c[1])]
+    zero = copy.deepcopy(budget)
+    for c in zero["contributions"]:
+        c.update({k: 0 for k in ("u", "half_width") if k in c})
+    out += [("budget", "every u zero", json.dumps(zero).encode())]
+    out += [("budget", f"monte_carlo_trials={n}", json.dumps({**budget,
+                                                            "monte_carlo_trials": n}).encode())
+            for n in (1, 3, 999, -5, 1.5, 10**9)]
     # an analysis record: its data files, model choices and options
     # the history's "change" is a free description of each step
     out += _json_cases("record", _record_doc(), rng, 50,
@@ -351,6 +364,7 @@ def _argv(kind, path, work, out):
         "plan": ["plan", path, "--no-detection", "--json", out / "plan.json"],
         "task": ["task", GOOD_MODEL, path, "--trials", "1000", "--json", out / "task.json"],
         "record": ["report", path, "--out", out / "report.html", "--json", out / "r.json"],
+        "budget": ["budget", path, "--json", out / "budget.json"],
     }[kind]
 
 
@@ -438,7 +452,8 @@ def test_the_good_file_behind_each_kind_is_accepted(work, tmp_path):
             "hole_setup": json.dumps(_hole_setup()).encode(),
             "layout_setup": json.dumps(_layout_setup()).encode(),
             "plan": json.dumps(_plan_doc()).encode(), "task": json.dumps(_task_doc()).encode(),
-            "record": json.dumps(_record_doc()).encode()}
+            "record": json.dumps(_record_doc()).encode(),
+            "budget": (ROOT / "sample_data" / "budget" / "ballplate_budget.json").read_bytes()}
     for kind, data in good.items():
         out = tmp_path / kind
         out.mkdir()
@@ -697,3 +712,35 @@ def test_instrument_readers_refuse_in_one_line_or_read_every_row_finite(kind, ce
                                                           "error_um", "certified_mm")
                              if hasattr(item, a))):
         assert np.isfinite(arr).all()
+
+
+@pytest.mark.slow  # the model reader's own corpus is in test_hardening
+def test_model_file_corpus_through_export_is_refused_in_one_line(work, tmp_path):
+    """Model files with one leaf broken, fed to ``export``: the same four rules (the
+    model reader's range checks live in ``export/correction.py``)."""
+    doc = json.loads(GOOD_MODEL.read_text())
+    cases = _json_cases("model", doc, random.Random(CORPUS_SEED), 60, skip=("summary",))
+    failures = []
+    for k, (_, desc, data) in enumerate(cases):
+        path = work / f"model{k:03d}.json"
+        path.write_bytes(data)
+        out = tmp_path / f"m{k:03d}"
+        out.mkdir()
+        verdict = _judge(["export", path, "--grid", out / "g.csv", "--results-json",
+                          out / "r.json"], path.name, out)
+        if verdict:
+            failures.append(f"[{desc}]: {verdict}")
+    assert len(cases) >= 60
+    assert failures == []
+
+
+@pytest.mark.xfail(strict=True, reason="model/blocks/base.py (not this change's file) checks "
+                   "the covariance with eigvalsh, which overflows on an entry of 1e308: "
+                   "numpy's warning is printed and LinAlgError 'Eigenvalues did not "
+                   "converge' is the line, without the file's name (issue 25)")
+def test_a_model_covariance_of_1e308_is_refused_naming_the_file(work, tmp_path):
+    doc = json.loads(GOOD_MODEL.read_text())
+    doc["cov"][13][13] = 1e308
+    path = work / "model_cov_1e308.json"
+    path.write_text(json.dumps(doc))
+    assert _judge(["export", path, "--grid", tmp_path / "g.csv"], path.name, tmp_path) == ""

@@ -106,6 +106,12 @@ def _finite_or_none(x: float):
     return float(x) if math.isfinite(x) else None
 
 
+_MAX_U_Y = 1e30
+"""Largest contribution ``|c·u|`` to a budget's result: no measurement's uncertainty comes
+near it in any unit, and its fourth power (Welch-Satterthwaite, JCGM 100 G.4.1) stays
+finite."""
+
+
 def _min_trials(coverage_probability: float) -> int:
     """Fewest Monte Carlo trials a budget may ask for: ``max(10⁴, 100 / (1 − p))``.
 
@@ -163,6 +169,11 @@ def budget_from_dict(d: dict, *, progress: Callable | None = None) -> dict:
     rounding = d.get("dof_rounding", "truncate")
     if rounding not in ("truncate", "none"):
         raise ValueError(f"dof_rounding: expected 'truncate' or 'none', got {rounding!r}.")
+    for i, ct in enumerate(cts):
+        u_y = abs((1.0 if ct.c is None else ct.c) * ct.u)
+        if not u_y <= _MAX_U_Y:  # its fourth power in Welch-Satterthwaite would overflow
+            raise ValueError(f"contributions[{i}]: c·u = {u_y:g}; expected a contribution "
+                             f"of a measurement, at most {_MAX_U_Y:g} in the result's unit.")
     g = gum_combine(cts, coverage_probability=p, dof_rounding=rounding)
     if not g.u_c > 0:
         raise ValueError("contributions: every contribution is zero (u or half_width 0, or "
