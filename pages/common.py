@@ -336,7 +336,8 @@ def restore_banner():
 
 
 KEEP_PREFIXES = ("sim_", "w_gp_")
-KEEP_KEYS = ("hist_gp", "w_mpe_u", "w_u_npts", "w_u_seed")  # the report reads these from any page
+KEEP_KEYS = ("hist_gp", "w_mpe_u", "w_u_npts", "w_u_seed",  # the report reads these
+             "w_kin_tab")  # the open tab of the Kinematic page, as the user left it
 
 
 def keep_widget_state():

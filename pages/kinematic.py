@@ -103,14 +103,18 @@ def error_function_grid(r, show, cols, truth):
 # the bands, the parameter u and the maps below are σ-based: say whether to trust them
 C.misfit_banner(r)
 truth = s.get("sim_truth")
-tabs = st.tabs(["Error functions", "Deviation plots", "Parameters", "Residuals"])
+# lazy tabs: a hidden tab's figure is neither built nor sent, so the page opens with the
+# one figure in view (a browser drew all four, about a second of Plotly, issue 27)
+tabs = st.tabs(["Error functions", "Deviation plots", "Parameters", "Residuals"],
+               key="w_kin_tab", on_change="rerun")
 with tabs[0], C.guarded("Error functions"):
     present = [n for n, _ in r.terms.functions]
     show = st.multiselect("Show", present, default=present)
     true_now = truth["truth"] if truth and truth.get("key") == s["ds_key"] else None
-    st.plotly_chart(C.figure("errfun", (C.fit_key(), tuple(show), true_now is not None),
-                             error_function_grid, r, show, 3, true_now),
-                    key="fig_errfun", width="stretch")
+    if tabs[0].open:
+        st.plotly_chart(C.figure("errfun", (C.fit_key(), tuple(show), true_now is not None),
+                                 error_function_grid, r, show, 3, true_now),
+                        key="fig_errfun", width="stretch")
     st.caption("Translational errors in µm, rotations in µrad, squareness as an angle in "
                "µrad; grey bands: 95 % (k = 2) from the parameter covariance; the blue tint "
                "spans the measured scale readings (outside it the curve extrapolates)"
@@ -122,9 +126,11 @@ with tabs[1], C.guarded("Deviation plots"):
     position = c1.selectbox("Position", pos_fit, key="w_dev_position")
     C.bind("magnification", c2.slider, "Magnification", min_value=100.0, max_value=10000.0,
            step=100.0, format="×%.0f")
-    st.plotly_chart(C.figure("deviation", (C.fit_key(), position, float(s["magnification"])),
-                             C.rep.fig_deviation, r, position, float(s["magnification"])),
-                    key="fig_deviation")
+    if tabs[1].open:
+        st.plotly_chart(C.figure("deviation", (C.fit_key(), position,
+                                               float(s["magnification"])),
+                                 C.rep.fig_deviation, r, position, float(s["magnification"])),
+                        key="fig_deviation")
     st.caption("Plate frame, mm: nominal ball centres (certificate or fitted plate), measured "
                "points and the points the model predicts, deviations magnified (thesis "
                "figures 4.8-4.10).")
@@ -180,9 +186,10 @@ with tabs[2], C.guarded("Parameter table"):
                   "minute per row (µm/h = µm per 60 rows)."))
 
 with tabs[3], C.guarded("Residuals"):
-    st.plotly_chart(C.figure("pattern", C.fit_key(), C.rep.fig_pattern, r.table,
-                             r.residuals_um, "Residuals per observation (µm)"),
-                    key="fig_resid")
+    if tabs[3].open:
+        st.plotly_chart(C.figure("pattern", C.fit_key(), C.rep.fig_pattern, r.table,
+                                 r.residuals_um, "Residuals per observation (µm)"),
+                        key="fig_resid")
     C.dataframe(C.rep.residual_summary(r), hide_index=True, key="resid_summary")
     rf = r.residuals_frame()
     worst = rf.assign(norm_um=np.linalg.norm(r.residuals_um, axis=1)).nlargest(10, "norm_um")

@@ -97,7 +97,13 @@ def test_kinematic_page_elements_and_order_change():
     at.switch_page("pages/kinematic.py")
     at.run()
     _ok(at)
-    assert len(at.get("plotly_chart")) >= 3  # error functions, deviations, residuals
+    # lazy tabs (issue 27): only the open tab's figure is built and sent
+    assert [c.key for c in at.get("plotly_chart")] == ["fig_errfun"]
+    for tab, key in (("Deviation plots", "fig_deviation"), ("Residuals", "fig_resid"),
+                     ("Error functions", "fig_errfun")):
+        at.session_state["w_kin_tab"] = tab
+        at.run()
+        assert [c.key for c in at.get("plotly_chart")] == [key], tab
     pf = _frame(at, "parameter")
     # thesis data scatter ~10 σ (outliers included here): Birge-scaled u shown beside u,
     # scaled by the Birge ratio the χ² test reports (sidebar)
