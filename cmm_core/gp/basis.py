@@ -20,6 +20,7 @@ from __future__ import annotations
 from itertools import combinations_with_replacement
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 MEANS = ("zero", "constant", "linear", "quadratic", "thesis_quadratic")
 """Built-in parametric means (explicit basis functions marginalised analytically)."""
@@ -27,7 +28,7 @@ MEANS = ("zero", "constant", "linear", "quadratic", "thesis_quadratic")
 _MAX_INPUTS = 6  # ram position and probe offset
 
 
-def polynomial_basis(X, kind: str):
+def polynomial_basis(X: ArrayLike, kind: str) -> tuple[np.ndarray, tuple[str, ...]]:
     """Design matrix of a built-in polynomial mean, in the units of ``X``.
 
     Parameters

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from typing import cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._blas import single_blas_thread
 from .basis import polynomial_basis
@@ -128,9 +129,11 @@ def _groups(kernel, probe_input):
 
 
 @single_blas_thread
-def gp_components(points_mm, errors_um, *, mean="zero", kernel: str = "se_iso", basis=None,
-                  restarts: int = 3, seed=0, bounds: dict | None = None,
-                  probe_mm=None, noise_per_probe: bool = True) -> GPComponents:
+def gp_components(points_mm: ArrayLike, errors_um: ArrayLike, *, mean: str = "zero",
+                  kernel: str = "se_iso", basis: ArrayLike | None = None,
+                  restarts: int = 3, seed: int = 0, bounds: dict | None = None,
+                  probe_mm: ArrayLike | None = None,
+                  noise_per_probe: bool = True) -> GPComponents:
     """Fit one GP per error component.
 
     Parameters
@@ -212,8 +215,9 @@ def _ram_polynomial(kind):
 
 
 @single_blas_thread
-def predict_grid(components: GPComponents, grid_points_mm, *, basis_grid=None,
-                 probe_mm=None):
+def predict_grid(components: GPComponents, grid_points_mm: ArrayLike, *,
+                 basis_grid: ArrayLike | None = None,
+                 probe_mm: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Mean and standard deviation of each component's GP at grid points.
 
     Parameters
@@ -315,13 +319,14 @@ def plate_grid(u_range_mm: tuple[float, float], v_range_mm: tuple[float, float],
     return Grid(axes_mm=(u, v), points_mm=pts, shape=(nv, nu))
 
 
-def box_grid(lower_mm, upper_mm, n=11) -> Grid:
+def box_grid(lower_mm: ArrayLike, upper_mm: ArrayLike,
+             n: int | tuple[int, int, int] = 11) -> Grid:
     """Grid over a box of the machine volume (n per axis or (n_x, n_y, n_z)), x fastest."""
     lo = np.asarray(lower_mm, dtype=float)
     hi = np.asarray(upper_mm, dtype=float)
     if lo.shape != (3,) or hi.shape != (3,):
         raise ValueError("lower_mm and upper_mm must be 3-vectors (x, y, z) in mm")
-    ns = (n, n, n) if np.ndim(n) == 0 else tuple(n)
+    ns = (n, n, n) if np.ndim(n) == 0 else tuple(cast(tuple, n))
     axes = tuple(_axis((lo[i], hi[i]), ns[i], f"axis {'xyz'[i]}") for i in range(3))
     Z, Y, X = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
     pts = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
@@ -363,7 +368,7 @@ class Appendix3Result:
     difference_um: np.ndarray
 
 
-def appendix3_workflow(errors_um=None, *, noise_sd_um: float = 0.3, seed: int = 0,
+def appendix3_workflow(errors_um: ArrayLike | None = None, *, noise_sd_um: float = 0.3, seed: int = 0,
                        kernel: str = "se_iso", restarts: int = 3, n_grid: int = 21,
                        quadratic_mean: str = "thesis_quadratic") -> Appendix3Result:
     """Thesis appendix 3 (figures 5.2-5.6) done in data units.

@@ -47,6 +47,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.stats import qmc
 
 from .._blas import single_blas_thread
@@ -63,8 +64,11 @@ _PREFIT_POINTS = 300  # subset the restarts run on first when n > 2 × this (``_
 
 
 @single_blas_thread
-def log_marginal_likelihood(X, y, hyperparameters: dict, *, mean="zero",
-                            kernel: str = "se_iso", groups=None, noise_groups=None):
+def log_marginal_likelihood(X: ArrayLike, y: ArrayLike, hyperparameters: dict, *,
+                            mean: str | ArrayLike = "zero", kernel: str = "se_iso",
+                            groups: ArrayLike | None = None,
+                            noise_groups: ArrayLike | None = None
+                            ) -> tuple[float, dict]:
     """Log marginal likelihood and its gradient at given hyperparameters.
 
     Parameters
@@ -102,10 +106,11 @@ _BOUND_FACTORS = {"length": (1e-3, 1e3), "signal": (1e-3, 1e2), "noise": (1e-4, 
 
 
 @single_blas_thread
-def fit_gp(X, y, *, mean="zero", kernel: str = "se_iso", restarts: int = 3, seed=0,
+def fit_gp(X: ArrayLike, y: ArrayLike, *, mean: str | ArrayLike = "zero",
+           kernel: str = "se_iso", restarts: int = 3, seed: int | None = 0,
            bounds: dict | None = None, initial: dict | None = None,
-           optimize: bool = True, groups=None, discrete_groups=(),
-           noise_groups=None) -> GPResult:
+           optimize: bool = True, groups: ArrayLike | None = None,
+           discrete_groups: tuple = (), noise_groups: ArrayLike | None = None) -> GPResult:
     """Fit a GP regression model by maximising the marginal likelihood.
 
     Parameters
