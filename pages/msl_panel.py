@@ -46,7 +46,10 @@ def msl_section() -> None:
     if kind == "measured":
         a, b = st.columns(2)
         u_a = a.number_input("Certificate U(k=2): a (µm)", 0.0, 100.0, None, key="msl_ua",
-                             help="U = sqrt(a² + (b·L)²), L in mm from ball 1.")
+                             help="U = sqrt(a² + (b·L)²), L in mm from ball 1: the "
+                                  "certificate of the one artefact all these snapshots "
+                                  "measured (snapshots of another artefact are refused: "
+                                  "load each artefact on its own, with its statement).")
         u_b = b.number_input("Certificate U(k=2): b (µm per mm)", 0.0, 1.0, None,
                              format="%.5f", key="msl_ub")
         if u_a is not None and u_b is not None:

@@ -318,6 +318,27 @@ def test_a_bar_written_from_the_simulator_gives_its_x_scale_alone(tmp_path, kind
     assert "dxx[1]" not in alone and full.rank == 1
 
 
+def test_snapshots_of_two_artefacts_are_not_one_dataset(tmp_path):
+    """One certificate statement is never stretched over two artefacts: snapshots whose
+    headers name different artefacts are refused naming the snapshot, the key and the fix;
+    two snapshots of one artefact combine, each read with its statement."""
+    a = _plate_files(tmp_path / "a")
+    b = _plate_files(tmp_path / "b", location=(100.0, 200.0, 350.0))
+    same = msl.combine_plates([msl.read_msl_plate(*f, kind="measured", certificate_u=CERT_U,
+                                                  snapshot_name=f"{k}.csv")
+                               for k, f in (("a", a), ("b", b))])
+    assert same.setup["certificate"]["U_um"] == CERT_U["U_um"]
+    for path in b:  # the snapshot and the metadata saved with it
+        _edit(path, 4, "artefact.title,another plate")
+    parts = [msl.read_msl_plate(*f, kind="measured", certificate_u=CERT_U,
+                                snapshot_name=f"{k}.csv") for k, f in (("a", a), ("b", b))]
+    assert [p.artefact for p in parts] == ["test plate", "another plate"]
+    with pytest.raises(DataError, match="one dataset is one plate") as exc:
+        msl.combine_plates(parts)
+    assert exc.value.file == "b.csv" and exc.value.column == "artefact.title"
+    assert "\n" not in str(exc.value)
+
+
 # ------------------------------------------------------------------ bad files, sniffing
 
 

@@ -92,6 +92,9 @@ class ForeignDataset:
     parameters : dict
         MSL's model parameters as the metadata lists them (power-series coefficients,
         lowest power first); informative only (see ``docs/msl-format.md``).
+    artefact : str
+        The artefact the snapshot measured, as its header names it (``artefact.title``):
+        snapshots of different artefacts are not one dataset (:func:`combine_plates`).
     """
 
     measurements_csv: str
@@ -101,6 +104,7 @@ class ForeignDataset:
     kind: str
     name: str = "MSL snapshot"
     parameters: dict = field(default_factory=dict)
+    artefact: str = ""
 
     def to_dataset(self, name: str | None = None) -> Dataset:
         """Read the three texts with :func:`cmm_core.io.load_dataset` (every check of a
@@ -653,7 +657,8 @@ def read_msl_plate(snapshot: FileSource, metadata: FileSource | None = None, *,
     notes += _parameter_notes(params, kind)
     return ForeignDataset(meas.to_csv(index=False, float_format="%.7f"), setup,
                           cert.to_csv(index=False, float_format="%.6f"), tuple(notes), kind,
-                          head.name, params)
+                          head.name, params,
+                          head.rows["artefact.title"][1].strip())
 
 
 def read_msl_bar(snapshot: FileSource, metadata: FileSource | None = None, *,
@@ -750,6 +755,15 @@ def combine_plates(datasets: Iterable[ForeignDataset]) -> ForeignDataset:
                 raise DataError(f"its {what} {cut_repr(ds.setup[key])} differs from "
                                 f"{first.name}'s {cut_repr(first.setup[key])}; expected one "
                                 "machine and one artefact.", file=ds.name, column=key)
+        if ds.artefact != first.artefact:
+            # one dataset is one plate with one certificate statement: never one statement
+            # silently stretched over two artefacts
+            raise DataError(f"it measured the artefact {cut_repr(ds.artefact)}, "
+                            f"{first.name} the artefact {cut_repr(first.artefact)}; one "
+                            "dataset is one plate with one certificate statement.",
+                            file=ds.name, column="artefact.title",
+                            hint="load each artefact's snapshots on their own, each with "
+                                 "its own certificate statement.")
         if ds.certificate_csv != first.certificate_csv or ds.kind != first.kind:
             raise DataError(f"its artefact or kind differs from {first.name}'s; expected one "
                             "plate, all simulated or all measured.", file=ds.name)
