@@ -9,10 +9,14 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import plotly.graph_objects as go
+from numpy.typing import ArrayLike
 from plotly.subplots import make_subplots
 
+from ..gum import MpeResult
+from ..io import Dataset
 from ..machine import kinematics as kin
 from ..machine import rigid_fit
+from ..model import FitResult
 from ..units import UM
 from ..units import label as unit_label
 
@@ -32,7 +36,8 @@ def _layout(fig, title, height=None):
 # Error functions
 # ---------------------------------------------------------------------------------------
 
-def error_function_curves(result, name: str, n: int = 61):
+def error_function_curves(result: FitResult, name: str, n: int = 61
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(u_mm, value, u95)`` of one fitted error function along its axis, with the 95 %
     band half-width (k = 2). Units: µm for d.., µrad for r.. and s.. (squareness angle)."""
     terms = result.terms
@@ -57,7 +62,8 @@ def error_function_curves(result, name: str, n: int = 61):
     return u, val, 2.0 * sd
 
 
-def true_function_curve(truth: dict, name: str, u_mm, range_mm):
+def true_function_curve(truth: dict, name: str, u_mm: np.ndarray, range_mm: ArrayLike
+                        ) -> np.ndarray | None:
     """A simulation's true error function along its axis (µm or µrad), from the truth's
     coefficient labels (``dyz[3]``, ``dxx[sin180]``); None when the truth has none."""
     if name in kin.SQUARENESS:
@@ -75,7 +81,7 @@ def true_function_curve(truth: dict, name: str, u_mm, range_mm):
             per.setdefault(float(k[3:]), {})[k[:3]] = float(v)
     if not poly and not per:
         return None
-    stroke = float(range_mm[kin.axis_of(name)])
+    stroke = float(np.asarray(range_mm, float)[kin.axis_of(name)])
     val = np.zeros(len(u_mm))
     if poly:
         order = max(poly)
@@ -88,7 +94,8 @@ def true_function_curve(truth: dict, name: str, u_mm, range_mm):
     return val
 
 
-def fig_error_functions(result, names=None, cols: int = 3, truth=None):
+def fig_error_functions(result: FitResult, names: list | tuple | None = None, cols: int = 3,
+                        truth: dict | None = None) -> go.Figure:
     """Fitted error functions with 95 % bands (k = 2), one panel per function; the span of
     the measured scale readings shaded, and a simulation's true functions dashed when
     ``truth`` (label -> value) is given."""
@@ -147,7 +154,8 @@ def fig_error_functions(result, names=None, cols: int = 3, truth=None):
 # Magnified deviation plots (thesis figures 4.8-4.10)
 # ---------------------------------------------------------------------------------------
 
-def deviations_plate_frame(result, position: str, probe=None) -> pd.DataFrame:
+def deviations_plate_frame(result: FitResult, position: str, probe: str | None = None
+                           ) -> pd.DataFrame:
     """Measured and model-predicted deviations from the (fitted) plate, plate frame, µm.
 
     The fitted placement of the position maps the reported points back to the plate frame;
@@ -183,7 +191,8 @@ def deviations_plate_frame(result, position: str, probe=None) -> pd.DataFrame:
     return out
 
 
-def fig_deviation(result, position: str, magnification: float = 2000.0, probe=None):
+def fig_deviation(result: FitResult, position: str, magnification: float = 2000.0,
+                  probe: str | None = None) -> go.Figure:
     """Nominal grid, measured and predicted points with deviations magnified (plate frame)."""
     df = deviations_plate_frame(result, position, probe)
     fig = go.Figure()
@@ -233,7 +242,8 @@ def fig_deviation(result, position: str, magnification: float = 2000.0, probe=No
 # Residual patterns, signatures, maps
 # ---------------------------------------------------------------------------------------
 
-def fig_pattern(table: pd.DataFrame, values_um, title: str, height: int = 330):
+def fig_pattern(table: pd.DataFrame, values_um: ArrayLike, title: str,
+                height: int = 330) -> go.Figure:
     """A per-observation pattern (residuals or a candidate's signature), µm, three panels
     (x, y, z) over the observations grouped by position."""
     values_um = np.asarray(values_um, float)
@@ -264,7 +274,7 @@ def fig_pattern(table: pd.DataFrame, values_um, title: str, height: int = 330):
     return fig
 
 
-def fig_residual_map(result, component: str = "norm"):
+def fig_residual_map(result: FitResult, component: str = "norm") -> go.Figure:
     """Residuals at the measured points in the machine volume (colour in µm)."""
     t = result.table
     d = result.residuals_um
@@ -281,7 +291,8 @@ def fig_residual_map(result, component: str = "norm"):
     return _layout(fig, f"Residual map: {label} in µm", height=480)
 
 
-def fig_signature_scatter(residuals_um, signature_um, title: str, height: int = 300):
+def fig_signature_scatter(residuals_um: ArrayLike, signature_um: ArrayLike, title: str,
+                          height: int = 300) -> go.Figure:
     """Residual against a candidate's signature, per component, with the 1:1 line: an
     effect that explains the misfit puts the points along the line (their scatter about it
     is the noise); one that does not leaves a cloud around zero."""
@@ -302,7 +313,9 @@ def fig_signature_scatter(residuals_um, signature_um, title: str, height: int = 
     return _layout(fig, title, height=height)
 
 
-def fig_mpe(result, title: str = "Length errors against the MPE (0.6 µm + L/600, L in mm)"):
+def fig_mpe(result: MpeResult,
+            title: str = "Length errors against the MPE (0.6 µm + L/600, L in mm)"
+            ) -> go.Figure:
     """Length errors E (µm) against the certificate length L (mm): each with its ±U bar
     (k = 2), coloured by its ISO 14253-1 decision, between the ±MPE(L) lines."""
     colours = {"conforms": "#2ca02c", "inconclusive": "#ff7f0e",
@@ -332,7 +345,7 @@ def fig_mpe(result, title: str = "Length errors against the MPE (0.6 µm + L/600
     return _layout(fig, title, height=420)
 
 
-def fig_history(history: list):
+def fig_history(history: list) -> go.Figure:
     """RMS, χ²/dof, BIC and GP discrepancy amplitude as effects are added or removed.
 
     BIC is drawn relative to the first step: its absolute value (tens of thousands) only
@@ -364,7 +377,7 @@ def fig_history(history: list):
     return _layout(fig, "Diagnosis history: fit quality as effects are added", height=360)
 
 
-def fig_detection_limits(evals: list, effects: list, height: int = 380):
+def fig_detection_limits(evals: list, effects: list, height: int = 380) -> go.Figure:
     """Detection limits of plan evaluations (``plan`` JSON: each with ``name`` and
     ``detection_limits`` {effect: {"size", "unit"}}) as grouped bars, one panel per unit.
 
@@ -400,7 +413,7 @@ def fig_detection_limits(evals: list, effects: list, height: int = 380):
     return _layout(fig, "", height=height)
 
 
-def fig_placements(dataset, certificate_xyz=None):
+def fig_placements(dataset: Dataset, certificate_xyz: ArrayLike | None = None) -> go.Figure:
     """3D view of the plate placements (measured ball centres) in the machine volume."""
     rng = np.asarray(dataset.setup.range_mm, float)
     fig = go.Figure()
@@ -408,7 +421,9 @@ def fig_placements(dataset, certificate_xyz=None):
     corners = np.array([[x, y, z] for x in (0, rng[0]) for y in (0, rng[1]) for z in (0, rng[2])])
     edges = [(0, 1), (0, 2), (0, 4), (1, 3), (1, 5), (2, 3), (2, 6), (3, 7), (4, 5), (4, 6),
              (5, 7), (6, 7)]
-    xs, ys, zs = [], [], []
+    xs: list = []
+    ys: list = []
+    zs: list = []
     for a, b in edges:
         for arr, k in ((xs, 0), (ys, 1), (zs, 2)):
             arr += [corners[a, k], corners[b, k], None]
@@ -430,8 +445,10 @@ def fig_placements(dataset, certificate_xyz=None):
     return _layout(fig, "Plate placements in the machine volume (mm)", height=560)
 
 
-def fig_surface_grid(xg, yg, values, *, title: str, unit: str, points=None, colorscale="RdBu_r",
-                     xlabel: str = "X (mm)", ylabel: str = "Y (mm)", zrange=None):
+def fig_surface_grid(xg: ArrayLike, yg: ArrayLike, values: ArrayLike, *, title: str, unit: str,
+                     points: ArrayLike | None = None, colorscale: str = "RdBu_r",
+                     xlabel: str = "X (mm)", ylabel: str = "Y (mm)",
+                     zrange: tuple[float, float] | None = None) -> go.Figure:
     """A heatmap of a quantity over a grid (mm) with the measured points on top.
 
     A diverging colour scale (the default, for signed errors) is centred on zero so white
@@ -447,8 +464,9 @@ def fig_surface_grid(xg, yg, values, *, title: str, unit: str, points=None, colo
                                colorbar={"title": {"text": unit}},
                                hovertemplate="%{x:.0f} mm, %{y:.0f} mm<br>%{z:.3f} "
                                              + unit + "<extra></extra>"))
-    if points is not None and len(points):
-        fig.add_trace(go.Scatter(x=points[:, 0], y=points[:, 1], mode="markers",
+    pts = None if points is None else np.asarray(points, float)
+    if pts is not None and len(pts):
+        fig.add_trace(go.Scatter(x=pts[:, 0], y=pts[:, 1], mode="markers",
                                  name="measured points",
                                  marker={"size": 5, "color": "black", "symbol": "x"}))
     # equal scales without padding the x range: shrink the plot area instead
