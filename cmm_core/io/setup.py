@@ -132,16 +132,19 @@ _FREE_KEYS = ("source", "name", "note", "notes", "description")
 
 
 def _home(key: str) -> str | None:
-    """Where a setup key belongs (``machine.layout``, ``positions.<name>.probe``), or None
-    for a key of no section (free)."""
-    folded = str(key).lower().replace("-", "_")
-    for section, keys in SETUP_KEYS.items():
-        for k in keys:
-            if k.lower() == folded and k not in _FREE_KEYS:
-                prefix = {"": "", "position": "positions.<name>."}.get(section,
-                                                                      section + ".")
-                return prefix + k
-    return None
+    """Where a setup key (or the key it most likely misspells) belongs
+    (``machine.layout``, ``positions.<name>.probe``), or None for a key of no section
+    (free: a note)."""
+    if str(key) in _FREE_KEYS:
+        return None
+    everywhere = {k: section for section, keys in SETUP_KEYS.items() for k in keys
+                  if k not in _FREE_KEYS}
+    k = key if key in everywhere else likely_typo(str(key), everywhere)
+    if k is None:
+        return None
+    prefix = {"": "", "position": "positions.<name>."}.get(everywhere[k],
+                                                          everywhere[k] + ".")
+    return prefix + k
 
 
 def _refuse_misplaced(obj: dict, where: str, name) -> None:
@@ -154,8 +157,10 @@ def _refuse_misplaced(obj: dict, where: str, name) -> None:
         if k in own or home is None or home.rsplit(".", 1)[-1] in own:
             continue
         here = f"{where}.{k}" if where else str(k)
-        raise DataError(f"key {cut_repr(k)} does not belong {'at the top level' if not where else 'in ' + where}; "
-                        f"did you mean {home!r}?", file=name, column=here,
+        level = f"in {where}" if where else "at the top level"
+        there = repr(home) if "." in home else f"the top-level {home!r}"
+        raise DataError(f"key {cut_repr(k)} does not belong {level}; did you mean {there}?",
+                        file=name, column=here,
                         hint="move it into its section (docs/formats.md#setup); at the wrong "
                              "level it would be ignored and its default used.")
 
