@@ -15,15 +15,22 @@ import html
 import json
 import re
 import zlib
+from collections.abc import Iterable
 from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
+import plotly.graph_objects as go
 import plotly.io as pio
 from plotly.offline import get_plotlyjs, get_plotlyjs_version
 
 from .. import __version__
-from ..io import DataError, atomic_write_text
+from ..diagnosis import Diagnosis
+from ..gum import MpeResult
+from ..io import DataError, Dataset, atomic_write_text
+from ..model import FitResult
 from .figures import (
     fig_deviation,
     fig_error_functions,
@@ -32,10 +39,10 @@ from .figures import (
     fig_pattern,
     fig_placements,
 )
-from .record import ERROR_CONVENTION
+from .record import ERROR_CONVENTION, AnalysisRecord
 from .record_io import read_record, record_to_dict
 from .residuals import instrument_tables, residual_summary
-from .runner import run
+from .runner import AnalysisResult, run
 
 
 def _table_html(df: pd.DataFrame, floatfmt="{:.4g}") -> str:
@@ -108,7 +115,7 @@ def plotly_loader(figures: dict) -> str:
             "(DecompressionStream); the tables are complete.</p>\");});</script>")
 
 
-def figure_html(fig, div_id: str, figures: dict) -> str:
+def figure_html(fig: go.Figure, div_id: str, figures: dict) -> str:
     """A figure's div and the script that draws it once unpacked; its data go into
     ``figures`` (packed by :func:`plotly_loader`)."""
     figures[div_id] = pio.to_json(fig, validate=False, remove_uids=True)
@@ -119,7 +126,7 @@ def figure_html(fig, div_id: str, figures: dict) -> str:
             "</script>")
 
 
-def chi2_test_numbers(r) -> tuple:
+def chi2_test_numbers(r: FitResult) -> tuple:
     """``(χ²/dof, dof, note)`` of the fit's χ² test. With the certificate fixed the test
     counts its calibration uncertainty (``FitResult.chi2_test``); the note then says so,
     with the fit's own χ²/dof."""
@@ -129,7 +136,7 @@ def chi2_test_numbers(r) -> tuple:
                       f"χ²/dof is {r.chi2_dof:.2f})")
 
 
-def chi2_html(result) -> str:
+def chi2_html(result: FitResult) -> str:
     """The fit's χ² test in words, shown next to every uncertainty: when it fails, by how
     much the σ-based values understate the scatter (Birge ratio)."""
     r = result
@@ -205,19 +212,16 @@ def _record_sections(res) -> list:
     return out
 
 
-def analysis_report(record, *, generated: str | None = None) -> str:
+def analysis_report(record: AnalysisRecord, *, generated: str | None = None) -> str:
     """The HTML report of an analysis record: what the Export page and ``python -m
     cmm_core report`` both call (``generated``: the time printed, default now)."""
 
     return render(run(record), generated=generated)
 
 
-def write_report(analysis_path, out_path) -> dict:
+def write_report(analysis_path: str | Path, out_path: str | Path) -> dict:
     """``python -m cmm_core report``: the report of the record at ``analysis_path``
     written to ``out_path``; returns what the command prints (the fit's χ² test too)."""
-    from pathlib import Path
-
-
     if not Path(out_path).parent.is_dir():  # refused before minutes of work, not after
         raise DataError(f"the folder {Path(out_path).parent} does not exist.",
                         file=Path(out_path).name, hint="create it or write elsewhere.")
@@ -233,7 +237,7 @@ def write_report(analysis_path, out_path) -> dict:
             "flagged_outliers": [list(e) for e in res.flagged]}
 
 
-def render(res, *, generated: str | None = None) -> str:
+def render(res: AnalysisResult, *, generated: str | None = None) -> str:
     """The HTML report of an :class:`~cmm_core.analysis.AnalysisResult`."""
     diag, text = None, ""
     if res.diagnosis is not None:
@@ -246,7 +250,7 @@ def render(res, *, generated: str | None = None) -> str:
                         sigma=res.sigma, extra_sections=_record_sections(res))
 
 
-def diagnosis_rows(d) -> list:
+def diagnosis_rows(d: Diagnosis) -> list:
     """The diagnosis's candidates as report rows (best first)."""
     return [{"effect": c.effect, "title": c.title, "rms_um": c.rms_um,
              "chi2_dof": c.chi2_dof, "delta_chi2": c.delta_chi2, "n_params": c.n_params,
@@ -255,14 +259,16 @@ def diagnosis_rows(d) -> list:
             for c in d.candidates]
 
 
-def diagnosis_conclusion(d) -> str:
+def diagnosis_conclusion(d: Diagnosis) -> str:
     """The diagnosis's verdict in words, with the candidates it did not try."""
     return d.message + "".join(f" Not tried: {k} ({v})." for k, v in d.skipped.items())
 
 
-def build_report(dataset, result, *, exclusions=(), history=(), uncertainty=None,
-                 diagnosis=None, magnification: float = 2000.0, extra_sections=(),
-                 diagnosis_conclusion: str = "", mpe=None, generated: str | None = None,
+def build_report(dataset: Dataset, result: FitResult, *, exclusions: Iterable = (),
+                 history: Iterable = (), uncertainty: Any = None,
+                 diagnosis: pd.DataFrame | None = None, magnification: float = 2000.0,
+                 extra_sections: Iterable = (), diagnosis_conclusion: str = "",
+                 mpe: MpeResult | None = None, generated: str | None = None,
                  sigma: dict | None = None) -> str:
     """A self-contained HTML report of a fit: summary, figures and tables.
 
