@@ -22,6 +22,9 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+from ..io import Dataset
 
 DECISIONS = ("conforms", "does not conform", "inconclusive")
 """Possible ISO 14253-1 decisions."""
@@ -31,18 +34,18 @@ DIRECTIONS = ("row", "column", "diagonal", "antidiagonal")
 together, e.g. balls 1-7-13-19-25), antidiagonal (balls 5-9-13-17-21)."""
 
 
-def mpe_um(length_mm, a_um: float = 0.6, per_mm: float = 1.0 / 600.0) -> np.ndarray:
+def mpe_um(length_mm: ArrayLike, a_um: float = 0.6, per_mm: float = 1.0 / 600.0) -> np.ndarray:
     """MPE = 0.6 µm + L/600 with L in mm (thesis §6.2)."""
     return a_um + per_mm * np.asarray(length_mm, float)
 
 
-def uncertainty_um(length_mm, a_um: float = 0.52, b_per_mm: float = 1.4e-3) -> np.ndarray:
+def uncertainty_um(length_mm: ArrayLike, a_um: float = 0.52, b_per_mm: float = 1.4e-3) -> np.ndarray:
     """U(L) = sqrt(0.52² + (1.4e-3 L)²) µm, k = 2 (thesis §6.2, appendix 1)."""
     L = np.asarray(length_mm, float)
     return np.sqrt(a_um**2 + (b_per_mm * L) ** 2)
 
 
-def conformity_uncertainty_um(length_mm, sigma_um: float, a_um: float = 0.26,
+def conformity_uncertainty_um(length_mm: ArrayLike, sigma_um: float, a_um: float = 0.26,
                         b_per_mm: float = 1.9e-3) -> np.ndarray:
     """Expanded (k = 2) uncertainty of a length error E = L_measured − L_certificate from
     the test itself: the plate's calibrated length, U = sqrt(a² + (b L)²) µm (k = 2, thesis
@@ -54,7 +57,7 @@ def conformity_uncertainty_um(length_mm, sigma_um: float, a_um: float = 0.26,
     return 2 * np.sqrt(u_plate**2 + 2 * float(sigma_um) ** 2)
 
 
-def decide(error_um, U_um, mpe_limit_um) -> np.ndarray:
+def decide(error_um: ArrayLike, U_um: ArrayLike, mpe_limit_um: ArrayLike) -> np.ndarray:
     """ISO 14253-1 decision per length: 'conforms', 'does not conform' or 'inconclusive'."""
     e = np.abs(np.asarray(error_um, float))
     U = np.asarray(U_um, float)
@@ -160,7 +163,7 @@ def _as_points(a, what: str, n_balls: int) -> np.ndarray:
     return arr
 
 
-def mpe_check(tables: Mapping[str, np.ndarray], certificate, *, n: int = 5,
+def mpe_check(tables: Mapping[str, np.ndarray], certificate: ArrayLike, *, n: int = 5,
               diagonals: str = "all", mpe_a_um: float = 0.6, mpe_per_mm: float = 1.0 / 600.0,
               U_a_um: float = 0.52, U_b_per_mm: float = 1.4e-3,
               uncertainty: Callable | None = None) -> MpeResult:
@@ -227,7 +230,8 @@ U_SOURCES = {"test": "the test: plate certificate and repeatability σ",
 """Where the U of the conformity decision comes from (see :func:`check_dataset`)."""
 
 
-def check_dataset(dataset, *, u_source: str = "test", sigma_um: float = 0.5):
+def check_dataset(dataset: Dataset, *, u_source: str = "test", sigma_um: float = 0.5
+                  ) -> tuple[MpeResult | None, list]:
     """MPE check of every position and probe of a dataset against its 5 x 5 certificate.
 
     ``u_source`` picks U (``U_SOURCES``): ``"test"`` (:func:`conformity_uncertainty_um`
