@@ -52,16 +52,27 @@ def test_export_page_corrects_its_example_points_with_a_machine_thermal_model(tm
 
 
 @pytest.mark.parametrize("dataset, expected", [
-    ("thesis tables 6.1-6.6", "thesis_tables_6.1-6.6_cmm_model.json"),
-    ("../../etc/passwd", "etc_passwd_cmm_model.json"),  # no path ever leaves the folder
-    ("C:\\lab\\run 3", "C_lab_run_3_cmm_model.json"),
-    ("", "cmm_model.json"),
-    ("x" * 100, "x" * 40 + "_cmm_model.json"),
+    ("thesis tables 6.1-6.6", "thesis_tables_6.1-6.6_2026-11-26_cmm_model.json"),
+    ("../../etc/passwd", "etc_passwd_2026-11-26_cmm_model.json"),  # never leaves the folder
+    ("C:\\lab\\run 3", "C_lab_run_3_2026-11-26_cmm_model.json"),
+    ("", "2026-11-26_cmm_model.json"),
+    ("x" * 100, "x" * 40 + "_2026-11-26_cmm_model.json"),
 ])
-def test_download_names_carry_the_dataset(dataset, expected):
+def test_download_names_carry_the_dataset_and_date(dataset, expected):
     """Issue 27: every download was named the same for every dataset, so two datasets'
-    downloads overwrote each other; the name now starts with the dataset's, made safe for
-    any file system (no separators or spaces, at most 40 characters of prefix)."""
+    downloads overwrote each other; the name now starts with the dataset's and the date,
+    made safe for any file system (no separators or spaces, at most 40 characters of
+    dataset name)."""
     from cmm_core.export import download_name
 
-    assert download_name(dataset, "cmm_model.json") == expected
+    assert download_name(dataset, "cmm_model.json", "2026-11-26") == expected
+
+
+def test_download_name_defaults_to_today():
+    from datetime import datetime
+
+    from cmm_core.export import download_name
+
+    today = datetime.now().strftime("%Y-%m-%d")
+    assert download_name("run", "a.csv") in (f"run_{today}_a.csv",
+                                             f"run_{datetime.now():%Y-%m-%d}_a.csv")

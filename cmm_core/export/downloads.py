@@ -41,14 +41,18 @@ from .safe import safe_csv
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
 
-def download_name(dataset_name: str, file_name: str, max_stem: int = 40) -> str:
-    """``file_name`` prefixed with a file-system-safe form of ``dataset_name``:
-    ``download_name("thesis tables 6.1-6.6", "cmm_model.json")`` is
-    ``"thesis_tables_6.1-6.6_cmm_model.json"``. Characters other than letters, digits,
-    ``. _ -`` become ``_`` (no path separators, no spaces a shell must quote); the prefix
-    is cut to ``max_stem`` characters so that names stay within any file system's limit."""
+def download_name(dataset_name: str, file_name: str, date: str | None = None,
+                  max_stem: int = 40) -> str:
+    """``file_name`` prefixed with a file-system-safe form of ``dataset_name`` and the date:
+    ``download_name("thesis tables 6.1-6.6", "cmm_model.json", "2026-11-26")`` is
+    ``"thesis_tables_6.1-6.6_2026-11-26_cmm_model.json"``. Characters other than letters,
+    digits, ``. _ -`` become ``_`` (no path separators, no spaces a shell must quote); the
+    name part is cut to ``max_stem`` characters so that names stay within any file
+    system's limit. ``date`` defaults to today (local time, ISO 8601): downloads of two
+    datasets, or of one dataset on two days, never overwrite each other."""
     stem = _UNSAFE.sub("_", str(dataset_name)).strip("._-")[:max_stem].rstrip("._-")
-    return f"{stem}_{file_name}" if stem else file_name
+    day = _UNSAFE.sub("_", date if date is not None else datetime.now().strftime("%Y-%m-%d"))
+    return "_".join(p for p in (stem, day, file_name) if p)
 
 
 PROJECT_FORMAT = "cmm-error-lab-project"
