@@ -1,0 +1,80 @@
+"""Interim checks on simulated machines whose truth is known (issue 28).
+
+For each layout of ``tests/scenarios.py`` and each seed: a calibration is simulated and
+fitted (kinematic21, plate fixed to its certificate), saved as a model, and the same
+machine is measured again (new noise, new certificate draw) and checked against it:
+
+- no change, the full plate: the χ² test's false-alarm rate (stated level ``--alpha``)
+  and the coverage of the residuals' 95 % intervals;
+- a squareness step of ``--step`` u (u of ``sxy`` in the stored model) after a crash,
+  with the full plate and with one placement (the layout's first): the power.
+
+Rates are printed with their binomial standard errors. Usage: ``python bench/monitor.py
+[--seeds N] [--layouts a,b] [--step 3]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+
+import scenarios as sc  # noqa: E402
+
+from cmm_core.export import model_from_result  # noqa: E402
+from cmm_core.model import fit  # noqa: E402
+from cmm_core.monitor import interim_check, remeasured  # noqa: E402
+
+
+def one_seed(layout: str, seed: int, step_u: float, alpha: float, label: str = "sxy"):
+    """(rejects when unchanged, coverage, rejects after the step with the full plate, with
+    one placement) for one seed."""
+    cal = sc.simulated(layout, seed)
+    model = model_from_result(fit(cal.dataset, "kinematic21", plate="fixed"))
+    j = model.terms.labels.index(label)
+    step = {label: step_u * float(np.sqrt(model.cov[j, j]))}
+    ppp = cal.config["probes_per_position"]
+    first = str(cal.dataset.positions[0])
+    same = interim_check(model, remeasured(cal, 10_000 + seed).dataset, alpha=alpha)
+    full = interim_check(model, remeasured(cal, 20_000 + seed, changes=step).dataset,
+                         alpha=alpha)
+    single = interim_check(model, remeasured(cal, 30_000 + seed, changes=step,
+                                             probes_per_position={first: ppp[first]}).dataset,
+                           alpha=alpha)
+    return (not same.passes, same.coverage_95, not full.passes, not single.passes)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", type=int, default=400, help="seeds per layout")
+    ap.add_argument("--layouts", default="pitch100_4pos,pitch80_3pos",
+                    help="comma-separated layouts of tests/scenarios.py")
+    ap.add_argument("--step", type=float, default=3.0, help="squareness step in u of sxy")
+    ap.add_argument("--alpha", type=float, default=0.05, help="the χ² test's level")
+    args = ap.parse_args()
+    for layout in args.layouts.split(","):
+        t0 = time.perf_counter()
+        rows = np.array([one_seed(layout, s, args.step, args.alpha)
+                         for s in range(args.seeds)], float)
+        n = len(rows)
+        fa, cov, pf, p1 = rows.mean(axis=0)
+
+        se = np.sqrt(rows.mean(axis=0) * (1 - rows.mean(axis=0)) / n)
+        print(f"{layout}: {n} seeds, {time.perf_counter() - t0:.0f} s")
+        print(f"  false alarms (no change)      {100 * fa:5.1f} % ± {100 * se[0]:.1f} "
+              f"(stated {100 * args.alpha:g} %)")
+        print(f"  coverage of 95 % intervals    {100 * cov:5.2f} % (mean over seeds, "
+              f"sd of the mean {100 * rows[:, 1].std(ddof=1) / np.sqrt(n):.2f})")
+        print(f"  power, sxy + {args.step:g} u, full plate  {100 * pf:5.1f} % ± {100 * se[2]:.1f}")
+        print(f"  power, sxy + {args.step:g} u, one placement {100 * p1:5.1f} % ± "
+              f"{100 * se[3]:.1f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,24 @@
+"""Between calibrations: interim checks of a machine against its stored calibration, and
+its calibration history (issue 28, ``docs/monitoring.md``).
+
+Owns: :mod:`.check` (:func:`interim_check`: the χ² test of new measurements against a
+stored model, poses fitted as nuisances, E_n per observation). May import: ``machine``,
+``io``, ``model``, ``diagnosis``, ``gum``, ``export``.
+"""
+
+from __future__ import annotations
+
+from .check import (
+    MAX_OBSERVATIONS,
+    PROBE_TOLERANCE_MM,
+    CheckSystem,
+    GlsFit,
+    InterimCheck,
+    check_system,
+    gls_fit,
+    interim_check,
+)
+from .scenario import remeasured
+
+__all__ = ["CheckSystem", "check_system", "GlsFit", "gls_fit", "interim_check", "InterimCheck",
+           "MAX_OBSERVATIONS", "PROBE_TOLERANCE_MM", "remeasured"]

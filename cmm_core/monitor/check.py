@@ -1,0 +1,397 @@
+"""Interim check of a CMM against a stored calibration (issue 28, docs/monitoring.md).
+
+A stored model (``export.Model``: kinematic coefficients ``c`` with covariance ``V``)
+predicts where every newly probed ball centre should be. With the certificate's ball
+``c_b`` placed rigidly (``R_k c_b + t_k``, placement ``k``) the residual of observation
+``i`` (µm) is::
+
+    d_i = (r_i + e(r_i - p_i, p_i) · 1 mm/µm - R_k c_b - t_k) / UM
+
+(``e`` the model's error, SPEC conventions; the true tip is ``r + e``). Only the rigid
+pose of each placement is fitted (a nuisance of 6 parameters linearised about a Kabsch
+fit, thesis appendix 2 gauge). If the machine still behaves as stored, ``d`` is normal
+with mean ``A β`` (``A`` the pose columns) and the dense covariance::
+
+    Σ = σ² I + J V Jᵀ + K U_cert Kᵀ
+
+``J`` the error's Jacobian in the coefficients at the new points (JCGM 100 eq. 13: the
+stored model's uncertainty is correlated across points), ``K`` the placed-ball
+derivative (each ball's certificate error shared by every observation of it). The pose
+is estimated by generalised least squares; the check is the χ² test of the GLS residual,
+``χ² = r̂ᵀ Σ⁻¹ r̂`` with ``3n - 6P`` degrees of freedom (Rao 1973, §4a.3), and each
+component's normalised error ``E_n = r̂_i / sqrt((Σ - A M⁻¹ Aᵀ)_ii)``,
+``M = Aᵀ Σ⁻¹ A`` (the leverage of the pose fit included).
+
+Σ is dense (3n × 3n, Cholesky by ``scipy.linalg.cho_factor``): memory ``72 n²`` bytes
+and time ``O(n³)``; :data:`MAX_OBSERVATIONS` (1500 balls probed: 4500², 162 MB) bounds it.
+The stored model's coefficients and the new certificate are taken as independent (the
+model file does not hold the certificate it was fitted with).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy import linalg, stats
+
+from ..export import Model
+from ..io import DataError, Dataset, range_tolerance
+from ..machine import kinematics as kin
+from ..machine import rigid_fit
+from ..model import Observations, select
+
+MAX_OBSERVATIONS = 1500
+"""Largest number of probed ball centres a check takes (its dense covariance is
+``(3n)²`` doubles: 162 MB at 1500)."""
+
+PROBE_TOLERANCE_MM = 0.5
+"""A stylus of the new setup whose nominal offset differs from the model's by more is
+another stylus: the model knows nothing of it."""
+
+
+@dataclass(frozen=True)
+class CheckSystem:
+    """The linear system of an interim check: what the GLS fit and the refit share.
+
+    Attributes
+    ----------
+    obs : Observations
+        The new observations (machine frame).
+    d_um : ndarray (3n,)
+        Residuals at the starting pose, µm, observation-major (x, y, z of each).
+    A : ndarray (3n, 6P)
+        Derivative of the placed balls (µm) in each placement's translation (µm) and
+        small rotation (µrad) about its centroid.
+    J : ndarray (3n, k)
+        Derivative of the model's error (µm) in its kinematic coefficients.
+    noise_cov : ndarray (3n, 3n)
+        σ² I plus the certificate's part: what the new data would scatter with if the
+        model were exact.
+    cov : ndarray (3n, 3n)
+        ``noise_cov + J V Jᵀ``: the full covariance of the residuals.
+    x_mm : ndarray (n, 3)
+        Scale readings of the observations (tip minus the model's probe offset).
+    sigma_um : float
+        σ of one probed coordinate used for the new data.
+    """
+
+    obs: Observations
+    d_um: np.ndarray
+    A: np.ndarray
+    J: np.ndarray
+    noise_cov: np.ndarray
+    cov: np.ndarray
+    x_mm: np.ndarray
+    sigma_um: float
+
+
+@dataclass(frozen=True)
+class GlsFit:
+    """The pose fit by generalised least squares of a :class:`CheckSystem`.
+
+    Attributes
+    ----------
+    factor : tuple
+        ``cho_factor`` of the system's ``cov``.
+    residual_um : ndarray (3n,)
+        ``r̂ = d - A β̂``, µm.
+    residual_cov_diag : ndarray (3n,)
+        ``diag(Σ - A M⁻¹ Aᵀ)``: each residual's variance with the pose fit's leverage.
+    chi2 : float
+        ``r̂ᵀ Σ⁻¹ r̂``.
+    dof : int
+        ``3n - 6P``.
+    pose : ndarray (6P,)
+        The fitted pose increments (µm, µrad).
+    """
+
+    factor: tuple
+    residual_um: np.ndarray
+    residual_cov_diag: np.ndarray
+    chi2: float
+    dof: int
+    pose: np.ndarray
+
+
+@dataclass(frozen=True)
+class InterimCheck:
+    """Outcome of :func:`interim_check`.
+
+    Attributes
+    ----------
+    status : str
+        ``"passes"`` (the χ² test does not reject the stored model at ``alpha``) or
+        ``"fails"``.
+    message : str
+        The outcome in one paragraph: the test, its degrees of freedom, the largest E_n.
+    chi2 : float
+        χ² of the GLS residuals with the full covariance.
+    dof : int
+        Its degrees of freedom: 3 per observation less 6 per placement (the poses).
+    p_value : float
+        ``P(χ²_dof > chi2)``.
+    alpha : float
+        The test's false-alarm level.
+    model_name : str
+        The stored model (its file name).
+    positions : list of str
+        The placements of the new data.
+    table : DataFrame
+        One row per observation: ``position, probe, ball``, the scale readings
+        ``x_mm, y_mm, z_mm`` (for a map), the residual ``dx_um, dy_um, dz_um`` (measured
+        minus predicted after the pose fit), its standard uncertainty ``u_dx_um ...`` and
+        ``En_x, En_y, En_z`` (residual over its standard uncertainty).
+    coverage_95 : float
+        Fraction of the residual components within their 95 % intervals (``|E_n| <=
+        1.96``); about 0.95 when the model holds.
+    sigma_um : float
+        σ of one probed coordinate of the new data (µm).
+    outside_region : int
+        Observations whose scale readings lie outside the region the stored model was
+        fitted in (predicted by extrapolation: it is stated, not refused).
+    system : CheckSystem
+        The linear system (for :func:`what_changed`).
+    gls : GlsFit
+        The pose fit (for :func:`what_changed`).
+    """
+
+    status: str
+    message: str
+    chi2: float
+    dof: int
+    p_value: float
+    alpha: float
+    model_name: str
+    positions: list
+    table: pd.DataFrame
+    coverage_95: float
+    sigma_um: float
+    outside_region: int
+    system: CheckSystem
+    gls: GlsFit
+
+    @property
+    def passes(self) -> bool:
+        """True when the χ² test does not reject the stored model."""
+        return self.status == "passes"
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (the table's worst rows included)."""
+        worst = self.table.assign(En=self.table[["En_x", "En_y", "En_z"]].abs().max(axis=1))
+        worst = worst.nlargest(min(10, len(worst)), "En")
+        return {"status": self.status, "message": self.message, "chi2": self.chi2,
+                "dof": self.dof, "p_value": self.p_value, "alpha": self.alpha,
+                "model": self.model_name, "positions": list(self.positions),
+                "n_obs": len(self.table), "coverage_95": self.coverage_95,
+                "sigma_um": self.sigma_um, "outside_region": self.outside_region,
+                "largest_En": [{"position": str(r.position), "probe": str(r.probe),
+                                "ball": int(r.ball), "En": float(r.En)}
+                               for r in worst.itertuples()]}
+
+
+def interim_check(model: Model, dataset: Dataset, *, sigma_um: float | None = None,
+                  alpha: float = 0.05, positions=None, probes=None) -> InterimCheck:
+    """Test new ball-plate measurements against a stored calibration.
+
+    Parameters
+    ----------
+    model : Model
+        The stored calibration (``export.load_model``), kinematic terms with covariance.
+    dataset : Dataset
+        New measurements with their setup and the plate's certificate; one placement is
+        enough.
+    sigma_um : float, optional
+        Repeatability of one probed coordinate (µm); default the stored model's σ.
+    alpha : float
+        False-alarm level of the χ² test (0 < alpha < 0.5).
+    positions, probes : list of str, optional
+        Subsets of the new data to use (default all).
+
+    Returns
+    -------
+    InterimCheck
+
+    Raises
+    ------
+    DataError
+        One line naming the model or data file when they cannot be compared: another
+        machine layout or strokes, a stylus the model does not know, no certificate, a
+        hole plate, a model with effect parts this check does not propagate, an
+        undetermined model, too many observations.
+    """
+    if not 0 < alpha < 0.5:
+        raise ValueError(f"alpha must be in (0, 0.5), got {alpha}.")
+    sys = check_system(model, dataset, sigma_um=sigma_um, positions=positions,
+                       probes=probes)
+    g = gls_fit(sys)
+    n = len(sys.obs.r_mm)
+    u = np.sqrt(np.clip(g.residual_cov_diag, 0, None))
+    En = g.residual_um / u
+    p_value = float(stats.chi2.sf(g.chi2, g.dof))
+    status = "passes" if p_value >= alpha else "fails"
+    table = _observation_table(sys, g.residual_um, u, En)
+    lo, hi = (np.asarray(model.summary.get("region_mm", [[-np.inf] * 3, [np.inf] * 3]), float))
+    outside = int((~((sys.x_mm >= lo - 1.0) & (sys.x_mm <= hi + 1.0)).all(axis=1)).sum())
+    worst = int(np.argmax(np.abs(En)))
+    row = table.iloc[worst // 3]
+    msg = (f"Interim check against {model.name}: χ² = {g.chi2:.1f} on {g.dof} degrees of "
+           f"freedom ({n} ball centres, {len(sys.obs.positions)} placement(s), poses "
+           f"fitted), p = {p_value:.3g}: the machine "
+           + ("behaves as the stored model predicts" if status == "passes" else
+              "no longer behaves as the stored model predicts")
+           + f" at the {100 * alpha:g} % level. Largest |E_n| = {abs(En[worst]):.2f} "
+           f"({'xyz'[worst % 3]} of ball {int(row.ball)}, {row.position}/{row.probe}); "
+           f"{100 * np.mean(np.abs(En) <= 1.96):.1f} % of the components lie within their "
+           "95 % intervals.")
+    if outside:
+        msg += (f" {outside} observation(s) lie outside the region the model was fitted in "
+                "(its predictions there are extrapolated).")
+    return InterimCheck(status, msg, float(g.chi2), int(g.dof), p_value, float(alpha),
+                        model.name, list(sys.obs.positions), table,
+                        float(np.mean(np.abs(En) <= 1.96)), sys.sigma_um, outside, sys, g)
+
+
+def _observation_table(sys: CheckSystem, res: np.ndarray, u: np.ndarray,
+                       En: np.ndarray) -> pd.DataFrame:
+    o = sys.obs
+    t = pd.DataFrame({"position": np.asarray(o.positions, object)[o.pos],
+                      "probe": np.asarray(o.probes, object)[o.probe],
+                      "ball": np.asarray(o.balls)[o.ball]})
+    for a, ax in enumerate("xyz"):
+        t[f"{ax}_mm"] = sys.x_mm[:, a]
+    for name, v in (("d{}_um", res), ("u_d{}_um", u), ("En_{}", En)):
+        v3 = v.reshape(-1, 3)
+        for a, ax in enumerate("xyz"):
+            t[name.format(ax)] = v3[:, a]
+    return t
+
+
+def check_system(model: Model, dataset: Dataset, *, sigma_um: float | None = None,
+                 positions=None, probes=None) -> CheckSystem:
+    """The linear system of an interim check (module docstring), validated at the entry.
+
+    Raises DataError (one line) as :func:`interim_check` says.
+    """
+    obs = select(dataset, positions=positions, probes=probes)
+    name = dataset.name
+    _refuse_incomparable(model, obs, name)
+    sigma = float(model.summary.get("sigma_um", 0.5) if sigma_um is None else sigma_um)
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise DataError(f"σ must be a positive number of µm, found {sigma}.", file=model.name,
+                        column="summary.sigma_um", hint="give sigma_um.")
+    p = np.array([model.probes_mm[q] for q in obs.probes], float)[obs.probe]
+    x = obs.r_mm - p
+    xs, Jk = kin.jacobian(model.terms, model.coef, x, p)
+    corrected = xs  # the true tip: r + e (SPEC conventions)
+    plate = obs.plate0_mm[obs.ball]
+    n, P = len(x), len(obs.positions)
+    R = np.empty((n, 3, 3))
+    t = np.empty((n, 3))
+    A = np.zeros((3 * n, 6 * P))
+    for k in range(P):
+        sel = np.flatnonzero(obs.pos == k)
+        Rk, tk = rigid_fit(plate[sel], corrected[sel])
+        R[sel], t[sel] = Rk, tk
+        q = plate[sel] @ Rk.T + tk
+        q = q - q.mean(axis=0)
+        for j, i in enumerate(sel):
+            A[3 * i:3 * i + 3, 6 * k:6 * k + 3] = np.eye(3)
+            # ω × q in µm for ω in µrad and q in mm: 1e-3 · (-[q]×) ω
+            A[3 * i:3 * i + 3, 6 * k + 3:6 * k + 6] = -1e-3 * _cross_matrix(q[j])
+    placed = np.einsum("nij,nj->ni", R, plate) + t
+    d = ((corrected - placed) / kin.UM).ravel()
+    J = (Jk / kin.UM).reshape(3 * n, -1)
+    noise = sigma**2 * np.eye(3 * n)
+    if obs.cert_u_um is not None:
+        # each ball's certificate error moves every observation of it: R_k diag(u²) R_lᵀ
+        K = np.zeros((3 * n, 3 * len(obs.balls)))
+        for row, b in enumerate(obs.ball):
+            K[3 * row:3 * row + 3, 3 * b:3 * b + 3] = R[row]
+        noise += (K * (obs.cert_u_um.ravel() ** 2)) @ K.T
+    cov = noise + J @ model.cov @ J.T
+    return CheckSystem(obs, d, A, J, noise, cov, x, sigma)
+
+
+def _cross_matrix(v: np.ndarray) -> np.ndarray:
+    """``[v]×``: ``[v]× w = v × w``."""
+    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+
+
+def gls_fit(sys: CheckSystem) -> GlsFit:
+    """The poses by generalised least squares with the system's full covariance."""
+    factor = linalg.cho_factor(sys.cov, lower=True)
+    SiA = linalg.cho_solve(factor, sys.A)
+    M = sys.A.T @ SiA
+    beta = np.linalg.solve(M, SiA.T @ sys.d_um)
+    res = sys.d_um - sys.A @ beta
+    chi2 = float(res @ linalg.cho_solve(factor, res))
+    lev = np.einsum("ij,ij->i", sys.A @ np.linalg.inv(M), sys.A)
+    dof = sys.A.shape[0] - sys.A.shape[1]
+    return GlsFit(factor, res, np.diag(sys.cov) - lev, chi2, int(dof), beta)
+
+
+def _refuse_incomparable(model: Model, obs: Observations, name: str) -> None:
+    """One-line DataErrors for data the stored model cannot predict."""
+    if model.terms.layout != obs.layout:
+        raise DataError(f"the model {model.name} is of a {model.terms.layout} machine; the "
+                        f"setup describes a {obs.layout}.", file=name, column="machine.layout",
+                        hint="check the new data against a model of the same machine.")
+    rng_model = np.asarray(model.terms.range_mm, float)
+    if not np.allclose(rng_model, obs.range_mm, rtol=0, atol=1.0):
+        raise DataError(f"the model {model.name} has strokes {rng_model.tolist()} mm; the setup "
+                        f"has {np.asarray(obs.range_mm).tolist()} mm.", file=name,
+                        column="machine.range_mm",
+                        hint="check the new data against a model of the same machine.")
+    if model.parts:
+        raise DataError(f"the model {model.name} has {', '.join(model.parts)}, which the "
+                        "interim check does not propagate yet; expected a kinematic model "
+                        "(with probe offsets).", file=model.name, column="spec",
+                        hint="check against a kinematic calibration of the machine.")
+    if model.undetermined:
+        raise DataError(f"the model {model.name} has combinations its data did not determine: "
+                        "its predictions have no uncertainty to test against.",
+                        file=model.name, column="undetermined",
+                        hint="check against a fully determined calibration.")
+    if getattr(obs, "artefact", "ball_plate") != "ball_plate":
+        raise DataError(f"the check takes ball-plate data; the setup's artefact is "
+                        f"{obs.artefact}.", file=name, column="artefact")
+    if not obs.has_certificate:
+        raise DataError("the interim check needs the plate's certificate (the balls' "
+                        "calibrated positions); none was given.", file=name,
+                        hint="load the certificate with the measurements.")
+    n = len(obs.r_mm)
+    if n > MAX_OBSERVATIONS:
+        raise DataError(f"{n} probed ball centres; the check takes at most "
+                        f"{MAX_OBSERVATIONS} (its covariance is dense).", file=name,
+                        hint="check with fewer placements or styli (positions=, probes=).")
+    for k, pos in enumerate(obs.positions):
+        m = int((obs.pos == k).sum())
+        if m < 3:
+            raise DataError(f"placement {pos} has {m} ball centre(s); a placement needs at "
+                            "least 3 for its pose.", file=name, column="position")
+    for i, q in enumerate(obs.probes):
+        row = int(np.flatnonzero(obs.probe == i)[0])
+        file_row = obs.table["row"].iloc[row] if "row" in obs.table else None
+        if q not in model.probes_mm:
+            raise DataError(f"stylus {q!r} is not in the model {model.name} (known: "
+                            f"{', '.join(model.probes_mm)}).", file=name,
+                            row=None if file_row is None else int(file_row), column="probe",
+                            hint="check with the styli the model was calibrated with.")
+        off = float(np.linalg.norm(obs.p_mm[row] - model.probes_mm[q]))
+        if off > PROBE_TOLERANCE_MM:
+            raise DataError(f"stylus {q!r} has offset {obs.p_mm[row].tolist()} mm in the setup "
+                            f"but {np.round(model.probes_mm[q], 3).tolist()} mm in the model "
+                            f"{model.name} ({off:.2f} mm apart; expected within "
+                            f"{PROBE_TOLERANCE_MM} mm).", file=name, column="probes",
+                            hint="a stylus of another length is another stylus: recalibrate.")
+    tol = range_tolerance(rng_model)
+    x = obs.r_mm - obs.p_mm
+    bad = ((x < -tol) | (x > rng_model + tol)).any(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise DataError(f"scale reading {np.round(x[i], 1).tolist()} mm is outside the model's "
+                        f"strokes {rng_model.tolist()} mm.", file=name,
+                        row=int(obs.table["row"].iloc[i]) if "row" in obs.table else None,
+                        column="x_mm", hint="check the units and the machine.")

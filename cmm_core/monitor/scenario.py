@@ -1,0 +1,66 @@
+"""The same simulated machine measured again: for tests, benches and the sample history.
+
+A calibration is simulated by ``model.simulate`` with random kinematic coefficients; an
+interim check of *that* machine must be simulated with the same coefficients (the
+machine's truth), another seed (new noise, a new plate certificate) and, for a machine
+that changed, some coefficients moved (a squareness after a crash).
+"""
+
+from __future__ import annotations
+
+import copy
+
+from ..machine import kinematics as kin
+from ..model import Simulation, parse_spec, simulate, thesis_machine_setup
+
+
+def remeasured(calibration: Simulation, seed: int, *, changes: dict | None = None,
+               probes_per_position: dict | None = None) -> Simulation:
+    """The machine of ``calibration`` measured again with seed ``seed``.
+
+    Parameters
+    ----------
+    calibration : Simulation
+        A simulation (its ``config`` and ``truth``).
+    seed : int
+        Seed of the new measurement (noise, plate form and certificate draws).
+    changes : dict, optional
+        Label -> change of the true kinematic coefficient (µm, µrad), e.g. ``{"sxy": 2.0}``.
+    probes_per_position : dict, optional
+        Placement -> styli of the new measurement (default the calibration's): one entry
+        simulates a check with one placement.
+
+    Returns
+    -------
+    Simulation
+    """
+    cfg = copy.deepcopy(calibration.config)
+    km = cfg["kinematic"]
+    truth = {lab: float(v) for lab, v in calibration.truth.items()
+             if lab in set(km.get("coefficients", {})) | _kinematic_labels(calibration)}
+    for lab, dv in (changes or {}).items():
+        if lab not in truth:
+            raise ValueError(f"{lab!r} is not a kinematic coefficient of the simulation "
+                             f"(known: {', '.join(sorted(truth))}).")
+        truth[lab] += float(dv)
+    km["coefficients"] = truth
+    cfg["seed"] = int(seed)
+    if cfg["setup"] is None:
+        cfg["setup"] = thesis_machine_setup()
+    setup = cfg["setup"]
+    # the stored configuration has the defaults merged in: the default placements'
+    # styli are dropped, as those of placements the new measurement leaves out
+    ppp = probes_per_position if probes_per_position is not None else \
+        {p: q for p, q in cfg["probes_per_position"].items() if p in setup["positions"]}
+    cfg["probes_per_position"] = copy.deepcopy(ppp)
+    setup["positions"] = {p: setup["positions"][p] for p in ppp}
+    return simulate(cfg)
+
+
+def _kinematic_labels(sim: Simulation) -> set:
+    """The kinematic coefficient labels of a simulation's truth (its effects' labels are
+    the blocks' own: they start with the block's token)."""
+    km = sim.config["kinematic"]
+    spec = parse_spec(km["spec"], default_order=int(km["order"]))
+    setup = sim.dataset.setup
+    return set(kin.KinematicTerms(spec.active, tuple(setup.range_mm), spec.periods).labels)
