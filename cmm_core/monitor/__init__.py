@@ -2,12 +2,14 @@
 its calibration history (issue 28, ``docs/monitoring.md``).
 
 Owns: :mod:`.check` (:func:`interim_check`: the χ² test of new measurements against a
-stored model, poses fitted as nuisances, E_n per observation). May import: ``machine``,
+stored model, poses fitted as nuisances, E_n per observation), :mod:`.changes`
+(:func:`what_changed`: the stored model refitted on the new data as its own prior). May import: ``machine``,
 ``io``, ``model``, ``diagnosis``, ``gum``, ``export``.
 """
 
 from __future__ import annotations
 
+from .changes import MIN_RESOLVED, Changes, what_changed
 from .check import (
     MAX_OBSERVATIONS,
     PROBE_TOLERANCE_MM,
@@ -21,4 +23,4 @@ from .check import (
 from .scenario import remeasured
 
 __all__ = ["CheckSystem", "check_system", "GlsFit", "gls_fit", "interim_check", "InterimCheck",
-           "MAX_OBSERVATIONS", "PROBE_TOLERANCE_MM", "remeasured"]
+           "MAX_OBSERVATIONS", "PROBE_TOLERANCE_MM", "remeasured", "Changes", "MIN_RESOLVED", "what_changed"]

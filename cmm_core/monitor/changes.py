@@ -1,0 +1,207 @@
+"""What changed: the stored model refitted on the new data with itself as the prior.
+
+The interim check's linear system (``check``) is ``d = -J δ + A β + ε`` with ``δ`` the
+change of the kinematic coefficients, the stored model as the prior ``δ ~ N(0, V)``, the
+poses ``β`` free and ``ε ~ N(0, Σ_n)`` (noise and certificate). With
+``Σ = Σ_n + J V Jᵀ`` and the pose-projected precision
+``Π = Σ⁻¹ - Σ⁻¹ A M⁻¹ Aᵀ Σ⁻¹`` (``M = Aᵀ Σ⁻¹ A``), the posterior (Gaussian linear model,
+Gelman et al. 2013 §14.8; Rao 1973 §4a.3 for the pose profile) is::
+
+ s = E[δ | d] = -V Jᵀ Π d             (the change the new data show)
+    cov(δ | d) = V - V Jᵀ Π J V
+
+and if nothing changed ``s ~ N(0, V Jᵀ Π J V)``: each parameter's ``E_n = s_j / u(s_j)``
+is standard normal. A single parameter that moved alone (the others as stored) is
+tested by its score, ``z_j = -(Jᵀ Π d)_j / sqrt((Jᵀ Π J)_jj)``, standard normal if nothing
+changed: the sharper test when one effect appeared (a crash). Parameters are tested at a family-wise level by Holm's step-down
+procedure (Holm 1979) over those the new data resolve (at least
+:data:`MIN_RESOLVED` of their prior variance). In the prior's whitened coordinates
+(``V = L Lᵀ``) the eigenvalues of ``Lᵀ Jᵀ Π J L`` are the fractions of the prior
+variance the new data resolve along each combination; combinations below
+:data:`MIN_RESOLVED` are those the new data cannot determine (a change there is unseen).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy import linalg, stats
+
+from ..export import Model
+from .check import InterimCheck
+
+MIN_RESOLVED = 0.1
+"""A parameter (or combination) is tested (seen) when the new data resolve at least this
+fraction of its prior variance."""
+
+
+@dataclass(frozen=True)
+class Changes:
+    """Outcome of :func:`what_changed`.
+
+    Attributes
+    ----------
+    message : str
+        What moved, at which family-wise level, and what the new data cannot see.
+    family_alpha : float
+        Family-wise false-alarm level of the Holm procedure over the tested parameters.
+    table : DataFrame
+        One row per kinematic parameter: ``label``, ``unit``, ``stored`` (value),
+        ``change`` (posterior change s), ``u_change`` (its sd if nothing changed),
+        ``En``, ``p_value`` (two-sided), ``resolved`` (fraction of the prior variance the
+        new data resolve), ``tested``, ``significant``, ``updated`` (stored + change) and
+        ``u_updated`` (posterior sd).
+        ``change_alone``, ``u_change_alone``, ``En_alone`` and ``significant_alone``: the
+        same parameter's change if it alone had moved (the others as stored; the score
+        test of ``δ = t e_j``, Holm at ``family_alpha``), the test that names a single
+        new effect (a squareness after a crash) with its size.
+    significant : list of str
+        Parameters that moved beyond their joint uncertainty (Holm, ``family_alpha``).
+    significant_alone : list of str
+        Parameters whose change alone is significant (Holm, ``family_alpha``), strongest
+        first.
+    unseen : list of str
+        The combinations the new data cannot determine (prior-scaled weights, largest
+        first), e.g. ``"0.71 sxz - 0.70 ryy[1]"``.
+    n_tested : int
+        Parameters tested.
+    posterior_coef : ndarray (k,)
+        Stored coefficients plus the change.
+    posterior_cov : ndarray (k, k)
+        Their posterior covariance.
+    """
+
+    message: str
+    family_alpha: float
+    table: pd.DataFrame
+    significant: list
+    significant_alone: list
+    unseen: list
+    n_tested: int
+    posterior_coef: np.ndarray
+    posterior_cov: np.ndarray
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary."""
+        rows = self.table[self.table["significant"]]
+        return {"message": self.message, "family_alpha": self.family_alpha,
+                "method": "Holm", "n_tested": self.n_tested,
+                "significant": [{k: (float(v) if isinstance(v, float | np.floating) else v)
+                                 for k, v in r.items()}
+                                for r in rows.to_dict("records")],
+                "significant_alone": list(self.significant_alone),
+                "unseen": list(self.unseen)}
+
+
+def what_changed(model: Model, check: InterimCheck, *,
+                 family_alpha: float = 0.05) -> Changes:
+    """The stored model refitted on the check's data with itself as the prior.
+
+    Parameters
+    ----------
+    model : Model
+        The stored calibration the check was made against.
+    check : InterimCheck
+        :func:`interim_check` of the new data against ``model``.
+    family_alpha : float
+        Family-wise false-alarm level (Holm over the tested parameters).
+
+    Returns
+    -------
+    Changes
+    """
+    if not 0 < family_alpha < 0.5:
+        raise ValueError(f"family_alpha must be in (0, 0.5), got {family_alpha}.")
+    sys, g = check.system, check.gls
+    V = model.cov
+    SiA = linalg.cho_solve(g.factor, sys.A)
+    SiJ = linalg.cho_solve(g.factor, sys.J)
+    M = sys.A.T @ SiA
+    PiJ = SiJ - SiA @ np.linalg.solve(M, sys.A.T @ SiJ)  # Π J
+    H = sys.J.T @ PiJ  # Jᵀ Π J
+    H = (H + H.T) / 2
+    # the stored model corrects with c; the machine now has c + δ: d = -J δ + A β + ε
+    s = -V @ (PiJ.T @ sys.d_um)
+    cov_s = V @ H @ V
+    post = V - cov_s
+    u_s = np.sqrt(np.clip(np.diag(cov_s), 0, None))
+    prior_var = np.clip(np.diag(V), 1e-300, None)
+    resolved = np.clip(np.diag(cov_s) / prior_var, 0, 1)
+    tested = resolved >= MIN_RESOLVED
+    En = np.where(u_s > 0, s / np.where(u_s > 0, u_s, 1), 0.0)
+    p = 2 * stats.norm.sf(np.abs(En))
+    significant = _holm(np.where(tested, p, 1.0), int(tested.sum()), family_alpha) & tested
+    # one parameter moved alone, the others as stored: the score test of δ = t e_j
+    g_alone = -(PiJ.T @ sys.d_um)
+    h = np.clip(np.diag(H), 0, None)
+    seen = h > 0
+    z = np.where(seen, g_alone / np.sqrt(np.where(seen, h, 1)), 0.0)
+    p_alone = 2 * stats.norm.sf(np.abs(z))
+    alone = _holm(np.where(seen, p_alone, 1.0), int(seen.sum()), family_alpha) & seen
+    labels = model.terms.labels
+    table = pd.DataFrame({"label": labels, "unit": [model.terms.unit(lab) for lab in labels],
+                          "stored": model.coef, "change": s, "u_change": u_s, "En": En,
+                          "p_value": p, "resolved": resolved, "tested": tested,
+                          "significant": significant,
+                          "change_alone": np.where(seen, g_alone / np.where(seen, h, 1), np.nan),
+                          "u_change_alone": np.where(seen, 1 / np.sqrt(np.where(seen, h, 1)),
+                                                     np.nan),
+                          "En_alone": z, "significant_alone": alone,
+                          "updated": model.coef + s,
+                          "u_updated": np.sqrt(np.clip(np.diag(post), 0, None))})
+    unseen = _unseen(V, H, labels)
+    sig = [labels[j] for j in np.flatnonzero(significant)]
+    msg = (f"Refit of {model.name} on the new data with the stored model as the prior: "
+           f"{int(tested.sum())} of {len(labels)} parameters resolved well enough to test "
+           f"(at least {100 * MIN_RESOLVED:g} % of their prior variance); "
+           + (f"{len(sig)} moved beyond their joint uncertainty ("
+              + ", ".join(f"{lab} by {table.change[j]:+.3g} ± {table.u_change[j]:.2g} "
+                          f"(E_n {table.En[j]:+.1f})"
+                          for lab, j in zip(sig, np.flatnonzero(significant), strict=True))
+              + ")" if sig else "none moved beyond its joint uncertainty")
+           + f" (Holm, family-wise false-alarm level {100 * family_alpha:g} %).")
+    best = int(np.argmax(np.where(alone, np.abs(z), -1)))
+    if alone.any():
+        msg += (f" Taken alone (the others as stored), {int(alone.sum())} parameter(s) would "
+                f"explain a significant part of the change; the strongest: "
+                f"{labels[best]} {table.change_alone[best]:+.3g} ± "
+                f"{table.u_change_alone[best]:.2g} (E_n {z[best]:+.1f}).")
+    if unseen:
+        msg += (f" The new data cannot determine {len(unseen)} combination(s) of the "
+                f"parameters (a change there is not seen), e.g. {unseen[0]}.")
+    strongest = [labels[j] for j in np.argsort(-np.abs(z)) if alone[j]]
+    return Changes(msg, float(family_alpha), table, sig, strongest, unseen, int(tested.sum()),
+                   model.coef + s, post)
+
+
+def _holm(p: np.ndarray, m: int, alpha: float) -> np.ndarray:
+    """Holm's step-down rejections of the ``m`` smallest p-values (the others are 1)."""
+    order = np.argsort(p)
+    reject = np.zeros(p.size, bool)
+    for i, j in enumerate(order[:m]):
+        if p[j] > alpha / (m - i):
+            break
+        reject[j] = True
+    return reject
+
+
+def _unseen(V: np.ndarray, H: np.ndarray, labels: list, *, shown: int = 3) -> list:
+    """The combinations whose prior variance the new data resolve less than
+    :data:`MIN_RESOLVED` of, each named by its prior-scaled weights."""
+    w, Q = linalg.eigh((V + V.T) / 2)
+    pos = w > w.max() * 1e-12  # directions the prior leaves free (gauge) are no change
+    L = Q[:, pos] * np.sqrt(w[pos])
+    mu, U = linalg.eigh(L.T @ H @ L)
+    keep = np.flatnonzero(mu < MIN_RESOLVED)
+    sd = np.sqrt(np.clip(np.diag(V), 1e-300, None))
+    out = []
+    for j in keep:
+        v = (L @ U[:, j]) / sd  # the combination in units of each parameter's prior u
+        v = v / np.abs(v).max()
+        big = np.argsort(-np.abs(v))[:shown]
+        big = [b for b in big if abs(v[b]) >= 0.2]
+        out.append(" ".join(f"{'+' if v[b] >= 0 else '-'} {abs(v[b]):.2f} {labels[b]}"
+                            for b in big).lstrip("+ "))
+    return out
