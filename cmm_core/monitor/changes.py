@@ -200,8 +200,7 @@ def _unseen(V: np.ndarray, H: np.ndarray, labels: list, *, shown: int = 3) -> li
     for j in keep:
         v = (L @ U[:, j]) / sd  # the combination in units of each parameter's prior u
         v = v / np.abs(v).max()
-        big = np.argsort(-np.abs(v))[:shown]
-        big = [b for b in big if abs(v[b]) >= 0.2]
+        big = [b for b in np.argsort(-np.abs(v))[:shown] if abs(v[b]) >= 0.2]
         out.append(" ".join(f"{'+' if v[b] >= 0 else '-'} {abs(v[b]):.2f} {labels[b]}"
                             for b in big).lstrip("+ "))
     return out
