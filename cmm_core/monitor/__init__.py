@@ -3,7 +3,9 @@ its calibration history (issue 28, ``docs/monitoring.md``).
 
 Owns: :mod:`.check` (:func:`interim_check`: the χ² test of new measurements against a
 stored model, poses fitted as nuisances, E_n per observation), :mod:`.changes`
-(:func:`what_changed`: the stored model refitted on the new data as its own prior). May import: ``machine``,
+(:func:`what_changed`: the stored model refitted on the new data as its own prior),
+:mod:`.conformity` (the ISO 14253-1 statement against the MPE), :mod:`.scenario`
+(:func:`remeasured`: a simulated machine measured again). May import: ``machine``,
 ``io``, ``model``, ``diagnosis``, ``gum``, ``export``.
 """
 
@@ -20,7 +22,9 @@ from .check import (
     gls_fit,
     interim_check,
 )
+from .conformity import RULE, STATEMENTS, Conformity, conformity
 from .scenario import remeasured
 
 __all__ = ["CheckSystem", "check_system", "GlsFit", "gls_fit", "interim_check", "InterimCheck",
-           "MAX_OBSERVATIONS", "PROBE_TOLERANCE_MM", "remeasured", "Changes", "MIN_RESOLVED", "what_changed"]
+           "MAX_OBSERVATIONS", "PROBE_TOLERANCE_MM", "remeasured", "Changes", "MIN_RESOLVED", "what_changed",
+           "Conformity", "conformity", "RULE", "STATEMENTS"]

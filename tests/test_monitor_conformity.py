@@ -1,0 +1,51 @@
+"""Conformity of an interim check (issue 28): ISO 14253-1 statements, and a partial check
+that cannot see part of the machine never says "conforms"."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from test_monitor import calibrated
+
+from cmm_core.monitor import conformity, interim_check, remeasured
+
+
+def test_full_check_of_a_good_machine_conforms_to_a_loose_mpe():
+    # the simulated machine's length errors reach 6.2 µm with U up to 1.8 µm (seed 5,
+    # measured): 10 µm + L/100 leaves every length at least 2 µm inside its limit
+    cal, model = calibrated("pitch80_3pos", 0)
+    data = remeasured(cal, 5).dataset
+    c = conformity(model, interim_check(model, data), data, mpe_a_um=10.0, mpe_per_mm=1 / 100)
+    assert c.statement == "conforms", c.message
+    assert c.counts["conforms"] == sum(c.counts.values()) > 0
+
+
+def test_tight_mpe_does_not_conform_and_rule_is_stated():
+    # 0.01 µm + L/1e6: micrometre errors exceed it beyond U for the long lengths
+    cal, model = calibrated("pitch80_3pos", 0)
+    data = remeasured(cal, 5).dataset
+    c = conformity(model, interim_check(model, data), data, mpe_a_um=0.01, mpe_per_mm=1e-6)
+    assert c.statement == "does not conform"
+    assert "|E| + U <= MPE" in c.message
+
+
+def test_one_placement_cannot_say_even_when_its_lengths_conform():
+    cal, model = calibrated("pitch80_3pos", 0)
+    first = str(cal.dataset.positions[0])
+    data = remeasured(cal, 6, probes_per_position={
+        first: cal.config["probes_per_position"][first]}).dataset
+    c = conformity(model, interim_check(model, data), data, mpe_a_um=10.0, mpe_per_mm=1 / 100)
+    assert c.counts["conforms"] == sum(c.counts.values()) > 0
+    assert c.statement == "cannot say" and "cannot see" in c.message and c.unseen
+
+
+def test_non_square_plate_cannot_say():
+    cal, model = calibrated("pitch100_4pos", 0)  # 5 x 5: square; drop a row of balls
+    data = remeasured(cal, 7).dataset
+    cert = data.certificate
+    keep = cert.balls <= 20
+    data = replace(data, certificate=replace(cert, balls=cert.balls[keep],
+                                             xyz_mm=cert.xyz_mm[keep], u_um=cert.u_um[keep]),
+                   meas=data.meas[data.meas.ball <= 20])
+    c = conformity(model, interim_check(model, data), data, mpe_a_um=5.0)
+    assert c.statement == "cannot say" and "square" in c.message
