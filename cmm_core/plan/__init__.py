@@ -46,6 +46,27 @@ from .files import (
     units_of,
 )
 from .plans import STROKE_POINTS, Plan, design_fit, fit_plan_data, simulate_plan, simulation_config
+from .proposals import (
+    SHIFT_FRACTION,
+    STYLUS_OFFSET_MM,
+    TARGET_POWER,
+    NextMeasurement,
+    Outcome,
+    PlateGrid,
+    Proposal,
+    Proposals,
+    RivalFits,
+    append_measurement,
+    fit_rivals,
+    measurement_candidates,
+    measurement_observations,
+    plan_file,
+    plate_grid,
+    propose,
+    rivals_of,
+    simulate_outcomes,
+    truth_config,
+)
 from .study import (
     PHYSICAL_CHECKS,
     StudyResult,
@@ -80,5 +101,10 @@ __all__ = [
     "read_task", "run_serial", "run_task", "run_tasks", "simulate_plan", "simulation_config",
     "STRATEGY_KEYS", "STROKE_POINTS", "StudyResult", "StudyTask", "summarise", "Task",
     "TASK_KEYS", "task_uncertainty", "TaskResult", "TASKS", "tasks_for", "TOP_KEYS", "units_of",
-    "WEAK_PRIOR"
+    "WEAK_PRIOR",
+    # measure next (proposals.py)
+    "TARGET_POWER", "SHIFT_FRACTION", "STYLUS_OFFSET_MM", "NextMeasurement", "Outcome",
+    "PlateGrid", "Proposal", "Proposals", "RivalFits", "append_measurement", "fit_rivals",
+    "measurement_candidates", "measurement_observations", "plan_file", "plate_grid",
+    "propose", "rivals_of", "simulate_outcomes", "truth_config",
 ]

@@ -1,0 +1,682 @@
+"""Measure next: the extra measurement that settles what the data cannot (issue 29).
+
+When the diagnosis cannot tell two effects A and B apart (aliases, runners-up), this module
+generates candidate measurements from the data set's own setup and machine range, and
+scores each by what it decides: the discrimination between A and B the augmented data set
+(current data plus the candidate) would give, per minute of machine time.
+
+How a candidate is scored. Each rival in turn is the truth at the size it is fitted to on
+the current data (``θ_A``, the parameters A has and B has not). The noise-free augmented
+design (``J``, the weighted Jacobian at the nominal linearisation of the model holding both
+rivals; the current readings and the candidate's simulated ones) gives the mean misfit the
+other rival leaves:
+
+    λ_A = ‖(I − P_B) J_A θ_A‖²,
+
+``P_B`` the projector on B's columns (baseline, B, the new placement's pose), ``J_A`` A's
+own columns, weighted by 1/σ. That is the χ² the fit of B leaves on noise-free data from A
+(Δχ² of the noise-free augmented design), and the non-centrality of the diagnosis's nested
+F-test "A is still needed once B is in" (``verdict._encompassing``): F(k_A, ν, λ_A) with k_A
+the rank A adds to B, ν the residual dof of the model with both (Scheffé 1959, §2.8; the
+linear-model power of ``detect.py``). The power to separate is
+
+    power_A = P(F(k_A, ν, λ_A) > F⁻¹(1 − α_A; k_A, ν)),
+
+α_A the level the diagnosis tests A at (its share of the family-wise rate, weighted
+Bonferroni). A candidate decides the pair with power ``min(power_A, power_B)``. Proposals are
+ranked: those reaching ``target`` power first, by machine time; then the others by power.
+
+The candidate's observations are simulated on the virtual CMM (``simulate``) in the data's
+machine frame, with the data's plate (rows, columns and pitch read from the certificate, a
+regular grid) and the plan module's time model (``files.MEASUREMENT_DEFAULTS``: minutes per
+ball and per placement).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from .._blas import single_blas_thread
+from ..diagnosis import FAMILY_ALPHA, Diagnosis, diagnose
+from ..io import DataError, Dataset, read_setup, resolve
+from ..model import (
+    BY_TOKEN,
+    FitResult,
+    Problem,
+    fit,
+    select,
+    simulate,
+    weighted_residual,
+)
+from .detect import candidate_tokens
+from .files import MEASUREMENT_DEFAULTS
+
+TARGET_POWER = 0.9
+"""Power at which a proposal counts as deciding the pair of rivals."""
+
+SHIFT_FRACTION = 0.5
+"""Default fraction of the ball pitch by which the plate is shifted."""
+
+STYLUS_OFFSET_MM = 60.0
+"""Lateral offset (mm) of the extra styli proposed."""
+
+_COLUMNS = ["position", "probe", "ball", "time_min", "temp_C", "x_mm", "y_mm", "z_mm"]
+
+
+@dataclass(frozen=True)
+class NextMeasurement:
+    """One extra measurement: a plate placement measured with some styli.
+
+    Attributes
+    ----------
+    name : str
+        Short key (``shift_y``, ``rot90``, ``xz``, ``stylus_x``, ...).
+    description : str
+        The measurement in words ("the plate of H0 shifted 40 mm along Y").
+    positions : dict
+        New placement name -> placement in the setup format (machine frame).
+    probes : dict
+        Stylus name -> offset (mm) for styli the data set does not have yet.
+    probes_of : dict
+        New placement name -> list of stylus names measured there, in order.
+    time_min : float
+        Machine time in minutes (balls × styli × minutes per ball + minutes per
+        placement; ``files.MEASUREMENT_DEFAULTS``).
+    """
+
+    name: str
+    description: str
+    positions: dict
+    probes: dict
+    probes_of: dict
+    time_min: float
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """A candidate measurement scored by how well it separates two rival models.
+
+    Attributes
+    ----------
+    candidate : NextMeasurement
+        The measurement.
+    rivals : tuple of str
+        The two rival tokens (A, B).
+    delta_chi2 : dict
+        Rival taken as the truth -> expected Δχ² (non-centrality λ) the other rival leaves
+        on the noise-free augmented data.
+    dof : dict
+        Rival taken as the truth -> (k, ν): numerator and denominator dof of its nested
+        F-test.
+    level : dict
+        Rival -> the level the diagnosis tests it at.
+    power : dict
+        Rival taken as the truth -> probability that its nested test rejects the other.
+    power_min : float
+        The smaller of the two powers: the probability the pair is decided.
+    per_minute : float
+        The smaller expected Δχ² per minute of machine time.
+    outcome : str
+        The predicted outcome in words.
+    """
+
+    candidate: NextMeasurement
+    rivals: tuple
+    delta_chi2: dict
+    dof: dict
+    level: dict
+    power: dict
+    power_min: float
+    per_minute: float
+    outcome: str
+
+    def to_dict(self) -> dict:
+        """JSON-ready record."""
+        c = self.candidate
+        return {"name": c.name, "description": c.description, "time_min": c.time_min,
+                "positions": c.positions, "probes": c.probes, "probes_of": c.probes_of,
+                "rivals": list(self.rivals), "delta_chi2": self.delta_chi2,
+                "dof": {k: list(v) for k, v in self.dof.items()}, "level": self.level,
+                "power": self.power, "power_min": self.power_min,
+                "delta_chi2_per_min": self.per_minute, "outcome": self.outcome}
+
+
+@dataclass(frozen=True)
+class Proposals:
+    """Ranked proposals for the next measurement.
+
+    Attributes
+    ----------
+    rivals : tuple of str
+        The two rival tokens scored.
+    baseline : str
+        Spec of the baseline the rivals are added to.
+    current : dict
+        Rival taken as the truth -> power of its nested test with the current data alone
+        (the same formula without a candidate): what the data already decide.
+    ranked : list of Proposal
+        Best first: those reaching ``target`` power by machine time, then the rest by
+        power.
+    skipped : dict
+        Candidate name -> why it was not scored (outside the machine, ...).
+    target : float
+        Power at which a pair counts as decided.
+    message : str
+        The conclusion in words.
+    """
+
+    rivals: tuple
+    baseline: str
+    current: dict
+    ranked: list
+    skipped: dict
+    target: float
+    message: str = ""
+
+    def to_dict(self) -> dict:
+        """JSON-ready record (``next`` command's output)."""
+        return {"rivals": list(self.rivals), "baseline": self.baseline,
+                "current_power": self.current, "target_power": self.target,
+                "proposals": [p.to_dict() for p in self.ranked], "skipped": self.skipped,
+                "message": self.message}
+
+
+@dataclass(frozen=True)
+class PlateGrid:
+    """The plate as a regular grid, read from the certificate.
+
+    Attributes
+    ----------
+    rows, cols : int
+        Balls per column and per row (ball ``b`` at column ``(b-1) % cols``).
+    pitch_mm : float
+        Ball spacing in mm.
+    offset_mm : ndarray (B, 3)
+        Certificate minus nominal grid (mm), both relative to ball 1.
+    """
+
+    rows: int
+    cols: int
+    pitch_mm: float
+    offset_mm: np.ndarray = field(repr=False)
+
+
+def plate_grid(data: Dataset) -> PlateGrid:
+    """Rows, columns and pitch of the data's plate from its certificate.
+
+    Raises
+    ------
+    DataError
+        When there is no certificate or the balls are not a row-major regular grid.
+    """
+    cert = data.certificate
+    if cert is None:
+        raise DataError("the data set has no certificate; expected one giving the plate's "
+                        "ball centres.", file=data.name, column="certificate",
+                        hint="load the plate's certificate: proposals simulate the same plate")
+    xyz = np.asarray(cert.xyz_mm, float)
+    xyz = xyz - xyz[0]
+    d = np.linalg.norm(xyz[1:] - xyz[0], axis=1)
+    pitch = float(d.min()) if d.size else 0.0
+    cols = int(np.sum(np.abs(xyz[:, 1]) < 0.25 * pitch)) if pitch > 0 else 0
+    rows = len(xyz) // max(cols, 1)
+    ok = pitch > 0 and rows * cols == len(xyz) and cols > 1
+    if ok:
+        # the nominal pitch (0.1 mm): the certificate's departure from it is carried in
+        # ``offset_mm`` and moves the simulated readings onto the certified balls
+        pitch = round(float(np.median(np.linalg.norm(np.diff(xyz[:cols], axis=0), axis=1))),
+                      1)
+        b = np.arange(len(xyz))
+        nominal = np.column_stack([b % cols * pitch, b // cols * pitch, np.zeros(len(xyz))])
+        off = xyz - nominal
+        ok = bool(np.abs(off).max() < 0.25 * pitch)
+    if not ok:
+        raise DataError(f"the certificate's {len(xyz)} balls are not a row-major regular "
+                        f"grid; expected ball b at column (b-1) % cols, found pitch "
+                        f"{pitch:.3g} mm and {cols} balls in the first row.",
+                        file=data.name, column="certificate",
+                        hint="proposals need a ball plate with a regular grid")
+    return PlateGrid(rows, cols, pitch, off)
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v)
+
+
+def _placement_time(n_balls: int, n_probes: int, minutes_per_ball: float,
+                    minutes_per_placement: float) -> float:
+    return float(n_balls * n_probes * minutes_per_ball + minutes_per_placement)
+
+
+def measurement_candidates(data: Dataset, *, reference: str | None = None,
+               shift_fraction: float = SHIFT_FRACTION,
+               stylus_offset_mm: float = STYLUS_OFFSET_MM,
+               minutes_per_ball: float | None = None,
+               minutes_per_placement: float | None = None) -> list[NextMeasurement]:
+    """The default candidate measurements for a data set.
+
+    From a reference placement (default: the first horizontal one): the plate shifted
+    along X, Y by ``shift_fraction`` of its pitch and raised (or lowered) by a third of the
+    Z stroke; rotated 90° and 180° in its plane about its centre; stood in XZ and in YZ;
+    measured again with a stylus offset ``stylus_offset_mm`` along X, along Y, and a
+    stylus 100 mm longer; and, with two styli or more, measured again with its styli in
+    reverse order. Each new placement is measured with the reference's styli (the new
+    stylus alone for a stylus candidate). Candidates outside the machine are dropped by
+    :func:`propose` (with the reason).
+    """
+    grid = plate_grid(data)
+    per_ball = float(MEASUREMENT_DEFAULTS["minutes_per_ball"] if minutes_per_ball is None  # type: ignore[arg-type]
+                     else minutes_per_ball)
+    per_place = float(MEASUREMENT_DEFAULTS["minutes_per_placement"]  # type: ignore[arg-type]
+                      if minutes_per_placement is None else minutes_per_placement)
+    raw = data.setup.raw
+    pos = raw["positions"]
+    probes_in = {p: list(dict.fromkeys(data.meas.loc[data.meas["position"] == p, "probe"]))
+                 for p in pos}
+    if reference is None:
+        reference = next((p for p in pos if data.setup.positions[p].horizontal), next(iter(pos)))
+    if reference not in pos:
+        raise DataError(f"unknown placement {reference!r}; expected one of {sorted(pos)}.",
+                        file=data.name, column="reference", hint="name a placement of the setup")
+    ref = pos[reference]
+    o = np.asarray(ref["origin_mm"], float)
+    u, v = _unit(ref["u_axis"]), _unit(ref["v_axis"])
+    styli = probes_in[reference] or [ref.get("probe")]
+    half = np.array([(grid.cols - 1), (grid.rows - 1)]) * grid.pitch_mm / 2.0
+    centre = o + half[0] * u + half[1] * v
+    rng_mm = np.asarray(data.setup.range_mm, float)
+    shift = shift_fraction * grid.pitch_mm
+    dz = rng_mm[2] / 3.0 * (1.0 if o[2] + rng_mm[2] / 3.0 < 0.8 * rng_mm[2] else -1.0)
+    n_balls = grid.rows * grid.cols
+    out = []
+
+    def add(name, text, origin, uu, vv, probes_of_new, new_probes=None):
+        key = f"next_{name}"
+        place = {"origin_mm": [float(x) for x in origin], "u_axis": [float(x) for x in uu],
+                 "v_axis": [float(x) for x in vv], "probe": probes_of_new[0]}
+        out.append(NextMeasurement(name, text, {key: place}, dict(new_probes or {}),
+                             {key: list(probes_of_new)},
+                             _placement_time(n_balls, len(probes_of_new), per_ball,
+                                             per_place)))
+
+    for a, ax in enumerate("XY"):
+        e = np.eye(3)[a]
+        add(f"shift_{ax.lower()}", f"the plate of {reference} shifted {shift:g} mm along "
+            f"{ax}", o + shift * e, u, v, styli)
+    add("height", f"the plate of {reference} {'raised' if dz > 0 else 'lowered'} "
+        f"{abs(dz):g} mm", o + dz * np.eye(3)[2], u, v, styli)
+    for deg, (uu, vv) in {90: (v, -u), 180: (-u, -v)}.items():
+        add(f"rot{deg}", f"the plate of {reference} rotated {deg}° in its plane",
+            centre - half[0] * uu - half[1] * vv, uu, vv, styli)
+    for plane, uu in {"XZ": np.eye(3)[0], "YZ": np.eye(3)[1]}.items():
+        add(plane.lower(), f"the plate stood in {plane} near {reference}",
+            o + np.array([0.0, 0.0, 20.0]), uu, np.eye(3)[2], styli)
+    tip = np.asarray(raw["probes"][styli[0]], float)
+    for name, off, text in (("stylus_x", [stylus_offset_mm, 0, 0],
+                             f"{stylus_offset_mm:g} mm along X"),
+                            ("stylus_y", [0, stylus_offset_mm, 0],
+                             f"{stylus_offset_mm:g} mm along Y"),
+                            ("stylus_long", [0, 0, -100.0], "100 mm longer")):
+        q = f"next_{name}"
+        add(name, f"{reference} again with a new stylus {q} offset {text}", o, u, v, [q],
+            {q: (tip + np.asarray(off, float)).tolist()})
+    if len(styli) > 1:
+        add("reverse", f"{reference} again with its styli in reverse order "
+            f"({', '.join(styli[::-1])})", o, u, v, styli[::-1])
+    return out
+
+
+def append_measurement(data: Dataset, cand: NextMeasurement, *, config: dict | None = None,
+              seed: int = 0) -> Dataset:
+    """The data set with the candidate's measurement appended, simulated on the virtual
+    CMM with ``config``'s errors (default: none, no noise) in the data's machine frame.
+
+    The simulated readings are moved by the certificate's departure from the nominal
+    grid (rotated into the placement), so that the appended balls are the certificate's.
+
+    Raises
+    ------
+    DataError
+        When the candidate's plate or styli leave the machine's range.
+    """
+    grid = plate_grid(data)
+    raw = copy.deepcopy(data.setup.raw)
+    raw["frame"] = "machine"
+    probes = {**raw["probes"], **cand.probes}
+    setup = {k: raw[k] for k in ("units", "machine") if k in raw}
+    setup.update({"frame": "machine", "positions": cand.positions, "probes": probes})
+    if "artefact" in raw:
+        setup["artefact"] = raw["artefact"]
+    cfg = {**(config or {}), "seed": seed, "setup": setup,
+           "probes_per_position": cand.probes_of,
+           "plate": {"rows": grid.rows, "cols": grid.cols, "pitch_mm": grid.pitch_mm,
+                     "form_um": 0.0, "certificate_u_um": 0.0}}
+    sim = simulate(cfg, name=f"proposal {cand.name!r}")
+    new = sim.dataset.meas
+    xyz = new[["x_mm", "y_mm", "z_mm"]].to_numpy().copy()
+    for p in cand.positions:
+        sel = (new["position"] == p).to_numpy()
+        R = sim.dataset.setup.positions[p].rotation
+        xyz[sel] += grid.offset_mm[new.loc[sel, "ball"].to_numpy() - 1] @ np.asarray(R).T
+    new = new.assign(x_mm=xyz[:, 0], y_mm=xyz[:, 1], z_mm=xyz[:, 2])
+    old = data.meas
+    new = new.assign(time_min=new["time_min"] + float(old["time_min"].max()) + 10.0,
+                     source=f"proposal {cand.name}")
+    cols = [c for c in _COLUMNS if c in old and c in new]
+    both = pd.concat([old[cols + [c for c in ("source", "row") if c in old]],
+                      new[cols + ["source", "row"]]], ignore_index=True)
+    raw["positions"] = {**raw["positions"], **cand.positions}
+    raw["probes"] = probes
+    merged = read_setup(raw, name=f"{data.name} + {cand.name}")
+    return Dataset(resolve(both, merged, data.certificate), merged, data.certificate,
+                   f"{data.name} + {cand.name}")
+
+
+def rivals_of(diagnosis: Diagnosis) -> tuple[str, str]:
+    """The pair the diagnosis leaves open: its first candidate and its first alias, or
+    else the next significant candidate of another function (a runner-up)."""
+    cands = diagnosis.candidates
+    if not cands:
+        raise ValueError("the diagnosis ranked no candidate: there is nothing to decide.")
+    top = cands[0]
+    if top.aliases:
+        return top.effect, top.aliases[0]
+    name = top.effect.partition(":")[0]
+    other = next((c for c in cands[1:] if c.significant
+                  and c.effect.partition(":")[0] != name), None)
+    if other is None:
+        raise ValueError(f"the diagnosis names {top.effect} with no alias and no significant "
+                         "runner-up: there is nothing to decide; give the rivals.")
+    return top.effect, other.effect
+
+
+def _basis(A: np.ndarray, rtol: float, sv_ref: float | None = None) -> tuple:
+    """Orthonormal basis of the column space of ``A`` (columns scaled to unit norm, the
+    fit's rank rule: singular values above ``rtol`` times the largest, or ``sv_ref``)."""
+    norms = np.linalg.norm(A, axis=0)
+    S = A / np.where(norms > 0, norms, 1.0)
+    if not S.size:
+        return np.zeros((A.shape[0], 0)), 0.0
+    U, sv, _ = np.linalg.svd(S, full_matrices=False)
+    ref = sv.max() if sv_ref is None else sv_ref
+    return U[:, sv > rtol * ref], float(sv.max())
+
+
+@dataclass(frozen=True)
+class _Design:
+    """Weighted Jacobian at the nominal linearisation of the model holding both rivals,
+    its column labels, and which labels each rival's own model has."""
+
+    J: np.ndarray
+    labels: list
+    has: dict
+
+
+def _design(obs, rf: RivalFits) -> _Design:
+    a, b = rf.rivals
+    f = rf.fits[a]
+    prob = Problem(obs, rf.specs[a].with_token(b), f.plate)
+    J = weighted_residual(prob, prob.initial_state(), f.sigma_um, True)[2].toarray()
+    return _Design(J, list(prob.layout.labels),
+                   {r: set(Problem(obs, rf.specs[r], f.plate).layout.labels) for r in (a, b)})
+
+
+def _stack(d1: _Design, d2: _Design) -> _Design:
+    """The design of both observation sets: rows stacked, columns matched by label (a
+    parameter one set does not have has zero columns there)."""
+    labels = list(dict.fromkeys(d1.labels + d2.labels))
+    col = {lab: i for i, lab in enumerate(labels)}
+    J = np.zeros((d1.J.shape[0] + d2.J.shape[0], len(labels)))
+    J[:d1.J.shape[0], [col[lab] for lab in d1.labels]] = d1.J
+    J[d1.J.shape[0]:, [col[lab] for lab in d2.labels]] = d2.J
+    return _Design(J, labels, {r: d1.has[r] | d2.has[r] for r in d1.has})
+
+
+def _separation(des: _Design, truth: str, other: str, theta: dict, *, rank_rtol: float,
+                level: float) -> tuple:
+    """(λ, k, ν, power) of the nested test "``truth`` is needed once ``other`` is in" on
+    the noise-free design with ``truth`` true at ``theta`` (module docstring)."""
+    lab_b = des.has[other]
+    own = [i for i, lab in enumerate(des.labels) if lab in des.has[truth] and lab not in lab_b]
+    JB = des.J[:, [i for i, lab in enumerate(des.labels) if lab in lab_b]]
+    JA = des.J[:, own]
+    U, sv_max = _basis(JB, rank_rtol)
+    mu = JA @ np.array([theta.get(des.labels[i], 0.0) for i in own])
+    lam = float(np.sum((mu - U @ (U.T @ mu)) ** 2))
+    k = _basis(JA - U @ (U.T @ JA), rank_rtol, sv_max)[0].shape[1] if own else 0
+    nu = max(des.J.shape[0] - U.shape[1] - k, 1)
+    if k == 0:
+        return 0.0, 0, nu, 0.0
+    power = float(stats.ncf.sf(stats.f.isf(level, k, nu), k, nu, lam))
+    return lam, k, nu, power
+
+
+def _outcome(cand: NextMeasurement, rivals, lam: dict, power_min: float) -> str:
+    a, b = rivals
+    return (f"with {cand.description}, {a} and {b} differ by Δχ² ≈ {min(lam.values()):.0f}"
+            f" ({a} true: {lam[a]:.0f}, {b} true: {lam[b]:.0f}): decided with "
+            f"{100 * power_min:.0f} % power in {cand.time_min:.0f} min")
+
+
+@dataclass(frozen=True)
+class RivalFits:
+    """The two rivals fitted to the current data.
+
+    Attributes
+    ----------
+    rivals : tuple of str
+        The rival tokens (A, B).
+    specs : dict
+        Rival -> the baseline with it added (``ModelSpec``).
+    fits : dict
+        Rival -> its ``FitResult`` on the current data.
+    levels : dict
+        Rival -> the level the diagnosis tests it at.
+    """
+
+    rivals: tuple
+    specs: dict
+    fits: dict
+    levels: dict
+
+
+def fit_rivals(data: Dataset, rivals, *, baseline: str = "kinematic21", order: int = 2,
+               plate: str | None = None, sigma_um: float = 0.5,
+               alpha: float = FAMILY_ALPHA) -> RivalFits:
+    """Fit the baseline with each rival added to the current data (their fitted sizes),
+    and the level the diagnosis tests each at (``detect.candidate_tokens``)."""
+    base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um, max_iter=2000)
+    spec0 = base.problem.spec
+    specs = {r: spec0.with_token(r) for r in rivals}
+    fits = {r: fit(data, specs[r], plate=base.plate, sigma_um=sigma_um, max_iter=2000,
+                   certificate_test=False) for r in rivals}
+    levels = candidate_tokens(base, alpha)[2]
+    fallback = alpha / max(len(levels), 1)
+    return RivalFits(tuple(rivals), specs, fits,
+                     {r: float(levels.get(r, levels.get(r.partition(":")[0], fallback)))
+                      for r in rivals})
+
+
+def _score_on(des: _Design, rf: RivalFits) -> dict:
+    a, b = rf.rivals
+    out = {}
+    for t, o in ((a, b), (b, a)):
+        f = rf.fits[t]
+        out[t] = _separation(des, t, o, dict(zip(f.labels, f.values, strict=True)),
+                             rank_rtol=f.rank_rtol, level=rf.levels[t])
+    return out
+
+
+def measurement_observations(data: Dataset, cand: NextMeasurement):
+    """The candidate's own noise-free, error-free observations (virtual CMM, nominal
+    certificate): their Jacobian rows stack onto the current data's."""
+    grid = plate_grid(data)
+    setup = {k: copy.deepcopy(data.setup.raw[k]) for k in ("units", "machine", "artefact")
+             if k in data.setup.raw}
+    setup.update({"frame": "machine", "positions": cand.positions,
+                  "probes": {**data.setup.raw["probes"], **cand.probes}})
+    cfg = {"seed": 0, "setup": setup, "probes_per_position": cand.probes_of,
+           "plate": {"rows": grid.rows, "cols": grid.cols, "pitch_mm": grid.pitch_mm,
+                     "form_um": 0.0, "certificate_u_um": 0.0}}
+    return select(simulate(cfg, name=f"proposal {cand.name!r}").dataset)
+
+
+@single_blas_thread
+def propose(data: Dataset, rivals=None, *, baseline: str = "kinematic21", order: int = 2,
+            plate: str | None = None, sigma_um: float = 0.5, alpha: float = FAMILY_ALPHA,
+            cands: list | None = None, target: float = TARGET_POWER,
+            diagnosis: Diagnosis | None = None) -> Proposals:
+    """Rank candidate measurements by how well they decide between two rivals.
+
+    Parameters
+    ----------
+    data : Dataset
+        The current measurements (with a certificate of a regular-grid plate).
+    rivals : sequence of two str, optional
+        The rival tokens; default the diagnosis's first candidate and its alias or
+        runner-up (:func:`rivals_of`), running ``diagnose`` when ``diagnosis`` is None.
+    baseline, order, plate, sigma_um, alpha
+        The diagnosis's settings.
+    cands : list of NextMeasurement, optional
+        Default :func:`measurement_candidates` of the data.
+    target : float
+        Power at which a proposal decides the pair.
+
+    Returns
+    -------
+    Proposals
+    """
+    if rivals is None:
+        diagnosis = diagnosis or diagnose(data, baseline, order=order, plate=plate,
+                                          sigma_um=sigma_um, alpha=alpha)
+        rivals = rivals_of(diagnosis)
+    rivals = tuple(rivals)
+    if len(rivals) != 2 or rivals[0] == rivals[1]:
+        raise ValueError(f"expected two different rival tokens, got {list(rivals)}.")
+    rf = fit_rivals(data, rivals, baseline=baseline, order=order, plate=plate,
+                    sigma_um=sigma_um, alpha=alpha)
+    now = _design(select(data), rf)
+    current = {t: v[3] for t, v in _score_on(now, rf).items()}
+    scored, skipped = [], {}
+    for cand in cands if cands is not None else measurement_candidates(data):
+        try:
+            extra = measurement_observations(data, cand)
+        except DataError as exc:
+            skipped[cand.name] = str(exc)
+            continue
+        res = _score_on(_stack(now, _design(extra, rf)), rf)
+        lam = {t: v[0] for t, v in res.items()}
+        power = {t: v[3] for t, v in res.items()}
+        pmin = min(power.values())
+        scored.append(Proposal(cand, rivals, lam, {t: (v[1], v[2]) for t, v in res.items()},
+                               dict(rf.levels), power, pmin,
+                               min(lam.values()) / cand.time_min,
+                               _outcome(cand, rivals, lam, pmin)))
+    scored.sort(key=lambda p: (p.power_min < target, p.candidate.time_min
+                               if p.power_min >= target else -p.power_min))
+    a, b = rivals
+    if scored:
+        msg = (f"{a} against {b}: the current data decide with {100 * min(current.values()):.0f}"
+               f" % power. Best next measurement: {scored[0].outcome}.")
+    else:
+        msg = f"{a} against {b}: no candidate measurement fits in the machine."
+    return Proposals(rivals, rf.fits[a].problem.spec.to_string(), current, scored, skipped,
+                     target, msg)
+
+
+def truth_config(fitted: FitResult, exclude_positions=()) -> dict:
+    """Simulator keys (``kinematic``, ``effects``) that make a rival's fit the truth: all
+    its kinematic coefficients and its effects' fitted parameters (``Block.injection``);
+    parameters of the data's own placements (drift, ...) are left out, since a new
+    placement has its own."""
+    vals = dict(zip(fitted.labels, fitted.values, strict=True))
+    groups = dict(zip(fitted.labels, fitted.groups, strict=True))
+    kin = {lab: float(v) for lab, v in vals.items() if groups[lab] == "kinematic"}
+    spec = ",".join(t for t in fitted.problem.spec.to_string().split(",")
+                    if t.partition(":")[0] not in BY_TOKEN)
+    effects = {}
+    for tok, block in BY_TOKEN.items():
+        own = {lab: float(v) for lab, v in vals.items() if groups[lab] == tok
+               and not any(lab.startswith(f"{p}.") for p in exclude_positions)}
+        body = block.injection(own) if own else None
+        if body:
+            effects[tok] = body
+    return {"kinematic": {"spec": spec, "order": int(fitted.problem.spec.orders[0][1])
+                          if fitted.problem.spec.orders else 2, "coefficients": kin},
+            "effects": effects}
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """The diagnosis of the data with a proposal appended, simulated with one rival as
+    the truth.
+
+    Attributes
+    ----------
+    truth : str
+        The rival taken as the truth (at its size fitted on the current data).
+    verdict : str or None
+        The diagnosis's verdict on the augmented data.
+    aliases : list of str
+        The aliases it still reports for its first candidate.
+    separated : bool
+        The verdict is the truth and the other rival is no longer its alias.
+    message : str
+        The diagnosis's message.
+    """
+
+    truth: str
+    verdict: str | None
+    aliases: list
+    separated: bool
+    message: str
+
+
+@single_blas_thread
+def simulate_outcomes(data: Dataset, proposal: Proposal, *, baseline: str = "kinematic21",
+                      order: int = 2, plate: str | None = None, sigma_um: float = 0.5,
+                      seed: int = 0) -> dict:
+    """One click, simulated: for each rival as the truth (its fit on the current data),
+    simulate the proposal with noise σ, append it to the data and run the diagnosis.
+    Returns ``{rival: Outcome}``."""
+    a, b = proposal.rivals
+    rf = fit_rivals(data, proposal.rivals, baseline=baseline, order=order, plate=plate,
+                    sigma_um=sigma_um)
+    out = {}
+    for t, o in ((a, b), (b, a)):
+        cfg = {**truth_config(rf.fits[t], data.setup.raw["positions"]), "noise_um": sigma_um}
+        aug = append_measurement(data, proposal.candidate, config=cfg, seed=seed)
+        d = diagnose(aug, baseline, order=order, plate=plate, sigma_um=sigma_um)
+        al = list(d.candidates[0].aliases) if d.candidates else []
+        out[t] = Outcome(t, d.verdict, al, bool(d.verdict == t and o not in al), d.message)
+    return out
+
+
+def plan_file(data: Dataset, proposal: Proposal, *, baseline: str = "kinematic21",
+              order: int = 2, noise_um: float = 0.5) -> dict:
+    """The proposal as a ``plan`` JSON document (docs/planning.md, "The plan file"): the
+    data set's setup with the proposal's placement and styli added, its plate, and two
+    strategies: the current placements alone and with the proposal."""
+    grid = plate_grid(data)
+    raw = copy.deepcopy(data.setup.raw)
+    c = proposal.candidate
+    for pl in raw["positions"].values():
+        for key in ("temp_C", "rh_percent"):
+            pl.pop(key, None)
+    raw["frame"] = "machine"
+    raw["positions"] = {**raw["positions"], **copy.deepcopy(c.positions)}
+    raw["probes"] = {**raw["probes"], **c.probes}
+    now = {p: list(dict.fromkeys(data.meas.loc[data.meas["position"] == p, "probe"]))
+           for p in data.setup.raw["positions"]}
+    return {"name": f"measure next: {c.name}", "setup": raw,
+            "plate": {"rows": grid.rows, "cols": grid.cols, "pitch_mm": grid.pitch_mm},
+            "model": {"spec": baseline, "order": order}, "noise_um": noise_um,
+            "strategies": [{"name": "current data", "placements": now},
+                           {"name": f"with {c.description}",
+                            "placements": {**now, **c.probes_of}}]}
