@@ -4,14 +4,15 @@ its calibration history (issue 28, ``docs/monitoring.md``).
 Owns: :mod:`.check` (:func:`interim_check`: the χ² test of new measurements against a
 stored model, poses fitted as nuisances, E_n per observation), :mod:`.changes`
 (:func:`what_changed`: the stored model refitted on the new data as its own prior),
-:mod:`.conformity` (the ISO 14253-1 statement against the MPE), :mod:`.scenario`
+:mod:`.conformity` (the ISO 14253-1 statement against the MPE), :mod:`.history`
+(:func:`compare_calibrations`: a machine's calibrations compared), :mod:`.scenario`
 (:func:`remeasured`: a simulated machine measured again). May import: ``machine``,
 ``io``, ``model``, ``diagnosis``, ``gum``, ``export``.
 """
 
 from __future__ import annotations
 
-from .changes import MIN_RESOLVED, Changes, what_changed
+from .changes import MIN_RESOLVED, Changes, holm, what_changed
 from .check import (
     MAX_OBSERVATIONS,
     PROBE_TOLERANCE_MM,
@@ -23,8 +24,10 @@ from .check import (
     interim_check,
 )
 from .conformity import RULE, STATEMENTS, Conformity, conformity
+from .history import MAX_MAP_NODES_PER_AXIS, History, compare_calibrations
 from .scenario import remeasured
 
 __all__ = ["CheckSystem", "check_system", "GlsFit", "gls_fit", "interim_check", "InterimCheck",
            "MAX_OBSERVATIONS", "PROBE_TOLERANCE_MM", "remeasured", "Changes", "MIN_RESOLVED", "what_changed",
-           "Conformity", "conformity", "RULE", "STATEMENTS"]
+           "Conformity", "conformity", "RULE", "STATEMENTS", "holm", "History",
+           "compare_calibrations", "MAX_MAP_NODES_PER_AXIS"]

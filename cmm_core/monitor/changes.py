@@ -132,14 +132,14 @@ def what_changed(model: Model, check: InterimCheck, *,
     tested = resolved >= MIN_RESOLVED
     En = np.where(u_s > 0, s / np.where(u_s > 0, u_s, 1), 0.0)
     p = 2 * stats.norm.sf(np.abs(En))
-    significant = _holm(np.where(tested, p, 1.0), int(tested.sum()), family_alpha) & tested
+    significant = holm(np.where(tested, p, 1.0), int(tested.sum()), family_alpha) & tested
     # one parameter moved alone, the others as stored: the score test of δ = t e_j
     g_alone = -(PiJ.T @ sys.d_um)
     h = np.clip(np.diag(H), 0, None)
     seen = h > 0
     z = np.where(seen, g_alone / np.sqrt(np.where(seen, h, 1)), 0.0)
     p_alone = 2 * stats.norm.sf(np.abs(z))
-    alone = _holm(np.where(seen, p_alone, 1.0), int(seen.sum()), family_alpha) & seen
+    alone = holm(np.where(seen, p_alone, 1.0), int(seen.sum()), family_alpha) & seen
     labels = model.terms.labels
     table = pd.DataFrame({"label": labels, "unit": [model.terms.unit(lab) for lab in labels],
                           "stored": model.coef, "change": s, "u_change": u_s, "En": En,
@@ -176,8 +176,10 @@ def what_changed(model: Model, check: InterimCheck, *,
                    model.coef + s, post)
 
 
-def _holm(p: np.ndarray, m: int, alpha: float) -> np.ndarray:
-    """Holm's step-down rejections of the ``m`` smallest p-values (the others are 1)."""
+def holm(p: np.ndarray, m: int, alpha: float) -> np.ndarray:
+    """Holm's step-down rejections at family-wise level ``alpha`` (Holm 1979): the p-values
+    in ascending order are rejected while ``p_(i) <= alpha / (m - i)``; ``m`` is the number
+    tested (the others carry p = 1)."""
     order = np.argsort(p)
     reject = np.zeros(p.size, bool)
     for i, j in enumerate(order[:m]):

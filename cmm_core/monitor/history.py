@@ -1,0 +1,220 @@
+"""A machine's calibration history: what changed between its calibrations (issue 28).
+
+Two or more stored models of one machine (``export.Model``), each with its date. The
+calibrations are independent measurements, so the change of a parameter shared by two
+consecutive calibrations has the variance ``u₁² + u₂²`` (JCGM 100 eq. 10) and
+``E_n = (c₂ - c₁) / sqrt(u₁² + u₂²)`` is standard normal when nothing changed (ISO/IEC
+17043 Annex B with k = 1). The changes are tested at a family-wise level by Holm's
+step-down procedure (Holm 1979) over every tested pair and parameter. The error map's
+change from the first to the last calibration is computed on a grid over the working
+volume (ram reference point, probe offset 0), its uncertainty ``sqrt(diag(J₁V₁J₁ᵀ) +
+diag(J₂V₂J₂ᵀ))`` (JCGM 100 eq. 13 for each model).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from ..export import Model
+from ..io import DataError
+from ..machine import kinematics as kin
+from .changes import holm
+
+MAX_MAP_NODES_PER_AXIS = 21
+"""Largest grid of the error-map change (21³ = 9261 nodes)."""
+
+
+@dataclass(frozen=True)
+class History:
+    """Outcome of :func:`compare_calibrations`.
+
+    Attributes
+    ----------
+    message : str
+        What changed significantly, at which family-wise level, and what could not be
+        compared.
+    names : list of str
+        The models (file names), in date order.
+    dates : list of str
+        Their dates (ISO 8601), ascending.
+    changes : DataFrame
+        One row per consecutive pair and shared parameter: ``label``, ``unit``,
+        ``date_from``, ``date_to``, ``value_from``, ``value_to``, ``change``,
+        ``u_change``, ``En``, ``p_value`` (two-sided), ``significant`` (Holm).
+    trend : DataFrame
+        One row per model and parameter: ``label``, ``unit``, ``date``, ``value``, ``u``
+        (for a trend plot per parameter).
+    significant : list of str
+        ``"label (date_from → date_to)"`` of the significant changes.
+    only_in : dict
+        Model name -> parameters no other model has (not compared).
+    family_alpha : float
+        Family-wise false-alarm level of the Holm procedure.
+    map_change : DataFrame
+        The error map's change from the first to the last calibration on a grid:
+        ``x_mm, y_mm, z_mm``, ``dex_um, dey_um, dez_um`` (last minus first) and their
+        standard uncertainties ``u_dex_um ...``.
+    """
+
+    message: str
+    names: list
+    dates: list
+    changes: pd.DataFrame
+    trend: pd.DataFrame
+    significant: list
+    only_in: dict
+    family_alpha: float
+    map_change: pd.DataFrame
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary."""
+        sig = self.changes[self.changes["significant"]]
+        d = self.map_change
+        worst = {a: float(np.abs(d[f"de{a}_um"]).max()) for a in "xyz"}
+        return {"message": self.message, "models": list(self.names),
+                "dates": list(self.dates), "family_alpha": self.family_alpha,
+                "method": "Holm", "n_tested": len(self.changes),
+                "significant": [{k: (float(v) if isinstance(v, float | np.floating) else v)
+                                 for k, v in r.items()} for r in sig.to_dict("records")],
+                "only_in": {k: list(v) for k, v in self.only_in.items()},
+                "map_change_max_um": worst}
+
+
+def compare_calibrations(models_with_dates, *, family_alpha: float = 0.05,
+                         nodes_per_axis: int = 5) -> History:
+    """Every shared parameter's change between consecutive calibrations of one machine.
+
+    Parameters
+    ----------
+    models_with_dates : sequence of (Model, str)
+        Stored models and their calibration dates (ISO 8601, e.g. ``"2024-03-01"``), in
+        any order; sorted by date.
+    family_alpha : float
+        Family-wise false-alarm level (Holm over all pairs and shared parameters).
+    nodes_per_axis : int
+        Grid of the error map's change (2 to :data:`MAX_MAP_NODES_PER_AXIS` per axis).
+
+    Returns
+    -------
+    History
+
+    Raises
+    ------
+    DataError
+        One line: fewer than two models, a date that is not ISO 8601, two models of
+        different machines (layout or strokes), an undetermined model, or models that
+        share no parameter.
+    """
+    if not 0 < family_alpha < 0.5:
+        raise ValueError(f"family_alpha must be in (0, 0.5), got {family_alpha}.")
+    if not 2 <= int(nodes_per_axis) <= MAX_MAP_NODES_PER_AXIS:
+        raise ValueError(f"nodes_per_axis must be 2 to {MAX_MAP_NODES_PER_AXIS}, got "
+                         f"{nodes_per_axis}.")
+    items = _checked(models_with_dates)
+    models = [m for m, _ in items]
+    dates = [d.isoformat() for _, d in items]
+    label_sets = [set(m.terms.labels) for m in models]
+    only_in = {m.name: [lab for lab in m.terms.labels
+                        if sum(lab in s for s in label_sets) == 1]
+               for m in models}
+    only_in = {k: v for k, v in only_in.items() if v}
+    rows = []
+    for (m1, d1), (m2, d2) in zip(items, items[1:], strict=False):
+        common = [lab for lab in m1.terms.labels if lab in set(m2.terms.labels)]
+        if not common:
+            raise DataError(f"the models {m1.name} and {m2.name} share no parameter; "
+                            "nothing can be compared.", file=m2.name, column="labels",
+                            hint="compare calibrations fitted with the same model spec.")
+        i1 = [m1.terms.labels.index(lab) for lab in common]
+        i2 = [m2.terms.labels.index(lab) for lab in common]
+        v1, v2 = m1.coef[i1], m2.coef[i2]
+        u = np.sqrt(np.diag(m1.cov)[i1] + np.diag(m2.cov)[i2])
+        for k, lab in enumerate(common):
+            rows.append({"label": lab, "unit": m1.terms.unit(lab),
+                         "date_from": d1.isoformat(), "date_to": d2.isoformat(),
+                         "value_from": float(v1[k]), "value_to": float(v2[k]),
+                         "change": float(v2[k] - v1[k]), "u_change": float(u[k])})
+    changes = pd.DataFrame(rows)
+    changes["En"] = changes["change"] / changes["u_change"]
+    changes["p_value"] = 2 * stats.norm.sf(np.abs(changes["En"].to_numpy()))
+    changes["significant"] = holm(changes["p_value"].to_numpy(), len(changes), family_alpha)
+    trend = pd.DataFrame([{"label": lab, "unit": m.terms.unit(lab), "date": d,
+                           "value": float(m.coef[j]), "u": float(np.sqrt(m.cov[j, j]))}
+                          for m, d in zip(models, dates, strict=True)
+                          for j, lab in enumerate(m.terms.labels)])
+    sig_rows = changes[changes["significant"]]
+    significant = [f"{r.label} ({r.date_from} → {r.date_to})" for r in sig_rows.itertuples()]
+    grid = _map_change(models[0], models[-1], int(nodes_per_axis))
+    msg = (f"{len(models)} calibrations of one {models[0].terms.layout} machine "
+           f"({dates[0]} to {dates[-1]}): {len(changes)} parameter changes between "
+           f"consecutive calibrations tested (Holm, family-wise false-alarm level "
+           f"{100 * family_alpha:g} %); "
+           + (f"{len(significant)} significant: "
+              + "; ".join(f"{r.label} {r.change:+.3g} ± {r.u_change:.2g} (E_n {r.En:+.1f}, "
+                          f"{r.date_from} → {r.date_to})" for r in sig_rows.itertuples())
+              if significant else "none significant")
+           + ". The error map changed by up to "
+           + ", ".join(f"{np.abs(grid[f'de{a}_um']).max():.2f} µm in {a}" for a in "xyz")
+           + " from the first to the last (grid of "
+           f"{nodes_per_axis}³ nodes, ram reference point).")
+    if only_in:
+        msg += " Not compared (in one model only): " + "; ".join(
+            f"{k}: {', '.join(v)}" for k, v in only_in.items()) + "."
+    return History(msg, [m.name for m in models], dates, changes, trend, significant,
+                   only_in, float(family_alpha), grid)
+
+
+def _checked(models_with_dates) -> list:
+    """(model, date) pairs sorted by date, refused (one line) when they cannot be
+    compared."""
+    items = list(models_with_dates)
+    if len(items) < 2:
+        raise DataError(f"{len(items)} calibration(s) given; a history needs at least two.",
+                        file="history", hint="give two or more model files with dates.")
+    out = []
+    for m, d in items:
+        try:
+            date = d if isinstance(d, dt.date) else dt.date.fromisoformat(str(d).strip())
+        except ValueError:
+            raise DataError(f"date {str(d)[:40]!r} is not an ISO 8601 date (expected "
+                            "YYYY-MM-DD).", file=m.name, column="date") from None
+        if m.undetermined:
+            raise DataError("the model has combinations its data did not determine: its "
+                            "parameters cannot be compared.", file=m.name,
+                            column="undetermined")
+        out.append((m, date))
+    out.sort(key=lambda md: md[1])
+    first = out[0][0]
+    for m, _ in out[1:]:
+        if m.terms.layout != first.terms.layout:
+            raise DataError(f"the model is of a {m.terms.layout} machine, {first.name} of a "
+                            f"{first.terms.layout}: different machines are not compared.",
+                            file=m.name, column="layout")
+        if not np.allclose(m.terms.range_mm, first.terms.range_mm, rtol=0, atol=1.0):
+            raise DataError(f"strokes {list(m.terms.range_mm)} mm differ from {first.name}'s "
+                            f"{list(first.terms.range_mm)} mm: different machines are not "
+                            "compared.", file=m.name, column="range_mm")
+    return out
+
+
+def _map_change(m1: Model, m2: Model, n: int) -> pd.DataFrame:
+    """The error map of ``m2`` minus that of ``m1`` on an n³ grid, with its u."""
+    axes = [np.linspace(0.0, r, n) for r in m1.terms.range_mm]
+    x = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    p = np.zeros_like(x)
+    e, var = [], []
+    for m in (m1, m2):
+        xs, J = kin.jacobian(m.terms, m.coef, x, p)
+        Je = J / kin.UM
+        e.append((xs - x - p) / kin.UM)
+        var.append(np.clip(np.einsum("mik,kl,mil->mi", Je, m.cov, Je), 0, None))
+    out = pd.DataFrame({"x_mm": x[:, 0], "y_mm": x[:, 1], "z_mm": x[:, 2]})
+    for a, ax in enumerate("xyz"):
+        out[f"de{ax}_um"] = e[1][:, a] - e[0][:, a]
+        out[f"u_de{ax}_um"] = np.sqrt(var[0][:, a] + var[1][:, a])
+    return out

@@ -1,0 +1,76 @@
+"""Calibration history (issue 28): changes between calibrations of one machine with E_n,
+Holm's family-wise level, the error map's change, and the refusals."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy import stats
+from test_monitor import LAYOUTS, calibrated
+
+from cmm_core.export import model_from_result
+from cmm_core.io import DataError
+from cmm_core.model import fit
+from cmm_core.monitor import compare_calibrations, holm, remeasured
+
+
+def _recalibrated(cal, seed, changes=None):
+    new = remeasured(cal, seed, changes=changes)
+    return model_from_result(fit(new.dataset, "kinematic21", plate="fixed"))
+
+
+def test_holm_against_a_hand_computed_case():
+    # p sorted 0.001, 0.01, 0.02, 0.5 at 0.05 with m = 4 (Holm 1979): 0.001 <= 0.0125,
+    # 0.01 <= 0.0167, 0.02 <= 0.025 reject, 0.5 > 0.05 stops. [0.03, 0.026]: the smallest
+    # exceeds 0.05/2, nothing is rejected (Bonferroni would not either); [0.03, 0.02]:
+    # 0.02 <= 0.025, then 0.03 <= 0.05 (Bonferroni would keep 0.03)
+    assert holm(np.array([0.5, 0.02, 0.001, 0.01]), 4, 0.05).tolist() == \
+        [False, True, True, True]
+    assert holm(np.array([0.03, 0.026]), 2, 0.05).tolist() == [False, False]
+    assert holm(np.array([0.03, 0.02]), 2, 0.05).tolist() == [True, True]
+
+
+def test_unchanged_machine_family_wise_false_alarms():
+    # recalibrations of an unchanged machine: runs with any significant change at most
+    # Binomial(2 x 8, 0.2) in distribution (Holm); bound its 99.9 % quantile
+    alpha, hits = 0.2, 0
+    for layout in LAYOUTS:
+        for s in range(8):
+            cal, model = calibrated(layout, s)
+            h = compare_calibrations([(model, "2024-01-10"),
+                                      (_recalibrated(cal, 300 + s), "2025-01-12")],
+                                     family_alpha=alpha)
+            hits += bool(h.significant)
+    assert hits <= stats.binom.ppf(0.999, 16, alpha), hits
+
+
+def test_large_squareness_change_is_significant_and_maps():
+    # 25 µrad of sxy between calibrations: u of the change is about 4 µrad at pitch100
+    # (2.8 µrad per calibration), E_n about 6, past Holm's bound over 33 (|E_n| > 3.2)
+    cal, m1 = calibrated("pitch100_4pos", 4)
+    m2 = _recalibrated(cal, 44, {"sxy": 25.0})
+    h = compare_calibrations([(m2, "2025-06-01"), (m1, "2024-06-01")])
+    assert h.dates == ["2024-06-01", "2025-06-01"]
+    assert any(s.startswith("sxy") for s in h.significant), h.message
+    row = h.changes.set_index("label").loc["sxy"]
+    assert abs(row.change - 25.0) < 3 * row.u_change
+    # the map: sxy turns y into x (x error ∝ y), so the x change spans ~25 µrad · 800 mm
+    span = np.ptp(h.map_change["dex_um"])
+    assert 10 < span < 40, span
+    assert set(h.trend["date"]) == {"2024-06-01", "2025-06-01"}
+
+
+def test_refusals():
+    _, m1 = calibrated("pitch100_4pos", 0)
+    _, other = calibrated("pitch80_3pos", 0)
+    with pytest.raises(DataError, match="strokes .* different machines"):
+        compare_calibrations([(m1, "2024-01-01"), (other, "2025-01-01")])
+    with pytest.raises(DataError, match="at least two"):
+        compare_calibrations([(m1, "2024-01-01")])
+    with pytest.raises(DataError, match="not an ISO 8601 date"):
+        compare_calibrations([(m1, "2024-01-01"), (m1, "1st of May")])
+    gantry = replace(m1, terms=replace(m1.terms, layout="gantry_fxyz"), name="gantry.json")
+    with pytest.raises(DataError, match="gantry.json.*gantry_fxyz machine.*different machines"):
+        compare_calibrations([(m1, "2024-01-01"), (gantry, "2025-01-01")])
