@@ -262,7 +262,8 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
     """The default candidate measurements for a data set.
 
     From a reference placement (default: the first horizontal one): the plate shifted
-    along X, Y by ``shift_fraction`` of its pitch and raised (or lowered) by a third of the
+    along X, Y by ``shift_fraction`` of its pitch, moved to the low and the high end of the
+    X and Y strokes (5 % from each end), raised (or lowered) by a third of the
     Z stroke; rotated 90° and 180° in its plane about its centre; stood in XZ and in YZ;
     measured again with a stylus offset ``stylus_offset_mm`` along X, along Y, and a
     stylus 100 mm longer; and, with two styli or more, measured again with its styli in
@@ -309,6 +310,18 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
         e = np.eye(3)[a]
         add(f"shift_{ax.lower()}", f"the plate of {reference} shifted {shift:g} mm along "
             f"{ax}", o + shift * e, u, v, styli)
+    extent = (grid.cols - 1) * grid.pitch_mm * np.abs(u) + (grid.rows - 1) * grid.pitch_mm \
+        * np.abs(v)
+    low = o - np.minimum(u, 0) * (grid.cols - 1) * grid.pitch_mm \
+        - np.minimum(v, 0) * (grid.rows - 1) * grid.pitch_mm  # the plate's lowest corner
+    for a, ax in enumerate("XY"):
+        for end, corner in (("low", 0.05 * rng_mm[a]),
+                            ("high", 0.95 * rng_mm[a] - extent[a])):
+            move = corner - low[a]
+            if abs(move) > grid.pitch_mm:  # else a shift by part of the pitch covers it
+                add(f"{end}_{ax.lower()}", f"the plate of {reference} moved {move:+g} mm "
+                    f"along {ax}, to the {end} end of the stroke", o + move * np.eye(3)[a],
+                    u, v, styli)
     add("height", f"the plate of {reference} {'raised' if dz > 0 else 'lowered'} "
         f"{abs(dz):g} mm", o + dz * np.eye(3)[2], u, v, styli)
     for deg, (uu, vv) in {90: (v, -u), 180: (-u, -v)}.items():
