@@ -1,0 +1,191 @@
+"""``python -m cmm_core check`` and ``compare``: interim checks against a stored
+calibration, and a machine's calibration history (docs/monitoring.md).
+
+:func:`add_parser` adds both sub-commands to the main parser (their ``func`` returns the
+JSON summary ``cli.main`` prints); :func:`run` runs one on its own: the summary on stdout
+(or ``--json FILE`` when the parser has that option), exit status 0; bad input exits
+with status 2 and one line on stderr naming the file, row and column.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from ..export import load_model
+from ..io import DataError, atomic_write_text, load_dataset
+from ..monitor import (
+    MAX_MAP_NODES_PER_AXIS,
+    compare_calibrations,
+    conformity,
+    interim_check,
+    what_changed,
+)
+
+_MODEL_HELP = ("the stored calibration: a model file written by 'fit --save' (kinematic "
+               "coefficients with their covariance, σ, layout, strokes and styli)")
+_MEAS_HELP = ("the new measurements (long CSV, docs/formats.md): one placement of the plate "
+              "is enough; several files are read as one")
+_SETUP_HELP = ("setup JSON of the new measurements (layout, strokes, placements, styli; "
+               "required): the machine must be the model's")
+_CERT_HELP = ("certificate CSV of the plate (calibrated ball centres with their "
+              "uncertainties): the check predicts the balls from it (required unless the "
+              "setup names it)")
+_SIGMA_HELP = ("repeatability of one probed coordinate of the new data, µm, 0.001 to 1000 "
+               "(default: the stored model's σ)")
+_ALPHA_HELP = ("false-alarm level of the χ² test, 0.001 to 0.2 (default: %(default)s): the "
+               "fraction of checks of an unchanged machine that fail")
+_FAMILY_HELP = ("family-wise false-alarm level of the parameter changes (Holm over the "
+                "parameters tested), 0.001 to 0.2 (default: %(default)s)")
+_POS_HELP = ("placements of the new data to check, comma-separated (default: all)")
+_MPE_HELP = ("the machine's MPE for lengths as 'A,D': MPE = A µm + L/D with L in mm, e.g. "
+             "0.6,600 (the thesis machine). With it the check states conformity by the "
+             "ISO 14253-1 rule (conforms, does not conform, cannot say); default: no "
+             "statement")
+_MODELS_HELP = "two or more model files of one machine, written by 'fit --save'"
+_DATES_HELP = ("the calibration date of each model, ISO 8601 (YYYY-MM-DD), in the order of "
+               "the models (required)")
+_NODES_HELP = (f"grid nodes per axis of the error map's change, 2 to {MAX_MAP_NODES_PER_AXIS} "
+               "(default: %(default)s)")
+
+
+def _level(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a level such as 0.05, found "
+                                         f"{text[:40]!r}") from None
+    if not (math.isfinite(v) and 0.001 <= v <= 0.2):
+        raise argparse.ArgumentTypeError(f"expected a level from 0.001 to 0.2, found {v:g}")
+    return v
+
+
+def _sigma(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a repeatability in µm (e.g. 0.5), found "
+                                         f"{text[:40]!r}") from None
+    if not (math.isfinite(v) and 1e-3 <= v < 1e3):
+        raise argparse.ArgumentTypeError(f"expected a repeatability in µm from 0.001 to 1000, "
+                                         f"found {v:g}")
+    return v
+
+
+def _mpe(text: str) -> tuple[float, float]:
+    try:
+        a, d = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected 'A,D' (MPE = A µm + L/D), e.g. 0.6,600, "
+                                         f"found {text[:40]!r}") from None
+    if not (math.isfinite(a) and math.isfinite(d) and a >= 0 and d > 0):
+        raise argparse.ArgumentTypeError(f"expected A >= 0 µm and D > 0, found {text[:40]!r}")
+    return a, d
+
+
+def _nodes(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of nodes, found "
+                                         f"{text[:40]!r}") from None
+    if not 2 <= v <= MAX_MAP_NODES_PER_AXIS:
+        raise argparse.ArgumentTypeError(f"expected 2 to {MAX_MAP_NODES_PER_AXIS} nodes, "
+                                         f"found {v}")
+    return v
+
+
+def add_parser(subparsers) -> None:
+    """Add ``check`` and ``compare`` to the sub-parsers of ``cli.build_parser``."""
+    p = subparsers.add_parser(
+        "check", help="interim check of new measurements against a stored calibration: χ² "
+                      "test, E_n per ball, what changed, conformity to the MPE")
+    p.add_argument("model", metavar="MODEL.json", help=_MODEL_HELP)
+    p.add_argument("meas", nargs="+", metavar="MEAS.csv", help=_MEAS_HELP)
+    p.add_argument("--setup", metavar="SETUP.json", required=True, help=_SETUP_HELP)
+    p.add_argument("--certificate", metavar="CERT.csv", help=_CERT_HELP)
+    p.add_argument("--sigma-um", type=_sigma, default=None, metavar="UM", help=_SIGMA_HELP)
+    p.add_argument("--alpha", type=_level, default=0.05, metavar="LEVEL", help=_ALPHA_HELP)
+    p.add_argument("--family-alpha", type=_level, default=0.05, metavar="LEVEL",
+                   help=_FAMILY_HELP)
+    p.add_argument("--positions", default=None, metavar="P1,P2", help=_POS_HELP)
+    p.add_argument("--mpe", type=_mpe, default=None, metavar="A,D", help=_MPE_HELP)
+    p.set_defaults(func=command_check)
+    p = subparsers.add_parser(
+        "compare", help="a machine's calibration history: every shared parameter's change "
+                        "with u and E_n, significant changes, the error map's change")
+    p.add_argument("models", nargs="+", metavar="MODEL.json", help=_MODELS_HELP)
+    p.add_argument("--dates", nargs="+", required=True, metavar="YYYY-MM-DD",
+                   help=_DATES_HELP)
+    p.add_argument("--family-alpha", type=_level, default=0.05, metavar="LEVEL",
+                   help=_FAMILY_HELP)
+    p.add_argument("--nodes", type=_nodes, default=5, metavar="N", help=_NODES_HELP)
+    p.set_defaults(func=command_compare)
+
+
+def command_check(args) -> dict:
+    """The interim check, what changed and (with ``--mpe``) conformity, as a JSON dict."""
+    model = load_model(args.model)
+    data = load_dataset(args.meas, args.setup, args.certificate,
+                        name=", ".join(Path(m).name for m in args.meas))
+    positions = None if args.positions is None else \
+        [p.strip() for p in args.positions.split(",") if p.strip()]
+    if positions is not None:
+        unknown = [p for p in positions if p not in set(map(str, data.positions))]
+        if unknown:
+            raise DataError(f"placement {unknown[0]!r} is not in the data (known: "
+                            f"{', '.join(map(str, data.positions))}).", file=data.name,
+                            column="position")
+    check = interim_check(model, data, sigma_um=args.sigma_um, alpha=args.alpha,
+                          positions=positions)
+    changes = what_changed(model, check, family_alpha=args.family_alpha)
+    out = {"model": Path(args.model).name, "check": check.to_dict(),
+           "changes": changes.to_dict()}
+    if args.mpe is not None:
+        a, d = args.mpe
+        out["conformity"] = conformity(model, check, data, mpe_a_um=a, mpe_per_mm=1 / d,
+                                       changes=changes).to_dict()
+    else:
+        out["conformity"] = None
+    return out
+
+
+def command_compare(args) -> dict:
+    """The calibration history of the models, as a JSON dict."""
+    if len(args.dates) != len(args.models):
+        raise DataError(f"{len(args.models)} model(s) but {len(args.dates)} date(s); give "
+                        "one date per model, in the same order.", file="command line",
+                        column="--dates")
+    models = [load_model(m) for m in args.models]
+    return compare_calibrations(list(zip(models, args.dates, strict=True)),
+                                family_alpha=args.family_alpha,
+                                nodes_per_axis=args.nodes).to_dict()
+
+
+def run(args) -> int:
+    """Run ``check`` or ``compare`` on parsed arguments: the summary JSON on stdout (or
+    ``--json FILE``) and 0, or one line on stderr and 2."""
+    try:
+        out = args.func(args)
+        text = json.dumps(out, indent=1, default=_plain)
+        if getattr(args, "json", None):
+            atomic_write_text(args.json, text)
+        else:
+            print(text)
+    except (DataError, ValueError, KeyError, OSError) as exc:
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        if isinstance(exc, OSError) and exc.filename:
+            msg = f"{Path(str(exc.filename)).name}: {exc.strerror or msg}"
+        print(f"error: {msg[:400]}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _plain(o):
+    """numpy scalars and arrays as JSON numbers and lists."""
+    if hasattr(o, "tolist"):
+        return o.tolist()
+    raise TypeError(f"{type(o).__name__} is not JSON serialisable")
