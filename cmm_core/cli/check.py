@@ -142,8 +142,8 @@ def command_check(args) -> dict:
     check = interim_check(model, data, sigma_um=args.sigma_um, alpha=args.alpha,
                           positions=positions)
     changes = what_changed(model, check, family_alpha=args.family_alpha)
-    out = {"model": Path(args.model).name, "check": check.to_dict(),
-           "changes": changes.to_dict()}
+    out: dict[str, object] = {"model": Path(args.model).name, "check": check.to_dict(),
+                              "changes": changes.to_dict()}
     if args.mpe is not None:
         a, d = args.mpe
         out["conformity"] = conformity(model, check, data, mpe_a_um=a, mpe_per_mm=1 / d,
