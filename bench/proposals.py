@@ -54,6 +54,11 @@ CASES = {
         "pitch150_5pos", {"kinematic": {"spec": "kinematic21,rxz:4",
                                         "coefficients": {"rxz[4]": 3.0}}},
         "kinematic21,-sxy", "rxz:4", "sxy"),
+    # a third of the size: the proposals' power is no longer near 1 (calibration)
+    "weak high-order rotation vs squareness, 80 mm plate": (
+        "pitch80_3pos", {"kinematic": {"spec": "kinematic21,rxz:4",
+                                       "coefficients": {"rxz[4]": 1.0}}},
+        "kinematic21,-sxy", "rxz:4", "sxy"),
 }
 
 

@@ -526,18 +526,65 @@ def _score_on(des: _Design, rf: RivalFits) -> dict:
     return out
 
 
-def measurement_observations(data: Dataset, cand: NextMeasurement):
-    """The candidate's own noise-free, error-free observations (virtual CMM, nominal
-    certificate): their Jacobian rows stack onto the current data's."""
+def measurement_observations(data: Dataset, cands: list):
+    """The candidates' own noise-free, error-free observations (virtual CMM, nominal
+    certificate), all in one simulation (each candidate is its own placement): their
+    Jacobian rows stack onto the current data's.
+
+    Raises
+    ------
+    DataError
+        When a candidate's plate or styli leave the machine's range.
+    """
     grid = plate_grid(data)
     setup = {k: copy.deepcopy(data.setup.raw[k]) for k in ("units", "machine", "artefact")
              if k in data.setup.raw}
-    setup.update({"frame": "machine", "positions": cand.positions,
-                  "probes": {**data.setup.raw["probes"], **cand.probes}})
-    cfg = {"seed": 0, "setup": setup, "probes_per_position": cand.probes_of,
+    probes = dict(data.setup.raw["probes"])
+    for c in cands:
+        probes.update(c.probes)
+    setup.update({"frame": "machine", "probes": probes,
+                  "positions": {p: pl for c in cands for p, pl in c.positions.items()}})
+    cfg = {"seed": 0, "setup": setup,
+           "probes_per_position": {p: q for c in cands for p, q in c.probes_of.items()},
            "plate": {"rows": grid.rows, "cols": grid.cols, "pitch_mm": grid.pitch_mm,
                      "form_um": 0.0, "certificate_u_um": 0.0}}
-    return select(simulate(cfg, name=f"proposal {cand.name!r}").dataset)
+    return select(simulate(cfg, name="proposals").dataset)
+
+
+def _in_machine(data: Dataset, cands: list) -> tuple:
+    """(observations of the candidates that fit in the machine, those candidates, skipped
+    ones with the reason); one simulation unless some do not fit."""
+    try:
+        return measurement_observations(data, cands), list(cands), {}
+    except DataError:
+        ok, skipped = [], {}
+        for c in cands:
+            try:
+                measurement_observations(data, [c])
+                ok.append(c)
+            except DataError as exc:
+                skipped[c.name] = str(exc)
+        return (measurement_observations(data, ok) if ok else None), ok, skipped
+
+
+def _rows(des: _Design, keep: np.ndarray) -> _Design:
+    """The design of some observations only (``keep``: one flag per observation; three
+    weighted rows each), without the columns that are empty there."""
+    J = des.J[:des.J.shape[0] // 3 * 3][np.repeat(keep, 3)]
+    used = np.abs(J).sum(axis=0) > 0
+    return _Design(J[:, used], [lab for lab, u in zip(des.labels, used, strict=True) if u],
+                   des.has)
+
+
+def _score_candidates(now: _Design, obs, ok: list, rf: RivalFits):
+    """``(candidate, {rival: (λ, k, ν, power)})`` for each candidate, from one design of
+    all their observations (rows of each placement stacked onto the current data's)."""
+    if obs is None:
+        return
+    extra = _design(obs, rf)
+    for cand in ok:
+        keep = obs.pos == obs.positions.index(next(iter(cand.positions)))
+        yield cand, _score_on(_stack(now, _rows(extra, keep)), rf)
 
 
 @single_blas_thread
@@ -576,14 +623,10 @@ def propose(data: Dataset, rivals=None, *, baseline: str = "kinematic21", order:
                     sigma_um=sigma_um, alpha=alpha)
     now = _design(select(data), rf)
     current = {t: v[3] for t, v in _score_on(now, rf).items()}
-    scored, skipped = [], {}
-    for cand in cands if cands is not None else measurement_candidates(data):
-        try:
-            extra = measurement_observations(data, cand)
-        except DataError as exc:
-            skipped[cand.name] = str(exc)
-            continue
-        res = _score_on(_stack(now, _design(extra, rf)), rf)
+    cands = list(cands if cands is not None else measurement_candidates(data))
+    obs, ok, skipped = _in_machine(data, cands)
+    scored = []
+    for cand, res in _score_candidates(now, obs, ok, rf):
         lam = {t: v[0] for t, v in res.items()}
         power = {t: v[3] for t, v in res.items()}
         pmin = min(power.values())
