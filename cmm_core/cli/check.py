@@ -113,7 +113,7 @@ def add_parser(subparsers) -> None:
                    help=_FAMILY_HELP)
     p.add_argument("--positions", default=None, metavar="P1,P2", help=_POS_HELP)
     p.add_argument("--mpe", type=_mpe, default=None, metavar="A,D", help=_MPE_HELP)
-    p.set_defaults(func=command_check)
+    p.set_defaults(func=_command_check)
     p = subparsers.add_parser(
         "compare", help="a machine's calibration history: every shared parameter's change "
                         "with u and E_n, significant changes, the error map's change")
@@ -123,10 +123,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--family-alpha", type=_level, default=0.05, metavar="LEVEL",
                    help=_FAMILY_HELP)
     p.add_argument("--nodes", type=_nodes, default=5, metavar="N", help=_NODES_HELP)
-    p.set_defaults(func=command_compare)
+    p.set_defaults(func=_command_compare)
 
 
-def command_check(args) -> dict:
+def _command_check(args) -> dict:
     """The interim check, what changed and (with ``--mpe``) conformity, as a JSON dict."""
     model = load_model(args.model)
     data = load_dataset(args.meas, args.setup, args.certificate,
@@ -153,7 +153,7 @@ def command_check(args) -> dict:
     return out
 
 
-def command_compare(args) -> dict:
+def _command_compare(args) -> dict:
     """The calibration history of the models, as a JSON dict."""
     if len(args.dates) != len(args.models):
         raise DataError(f"{len(args.models)} model(s) but {len(args.dates)} date(s); give "
