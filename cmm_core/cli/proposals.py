@@ -1,0 +1,136 @@
+"""Command-line front end of ``next``: propose the measurement that settles what the data
+cannot (issue 29, ``plan.proposals``; docs/proposals.md).
+
+Registered by ``cli`` with :func:`add_parser`; :func:`run` returns the JSON-ready result
+(``cli.main`` prints it and turns errors into one line on stderr).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from ..plan import (
+    TARGET_POWER,
+    measurement_candidates,
+    plan_file,
+    propose,
+    simulate_outcomes,
+)
+from .inputs import _order_arg, _sigma_arg, _spec_arg, add_data_args, dataset_of, sigma_of
+
+MAX_TOP = 100
+"""Most proposals ``--top`` lists."""
+
+
+def _rivals_arg(text):
+    """Two different model tokens separated by a comma (``sxy,rxz:4``)."""
+    parts = [t.strip() for t in str(text).split(",")]
+    if len(parts) != 2 or not all(parts) or parts[0] == parts[1]:
+        raise argparse.ArgumentTypeError(
+            f"expected two different effect tokens separated by a comma (e.g. "
+            f"'probe_offset,drift'), found {text[:60]!r}")
+    return tuple(parts)
+
+
+def _fraction_arg(lo, hi):
+    def parse(text):
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected a number from {lo} to {hi}, found {text[:40]!r}") from None
+        if not lo < v <= hi:
+            raise argparse.ArgumentTypeError(f"expected a number above {lo} up to {hi}, "
+                                             f"found {v:g}")
+        return v
+
+    return parse
+
+
+def _top_arg(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a whole number from 1 to {MAX_TOP}, found {text[:40]!r}") from None
+    if not 1 <= v <= MAX_TOP:
+        raise argparse.ArgumentTypeError(f"expected a whole number from 1 to {MAX_TOP}, "
+                                         f"found {v}")
+    return v
+
+
+def add_arguments(p) -> None:
+    """Options of ``next``."""
+    add_data_args(p)
+    p.add_argument("--baseline", default="kinematic21", metavar="SPEC", type=_spec_arg,
+                   help="model the diagnosis starts from, as a model spec "
+                        "(docs/formats.md#model-specs), e.g. 'kinematic21,-sxy' "
+                        "(default: %(default)s)")
+    p.add_argument("--order", type=_order_arg, default=2, metavar="N",
+                   help="default polynomial order of the error functions (default: "
+                        "%(default)s)")
+    p.add_argument("--plate", choices=("fixed", "prior", "free"),
+                   help="plate geometry in the fits: certificate fixed, as a prior, or free "
+                        "(default: fixed with a certificate)")
+    p.add_argument("--sigma-um", type=_sigma_arg, default=0.5, metavar="UM|auto",
+                   help="repeatability of one probed coordinate in µm (0.001 to 1000), or "
+                        "'auto' to estimate it from the data (default: %(default)s µm)")
+    p.add_argument("--rivals", type=_rivals_arg, metavar="A,B", default=None,
+                   help="the two effects to tell apart, as model tokens separated by a "
+                        "comma, e.g. 'probe_offset,drift' (default: the diagnosis's first "
+                        "candidate and its alias, or its runner-up)")
+    p.add_argument("--top", type=_top_arg, default=5, metavar="N",
+                   help=f"how many proposals to list, best first, 1 to {MAX_TOP} (default: "
+                        "%(default)s)")
+    p.add_argument("--reference", metavar="PLACEMENT", default=None,
+                   help="placement the candidates are derived from (default: the first "
+                        "horizontal one)")
+    p.add_argument("--target-power", type=_fraction_arg(0.0, 0.999), default=TARGET_POWER,
+                   metavar="P",
+                   help="power at which a proposal counts as deciding the pair (default: "
+                        "%(default)s)")
+    p.add_argument("--simulate", action="store_true",
+                   help="also simulate the top proposal with each rival as the truth, "
+                        "append it to the data and run the diagnosis (adds a few seconds)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the noise of --simulate (default: %(default)s)")
+    p.add_argument("--plan-out", metavar="PLAN.json", default=None,
+                   help="write the top proposal as a plan file for 'plan' "
+                        "(docs/planning.md; default: not written)")
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``next`` sub-command to the sub-parsers of ``cli.build_parser``."""
+    p = subparsers.add_parser(
+        "next", help="propose the measurement that tells two rival effects apart")
+    add_arguments(p)
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args) -> dict:
+    """``next``: rank candidate measurements; optionally simulate the best and write it
+    as a plan file."""
+    data = dataset_of(args)
+    sigma, sigma_rec = sigma_of(args, data, [], args.baseline)
+    settings = {"baseline": args.baseline, "order": args.order, "plate": args.plate,
+                "sigma_um": sigma}
+    pr = propose(data, args.rivals, cands=measurement_candidates(data,
+                                                                 reference=args.reference),
+                 target=args.target_power, **settings)
+    out = pr.to_dict()
+    out["proposals"] = out["proposals"][:args.top]
+    out["sigma"] = sigma_rec
+    if pr.ranked and args.simulate:
+        outs = simulate_outcomes(data, pr.ranked[0], seed=args.seed, **settings)
+        out["simulated"] = {t: {"verdict": o.verdict, "aliases": o.aliases,
+                                "separated": o.separated, "message": o.message}
+                            for t, o in outs.items()}
+    if pr.ranked and args.plan_out:
+        Path(args.plan_out).write_text(json.dumps(
+            plan_file(data, pr.ranked[0], baseline=args.baseline, order=args.order,
+                      noise_um=sigma), indent=1))
+        out["plan_file"] = str(args.plan_out)
+    return out

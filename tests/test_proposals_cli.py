@@ -1,0 +1,60 @@
+"""The ``next`` command (issue 29), exercised through its own parser: the sub-command is
+registered by ``cli`` (not here), so the tests build a parser with ``add_parser``."""
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+from scenarios import simulated  # noqa: E402
+
+from cmm_core.cli.proposals import add_parser  # noqa: E402
+from cmm_core.plan import read_plan  # noqa: E402
+
+
+def _parser():
+    ap = argparse.ArgumentParser(prog="cmm_core")
+    add_parser(ap.add_subparsers(dest="command"))
+    return ap
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    out = tmp_path_factory.mktemp("next")
+    simulated("pitch80_3pos", 3, noise_um=0.5,
+              kinematic={"spec": "kinematic21,rxz:4", "coefficients": {"rxz[4]": 3.0}}
+              ).write(out)
+    return out
+
+
+def test_every_option_has_help_text():
+    sub = next(a for a in _parser()._actions if isinstance(a, argparse._SubParsersAction))
+    p = sub.choices["next"]
+    missing = [a.dest for a in p._actions if not a.help and a.dest != "help"]
+    assert not missing, missing
+
+
+def test_next_lists_proposals_as_json_and_writes_a_plan(files, tmp_path):
+    plan = tmp_path / "next_plan.json"
+    args = _parser().parse_args(
+        ["next", str(files / "measurements.csv"), "--setup", str(files / "setup.json"),
+         "--certificate", str(files / "certificate.csv"), "--baseline", "kinematic21,-sxy",
+         "--rivals", "rxz:4,sxy", "--top", "3", "--plan-out", str(plan)])
+    out = args.func(args)
+    json.dumps(out)  # JSON-ready
+    assert out["rivals"] == ["rxz:4", "sxy"] and len(out["proposals"]) == 3
+    best = out["proposals"][0]
+    assert best["power_min"] >= out["target_power"]
+    assert best["outcome"].startswith("with ") and best["time_min"] > 0
+    pf = read_plan(plan)
+    assert [s.name for s in pf.strategies][0] == "current data"
+
+
+@pytest.mark.parametrize("bad", ["sxy", "sxy,sxy", "a,b,c", ","])
+def test_rivals_must_be_two_different_tokens(bad, capsys):
+    with pytest.raises(SystemExit):
+        _parser().parse_args(["next", "m.csv", "--rivals", bad])
+    assert "two different effect tokens" in capsys.readouterr().err
