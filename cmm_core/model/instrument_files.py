@@ -179,8 +179,9 @@ def read_laser(source: FileSource, name: str | None = None) -> LaserRun:
     ------
     DataError
         Naming file, row and column: unknown or missing columns, unreadable numbers, an
-        axis other than x/y/z, u not positive, an error reading beyond
-        :data:`MAX_ERROR_UM`, a run that leaves its line or has too few readings.
+        axis other than x/y/z, u outside :data:`_U_RANGE_UM`, an error reading beyond
+        :data:`MAX_ERROR_UM`, points in metres or µm, an offset in metres, more than
+        :data:`_MAX_READINGS` rows, a run that leaves its line or has too few readings.
     """
     df, name = read_csv_text(source, name, max_rows=_MAX_READINGS)
     _columns(df, name, LASER_COLUMNS, LASER_OPTIONAL, "laser", _LASER_HINT)
@@ -273,8 +274,10 @@ def read_step_gauge(source: FileSource, name: str | None = None) -> StepGauge:
     Raises
     ------
     DataError
-        Naming file, row and column: unknown or missing columns, unreadable numbers, u not
-        positive, a certified length not positive, measured and certified lengths more than
+        Naming file, row and column: unknown or missing columns, unreadable numbers, u
+        outside :data:`_U_RANGE_UM`, points in metres or µm, an offset in metres, more
+        than :data:`_MAX_READINGS` rows, a certified length not positive, measured and
+        certified lengths more than
         :data:`MAX_LENGTH_DIFF_MM` apart, a measured length that is not the distance of the
         probed points (within :data:`MAX_STYLUS_MM`), a temperature without a CTE.
     """
@@ -343,8 +346,10 @@ def read_ball_bar(source: FileSource, name: str | None = None) -> BallBar:
     Raises
     ------
     DataError
-        Naming file, row and column: unknown or missing columns, unreadable numbers, u not
-        positive, a certified length not positive, two centres closer than
+        Naming file, row and column: unknown or missing columns, unreadable numbers, u
+        outside :data:`_U_RANGE_UM`, points in metres or µm, an offset in metres, more
+        than :data:`_MAX_READINGS` rows, a certified length not positive, two centres
+        closer than
         :data:`MIN_BAR_MM` (one ball named twice), a distance of the centres more than
         :data:`MAX_LENGTH_DIFF_MM` from the certified length, a temperature without a CTE.
     """
