@@ -20,7 +20,7 @@ from ..plan import (
 )
 from .inputs import _order_arg, _sigma_arg, _spec_arg, add_data_args, dataset_of, sigma_of
 
-MAX_TOP = 100
+_MAX_TOP = 100
 """Most proposals ``--top`` lists."""
 
 
@@ -54,14 +54,14 @@ def _top_arg(text):
         v = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"expected a whole number from 1 to {MAX_TOP}, found {text[:40]!r}") from None
-    if not 1 <= v <= MAX_TOP:
-        raise argparse.ArgumentTypeError(f"expected a whole number from 1 to {MAX_TOP}, "
+            f"expected a whole number from 1 to {_MAX_TOP}, found {text[:40]!r}") from None
+    if not 1 <= v <= _MAX_TOP:
+        raise argparse.ArgumentTypeError(f"expected a whole number from 1 to {_MAX_TOP}, "
                                          f"found {v}")
     return v
 
 
-def add_arguments(p) -> None:
+def _add_arguments(p) -> None:
     """Options of ``next``."""
     add_data_args(p)
     p.add_argument("--baseline", default="kinematic21", metavar="SPEC", type=_spec_arg,
@@ -82,7 +82,7 @@ def add_arguments(p) -> None:
                         "comma, e.g. 'probe_offset,drift' (default: the diagnosis's first "
                         "candidate and its alias, or its runner-up)")
     p.add_argument("--top", type=_top_arg, default=5, metavar="N",
-                   help=f"how many proposals to list, best first, 1 to {MAX_TOP} (default: "
+                   help=f"how many proposals to list, best first, 1 to {_MAX_TOP} (default: "
                         "%(default)s)")
     p.add_argument("--reference", metavar="PLACEMENT", default=None,
                    help="placement the candidates are derived from (default: the first "
@@ -105,7 +105,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``next`` sub-command to the sub-parsers of ``cli.build_parser``."""
     p = subparsers.add_parser(
         "next", help="propose the measurement that tells two rival effects apart")
-    add_arguments(p)
+    _add_arguments(p)
     p.set_defaults(func=run)
     return p
 
