@@ -145,7 +145,10 @@ def _refuse_twice(files: list) -> None:
     √2 without a word: refused naming both."""
     seen: dict[str, str] = {}
     for f in files:
-        digest = hashlib.sha256(Path(f).read_bytes()).hexdigest()
+        path = Path(f)
+        # a pipe (``<(...)``) is read once, by its reader: compared by its name only
+        digest = (hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file()
+                  else str(path))
         if digest in seen:
             same = Path(seen[digest]).resolve() == Path(f).resolve()
             raise DataError(f"{'is given twice' if same else 'has the same content as '}"
