@@ -177,6 +177,10 @@ def restore_record(record, source: str) -> str:
                                                                 d.certificate.text()),
              "setup_source": f"from {source}",
              "certificate_source": f"from {source}" if d.certificate is not None else None}
+    mapped = {f.name: (f.name, f.source_text(), f.mapping) for f in d.measurements
+              if f.mapping is not None}
+    if mapped:  # tables from other software keep their source and mapping (next save)
+        files["mapped"] = mapped
     new_ds = _load(files_key(files), files)
     have = set(zip(new_ds.meas["position"].astype(str), new_ds.meas["probe"].astype(str),
                    new_ds.meas["ball"].astype(int), strict=True))

@@ -667,10 +667,6 @@ def test_project_file_corpus_raises_only_data_errors_naming_the_file():
     assert failures == []
 
 
-@pytest.mark.xfail(strict=True, reason="the record's exclusions are checked in "
-                   "analysis/record_io.py and analysis/runner.py (not this change's files): "
-                   "an entry of the wrong type is taken as a name ('{}' as a probe) and the "
-                   "refusal names 'analysis record', not the file (issue 25)")
 def test_record_exclusions_of_the_wrong_type_are_refused_naming_the_file(work, tmp_path):
     doc = _record_doc()
     doc["exclusions"][0][1] = {}
@@ -734,10 +730,6 @@ def test_model_file_corpus_through_export_is_refused_in_one_line(work, tmp_path)
     assert failures == []
 
 
-@pytest.mark.xfail(strict=True, reason="model/blocks/base.py (not this change's file) checks "
-                   "the covariance with eigvalsh, which overflows on an entry of 1e308: "
-                   "numpy's warning is printed and LinAlgError 'Eigenvalues did not "
-                   "converge' is the line, without the file's name (issue 25)")
 def test_a_model_covariance_of_1e308_is_refused_naming_the_file(work, tmp_path):
     doc = json.loads(GOOD_MODEL.read_text())
     doc["cov"][13][13] = 1e308

@@ -9,9 +9,11 @@ from pathlib import Path
 
 import numpy as np
 from streamlit.testing.v1 import AppTest
-from test_foreign_tables import _dmo
+from test_foreign_tables import PATTERN, _dmo, _vendor_feature_csv
 from test_msl import msl_files_of, simulated_machine
 
+from cmm_core import analysis as A
+from cmm_core.io import TableMapping, apply_mapping
 from cmm_core.model import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -145,3 +147,33 @@ def test_a_mapped_vendor_table_keeps_its_mapping_in_the_record():
     back = A.load_data(A.record_from_project(A.record_to_project_json(rec)))
     np.testing.assert_allclose(back.meas[["x_mm", "y_mm", "z_mm"]].to_numpy(),
                                meas[["x_mm", "y_mm", "z_mm"]].to_numpy(), atol=1e-6, rtol=0)
+
+
+def test_restored_mapped_project_keeps_the_mapping():
+    """A vendor table loaded through a column mapping, saved in a project file and
+    restored on the Data page keeps its source and mapping, so the next save (or the
+    session kept for a reload) still carries them (issue 24)."""
+    sim = simulate({"seed": 4, "noise_um": 0.3})
+    meas = sim.dataset.meas[["position", "probe", "ball", "x_mm", "y_mm", "z_mm"]]
+    m = TableMapping(x="X", y="Y", z="Z", label="Feature", pattern=PATTERN)
+    t = apply_mapping(_vendor_feature_csv(meas), m, name="vendor.csv")
+    cert = sim.dataset.certificate
+    ctext = "ball,x_mm,y_mm,z_mm,u_x_um,u_y_um,u_z_um\n" + "\n".join(
+        f"{b},{x:.6f},{y:.6f},{z:.6f},0.1,0.1,0.1"
+        for b, (x, y, z) in zip(cert.balls, cert.xyz_mm, strict=True))
+    files = {"name": "v", "measurements": [(t.csv_name, t.csv_text)],
+             "setup": json.dumps(sim.dataset.setup.raw), "certificate": ("c.csv", ctext),
+             "mapped": {t.csv_name: (t.name, t.source_text, t.mapping)}}
+    rec = A.record_from_session({"ds_files": files})
+    text = A.record_to_project_json(rec)
+    at = AppTest.from_file(APP, default_timeout=90)
+    at.run()
+    at.switch_page("pages/data.py")
+    at.run()
+    at.file_uploader(key="up_project").set_value(("p.json", text.encode(), "application/json"))
+    at.run()
+    at.button(key="restore_project").click()
+    at.run()
+    assert not at.exception and not at.error, [e.value for e in at.error]
+    again = A.record_from_session({"ds_files": at.session_state["ds_files"]})
+    assert again.data.measurements[0].mapping == m.to_dict()

@@ -100,6 +100,15 @@ def _check(cond, name, key, expected, found):
         raise DataError(f"{key} must be {expected}, found {t[:60]}.", file=name, column=key)
 
 
+def _triple(e) -> bool:
+    """An exclusion ``[position, probe, ball]``: two names (text or whole numbers) and a
+    whole ball number; anything else would be taken as a name (``{}`` as a probe)."""
+    def name(v):
+        return isinstance(v, str) or _num(-1e9, 1e9)(v)
+    return (isinstance(e, list | tuple) and len(e) == 3 and name(e[0]) and name(e[1])
+            and _num(1, 1e6)(e[2]))
+
+
 def _num(lo, hi, whole=True):
     return lambda v: (isinstance(v, int | float) and not isinstance(v, bool) and lo <= v <= hi
                       and (not whole or float(v).is_integer()))
@@ -172,13 +181,11 @@ def record_from_dict(doc: Any, name: str = "ANALYSIS.json", base: Path | None = 
             parse_spec(out["spec"], default_order=out.get("order", 2))
         except ValueError as exc:
             raise DataError(str(exc), file=name, column="spec") from None
-    try:
-        out["exclusions"] = tuple(sorted((str(p), str(q), int(b))
-                                         for p, q, b in doc.get("exclusions") or []))
-    except (TypeError, ValueError):
-        raise DataError("exclusions must be [position, probe, ball] triples, found "
-                        f"{cut_repr(doc.get('exclusions'))}.", file=name,
-                        column="exclusions") from None
+    excl = doc.get("exclusions") or []
+    _check(isinstance(excl, list) and all(_triple(e) for e in excl), name, "exclusions",
+           "a list of [position, probe, ball] triples (names, and a whole ball number)",
+           excl)
+    out["exclusions"] = tuple(sorted((str(p), str(q), int(b)) for p, q, b in excl))
     hist = doc.get("history") or []
     _check(isinstance(hist, list) and all(isinstance(h, dict) and isinstance(
         h.get("spec"), str) for h in hist), name, "history",

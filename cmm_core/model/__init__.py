@@ -16,7 +16,7 @@ from __future__ import annotations
 from . import blocks
 from .ballbar import BallBar, simulate_ball_bar
 from .blocks import BY_TOKEN, REGISTRY, Block, Eval, needs
-from .blocks.base import SimParam, SimulatorEffect, checked_cov
+from .blocks.base import MAX_MODEL_U, SimParam, SimulatorEffect, checked_cov
 from .blocks.periodic import PERIOD_SCAN, PERIODIC, shortest_resolvable_period
 from .blocks.plate import Plate
 from .certificate_prior import certificate_terms, held_prior_rows, residual_u_um
@@ -112,7 +112,7 @@ __all__ = [
     "Eval", "evaluate", "fit", "FitResult", "GROUPS", "has_plate", "held_constraints", "held_prior_rows",
     "IMPLAUSIBLE", "in_plane", "initial_state", "instrument_observations", "INSTRUMENT_KINDS", "Instruments",
     "is_hole_plate", "LASER_COLUMNS", "LASER_OPTIONAL", "LaserRun", "length_change",
-    "LINE_TOLERANCE_MM", "MAX_ERROR_UM", "MAX_LENGTH_DIFF_MM", "MAX_ORDER", "MAX_STYLUS_MM",
+    "LINE_TOLERANCE_MM", "MAX_ERROR_UM", "MAX_MODEL_U", "MAX_LENGTH_DIFF_MM", "MAX_ORDER", "MAX_STYLUS_MM",
     "measured_normal", "MIN_BAR_MM", "ModelSpec", "monte_carlo_error", "needs", "Normal",
     "normal_equations", "NormalEquations", "Observations", "OFFSET_COLUMNS", "parse_spec",
     "PERIOD_SCAN", "PERIODIC", "PHYSICAL", "Plate", "PLATE_MODES", "Problem", "propagate_error",

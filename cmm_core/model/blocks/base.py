@@ -492,6 +492,12 @@ class Block:
         return ()
 
 
+MAX_MODEL_U = 1e6
+"""Largest standard uncertainty (µm, µrad) a model file's covariance may give a
+parameter: a metre or a radian is no CMM's error, and larger variances overflow the
+propagation (a grid's J V Jᵀ)."""
+
+
 def checked_cov(cov, n, name, column):
     """Refuse a model file's covariance unless it is an n × n finite, symmetric, positive
     semi-definite matrix: a NaN or a negative variance would give NaN or imaginary
@@ -511,7 +517,14 @@ def checked_cov(cov, n, name, column):
         k = int(np.flatnonzero(np.diag(cov) < 0)[0])
         raise DataError(f"entry {k} of the covariance's diagonal is negative "
                         f"({cov[k, k]:g}); expected variances >= 0.", file=name, column=column)
-    if n and np.linalg.eigvalsh((cov + cov.T) / 2).min() < -1e-8 * scale:
+    if n and np.sqrt(np.diag(cov)).max() > MAX_MODEL_U:
+        k = int(np.argmax(np.diag(cov)))
+        raise DataError(f"entry {k} of the covariance's diagonal ({cov[k, k]:.3g}) is a "
+                        f"standard uncertainty above {MAX_MODEL_U:g} (µm or µrad); no CMM "
+                        "model is that uncertain.", file=name, column=column,
+                        hint="refit and save the model again (fit --save).")
+    unit = cov / scale  # scaled: eigvalsh of entries near 1e308 overflows
+    if n and np.linalg.eigvalsh((unit + unit.T) / 2).min() < -1e-8:
         raise DataError("the covariance is not positive semi-definite; expected a "
                         "covariance matrix.", file=name, column=column,
                         hint="refit and save the model again (fit --save).")
