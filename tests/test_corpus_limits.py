@@ -17,10 +17,12 @@ import json
 import numpy as np
 import pytest
 from conftest import ROOT
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cmm_core.cli import main
 from cmm_core.gum import budget_from_dict
-from cmm_core.io import DataError, read_setup
+from cmm_core.io import SETUP_KEYS, DataError, read_setup
 from cmm_core.model import read_instrument, read_laser, read_step_gauge
 from cmm_core.plan import read_plan, read_task
 
@@ -188,3 +190,40 @@ def test_a_task_with_every_influence_zero_is_refused(tmp_path):
     task["probing_sigma_um"] = 0.2
     path.write_text(json.dumps(task))
     assert read_task(path).sigma_um == 0.2
+
+
+# ---------------------------------------------------------------------------------------
+# Property test: any value at any key of a setup (hypothesis)
+# ---------------------------------------------------------------------------------------
+
+_leaf = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6),
+                  st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8))
+_value = st.recursive(_leaf, lambda c: st.one_of(st.lists(c, max_size=4),
+                                                 st.dictionaries(st.text(max_size=8), c,
+                                                                 max_size=3)), max_leaves=8)
+_KEYS = [(), ("machine",), ("plate",), ("positions", "BP111"), ("probes",), ("certificate",)]
+_NAMES = sorted({k for keys in SETUP_KEYS.values() for k in keys} | {"note", "x"})
+
+
+@settings(max_examples=150, deadline=None)
+@given(where=st.sampled_from(_KEYS), key=st.sampled_from(_NAMES), value=_value)
+def test_any_value_anywhere_in_a_setup_is_refused_naming_it_or_read_finite(where, key, value):
+    """A key of the format (or a note) set to any JSON value at any level: a DataError
+    naming the file in one line, or a setup whose numbers are finite and in mm."""
+    d = copy.deepcopy(SETUP)
+    d.setdefault("certificate", {"U_um": [0.26, 0.0019], "k": 2})
+    parent = d
+    for k in where:
+        parent = parent.setdefault(k, {})
+    parent[key] = value
+    try:
+        s = read_setup(d, name="s.json")
+    except DataError as exc:
+        assert str(exc).startswith("s.json") and "\n" not in str(exc)
+        return
+    assert np.isfinite(s.range_mm).all() and (s.range_mm >= 10).all()
+    for pl in s.positions.values():
+        assert np.isfinite(pl.origin_mm).all() and np.isfinite(pl.rotation).all()
+    for p in s.probes.values():
+        assert np.isfinite(p).all()
+    assert np.isfinite(s.cte_per_K)
