@@ -55,6 +55,7 @@ PAGES = [
     st.Page("pages/export.py", title="Compensate and export", icon=":material/download:",
             url_path="export"),
     st.Page("pages/plan.py", title="Plan", icon=":material/route:", url_path="plan"),
+    st.Page("pages/check.py", title="Interim check", icon=":material/fact_check:", url_path="check"),
 ]
 
 

@@ -22,6 +22,7 @@ PAGES = {
     "pages/uncertainty.py": "Uncertainty",
     "pages/export.py": "Compensate and export",
     "pages/plan.py": "Plan",
+    "pages/check.py": "Interim check",
 }
 TIMEOUT = 60
 

@@ -1,0 +1,192 @@
+"""Interim check against a stored calibration, and a machine's calibration history."""
+
+import io
+import json
+from pathlib import Path
+
+import pandas as pd
+import plotly.express as px
+import streamlit as st
+
+from cmm_core import export as ex
+from cmm_core import io as cio
+from cmm_core import monitor as mon
+from pages import common as C
+
+C.page_start()
+st.title("Interim check")
+st.write("Between calibrations: does the machine still behave as its stored calibration "
+         "says, and if not, what changed (docs/monitoring.md)? And how has it changed over "
+         "its calibrations?")
+
+HISTORY = Path(__file__).resolve().parents[1] / "sample_data" / "history"
+SAMPLE_CHECKS = {"after a crash (2025-02-10, four placements)": "check_2025-02-10_after_crash",
+                 "quiet (2024-06-17, one placement)": "check_2024-06-17"}
+SAMPLE_MODEL = "calibration_2024-03-04.json"
+
+
+def _model(name: str, text: str):
+    return ex.model_from_dict(json.loads(text), name=name)
+
+
+@st.cache_data(show_spinner=False, max_entries=8)
+def run_check(model_name, model_text, meas, setup, cert, alpha, family_alpha, mpe):
+    """The check, what changed and (with an MPE) conformity, as plain tables and dicts."""
+    model = _model(model_name, model_text)
+    data = cio.load_dataset([(io.BytesIO(meas[1]), meas[0])], io.BytesIO(setup[1]),
+                            (io.BytesIO(cert[1]), cert[0]), name=meas[0])
+    check = mon.interim_check(model, data, alpha=alpha)
+    changes = mon.what_changed(model, check, family_alpha=family_alpha)
+    conf = None if mpe is None else mon.conformity(
+        model, check, data, mpe_a_um=mpe[0], mpe_per_mm=1 / mpe[1], changes=changes).to_dict()
+    return check.to_dict(), check.table, changes.to_dict(), changes.table, conf
+
+
+@st.cache_data(show_spinner=False, max_entries=8)
+def run_history(named_texts, dates, family_alpha):
+    """The calibration history of the models, as plain tables and a dict."""
+    models = [_model(n, t) for n, t in named_texts]
+    h = mon.compare_calibrations(list(zip(models, dates, strict=True)),
+                                 family_alpha=family_alpha)
+    return h.to_dict(), h.changes, h.trend, h.map_change
+
+
+def _read(path: Path) -> tuple:
+    return path.name, path.read_bytes()
+
+
+t_check, t_hist = st.tabs(["Interim check", "History"])
+
+with t_check:
+    src = st.radio("Data", ["Sample history", "Upload files"], horizontal=True,
+                   key="chk_src")
+    files = None
+    if src == "Sample history":
+        which = st.selectbox("Sample check", list(SAMPLE_CHECKS), key="chk_sample")
+        folder = HISTORY / SAMPLE_CHECKS[which]
+        st.caption(f"Stored calibration: {SAMPLE_MODEL}.")
+        files = ((SAMPLE_MODEL, (HISTORY / SAMPLE_MODEL).read_text()),
+                 _read(folder / "measurements.csv"), _read(folder / "setup.json"),
+                 _read(folder / "certificate.csv"))
+    else:
+        up_model = st.file_uploader("Stored model (fit --save JSON)", type=["json"],
+                                    key="chk_model")
+        up_meas = st.file_uploader("New measurements (CSV)", type=["csv", "txt"],
+                                   key="chk_meas")
+        up_setup = st.file_uploader("Setup (JSON)", type=["json"], key="chk_setup")
+        up_cert = st.file_uploader("Certificate (CSV)", type=["csv", "txt"], key="chk_cert")
+        if all(u is not None for u in (up_model, up_meas, up_setup, up_cert)):
+            files = ((up_model.name, up_model.getvalue().decode("utf-8", "replace")),
+                     (up_meas.name, up_meas.getvalue()), (up_setup.name, up_setup.getvalue()),
+                     (up_cert.name, up_cert.getvalue()))
+        else:
+            st.info("Upload the stored model, the new measurements, their setup and the "
+                    "plate's certificate.")
+    c1, c2, c3 = st.columns(3)
+    alpha = c1.number_input("χ² test level", 0.001, 0.2, 0.05, 0.01, key="chk_alpha",
+                            help="fraction of checks of an unchanged machine that fail")
+    family = c2.number_input("Family-wise level of the changes", 0.001, 0.2, 0.05, 0.01,
+                             key="chk_family", help="Holm over the parameters tested")
+    mpe_text = c3.text_input("MPE 'A,D' (A µm + L/D)", "0.6,600", key="chk_mpe",
+                             help="empty: no conformity statement")
+    mpe = None
+    if mpe_text.strip():
+        try:
+            a, d = (float(v) for v in mpe_text.split(","))
+            mpe = (a, d) if a >= 0 and d > 0 else None
+        except ValueError:
+            mpe = None
+        if mpe is None:
+            st.error(f"MPE: expected 'A,D' with A >= 0 µm and D > 0 (e.g. 0.6,600), found "
+                     f"{mpe_text[:40]!r}.")
+    if files is not None:
+        out = C.safe(run_check, files[0][0], files[0][1], files[1], files[2], files[3],
+                     float(alpha), float(family), mpe, what="Interim check")
+        if out is not None:
+            chk, table, chg, chg_table, conf = out
+            m1, m2, m3 = st.columns(3)
+            m1.metric("χ² / dof", f"{chk['chi2']:.1f} / {chk['dof']}")
+            m2.metric("p-value", f"{chk['p_value']:.3g}")
+            m3.metric("Within 95 % intervals", f"{100 * chk['coverage_95']:.1f} %")
+            (st.success if chk["status"] == "passes" else st.warning)(chk["message"])
+            with C.guarded("E_n map"):
+                t = table.assign(En=table[["En_x", "En_y", "En_z"]].abs().max(axis=1))
+                fig = px.scatter(t, x="x_mm", y="y_mm", color="En", symbol="position",
+                                 hover_data=["probe", "ball", "En_x", "En_y", "En_z"],
+                                 color_continuous_scale="Reds", range_color=(0, 4),
+                                 labels={"x_mm": "x (mm)", "y_mm": "y (mm)",
+                                         "En": "largest |E_n|"},
+                                 title="Normalised errors of the new observations "
+                                       "(scale readings)")
+                st.plotly_chart(fig, key="chk_map")
+            st.subheader("What changed")
+            st.write(chg["message"])
+            shown = chg_table[chg_table["tested"]].copy()
+            C.dataframe(shown[["label", "unit", "change", "u_change", "En", "significant",
+                               "change_alone", "u_change_alone", "En_alone",
+                               "significant_alone", "resolved"]],
+                        hide_index=True, key="chk_changes")
+            if chg["unseen"]:
+                with st.expander(f"{len(chg['unseen'])} combination(s) the new data cannot "
+                                 "see"):
+                    st.write("\n".join(f"- {u}" for u in chg["unseen"]))
+            st.subheader("Conformity")
+            if conf is None:
+                st.caption("Give the machine's MPE for a conformity statement.")
+            else:
+                # a machine out of its specification is a result, not a failure of the
+                # page: a warning (st.error is for what went wrong)
+                (st.success if conf["statement"] == "conforms" else
+                 st.warning if conf["statement"] == "does not conform" else st.info)(
+                    f"**{conf['statement']}**: {conf['message']}")
+
+with t_hist:
+    hsrc = st.radio("Calibrations", ["Sample history", "Upload model files"],
+                    horizontal=True, key="hist_src")
+    named, dates = None, None
+    if hsrc == "Sample history":
+        dmap = json.loads((HISTORY / "dates.json").read_text())
+        named = tuple((n, (HISTORY / n).read_text()) for n in dmap)
+        dates = tuple(dmap.values())
+        st.caption(", ".join(f"{n} ({d})" for n, d in dmap.items()))
+    else:
+        ups = st.file_uploader("Model files (fit --save JSON)", type=["json"],
+                               accept_multiple_files=True, key="hist_models")
+        if ups:
+            table = st.data_editor(pd.DataFrame({"model": [u.name for u in ups],
+                                                 "date": [""] * len(ups)}),
+                                   disabled=["model"], hide_index=True, key="hist_dates")
+            if table["date"].str.strip().all():
+                named = tuple((u.name, u.getvalue().decode("utf-8", "replace")) for u in ups)
+                dates = tuple(table["date"].str.strip())
+            else:
+                st.info("Give each model its calibration date (YYYY-MM-DD).")
+    hfam = st.number_input("Family-wise level", 0.001, 0.2, 0.05, 0.01, key="hist_family",
+                           help="Holm over every pair of consecutive calibrations and "
+                                "shared parameter")
+    if named is not None:
+        hout = C.safe(run_history, named, dates, float(hfam), what="Calibration history")
+        if hout is not None:
+            summary, changes, trend, grid = hout
+            st.write(summary["message"])
+            C.dataframe(changes, hide_index=True, key="hist_changes")
+            with C.guarded("Trend"):
+                labels = list(dict.fromkeys(trend["label"]))
+                default = summary["significant"][0]["label"] if summary["significant"] \
+                    else labels[0]
+                lab = st.selectbox("Parameter", labels, index=labels.index(default),
+                                   key="hist_label")
+                tr = trend[trend["label"] == lab]
+                fig = px.scatter(tr, x="date", y="value", error_y="u",
+                                 labels={"value": f"{lab} ({tr['unit'].iloc[0]})"},
+                                 title=f"{lab} over the calibrations (± u)")
+                st.plotly_chart(fig, key="hist_trend")
+            with C.guarded("Error map change"):
+                comp = st.selectbox("Component", ["x", "y", "z"], key="hist_comp")
+                fig = px.scatter(grid, x="x_mm", y="y_mm", color=f"de{comp}_um",
+                                 facet_col="z_mm", facet_col_wrap=3,
+                                 hover_data=[f"u_de{comp}_um"],
+                                 labels={f"de{comp}_um": f"change of e{comp} (µm)"},
+                                 title="Error map change, first to last calibration "
+                                       "(ram reference point)")
+                st.plotly_chart(fig, key="hist_map")
