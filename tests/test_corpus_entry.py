@@ -646,9 +646,6 @@ def _project_cases():
                                                       "change", "history", "extra"))
 
 
-@pytest.mark.xfail(strict=True, reason="project files are checked by export/downloads.py "
-                   "(not this change's file): a wrong type in dataset.measurements, "
-                   "exclusions or model still ends in raw TypeError text (issue 25)")
 def test_project_file_corpus_raises_only_data_errors_naming_the_file():
     """Every mutant either loads or raises DataError naming the file, one line."""
     doc_ok = project_from_json(json.dumps(_project_doc()), name="p.json")

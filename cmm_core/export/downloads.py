@@ -300,11 +300,14 @@ def project_from_json(text: str | bytes, name: str = "project.json") -> dict:
     setup = ds["setup"]
     if isinstance(setup, dict):
         setup = json.dumps(setup)
+    if not isinstance(setup, str):
+        raise DataError(f"dataset.setup must be the setup (an object or its JSON text), "
+                        f"found {type(setup).__name__}.", file=name, column="dataset.setup")
     model = _checked_model(doc.get("model") or {}, name)
     _check_model_names(model, meas, setup, name)
     try:
         excl = [(str(p), str(q), int(b)) for p, q, b in doc.get("exclusions", [])]
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise DataError("exclusions must be [position, probe, ball] triples.", file=name,
                         column="exclusions") from exc
     return {"dataset_name": str(ds.get("name") or "project"), "measurements": meas,
