@@ -7,7 +7,7 @@ from dataclasses import replace
 
 from test_monitor import calibrated
 
-from cmm_core.monitor import conformity, interim_check, remeasured
+from cmm_core.monitor import conformity, interim_check, remeasured, what_changed
 
 
 def test_full_check_of_a_good_machine_conforms_to_a_loose_mpe():
@@ -49,3 +49,19 @@ def test_non_square_plate_cannot_say():
                    meas=data.meas[data.meas.ball <= 20])
     c = conformity(model, interim_check(model, data), data, mpe_a_um=5.0)
     assert c.statement == "cannot say" and "square" in c.message
+
+
+def test_change_one_placement_cannot_see_is_told_so_not_conforms():
+    # 20 µm of z scale (dzz[1]) with the plate flat at one height: the check passes (p =
+    # 0.40 at this seed, measured: it
+    # cannot see z lengths), dzz[1] is not tested (resolved < 10 %), and the machine is
+    # "cannot say", never "conforms"
+    cal, model = calibrated("pitch100_4pos", 1)
+    data = remeasured(cal, 41, probes_per_position={"H0": ["A", "B"]},
+                      changes={"dzz[1]": 20.0}).dataset
+    check = interim_check(model, data)
+    ch = what_changed(model, check)
+    row = ch.table.set_index("label").loc["dzz[1]"]
+    assert not row.tested and row.resolved < 0.1
+    c = conformity(model, check, data, mpe_a_um=10.0, mpe_per_mm=1 / 100, changes=ch)
+    assert c.statement == "cannot say"

@@ -15,7 +15,8 @@ from ..model import Simulation, parse_spec, simulate, thesis_machine_setup
 
 
 def remeasured(calibration: Simulation, seed: int, *, changes: dict | None = None,
-               probes_per_position: dict | None = None) -> Simulation:
+               probes_per_position: dict | None = None,
+               effects: dict | None = None) -> Simulation:
     """The machine of ``calibration`` measured again with seed ``seed``.
 
     Parameters
@@ -29,6 +30,9 @@ def remeasured(calibration: Simulation, seed: int, *, changes: dict | None = Non
     probes_per_position : dict, optional
         Placement -> styli of the new measurement (default the calibration's): one entry
         simulates a check with one placement.
+    effects : dict, optional
+        Simulator effects of the new measurement (``simulate``'s ``effects``, e.g. a
+        ``drift`` the stored model does not have); default the calibration's.
 
     Returns
     -------
@@ -45,6 +49,8 @@ def remeasured(calibration: Simulation, seed: int, *, changes: dict | None = Non
         truth[lab] += float(dv)
     km["coefficients"] = truth
     cfg["seed"] = int(seed)
+    if effects is not None:
+        cfg["effects"] = copy.deepcopy(effects)
     if cfg["setup"] is None:
         cfg["setup"] = thesis_machine_setup()
     setup = cfg["setup"]
