@@ -52,10 +52,9 @@ def test_non_square_plate_cannot_say():
 
 
 def test_change_one_placement_cannot_see_is_told_so_not_conforms():
-    # 20 µm of z scale (dzz[1]) with the plate flat at one height: the check passes (p =
-    # 0.40 at this seed, measured: it
-    # cannot see z lengths), dzz[1] is not tested (resolved < 10 %), and the machine is
-    # "cannot say", never "conforms"
+    # 20 µm of z scale (dzz[1]) with the plate flat at one height: the check cannot see
+    # z lengths (it passes, p = 0.40 at this seed, measured), dzz[1] is not tested
+    # (resolved < 10 %), and the machine is "cannot say", never "conforms"
     cal, model = calibrated("pitch100_4pos", 1)
     data = remeasured(cal, 41, probes_per_position={"H0": ["A", "B"]},
                       changes={"dzz[1]": 20.0}).dataset
