@@ -124,3 +124,13 @@ def test_refusals_name_the_file_and_what_differs():
     with pytest.raises(DataError) as info:
         interim_check(model, remeasured(other, 3).dataset)
     assert "\n" not in str(info.value)
+
+
+def test_a_stored_model_that_failed_its_own_test_is_flagged():
+    cal, model = calibrated("pitch100_4pos", 1)
+    bad = replace(model, summary={**model.summary, "fails_chi2_test": True,
+                                  "birge_ratio": 1.8})
+    res = interim_check(bad, remeasured(cal, 41, probes_per_position={"H0": ["A"]}).dataset)
+    assert "failed its own χ² test (Birge ratio 1.80)" in res.message
+    assert "failed its own" not in interim_check(
+        model, remeasured(cal, 41, probes_per_position={"H0": ["A"]}).dataset).message

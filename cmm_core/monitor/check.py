@@ -245,6 +245,11 @@ def interim_check(model: Model, dataset: Dataset, *, sigma_um: float | None = No
            f"({'xyz'[worst % 3]} of ball {int(row.ball)}, {row.position}/{row.probe}); "
            f"{100 * np.mean(np.abs(En) <= 1.96):.1f} % of the components lie within their "
            "95 % intervals.")
+    if model.summary.get("fails_chi2_test"):
+        msg += (f" The stored model failed its own χ² test (Birge ratio "
+                f"{float(model.summary.get('birge_ratio', float('nan'))):.2f}): its σ "
+                "understates its data's scatter, and this check fails more often than "
+                f"{100 * alpha:g} % of an unchanged machine's checks.")
     if outside:
         msg += (f" {outside} observation(s) lie outside the region the model was fitted in "
                 "(its predictions there are extrapolated).")
