@@ -33,6 +33,7 @@ def calibrated(layout: str, seed: int):
     return cal, model_from_result(fit(cal.dataset, "kinematic21", plate="fixed"))
 
 
+@pytest.mark.slow
 def test_false_alarm_rate_is_the_stated_level():
     # at alpha = 0.2 a run of 2 x 15 seeds says more about the level than at 0.05: the
     # count of rejections is Binomial(30, 0.2) when the test holds its level; the bounds
@@ -49,6 +50,7 @@ def test_false_alarm_rate_is_the_stated_level():
     assert lo <= rejects <= hi, (rejects, lo, hi)
 
 
+@pytest.mark.slow
 def test_coverage_of_the_95_percent_intervals():
     # pooled over 2 x 8 seeds; the per-seed coverage scatters with sd 6.5 % (bench: the
     # stored model's error is shared by all of a seed's residuals), so the mean of 16
@@ -58,6 +60,7 @@ def test_coverage_of_the_95_percent_intervals():
     assert abs(np.mean(cov) - 0.95) < 0.05, np.mean(cov)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("layout", LAYOUTS)
 def test_squareness_step_of_3u_after_a_crash_is_detected_with_the_full_plate(layout):
     # bench/monitor.py measures the power at 100 % (400 seeds, pitch100_4pos); at a power

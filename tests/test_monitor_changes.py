@@ -5,12 +5,14 @@ what one placement cannot see."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy import stats
 from test_monitor import LAYOUTS, calibrated
 
 from cmm_core.monitor import interim_check, remeasured, what_changed
 
 
+@pytest.mark.slow
 def test_family_wise_false_alarms_at_most_the_level():
     # Holm holds the family-wise level (Holm 1979) at 0.2 here: over 2 x 12 unchanged
     # re-measurements the count of runs naming any parameter is at most Binomial(24, 0.2)
@@ -69,6 +71,7 @@ def test_scale_change_with_temperature_is_named():
     assert not check.passes and ch.significant_alone[0] == "dxx[1]"
 
 
+@pytest.mark.slow
 def test_new_drift_fails_the_check():
     # a drift of each placement (sd 4 µm/h, about 1.7 µm over its 25 min) the stored
     # model does not have: measured 5 of 5 seeds fail at 2 µm/h, so at 4 µm/h at most one

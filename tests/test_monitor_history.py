@@ -32,6 +32,7 @@ def test_holm_against_a_hand_computed_case():
     assert holm(np.array([0.03, 0.02]), 2, 0.05).tolist() == [True, True]
 
 
+@pytest.mark.slow
 def test_unchanged_machine_family_wise_false_alarms():
     # recalibrations of an unchanged machine: runs with any significant change at most
     # Binomial(2 x 8, 0.2) in distribution (Holm); bound its 99.9 % quantile
