@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 from scipy import linalg, stats
 
+from .._blas import single_blas_thread
 from ..export import Model
 from .check import InterimCheck
 
@@ -95,6 +96,7 @@ class Changes:
                 "unseen": list(self.unseen)}
 
 
+@single_blas_thread
 def what_changed(model: Model, check: InterimCheck, *,
                  family_alpha: float = 0.05) -> Changes:
     """The stored model refitted on the check's data with itself as the prior.

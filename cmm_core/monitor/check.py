@@ -36,6 +36,7 @@ import numpy as np
 import pandas as pd
 from scipy import linalg, stats
 
+from .._blas import single_blas_thread
 from ..export import Model
 from ..io import DataError, Dataset, range_tolerance
 from ..machine import kinematics as kin
@@ -191,6 +192,7 @@ class InterimCheck:
                                for r in worst.itertuples()]}
 
 
+@single_blas_thread
 def interim_check(model: Model, dataset: Dataset, *, sigma_um: float | None = None,
                   alpha: float = 0.05, positions=None, probes=None) -> InterimCheck:
     """Test new ball-plate measurements against a stored calibration.
@@ -273,6 +275,7 @@ def _observation_table(sys: CheckSystem, res: np.ndarray, u: np.ndarray,
     return t
 
 
+@single_blas_thread
 def check_system(model: Model, dataset: Dataset, *, sigma_um: float | None = None,
                  positions=None, probes=None) -> CheckSystem:
     """The linear system of an interim check (module docstring), validated at the entry.
@@ -324,6 +327,7 @@ def _cross_matrix(v: np.ndarray) -> np.ndarray:
     return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
 
 
+@single_blas_thread
 def gls_fit(sys: CheckSystem) -> GlsFit:
     """The poses by generalised least squares with the system's full covariance."""
     factor = linalg.cho_factor(sys.cov, lower=True)

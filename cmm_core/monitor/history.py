@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from .._blas import single_blas_thread
 from ..export import Model
 from ..io import DataError
 from ..machine import kinematics as kin
@@ -85,6 +86,7 @@ class History:
                 "map_change_max_um": worst}
 
 
+@single_blas_thread
 def compare_calibrations(models_with_dates, *, family_alpha: float = 0.05,
                          nodes_per_axis: int = 5) -> History:
     """Every shared parameter's change between consecutive calibrations of one machine.
