@@ -9,13 +9,16 @@ machine is measured again (new noise, new certificate draw) and checked against 
 - a squareness step of ``--step`` u (u of ``sxy`` in the stored model) after a crash,
   with the full plate and with one placement (the layout's first): the power.
 
-Rates are printed with their binomial standard errors. Usage: ``python bench/monitor.py
-[--seeds N] [--layouts a,b] [--step 3]``.
+Rates are printed with their binomial standard errors. With ``--timing``: the median
+time of the check's GLS step (``gls_fit``: Cholesky of the dense covariance) with one BLAS
+thread, beside the same function with the default threads in the same run. Usage:
+``python bench/monitor.py [--seeds N] [--layouts a,b] [--step 3] [--timing]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -29,7 +32,7 @@ import scenarios as sc  # noqa: E402
 
 from cmm_core.export import model_from_result  # noqa: E402
 from cmm_core.model import fit  # noqa: E402
-from cmm_core.monitor import interim_check, remeasured  # noqa: E402
+from cmm_core.monitor import check_system, gls_fit, interim_check, remeasured  # noqa: E402
 
 
 def one_seed(layout: str, seed: int, step_u: float, alpha: float, label: str = "sxy"):
@@ -50,6 +53,24 @@ def one_seed(layout: str, seed: int, step_u: float, alpha: float, label: str = "
     return (not same.passes, same.coverage_95, not full.passes, not single.passes)
 
 
+def timing(layout: str, repeats: int = 21) -> None:
+    """Median wall and CPU time of ``gls_fit`` with one BLAS thread and with the default
+    threads (its undecorated function), on one check of ``layout``."""
+    cal = sc.simulated(layout, 0)
+    model = model_from_result(fit(cal.dataset, "kinematic21", plate="fixed"))
+    system = check_system(model, remeasured(cal, 1).dataset)
+    for name, fn in (("one BLAS thread", gls_fit), ("default threads", gls_fit.__wrapped__)):
+        wall, cpu = [], []
+        for _ in range(repeats):
+            t, c = time.perf_counter(), time.process_time()
+            fn(system)
+            wall.append(time.perf_counter() - t)
+            cpu.append(time.process_time() - c)
+        print(f"{layout} gls_fit ({3 * len(system.obs.r_mm)} rows), {name}: median "
+              f"{1e3 * statistics.median(wall):.1f} ms wall, "
+              f"{1e3 * statistics.median(cpu):.1f} ms CPU")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=400, help="seeds per layout")
@@ -57,7 +78,13 @@ def main() -> None:
                     help="comma-separated layouts of tests/scenarios.py")
     ap.add_argument("--step", type=float, default=3.0, help="squareness step in u of sxy")
     ap.add_argument("--alpha", type=float, default=0.05, help="the χ² test's level")
+    ap.add_argument("--timing", action="store_true",
+                    help="time the GLS step only (one BLAS thread beside the default)")
     args = ap.parse_args()
+    if args.timing:
+        for layout in args.layouts.split(","):
+            timing(layout)
+        return
     for layout in args.layouts.split(","):
         t0 = time.perf_counter()
         rows = np.array([one_seed(layout, s, args.step, args.alpha)
