@@ -34,6 +34,7 @@ from .inputs import (
     add_foreign_args,
     add_instrument_args,
     add_outlier_args,
+    data_of,
     dataset_of,
     exclusions_of,
     instruments_of,
@@ -55,7 +56,7 @@ __all__ = [
     "add_outlier_args", "add_parser", "add_plan_arguments", "add_task_arguments",
     "AXIS_TABLE_FILES", "build_parser", "CERT_HELP", "cmd_air", "cmd_budget", "cmd_compensate",
     "cmd_diagnose", "cmd_fit", "cmd_gp", "cmd_plan", "cmd_report", "cmd_simulate", "cmd_task",
-    "command", "dataset_of", "exclusions_of", "instruments_of", "main", "MAX_CHECK_TRIALS",
+    "command", "data_of", "dataset_of", "exclusions_of", "instruments_of", "main", "MAX_CHECK_TRIALS",
     "MAX_MESSAGE", "MAX_TRIALS", "MAX_WORKERS", "MEAS_HELP", "MIN_TRIALS", "ORDER_HELP",
     "output_files", "PLATE_HELP", "run", "run_plan", "run_task", "SETUP_HELP", "sigma_of"
 ]

@@ -30,7 +30,7 @@ from ..io import (
     check_outputs,
     read_json,
 )
-from ..model import MAX_ORDER, fit, select, simulate, summary
+from ..model import MAX_ORDER, Observations, fit, select, simulate, summary
 from .export import add_parser as add_export_parser
 from .export import output_files as export_output_files
 from .inputs import (
@@ -39,6 +39,7 @@ from .inputs import (
     add_fit_args,
     add_instrument_args,
     add_outlier_args,
+    data_of,
     dataset_of,
     exclusions_of,
     instruments_of,
@@ -78,8 +79,8 @@ def cmd_simulate(args):
 
 
 def cmd_fit(args):
-    data = dataset_of(args)
     instruments = instruments_of(args)
+    data = data_of(args, instruments)
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
     sigma_um, sigma = sigma_of(args, data, exclude, args.model)
     r = fit(data, args.model, order=args.order, plate=args.plate, sigma_um=sigma_um,
@@ -102,11 +103,11 @@ def cmd_fit(args):
 
 
 def cmd_diagnose(args):
-    data = dataset_of(args)
     instruments = instruments_of(args)
+    data = data_of(args, instruments)
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
     sigma_um, sigma = sigma_of(args, data, exclude, args.baseline)
-    if instruments:  # they ride on the observations into every model the diagnosis fits
+    if instruments and not isinstance(data, Observations):  # they ride on the observations into every model the diagnosis fits
         from dataclasses import replace
 
         data = replace(select(data, exclude=exclude), instruments=tuple(instruments))

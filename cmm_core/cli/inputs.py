@@ -16,12 +16,13 @@ from ..io import (
     combine_plates,
     load_dataset,
     read_foreign,
+    read_machine,
     read_mapping,
     read_msl_bar,
     read_msl_plate,
     sniff,
 )
-from ..model import MAX_ORDER, read_instrument
+from ..model import MAX_ORDER, Observations, instrument_observations, read_instrument
 
 
 def dataset_of(args):
@@ -60,6 +61,26 @@ def dataset_of(args):
             if foreign:
                 raise DataError(foreign, file=Path(m).name) from None
         raise
+
+
+def data_of(args, instruments):
+    """The fitting commands' data: the dataset of :func:`dataset_of`, or, with instrument
+    files and no measurement file, an instrument-only fit's observations (the machine
+    from ``--setup``, which then needs no positions, or from an ``--msl-bar``'s
+    metadata)."""
+    if args.meas or args.msl or not instruments:
+        return dataset_of(args)
+    if args.setup is not None:
+        machine = read_machine(args.setup)
+    elif args.msl_bar and args.msl_metadata:
+        machine = read_machine(read_msl_bar(
+            args.msl_bar[0], args.msl_metadata[0], kind=args.msl_kind,
+            certificate_u=_certificate_u_arg(args.msl_certificate_u)).setup)
+    else:
+        raise DataError("an instrument-only fit needs the machine: give --setup (its "
+                        "machine.layout and range_mm; no positions needed).",
+                        file="command line")
+    return instrument_observations(instruments, *machine)
 
 
 def _certificate_u_arg(text):
@@ -131,8 +152,12 @@ def instruments_of(args):
                                            ("ball_bar", args.ball_bar)) for f in files]
     out = [read_instrument(f, kind) for kind, f in given]  # each reader bounds the size
     _refuse_twice([f for _, f in given])
-    for snapshot in getattr(args, "msl_bar", []):
-        bar = read_msl_bar(snapshot, kind=args.msl_kind,
+    bars = getattr(args, "msl_bar", [])
+    # the metadata files pair with the bars when no plate snapshot (--msl) takes them
+    metas = (getattr(args, "msl_metadata", []) if not getattr(args, "msl", []) else []) \
+        or [None] * len(bars)
+    for snapshot, meta in zip(bars, metas, strict=False):
+        bar = read_msl_bar(snapshot, meta, kind=args.msl_kind,
                            certificate_u=_certificate_u_arg(args.msl_certificate_u))
         out.append(read_instrument(io.BytesIO(bar.step_gauge_csv.encode()), "step_gauge",
                                    name=f"{bar.name} (as a step gauge)"))
@@ -283,12 +308,19 @@ def sigma_of(args, data, exclude, spec):
     """``(σ µm, JSON record)``: the stated value, or the estimate for ``--sigma-um auto``."""
     if args.sigma_um != "auto":
         return args.sigma_um, {"value_um": args.sigma_um, "auto": False}
+    if isinstance(data, Observations):
+        raise DataError("--sigma-um auto estimates the plate's repeatability, and an "
+                        "instrument-only fit has no plate; give a number (it weighs no "
+                        "instrument row: each reading has its own u_um).",
+                        file="command line")
 
     est = estimate_sigma(data, spec, order=args.order, plate=args.plate, exclude=exclude)
     return est.value_um, {**est.to_dict(), "auto": True}
 
 
 def exclusions_of(data, exclude_flagged):
+    if isinstance(data, Observations):  # instruments only: no plate, no plate outlier
+        return [], []
     rep = detect_outliers(data)
     out = [{k: o[k] for k in ("position", "probe", "ball", "axis", "deviation_um")}
            for o in rep.outliers]
