@@ -20,6 +20,7 @@ import errno
 import io
 import json
 import os
+import re
 import secrets
 import stat
 from collections.abc import Iterator
@@ -728,9 +729,10 @@ def _point_chunks(path: Path, name: str, chunk_points: int) -> Iterator[pd.DataF
             keep_cr = bool(raw) and pending.endswith("\r")
             text = (pending[:-1] if keep_cr else pending).replace("\r\n", "\n") \
                 .replace("\r", "\n")
+            # at the end of the file the rest is the last chunk, whatever it holds
             cut = len(text) if not raw else _chunk_end(text, chunk_points,
                                                       blank=header is None)
-            if cut == 0:
+            if raw and cut == 0:
                 if len(text) > MAX_BYTES:
                     raise DataError(f"has a line or quoted cell longer than "
                                     f"{MAX_BYTES / 1e6:.0f} MB; it is not a points table.",
@@ -773,6 +775,10 @@ def _header_line(chunk: str) -> str:
     return next(line for line in chunk.split("\n") if line.strip(" \t,;"))
 
 
+_BLANK_LINE = re.compile(r"^(?:[^\S\n]|,)*$", re.MULTILINE)
+"""A line without a cell (blank, or separators only): read_csv_text skips it."""
+
+
 def _chunk_table(header: str, chunk: str, first_row: int, columns: list | None,
                  name: str) -> pd.DataFrame:
     """A later chunk as :func:`read_csv_text` reads it with the header line before it, its
@@ -780,7 +786,8 @@ def _chunk_table(header: str, chunk: str, first_row: int, columns: list | None,
     plain comma-separated cells (no quotes, no blank line, the header's number of cells
     on every line) goes through pandas' C reader, which gives the same strings faster."""
     n_lines = chunk.count("\n") + (not chunk.endswith("\n"))
-    if columns is not None and '"' not in chunk:
+    body = chunk[:-1] if chunk.endswith("\n") else chunk
+    if columns is not None and '"' not in chunk and not _BLANK_LINE.search(body):
         try:
             df = pd.read_csv(io.StringIO(chunk), header=None, names=columns, dtype=str,
                              na_filter=False, skipinitialspace=True, engine="c")
