@@ -667,9 +667,17 @@ if rep is not None:
                   args=(others, False))
 
 st.subheader("Placements in the machine volume")
-with C.guarded("3D view"):
-    st.plotly_chart(C.figure("placements", (s["ds_key"],), C.rep.fig_placements, ds),
-                    key="fig_placements")
+with C.guarded("Placement views"):
+    # three flat views by default (SVG: drawn at once); the WebGL scene on request, as it
+    # cost most of a first page load (issue 27)
+    if st.toggle("3-D view", key="w_place_3d",
+                 help="Rotate the placements in 3-D (slower to draw than the three views)."):
+        st.plotly_chart(C.figure("placements", (s["ds_key"],), C.rep.fig_placements, ds),
+                        key="fig_placements")
+    else:
+        st.plotly_chart(C.figure("placement_views", (s["ds_key"],),
+                                 C.rep.fig_placement_views, ds),
+                        key="fig_placement_views", width="stretch")
 
 with st.expander("Measurements (as read, mm)"):
     C.dataframe(m, hide_index=True, key="meas_table")

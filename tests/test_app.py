@@ -967,3 +967,25 @@ def test_simulated_moving_table_with_instruments_fits_within_its_noise():
     assert 0.75 <= chi2 <= 1.3
     assert set(_frame(at, "RMS residual/u")["kind"]) == {"laser", "step_gauge"}
     assert (_frame(at, "gain")["gain"] > 0.99).all()
+
+
+def test_placements_drawn_as_three_views_and_in_3d_on_request():
+    """Issue 27: the WebGL 3-D scene cost most of the first page load; the Data page draws
+    three orthographic views (SVG) and the 3-D scene only when asked."""
+    at = _new()
+    at.switch_page("pages/data.py")
+    at.run()
+    _ok(at)
+    keys = [c.key for c in at.get("plotly_chart")]
+    assert "fig_placement_views" in keys and "fig_placements" not in keys
+    at.toggle(key="w_place_3d").set_value(True)
+    at.run()
+    _ok(at)
+    keys = [c.key for c in at.get("plotly_chart")]
+    assert "fig_placements" in keys and "fig_placement_views" not in keys
+    from cmm_core.analysis import fig_placement_views
+    from cmm_core.io import thesis_dataset
+
+    fig = fig_placement_views(thesis_dataset())
+    # one trace per placement and view, plus the volume outline in each view
+    assert len(fig.data) == 3 * (6 + 1)
