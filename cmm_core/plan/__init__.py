@@ -47,6 +47,7 @@ from .files import (
 )
 from .plans import STROKE_POINTS, Plan, design_fit, fit_plan_data, simulate_plan, simulation_config
 from .proposals import (
+    CHUNK,
     SHIFT_FRACTION,
     STYLUS_OFFSET_MM,
     TARGET_POWER,
@@ -63,9 +64,11 @@ from .proposals import (
     plan_file,
     plate_grid,
     propose,
+    propose_many,
     rivals_of,
     simulate_outcomes,
     truth_config,
+    wide_candidates,
 )
 from .study import (
     PHYSICAL_CHECKS,
@@ -106,5 +109,6 @@ __all__ = [
     "TARGET_POWER", "SHIFT_FRACTION", "STYLUS_OFFSET_MM", "NextMeasurement", "Outcome",
     "PlateGrid", "Proposal", "Proposals", "RivalFits", "append_measurement", "fit_rivals",
     "measurement_candidates", "measurement_observations", "plan_file", "plate_grid",
-    "propose", "rivals_of", "simulate_outcomes", "truth_config",
+    "propose", "rivals_of", "simulate_outcomes", "truth_config", "CHUNK", "propose_many",
+    "wide_candidates",
 ]

@@ -35,6 +35,7 @@ ball and per placement).
 from __future__ import annotations
 
 import copy
+import json
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -55,6 +56,7 @@ from ..model import (
 )
 from .detect import candidate_tokens
 from .files import MEASUREMENT_DEFAULTS
+from .study import dask_client
 
 TARGET_POWER = 0.9
 """Power at which a proposal counts as deciding the pair of rivals."""
@@ -62,8 +64,14 @@ TARGET_POWER = 0.9
 SHIFT_FRACTION = 0.5
 """Default fraction of the ball pitch by which the plate is shifted."""
 
+CHUNK = 16
+"""Candidates per Dask task of :func:`propose_many`."""
+
 STYLUS_OFFSET_MM = 60.0
 """Lateral offset (mm) of the extra styli proposed."""
+
+_NO_ERRORS = {"random_um": 0.0, "random_urad": 0.0}
+"""Simulator keys: no kinematic errors drawn (the simulator's default draws 1 µm, 1 µrad)."""
 
 _COLUMNS = ["position", "probe", "ball", "time_min", "temp_C", "x_mm", "y_mm", "z_mm"]
 
@@ -160,8 +168,8 @@ class Proposals:
         Rival taken as the truth -> power of its nested test with the current data alone
         (the same formula without a candidate): what the data already decide.
     ranked : list of Proposal
-        Best first: those reaching ``target`` power by machine time, then the rest by
-        power.
+        Best first: those reaching ``target`` power by machine time (at equal time by
+        power, then Δχ² per minute), then the rest by power.
     skipped : dict
         Candidate name -> why it was not scored (outside the machine, ...).
     target : float
@@ -345,6 +353,38 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
     return out
 
 
+def _tagged(c: NextMeasurement, tag: str) -> NextMeasurement:
+    """The candidate with its placement and new styli renamed by ``tag`` (unique names
+    when several references or fractions are combined)."""
+    def ren(n):
+        return f"{n}_{tag}" if n.startswith("next_") else n
+
+    return NextMeasurement(
+        f"{c.name}_{tag}", c.description,
+        {ren(p): {**pl, "probe": ren(pl["probe"])} for p, pl in c.positions.items()},
+        {ren(q): v for q, v in c.probes.items()},
+        {ren(p): [ren(q) for q in qs] for p, qs in c.probes_of.items()}, c.time_min)
+
+
+def wide_candidates(data: Dataset, fractions=(0.25, 0.5, 0.75)) -> list[NextMeasurement]:
+    """A large candidate set: :func:`measurement_candidates` from every placement as the
+    reference and at each shift ``fractions`` of the pitch (a study for
+    :func:`propose_many`); duplicates are kept once (same placement, styli and offsets)."""
+    out, seen = [], set()
+    for p in data.setup.raw["positions"]:
+        for i, f in enumerate(fractions):
+            for c in measurement_candidates(data, reference=p, shift_fraction=f):
+                if i and not c.name.startswith("shift_"):
+                    continue
+                key = json.dumps([list(c.positions.values()), list(c.probes_of.values()),
+                                  c.probes], sort_keys=True)
+                if key in seen:
+                    continue
+                seen.add(key)
+                out.append(_tagged(c, f"{p}_{round(100 * f)}"))
+    return out
+
+
 def append_measurement(data: Dataset, cand: NextMeasurement, *, config: dict | None = None,
               seed: int = 0) -> Dataset:
     """The data set with the candidate's measurement appended, simulated on the virtual
@@ -366,7 +406,10 @@ def append_measurement(data: Dataset, cand: NextMeasurement, *, config: dict | N
     setup.update({"frame": "machine", "positions": cand.positions, "probes": probes})
     if "artefact" in raw:
         setup["artefact"] = raw["artefact"]
-    cfg = {**(config or {}), "seed": seed, "setup": setup,
+    config = config or {}
+    cfg = {**config, "seed": seed, "setup": setup,
+           "noise_um": config.get("noise_um", 0.0),
+           "kinematic": {**_NO_ERRORS, **config.get("kinematic", {})},
            "probes_per_position": cand.probes_of,
            "plate": {"rows": grid.rows, "cols": grid.cols, "pitch_mm": grid.pitch_mm,
                      "form_um": 0.0, "certificate_u_um": 0.0}}
@@ -544,7 +587,7 @@ def measurement_observations(data: Dataset, cands: list):
         probes.update(c.probes)
     setup.update({"frame": "machine", "probes": probes,
                   "positions": {p: pl for c in cands for p, pl in c.positions.items()}})
-    cfg = {"seed": 0, "setup": setup,
+    cfg = {"seed": 0, "setup": setup, "noise_um": 0.0, "kinematic": dict(_NO_ERRORS),
            "probes_per_position": {p: q for c in cands for p, q in c.probes_of.items()},
            "plate": {"rows": grid.rows, "cols": grid.cols, "pitch_mm": grid.pitch_mm,
                      "form_um": 0.0, "certificate_u_um": 0.0}}
@@ -574,6 +617,29 @@ def _rows(des: _Design, keep: np.ndarray) -> _Design:
     used = np.abs(J).sum(axis=0) > 0
     return _Design(J[:, used], [lab for lab, u in zip(des.labels, used, strict=True) if u],
                    des.has)
+
+
+def _proposals(results, rivals, rf: RivalFits) -> list:
+    """Proposals from ``(candidate, {rival: (λ, k, ν, power)})`` pairs."""
+    out = []
+    for cand, res in results:
+        lam = {t: v[0] for t, v in res.items()}
+        power = {t: v[3] for t, v in res.items()}
+        pmin = min(power.values())
+        out.append(Proposal(cand, rivals, lam, {t: (v[1], v[2]) for t, v in res.items()},
+                            dict(rf.levels), power, pmin, min(lam.values()) / cand.time_min,
+                            _outcome(cand, rivals, lam, pmin)))
+    return out
+
+
+def _rank_key(target: float):
+    """Ranking: proposals reaching ``target`` power first, by machine time; then the
+    others by power; at equal time by power, then by name (the same order however the
+    candidates were split)."""
+    # rounded: the same candidate scored in another chunk differs by rounding (1e-15)
+    return lambda p: (p.power_min < target, p.candidate.time_min if p.power_min >= target
+                      else -round(p.power_min, 9), -round(p.power_min, 9),
+                      -round(p.per_minute, 6), p.candidate.name)
 
 
 def _score_candidates(now: _Design, obs, ok: list, rf: RivalFits):
@@ -624,18 +690,12 @@ def propose(data: Dataset, rivals=None, *, baseline: str = "kinematic21", order:
     now = _design(select(data), rf)
     current = {t: v[3] for t, v in _score_on(now, rf).items()}
     cands = list(cands if cands is not None else measurement_candidates(data))
-    obs, ok, skipped = _in_machine(data, cands)
-    scored = []
-    for cand, res in _score_candidates(now, obs, ok, rf):
-        lam = {t: v[0] for t, v in res.items()}
-        power = {t: v[3] for t, v in res.items()}
-        pmin = min(power.values())
-        scored.append(Proposal(cand, rivals, lam, {t: (v[1], v[2]) for t, v in res.items()},
-                               dict(rf.levels), power, pmin,
-                               min(lam.values()) / cand.time_min,
-                               _outcome(cand, rivals, lam, pmin)))
-    scored.sort(key=lambda p: (p.power_min < target, p.candidate.time_min
-                               if p.power_min >= target else -p.power_min))
+    scored, skipped = [], {}
+    for i in range(0, len(cands), CHUNK):  # one simulation and design per chunk
+        obs, ok, out = _in_machine(data, cands[i:i + CHUNK])
+        skipped.update(out)
+        scored += _proposals(_score_candidates(now, obs, ok, rf), rivals, rf)
+    scored.sort(key=_rank_key(target))
     a, b = rivals
     if scored:
         msg = (f"{a} against {b}: the current data decide with {100 * min(current.values()):.0f}"
@@ -644,6 +704,45 @@ def propose(data: Dataset, rivals=None, *, baseline: str = "kinematic21", order:
         msg = f"{a} against {b}: no candidate measurement fits in the machine."
     return Proposals(rivals, rf.fits[a].problem.spec.to_string(), current, scored, skipped,
                      target, msg)
+
+
+def _score_chunk(cands: list, data: Dataset, rivals, settings: dict) -> Proposals:
+    """One Dask task of :func:`propose_many` (BLAS single-threaded: ``propose``)."""
+    return propose(data, rivals, cands=cands, **settings)
+
+
+def propose_many(data: Dataset, rivals, cands: list, *, client=None,
+                 scheduler: str | None = None, workers: int = 2, chunk: int = CHUNK,
+                 **settings) -> Proposals:
+    """:func:`propose` for a large candidate set (e.g. :func:`wide_candidates`), scored
+    in chunks of ``chunk`` candidates on Dask: ``client``, else a scheduler address, else
+    a ``LocalCluster`` of ``workers`` processes (``study.dask_client``, as the plan
+    studies run). ``settings``: :func:`propose`'s keywords. The rivals must be given."""
+    if rivals is None:
+        raise ValueError("propose_many needs the two rivals (run propose once, or "
+                         "rivals_of(diagnosis)).")
+    chunks = [cands[i:i + chunk] for i in range(0, len(cands), max(int(chunk), 1))]
+    if len(chunks) <= 1:
+        return propose(data, rivals, cands=cands, **settings)
+
+    def go(c):
+        return c.gather(c.map(_score_chunk, chunks, data=data, rivals=tuple(rivals),
+                              settings=settings, pure=False))
+
+    if client is not None:
+        parts = go(client)
+    else:
+        with dask_client(scheduler, workers) as c:
+            parts = go(c)
+    target = settings.get("target", TARGET_POWER)
+    ranked = sorted((p for part in parts for p in part.ranked), key=_rank_key(target))
+    skipped = {k: v for part in parts for k, v in part.skipped.items()}
+    first = parts[0]
+    msg = first.message.partition(" Best next measurement:")[0]
+    if ranked:
+        msg += f" Best next measurement: {ranked[0].outcome}."
+    return Proposals(first.rivals, first.baseline, first.current, ranked, skipped, target,
+                     msg)
 
 
 def truth_config(fitted: FitResult, exclude_positions=()) -> dict:
