@@ -259,14 +259,16 @@ def _unit(v) -> np.ndarray:
 
 def _placement_time(n_balls: int, n_probes: int, minutes_per_ball: float,
                     minutes_per_placement: float) -> float:
+    """``Plan.time_min`` for one placement (a Plan needs a full plan to be built)."""
     return float(n_balls * n_probes * minutes_per_ball + minutes_per_placement)
 
 
 def measurement_candidates(data: Dataset, *, reference: str | None = None,
-               shift_fraction: float = SHIFT_FRACTION,
-               stylus_offset_mm: float = STYLUS_OFFSET_MM,
-               minutes_per_ball: float | None = None,
-               minutes_per_placement: float | None = None) -> list[NextMeasurement]:
+                           shift_fraction: float = SHIFT_FRACTION,
+                           stylus_offset_mm: float = STYLUS_OFFSET_MM,
+                           minutes_per_ball: float | None = None,
+                           minutes_per_placement: float | None = None
+                           ) -> list[NextMeasurement]:
     """The default candidate measurements for a data set.
 
     From a reference placement (default: the first horizontal one): the plate shifted
@@ -277,13 +279,16 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
     stylus 100 mm longer; and, with two styli or more, measured again with its styli in
     reverse order. Each new placement is measured with the reference's styli (the new
     stylus alone for a stylus candidate). Candidates outside the machine are dropped by
-    :func:`propose` (with the reason).
+    :func:`propose` (with the reason). Machine time: the plan's time model
+    (``Plan.time_min``), minutes per ball and per placement defaulting to
+    ``files.MEASUREMENT_DEFAULTS``.
     """
     grid = plate_grid(data)
-    per_ball = float(MEASUREMENT_DEFAULTS["minutes_per_ball"] if minutes_per_ball is None  # type: ignore[arg-type]
+    defaults: dict = MEASUREMENT_DEFAULTS
+    per_ball = float(defaults["minutes_per_ball"] if minutes_per_ball is None
                      else minutes_per_ball)
-    per_place = float(MEASUREMENT_DEFAULTS["minutes_per_placement"]  # type: ignore[arg-type]
-                      if minutes_per_placement is None else minutes_per_placement)
+    per_place = float(defaults["minutes_per_placement"] if minutes_per_placement is None
+                      else minutes_per_placement)
     raw = data.setup.raw
     pos = raw["positions"]
     probes_in = {p: list(dict.fromkeys(data.meas.loc[data.meas["position"] == p, "probe"]))
