@@ -1,26 +1,27 @@
-"""Benchmark: kinematic fit on the six thesis tables and on 10^5 simulated observations.
+"""Benchmark: kinematic fit on the six thesis tables, and on 10^5 and 10^6 simulated
+observations.
 
-For each dataset: the median wall time of ``cmm_core.fit.fit`` and, in the same run, of
+For each dataset: the median wall time of ``cmm_core.model.fit`` and, in the same run, of
 scipy.optimize.least_squares solving the same problem (same residuals, same analytic sparse
 Jacobian, no constraints needed for the fixed-plate model), their ratio, the peak traced
 memory of one fit (tracemalloc, which sees numpy's allocations) and both χ².
 
-Beside it, the same fit by the previous ``fit.py`` (commit ``PREVIOUS_FIT``, read with git
-and loaded as a module of the package: it built the sparse J and multiplied it out, where
-the fit now accumulates the normal equations block by block of observations), with its
-time, peak memory and the largest parameter difference (relative to the parameter and to
-its uncertainty).
+On 10^6 observations (issue 25: under 5 s and 400 MB) the least_squares peer would take
+many minutes; the peer there is the floor of any Gauss-Newton fit of this model: one
+pass of the forward model's Jacobian (``kinematics.jacobian``) over the same points, in
+blocks of ``normal.ROWS``, times the number of Jacobian passes the fit made (one per
+accumulation of the normal equations, ``normal.accumulate``, counted in the run).
 
 Then the forward model alone on the 10^5 points: ``kinematics.jacobian`` and
 ``kinematics.model_point`` against the previous implementation (batched (n, 3, 3) matrix
-products, ``kinematics.py`` at commit ``PREVIOUS``, read with git), with the largest
-difference of their results.
+products, ``kinematics.py`` at commit ``PREVIOUS``, read with git: a self-contained module
+of numpy only; skipped with a note where git or that commit is missing).
 
-The 10^5-observation dataset is the default simulation with 100 repeats (30,000 rows, the
-simulator's limit) tiled to 100,200 rows, the size of the issue-18 figure (334 repeats):
-the same problem structure (25 balls, 6 positions, 2 probes each) at that size.
-Run: ``.venv/bin/python bench/fit.py`` (``--quick`` skips the least_squares peer on the
-large set, whose lsmr solve takes about a minute).
+The large datasets are the default simulation with 100 repeats (30,000 rows, the
+simulator's limit) tiled to 100,200 and 1,000,000 rows: the same problem structure (25
+balls, 6 positions, 2 probes each) at that size.
+Run: ``.venv/bin/python bench/fit.py`` (``--quick``: no least_squares peer on the 10^5
+set, whose lsmr solve takes about a minute, and one repeat of the 10^6 fit).
 """
 
 import argparse
@@ -28,8 +29,8 @@ import dataclasses
 import importlib.util
 import subprocess
 import sys
+import time
 import tracemalloc
-import types
 from pathlib import Path
 
 import numpy as np
@@ -44,11 +45,12 @@ from _timing import median_time  # noqa: E402
 from cmm_core.diagnosis import detect_outliers  # noqa: E402
 from cmm_core.io import thesis_dataset  # noqa: E402
 from cmm_core.machine import kinematics as kin  # noqa: E402
-from cmm_core.model import Problem, fit, parse_spec, select, simulate  # noqa: E402
+from cmm_core.model import ROWS, Problem, fit, parse_spec, select, simulate  # noqa: E402
+from cmm_core.model import normal as normal_module  # noqa: E402
 
 PREVIOUS = "08e52a4"  # last commit with the batched-matmul forward model
-PREVIOUS_FIT = "718abca"  # last commit whose fit formed the sparse Jacobian
 N_LARGE = 100_200
+N_HUGE = 1_000_000
 
 
 def peer(data, exclude=()):
@@ -72,44 +74,6 @@ def peer(data, exclude=()):
                          x_scale="jac", tr_solver="exact" if dense else "lsmr")
 
 
-def with_previous_kinematics(old, f):
-    """``f()`` with every cmm_core module's ``kin`` swapped for the previous kinematics
-    (which knows only the moving bridge FXYZ: the layout argument is dropped)."""
-    mods = [m for k, m in list(sys.modules.items())
-            if k.startswith("cmm_core") and getattr(m, "kin", None) is kin]
-    shim = types.ModuleType("kinematics_previous_shim")
-    shim.__dict__.update(old.__dict__)
-
-    def terms(orders, range_mm, periods=(), layout=kin.DEFAULT_LAYOUT):
-        if layout != kin.DEFAULT_LAYOUT:
-            raise ValueError(f"the previous kinematics has no layout {layout!r}")
-        return old.KinematicTerms(orders, range_mm, periods)
-
-    shim.KinematicTerms = terms
-    for m in mods:
-        m.kin = shim
-    try:
-        return f()
-    finally:
-        for m in mods:
-            m.kin = kin
-
-
-def previous_fit():
-    """``fit.py`` at ``PREVIOUS_FIT`` as a module of the package, or None without git."""
-    try:
-        src = subprocess.run(["git", "show", f"{PREVIOUS_FIT}:cmm_core/fit.py"], cwd=ROOT,
-                             capture_output=True, text=True, check=True).stdout
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    spec = importlib.util.spec_from_loader("cmm_core._fit_previous", loader=None)
-    mod = importlib.util.module_from_spec(spec)
-    mod.__package__ = "cmm_core"
-    sys.modules[spec.name] = mod
-    exec(compile(src, "fit_previous.py", "exec"), mod.__dict__)
-    return mod
-
-
 def peak_mb(f):
     tracemalloc.start()
     try:
@@ -119,24 +83,7 @@ def peak_mb(f):
         tracemalloc.stop()
 
 
-def compare_previous(data, repeats, exclude, ours, r, peak):
-    prev = previous_fit()
-    if prev is None:
-        print("  previous fit.py: git unavailable, not compared")
-        return
-    t_prev, p = median_time(lambda: prev.fit(data, "kinematic21", exclude=exclude), repeats)
-    peak_prev = peak_mb(lambda: prev.fit(data, "kinematic21", exclude=exclude))
-    dv = np.abs(r.values - p.values)
-    rel = float(np.max(dv / np.maximum(np.abs(p.values), 1e-300)))
-    rel_u = float(np.nanmax(dv / p.u))
-    print(f"  same fit by the previous fit.py ({PREVIOUS_FIT}): {t_prev * 1e3:.1f} ms, ratio "
-          f"ours/previous {ours / t_prev:.2f}, peak memory {peak_prev:.0f} MB (ours {peak:.0f}),"
-          f" largest parameter difference {rel:.1e} relative, {rel_u:.1e} of its u; chi2 "
-          f"{p.chi2:.1f} vs ours {r.chi2:.1f}; iterations {p.iterations} vs {r.iterations}",
-          flush=True)
-
-
-def report(name, data, repeats, exclude=(), with_peer=True, old=None):
+def report(name, data, repeats, exclude=(), with_peer=True):
     fit(data, "kinematic21", exclude=exclude)  # warm-up: first-call page faults, imports
     ours, r = median_time(lambda: fit(data, "kinematic21", exclude=exclude), repeats)
     peak = peak_mb(lambda: fit(data, "kinematic21", exclude=exclude))
@@ -146,18 +93,49 @@ def report(name, data, repeats, exclude=(), with_peer=True, old=None):
         line += (f"  least_squares {theirs * 1e3:.1f} ms  ratio ours/peer {ours / theirs:.2f}"
                  f"  chi2 ours {r.chi2:.1f} vs peer {float(p.fun @ p.fun):.1f}")
     print(line + f"  peak memory {peak:.0f} MB", flush=True)
-    compare_previous(data, repeats, exclude, ours, r, peak)
-    if old is not None:
-        t_old, r_old = with_previous_kinematics(old, lambda: median_time(
-            lambda: fit(data, "kinematic21", exclude=exclude), repeats))
-        print(f"  same fit with the previous kinematics ({PREVIOUS}): {t_old * 1e3:.1f} ms, "
-              f"ratio ours/previous {ours / t_old:.2f}, chi2 {r_old.chi2:.1f}", flush=True)
 
 
-def large_dataset():
+def jacobian_pass(data):
+    """Seconds of one pass of ``kinematics.jacobian`` over the observations of ``data``,
+    in blocks of ``ROWS`` (what one accumulation of the normal equations must evaluate)."""
+    obs = select(data)
+    m = parse_spec("kinematic21")
+    terms = kin.KinematicTerms(m.active, tuple(obs.range_mm), m.periods)
+    coef = np.random.default_rng(0).normal(0, 5, terms.n)
+    x, p = obs.r_mm - obs.p_mm, obs.p_mm
+    t = time.perf_counter()
+    for lo in range(0, len(x), ROWS):
+        kin.jacobian(terms, coef, x[lo:lo + ROWS], p[lo:lo + ROWS])
+    return time.perf_counter() - t
+
+
+def report_huge(data, repeats):
+    """The 10^6-observation fit: time, peak memory, and the Jacobian-pass floor."""
+    calls = []
+    accumulate = normal_module.accumulate
+
+    def counted(*a, **k):
+        calls.append(1)
+        return accumulate(*a, **k)
+
+    ours, r = median_time(lambda: fit(data, "kinematic21"), repeats)
+    normal_module.accumulate = counted  # the Problem looks it up in the module
+    try:
+        fit(data, "kinematic21")
+    finally:
+        normal_module.accumulate = accumulate
+    floor = jacobian_pass(data) * len(calls)
+    peak = peak_mb(lambda: fit(data, "kinematic21"))
+    print(f"simulated 10^6: n_obs={r.n_obs}  median fit {ours:.1f} s ({repeats} repeats)  "
+          f"peak memory {peak:.0f} MB (traced)  peer: {len(calls)} Jacobian passes of the "
+          f"forward model alone {floor:.1f} s  ratio ours/peer {ours / floor:.2f}",
+          flush=True)
+
+
+def large_dataset(n=N_LARGE):
     ds = simulate({"seed": 1, "repeats": 100}).dataset
-    reps = -(-N_LARGE // len(ds.meas))
-    meas = pd.concat([ds.meas] * reps, ignore_index=True).iloc[:N_LARGE]
+    reps = -(-n // len(ds.meas))
+    meas = pd.concat([ds.meas] * reps, ignore_index=True).iloc[:n]
     return dataclasses.replace(ds, meas=meas)
 
 
@@ -166,7 +144,7 @@ def previous_kinematics():
     try:
         src = subprocess.run(["git", "show", f"{PREVIOUS}:cmm_core/kinematics.py"], cwd=ROOT,
                              capture_output=True, text=True, check=True).stdout
-    except (OSError, subprocess.CalledProcessError):
+    except (OSError, subprocess.CalledProcessError):  # no git, or a shallow clone
         return None
     spec = importlib.util.spec_from_loader("kinematics_previous", loader=None)
     mod = importlib.util.module_from_spec(spec)
@@ -178,7 +156,8 @@ def previous_kinematics():
 def forward_model(data, repeats=5):
     old = previous_kinematics()
     if old is None:
-        print("forward model: git unavailable, previous implementation not compared")
+        print(f"  git or commit {PREVIOUS} unavailable: previous implementation not "
+              "compared")
         return
     obs = select(data)
     m = parse_spec("kinematic21")
@@ -202,12 +181,14 @@ def forward_model(data, repeats=5):
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true",
-                    help="no least_squares peer on the 10^5-observation set")
+                    help="no least_squares peer on the 10^5-observation set, one repeat of "
+                         "the 10^6 fit")
     args = ap.parse_args()
-    prev = previous_kinematics()
     th = thesis_dataset()
-    report("thesis six tables", th, 21, detect_outliers(th).exclusions, old=prev)
+    report("thesis six tables", th, 21, detect_outliers(th).exclusions)
     big = large_dataset()
-    report("simulated 10^5", big, 3, with_peer=not args.quick, old=prev)
+    report("simulated 10^5", big, 3, with_peer=not args.quick)
     print("forward model on the 10^5 points, kinematic21 order 2:")
     forward_model(big)
+    del big
+    report_huge(large_dataset(N_HUGE), 1 if args.quick else 3)
