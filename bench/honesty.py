@@ -5,7 +5,9 @@ this layout finds with 80 % probability at the effect's own level, read from a c
 diagnosis), the loop's path (diagnose, add the verdict, again) and its final χ²/dof;
 two effects outside the catalogue (a per-placement scale, a local bump of one axis);
 a repeatability stated 0.5 µm where it is 0.8 µm; and the false-alarm rate on clean
-seeds. Usage: ``python bench/honesty.py [--seeds N] [--clean N]``.
+seeds; with ``--scale-mc N``, how often real effects at their detection limit fail the
+placement-scale test (stated rate 1 %). Usage: ``python bench/honesty.py [--seeds N]
+[--clean N] [--scale-mc N [--only-scale-mc]]``.
 """
 
 from __future__ import annotations
@@ -21,26 +23,33 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 import scenarios as sc  # noqa: E402
 
-from cmm_core.diagnosis import OUTSIDE, diagnose  # noqa: E402
+from cmm_core.diagnosis import FAMILY_ALPHA, OUTSIDE, diagnose  # noqa: E402
+from cmm_core.diagnosis import crossval as holdout  # noqa: E402
 from cmm_core.model import fit, parse_spec  # noqa: E402
+
+LEVELS: dict = {}
+"""Each candidate's level in the clean diagnoses of :func:`limits` (layout, token)."""
 
 
 def limits(layout):
-    """Detection limit of each parameter by candidate, from a clean diagnosis."""
+    """Detection limit of each parameter by candidate, from a clean diagnosis (and each
+    candidate's level, kept in :data:`LEVELS`)."""
     sim = sc.simulated(layout, 999, order="serpentine")
     out = {}
     for base in ("kinematic21", "kinematic21,-sxy"):
         d = diagnose(sim.dataset, base)
         for c in d.candidates:
             out.setdefault(c.effect, {k: size for k, (_u, size) in c.detectable.items()})
+            LEVELS.setdefault((layout, c.effect), c.level)
     return out
 
 
-def hidden_configs(layout, lim):
-    """(name, baseline, simulator config) of each catalogue effect at 2x its limit."""
+def hidden_configs(layout, lim, factor=2.0):
+    """(name, baseline, simulator config) of each catalogue effect at ``factor`` times
+    its limit."""
     lay = sc.LAYOUTS[layout]
     p0, q0 = next(iter(lay["positions"])), next(iter(lay["probes"]))
-    two = {eff: {k: 2 * v for k, v in d.items()} for eff, d in lim.items()}
+    two = {eff: {k: factor * v for k, v in d.items()} for eff, d in lim.items()}
     out = []
     if "plate_sag" in two:
         out.append(("plate_sag", "kinematic21",
@@ -70,15 +79,47 @@ def loop(data, baseline, max_steps=4):
     return path, fit(data, spec.to_string()).chi2_dof, "…"
 
 
+def scale_test_rate(layout, lim, n):
+    """Real effects at their detection limit: how often the placement-scale test
+    (``crossval.placement_scale_test``) calls them stand-ins for placement scales.
+    Returns ``{effect: (fails, p_S|E below its level, n)}``."""
+    out = {}
+    for name, base, cfg in hidden_configs(layout, lim, factor=1.0):
+        fails = low = 0
+        for seed in range(n):
+            sim = sc.simulated(layout, 2000 + seed, order="serpentine", **cfg)
+            h = holdout.check(fit(sim.dataset, base), name,
+                              level=LEVELS.get((layout, name), FAMILY_ALPHA))
+            low += h.scale_p < holdout.SCALE_ALPHA
+            fails += bool(h.scale_p < holdout.SCALE_ALPHA
+                          and h.effect_given_scale_p >= LEVELS.get((layout, name),
+                                                                   FAMILY_ALPHA))
+        out[name] = (fails, low, n)
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=2, help="seeds per hidden effect")
     ap.add_argument("--clean", type=int, default=30, help="clean seeds per layout")
+    ap.add_argument("--scale-mc", type=int, default=0,
+                    help="seeds per effect for the placement-scale test's false-fail rate "
+                         "on real effects at their detection limit (0: skip)")
+    ap.add_argument("--only-scale-mc", action="store_true",
+                    help="run only the placement-scale Monte Carlo")
     args = ap.parse_args()
     found = total = ended = 0
+    mc_fails = mc_low = mc_n = 0
     for layout in sc.LAYOUTS:
         lim = limits(layout)
         print(f"\n## {layout}")
+        if args.scale_mc:
+            for name, (f, lo, n) in scale_test_rate(layout, lim, args.scale_mc).items():
+                print(f"placement-scale test, {name:13s} at its limit: fails {f}/{n} "
+                      f"(scales significant given it: {lo}/{n})")
+                mc_fails, mc_low, mc_n = mc_fails + f, mc_low + lo, mc_n + n
+            if args.only_scale_mc:
+                continue
         for name, base, cfg in hidden_configs(layout, lim):
             for seed in range(args.seeds):
                 sim = sc.simulated(layout, 10 + seed, order="serpentine", **cfg)
@@ -105,8 +146,13 @@ def main():
         nulls = sum(diagnose(sc.simulated(layout, 500 + k).dataset, "kinematic21").verdict
                     is None for k in range(args.clean))
         print(f"clean seeds: {nulls}/{args.clean} null verdicts")
-    print(f"\nhidden catalogue effects at 2x their limit: named first {found}/{total}, "
-          f"loop ends at χ²/dof <= 1.3 in {ended}/{total}")
+    if mc_n:
+        print(f"\nplacement-scale test on real effects at their limit: fails {mc_fails}/"
+              f"{mc_n} ({100 * mc_fails / mc_n:.1f} %; the scales significant given the "
+              f"effect in {mc_low}/{mc_n}, stated rate {100 * holdout.SCALE_ALPHA:g} %)")
+    if not args.only_scale_mc:
+        print(f"\nhidden catalogue effects at 2x their limit: named first {found}/{total}, "
+              f"loop ends at χ²/dof <= 1.3 in {ended}/{total}")
 
 
 if __name__ == "__main__":

@@ -145,7 +145,8 @@ def _nan_none(x: float):
 
 
 def placement_scale_columns(base: FitResult, n_rows: int) -> tuple[np.ndarray, list]:
-    """Weighted columns of each placement's own scale along each machine axis (1 ppm:
+    """Weighted columns of each placement's own scale along each machine axis it spans
+    (at least a quarter of its longest extent; 1 ppm:
     the reading of axis ``a`` moves by 1e-3 µm per mm from the placement's mean ``a``),
     rows as the weighted residual's (three per observation first). Returns ``(S,
     labels)``, labels ``(position, axis)``; an empty ``S`` for a hole plate, whose
@@ -154,44 +155,88 @@ def placement_scale_columns(base: FitResult, n_rows: int) -> tuple[np.ndarray, l
     if o.artefact == "hole_plate" or len(o.positions) < 2:
         return np.zeros((n_rows, 0)), []
     cols, labels = [], []
+    # nominal coordinates: the readings' own µm errors (the residual itself) must not
+    # enter the columns, or once the plate is projected out they fit the residual
+    xyz = np.einsum("nac,nc->na", o.R0[o.pos], o.plate0_mm[o.ball]) + o.t0_mm[o.pos]
     for k, name in enumerate(o.positions):
         sel = np.flatnonzero(o.pos == k)
+        span = np.ptp(xyz[sel], axis=0)
         for a in range(3):
+            # an axis the placement hardly spans (a horizontal plate's z) has no scale
+            # the data can see; its near-empty column would only fit rounding
+            if span[a] < 0.25 * span.max():
+                continue
             c = np.zeros(n_rows)
-            x = o.r_mm[sel, a]
+            x = xyz[sel, a]
             c[3 * sel + a] = (x - x.mean()) * 1e-3 / base.sigma_um
             cols.append(c)
             labels.append((str(name), "xyz"[a]))
     return np.column_stack(cols), labels
 
 
-def _rss(r, A):
+_RANK_TOL = 1e-3
+"""Relative size, against a column's norm before projection, below which what is left of
+it after projecting out other columns is rounding, not a direction of its own."""
+
+
+def _basis(A, norms):
+    """Orthonormal basis of the columns of ``A`` that keep more than :data:`_RANK_TOL`
+    of their norm ``norms`` (before projection)."""
+    keep = np.linalg.norm(A, axis=0) > _RANK_TOL * np.maximum(norms, 1e-300)
+    if not keep.any():
+        return np.zeros((A.shape[0], 0))
+    B = A[:, keep] / norms[keep]
+    Q, R, _ = sla.qr(B, mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    return Q[:, : int(np.sum(d > _RANK_TOL))]
+
+
+def _rss(r, A, norms):
     """Residual sum of squares of ``r`` on the columns ``A`` and their rank."""
     if A.shape[1] == 0:
         return float(r @ r), 0
-    Q, R, _ = sla.qr(A, mode="economic", pivoting=True)
-    d = np.abs(np.diag(R))
-    k = int(np.sum(d > 1e-9 * max(d.max(initial=0.0), 1e-300)))
-    Q = Q[:, :k]
+    Q = _basis(A, norms)
     e = r - Q @ (Q.T @ r)
-    return float(e @ e), k
+    return float(e @ e), Q.shape[1]
 
 
-def placement_scale_test(r, X, S, dof: int) -> tuple[float, float]:
+def plate_columns(base: FitResult, n_rows: int) -> np.ndarray:
+    """Weighted columns of a free plate (each ball's three plate coordinates, through each
+    placement's nominal rotation), rows as the weighted residual's. The placement-scale
+    test is made with the plate free: a certificate's own errors are common to every
+    placement in the plate frame but differ per placement in the machine frame, and
+    placement scales would otherwise fit them (a test that fails clean data)."""
+    o = base.problem.obs
+    n = o.pos.size
+    P = np.zeros((n_rows, 3 * len(o.balls)))
+    R = o.R0[o.pos] / base.sigma_um  # (n, 3, 3): machine axis a, plate axis c
+    for a in range(3):
+        for c in range(3):
+            P[3 * np.arange(n) + a, 3 * o.ball + c] = R[:, a, c]
+    return P
+
+
+def placement_scale_test(r, X, S, n_rows: int, B) -> tuple[float, float]:
     """Does the effect stand in for each placement's own scale? ``(p_S|E, p_E|S)``.
 
     ``r``, ``X``, ``S``: the baseline's weighted residual, the effect's columns and the
-    placement-scale columns (:func:`placement_scale_columns`), all with the baseline's
-    columns projected out (Frisch-Waugh-Lovell); ``dof``: the baseline's degrees of
-    freedom. Two nested F-tests (linearised at the baseline, as the diagnosis's score):
+    placement-scale columns (:func:`placement_scale_columns`); ``B``: the baseline's
+    columns beside the free plate's (:func:`plate_columns`), projected out of all three
+    first through an orthonormal basis (Frisch-Waugh-Lovell); ``n_rows``: the number of
+    residuals that count (the baseline's degrees of freedom plus its rank). Two nested
+    F-tests (linearised at the baseline, as the diagnosis's score):
     of the scales once the effect is in, and of the effect once the scales are in. The
     effect is an alias of placement scales when the scales are still needed with it
     (``p_S|E`` below :data:`SCALE_ALPHA`) while it adds nothing once they are in. Under a
     real effect with no placement scale in the data the first test is a null F-test, so a
     real effect fails at most at the rate :data:`SCALE_ALPHA` (Scheffé 1959, §2.3)."""
-    rss_e, ke = _rss(r, X)
-    rss_s, ks = _rss(r, S)
-    rss_es, kes = _rss(r, np.hstack([X, S]))
+    nx, ns = np.linalg.norm(X, axis=0), np.linalg.norm(S, axis=0)
+    Q = _basis(B, np.linalg.norm(B, axis=0))
+    r, X, S = (A - Q @ (Q.T @ A) for A in (r, X, S))
+    dof = n_rows - Q.shape[1]
+    rss_e, ke = _rss(r, X, nx)
+    rss_s, ks = _rss(r, S, ns)
+    rss_es, kes = _rss(r, np.hstack([X, S]), np.concatenate([nx, ns]))
     nu = max(dof - kes, 1)
     s2 = max(rss_es / nu, 1e-300)
 
@@ -336,8 +381,8 @@ def check(base: FitResult, token: str, cache: ScoreCache | None = None,
     S, _ = placement_scale_columns(base, r.size)
     p_s = p_e = float("nan")
     if S.shape[1]:
-        S = S - Jb @ (cov @ (Jb.T @ S))
-        p_s, p_e = placement_scale_test(r, X, S, base.dof)
+        p_s, p_e = placement_scale_test(r, X, S, base.dof + base.rank,
+                                        np.hstack([Jb, plate_columns(base, r.size)]))
     h = _held_out(base, token, added, r, X, pos_of_row, Jb, cov)
     h = replace(h, scale_p=p_s, effect_given_scale_p=p_e)
     if p_s < SCALE_ALPHA and p_e >= level:
