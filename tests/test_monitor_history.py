@@ -75,3 +75,15 @@ def test_refusals():
     gantry = replace(m1, terms=replace(m1.terms, layout="gantry_fxyz"), name="gantry.json")
     with pytest.raises(DataError, match="gantry.json.*gantry_fxyz machine.*different machines"):
         compare_calibrations([(m1, "2024-01-01"), (gantry, "2025-01-01")])
+
+
+def test_models_of_different_specs_compare_what_they_share_and_say_the_rest():
+    cal, full = calibrated("pitch100_4pos", 5)
+    new = remeasured(cal, 55)
+    reduced = replace(model_from_result(fit(new.dataset, "kinematic21,-sxy", plate="fixed")),
+                      name="reduced.json")
+    h = compare_calibrations([(full, "2024-01-01"), (reduced, "2025-01-01")])
+    assert "sxy" not in set(h.changes["label"])
+    assert len(h.changes) == len(full.terms.labels) - 1
+    assert h.only_in == {full.name: ["sxy"]}
+    assert "Not compared (in one model only)" in h.message and "sxy" in h.message
