@@ -3,11 +3,12 @@
 A stored model (``export.Model``: kinematic coefficients ``c`` with covariance ``V``)
 predicts where every newly probed ball centre should be. With the certificate's ball
 ``c_b`` placed rigidly (``R_k c_b + t_k``, placement ``k``) the residual of observation
-``i`` (µm) is::
+``i`` (µm) is, as in the fit (``model.fitting``, thesis eq. 4.13)::
 
-    d_i = (r_i + e(r_i - p_i, p_i) · 1 mm/µm - R_k c_b - t_k) / UM
+    d_i = (x*(r_i - p_i, p'_i) - R_k c_b - t_k) / UM
 
-(``e`` the model's error, SPEC conventions; the true tip is ``r + e``). Only the rigid
+(``x*`` the model's true tip at scale reading ``r - p``, ``p`` the nominal stylus offset
+the CMM reported with, ``p'`` the model's effective offset). Only the rigid
 pose of each placement is fitted (a nuisance of 6 parameters linearised about a Kabsch
 fit, thesis appendix 2 gauge). If the machine still behaves as stored, ``d`` is normal
 with mean ``A β`` (``A`` the pose columns) and the dense covariance::
@@ -73,7 +74,7 @@ class CheckSystem:
     cov : ndarray (3n, 3n)
         ``noise_cov + J V Jᵀ``: the full covariance of the residuals.
     x_mm : ndarray (n, 3)
-        Scale readings of the observations (tip minus the model's probe offset).
+        Scale readings of the observations (reported tip minus the nominal offset).
     sigma_um : float
         σ of one probed coordinate used for the new data.
     """
@@ -290,9 +291,12 @@ def check_system(model: Model, dataset: Dataset, *, sigma_um: float | None = Non
         raise DataError(f"σ must be a positive number of µm, found {sigma}.", file=model.name,
                         column="summary.sigma_um", hint="give sigma_um.")
     p = np.array([model.probes_mm[q] for q in obs.probes], float)[obs.probe]
-    x = obs.r_mm - p
+    # as the fit's model (fitting.py): scale readings from the nominal offsets the CMM
+    # reported with, the tip from the model's effective offsets (a fitted offset error
+    # moves the tip of that stylus; its uncertainty is not in the model file)
+    x = obs.r_mm - obs.p_mm
     xs, Jk = kin.jacobian(model.terms, model.coef, x, p)
-    corrected = xs  # the true tip: r + e (SPEC conventions)
+    corrected = xs  # the true tip
     plate = obs.plate0_mm[obs.ball]
     n, P = len(x), len(obs.positions)
     R = np.empty((n, 3, 3))
