@@ -65,7 +65,9 @@ class Changes:
         first.
     unseen : list of str
         The combinations the new data cannot determine (prior-scaled weights, largest
-        first), e.g. ``"0.71 sxz - 0.70 ryy[1]"``.
+        first), e.g. ``"0.71 sxz - 0.70 ryy[1]"``: a basis of the unseen subspace, whose
+        count is a property of the design but whose vectors are not unique (any rotation
+        within the subspace is as good).
     n_tested : int
         Parameters tested.
     posterior_coef : ndarray (k,)
