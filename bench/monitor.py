@@ -12,7 +12,7 @@ machine is measured again (new noise, new certificate draw) and checked against 
 Rates are printed with their binomial standard errors. With ``--timing``: the median
 time of the check's GLS step (``gls_fit``: Cholesky of the dense covariance) with one BLAS
 thread, beside the same function with the default threads in the same run. Usage:
-``python bench/monitor.py [--seeds N] [--layouts a,b] [--step 3] [--timing]``.
+``python bench/monitor.py [--seeds N] [--layouts a,b] [--step 3] [--plate fixed|free] [--timing]``.
 """
 
 from __future__ import annotations
@@ -35,11 +35,13 @@ from cmm_core.model import fit  # noqa: E402
 from cmm_core.monitor import check_system, gls_fit, interim_check, remeasured  # noqa: E402
 
 
-def one_seed(layout: str, seed: int, step_u: float, alpha: float, label: str = "sxy"):
+def one_seed(layout: str, seed: int, step_u: float, alpha: float, label: str = "sxy",
+             plate: str = "fixed"):
     """(rejects when unchanged, coverage, rejects after the step with the full plate, with
-    one placement) for one seed."""
+    one placement) for one seed; the calibration fitted with ``plate`` (fixed to its
+    certificate, or free: self-calibrated)."""
     cal = sc.simulated(layout, seed)
-    model = model_from_result(fit(cal.dataset, "kinematic21", plate="fixed"))
+    model = model_from_result(fit(cal.dataset, "kinematic21", plate=plate))
     j = model.terms.labels.index(label)
     step = {label: step_u * float(np.sqrt(model.cov[j, j]))}
     ppp = cal.config["probes_per_position"]
@@ -78,6 +80,8 @@ def main() -> None:
                     help="comma-separated layouts of tests/scenarios.py")
     ap.add_argument("--step", type=float, default=3.0, help="squareness step in u of sxy")
     ap.add_argument("--alpha", type=float, default=0.05, help="the χ² test's level")
+    ap.add_argument("--plate", choices=("fixed", "free"), default="fixed",
+                    help="plate mode of the calibrations' fits")
     ap.add_argument("--timing", action="store_true",
                     help="time the GLS step only (one BLAS thread beside the default)")
     args = ap.parse_args()
@@ -87,13 +91,14 @@ def main() -> None:
         return
     for layout in args.layouts.split(","):
         t0 = time.perf_counter()
-        rows = np.array([one_seed(layout, s, args.step, args.alpha)
+        rows = np.array([one_seed(layout, s, args.step, args.alpha, plate=args.plate)
                          for s in range(args.seeds)], float)
         n = len(rows)
         fa, cov, pf, p1 = rows.mean(axis=0)
 
         se = np.sqrt(rows.mean(axis=0) * (1 - rows.mean(axis=0)) / n)
-        print(f"{layout}: {n} seeds, {time.perf_counter() - t0:.0f} s")
+        print(f"{layout} (calibration plate {args.plate}): {n} seeds, "
+              f"{time.perf_counter() - t0:.0f} s")
         print(f"  false alarms (no change)      {100 * fa:5.1f} % ± {100 * se[0]:.1f} "
               f"(stated {100 * args.alpha:g} %)")
         print(f"  coverage of 95 % intervals    {100 * cov:5.2f} % (mean over seeds, "
