@@ -5,6 +5,7 @@ predicted Δχ² against a full non-linear fit of noise-free simulated data (the
 identity λ = min χ² of the other rival, Scheffé 1959 §2.8)."""
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -166,3 +167,41 @@ def test_the_top_proposal_measured_on_the_true_machine_names_the_truth(layout, s
              "noise_um": 0.5}
     aug = append_measurement(sim.dataset, top.candidate, config=truth, seed=5000 + seed)
     assert diagnose(aug, BASE).verdict == "rxz:4"
+
+
+def test_instrument_candidates_predict_the_misfit_of_a_joint_fit(clean80):
+    """An instrument candidate's λ against the χ² a joint fit (plate and instrument,
+    ``fit(..., instruments=...)``) of the other rival leaves when the instrument is
+    simulated on the true machine without noise (the simulator's noise removed by
+    subtracting the same seed's run on an error-free machine): equal to the linearisation's
+    accuracy (2 %)."""
+    from cmm_core.plan import instrument_candidates, instrument_of
+    from cmm_core.plan.proposals import _error_free
+
+    sim = simulated("pitch80_3pos", 4, noise_um=0.0, plate={"certificate_u_um": 0.0},
+                    **SQUARENESS)
+    tools = {c.name: c for c in instrument_candidates(clean80)}
+    assert set(tools) == {"laser_x", "laser_y", "laser_z", "step_gauge_x", "step_gauge_y",
+                          "ball_bar_xy"}
+    assert tools["laser_x"].time_min == pytest.approx(21 * 0.5 + 10)  # plan time model
+    pr = propose(clean80, ("sxy", "rxz:4"), baseline=BASE, cands=list(tools.values()))
+    rf = fit_rivals(clean80, ("sxy", "rxz:4"), baseline=BASE)
+    zero = _error_free(clean80)
+    checked = 0
+    for p in pr.ranked:
+        if p.delta_chi2["sxy"] < 10:  # below that the comparison is of near-zero numbers
+            continue
+        c = p.candidate
+        if c.instrument["kind"] == "ball_bar":  # its noise moves a ball: not removable here
+            continue
+        true, zero_run = instrument_of(c, sim), instrument_of(c, zero)
+        if c.instrument["kind"] == "laser":  # error = signal + noise; the zero run: noise
+            clean = replace(true, error_um=true.error_um - zero_run.error_um)
+        else:  # measured = |r2 - r1| + noise; on the error-free machine L + noise
+            clean = replace(true, measured_mm=true.measured_mm - (zero_run.measured_mm
+                                                                  - zero_run.certified_mm))
+        other = fit(clean80, rf.specs["rxz:4"], sigma_um=0.5, max_iter=2000,
+                    instruments=[clean])
+        assert p.delta_chi2["sxy"] == pytest.approx(other.chi2, rel=0.02), c.name
+        checked += 1
+    assert checked >= 2

@@ -58,3 +58,14 @@ def test_rivals_must_be_two_different_tokens(bad, capsys):
     with pytest.raises(SystemExit):
         _parser().parse_args(["next", "m.csv", "--rivals", bad])
     assert "two different effect tokens" in capsys.readouterr().err
+
+
+def test_instruments_are_scored_on_request(files):
+    args = _parser().parse_args(
+        ["next", str(files / "measurements.csv"), "--setup", str(files / "setup.json"),
+         "--certificate", str(files / "certificate.csv"), "--baseline", "kinematic21,-sxy",
+         "--rivals", "rxz:4,sxy", "--top", "30", "--instruments"])
+    out = args.func(args)
+    kinds = {p["instrument"].get("kind") for p in out["proposals"]}
+    assert {"laser", "step_gauge", "ball_bar", None} <= kinds
+    json.dumps(out)

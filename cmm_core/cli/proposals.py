@@ -13,6 +13,7 @@ from pathlib import Path
 
 from ..plan import (
     TARGET_POWER,
+    instrument_candidates,
     measurement_candidates,
     plan_file,
     propose,
@@ -91,13 +92,18 @@ def _add_arguments(p) -> None:
                    metavar="P",
                    help="power at which a proposal counts as deciding the pair (default: "
                         "%(default)s)")
+    p.add_argument("--instruments", action="store_true",
+                   help="also score instrument candidates: laser positioning runs along X, "
+                        "Y, Z, step gauges along X and Y, a ball bar in XY (default: plate "
+                        "placements and styli only; --simulate and --plan-out take plate "
+                        "proposals only)")
     p.add_argument("--simulate", action="store_true",
-                   help="also simulate the top proposal with each rival as the truth, "
+                   help="also simulate the top plate proposal with each rival as the truth, "
                         "append it to the data and run the diagnosis (adds a few seconds)")
     p.add_argument("--seed", type=int, default=0,
                    help="seed of the noise of --simulate (default: %(default)s)")
     p.add_argument("--plan-out", metavar="PLAN.json", default=None,
-                   help="write the top proposal as a plan file for 'plan' "
+                   help="write the top plate proposal as a plan file for 'plan' "
                         "(docs/planning.md; default: not written)")
 
 
@@ -117,20 +123,22 @@ def run(args) -> dict:
     sigma, sigma_rec = sigma_of(args, data, [], args.baseline)
     settings = {"baseline": args.baseline, "order": args.order, "plate": args.plate,
                 "sigma_um": sigma}
-    pr = propose(data, args.rivals, cands=measurement_candidates(data,
-                                                                 reference=args.reference),
-                 target=args.target_power, **settings)
+    cands = measurement_candidates(data, reference=args.reference)
+    if args.instruments:
+        cands += instrument_candidates(data, reference=args.reference)
+    pr = propose(data, args.rivals, cands=cands, target=args.target_power, **settings)
+    plates = [p for p in pr.ranked if not p.candidate.instrument]
     out = pr.to_dict()
     out["proposals"] = out["proposals"][:args.top]
     out["sigma"] = sigma_rec
-    if pr.ranked and args.simulate:
-        outs = simulate_outcomes(data, pr.ranked[0], seed=args.seed, **settings)
+    if plates and args.simulate:
+        outs = simulate_outcomes(data, plates[0], seed=args.seed, **settings)
         out["simulated"] = {t: {"verdict": o.verdict, "aliases": o.aliases,
                                 "separated": o.separated, "message": o.message}
                             for t, o in outs.items()}
-    if pr.ranked and args.plan_out:
+    if plates and args.plan_out:
         Path(args.plan_out).write_text(json.dumps(
-            plan_file(data, pr.ranked[0], baseline=args.baseline, order=args.order,
+            plan_file(data, plates[0], baseline=args.baseline, order=args.order,
                       noise_um=sigma), indent=1))
         out["plan_file"] = str(args.plan_out)
     return out

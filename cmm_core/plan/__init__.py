@@ -59,6 +59,8 @@ from .proposals import (
     RivalFits,
     append_measurement,
     fit_rivals,
+    instrument_candidates,
+    instrument_of,
     measurement_candidates,
     measurement_observations,
     plan_file,
@@ -110,5 +112,5 @@ __all__ = [
     "PlateGrid", "Proposal", "Proposals", "RivalFits", "append_measurement", "fit_rivals",
     "measurement_candidates", "measurement_observations", "plan_file", "plate_grid",
     "propose", "rivals_of", "simulate_outcomes", "truth_config", "CHUNK", "propose_many",
-    "wide_candidates",
+    "wide_candidates", "instrument_candidates", "instrument_of",
 ]

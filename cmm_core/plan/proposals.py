@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import copy
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -52,6 +52,9 @@ from ..model import (
     fit,
     select,
     simulate,
+    simulate_ball_bar,
+    simulate_laser,
+    simulate_step_gauge,
     weighted_residual,
 )
 from .detect import candidate_tokens
@@ -94,7 +97,12 @@ class NextMeasurement:
         New placement name -> list of stylus names measured there, in order.
     time_min : float
         Machine time in minutes (balls × styli × minutes per ball + minutes per
-        placement; ``files.MEASUREMENT_DEFAULTS``).
+        placement; ``files.MEASUREMENT_DEFAULTS``; an instrument: its readings × minutes
+        per ball + minutes per placement for setting it up).
+    instrument : dict
+        For an instrument instead of the plate: ``kind`` (``laser``, ``step_gauge``,
+        ``ball_bar``) and the keywords of its simulator (``simulate_laser``, ...) but the
+        simulation; empty for a plate placement.
     """
 
     name: str
@@ -103,6 +111,7 @@ class NextMeasurement:
     probes: dict
     probes_of: dict
     time_min: float
+    instrument: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -148,6 +157,7 @@ class Proposal:
         c = self.candidate
         return {"name": c.name, "description": c.description, "time_min": c.time_min,
                 "positions": c.positions, "probes": c.probes, "probes_of": c.probes_of,
+                "instrument": c.instrument,
                 "rivals": list(self.rivals), "delta_chi2": self.delta_chi2,
                 "dof": {k: list(v) for k, v in self.dof.items()}, "level": self.level,
                 "power": self.power, "power_min": self.power_min,
@@ -615,6 +625,101 @@ def _in_machine(data: Dataset, cands: list) -> tuple:
         return (measurement_observations(data, ok) if ok else None), ok, skipped
 
 
+_SIMULATORS: dict = {"laser": simulate_laser, "step_gauge": simulate_step_gauge,
+               "ball_bar": simulate_ball_bar}
+
+
+def instrument_candidates(data: Dataset, *, reference: str | None = None,
+                          n_readings: int = 21, minutes_per_ball: float | None = None,
+                          minutes_per_placement: float | None = None
+                          ) -> list[NextMeasurement]:
+    """Instrument candidates: a laser positioning run along X, Y and Z through the
+    reference plate's centre (``n_readings`` readings from 5 % to 95 % of the stroke,
+    reflector at the reference stylus's offset); a step gauge along X and along Y (from
+    5 % of the stroke, ``n_readings - 1`` lengths up to 80 % of it); a ball bar of 40 % of
+    the smaller horizontal stroke in four orientations (0°, 45°, 90°, 135°) about that
+    centre. Machine time: readings × minutes per ball + minutes per placement (setting
+    the instrument up), the plan's time model applied to instruments (an assumption:
+    ``files.MEASUREMENT_DEFAULTS``)."""
+    defaults: dict = MEASUREMENT_DEFAULTS
+    per_ball = float(defaults["minutes_per_ball"] if minutes_per_ball is None
+                     else minutes_per_ball)
+    per_place = float(defaults["minutes_per_placement"] if minutes_per_placement is None
+                      else minutes_per_placement)
+    grid = plate_grid(data)
+    pos = data.setup.raw["positions"]
+    if reference is None:
+        reference = next((p for p in pos if data.setup.positions[p].horizontal), next(iter(pos)))
+    ref = pos[reference]
+    u, v = _unit(ref["u_axis"]), _unit(ref["v_axis"])
+    centre = (np.asarray(ref["origin_mm"], float) + (grid.cols - 1) * grid.pitch_mm / 2 * u
+              + (grid.rows - 1) * grid.pitch_mm / 2 * v)
+    tip = [float(x) for x in data.setup.raw["probes"][ref["probe"]]]
+    R = np.asarray(data.setup.range_mm, float)
+    out = []
+    for a, ax in enumerate("xyz"):
+        out.append(NextMeasurement(
+            f"laser_{ax}", f"a laser positioning run along {ax.upper()} through the centre "
+            f"of {reference} ({n_readings} readings)", {}, {}, {},
+            n_readings * per_ball + per_place,
+            {"kind": "laser", "axis": ax, "line_mm": centre.tolist(),
+             "positions_mm": np.linspace(0.05 * R[a], 0.95 * R[a], n_readings).tolist(),
+             "offset_mm": tip}))
+    for a, ax in enumerate("xy"):
+        start = centre.copy()
+        start[a] = 0.05 * R[a]
+        end = start.copy()
+        end[a] = 0.85 * R[a]
+        out.append(NextMeasurement(
+            f"step_gauge_{ax}", f"a step gauge along {ax.upper()} through the centre of "
+            f"{reference} ({n_readings - 1} lengths)", {}, {}, {},
+            (n_readings - 1) * per_ball + per_place,
+            {"kind": "step_gauge", "start_mm": start.tolist(), "end_mm": end.tolist(),
+             "lengths_mm": np.linspace(0.8 * R[a] / (n_readings - 1), 0.8 * R[a],
+                                       n_readings - 1).tolist(), "offset_mm": tip}))
+    half = 0.2 * min(R[0], R[1])
+    ang = np.deg2rad([0.0, 45.0, 90.0, 135.0])
+    d = half * np.column_stack([np.cos(ang), np.sin(ang), np.zeros(4)])
+    out.append(NextMeasurement(
+        "ball_bar_xy", f"a ball bar of {2 * half:g} mm at 0°, 45°, 90° and 135° in XY about "
+        f"the centre of {reference}", {}, {}, {}, 4 * 2 * per_ball + per_place,
+        {"kind": "ball_bar", "start_mm": (centre - d).tolist(),
+         "end_mm": (centre + d).tolist(), "offset_mm": tip}))
+    return out
+
+
+def _error_free(data: Dataset):
+    """The data's machine without errors (the simulator's ``Simulation`` the instrument
+    simulators read their truth from), measuring the first placement."""
+    grid = plate_grid(data)
+    raw = data.setup.raw
+    p = next(iter(raw["positions"]))
+    setup = {k: copy.deepcopy(raw[k]) for k in ("units", "machine") if k in raw}
+    setup.update({"frame": "machine", "probes": copy.deepcopy(raw["probes"]),
+                  "positions": {p: copy.deepcopy(raw["positions"][p])}})
+    for key in ("temp_C", "rh_percent"):
+        setup["positions"][p].pop(key, None)
+    return simulate({"seed": 0, "setup": setup, "noise_um": 0.0, "kinematic": dict(_NO_ERRORS),
+                     "plate": {"rows": grid.rows, "cols": grid.cols,
+                               "pitch_mm": grid.pitch_mm, "form_um": 0.0,
+                               "certificate_u_um": 0.0}}, name="proposals")
+
+
+def instrument_of(cand: NextMeasurement, sim, seed: int | None = 0):
+    """The candidate's instrument measured on ``sim``'s machine (a ``Simulation``)."""
+    kw = {k: v for k, v in cand.instrument.items() if k != "kind"}
+    return _SIMULATORS[cand.instrument["kind"]](sim, seed=seed, **kw)
+
+
+def _instrument_design(obs, now: _Design, rf: RivalFits, inst) -> _Design:
+    """The design rows of one instrument: the rows it appends to the current data's."""
+    a, b = rf.rivals
+    f = rf.fits[a]
+    prob = Problem(replace(obs, instruments=(inst,)), rf.specs[a].with_token(b), f.plate)
+    J = weighted_residual(prob, prob.initial_state(), f.sigma_um, True)[2].toarray()
+    return _Design(J[now.J.shape[0]:], list(prob.layout.labels), now.has)
+
+
 def _rows(des: _Design, keep: np.ndarray) -> _Design:
     """The design of some observations only (``keep``: one flag per observation; three
     weighted rows each), without the columns that are empty there."""
@@ -695,11 +800,17 @@ def propose(data: Dataset, rivals=None, *, baseline: str = "kinematic21", order:
     now = _design(select(data), rf)
     current = {t: v[3] for t, v in _score_on(now, rf).items()}
     cands = list(cands if cands is not None else measurement_candidates(data))
+    plates = [c for c in cands if not c.instrument]
     scored, skipped = [], {}
-    for i in range(0, len(cands), CHUNK):  # one simulation and design per chunk
-        obs, ok, out = _in_machine(data, cands[i:i + CHUNK])
+    for i in range(0, len(plates), CHUNK):  # one simulation and design per chunk
+        obs, ok, out = _in_machine(data, plates[i:i + CHUNK])
         skipped.update(out)
         scored += _proposals(_score_candidates(now, obs, ok, rf), rivals, rf)
+    tools = [c for c in cands if c.instrument]
+    if tools:
+        sim0, obs_now = _error_free(data), select(data)
+        scored += _proposals(((c, _score_on(_stack(now, _instrument_design(
+            obs_now, now, rf, instrument_of(c, sim0))), rf)) for c in tools), rivals, rf)
     scored.sort(key=_rank_key(target))
     a, b = rivals
     if scored:
@@ -772,6 +883,12 @@ def truth_config(fitted: FitResult, exclude_positions=()) -> dict:
             "effects": effects}
 
 
+def _plate_only(proposal: Proposal) -> None:
+    if proposal.candidate.instrument:
+        raise ValueError(f"{proposal.candidate.name} is an instrument: only plate placements "
+                         "can be simulated into the data set or written as a plan file.")
+
+
 @dataclass(frozen=True)
 class Outcome:
     """The diagnosis of the data with a proposal appended, simulated with one rival as
@@ -805,6 +922,7 @@ def simulate_outcomes(data: Dataset, proposal: Proposal, *, baseline: str = "kin
     """One click, simulated: for each rival as the truth (its fit on the current data),
     simulate the proposal with noise σ, append it to the data and run the diagnosis.
     Returns ``{rival: Outcome}``."""
+    _plate_only(proposal)
     a, b = proposal.rivals
     rf = fit_rivals(data, proposal.rivals, baseline=baseline, order=order, plate=plate,
                     sigma_um=sigma_um)
@@ -823,6 +941,7 @@ def plan_file(data: Dataset, proposal: Proposal, *, baseline: str = "kinematic21
     """The proposal as a ``plan`` JSON document (docs/planning.md, "The plan file"): the
     data set's setup with the proposal's placement and styli added, its plate, and two
     strategies: the current placements alone and with the proposal."""
+    _plate_only(proposal)
     grid = plate_grid(data)
     raw = copy.deepcopy(data.setup.raw)
     c = proposal.candidate
