@@ -23,6 +23,7 @@ from cmm_core.plan import (  # noqa: E402
     plate_grid,
     propose,
     read_plan,
+    rivals_of,
     truth_config,
 )
 from cmm_core.plan import plan_file as to_plan  # noqa: E402
@@ -126,6 +127,7 @@ def test_one_click_separates_the_rivals_on_simulated_alias_data():
                                 "coefficients": {"rxz[4]": 3.0}}).dataset
     before = diagnose(data, BASE)
     assert before.verdict == "sxy" and "rxz:4" in before.candidates[0].aliases
+    assert rivals_of(before) == ("sxy", "rxz:4")  # the verdict and its first alias
     pr = propose(data, ("rxz:4", "sxy"), baseline=BASE)
     assert pr.ranked[0].power_min >= pr.target > max(pr.current.values())
     out = simulate_outcomes(data, pr.ranked[0], baseline=BASE, seed=1)
