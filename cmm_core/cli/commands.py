@@ -46,6 +46,7 @@ from .inputs import (
     sigma_of,
 )
 from .plan import add_plan_arguments, add_task_arguments, run_plan, run_task
+from .proposals import add_parser as add_next_parser
 
 
 def _jsonable(o):
@@ -315,6 +316,7 @@ def build_parser():
     p.set_defaults(func=cmd_task)
 
     add_export_parser(sub)
+    add_next_parser(sub)
     for p in sub.choices.values():  # --json after the command too (SUPPRESS: no override)
         p.add_argument("--json", metavar="FILE", default=argparse.SUPPRESS, help=_JSON_HELP)
     return ap
@@ -354,6 +356,8 @@ def _files(args):
         ins.append(args.plan)
     elif cmd == "task":
         ins += [args.model, args.task]
+    elif cmd == "next":
+        outs["--plan-out"] = args.plan_out
     elif cmd == "export":
         ins.append(args.model)
         o, f = export_output_files(args)

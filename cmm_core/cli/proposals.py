@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
+from ..io import atomic_write_text
 from ..plan import (
     TARGET_POWER,
     instrument_candidates,
@@ -137,7 +137,8 @@ def run(args) -> dict:
                                 "separated": o.separated, "message": o.message}
                             for t, o in outs.items()}
     if plates and args.plan_out:
-        Path(args.plan_out).write_text(json.dumps(
+        # checked against the inputs before any work (cli.commands), written atomically
+        atomic_write_text(args.plan_out, json.dumps(
             plan_file(data, plates[0], baseline=args.baseline, order=args.order,
                       noise_um=sigma), indent=1))
         out["plan_file"] = str(args.plan_out)
