@@ -201,6 +201,22 @@ def test_fit_reports_each_instrument_and_its_chi2_share():
     assert len(res) == 61 and set(res["kind"]) == {"laser", "step_gauge"}
 
 
+def test_a_fit_with_instruments_pickles_and_keeps_its_numbers():
+    """The app caches fits with st.cache_data, which pickles them: the instruments' linear
+    maps (Householder reflectors, diagonal weights) must be plain data, not closures (a
+    laser upload failed with "Can't pickle local object" after they became closures)."""
+    import pickle
+
+    from cmm_core.model import simulate_ball_bar
+
+    sim = _sim()
+    bar = simulate_ball_bar(sim, [[300, 300, 200]], [[700, 500, 200]], seed=3)
+    r = fit(sim.dataset, "kinematic21", instruments=[*_kit(sim), bar])
+    back = pickle.loads(pickle.dumps(r))
+    assert back.chi2 == r.chi2
+    assert [s["chi2"] for s in ins.summary(back)] == [s["chi2"] for s in ins.summary(r)]
+
+
 def test_a_self_calibrated_plate_gets_its_scale_from_a_step_gauge():
     """Without a certificate the plate is free and its isotropic scale a gauge freedom,
     held at the starting (mean measured, so machine-scaled) plate; a step gauge measures

@@ -87,60 +87,93 @@ class _Rows:
         return self._apply(y)
 
 
-def _orthocomplement(V, w):
-    """``(Q2ᵀ W, Q2)`` as maps (:class:`_Rows`): ``Q2`` (m, m - k) an orthonormal basis of
-    the complement of ``range(W V)`` with ``W = diag(w)`` (module docstring, eq. 1).
+class _Reflectors:
+    """Householder reflectors ``H_j = I - τ_j v_j v_jᵀ`` of ``W V`` (LAPACK geqrf) and the
+    two maps of :func:`_orthocomplement` as methods: module-level and plain data, so a fit
+    that holds them pickles (the app caches fits with ``st.cache_data``)."""
 
-    ``Q`` is kept as its Householder reflectors ``H_j = I - τ_j v_j v_jᵀ`` (LAPACK geqrf,
-    ``numpy.linalg.qr(mode="raw")``, the factorisation ``mode="complete"`` forms ``Q``
-    from): applying them costs O(m k) time and memory, where the complete ``Q`` took
-    ``m²`` numbers (7.4 GiB for a run of 10^6 readings). ``Q = H_0 … H_{k-1}``, so
-    ``Qᵀ y`` applies ``H_0`` first and ``Q y`` last; ``Q2ᵀ y`` is ``Qᵀ y`` without its
-    first k rows."""
-    h, tau = np.linalg.qr(w[:, None] * V, mode="raw")
-    m, k = len(w), len(tau)
-    refl = []
-    for j in range(k):
-        v = h[j].copy()  # raw mode: row j holds the reflector below the diagonal
-        v[:j] = 0.0
-        v[j] = 1.0
-        refl.append((v, tau[j]))
+    def __init__(self, V, w) -> None:
+        h, tau = np.linalg.qr(w[:, None] * V, mode="raw")
+        self.w, self.m, self.k = w, len(w), len(tau)
+        self.refl = []
+        for j in range(self.k):
+            v = h[j].copy()  # raw mode: row j holds the reflector below the diagonal
+            v[:j] = 0.0
+            v[j] = 1.0
+            self.refl.append((v, tau[j]))
 
-    def reflect(y, order):
+    @staticmethod
+    def _reflect(y, order):
         y = y.copy()
         for v, t in order:
             y -= t * np.outer(v, v @ y).reshape(y.shape) if y.ndim > 1 else t * v * (v @ y)
         return y
 
-    def rows(d):
-        y = d * (w[:, None] if d.ndim > 1 else w)
-        return reflect(y, refl)[k:]
+    def rows(self, d):
+        """``Q2ᵀ W d``: the weighted readings without their first k rotated rows."""
+        y = d * (self.w[:, None] if d.ndim > 1 else self.w)
+        return self._reflect(y, self.refl)[self.k:]
 
+    def back(self, z):
+        """``Q2 z``."""
+        y = np.zeros((self.m, *z.shape[1:]))
+        y[self.k:] = z
+        return self._reflect(y, self.refl[::-1])
+
+
+def _orthocomplement(V, w):
+    """``(Q2ᵀ W, Q2)`` as maps (:class:`_Rows`): ``Q2`` (m, m - k) an orthonormal basis of
+    the complement of ``range(W V)`` with ``W = diag(w)`` (module docstring, eq. 1).
+
+    ``Q`` is kept as its Householder reflectors (:class:`_Reflectors`; LAPACK geqrf,
+    ``numpy.linalg.qr(mode="raw")``, the factorisation ``mode="complete"`` forms ``Q``
+    from): applying them costs O(m k) time and memory, where the complete ``Q`` took
+    ``m²`` numbers (7.4 GiB for a run of 10^6 readings). ``Q = H_0 … H_{k-1}``, so
+    ``Qᵀ y`` applies ``H_0`` first and ``Q y`` last; ``Q2ᵀ y`` is ``Qᵀ y`` without its
+    first k rows."""
+    r = _Reflectors(V, w)
+    return _Rows((r.m - r.k, r.m), r.rows), _Rows((r.m, r.m - r.k), r.back)
+
+
+class _Diagonal:
+    """``(diag(w), I)`` as methods (picklable, as :class:`_Reflectors`)."""
+
+    def __init__(self, w) -> None:
+        self.w = w
+
+    def rows(self, d):
+        return d * (self.w[:, None] if d.ndim > 1 else self.w)
+
+    @staticmethod
     def back(z):
-        y = np.zeros((m, *z.shape[1:]))
-        y[k:] = z
-        return reflect(y, refl[::-1])
+        return z.copy()
 
-    return _Rows((m - k, m), rows), _Rows((m, m - k), back)
+
+class _Stack:
+    """The maps of :func:`_stacked` as methods (picklable, as :class:`_Reflectors`)."""
+
+    def __init__(self, parts, m) -> None:
+        self.parts, self.m = parts, m
+
+    def rows(self, d):
+        return (np.concatenate([t @ d[sel] for sel, t, _ in self.parts]) if self.parts
+                else d[:0])
+
+    def back(self, z):
+        out = np.zeros((self.m, *z.shape[1:]))
+        at = 0
+        for sel, t, q in self.parts:
+            out[sel] = q @ z[at:at + t.shape[0]]
+            at += t.shape[0]
+        return out
 
 
 def _stacked(parts, m):
     """``(T, Q)`` of a file from each run's ``(selection, T_k, Q_k)``: T block-diagonal
     over the runs (rows run after run), Q its transpose's layout."""
     n_rows = sum(t.shape[0] for _, t, _ in parts)
-
-    def rows(d):
-        return np.concatenate([t @ d[sel] for sel, t, _ in parts]) if parts else d[:0]
-
-    def back(z):
-        out = np.zeros((m, *z.shape[1:]))
-        at = 0
-        for sel, t, q in parts:
-            out[sel] = q @ z[at:at + t.shape[0]]
-            at += t.shape[0]
-        return out
-
-    return _Rows((n_rows, m), rows), _Rows((m, n_rows), back)
+    st = _Stack(parts, m)
+    return _Rows((n_rows, m), st.rows), _Rows((m, n_rows), st.back)
 
 
 @dataclass(frozen=True, eq=False)
@@ -260,10 +293,9 @@ class StepGauge:
     @cached_property
     def transform(self) -> tuple[_Rows, _Rows]:
         """``(diag(1/u), I)`` as maps: each length is its own row."""
-        w = 1.0 / self.u_um
-        m = w.size
-        return (_Rows((m, m), lambda d: d * (w[:, None] if d.ndim > 1 else w)),
-                _Rows((m, m), lambda z: z.copy()))
+        diag = _Diagonal(1.0 / self.u_um)
+        m = diag.w.size
+        return _Rows((m, m), diag.rows), _Rows((m, m), diag.back)
 
     def predict(self, terms: kin.KinematicTerms, coef: np.ndarray, want_jac: bool
             ) -> tuple[np.ndarray, np.ndarray | None]:
