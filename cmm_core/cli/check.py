@@ -10,13 +10,11 @@ with status 2 and one line on stderr naming the file, row and column.
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import sys
 from pathlib import Path
 
 from ..export import load_model
-from ..io import DataError, atomic_write_text, load_dataset
+from ..io import DataError, load_dataset
 from ..monitor import (
     MAX_MAP_NODES_PER_AXIS,
     compare_calibrations,
@@ -163,29 +161,3 @@ def _command_compare(args) -> dict:
     return compare_calibrations(list(zip(models, args.dates, strict=True)),
                                 family_alpha=args.family_alpha,
                                 nodes_per_axis=args.nodes).to_dict()
-
-
-def run(args) -> int:
-    """Run ``check`` or ``compare`` on parsed arguments: the summary JSON on stdout (or
-    ``--json FILE``) and 0, or one line on stderr and 2."""
-    try:
-        out = args.func(args)
-        text = json.dumps(out, indent=1, default=_plain)
-        if getattr(args, "json", None):
-            atomic_write_text(args.json, text)
-        else:
-            print(text)
-    except (DataError, ValueError, KeyError, OSError) as exc:
-        msg = " ".join(str(exc).split()) or type(exc).__name__
-        if isinstance(exc, OSError) and exc.filename:
-            msg = f"{Path(str(exc.filename)).name}: {exc.strerror or msg}"
-        print(f"error: {msg[:400]}", file=sys.stderr)
-        return 2
-    return 0
-
-
-def _plain(o):
-    """numpy scalars and arrays as JSON numbers and lists."""
-    if hasattr(o, "tolist"):
-        return o.tolist()
-    raise TypeError(f"{type(o).__name__} is not JSON serialisable")

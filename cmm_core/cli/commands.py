@@ -31,6 +31,7 @@ from ..io import (
     read_json,
 )
 from ..model import MAX_ORDER, Observations, fit, select, simulate, summary
+from .check import add_parser as add_check_parser
 from .export import add_parser as add_export_parser
 from .export import output_files as export_output_files
 from .inputs import (
@@ -316,6 +317,7 @@ def build_parser():
     p.set_defaults(func=cmd_task)
 
     add_export_parser(sub)
+    add_check_parser(sub)
     add_next_parser(sub)
     for p in sub.choices.values():  # --json after the command too (SUPPRESS: no override)
         p.add_argument("--json", metavar="FILE", default=argparse.SUPPRESS, help=_JSON_HELP)
@@ -356,6 +358,10 @@ def _files(args):
         ins.append(args.plan)
     elif cmd == "task":
         ins += [args.model, args.task]
+    elif cmd == "check":
+        ins.append(args.model)
+    elif cmd == "compare":
+        ins += args.models
     elif cmd == "next":
         outs["--plan-out"] = args.plan_out
     elif cmd == "export":
