@@ -30,8 +30,8 @@ _MEAS_HELP = ("the new measurements (long CSV, docs/formats.md): one placement o
 _SETUP_HELP = ("setup JSON of the new measurements (layout, strokes, placements, styli; "
                "required): the machine must be the model's")
 _CERT_HELP = ("certificate CSV of the plate (calibrated ball centres with their "
-              "uncertainties): the check predicts the balls from it (required unless the "
-              "setup names it)")
+              "uncertainties): the check predicts the balls from it (default: the one the "
+              "setup names; one of the two is required)")
 _SIGMA_HELP = ("repeatability of one probed coordinate of the new data, µm, 0.001 to 1000 "
                "(default: the stored model's σ)")
 _ALPHA_HELP = ("false-alarm level of the χ² test, 0.001 to 0.2 (default: %(default)s): the "
