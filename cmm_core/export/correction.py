@@ -15,14 +15,10 @@ part's parameters through their joint covariance (JCGM 100 eq. 13):
 from __future__ import annotations
 
 import codecs
-import contextlib
-import errno
 import io
 import json
 import os
 import re
-import secrets
-import stat
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +34,7 @@ from ..io import (
     MIN_STROKE_MM,
     DataError,
     atomic_write_text,
+    atomic_writer,
     read_json,
 )
 from ..io.delimited import file_rows, numeric_column, read_csv_text, require_columns, require_rows
@@ -675,7 +672,7 @@ def _compensate_file(m: Model, path: Path, out, allow_extrapolation: bool,
     whole = "backlash" in m.parts  # directions follow the order over the whole file
     tables = iter([read_points(path)]) if whole else _point_chunks(path, name, chunk_points)
     n, n_off, first_off, max_abs, max_corr = 0, 0, None, 0.0, 0.0
-    with _atomic_stream(out) as fh:
+    with atomic_writer(out, "w") as fh:
         for table in tables:
             r = _coordinates(table, name)
             res = _corrected(m, factor, table, r, name, chunk_points)
@@ -837,50 +834,3 @@ def _quoted(cell: str) -> str:
     if any(ch in cell for ch in ',"\n\r'):
         return '"' + cell.replace('"', '""') + '"'
     return cell
-
-
-@contextlib.contextmanager
-def _atomic_stream(path) -> Iterator[io.TextIOWrapper]:
-    """A text file whose content replaces ``path`` when the ``with`` block ends without
-    an exception: written to a temporary file in the same folder, flushed to disk and
-    renamed into place (``os.replace``), the rule of :func:`cmm_core.io.atomic_write_bytes`
-    for an output too large to hold in memory. On an exception the temporary file is
-    removed and an existing ``path`` is left as it was."""
-    shown = Path(path)
-    target = Path(os.path.realpath(os.fspath(path)))  # a link stays a link
-    if target.is_dir():
-        raise DataError("is a folder, not a file; name a file to write.", file=str(shown))
-    folder = target.parent
-    if not folder.is_dir():
-        raise DataError(f"No such file or directory: the folder {shown.parent} does not "
-                        "exist.", file=str(shown), hint="create it or write elsewhere.")
-    try:
-        mode: int | None = stat.S_IMODE(target.stat().st_mode)
-    except OSError:
-        mode = None
-    tmp = None
-    try:
-        for _ in range(100):
-            tmp = folder / f".{target.name}.{secrets.token_hex(4)}.tmp"
-            try:  # 0o666 less the umask, as a new file gets
-                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL
-                             | getattr(os, "O_BINARY", 0), 0o666)
-                break
-            except FileExistsError:
-                continue
-        else:  # pragma: no cover - 100 collisions of 32 random bits
-            raise FileExistsError(errno.EEXIST, "no free temporary name", str(tmp))
-        with open(fd, "w", encoding="utf-8", newline="") as fh:
-            yield fh
-            fh.flush()
-            os.fsync(fh.fileno())
-        if mode is not None:
-            os.chmod(tmp, mode)
-        os.replace(tmp, target)
-        tmp = None
-    except OSError as exc:
-        raise OSError(exc.errno, exc.strerror or str(exc), str(shown)) from exc
-    finally:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)

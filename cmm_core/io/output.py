@@ -19,7 +19,9 @@ import errno
 import os
 import secrets
 import stat
+from collections.abc import Iterator
 from pathlib import Path
+from typing import IO
 
 from .errors import DataError
 
@@ -30,10 +32,14 @@ def _target(path) -> Path:
     return Path(os.path.realpath(os.fspath(path)))
 
 
-def atomic_write_bytes(path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically: a temporary file in the same folder, fsync,
-    ``os.replace``. On any failure the temporary file is removed and an existing ``path``
-    is left untouched.
+@contextlib.contextmanager
+def atomic_writer(path, mode: str = "wb", encoding: str | None = None) -> Iterator[IO]:
+    """A file to write whose content replaces ``path`` when the ``with`` block ends
+    without an exception: a temporary file in the same folder, fsync, ``os.replace``, so
+    an output too large to hold in memory is written a piece at a time under the same
+    rule. On any failure the temporary file is removed and an existing ``path`` is left
+    untouched. ``mode`` is ``"wb"`` or ``"w"`` (text, with ``encoding``, line ends as
+    written).
 
     Raises
     ------
@@ -43,6 +49,8 @@ def atomic_write_bytes(path, data: bytes) -> None:
         The write failed (disk full, no permission); ``filename`` is ``path``, not the
         temporary file.
     """
+    if mode not in ("wb", "w"):
+        raise ValueError(f"mode: expected 'wb' or 'w', found {mode!r}.")
     shown = Path(path)
     target = _target(path)
     if target.is_dir():
@@ -53,9 +61,9 @@ def atomic_write_bytes(path, data: bytes) -> None:
                         "exist.", file=str(shown),
                         hint="create it or write elsewhere.")
     try:
-        mode = stat.S_IMODE(target.stat().st_mode)  # an existing file keeps its mode
+        keep: int | None = stat.S_IMODE(target.stat().st_mode)  # an existing file keeps it
     except OSError:
-        mode = None
+        keep = None
     tmp = None
     try:
         for _ in range(100):
@@ -68,12 +76,17 @@ def atomic_write_bytes(path, data: bytes) -> None:
                 continue
         else:  # pragma: no cover - 100 collisions of 32 random bits
             raise FileExistsError(errno.EEXIST, "no free temporary name", str(tmp))
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
+        f: IO
+        if mode == "w":
+            f = open(fd, "w", encoding=encoding or "utf-8", newline="")
+        else:
+            f = open(fd, "wb")
+        with f:
+            yield f
             f.flush()
             os.fsync(f.fileno())
-        if mode is not None:
-            os.chmod(tmp, mode)
+        if keep is not None:
+            os.chmod(tmp, keep)
         os.replace(tmp, target)
         tmp = None
     except OSError as exc:
@@ -83,6 +96,14 @@ def atomic_write_bytes(path, data: bytes) -> None:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
     _sync_folder(folder)
+
+
+def atomic_write_bytes(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (:func:`atomic_writer`): a temporary file in
+    the same folder, fsync, ``os.replace``; on any failure an existing ``path`` is left
+    untouched."""
+    with atomic_writer(path, "wb") as f:
+        f.write(data)
 
 
 def atomic_write_text(path, text: str, encoding: str = "utf-8") -> None:
