@@ -35,6 +35,35 @@ def _files(paths):
     return [(Path(p).name, Path(p).read_bytes(), "text/csv") for p in paths]
 
 
+def _cert_csv(cert) -> str:
+    """The simulated certificate as a certificate CSV with 0.1 µm per coordinate."""
+    return "ball,x_mm,y_mm,z_mm,u_x_um,u_y_um,u_z_um\n" + "\n".join(
+        f"{b},{x:.6f},{y:.6f},{z:.6f},0.1,0.1,0.1"
+        for b, (x, y, z) in zip(cert.balls, cert.xyz_mm, strict=True))
+
+
+def _load_mapped(at, name, content, mime, pattern, sim):
+    """On the Data page: a foreign file through the mapped import with ``pattern``, then
+    the simulation's setup and certificate uploaded and everything loaded."""
+    at.switch_page("pages/data.py")
+    at.run()
+    at.file_uploader(key="map_file").set_value((name, content, mime))
+    at.run()
+    next(t for t in at.text_input if t.key.endswith("_pattern")).set_value(pattern)
+    at.run()
+    _ok(at)
+    next(b for b in at.button if b.key.endswith("_load") and b.key.startswith("map")).click()
+    at.run()
+    _ok(at)
+    setup = json.dumps(sim.dataset.setup.raw).encode()
+    at.file_uploader(key="up_setup").set_value(("setup.json", setup, "application/json"))
+    at.file_uploader(key="up_cert").set_value(
+        ("cert.csv", _cert_csv(sim.dataset.certificate).encode(), "text/csv"))
+    at.button(key="load_upload").click()
+    at.run()
+    _ok(at)
+
+
 def test_msl_snapshots_load_on_their_tab_and_fit(tmp_path):
     sim, _coef = simulated_machine("fixed_bridge_xfyz")
     pairs = msl_files_of(sim, tmp_path, "simulated", "fixed_bridge_xfyz")
@@ -63,27 +92,8 @@ def test_a_dmis_file_loads_through_the_mapped_import_and_fits():
     sim = simulate({"seed": 4, "noise_um": 0.3})
     meas = sim.dataset.meas[["position", "probe", "ball", "time_min", "x_mm", "y_mm", "z_mm"]]
     at = _new()
-    at.switch_page("pages/data.py")
-    at.run()
-    at.file_uploader(key="map_file").set_value(("run.dmo", _dmo(meas), "text/plain"))
-    at.run()
-    pattern = next(t for t in at.text_input if t.key.endswith("_pattern"))
-    pattern.set_value(r"(?P<position>BP\d+)_P(?P<probe>\w+)_B(?P<ball>\d+)")
-    at.run()
-    _ok(at)
-    next(b for b in at.button if b.key.endswith("_load") and b.key.startswith("map")).click()
-    at.run()
-    _ok(at)
-    setup = json.dumps(sim.dataset.setup.raw).encode()
-    at.file_uploader(key="up_setup").set_value(("setup.json", setup, "application/json"))
-    cert = sim.dataset.certificate
-    text = "ball,x_mm,y_mm,z_mm,u_x_um,u_y_um,u_z_um\n" + "\n".join(
-        f"{b},{x:.6f},{y:.6f},{z:.6f},0.1,0.1,0.1"
-        for b, (x, y, z) in zip(cert.balls, cert.xyz_mm, strict=True))
-    at.file_uploader(key="up_cert").set_value(("cert.csv", text.encode(), "text/csv"))
-    at.button(key="load_upload").click()
-    at.run()
-    _ok(at)
+    _load_mapped(at, "run.dmo", _dmo(meas), "text/plain",
+                 r"(?P<position>BP\d+)_P(?P<probe>\w+)_B(?P<ball>\d+)", sim)
     assert "run.dmo" in at.session_state["ds_files"]["name"]
     at.switch_page("pages/kinematic.py")
     at.run()
@@ -118,26 +128,7 @@ def test_a_mapped_vendor_table_keeps_its_mapping_in_the_record():
     meas = sim.dataset.meas[["position", "probe", "ball", "x_mm", "y_mm", "z_mm"]]
     table = _vendor_feature_csv(meas)
     at = _new()
-    at.switch_page("pages/data.py")
-    at.run()
-    at.file_uploader(key="map_file").set_value(("vendor.csv", table, "text/csv"))
-    at.run()
-    next(t for t in at.text_input if t.key.endswith("_pattern")).set_value(PATTERN)
-    at.run()
-    _ok(at)
-    next(b for b in at.button if b.key.endswith("_load") and b.key.startswith("map")).click()
-    at.run()
-    _ok(at)
-    setup = json.dumps(sim.dataset.setup.raw).encode()
-    at.file_uploader(key="up_setup").set_value(("setup.json", setup, "application/json"))
-    cert = sim.dataset.certificate
-    text = "ball,x_mm,y_mm,z_mm,u_x_um,u_y_um,u_z_um\n" + "\n".join(
-        f"{b},{x:.6f},{y:.6f},{z:.6f},0.1,0.1,0.1"
-        for b, (x, y, z) in zip(cert.balls, cert.xyz_mm, strict=True))
-    at.file_uploader(key="up_cert").set_value(("cert.csv", text.encode(), "text/csv"))
-    at.button(key="load_upload").click()
-    at.run()
-    _ok(at)
+    _load_mapped(at, "vendor.csv", table, "text/csv", PATTERN, sim)
     files = at.session_state["ds_files"]
     ((source, source_text, mapping),) = files["mapped"].values()
     assert source == "vendor.csv" and source_text == table.decode()
@@ -157,10 +148,7 @@ def test_restored_mapped_project_keeps_the_mapping():
     meas = sim.dataset.meas[["position", "probe", "ball", "x_mm", "y_mm", "z_mm"]]
     m = TableMapping(x="X", y="Y", z="Z", label="Feature", pattern=PATTERN)
     t = apply_mapping(_vendor_feature_csv(meas), m, name="vendor.csv")
-    cert = sim.dataset.certificate
-    ctext = "ball,x_mm,y_mm,z_mm,u_x_um,u_y_um,u_z_um\n" + "\n".join(
-        f"{b},{x:.6f},{y:.6f},{z:.6f},0.1,0.1,0.1"
-        for b, (x, y, z) in zip(cert.balls, cert.xyz_mm, strict=True))
+    ctext = _cert_csv(sim.dataset.certificate)
     files = {"name": "v", "measurements": [(t.csv_name, t.csv_text)],
              "setup": json.dumps(sim.dataset.setup.raw), "certificate": ("c.csv", ctext),
              "mapped": {t.csv_name: (t.name, t.source_text, t.mapping)}}
