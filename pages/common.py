@@ -666,12 +666,10 @@ def history_rows() -> list:
                 gp = cached_gp_discrepancy(fit_key(h["spec"]), r)
             except Exception:  # noqa: BLE001
                 gp = None
-        out.append({"spec": h["spec"], "change": h["change"],
-                    "rms_um": None if r is None else round(r.rms_um, 4),
-                    "chi2_dof": None if r is None else round(r.chi2_dof, 3),
-                    "bic": None if r is None else round(r.bic, 1),
-                    "n_params": None if r is None else r.rank,
-                    "gp_amplitude_um": None if gp is None else round(gp, 3)})
+        row = ({"spec": h["spec"], "change": h["change"], "rms_um": None, "chi2_dof": None,
+                "bic": None, "n_params": None} if r is None else
+               {**r.history_row(h["change"]), "spec": h["spec"]})
+        out.append({**row, "gp_amplitude_um": None if gp is None else round(gp, 3)})
     return out
 
 

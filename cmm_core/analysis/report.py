@@ -228,11 +228,8 @@ def write_report(analysis_path: str | Path, out_path: str | Path) -> dict:
     res = run(read_record(Path(analysis_path)))
     text = render(res)
     atomic_write_text(out_path, text)  # temporary file + rename: never half a report
-    r = res.fit
-    return {"out": str(out_path), "bytes": len(text.encode()), "model": r.spec,
-            "n_obs": r.n_obs, "rms_um": r.rms_um, "chi2_dof": r.chi2_dof, "dof": r.dof,
-            "chi2_p_value": r.chi2_p_value, "fails_chi2_test": r.fails_chi2_test,
-            "birge_ratio": r.birge_ratio, "sigma": res.sigma,
+    return {"out": str(out_path), "bytes": len(text.encode()), **res.fit.summary(),
+            "sigma": res.sigma,
             "excluded": [list(e) for e in res.exclusions],
             "flagged_outliers": [list(e) for e in res.flagged]}
 

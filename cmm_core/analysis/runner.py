@@ -142,10 +142,8 @@ def run(record: AnalysisRecord) -> AnalysisResult:
         sigma = {"value_um": float(record.sigma_um), "auto": False}
     kw = _fit_kwargs(record, excl, sigma_um=sigma["value_um"])
     r = fit(data, record.spec, **kw)
-    history = [{"spec": spec, "change": change, "rms_um": round(h.rms_um, 4),
-                "chi2_dof": round(h.chi2_dof, 3), "bic": round(h.bic, 1), "n_params": h.rank}
-               for spec, change in record.history
-               for h in [r if spec == record.spec else fit(data, spec, **kw)]]
+    history = [(r if spec == record.spec else fit(data, spec, **kw)).history_row(change)
+               for spec, change in record.history]
     rigid = fit(data, "rigid", **kw)
     err = measured_error_from_residuals_um(rigid.residuals_um)
     try:

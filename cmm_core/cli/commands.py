@@ -14,6 +14,7 @@ import json
 import math
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -89,13 +90,7 @@ def cmd_fit(args):
             exclude=exclude, instruments=instruments or None)
     if args.save:
         save_model(r, args.save)
-    return {"model": r.spec, "status": r.status, "message": r.message,
-            "n_obs": r.n_obs, "n_params": r.rank, "rms_um": r.rms_um, "chi2_dof": r.chi2_dof,
-            "dof": r.dof, "chi2_p_value": r.chi2_p_value, "fails_chi2_test": r.fails_chi2_test,
-            "birge_ratio": r.birge_ratio, "sigma": sigma,
-            "bic": r.bic, "plate": r.plate, "layout": r.terms.layout,
-            "certificate_u_source": r.certificate_u_source,
-            "chi2_test_dof": r.chi2_test_dof, "dof_test": r.dof_test,
+    return {**r.summary(), "sigma": sigma,
             "parameters": {lab: {"value": v, "u": u, "u_inflated": ui, "unit": un}
                            for lab, v, u, ui, un in zip(r.labels, r.values, r.u, r.u_inflated,
                                                         r.units, strict=True)},
@@ -110,8 +105,6 @@ def cmd_diagnose(args):
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
     sigma_um, sigma = sigma_of(args, data, exclude, args.baseline)
     if instruments and not isinstance(data, Observations):  # they ride on the observations into every model the diagnosis fits
-        from dataclasses import replace
-
         data = replace(select(data, exclude=exclude), instruments=tuple(instruments))
     d = diagnose(data, args.baseline, order=args.order, plate=args.plate,
                  sigma_um=sigma_um, exclude=exclude)

@@ -210,6 +210,28 @@ class FitResult:
         """True when the data determine every parameter."""
         return not self.unidentifiable
 
+    def summary(self) -> dict:
+        """The fit's headline numbers, the one place the CLI, the report and the app take
+        them from: model, status and message, observations and determined parameters,
+        RMS (µm), χ²/dof with its dof, the χ² test (p, verdict, Birge ratio, the tested
+        χ²/dof and dof when the certificate is counted), BIC, plate mode, layout and where
+        the certificate's uncertainty came from."""
+        return {"model": self.spec, "status": self.status, "message": self.message,
+                "n_obs": self.n_obs, "n_params": self.rank, "rms_um": self.rms_um,
+                "chi2_dof": self.chi2_dof, "dof": self.dof, "chi2_p_value": self.chi2_p_value,
+                "fails_chi2_test": self.fails_chi2_test, "birge_ratio": self.birge_ratio,
+                "bic": self.bic, "plate": self.plate, "layout": self.terms.layout,
+                "certificate_u_source": self.certificate_u_source,
+                "chi2_test_dof": self.chi2_test_dof, "dof_test": self.dof_test}
+
+    def history_row(self, change: str) -> dict:
+        """One row of a diagnosis history (the app's, the report's, the analysis
+        record's): ``spec``, ``change``, ``rms_um``, ``chi2_dof``, ``bic``, ``n_params``,
+        rounded as shown."""
+        return {"spec": self.spec, "change": change, "rms_um": round(self.rms_um, 4),
+                "chi2_dof": round(self.chi2_dof, 3), "bic": round(self.bic, 1),
+                "n_params": self.rank}
+
     def parameters_frame(self) -> pd.DataFrame:
         """Parameter table: name, block, unit, value, standard uncertainty."""
         return pd.DataFrame({"parameter": self.labels, "block": self.groups,
