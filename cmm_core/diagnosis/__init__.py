@@ -22,6 +22,7 @@ from .crossval import (
     check,
     placement_scale_columns,
     placement_scale_test,
+    plate_columns,
 )
 from .discrepancy import Discrepancy, discrepancy_gp, kinematic_basis
 from .outliers import OutlierReport, detect_outliers
@@ -57,6 +58,6 @@ __all__ = [
     "Diagnosis", "Discrepancy", "discrepancy_gp", "estimate", "estimate_sigma", "evidence", "fitted_text", "FAMILY_ALPHA",
     "family_levels", "flexible_spec", "from_repeats", "from_residuals", "HoldoutCheck",
     "kinematic_basis", "MATERIAL", "MIN_PLACEMENTS", "misfit_location", "needs_met",
-    "OutlierReport", "OUTSIDE", "PHYSICAL_SHARE", "placement_scale_columns", "placement_scale_test", "SCALE_ALPHA", "released", "scan_period", "score",
+    "OutlierReport", "OUTSIDE", "PHYSICAL_SHARE", "placement_scale_columns", "placement_scale_test", "plate_columns", "SCALE_ALPHA", "released", "scan_period", "score",
     "ScoreCache", "SigmaEstimate", "stylus_offsets", "UNIFORM_ALPHA", "Uniformity", "uniformity"
 ]

@@ -24,6 +24,8 @@ from .detect import (
     DetectionLimit,
     baseline_basis,
     candidate_tokens,
+    cert_columns,
+    cert_scales,
     default_period,
     detection_limits,
     detection_trial,
@@ -96,7 +98,7 @@ from .task import (
 )
 
 __all__ = [
-    "baseline_basis", "candidate_tokens", "check_plans", "dask_client", "default_period",
+    "baseline_basis", "candidate_tokens", "cert_columns", "cert_scales", "check_plans", "dask_client", "default_period",
     "design", "design_fit", "design_from_file", "DesignResult", "detection_limits",
     "detection_trial", "DetectionLimit", "diagnosis_detects", "evaluate", "evaluate_file",
     "failing", "feature", "figures", "fit_plan_data", "function_uncertainty", "injection",

@@ -38,7 +38,7 @@ from scipy import linalg
 from .._blas import single_blas_thread
 from ..machine import kinematics as kin
 from ..model import Problem, augmented_state, rigid_body_projector, select, weighted_residual
-from .detect import detection_limits, noncentrality_for_power
+from .detect import POWER, detection_limits, noncentrality_for_power
 from .evaluation import PlanEvaluation, evaluate
 from .plans import Plan, fit_plan_data, simulate_plan
 
@@ -75,7 +75,7 @@ class PoolModel:
         # with the certificate fixed its uncertainty propagates into every parameter
         # (fit_certificate): per unit, the cross information of the parameters and the
         # plate coordinates, to be summed over a subset like the Gram matrices
-        self.cert_cross, self.cert_u2 = None, None
+        self.cert_cross, self.cert_u2, self.cert_sq = None, None, None
         if base.plate == "fixed" and obs.cert_u_um is not None:
             pp = Problem(obs, spec, "prior")
             Jp = weighted_residual(pp, augmented_state(base, pp), base.sigma_um,
@@ -85,6 +85,10 @@ class PoolModel:
             self.cert_cross = np.array([J[:n_obs_rows][rows == u].T @ Jc[rows == u]
                                         for u in range(len(self.units))])
             self.cert_u2 = np.nan_to_num(obs.cert_u_um.ravel() ** 2, posinf=0.0)
+            # the certificate's errors as a noise of the detection test (detect.
+            # cert_scales): per unit, the squared norms of their weighted columns
+            self.cert_sq = np.array([np.sum(Jc[rows == u] ** 2, axis=0)
+                                     for u in range(len(self.units))]) * self.cert_u2
         self.n_prior_rows = J.shape[0] - n_obs_rows
         self.C = prob.constraints()
         self.labels = L.labels
@@ -191,6 +195,12 @@ class PoolModel:
         det = {}
         rank = int(keep.sum())
         n_rows = int(self.rows_per_unit[list(sel)].sum()) + self.n_prior_rows
+        XG = None
+        if (self.cert_cross is not None and self.cert_u2 is not None
+                and self.cert_sq is not None):  # Jᵀ G, tr(Gᵀ M G): the certificate's errors
+            XG = self.cert_cross[list(sel)].sum(0) * np.sqrt(self.cert_u2)
+            XB = XG[idx]
+            tr_mg = float(self.cert_sq[list(sel)].sum() - np.sum(XB * (cov @ XB)))
         for tok, cols in self.effect_cols.items():
             e_idx = np.array(cols)
             NEE = N[np.ix_(e_idx, e_idx)]
@@ -203,8 +213,15 @@ class PoolModel:
             q = float(shape @ schur @ shape)
             nu = max(n_rows - rank - k, 1)
             ok = k > 0 and q > (self.rank_rtol * sv.max()) ** 2 * float(shape @ NEE @ shape)
-            det[tok] = (float(np.sqrt(noncentrality_for_power(k, nu, self.levels[tok]) / q))
-                        if ok else np.inf)
+            c1 = c2 = 1.0
+            if XG is not None and ok:  # detect.cert_scales from the Gram matrices
+                XE = XG[e_idx] - NEB @ cov @ XB  # Rᵀ M G
+                ws, vs = np.linalg.eigh((schur + schur.T) / 2)
+                top = np.argsort(ws)[::-1][:k]
+                on = float(np.sum((vs[:, top].T @ XE) ** 2 / ws[top][:, None]))
+                c1, c2 = 1.0 + on / k, 1.0 + (tr_mg - on) / nu
+            det[tok] = (float(np.sqrt(c1 * noncentrality_for_power(
+                k, nu, self.levels[tok], POWER, round(c2 / c1, 6)) / q)) if ok else np.inf)
         return {"determined": determined, "U3_um": u3, "detect": det}
 
     def criterion(self, sel, kind: str) -> float:

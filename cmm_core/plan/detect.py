@@ -17,6 +17,12 @@ at which the test rejects with 80 % probability:
 
     ncf.sf(f.isf(α_E, k, ν), k, ν, λ(s)) = 0.8.
 
+With the plate fixed to a certificate, the certificate's own errors are a second noise,
+common to every placement's image of a ball: they add to the χ² the effect's columns take
+and to the residual χ² by the factors ``c1`` and ``c2`` (:func:`cert_scales`), and the
+limit solves ``ncf.sf(f.isf(α_E, k, ν) c2/c1, k, ν, λ(s)/c1) = 0.8`` (the Δχ² is then
+about ``c1`` times a non-central χ²(k, λ/c1), Satterthwaite 1946).
+
 Sizes are in the effect's parameter units along its shape ``e`` (largest weight 1):
 ``docs/planning.md`` lists the shapes. An effect with several shapes (a probe offset
 error along x, y or z) reports the worst one.
@@ -86,6 +92,11 @@ class DetectionLimit:
         How the shape was chosen, or why the effect cannot be seen.
     family : str
         The diagnosis's candidate token (``periodic_x`` for ``periodic_x:420``).
+    numerator_scale, denominator_scale : float
+        Noise scales of the test's Δχ² per degree of freedom and of its residual χ²/ν
+        (1 for white noise at σ; above 1 with a fixed certificate, whose own errors add
+        to both: :func:`cert_scales`). λ is divided by the first, and the critical value
+        multiplied by their ratio.
     """
 
     effect: str
@@ -98,6 +109,8 @@ class DetectionLimit:
     noncentrality_per_unit2: float
     note: str = ""
     family: str = field(default="", repr=False)
+    numerator_scale: float = 1.0
+    denominator_scale: float = 1.0
 
     def to_dict(self) -> dict:
         """JSON record ``{"size", "unit", ...}`` (an infinite size is null)."""
@@ -109,16 +122,20 @@ class DetectionLimit:
         """Probability that the diagnosis's test names an effect of ``size``."""
         if self.n_params <= 0:
             return self.level
-        lam = size ** 2 * self.noncentrality_per_unit2
-        crit = stats.f.isf(self.level, self.n_params, self.dof)
+        c1, c2 = self.numerator_scale, self.denominator_scale
+        lam = size ** 2 * self.noncentrality_per_unit2 / c1
+        crit = stats.f.isf(self.level, self.n_params, self.dof) * c2 / c1
         return float(stats.ncf.sf(crit, self.n_params, self.dof, lam))
 
 
 @functools.lru_cache(maxsize=512)
-def noncentrality_for_power(k: int, nu: int, level: float, power: float = POWER) -> float:
+def noncentrality_for_power(k: int, nu: int, level: float, power: float = POWER,
+                            ratio: float = 1.0) -> float:
     """λ at which the F-test of k numerator and ν denominator dof at ``level`` rejects
-    with probability ``power`` (scipy ``ncf``; brentq on a bracket that doubles)."""
-    crit = stats.f.isf(level, k, nu)
+    with probability ``power`` (scipy ``ncf``; brentq on a bracket that doubles).
+    ``ratio``: the denominator's over the numerator's noise scale (:func:`cert_scales`),
+    which moves the critical value of the unscaled statistic by that factor."""
+    crit = stats.f.isf(level, k, nu) * ratio
 
     def gap(lam):
         return float(stats.ncf.sf(crit, k, nu, lam)) - power
@@ -143,6 +160,37 @@ def baseline_basis(base: FitResult) -> tuple:
     U, sv, _ = np.linalg.svd((A * S) @ Z, full_matrices=False)
     keep = sv > base.rank_rtol * sv.max()
     return U[:, keep], float(sv.max())
+
+
+def cert_columns(base: FitResult, spec=None) -> np.ndarray | None:
+    """The certificate's own errors in the weighted residual: the plate coordinates'
+    weighted columns (the plate block of the same model with the certificate as a prior)
+    times the certificate's standard uncertainties, observation rows only; their Gram
+    matrix is the errors' covariance. None when the plate is not fixed to a certificate
+    with uncertainties, or for a hole plate. The designer sums the same columns per unit."""
+    o = base.problem.obs
+    if base.plate != "fixed" or o.cert_u_um is None or o.artefact == "hole_plate":
+        return None
+    pp = Problem(o, base.problem.spec if spec is None else spec, "prior")
+    Jp = weighted_residual(pp, augmented_state(base, pp), base.sigma_um, True)[2]
+    blk = pp.layout.blocks["plate"]
+    Jc = Jp.toarray()[: 3 * pp.n_obs, blk.start:blk.stop]
+    return Jc * np.nan_to_num(np.asarray(o.cert_u_um, float).ravel(), posinf=0.0)
+
+
+def cert_scales(MG, R, k: int, nu: int) -> tuple[float, float]:
+    """``(c1, c2)``: how much a fixed certificate's errors inflate the test's Δχ² per
+    degree of freedom (their share in the effect's columns, ``1 + tr(P_R D)/k``) and its
+    residual χ²/ν (``1 + tr((M − P_R) D)/ν``), ``D = M G Gᵀ M`` their covariance. The
+    diagnosis's F-test takes σ as white; the certificate's errors are common to every
+    placement's image of a ball, so the limit must count them (bench/plan.py found the
+    plain non-central F 5-10 points optimistic on the thesis plan)."""
+    if MG is None or k <= 0:
+        return 1.0, 1.0
+    Ur, sv, _ = np.linalg.svd(R, full_matrices=False)
+    Q = Ur[:, :k]
+    on = float(np.sum((Q.T @ MG) ** 2))
+    return 1.0 + on / k, 1.0 + (float(np.sum(MG**2)) - on) / max(nu, 1)
 
 
 def _shapes(token, labels, base_spec, positions, probes):
@@ -221,6 +269,11 @@ def detection_limits(base: FitResult, plan, *, power: float = POWER):
     units = dict(zip(big.layout.labels, big.layout.units, strict=True))
     have = set(base.labels)
     n_rows = base.dof + base.rank
+    G = cert_columns(base)
+    MG = None
+    if G is not None:  # rows beyond the observations' (instruments) carry no plate
+        G = np.vstack([G, np.zeros((J.shape[0] - G.shape[0], G.shape[1]))])
+        MG = G - U @ (U.T @ G)
     out = {}
     for fam, (token, scan) in tokens.items():
         own = Problem(obs, base.problem.spec.with_token(token), base.plate).layout.labels
@@ -233,7 +286,9 @@ def detection_limits(base: FitResult, plan, *, power: float = POWER):
             if scaled.size else 0
         nu = max(n_rows - base.rank - k, 1)
         level = levels[fam] / scan
-        lam = noncentrality_for_power(k, nu, level, power) if k > 0 else np.inf
+        c1, c2 = cert_scales(MG, R, k, nu)
+        lam = (c1 * noncentrality_for_power(k, nu, level, power, round(c2 / c1, 6))
+               if k > 0 else np.inf)
         sizes = {}
         for sname, shape in _shapes(fam, labels, base.problem.spec, obs.positions,
                                     obs.probes):
@@ -258,7 +313,7 @@ def detection_limits(base: FitResult, plan, *, power: float = POWER):
             note = ("the baseline absorbs this pattern (or the design cannot determine it): "
                     "no size is detectable. " + note)
         out[token] = DetectionLimit(token, size, unit, shape, k, int(nu), float(level), q,
-                                    note, fam)
+                                    note, fam, c1, c2)
     return out, skipped
 
 

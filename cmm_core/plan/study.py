@@ -205,7 +205,7 @@ def summarise(evals, tasks, records) -> StudyResult:
                                    "mean_delta_chi2": float(np.mean([r["delta_chi2"]
                                                                      for r in rs])),
                                    "expected_delta_chi2": float(
-                                       lim.n_params + lim.size ** 2
+                                       lim.numerator_scale * lim.n_params + lim.size ** 2
                                        * lim.noncentrality_per_unit2)}
         rec["detection"] = det
         out.append(rec)
