@@ -10,8 +10,9 @@ Prints, in one run:
    serial loop, with their ratio;
 3. the Monte Carlo check of the detection limits: for each effect, the predicted size,
    the observed detection rate over N data sets with the effect at that size (expected
-   0.8), its binomial standard error, and whether it lies in 0.8 ± 0.08; plus the
-   observed mean χ² reduction against its prediction k + λ; and the observed U2/U3
+   0.8), its binomial standard error, and whether it lies in 0.8 ± 0.04; plus the
+   observed mean χ² reduction against its prediction c1·k + λ (c1: a fixed certificate's
+   inflation, ``plan.detect.cert_scales``); and the observed U2/U3
    against the predicted ones.
 
 Run: ``.venv/bin/python bench/plan.py [--trials N] [--study-tasks M]`` (defaults 300 and
@@ -92,10 +93,10 @@ def main(argv=None):
     print(f"   U2/U3 over {s['trials']} data sets: largest relative difference from the "
           f"prediction {s['max_relative_difference']:.1e}; RMS of normalised coefficient "
           f"errors {s['z_rms']:.3f}")
-    print(f"   {'effect':15s} {'limit':>9s} {'unit':8s} {'rate':>6s} {'±SE':>6s}  in 0.8±0.08"
-          f"  {'mean Δχ²':>9s} {'k+λ':>7s}")
+    print(f"   {'effect':15s} {'limit':>9s} {'unit':8s} {'rate':>6s} {'±SE':>6s}  in 0.8±0.04"
+          f"  {'mean Δχ²':>9s} {'c1·k+λ':>7s}")
     for eff, d in s["detection"].items():
-        ok = abs(d["rate"] - 0.8) <= 0.08
+        ok = abs(d["rate"] - 0.8) <= 0.04  # issue 26: 80 ± 4 % at the stated limit
         print(f"   {eff:15s} {d['size']:9.3g} {d['unit']:8s} {d['rate']:6.3f} "
               f"{np.sqrt(d['rate'] * (1 - d['rate']) / d['trials']):6.3f}  "
               f"{'yes' if ok else 'NO':>11s}  {d['mean_delta_chi2']:9.2f} "
