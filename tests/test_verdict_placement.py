@@ -21,9 +21,10 @@ thermal state differing by about 1 K from the others'."""
 @pytest.mark.parametrize(("axis", "seed"), [(0, 1), (1, 2), (2, 0)])
 def test_a_placement_scale_is_never_named_as_a_catalogue_effect(layout, axis, seed):
     """Balls in random order (in row order drift is an alias, and says so). Before the
-    placement-scale test, 13 of these 36 layout × axis × seed cases (the 9 here among
-    them) were named probe_offset, drift, plate_sag, periodic_y:271, dyy:3, dzx:4 or
-    bridge_twist."""
+    placement-scale test, 13 of 36 such layout × axis × seed cases (seeds 0-3, axes x, y,
+    z) were named probe_offset, drift, plate_sag, periodic_y:271, dyy:3, dzx:4 or
+    bridge_twist; two of the nine here among them (pitch80_3pos x seed 1 as plate_sag,
+    pitch150_5pos y seed 2 as drift). After it, none of the 36."""
     sim = sc.simulated(layout, 40 + seed, order="random")
     data = sc.placement_scale(sim.dataset, np.random.default_rng(100 + seed), SD_PPM,
                               axis=axis)
