@@ -634,10 +634,8 @@ def _cached_core_diagnosis(key: FitKey, _ds, _instruments=(), _show_progress=Fal
             bar.progress(frac, text=text)
 
     d = diagnose(data, baseline=key.spec, progress=report, **kw)
-    rows = [{"effect": c.effect, "title": c.title, "explanation": c.explanation,
-             "aliases": ", ".join(c.aliases), "separate_by": c.separate_by,
-             "rms_um": c.rms_um, "chi2_dof": c.chi2_dof, "delta_chi2": c.delta_chi2,
-             "delta_bic": c.delta_bic, "p_value": c.p_value, "n_params": c.n_params,
+    # the core's own row of each candidate (the CLI's JSON), plus what only the page draws
+    rows = [{**c.to_dict(), "aliases": ", ".join(c.aliases),
              "significant": bool(c.significant), "confirmed": bool(c.confirmed),
              "is_verdict": c.effect == d.verdict,
              "detectable_above": c.detectable_text(),
@@ -648,7 +646,8 @@ def _cached_core_diagnosis(key: FitKey, _ds, _instruments=(), _show_progress=Fal
     if bar is not None:
         bar.empty()
     full = d.to_dict()
-    info = {k: full[k] for k in ("verdict", "sigma_check", "certificate", "where")}
+    info = {k: full[k] for k in ("verdict", "sigma_check", "certificate", "where",
+                                 "blunders", "cannot_see", "evidence")}
     return rows, rep.diagnosis_conclusion(d), info
 
 

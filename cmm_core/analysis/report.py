@@ -249,11 +249,10 @@ def render(res: AnalysisResult, *, generated: str | None = None) -> str:
 
 def diagnosis_rows(d: Diagnosis) -> list:
     """The diagnosis's candidates as report rows (best first)."""
-    return [{"effect": c.effect, "title": c.title, "rms_um": c.rms_um,
-             "chi2_dof": c.chi2_dof, "delta_chi2": c.delta_chi2, "n_params": c.n_params,
-             "delta_bic": c.delta_bic, "p_value": c.p_value,
-             "significant": bool(c.significant), "aliases": ", ".join(c.aliases)}
-            for c in d.candidates]
+    cols = ("effect", "title", "rms_um", "chi2_dof", "delta_chi2", "n_params", "delta_bic",
+            "p_value")
+    return [{**{k: c.to_dict()[k] for k in cols}, "significant": bool(c.significant),
+             "aliases": ", ".join(c.aliases)} for c in d.candidates]
 
 
 def diagnosis_conclusion(d: Diagnosis) -> str:

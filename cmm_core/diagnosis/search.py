@@ -234,10 +234,7 @@ class Diagnosis:
     def to_dict(self) -> dict:
         """JSON-ready result in the ``diagnose`` shape (docs/formats.md)."""
         b = self.baseline
-        return {"baseline": {"model": b.spec, "rms_um": b.rms_um, "chi2_dof": b.chi2_dof,
-                             "bic": b.bic, "dof": b.dof, "chi2_test_dof": b.chi2_test_dof,
-                             "dof_test": b.test_statistic[1], "chi2_p_value": b.chi2_p_value,
-                             "fails_chi2_test": b.fails_chi2_test},
+        return {"baseline": b.summary(),
                 "candidates": [c.to_dict() for c in self.candidates],
                 "verdict": self.verdict, "skipped": self.skipped, "message": self.message,
                 "holdout": [h.to_dict() for h in self.holdout],

@@ -86,7 +86,9 @@ def misfit_location(base: FitResult) -> dict:
     (``repeatability.axis_weights``: three for a ball plate, the two in its plane for a
     hole plate), and the axis named is the one most above its expected share."""
 
-    out = {}
+    out: dict = {}
+    if base.n_obs == 0:  # instruments alone: no plate residual to place
+        return out
     z2 = (base.residuals_um / base.sigma_um) ** 2
     chi = z2.sum(axis=1)
     total = max(chi.sum(), 1e-300)
@@ -349,7 +351,10 @@ def _test_text(base) -> str:
 
 
 def _conclusion(base, cands, verdict, sigma=None, uniform=None, where=None):
-    head = f"Baseline {base.spec}: RMS {base.rms_um:.2f} µm; {_test_text(base)}."
+    # instruments alone have no plate residual: their own fit is the χ² test's
+    rms = (f"RMS {base.rms_um:.2f} µm" if base.n_obs else
+           "instruments only (no plate residuals)")
+    head = f"Baseline {base.spec}: {rms}; {_test_text(base)}."
     if base.null_combinations:
         head += (f" This design leaves {len(base.null_combinations)} combination(s) of the "
                  "baseline undetermined; candidates are judged only on what it can see, "
