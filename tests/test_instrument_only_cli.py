@@ -71,3 +71,16 @@ def test_an_msl_bar_alone_from_the_command_line(tmp_path, capsys):
     p = out["parameters"]["dxx[1]"]
     # RANGE x = 800 mm: the scale s (µm/m) is dxx[1]·2000/800; rounding u 0.0029 µm/length
     assert p["value"] * 2000 / 800 == pytest.approx(-1.2, abs=4 * p["u"] * 2000 / 800)
+
+
+def test_an_instrument_only_model_is_saved_with_the_region_its_instruments_saw(files):
+    """``fit --save`` of instruments alone: the model file's region is the span of the
+    instruments' scale readings (there are no plate readings), here the gauge's line
+    x 100-1100 mm at y = 300 mm and the laser's y 0-1000 mm at x = 600 mm."""
+    out = files / "model.json"
+    assert main(["fit", "--setup", str(files / "machine.json"), "--model", "dxx,dyy",
+                 "--step-gauge", str(files / "sg.csv"), "--laser", str(files / "laser.csv"),
+                 "--save", str(out), "--json", str(files / "fit.json")]) == 0
+    lo, hi = json.loads(out.read_text())["summary"]["region_mm"]
+    assert lo[0] == pytest.approx(100, abs=0.01) and hi[0] == pytest.approx(1100, abs=0.01)
+    assert lo[1] == pytest.approx(0, abs=0.01) and hi[1] == pytest.approx(1000, abs=0.01)

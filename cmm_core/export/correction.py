@@ -128,9 +128,16 @@ def model_from_result(result: FitResult) -> Model:
                   "placements": [str(p) for p in obs.positions],
                   "plate": result.plate, "sigma_um": result.sigma_um,
                   "certificate_u_source": result.certificate_u_source,
-                  "region_mm": [np.min(obs.r_mm - obs.p_mm, axis=0).tolist(),
-                                np.max(obs.r_mm - obs.p_mm, axis=0).tolist()]},
+                  "region_mm": _region_mm(obs)},
                  parts)
+
+
+def _region_mm(obs) -> list:
+    """``[min, max]`` of the scale readings the fit saw (mm): the plate's, and the
+    instruments' points (an instrument-only fit has no plate readings)."""
+    pts = [obs.r_mm - obs.p_mm] + [x for i in obs.instruments for x, _ in i.points()]
+    xyz = np.vstack([p for p in pts if len(p)])
+    return [np.min(xyz, axis=0).tolist(), np.max(xyz, axis=0).tolist()]
 
 
 def model_to_dict(model: Model | FitResult) -> dict:
