@@ -15,7 +15,7 @@ Data page itself (``/data`` then opens it directly instead of "page not found").
 
 A session survives a reload: the URL carries the analysis's id (``?session=...``), every
 link between pages keeps it, and the analysis is saved as a project file in a per-user
-folder whenever it changes (``common.session_start``, ``common.autosave``,
+folder whenever it changes (``session.session_start``, ``session.autosave``,
 ``cmm_core.analysis.sessions``); F5, or the URL in a new tab, restores it with a note and a
 "Start afresh" button.
 """
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import streamlit as st
 
-from pages import common
+from pages import session, state
 
 ROOT = Path(__file__).resolve().parent
 RUN_LOG = os.environ.get("CMM_LAB_RUN_LOG")
@@ -39,8 +39,8 @@ _t0 = time.perf_counter()
 # internet (an emoji or icon name would be, and fails offline)
 st.set_page_config(page_title="CMM error lab", page_icon=str(ROOT / ".streamlit" / "favicon.png"),
                    layout="wide")
-common.session_start()
-common.init_state()
+session.session_start()
+state.init_state()
 
 PAGES = [
     st.Page("pages/data.py", title="Data", icon=":material/dataset:", url_path="data"),
@@ -61,28 +61,28 @@ PAGES = [
 
 def _home():
     """The app's root URL opens the Data page (at its own URL, /data)."""
-    st.switch_page(PAGES[0], query_params=common.session_query())
+    st.switch_page(PAGES[0], query_params=session.session_query())
 
 
 HOME = st.Page(_home, title="CMM error lab", url_path="home", default=True,
                visibility="hidden")
 page = st.navigation([HOME, *PAGES], position="hidden")
-st.session_state["_via_app"] = True  # pages check it (common.page_start)
+st.session_state["_via_app"] = True  # pages check it (frame.page_start)
 deep_link = st.session_state.pop("_deep_link", None)
 if deep_link and (ROOT / "pages" / deep_link).is_file():
     # a deep link opened on a fresh server, before this script ever ran (see
-    # common.page_start): open the page asked for, now inside the app
-    st.switch_page(f"pages/{deep_link}", query_params=common.session_query())
+    # frame.page_start): open the page asked for, now inside the app
+    st.switch_page(f"pages/{deep_link}", query_params=session.session_query())
 st.sidebar.title("CMM error lab")
 with st.sidebar.container(key="app_nav"):
     for p in PAGES:
         st.page_link(p, label=p.title, icon=p.icon, width="stretch",
-                     query_params=common.session_query())
+                     query_params=session.session_query())
 st.sidebar.divider()
 try:
     page.run()
     # what the page changed without a rerun (a button's direct effect) is saved now
-    common.autosave()
+    session.autosave()
 finally:
     if RUN_LOG:  # a rerun or stop ends the run here too: it is timed all the same
         with open(RUN_LOG, "a", encoding="utf-8") as log:

@@ -93,17 +93,18 @@ def _simulated_files() -> dict:
 
 def _diagnose_page(case: str):
     """An app session on the Diagnose page with the thesis data or the simulated sample:
-    ``(AppTest, the pages.common module it runs)``."""
+    ``(AppTest, the pages.state and pages.cached modules it runs)``."""
     at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=300)
     at.run()
-    common = sys.modules["pages.common"]
+    common = sys.modules["pages.state"]
+    cached = sys.modules["pages.cached"]
     if case != "thesis":
         files = _simulated_files()
         at.session_state["ds_files"] = files
         at.session_state["ds_key"] = common.files_key(files)
     at.switch_page("pages/diagnose.py")
     at.run()
-    return at, common
+    return at, common, cached
 
 
 def bench_diagnosis(runs: int = 5) -> list:
@@ -113,10 +114,10 @@ def bench_diagnosis(runs: int = 5) -> list:
 
     rows = []
     for case in ("thesis", "simulated sample"):
-        at, common = _diagnose_page(case)
+        at, common, cached = _diagnose_page(case)
         times = []
         for _ in range(runs + 1):  # the first click warms imports
-            common._cached_core_diagnosis.clear()
+            cached.cached_diagnosis.clear()
             at.button(key="run_diagnosis").click()
             t0 = time.perf_counter()
             at.run()
@@ -125,7 +126,7 @@ def bench_diagnosis(runs: int = 5) -> list:
                 raise RuntimeError(f"{case}: {at.exception[0].message}")
             at.button(key="hide_diagnosis").click()
             at.run()
-        ds = common._load(at.session_state["ds_key"], at.session_state["ds_files"])
+        ds = common.load_files(at.session_state["ds_key"], at.session_state["ds_files"])
         key, spec, order, plate, sigma, pos, prb, excl = _fit_args(at)
         core = []
         for _ in range(runs):
@@ -149,7 +150,7 @@ def bench_add_effect(runs: int = 3) -> list:
 
     rows = []
     for case in ("thesis", "simulated sample"):
-        at, common = _diagnose_page(case)
+        at, common, cached = _diagnose_page(case)
         at.button(key="run_diagnosis").click()
         at.run()
         adds = [b for b in at.button if str(b.key).startswith("add_")]
@@ -158,7 +159,7 @@ def bench_add_effect(runs: int = 3) -> list:
         key = adds[0].key
         times = []
         for _ in range(runs + 1):  # the first click warms the refit's imports
-            common._cached_core_diagnosis.clear()
+            cached.cached_diagnosis.clear()
             at.button(key=key).click()
             t0 = time.perf_counter()
             at.run()
@@ -167,7 +168,7 @@ def bench_add_effect(runs: int = 3) -> list:
                 raise RuntimeError(f"{case}: {at.exception[0].message}")
             at.button(key="undo_step").click()
             at.run()
-        ds = common._load(at.session_state["ds_key"], at.session_state["ds_files"])
+        ds = common.load_files(at.session_state["ds_key"], at.session_state["ds_files"])
         _, spec, order, plate, sigma, _, _, excl = _fit_args(at)
         new = f"{spec},{key[4:]}"
         core = []

@@ -11,9 +11,9 @@ import streamlit as st
 from cmm_core import export as ex
 from cmm_core import io as cio
 from cmm_core import monitor as mon
-from pages import common as C
+from pages import calls, frame
 
-C.page_start()
+frame.page_start()
 st.title("Interim check")
 st.write("Between calibrations: does the machine still behave as its stored calibration "
          "says, and if not, what changed (docs/monitoring.md)? And how has it changed over "
@@ -100,7 +100,7 @@ with t_check:
             st.error(f"MPE: expected 'A,D' with A >= 0 µm and D > 0 (e.g. 0.6,600), found "
                      f"{mpe_text[:40]!r}.")
     if files is not None:
-        out = C.safe(run_check, files[0][0], files[0][1], files[1], files[2], files[3],
+        out = calls.safe(run_check, files[0][0], files[0][1], files[1], files[2], files[3],
                      float(alpha), float(family), mpe, what="Interim check")
         if out is not None:
             chk, table, chg, chg_table, conf = out
@@ -109,7 +109,7 @@ with t_check:
             m2.metric("p-value", f"{chk['p_value']:.3g}")
             m3.metric("Within 95 % intervals", f"{100 * chk['coverage_95']:.1f} %")
             (st.success if chk["status"] == "passes" else st.warning)(chk["message"])
-            with C.guarded("E_n map"):
+            with calls.guarded("E_n map"):
                 t = table.assign(En=table[["En_x", "En_y", "En_z"]].abs().max(axis=1))
                 fig = px.scatter(t, x="x_mm", y="y_mm", color="En", symbol="position",
                                  hover_data=["probe", "ball", "En_x", "En_y", "En_z"],
@@ -122,7 +122,7 @@ with t_check:
             st.subheader("What changed")
             st.write(chg["message"])
             shown = chg_table[chg_table["tested"]].copy()
-            C.dataframe(shown[["label", "unit", "change", "u_change", "En", "significant",
+            frame.dataframe(shown[["label", "unit", "change", "u_change", "En", "significant",
                                "change_alone", "u_change_alone", "En_alone",
                                "significant_alone", "resolved"]],
                         hide_index=True, key="chk_changes")
@@ -165,12 +165,12 @@ with t_hist:
                            help="Holm over every pair of consecutive calibrations and "
                                 "shared parameter")
     if named is not None:
-        hout = C.safe(run_history, named, dates, float(hfam), what="Calibration history")
+        hout = calls.safe(run_history, named, dates, float(hfam), what="Calibration history")
         if hout is not None:
             summary, changes, trend, grid = hout
             st.write(summary["message"])
-            C.dataframe(changes, hide_index=True, key="hist_changes")
-            with C.guarded("Trend"):
+            frame.dataframe(changes, hide_index=True, key="hist_changes")
+            with calls.guarded("Trend"):
                 labels = list(dict.fromkeys(trend["label"]))
                 default = summary["significant"][0]["label"] if summary["significant"] \
                     else labels[0]
@@ -181,7 +181,7 @@ with t_hist:
                                  labels={"value": f"{lab} ({tr['unit'].iloc[0]})"},
                                  title=f"{lab} over the calibrations (± u)")
                 st.plotly_chart(fig, key="hist_trend")
-            with C.guarded("Error map change"):
+            with calls.guarded("Error map change"):
                 comp = st.selectbox("Component", ["x", "y", "z"], key="hist_comp")
                 fig = px.scatter(grid, x="x_mm", y="y_mm", color=f"de{comp}_um",
                                  facet_col="z_mm", facet_col_wrap=3,

@@ -15,15 +15,15 @@ from cmm_core import io as cio
 from cmm_core.io import THESIS_POSITIONS
 from cmm_core.machine import DEFAULT_LAYOUT, LAYOUTS
 from cmm_core.model import simulator_effects
-from pages import common as C
+from pages import cached, calls, frame, session, state
 from pages.mapping_panel import mapping_panel
 from pages.msl_panel import msl_section
 
-C.page_start()
+frame.page_start()
 st.title("Data")
 st.caption("Ball-plate measurements, setup and certificate. Files are in mm; the screen "
            "shows µm.")
-C.flash()
+frame.flash()
 
 
 MAX_SHOWN = cio.MAX_PROBLEMS  # rows of the upload problem table
@@ -69,7 +69,7 @@ def _problem_rows(exc, file=""):
     found more than it lists, a last row says how many are not shown.
     """
     if not isinstance(exc, cio.DataError):
-        return [_problem(file, C.describe_error(exc))]
+        return [_problem(file, calls.describe_error(exc))]
     rows = [_problem(p.file, p.detail, p.hint, p.row, p.column) for p in exc.problems]
     hidden = exc.n_problems - len(exc.problems)
     if hidden > 0:
@@ -223,7 +223,7 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label="", ma
     if mapped is not None:  # a table from other software, already mapped to the long form
         meas.append(tuple(mapped[:2]))
         notes.append(f"{mapped[0]}: read through the column mapping.")
-    thesis = C.thesis_files()
+    thesis = state.thesis_files()
     setup_text, cert = None, None
     setup_source = cert_source = None
     if setup_file is not None:
@@ -282,7 +282,7 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label="", ma
         # the source table and its mapping travel into the analysis record and project
         files["mapped"] = {mapped[0]: tuple(mapped[2:])}
     try:
-        C._load(C.files_key(files), files)
+        state.load_files(state.files_key(files), files)
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback
         return None, _capped(_problem_rows(exc)), notes
     return files, [], [n for n in notes if n]
@@ -330,7 +330,7 @@ def _show_upload_report():
              "unchanged.")
     table = pd.DataFrame(report["problems"]).drop(columns="_more")
     table["row"] = table["row"].astype("Int64")  # whole row numbers, blank when none
-    C.dataframe(table, hide_index=True, key="upload_problems")
+    frame.dataframe(table, hide_index=True, key="upload_problems")
 
 
 tab_thesis, tab_upload, tab_other, tab_sim, tab_proj = st.tabs(
@@ -341,7 +341,7 @@ with tab_thesis:
     st.write("The six ball-plate tables of thesis chapter 6 (tables 6.1-6.6) with the appendix 5 "
              "certificate, exactly as printed (including the values that look wrong).")
     if st.button("Load thesis tables", key="load_thesis"):
-        C.set_dataset(C.thesis_files())
+        state.set_dataset(state.thesis_files())
         _loaded("Loaded the thesis tables.")
 
 with tab_upload:
@@ -387,7 +387,7 @@ with tab_upload:
             st.session_state["upload_report"] = {"problems": problems,
                                                  "count": _count(problems)}
         else:
-            C.set_dataset(files)
+            state.set_dataset(files)
             st.session_state["upload_count"] = st.session_state.get("upload_count", 0) + 1
             st.session_state["upload_gen"] = gen + 1
             st.session_state.pop("mapped_meas", None)
@@ -462,8 +462,8 @@ with tab_sim:
             setup = thesis_machine_setup()
             setup["machine"]["layout"] = layout
             cfg["setup"] = setup
-        sim = C.safe(simulate, cfg, what="Simulation")
-        inst = [] if sim is None or not sim_inst else C.safe(
+        sim = calls.safe(simulate, cfg, what="Simulation")
+        inst = [] if sim is None or not sim_inst else calls.safe(
             _simulated_instruments, sim, int(seed), what="Simulating the instruments")
         if sim is not None:
             with tempfile.TemporaryDirectory() as tmp:
@@ -478,15 +478,15 @@ with tab_sim:
                                            (p / "measurements.csv").read_text())],
                          "setup": (p / "setup.json").read_text(),
                          "certificate": ("certificate.csv", (p / "certificate.csv").read_text())}
-            ok = None if inst is None else C.safe(C.set_dataset, files,
+            ok = None if inst is None else calls.safe(state.set_dataset, files,
                                                   what="Loading the simulation")
             if ok is not None:
-                C.set_instruments(inst)
+                state.set_instruments(inst)
                 if inst:  # the simulation brings its own: "instrument files removed" misleads
                     st.session_state["reset_note"] = [
                         n for n in st.session_state.get("reset_note", [])
                         if "instrument file" not in n]
-                st.session_state["sim_truth"] = {"key": C.files_key(files),
+                st.session_state["sim_truth"] = {"key": state.files_key(files),
                                                  "truth": sim.truth, "config": cfg}
                 _loaded("Simulated dataset loaded" + (
                     " with a laser run and a step gauge fitted jointly" if inst else "")
@@ -500,9 +500,9 @@ with tab_proj:
         # the core reads the whole file (analysis.record_from_project: every part's shape
         # and value, one line naming the key) before anything of the session changes
         try:
-            note = C.restore_project(up_proj.getvalue(), up_proj.name)
+            note = session.restore_project(up_proj.getvalue(), up_proj.name)
         except Exception as exc:  # noqa: BLE001 - a message, never a traceback
-            st.error(f"The project does not restore: {C.describe_error(exc)}")
+            st.error(f"The project does not restore: {calls.describe_error(exc)}")
         else:
             _loaded(f"Restored project '{st.session_state['ds_files']['name']}'.{note}")
 
@@ -523,19 +523,19 @@ def _read_instrument_uploads(uploads, have):
                 continue
             try:
                 text = f.getvalue().decode("utf-8-sig")
-                C.read_instrument_file(kind, f.name, text)
+                state.read_instrument_file(kind, f.name, text)
             except UnicodeDecodeError:
                 errors.append(f"{f.name}: is not UTF-8 text; save it as UTF-8 CSV.")
             except Exception as exc:  # noqa: BLE001 - a message, never a traceback
-                errors.append(C.describe_error(exc))
+                errors.append(calls.describe_error(exc))
             else:
                 new.append((kind, f.name, text))
                 names.add(f.name)
     if new and not errors:
         try:  # together, against this machine's strokes
-            C.check_instruments(have + new)
+            state.check_instruments(have + new)
         except Exception as exc:  # noqa: BLE001
-            errors.append(C.describe_error(exc))
+            errors.append(calls.describe_error(exc))
     return new, errors
 
 
@@ -543,7 +543,7 @@ def instruments_section():
     s = st.session_state
     st.subheader("Instruments (fitted jointly with the plate)")
     kinds = list(A.instrument_kinds())
-    st.write(f"Instrument files ({', '.join(C.INSTRUMENT_NAMES.get(k, k) for k in kinds)}) "
+    st.write(f"Instrument files ({', '.join(state.INSTRUMENT_NAMES.get(k, k) for k in kinds)}) "
              "observe the machine's errors directly; their readings become rows of every "
              "fit, beside the plate's "
              "(docs/instruments.md). Machine axes, mm; errors and u in µm. Loading another "
@@ -555,7 +555,7 @@ def instruments_section():
     uploads = {}
     for col, kind in zip(cols, kinds, strict=True):
         uploads[kind] = col.file_uploader(
-            f"{C.INSTRUMENT_NAMES.get(kind, kind).capitalize()} (CSV)", type=["csv", "txt"],
+            f"{state.INSTRUMENT_NAMES.get(kind, kind).capitalize()} (CSV)", type=["csv", "txt"],
             accept_multiple_files=True, key=f"up_{kind}{sfx}", help=_instrument_columns(kind))
     if st.button("Add instrument files", key="add_instruments"):
         have = list(s.get("instruments") or [])
@@ -564,7 +564,7 @@ def instruments_section():
         if not new and not errors:
             st.info("Choose instrument files above first.")
         elif not errors:
-            C.set_instruments(have + new)
+            state.set_instruments(have + new)
             s["inst_gen"] = gen + 1
             _loaded(f"Added {len(new)} instrument file(s): "
                     + ", ".join(n for _, n, _ in new) + ". Every fit now includes them.")
@@ -577,12 +577,12 @@ def instruments_section():
     if not items:
         st.caption("No instrument files: the fits use the ball plate alone.")
         return
-    data = C.safe(C.instrument_data, what="Reading the instrument files") or ()
+    data = calls.safe(cached.instrument_data, what="Reading the instrument files") or ()
     for i, (kind, name, _) in enumerate(items):
         c1, c2 = st.columns([5, 1])
         n = f", {len(data[i].rows)} readings" if i < len(data) else ""
-        c1.markdown(f"**{name}**: {C.INSTRUMENT_NAMES.get(kind, kind)}{n}")
-        c2.button("Remove", key=f"rm_instrument_{i}", on_click=C.remove_instrument,
+        c1.markdown(f"**{name}**: {state.INSTRUMENT_NAMES.get(kind, kind)}{n}")
+        c2.button("Remove", key=f"rm_instrument_{i}", on_click=state.remove_instrument,
                   args=(i,))
 
 
@@ -591,7 +591,7 @@ instruments_section()
 # ---------------------------------------------------------------------------------------
 # The current dataset: validation report
 # ---------------------------------------------------------------------------------------
-ds = C.require_dataset()
+ds = cached.require_dataset()
 s = st.session_state
 st.header(f"Current dataset: {ds.name}")
 m = ds.meas
@@ -609,7 +609,7 @@ span = m.groupby("position", sort=False)[["mx_mm", "my_mm", "mz_mm"]].agg(
     lambda v: v.max() - v.min())
 counts = counts.merge(span.rename(columns=lambda c: f"span_{c[1]}_mm").reset_index(),
                       on="position")
-C.dataframe(counts, hide_index=True, key="validation_counts")
+frame.dataframe(counts, hide_index=True, key="validation_counts")
 problems = []
 for pos, probe, miss in cio.missing_balls(m, ds.certificate):
     problems.append(f"{pos}/{probe}: missing ball(s) {', '.join(map(str, miss))}")
@@ -625,7 +625,7 @@ else:
                "duplicates.")
 
 st.subheader("Outliers (robust median/MAD across positions)")
-rep = C.safe(C.cached_outliers, s["ds_key"], ds, what="Outlier detection")
+rep = calls.safe(cached.cached_outliers, s["ds_key"], ds, what="Outlier detection")
 if rep is not None:
     st.caption(f"Reference: {rep.reference}. Robust σ per axis: "
                + ", ".join(f"{a} {v:.2f} µm" for a, v in rep.scale_um.items())
@@ -639,9 +639,9 @@ if rep is not None:
         current = {tuple(e) for e in s["exclusions"]}
         flagged = rep.exclusions
         bcols = st.columns([1, 1, 4])
-        bcols[0].button("Exclude all flagged", key="exclude_all", on_click=C.set_exclusions,
+        bcols[0].button("Exclude all flagged", key="exclude_all", on_click=state.set_exclusions,
                         args=(flagged, True))
-        bcols[1].button("Include all", key="include_all", on_click=C.set_exclusions,
+        bcols[1].button("Include all", key="include_all", on_click=state.set_exclusions,
                         args=(flagged, False))
         by_obs = {}
         for o in rep.outliers:
@@ -656,30 +656,30 @@ if rep is not None:
             src = os_[0]
             label = (f"Exclude {trip[0]} probe {trip[1]} ball {trip[2]}: {detail} "
                      f"[{src['source']}, row {src['row']}]")
-            st.checkbox(label, key=wk, on_change=C.toggle_exclusion, args=(trip, wk))
+            st.checkbox(label, key=wk, on_change=state.toggle_exclusion, args=(trip, wk))
     # exclusions a project restored that the detector does not flag: shown, never hidden
     others = sorted({tuple(e) for e in s["exclusions"]} - {tuple(t) for t in rep.exclusions})
     if others:
         o1, o2 = st.columns([4, 1])
         o1.info("Also excluded (restored, not flagged by the detector): "
                 + "; ".join(f"{p} probe {q} ball {b}" for p, q, b in others) + ".")
-        o2.button("Include them again", key="include_unflagged", on_click=C.set_exclusions,
+        o2.button("Include them again", key="include_unflagged", on_click=state.set_exclusions,
                   args=(others, False))
 
 st.subheader("Placements in the machine volume")
-with C.guarded("Placement views"):
+with calls.guarded("Placement views"):
     # three flat views by default (SVG: drawn at once); the WebGL scene on request, as it
     # cost most of a first page load (issue 27)
     if st.toggle("3-D view", key="w_place_3d",
                  help="Rotate the placements in 3-D (slower to draw than the three views)."):
-        st.plotly_chart(C.figure("placements", (s["ds_key"],), C.rep.fig_placements, ds),
+        st.plotly_chart(cached.figure("placements", (s["ds_key"],), A.fig_placements, ds),
                         key="fig_placements")
     else:
-        st.plotly_chart(C.figure("placement_views", (s["ds_key"],),
-                                 C.rep.fig_placement_views, ds),
+        st.plotly_chart(cached.figure("placement_views", (s["ds_key"],),
+                                 A.fig_placement_views, ds),
                         key="fig_placement_views", width="stretch")
 
 with st.expander("Measurements (as read, mm)"):
-    C.dataframe(m, hide_index=True, key="meas_table")
+    frame.dataframe(m, hide_index=True, key="meas_table")
 with st.expander("Setup (JSON)"):
     st.code(json.dumps(ds.setup.raw, indent=1), language="json")

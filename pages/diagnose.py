@@ -1,27 +1,30 @@
 """Compare and diagnose: where the model fails, which effect is missing, add it, watch."""
 
+from contextlib import nullcontext
+
 import numpy as np
 import pandas as pd
 import streamlit as st
 
+from cmm_core import analysis as A
 from cmm_core.analysis import residuals as res_mod
 from cmm_core.diagnosis import BLUNDERS
 from cmm_core.model import PERIODIC, catalogue_entry, parse_spec
-from pages import common as C
+from pages import cached, calls, frame, state
 
-C.page_start()
+frame.page_start()
 st.title("Compare and diagnose")
 st.caption("The model against the measurements: where it fails, which physical effect the "
            "residuals point to, and what adding it does to RMS, χ²/dof, BIC and the GP "
            "discrepancy.")
-C.flash()
-ds, r = C.require_fit()
+frame.flash()
+ds, r = cached.require_fit()
 s = st.session_state
-fkey = C.fit_key()  # what decides the fit: the key of its cached figures
+fkey = cached.fit_key()  # what decides the fit: the key of its cached figures
 
 c = st.columns(4)
 # the model as the user wrote it, wrapped at its commas (a metric would cut it)
-c[0].markdown(f"Model  \n{C.spec_markup(s['spec'])}", unsafe_allow_html=True)
+c[0].markdown(f"Model  \n{frame.spec_markup(s['spec'])}", unsafe_allow_html=True)
 c[1].metric("RMS residual", f"{r.rms_um:.3f} µm")
 # one χ²/dof is the headline: the one the χ² test decides on (with a fixed certificate
 # it counts the certificate's uncertainty; the fit's own value is named in the help)
@@ -32,30 +35,30 @@ c[2].metric("χ²/dof (tested)", f"{r.chi2_test_dof:.2f}",
                 if r.test_counts_certificate else "")))
 c[3].metric("BIC", f"{r.bic:.1f}")
 # reversal and certificate uncertainties below are σ-based
-C.misfit_banner(r)
+frame.misfit_banner(r)
 
 st.subheader("Where the model fails")
 t_pat, t_map, t_tab, t_time = st.tabs(["Residual pattern", "Residual map (3D)",
                                        "Per position and probe", "Against time and direction"])
-with t_pat, C.guarded("Residual pattern"):
-    st.plotly_chart(C.figure("pattern", fkey, C.rep.fig_pattern, r.table,
+with t_pat, calls.guarded("Residual pattern"):
+    st.plotly_chart(cached.figure("pattern", fkey, A.fig_pattern, r.table,
                              r.residuals_um, "Residuals per observation (µm)"),
                     key="diag_resid")
-with t_map, C.guarded("Residual map"):
+with t_map, calls.guarded("Residual map"):
     comp = st.radio("Component", ["norm", "x", "y", "z"], horizontal=True, key="w_map_comp")
-    st.plotly_chart(C.figure("resmap", (fkey, comp), C.rep.fig_residual_map, r, comp),
+    st.plotly_chart(cached.figure("resmap", (fkey, comp), A.fig_residual_map, r, comp),
                     key="diag_map")
-with t_tab, C.guarded("Residual table"):
+with t_tab, calls.guarded("Residual table"):
     by = st.radio("Group by", ["position", "probe", "ball"], horizontal=True,
                   key="w_breakdown_by")
-    C.dataframe(res_mod.breakdown(r, by), hide_index=True, key="diag_breakdown")
+    frame.dataframe(res_mod.breakdown(r, by), hide_index=True, key="diag_breakdown")
     st.caption("RMS per axis in µm; χ² against σ and its share of the total.")
     if ds.certificate is not None:
         st.markdown("**Each position against the certificate** (own scale and "
                     "out-of-plane bowl)")
-        C.dataframe(res_mod.position_trends(ds, exclude=fkey.exclusions),
+        frame.dataframe(res_mod.position_trends(ds, exclude=fkey.exclusions),
                      hide_index=True, key="diag_trends")
-with t_time, C.guarded("Residuals against time"):
+with t_time, calls.guarded("Residuals against time"):
     rf = r.residuals_frame()
     if "time_min" in rf and rf["time_min"].notna().all():
         import plotly.express as px
@@ -75,20 +78,20 @@ with t_time, C.guarded("Residuals against time"):
     st.markdown("**By approach direction**: mean residual of each axis over the balls "
                 "reached moving + and moving − along it (a difference is a reversal error, "
                 "the `backlash` effect)")
-    C.dataframe(res_mod.approach_split(r), hide_index=True, key="diag_approach",
+    frame.dataframe(res_mod.approach_split(r), hide_index=True, key="diag_approach",
                 column_config={c_: st.column_config.NumberColumn(format="%.3f") for c_ in
                                ("mean_plus_um", "mean_minus_um", "reversal_um",
                                 "u_reversal_um")})
 
 st.subheader("Which effect is missing?")
-pending = C.pending_outliers(ds)
+pending = cached.pending_outliers(ds)
 if pending:
     w1, w2 = st.columns([4, 1])
     w1.warning(f"{len(pending)} flagged outlier(s) are still in the fit: one blunder of tens "
                "of µm can hide a real effect or pose as one. Exclude them first (the Data "
                "page lists them).")
     w2.button("Exclude the flagged outliers", key="diag_exclude_outliers",
-              on_click=C.set_exclusions, args=(pending, True))
+              on_click=state.set_exclusions, args=(pending, True))
 cols = st.columns([1, 1, 4])
 if cols[0].button("Run the diagnosis", key="run_diagnosis", type="primary"):
     s["diag_on"] = True
@@ -96,7 +99,7 @@ if cols[1].button("Hide", key="hide_diagnosis"):
     s["diag_on"] = False
 
 if s["diag_on"]:
-    base, cands, conclusion, info = C.run_diagnosis(show_progress=True)
+    base, cands, conclusion, info = cached.run_diagnosis(show_progress=True)
     if cands is None:
         st.stop()
     cert = info.get("certificate")
@@ -104,7 +107,7 @@ if s["diag_on"]:
         with st.container(border=True):
             st.warning(cert["message"])
             if cert["entries"]:
-                C.dataframe(pd.DataFrame(cert["entries"]), hide_index=True, key="cert_entries",
+                frame.dataframe(pd.DataFrame(cert["entries"]), hide_index=True, key="cert_entries",
                             column_config={"deviation_um": st.column_config.NumberColumn(
                                 "self-calibrated − certificate (µm)", format="%.2f"),
                                 "u_um": st.column_config.NumberColumn("u (µm)", format="%.2f"),
@@ -113,14 +116,14 @@ if s["diag_on"]:
                                    "RMS (µm)": v["rms_um"],
                                    "χ² test": "fails" if v["fails_chi2_test"] else "passes"}
                                   for k, v in cert["fixes"].items()])
-            C.dataframe(fixes, hide_index=True, key="cert_fixes",
+            frame.dataframe(fixes, hide_index=True, key="cert_fixes",
                         column_config={"χ²/dof": st.column_config.NumberColumn(format="%.2f"),
                                        "RMS (µm)": st.column_config.NumberColumn(format="%.3f")})
             b1, b2 = st.columns(2)
             b1.button("Use the certificate as a prior", key="cert_prior",
-                      on_click=C.set_plate, args=("prior",))
+                      on_click=state.set_plate, args=("prior",))
             b2.button("Self-calibrate the plate (free)", key="cert_free",
-                      on_click=C.set_plate, args=("free",))
+                      on_click=state.set_plate, args=("free",))
     sigma = info.get("sigma_check")
     if not cands:
         st.info("No candidate effect left to try.")
@@ -133,7 +136,7 @@ if s["diag_on"]:
                      "effect is named and σ is not estimated from these residuals. "
                      "Exclude them and run the diagnosis again (read which below).")
             b2.button("Exclude the flagged outliers", key="diag_exclude_blunders",
-                      on_click=C.set_exclusions, args=(pending, True), type="primary",
+                      on_click=state.set_exclusions, args=(pending, True), type="primary",
                       disabled=not pending)
         elif info.get("verdict") == "outside_catalogue":
             st.warning("**Outside the catalogue**: the misfit is significant and no catalogue "
@@ -153,7 +156,7 @@ if s["diag_on"]:
                        f"data: σ = {sigma['value_um']:.3g} ± {sigma['u_um']:.2g} µm "
                        f"({sigma['detail']}).")
             st.button(f"Refit with σ = {sigma['value_um']:.3g} µm", key="adopt_sigma",
-                      on_click=C.set_sigma, args=(sigma["value_um"],), type="primary")
+                      on_click=state.set_sigma, args=(sigma["value_um"],), type="primary")
         else:
             st.warning(f"No catalogue effect explains a significant part of the misfit, yet "
                        f"χ²/dof is {base.chi2_dof:.1f}: see the conclusion below.")
@@ -161,7 +164,7 @@ if s["diag_on"]:
         cols_shown = ["effect", "title", "rms_um", "chi2_dof", "delta_chi2", "n_params",
                       "delta_bic", "p_value", "significant", "confirmed", "aliases"]
         table = pd.DataFrame([{k: c_.get(k) for k in cols_shown} for c_ in cands])
-        C.dataframe(table, hide_index=True, key="diag_table",
+        frame.dataframe(table, hide_index=True, key="diag_table",
                      column_config={"effect": "Effect", "title": "What it is",
                                     "n_params": st.column_config.NumberColumn("Parameters"),
                                     "significant": "Significant", "confirmed": st.column_config
@@ -188,7 +191,7 @@ if s["diag_on"]:
                 # an effect the data cannot determine on top of this model adds only
                 # undetermined parameters: nothing to add
                 h2.button("Add this effect", key=f"add_{c_['effect']}",
-                          on_click=C.apply_change, args=(c_["effect"],), type="primary"
+                          on_click=state.apply_change, args=(c_["effect"],), type="primary"
                           if c_["significant"] else "secondary",
                           disabled=c_["n_params"] == 0,
                           help="The data cannot determine it on top of this model."
@@ -216,19 +219,19 @@ if s["diag_on"]:
                 if st.toggle("Show residuals beside its signature", value=i == 0,
                              key=f"w_sig_{c_['effect']}"):
                     f1, f2 = st.columns(2)
-                    f1.plotly_chart(C.figure("pattern_small", fkey, C.rep.fig_pattern,
+                    f1.plotly_chart(cached.figure("pattern_small", fkey, A.fig_pattern,
                                              base.table, base.residuals_um,
                                              "Residual pattern (µm)", 300),
                                     key=f"sig_res_{c_['effect']}")
-                    f2.plotly_chart(C.figure("signature", (fkey, c_["effect"]),
-                                             C.rep.fig_pattern, base.table, c_["signature_um"],
+                    f2.plotly_chart(cached.figure("signature", (fkey, c_["effect"]),
+                                             A.fig_pattern, base.table, c_["signature_um"],
                                              f"Signature of {c_['effect']} (µm)", 300),
                                     key=f"sig_{c_['effect']}")
                     sv, rv = np.ravel(c_["signature_um"]), np.ravel(base.residuals_um)
                     den = float(np.linalg.norm(sv) * np.linalg.norm(rv))
                     corr = float(sv @ rv) / den if den > 0 else 0.0
-                    st.plotly_chart(C.figure("sig_scatter", (fkey, c_["effect"]),
-                                             C.rep.fig_signature_scatter, base.residuals_um,
+                    st.plotly_chart(cached.figure("sig_scatter", (fkey, c_["effect"]),
+                                             A.fig_signature_scatter, base.residuals_um,
                                              c_["signature_um"],
                                              "Residual against the signature: along the "
                                              "dashed line where the effect explains it", 280),
@@ -241,17 +244,17 @@ st.subheader("History")
 st.checkbox("Also compute the GP discrepancy amplitude of each step (a GP over the "
             "residuals with the model's own design matrix as basis; about a second per "
             "step on the thesis data)", key="hist_gp")
-with st.spinner("Fitting the GP discrepancy…") if s.get("hist_gp") else C.nullcontext():
-    hist = C.history_rows()
-with C.guarded("History chart"):
-    st.plotly_chart(C.figure("history", tuple(tuple(sorted(h.items())) for h in hist),
-                             C.rep.fig_history, hist), key="diag_history")
+with st.spinner("Fitting the GP discrepancy…") if s.get("hist_gp") else nullcontext():
+    hist = cached.history_rows()
+with calls.guarded("History chart"):
+    st.plotly_chart(cached.figure("history", tuple(tuple(sorted(h.items())) for h in hist),
+                             A.fig_history, hist), key="diag_history")
 c1, c2 = st.columns([3, 1])
 with c1:
     # the model of each step as written, wrapped at its commas: rows tall enough for
     # Streamlit to wrap text (row_height above 4 rem) when a model is long
     long_spec = max(len(h["spec"]) for h in hist) > 40
-    C.dataframe(pd.DataFrame(hist).assign(spec=[C.spec_text(h["spec"]) for h in hist]),
+    frame.dataframe(pd.DataFrame(hist).assign(spec=[frame.spec_text(h["spec"]) for h in hist]),
                 hide_index=True, key="history_table",
                 row_height=72 if long_spec else None,
                 column_config={"spec": st.column_config.TextColumn(
@@ -282,12 +285,12 @@ with c2:
                             "from the model, '-plate_sag' the plate sag.")
           if removable else None)
     b1, b2 = st.columns(2)
-    b1.button("Remove", key="remove_effect", disabled=rm is None, on_click=C.apply_selected,
+    b1.button("Remove", key="remove_effect", disabled=rm is None, on_click=state.apply_selected,
               args=("w_remove",))
     b2.button("Undo last step", key="undo_step", disabled=len(s["history"]) < 2,
-              on_click=C.undo_change)
+              on_click=state.undo_change)
 
 with st.expander("Residual vectors at the worst observations"):
     rf = r.residuals_frame()
     rf["norm_um"] = np.linalg.norm(r.residuals_um, axis=1)
-    C.dataframe(rf.nlargest(15, "norm_um"), hide_index=True, key="diag_worst")
+    frame.dataframe(rf.nlargest(15, "norm_um"), hide_index=True, key="diag_worst")

@@ -9,14 +9,14 @@ import streamlit as st
 from cmm_core import analysis as A
 from cmm_core import export as ex
 from cmm_core.model import correction_columns
-from pages import common as C
+from pages import cached, calls, frame
 from pages.plan import task_section
 
-C.page_start()
+frame.page_start()
 st.title("Compensate and export")
-ds, r = C.require_fit()
+ds, r = cached.require_fit()
 s = st.session_state
-args = C.fit_key()
+args = cached.fit_key()
 obs = r.problem.obs
 
 
@@ -66,7 +66,7 @@ def corrected(args, content_key, _points, _r):
 
 points = None
 if up is not None:
-    points = C.safe(ex.read_points, io.BytesIO(up.getvalue()), name=up.name, what="Points file")
+    points = calls.safe(ex.read_points, io.BytesIO(up.getvalue()), name=up.name, what="Points file")
     ckey = (up.name, len(up.getvalue()), hash(up.getvalue()))
 elif use_example:
     t = r.table
@@ -79,13 +79,13 @@ elif use_example:
     ckey = "example"
 corr = None
 if points is not None:
-    corr = C.safe(corrected, args, ckey, points, r, what="Compensation")
+    corr = calls.safe(corrected, args, ckey, points, r, what="Compensation")
 if corr is not None:
-    C.misfit_banner(r)  # the corrections' uncertainties never hide a failed χ² test
+    frame.misfit_banner(r)  # the corrections' uncertainties never hide a failed χ² test
     view = corr.copy()
     for a in "xyz":
         view[f"e{a}_um"] = A.measured_error_um(view[f"{a}_mm"], view[f"{a}c_mm"])
-    C.dataframe(view, hide_index=True, key="corrected_table",
+    frame.dataframe(view, hide_index=True, key="corrected_table",
                  column_config={c: st.column_config.NumberColumn(format="%.5f")
                                 for c in view.columns if c.endswith("_mm")}
                  | {c: st.column_config.NumberColumn(format="%.3f")
@@ -127,7 +127,7 @@ with st.container(border=True):
         g = ex.error_map_grid(_r, step_mm=step, probe=probe)
         return ex.error_map_csv(_r, g, probe), len(g)
 
-    out = C.safe(grid_csv, args, float(step), gprobe, r, what="Error map")
+    out = calls.safe(grid_csv, args, float(step), gprobe, r, what="Error map")
     if out is not None:
         text, n_nodes = out
         st.caption(f"{n_nodes} grid nodes over the working volume "
@@ -168,9 +168,9 @@ with st.container(border=True):
         return (ex.results_json(m, coverage_factor=k, source=MODEL_FILE),
                 ex.results_xml(m, coverage_factor=k, source=MODEL_FILE))
 
-    tables = C.safe(comp_tables, args, float(cstep), None if cprobe == origin else cprobe,
+    tables = calls.safe(comp_tables, args, float(cstep), None if cprobe == origin else cprobe,
                     r, what="Compensation tables")
-    files = C.safe(results_files, args, float(kfac), r, what="Results files")
+    files = calls.safe(results_files, args, float(kfac), r, what="Results files")
     t1, t2, t3, t4 = st.columns(4)
     if tables is not None:
         t1.download_button("Grid compensation table (CSV)", tables[0], fname("compensation_grid.csv"),
@@ -196,7 +196,7 @@ with st.container(border=True):
 st.checkbox("Include a GP summary of the measured errors in the report (mean and "
                         "kernel as chosen on the Gaussian process page; adds a few seconds)",
                         key="w_report_gp")
-record = C.safe(A.record_from_session, s, what="Analysis record")
+record = calls.safe(A.record_from_session, s, what="Analysis record")
 
 
 @st.cache_data(show_spinner=False, max_entries=4)

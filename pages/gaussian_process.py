@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
+from cmm_core import analysis as A
 from cmm_core.analysis import (
     compare_models,
     coverage_reasons,
@@ -15,14 +16,14 @@ from cmm_core.analysis import (
 )
 from cmm_core.gp import gp_components, predict_grid
 from cmm_core.model import residual_u
-from pages import common as C
+from pages import cached, calls, frame
 
-C.page_start()
+frame.page_start()
 st.title("Gaussian process")
 st.caption("A GP over the measured errors at the ball centres (thesis chapter 5): zero mean, "
            "quadratic mean (eq. 5.11) or the kinematic model as mean; squared-exponential "
            "kernel, isotropic or ARD.")
-ds, r = C.require_fit()
+ds, r = cached.require_fit()
 s = st.session_state
 
 
@@ -30,7 +31,7 @@ s = st.session_state
 def measured_errors(key, _ds, _instruments=()):
     """Measured error at every observation: minus the residual of a rigid-placement-only
     fit (µm, machine axes), with the points (tip centres, mm) and placements removed."""
-    rig = C.cached_fit(key.with_spec("rigid"), _ds, _instruments)
+    rig = cached.cached_fit(key.with_spec("rigid"), _ds, _instruments)
     obs = rig.problem.obs
     return (obs.r_mm, measured_error_from_residuals_um(rig.residuals_um),
             rig.table[["position", "probe", "ball"]])
@@ -105,8 +106,8 @@ def predict_all(args, mean, kernel, grid_key, comps, grid, probe):
     return np.column_stack([o[0] for o in out]), np.column_stack([o[1] for o in out])
 
 
-args = C.fit_key()
-pts, err, meta = measured_errors(args, ds, C.instrument_data(args))
+args = cached.fit_key()
+pts, err, meta = measured_errors(args, ds, cached.instrument_data(args))
 u_res = kinematic_residual_u(args, r)
 # rows of the kinematic fit and the rigid fit are the same selection, same order
 pred_kin = err + r.residuals_um
@@ -144,8 +145,8 @@ pts_plate = plane.balls_plate_mm
 # one symmetric colour range for the model and GP mean maps: compare them by colour
 zlim = float(np.nanmax(np.abs(np.concatenate([e_kin_grid[:, a], err[sel, a]])))) or 1.0
 cols = st.columns(3)
-with cols[0], C.guarded("Kinematic surface"):
-    st.plotly_chart(C.beside_map(C.rep.fig_surface_grid(uu, vv, e_kin_grid[:, a].reshape(n, n),
+with cols[0], calls.guarded("Kinematic surface"):
+    st.plotly_chart(frame.beside_map(A.fig_surface_grid(uu, vv, e_kin_grid[:, a].reshape(n, n),
                                            title=f"Kinematic model e{comp} (µm)", unit="µm",
                                            points=pts_plate, xlabel="plate u (mm)",
                                            ylabel="plate v (mm)", zrange=(-zlim, zlim))),
@@ -161,7 +162,7 @@ if not s.get("gp_on"):
             s["gp_on"] = True
             st.rerun()
 if s.get("gp_on"):
-    with C.guarded("Gaussian process"):
+    with calls.guarded("Gaussian process"):
         target = err - pred_kin if mean_choice == "kinematic" else err
         gmean = "zero" if mean_choice == "kinematic" else mean_choice
         target_name = "kinematic residuals" if mean_choice == "kinematic" else "measured"
@@ -200,14 +201,14 @@ if s.get("gp_on"):
             loo = loo + pred_kin
         gp_mean_obs = om
         with cols[1]:
-            st.plotly_chart(C.beside_map(C.rep.fig_surface_grid(uu, vv, gm[:, a].reshape(n, n),
+            st.plotly_chart(frame.beside_map(A.fig_surface_grid(uu, vv, gm[:, a].reshape(n, n),
                                                    title=f"GP mean e{comp} (µm)", unit="µm",
                                                    points=pts_plate, xlabel="plate u (mm)",
                                                    ylabel="plate v (mm)",
                                                    zrange=(-zlim, zlim))), key="gp_mean_surface",
                             width="stretch")
         with cols[2]:
-            st.plotly_chart(C.beside_map(C.rep.fig_surface_grid(uu, vv, gsd[:, a].reshape(n, n),
+            st.plotly_chart(frame.beside_map(A.fig_surface_grid(uu, vv, gsd[:, a].reshape(n, n),
                                                    title=f"GP standard deviation e{comp} (µm)",
                                                    unit="µm", points=pts_plate,
                                                    colorscale="Viridis", xlabel="plate u (mm)",
@@ -234,7 +235,7 @@ if s.get("gp_on"):
                     + ("ram position (one length scale, or one per axis for ARD) and stylus "
                        "offset (one length scale)" if probe_input else
                        "tip coordinates") + ")")
-        C.dataframe(hyp, hide_index=True, key="gp_hyper", column_config={
+        frame.dataframe(hyp, hide_index=True, key="gp_hyper", column_config={
             c_: st.column_config.NumberColumn(format="%.3f") for c_ in
             ("signal sd (µm)", "noise sd (µm)", "log marginal likelihood", "LOO RMS (µm)")}
             | {"LOO 95 % coverage (%)": st.column_config.NumberColumn(format="%.1f")})
@@ -299,7 +300,7 @@ st.caption("Plate plane of the chosen position (plate u and v in mm); × marks t
 
 st.subheader("Kinematic vs GP vs measurement (thesis chapter 7)")
 # the kinematic z-scores are σ-based: say whether σ describes the scatter
-C.misfit_banner(r)
+frame.misfit_banner(r)
 ch7 = compare_models(r, err, pred_kin, u_res, comp, points_mm=pts, meta=meta,
                      gp_mean_um=gp_mean_obs, gp_loo_mean_um=loo, gp_loo_sd_um=loo_sd)
 rows = ch7.table
@@ -309,7 +310,7 @@ mc = st.columns(len(ch7.summary))
 for c_, f in zip(mc, ch7.summary, strict=True):
     c_.metric(f.label, f"{f.value:.3f}", help=f.meaning)
 only = st.checkbox("Table: only the chosen position", value=True, key="w_gp_only_pos")
-C.dataframe(rows[rows["position"] == position] if only else rows, hide_index=True,
+frame.dataframe(rows[rows["position"] == position] if only else rows, hide_index=True,
              key="ch7_table",
              column_config={c_: st.column_config.NumberColumn(format="%.3f")
                             for c_ in rows.columns if c_.endswith(("_um", "_z"))} | {

@@ -4,15 +4,16 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
+from cmm_core import analysis as A
 from cmm_core.machine import ERROR_NAMES
 from cmm_core.model import GROUPS, PHYSICAL, parse_spec, setup_layout
 from cmm_core.units import label as unit_label
-from pages import common as C
+from pages import cached, calls, frame, state
 
-C.page_start()
+frame.page_start()
 st.title("Kinematic model")
-C.flash()
-ds = C.require_dataset()
+frame.flash()
+ds = cached.require_dataset()
 s = st.session_state
 st.caption("The 21-error local kinematic model of the machine's layout, here "
            f"`{setup_layout(ds.setup)}` (setup machine.layout, docs/layouts.md; the moving "
@@ -35,23 +36,23 @@ with st.container(border=True):
     sel_prb = c2.multiselect("Probes", prb_all, key="w_probes")
     s["positions"] = None if set(sel_pos) == set(pos_all) else list(sel_pos)
     s["probes"] = None if set(sel_prb) == set(prb_all) else list(sel_prb)
-    C.bind("order", c3.selectbox, "Polynomial order", options=[1, 2, 3, 4, 5],
+    frame.bind("order", c3.selectbox, "Polynomial order", options=[1, 2, 3, 4, 5],
            help="Default Chebyshev order of every error function (straightness has no linear "
                 "term, so order 2 is quadratic).")
     c1, c2, c3 = st.columns([4, 3, 1])
-    spec_txt = C.bind("spec", c1.text_input, "Model (effect list)",
+    spec_txt = frame.bind("spec", c1.text_input, "Model (effect list)",
                       help="Comma-separated, applied left to right: the 21 names (dxx … syz), "
                            "groups " + ", ".join(GROUPS) + ", name:order, -name to remove, "
                            "physical effects " + ", ".join(PHYSICAL) + ". Examples: "
                            "`kinematic21,-sxy`, `translational,squareness`, "
                            "`kinematic21,plate_sag`.")
-    C.bind("plate", c2.selectbox, "Plate geometry", options=list(C.PLATE_CHOICES),
-           format_func=C.PLATE_CHOICES.get)
-    C.bind("sigma_um", c3.number_input, "σ (µm)", min_value=0.01, max_value=100.0,
+    frame.bind("plate", c2.selectbox, "Plate geometry", options=list(state.PLATE_CHOICES),
+           format_func=state.PLATE_CHOICES.get)
+    frame.bind("sigma_um", c3.number_input, "σ (µm)", min_value=0.01, max_value=100.0,
            step=0.1, help="Measurement repeatability: weights, χ² and uncertainties.")
     try:
         model = parse_spec(spec_txt, default_order=int(s["order"]))
-        full = C.spec_expansion(spec_txt)
+        full = frame.spec_expansion(spec_txt)
         st.caption(f"{len(model.active)} error functions; effects: "
                    f"{', '.join(model.effects) or 'none'}"
                    + ("; hover the ? for the explicit form" if full else ""),
@@ -63,7 +64,7 @@ with st.container(border=True):
 if not sel_pos or not sel_prb:
     st.warning("Choose at least one position and one probe.")
     st.stop()
-r = C.current_fit()
+r = cached.current_fit()
 if r is None:
     st.stop()
 
@@ -82,7 +83,7 @@ st.subheader("Identifiability")
 if r.unidentifiable:
     st.warning(f"The data cannot determine {len(r.null_combinations)} parameter "
                "combination(s). They are reported, not silently zeroed:")
-    C.dataframe(pd.DataFrame({"undetermined combination": r.null_combinations}),
+    frame.dataframe(pd.DataFrame({"undetermined combination": r.null_combinations}),
                  hide_index=True, key="null_combos")
     st.caption("Parameters involved: " + ", ".join(r.unidentifiable))
 else:
@@ -93,7 +94,7 @@ def error_function_grid(r, show, cols, truth):
     """The grid of fitted error functions, laid out for the page: the legend under the
     title rather than 15 % of the figure's height below the last row (a blank band of
     some 270 px under seven rows), and the bottom margin just what the axis titles need."""
-    fig = C.rep.fig_error_functions(r, show, cols, truth)
+    fig = A.fig_error_functions(r, show, cols, truth)
     fig.update_layout(legend={"orientation": "h", "yref": "container", "y": 1.0,
                               "yanchor": "top", "x": 1.0, "xanchor": "right"},
                       margin={"t": 70, "b": 40})
@@ -101,18 +102,18 @@ def error_function_grid(r, show, cols, truth):
 
 
 # the bands, the parameter u and the maps below are σ-based: say whether to trust them
-C.misfit_banner(r)
+frame.misfit_banner(r)
 truth = s.get("sim_truth")
 # lazy tabs: a hidden tab's figure is neither built nor sent, so the page opens with the
 # one figure in view (a browser drew all four, about a second of Plotly, issue 27)
 tabs = st.tabs(["Error functions", "Deviation plots", "Parameters", "Residuals"],
                key="w_kin_tab", on_change="rerun")
-with tabs[0], C.guarded("Error functions"):
+with tabs[0], calls.guarded("Error functions"):
     present = [n for n, _ in r.terms.functions]
     show = st.multiselect("Show", present, default=present)
     true_now = truth["truth"] if truth and truth.get("key") == s["ds_key"] else None
     if tabs[0].open:
-        st.plotly_chart(C.figure("errfun", (C.fit_key(), tuple(show), true_now is not None),
+        st.plotly_chart(cached.figure("errfun", (cached.fit_key(), tuple(show), true_now is not None),
                                  error_function_grid, r, show, 3, true_now),
                         key="fig_errfun", width="stretch")
     st.caption("Translational errors in µm, rotations in µrad, squareness as an angle in "
@@ -120,16 +121,16 @@ with tabs[0], C.guarded("Error functions"):
                "spans the measured scale readings (outside it the curve extrapolates)"
                + ("; dashed: the simulation's true function." if true_now else "."))
 
-with tabs[1], C.guarded("Deviation plots"):
+with tabs[1], calls.guarded("Deviation plots"):
     c1, c2 = st.columns([1, 3])
     pos_fit = r.problem.obs.positions
     position = c1.selectbox("Position", pos_fit, key="w_dev_position")
-    C.bind("magnification", c2.slider, "Magnification", min_value=100.0, max_value=10000.0,
+    frame.bind("magnification", c2.slider, "Magnification", min_value=100.0, max_value=10000.0,
            step=100.0, format="×%.0f")
     if tabs[1].open:
-        st.plotly_chart(C.figure("deviation", (C.fit_key(), position,
+        st.plotly_chart(cached.figure("deviation", (cached.fit_key(), position,
                                                float(s["magnification"])),
-                                 C.rep.fig_deviation, r, position, float(s["magnification"])),
+                                 A.fig_deviation, r, position, float(s["magnification"])),
                         key="fig_deviation")
     st.caption("Plate frame, mm: nominal ball centres (certificate or fitted plate), measured "
                "points and the points the model predicts, deviations magnified (thesis "
@@ -140,7 +141,7 @@ def _adopt_scatter(sigma_um):
     s["sigma_um"] = s["w_sigma_um"] = float(min(max(sigma_um, 0.01), 100.0))
 
 
-with tabs[2], C.guarded("Parameter table"):
+with tabs[2], calls.guarded("Parameter table"):
     pf = r.parameters_frame()
     pf["determined"] = ~pf["parameter"].isin(r.unidentifiable)
     pf["U (k=2)"] = 2 * pf["u"]
@@ -169,7 +170,7 @@ with tabs[2], C.guarded("Parameter table"):
                             )
     view = pf[pf["block"].isin(blocks)].assign(unit=lambda d: d["unit"].map(
         unit_label))
-    C.dataframe(view, hide_index=True, key="param_table",
+    frame.dataframe(view, hide_index=True, key="param_table",
                  column_config={"value": st.column_config.NumberColumn(format="%.4f"),
                                 "u": st.column_config.NumberColumn("u (k=1)", format="%.4f"),
                                 "U (k=2)": st.column_config.NumberColumn(format="%.4f"),
@@ -181,28 +182,28 @@ with tabs[2], C.guarded("Parameter table"):
                "(rotations, squareness, placement rotation). `plate_sag.uu`, `.vv` are bowl "
                "heights at the plate edge (µm, middle of the u and v edges against the "
                "centre), `.uv` the twist at a corner (µm). `drift` is in µm/h"
-               + ("." if C.dataset().meas.get("time_min", pd.Series([None])).notna().all() else
+               + ("." if state.dataset().meas.get("time_min", pd.Series([None])).notna().all() else
                   ": these data have no time_min column, so time is the row order at one "
                   "minute per row (µm/h = µm per 60 rows)."))
 
-with tabs[3], C.guarded("Residuals"):
+with tabs[3], calls.guarded("Residuals"):
     if tabs[3].open:
-        st.plotly_chart(C.figure("pattern", C.fit_key(), C.rep.fig_pattern, r.table,
+        st.plotly_chart(cached.figure("pattern", cached.fit_key(), A.fig_pattern, r.table,
                                  r.residuals_um, "Residuals per observation (µm)"),
                         key="fig_resid")
-    C.dataframe(C.rep.residual_summary(r), hide_index=True, key="resid_summary")
+    frame.dataframe(A.residual_summary(r), hide_index=True, key="resid_summary")
     rf = r.residuals_frame()
     worst = rf.assign(norm_um=np.linalg.norm(r.residuals_um, axis=1)).nlargest(10, "norm_um")
     st.caption("Largest residuals (µm), with the file and row each came from:")
-    C.dataframe(worst, hide_index=True, key="resid_worst")
+    frame.dataframe(worst, hide_index=True, key="resid_worst")
 
 def instruments_section(r):
     """The instruments fitted with the plate: their residuals and the uncertainty gain."""
     from cmm_core.model import instruments as ins
 
     st.subheader("Instruments fitted with the plate")
-    table, readings = C.rep.instrument_tables(ins.summary(r), ins.residuals_frame(r))
-    C.dataframe(table, hide_index=True, key="instrument_summary",
+    table, readings = A.instrument_tables(ins.summary(r), ins.residuals_frame(r))
+    frame.dataframe(table, hide_index=True, key="instrument_summary",
                 column_config={"chi2": st.column_config.NumberColumn("χ²", format="%.1f"),
                                "RMS residual/u": st.column_config.NumberColumn(format="%.2f"),
                                "RMS residual (µm)": st.column_config.NumberColumn(
@@ -210,20 +211,20 @@ def instruments_section(r):
     st.caption("Residual: the model's prediction minus the reading (µm), each laser run's "
                "zero (and a straightness run's slope) removed; RMS residual/u near 1 when "
                "the model explains the instrument as its u says.")
-    C.dataframe(readings, hide_index=True, key="instrument_residuals",
+    frame.dataframe(readings, hide_index=True, key="instrument_residuals",
                 column_config={c_: st.column_config.NumberColumn(format="%.3f")
                                for c_ in ("residual (µm)", "u (µm)", "residual/u")})
-    alone = C.current_fit(instruments=False, show_error=False)
+    alone = cached.current_fit(instruments=False, show_error=False)
     if alone is None:
         st.warning("The fit of the plate alone failed: no uncertainty gain to show.")
         return
     st.markdown("**Uncertainty gain**")
-    gain = C.rep.uncertainty_gain(r, alone)
+    gain = A.uncertainty_gain(r, alone)
     st.caption("Standard uncertainty (k = 1) of each kinematic coefficient from the plate "
                "alone and with the instruments in the same fit (same model, σ and "
                "selection); the gain is their ratio, how many times smaller the "
                "instruments make it, largest first.")
-    C.dataframe(gain, hide_index=True, key="instrument_gain",
+    frame.dataframe(gain, hide_index=True, key="instrument_gain",
                 column_config={"u plate only": st.column_config.NumberColumn(format="%.4f"),
                                "u with instruments": st.column_config.NumberColumn(
                                    format="%.4f"),
@@ -232,7 +233,7 @@ def instruments_section(r):
 
 
 if s.get("instruments"):
-    with C.guarded("Instruments"):
+    with calls.guarded("Instruments"):
         instruments_section(r)
 
 with st.expander("The 21 error names"):

@@ -12,7 +12,7 @@ import json
 import streamlit as st
 
 from cmm_core import io as cio
-from pages import common as C
+from pages import calls, state
 
 KINDS = {"simulated": "Simulated (nominal + deviation; the certificate is exact)",
          "measured": "Measured (the coordinates as the CMM reported them)"}
@@ -75,9 +75,9 @@ def msl_section() -> None:
                                                                 fd.certificate_csv),
                  "setup_source": f"from the MSL files ({fd.name})",
                  "certificate_source": "MSL's nominal plate"}
-        C.set_dataset(files)
+        state.set_dataset(files)
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback
-        st.error(C.describe_error(exc))
+        st.error(calls.describe_error(exc))
         return
     st.success(f"Loaded the MSL files as '{files['name']}'.")
     for note in fd.notes:

@@ -14,8 +14,9 @@ import pandas as pd
 import plotly.graph_objects as go
 import streamlit as st
 
+from cmm_core import analysis as A
 from cmm_core.units import label as unit_label
-from pages import common as C
+from pages import cached, calls, frame
 
 PLANS_DIR = Path(__file__).resolve().parents[1] / "sample_data" / "plans"
 SAMPLES = {"thesis layout: location 0 and all six": "thesis_plan.json",
@@ -76,7 +77,7 @@ def _plan_text() -> str | None:
                           "from sample_data/plans)", type="json", key="w_plan_upload")
     default = (up.getvalue().decode("utf-8-sig") if up is not None
                else (PLANS_DIR / SAMPLES[sample]).read_text())
-    # a new dataset resets every widget (common.reset_widgets), the text box too: refill it
+    # a new dataset resets every widget (state.reset_widgets), the text box too: refill it
     if s.get("plan_source") != (sample, up.name if up else None) or "w_plan_text" not in s:
         s["plan_source"] = (sample, up.name if up else None)
         s["w_plan_text"] = default
@@ -116,7 +117,7 @@ def _detection_plot(evals: list) -> None:
     effects = list(dict.fromkeys(k for e in evals for k in e["detection_limits"]))
     physical = [k for k in effects if ":" not in k or k.startswith("periodic")]
     pick = st.multiselect("Effects", effects, default=physical, key="w_plan_effects")
-    st.plotly_chart(C.rep.fig_detection_limits(evals, pick), width="stretch")
+    st.plotly_chart(A.fig_detection_limits(evals, pick), width="stretch")
     rows = [{"strategy": e["name"], "effect": k, "expected": v["expected"],
              "detection limit": _fmt(v["limit"]), "unit": unit_label(v["unit"]),
              "seen": "yes" if v["detectable"] else "no"}
@@ -138,7 +139,7 @@ def _u_map(text: str, evals: list) -> None:
     name = c1.selectbox("Strategy", ok, key="w_plan_map_strategy")
     z = c2.slider("Z of the XY plane (mm)", 0.0, 700.0, 350.0, step=50.0, key="w_plan_map_z")
     comp = c3.radio("Component", ["x", "y", "z"], horizontal=True, key="w_plan_map_comp")
-    res = C.safe(u_map, text, name, float(z), what="Uncertainty map")
+    res = calls.safe(u_map, text, name, float(z), what="Uncertainty map")
     if res is None:
         return
     gx, gy, u = res
@@ -153,7 +154,7 @@ def _u_map(text: str, evals: list) -> None:
 
 def plan_page() -> None:
     """The Plan page."""
-    C.page_start()
+    frame.page_start()
     st.title("Plan")
     st.caption("Before measuring: what a ball-plate plan will determine, how well, what it "
                "can detect and how long it takes, from the design alone (noise-free virtual "
@@ -161,7 +162,7 @@ def plan_page() -> None:
     text = _plan_text()
     if text is None:
         return
-    evals = C.safe(evaluate_plans, text, what="Plan")
+    evals = calls.safe(evaluate_plans, text, what="Plan")
     if not evals:
         return
     st.subheader("Strategies side by side")
@@ -170,7 +171,7 @@ def plan_page() -> None:
     _detection_plot(evals)
     st.subheader("Uncertainty map")
     _u_map(text, evals)
-    pf = C.safe(_plan_file, text, what="Plan")
+    pf = calls.safe(_plan_file, text, what="Plan")
     if pf is not None and pf.design is not None:
         st.subheader("Design")
         st.write(f"Target: `{json.dumps(pf.design.get('target'))}`, criterion "
@@ -178,7 +179,7 @@ def plan_page() -> None:
         if st.button("Find the cheapest plan", key="w_plan_design"):
             st.session_state["plan_design_for"] = text
         if st.session_state.get("plan_design_for") == text:
-            d = C.safe(design_plan, text, what="Design")
+            d = calls.safe(design_plan, text, what="Design")
             if d is not None:
                 st.success(d["message"])
                 st.write("Units: " + ", ".join(d["units"]))
@@ -198,7 +199,7 @@ def _check_section(text: str, evals: list) -> None:
     from cmm_core.plan import check_plans, evaluate
 
     bar = st.progress(0.0, "starting the Dask cluster…")
-    with C.guarded("Monte Carlo check"):
+    with calls.guarded("Monte Carlo check"):
         full = [evaluate(p) for p in _plan_file(text).strategies]
         res = check_plans(full, trials=int(trials), scheduler=address or None,
                           processes=False,
@@ -244,7 +245,7 @@ def task_section() -> None:
     if up is not None:
         model_json = up.getvalue().decode("utf-8-sig")
     else:
-        r = C.current_fit()
+        r = cached.current_fit()
         if r is None:
             return
         if not r.identifiable:
@@ -257,7 +258,7 @@ def task_section() -> None:
                         key=f"w_task_text_{kind}")
     trials = st.number_input("Monte Carlo trials", 1000, 200000, 20000, step=1000,
                              key="w_task_trials")
-    res = C.safe(task_result, model_json, text, int(trials), what="Task")
+    res = calls.safe(task_result, model_json, text, int(trials), what="Task")
     if res is None:
         return
     # a flatness's interval is the spread of a repeat measurement, not a coverage interval

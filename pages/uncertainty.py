@@ -4,29 +4,30 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
+from cmm_core import analysis as A
 from cmm_core.gum import air
 from cmm_core.gum import ballplate as budget
 from cmm_core.gum import evaluate as gum
 from cmm_core.gum import mpe as mpe_mod
-from pages import common as C
+from pages import cached, calls, frame
 
-C.page_start()
+frame.page_start()
 st.title("Uncertainty")
 st.caption("Standard uncertainties (k = 1) unless marked U (k = 2). U1-U3 remove the "
            "rigid-body freedoms, as the thesis does (a rigid motion of the workpiece is not a "
            "CMM error); the map below does not: it is the uncertainty of the error at each "
            "point as a correction would use it, which includes the poorly fixed origin and "
            "orientation of the machine frame.")
-ds, r = C.require_fit()
+ds, r = cached.require_fit()
 s = st.session_state
-args = C.fit_key()
+args = cached.fit_key()
 
-C.misfit_banner(r)
+frame.misfit_banner(r)
 st.subheader("U1, U2, U3 (thesis tables 4.1-4.3)")
 c1, c2 = st.columns(2)
 n_random = c1.number_input("Random points", 20, 2000, 200, step=20, key="w_u_npts")
 seed = c2.number_input("Seed", 0, 10_000, 0, key="w_u_seed")
-summary = C.safe(C.cached_uncertainty, args, int(n_random), int(seed), r,
+summary = calls.safe(cached.cached_uncertainty, args, int(n_random), int(seed), r,
                  what="Uncertainty evaluation")
 if summary is not None:
     rows = []
@@ -40,7 +41,7 @@ if summary is not None:
                 vi = summary.inflated[lab]
                 rows[-1].update({f"u_{a} × Birge (µm)": vi[a] for a in "xyz"})
     if rows:
-        C.dataframe(pd.DataFrame(rows), hide_index=True, key="u_table",
+        frame.dataframe(pd.DataFrame(rows), hide_index=True, key="u_table",
                      column_config={c_: st.column_config.NumberColumn(format="%.4f")
                                     for c_ in rows[0] if c_ != "quantity"})
     else:
@@ -78,7 +79,7 @@ def error_grid(args, z, probe, n, _r):
     return xs, ys, e, u, rigid_removed_error_u(_r, pts, probe)
 
 
-with C.guarded("Uncertainty map"):
+with calls.guarded("Uncertainty map"):
     n = 31
     xs, ys, e, u, u_shape = error_grid(args, float(zval), probe, n, r)
     a = "xyz".index(comp)
@@ -95,11 +96,11 @@ with C.guarded("Uncertainty map"):
         # the error and its uncertainty side by side: together they fill the page width,
         # and each colour bar stays next to its map
         m1, m2 = st.columns(2)
-        m1.plotly_chart(C.beside_map(C.rep.fig_surface_grid(
+        m1.plotly_chart(frame.beside_map(A.fig_surface_grid(
             xs, ys, e[:, a].reshape(n, n), title=f"Error e{comp} (µm), probe {probe}",
             unit="µm", points=x_meas[near], colorscale="RdBu_r")), key="u_error_map",
             width="stretch")
-        m2.plotly_chart(C.beside_map(C.rep.fig_surface_grid(
+        m2.plotly_chart(frame.beside_map(A.fig_surface_grid(
             xs, ys, vals.reshape(n, n), title=f"{title} (µm)", unit="µm",
             points=x_meas[near], colorscale="Viridis")), key="u_map", width="stretch")
         st.caption(f"XY plane at Z = {zval:g} mm; scale readings in mm; × marks measured "
@@ -147,7 +148,7 @@ st.caption("The budget of calibrating a ball plate by the thesis's procedure, a 
            "of its own: its inputs start at the environment recorded with thesis tables "
            "6.1-6.6, "
            "not at the dataset loaded; set them for your calibration.")
-with C.guarded("Budget"):
+with calls.guarded("Budget"):
     recs = {r.position: r for r in (*budget.THESIS_ENVIRONMENT,
                                     budget.average_environment())}
     c = st.columns(5)
@@ -188,7 +189,7 @@ with C.guarded("Budget"):
         # infinite degrees of freedom (Type B): the symbol, not "Infinity"
         btab["dof"] = [("∞" if not np.isfinite(v) else f"{v:g}") if isinstance(v, (int, float))
                        else v for v in btab["dof"]]
-    C.dataframe(btab, hide_index=True, key="budget_table",
+    frame.dataframe(btab, hide_index=True, key="budget_table",
                 column_config={"share": st.column_config.ProgressColumn(
                     "variance share", min_value=0.0, max_value=1.0, format="%.3f")})
     st.caption("u in the unit of each input, c in µm per unit, u_y = |c|·u in µm. Values "
@@ -242,22 +243,22 @@ with st.expander("Refractive index of air (modified Edlén, Birch and Downs 1994
     rh = c[2].number_input("RH (%)", 0.0, 100.0, 50.0, key="w_air_rh")
     lam = c[3].number_input("λ (nm)", 350.0, 1100.0, 632.99, key="w_air_l",
                             help="Vacuum wavelength; the Edlén equation holds 350-1100 nm.")
-    n_air = C.safe(air.refractive_index_edlen, tC, pPa, rh, lam, what="Edlén")
+    n_air = calls.safe(air.refractive_index_edlen, tC, pPa, rh, lam, what="Edlén")
     if n_air is not None:
         st.metric("n − 1", f"{float(n_air) - 1:.6e}")
 
 
 def show_mpe(out, skipped, u_src, sig):
     """Counts, plot, table and caption of an MPE check."""
-    with C.guarded("MPE plot and table"):
+    with calls.guarded("MPE plot and table"):
         cnt = out.counts
         m = st.columns(len(cnt) + 1)
         for c_, (k_, v) in zip(m, cnt.items(), strict=False):
             c_.metric(k_, v)
         m[-1].metric("max |E| (µm)", f"{out.max_abs_error_um():.2f}")
-        st.plotly_chart(C.figure("mpe", (args, u_src, sig), C.rep.fig_mpe, out),
+        st.plotly_chart(cached.figure("mpe", (args, u_src, sig), A.fig_mpe, out),
                         key="fig_mpe")
-        C.dataframe(pd.DataFrame(out.rows()), hide_index=True, key="mpe_table",
+        frame.dataframe(pd.DataFrame(out.rows()), hide_index=True, key="mpe_table",
                      column_config={"length_mm": st.column_config.NumberColumn(format="%.3f"),
                                     "error_um": st.column_config.NumberColumn(format="%.2f"),
                                     "U_um": st.column_config.NumberColumn(format="%.2f"),
@@ -284,7 +285,7 @@ if ds.certificate is None or len(ds.certificate.balls) != 25:
     st.info("The MPE check needs a certificate of a 5 × 5 ball plate.")
 else:
     out, skipped = None, []
-    with C.guarded("MPE check"):
+    with calls.guarded("MPE check"):
         U_SOURCES = mpe_mod.U_SOURCES
         u_src = st.radio("Uncertainty U of each length error", list(U_SOURCES),
                          format_func=U_SOURCES.get, horizontal=True, key="w_mpe_u",

@@ -22,7 +22,7 @@ SAMPLE = ROOT / "sample_data" / "analysis" / "thesis.json"
 
 
 def _session(**state):
-    from pages import common as C
+    from pages import state as C
 
     return {**{k: list(v) if isinstance(v, list) else v for k, v in C.DEFAULTS.items()},
             "ds_files": C.thesis_files(), **state}
@@ -207,7 +207,7 @@ def _mapped_session():
     (Feature;X;Y;Z in µm, decimal commas) of the thesis files' coordinates, converted as
     the Data page does it (``mapping_panel`` -> ``ForeignTable``)."""
     from cmm_core.io import TableMapping, apply_mapping
-    from pages import common as C
+    from pages import state as C
 
     thesis = C.thesis_files()
     ds = A.load_data(A.record_from_session(_session()))

@@ -799,7 +799,7 @@ def test_model_spec_is_shown_as_written_and_wraps_at_commas():
     assert list(hist["spec"]) == ["translational, squareness",
                                   "translational, squareness, -sxy"]
     # undoing a step through its opposite token removes it rather than growing the text
-    from pages.common import compose_spec
+    from pages.state import compose_spec
 
     assert compose_spec("translational,squareness,-sxy", "sxy", 2) == \
         "translational,squareness"

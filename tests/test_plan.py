@@ -314,11 +314,11 @@ def test_plan_page_and_task_section_run():
     def section():
         import streamlit as st
 
-        from pages import common
+        from pages import state
         from pages.plan import task_section
 
         st.session_state["_via_app"] = True
-        common.init_state()
+        state.init_state()
         task_section()
 
     at = AppTest.from_function(section, default_timeout=120)

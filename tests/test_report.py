@@ -22,8 +22,8 @@ FLAGGED = [("BP112", "2", 7), ("BP112", "2", 10), ("BP312", "6", 16)]
 
 
 def _session(**state):
-    """Session state as the app holds it (pages/common.py DEFAULTS, the thesis files)."""
-    from pages import common as C
+    """Session state as the app holds it (pages/state.py DEFAULTS, the thesis files)."""
+    from pages import state as C
 
     return {**{k: list(v) if isinstance(v, list) else v for k, v in C.DEFAULTS.items()},
             "ds_files": C.thesis_files(), **state}

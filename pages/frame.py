@@ -1,0 +1,193 @@
+"""The frame every page sits in: ``page_start`` (state, session, the sidebar), the
+sidebar with the dataset, model and fit quality, and the display helpers pages share
+(the χ² banner, the model spec in words, widgets bound to the state, tables, maps)."""
+
+from __future__ import annotations
+
+import html
+import inspect
+import sys
+from pathlib import Path
+
+import streamlit as st
+
+from cmm_core import analysis as A
+from cmm_core.model import parse_spec
+from pages.cached import current_fit, pending_outliers
+from pages.calls import describe_error
+from pages.session import autosave, restore_banner, session_start
+from pages.state import (
+    INSTRUMENT_NAMES,
+    dataset,
+    init_state,
+    keep_widget_state,
+    spec_tokens,
+    sync_from_widgets,
+)
+
+
+def page_start():
+    """Every page calls this first: state defaults, widget sync, the sidebar."""
+    if not st.session_state.get("_via_app"):
+        # Opened by a deep link before app.py ever ran on this server, Streamlit runs the
+        # page from its automatic pages/ list, without app.py's navigation and layout
+        # (that list stays hidden: client.showSidebarNavigation = false): go through
+        # app.py, which installs them and then opens the page asked for.
+        st.session_state["_deep_link"] = Path(sys._getframe(1).f_globals.get(
+            "__file__", "data.py")).name
+        st.switch_page("app.py", query_params=st.query_params.to_dict())
+    session_start()
+    init_state()
+    keep_widget_state()
+    sync_from_widgets()
+    autosave()
+    sidebar()
+    restore_banner()
+
+
+def misfit_banner(r) -> None:
+    """Next to any uncertainty: the fit's χ² test, and when it fails, by how much the
+    σ-based values understate the observed scatter (Birge ratio)."""
+    if r is None:
+        return
+    val, dof, note = A.chi2_test_numbers(r)
+    if r.fails_chi2_test:
+        st.warning(f"The model fails its χ² test: χ²/dof {val:.2f} at {dof} degrees "
+                   f"of freedom (p = {r.chi2_p_value:.2g}){note}. Uncertainties from σ = "
+                   f"{r.sigma_um:.3g} µm alone are too small by the Birge ratio "
+                   f"×{r.birge_ratio:.2f}; multiply them by it (inflated values are shown "
+                   "beside them where listed). Neither is trustworthy until the diagnosis "
+                   "explains the misfit.")
+    else:
+        st.caption(f"χ² test passed: χ²/dof {val:.2f} at {dof} degrees of freedom "
+                   f"(p = {r.chi2_p_value:.2g}){note}; the σ-based uncertainties stand.")
+
+
+def spec_text(spec: str) -> str:
+    """The spec as written, one blank after each comma: a table cell wraps there rather
+    than inside a name (the blank parses the same)."""
+    return ", ".join(spec_tokens(spec))
+
+
+def spec_expansion(spec: str, order: int | None = None) -> str | None:
+    """The explicit form of ``spec`` (``ModelSpec.to_string``) when it differs from what was
+    written (``translational,squareness`` names nine functions), else None."""
+    try:
+        full = parse_spec(spec, default_order=int(order or st.session_state.get("order", 2)))
+    except ValueError:
+        return None
+    full = full.to_string()
+    return None if spec_tokens(full) == spec_tokens(spec) else full
+
+
+def spec_markup(spec: str, order: int | None = None) -> str:
+    """HTML (for ``st.markdown(..., unsafe_allow_html=True)``): the spec as the user wrote
+    it, breakable after each comma and never inside a name, the full text and its
+    expansion on hover."""
+    toks = spec_tokens(spec)
+    hover = ",".join(toks)
+    full = spec_expansion(spec, order)
+    if full:
+        hover += f"\n= {full}"
+    body = ",<wbr>".join(html.escape(t) for t in toks)
+    return (f'<code class="cmm-spec" title="{html.escape(hover, quote=True)}" '
+            'style="white-space: normal; word-break: normal; overflow-wrap: normal">'
+            f"{body}</code>")
+
+
+def flash():
+    """Show the one-off message of the last action in a slot that is always present, so the
+    elements below keep their place (a tab set below would otherwise reset)."""
+    slot = st.container()
+    msg = st.session_state.pop("flash", None)
+    if msg:
+        getattr(slot, msg[0])(msg[1])
+
+
+def bind(state_key: str, widget_fn, label: str, **kwargs):
+    """A widget (``w_<state_key>``) initialised from and written back to the state."""
+    wk = "w_" + state_key
+    if wk not in st.session_state:
+        st.session_state[wk] = st.session_state[state_key]
+    val = widget_fn(label, key=wk, **kwargs)
+    st.session_state[state_key] = val
+    return val
+
+
+def sidebar():
+    s = st.session_state
+    sb = st.sidebar
+    sb.markdown("### Current analysis")
+    try:
+        ds = dataset()
+    except Exception as exc:  # noqa: BLE001
+        sb.error(describe_error(exc))
+        return
+    n_ex = len(s["exclusions"])
+    sb.markdown(f"**Dataset:** {ds.name}  \n{len(ds.meas)} probed ball centres"
+                + (f" ({n_ex} excluded)" if n_ex else "")
+                + f", {len(ds.positions)} positions, {len(ds.probes)} probes")
+    files = s.get("ds_files", {})
+    sb.caption(f"Setup: {files.get('setup_source', 'setup of the dataset')}.  \n"
+               f"Certificate: {files.get('certificate_source') or _cert_words(ds)}."
+               + (f"  \nCertificate uncertainty: {ds.certificate.u_source}."
+                  if ds.certificate is not None else "")
+               + ("  \nInstruments fitted with the plate: " + ", ".join(
+                   f"{n} ({INSTRUMENT_NAMES.get(k, k)})" for k, n, _ in s["instruments"])
+                  + "." if s.get("instruments") else ""))
+    if s.get("reset_note"):
+        sb.caption("New dataset, settings reset to its defaults: "
+                   + "; ".join(s["reset_note"]) + ".")
+    sb.markdown(f"**Model:** {spec_markup(s['spec'])}  \norder {s['order']}, plate "
+                f"{s['plate']}, σ = {s['sigma_um']:g} µm", unsafe_allow_html=True)
+    r = current_fit(show_error=False)
+    if r is None:
+        sb.warning("No fit for these settings.")
+    else:
+        c1, c2 = sb.columns(2)
+        c1.metric("RMS (µm)", f"{r.rms_um:.3f}")
+        c2.metric("χ²/dof", f"{r.chi2_dof:.2f}")
+        if r.fails_chi2_test:
+            sb.warning(f"Fails the χ² test (p = {r.chi2_p_value:.2g}, "
+                       f"{A.chi2_test_numbers(r)[1]} dof): "
+                       f"uncertainties from σ are too small by ×{r.birge_ratio:.2f}.")
+        status = {"converged": "converged", "max_iterations": "NOT converged",
+                  "failed": "fit failed"}.get(r.status, r.status)
+        sb.caption(f"{status}; {r.n_obs} observations in the fit; rank {r.rank}"
+                   + (f"; {len(r.null_combinations)} undetermined combination(s) of "
+                      f"{len(r.unidentifiable)} parameters" if r.unidentifiable else ""))
+    if n_ex:
+        sb.caption(f"{n_ex} observation(s) excluded as outliers.")
+    pending = pending_outliers(ds)
+    if pending:
+        sb.warning(f"{len(pending)} flagged outlier(s) still in the fit (see Data).")
+    if s.get("save_error"):
+        sb.caption(f"Not kept for a reload: {s['save_error']} (the last good state is).")
+
+
+def _cert_words(ds) -> str:
+    if ds.certificate is None:
+        return "none (plate geometry self-calibrated)"
+    return "given with the dataset"
+
+
+def beside_map(fig):
+    """A map (``report.fig_surface_grid``) drawn in a column: the colour bar right beside
+    the map (the equal-scale axes shrink the plot area; anchored right, it sits next to
+    the bar) and slim."""
+    fig.update_traces(colorbar={"thickness": 14, "xpad": 4, "len": 0.9},
+                      selector={"type": "heatmap"})
+    fig.update_xaxes(constraintoward="right")
+    fig.update_layout(margin={"l": 60, "r": 10, "t": 60, "b": 50})
+    return fig
+
+
+_DF_PLACEHOLDER = "placeholder" in inspect.signature(st.dataframe).parameters
+
+
+def dataframe(data, **kwargs):
+    """``st.dataframe`` showing missing values as "—" rather than "None" (a metrologist
+    reads "None" as a value), where this Streamlit has the ``placeholder`` option."""
+    if _DF_PLACEHOLDER:
+        kwargs.setdefault("placeholder", "—")
+    return st.dataframe(data, **kwargs)

@@ -1,0 +1,200 @@
+"""An analysis that survives a reload: the URL's session id, the project file kept for it
+in a per-user folder (``cmm_core.analysis.sessions``), and restoring an analysis record,
+from that file or from a project file the user uploads."""
+
+from __future__ import annotations
+
+import hashlib
+
+import streamlit as st
+
+from cmm_core import analysis as A
+from cmm_core.diagnosis import estimate_sigma
+from pages.calls import describe_error, safe
+from pages.state import (
+    check_instruments,
+    dataset,
+    files_key,
+    init_state,
+    load_files,
+    reset_widgets,
+    set_dataset,
+    set_instruments,
+)
+
+
+def restore_record(record, source: str) -> str:
+    """Make the analysis ``record`` (an :class:`cmm_core.analysis.AnalysisRecord`, read from
+    a project file or a saved session) the current one: data, instruments, model, σ,
+    exclusions, history and the other choices. Raises with nothing changed when its data
+    do not load, its exclusions name observations the data lack, or an instrument file
+    does not fit the machine. Returns a note for the user ("" when there is nothing to
+    add); ``source`` says where it came from ("the project file x.json")."""
+    d = record.data
+    files = {"name": d.name, "kind": "project",
+             "measurements": [(f.name, f.text()) for f in d.measurements],
+             "setup": d.setup.text(),
+             "certificate": None if d.certificate is None else (d.certificate.name,
+                                                                d.certificate.text()),
+             "setup_source": f"from {source}",
+             "certificate_source": f"from {source}" if d.certificate is not None else None}
+    mapped = {f.name: (f.name, f.source_text(), f.mapping) for f in d.measurements
+              if f.mapping is not None}
+    if mapped:  # tables from other software keep their source and mapping (next save)
+        files["mapped"] = mapped
+    new_ds = load_files(files_key(files), files)
+    have = set(zip(new_ds.meas["position"].astype(str), new_ds.meas["probe"].astype(str),
+                   new_ds.meas["ball"].astype(int), strict=True))
+    unknown = [e for e in record.exclusions if tuple(e) not in have]
+    if unknown:
+        raise ValueError(f"{source}, column 'exclusions': it excludes observations its data "
+                         "do not have: " + "; ".join(f"{p} probe {q} ball {b}"
+                                                     for p, q, b in unknown[:10])
+                         + ". Remove them from the file or restore it with its own data.")
+    inst = [(i.kind, i.file.name, i.file.text()) for i in d.instruments]
+    check_instruments(inst, new_ds)  # before anything changes
+    set_dataset(files)
+    s = st.session_state
+    for k in ("spec", "order", "plate", "sigma_um", "magnification", "exclude_outliers"):
+        s[k] = getattr(record, k)
+    s["positions"] = None if record.positions is None else list(record.positions)
+    s["probes"] = None if record.probes is None else list(record.probes)
+    s["exclusions"] = [list(e) for e in record.exclusions]
+    s["diag_on"] = bool(record.diagnose)
+    s["history"] = [{"spec": spec, "change": change} for spec, change in record.history]
+    if s["history"] and s["history"][-1]["spec"] != s["spec"]:
+        # the model was edited by hand after the last recorded step
+        s["history"].append({"spec": s["spec"], "change": "edited by hand"})
+    s["reset_note"] = []  # the analysis's own settings, not defaults
+    note = ""
+    if s["sigma_um"] == "auto":  # a record written by the command line
+        est = safe(estimate_sigma, dataset(), s["spec"], order=int(s["order"]),
+                   plate=None if s["plate"] == "auto" else s["plate"],
+                   exclude=[tuple(e) for e in s["exclusions"]], what="Estimating σ")
+        s["sigma_um"] = 0.5 if est is None else round(float(est.value_um), 4)
+        note = (f" Its σ is 'auto': estimated from the data as {s['sigma_um']:.4g} ± "
+                f"{est.u_um:.2g} µm ({est.method})." if est is not None else
+                " Its σ is 'auto' and could not be estimated: 0.5 µm is used; set it in "
+                "the sidebar.")
+    set_instruments(inst)
+    reset_widgets()
+    # the choices of other pages that the report reads, as their widgets would hold them
+    s.update(w_mpe_u=record.mpe_u_source, w_u_npts=record.uncertainty_points,
+             w_u_seed=record.uncertainty_seed, w_gp_kernel=record.gp_kernel,
+             w_report_gp=record.gp_mean is not None)
+    if record.gp_mean is not None:
+        s["w_gp_mean"] = record.gp_mean
+    return note
+
+
+def restore_project(text, name: str) -> str:
+    """Restore a project file (bytes or text named ``name``); see :func:`restore_record`."""
+    return restore_record(A.record_from_project(text, name), f"the project file {name}")
+
+
+SESSION_PARAM = "session"
+"""The URL's query parameter naming the analysis (``?session=<32 hex digits>``)."""
+
+
+def session_store() -> A.SessionStore:
+    return A.SessionStore(A.default_session_folder())
+
+
+def session_start():
+    """First thing of every run (``app.py``): give this browser session its analysis.
+
+    A new browser session whose URL names a saved analysis (a reload, or the URL opened in
+    a new tab) restores it and says so; any other new session starts a new analysis (with
+    the URL's id when it has a well-formed one, else a new id), saved once it differs from
+    the defaults. The id is put back into the URL on every run, because moving between pages
+    clears query parameters."""
+    s = st.session_state
+    if "session_id" not in s:
+        asked = st.query_params.get(SESSION_PARAM)
+        store = session_store()
+        saved = store.load(asked) if asked else None
+        s["session_id"] = saved.session_id if saved else A.new_session_id()
+        if saved is not None:
+            init_state()
+            try:
+                note = restore_record(A.record_from_project(saved.text, saved.path.name),
+                                      f"the saved session {saved.path.name}")
+            except Exception as exc:  # noqa: BLE001 - the new analysis goes on regardless
+                s["session_id"] = A.new_session_id()
+                s["restore_note"] = ("error", f"The analysis saved at {saved.path} could not "
+                                     f"be restored ({describe_error(exc)}); a new analysis "
+                                     "was started on the thesis data. The file is kept.")
+            else:
+                s["restore_note"] = ("info", f"Restored from {saved.path} (saved "
+                                     f"{saved.saved_text}).{note}")
+                s["saved_fingerprint"] = session_fingerprint()
+        else:
+            if A.valid_session_id(asked):
+                s["session_id"] = asked  # nothing saved under it yet: the link stays
+            # a new analysis is saved only once it differs from the defaults
+            init_state()
+            s["saved_fingerprint"] = session_fingerprint()
+            try:
+                store.prune()
+            except OSError:  # a read-only or shared folder: pruning is a courtesy
+                pass
+    if st.query_params.get(SESSION_PARAM) != s["session_id"]:
+        st.query_params[SESSION_PARAM] = s["session_id"]
+
+
+def session_query() -> dict:
+    """Query parameters that keep the analysis's id in links between pages."""
+    return {SESSION_PARAM: st.session_state["session_id"]}
+
+
+def session_fingerprint() -> str:
+    """A cheap hash of everything the saved analysis holds (the record's inputs), so it is
+    written only when one of them changed."""
+    s = st.session_state
+    keys = ("ds_key", "instruments_key", "spec", "order", "plate", "sigma_um", "positions",
+            "probes", "exclusions", "history", "diag_on", "magnification",
+            "exclude_outliers", "w_mpe_u", "w_u_npts", "w_u_seed", "w_gp_kernel",
+            "w_gp_mean", "w_report_gp")
+    return hashlib.sha1(repr([s.get(k) for k in keys]).encode()).hexdigest()
+
+
+def autosave():
+    """Write the analysis to its session file when it changed since the last write."""
+    s = st.session_state
+    fp = session_fingerprint()
+    if s.get("saved_fingerprint") == fp or "ds_files" not in s:
+        return
+    try:
+        text = A.record_to_project_json(A.record_from_session(s))
+        s["saved_path"] = str(session_store().save(s["session_id"], text))
+        s.pop("save_error", None)
+    except Exception as exc:  # noqa: BLE001 - a failed save must not stop the page
+        s["save_error"] = describe_error(exc)
+    s["saved_fingerprint"] = fp
+
+
+def start_afresh():
+    """Button callback: forget this analysis and start a new one on the thesis data."""
+    s = st.session_state
+    session_store().forget(s.get("session_id", ""))
+    for k in list(s.keys()):
+        del s[k]
+    s["session_id"] = A.new_session_id()
+    s["_via_app"] = True
+
+
+def restore_banner():
+    """The note of a restored (or not restored) analysis, with the one-click way out."""
+    note = st.session_state.get("restore_note")
+    if not note:
+        return
+    kind, text = note
+    box = st.container(border=True)
+    (box.error if kind == "error" else box.info)(text)
+    c1, c2 = box.columns([1, 4])
+    c1.button("Start afresh", key="start_afresh", on_click=start_afresh,
+              help="Forget this analysis (its saved file is removed) and start a new one "
+                   "on the thesis data.")
+    if c2.button("Dismiss", key="dismiss_restore"):
+        st.session_state.pop("restore_note", None)
+        st.rerun()
