@@ -320,8 +320,10 @@ def test_two_orders_of_one_function_are_not_reported_as_aliases():
 def _candidate(effect, p, level, dbic):
     from cmm_core.diagnosis import Candidate
 
-    return Candidate(effect, effect, "", "", "", 0.5, 1.0, 30.0, 1, dbic, p, True, True,
-                     np.zeros((1, 3)), level=level)
+    return Candidate(effect=effect, title=effect, explanation="", needs="", separate_by="",
+                     rms_um=0.5, chi2_dof=1.0, delta_chi2=30.0, n_params=1, delta_bic=dbic,
+                     p_value=p, significant=True, confirmed=True,
+                     signature_um=np.zeros((1, 3)), level=level)
 
 
 @pytest.mark.parametrize("rival, named", [

@@ -160,6 +160,8 @@ def run(record: AnalysisRecord) -> AnalysisResult:
         vals = measured_error_from_residuals_um(r.residuals_um) if kin else err
         gp = gp_components(obs.r_mm, vals, mean="zero" if kin else record.gp_mean,
                            kernel=record.gp_kernel, restarts=1, probe_mm=obs.p_mm)
-    return AnalysisResult(record, ds, r, excl, flagged, sigma, unc, tuple(history), err,
-                          diag, mpe, gp, tuple(summary(r)) if inst else (),
-                          residuals_frame(r) if inst else None)
+    return AnalysisResult(record=record, dataset=ds, fit=r, exclusions=excl, flagged=flagged,
+                          sigma=sigma, uncertainty=unc, history=tuple(history),
+                          measured_error_um=err, diagnosis=diag, mpe=mpe, gp=gp,
+                          instruments=tuple(summary(r)) if inst else (),
+                          instrument_residuals=residuals_frame(r) if inst else None)

@@ -346,9 +346,11 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
         rms = sc.refit.rms_um if sc.refit is not None else float(
             np.sqrt(max(sc.chi2_new, 0) / n_rows) * sigma_um)
         out.append(Candidate(
-            sc.token, e.title, e.explanation, e.needs, e.separate_by, rms,
-            sc.chi2_new / dof_new, float(sc.dchi2), int(sc.dk), float(dbic), p,
-            significant(sc), sc.refit is not None, sc.signature,
+            effect=sc.token, title=e.title, explanation=e.explanation, needs=e.needs,
+            separate_by=e.separate_by, rms_um=rms, chi2_dof=sc.chi2_new / dof_new,
+            delta_chi2=float(sc.dchi2), n_params=int(sc.dk), delta_bic=float(dbic),
+            p_value=p, significant=significant(sc), confirmed=sc.refit is not None,
+            signature_um=sc.signature,
             # an undetermined parameter has no limit (u reported as 0): inf, never 0
             detectable={lab: (unit, k_detect * scale * ui if ui > 0 else np.inf)
                         for lab, (unit, ui) in sc.u_new.items()},
@@ -391,8 +393,9 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
     msg = _message(base, out, verdict, sigma, uniform, where, note, checks, cert,
                    blunders) + _unseen_text(unseen)
     report(1.0, "done")
-    return Diagnosis(base, out, verdict, skipped, msg, checks, sigma, uniform, where, cert,
-                     blunders, unseen)
+    return Diagnosis(baseline=base, candidates=out, verdict=verdict, skipped=skipped,
+                     message=msg, holdout=checks, sigma=sigma, uniformity=uniform,
+                     where=where, certificate=cert, blunders=blunders, unseen=unseen)
 
 
 def _fitted(sc) -> dict:
