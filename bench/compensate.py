@@ -38,8 +38,8 @@ from cmm_core.export import load_model, read_points, save_model  # noqa: E402
 from cmm_core.export.correction import COMPENSATING, extrapolation_note  # noqa: E402
 from cmm_core.io import DataError, atomic_write_text, load_dataset  # noqa: E402
 from cmm_core.io.delimited import file_rows  # noqa: E402
-from cmm_core.machine import kinematics as kin  # noqa: E402
 from cmm_core.model import fit, propagate_error  # noqa: E402
+from cmm_core.units import UM  # noqa: E402
 
 SIM = ROOT / "sample_data" / "simulated"
 COLUMNS = ["xc_mm", "yc_mm", "zc_mm", "ex_um", "ey_um", "ez_um", "u_x_um", "u_y_um",
@@ -70,7 +70,7 @@ def previous_compensate(model, points):
         for f in fixes:
             e_um = e_um + f.delta_um
     out = points.copy()
-    out["xc_mm"], out["yc_mm"], out["zc_mm"] = (r + e_um * kin.UM).T
+    out["xc_mm"], out["yc_mm"], out["zc_mm"] = (r + e_um * UM).T
     out["ex_um"], out["ey_um"], out["ez_um"] = e_um.T
     out["u_x_um"], out["u_y_um"], out["u_z_um"] = u.T
     out["extrapolated"] = extrapolation_note(m, x)

@@ -44,6 +44,7 @@ from _timing import median_time  # noqa: E402
 
 from cmm_core.diagnosis import detect_outliers  # noqa: E402
 from cmm_core.io import thesis_dataset  # noqa: E402
+from cmm_core.machine import KinematicTerms  # noqa: E402
 from cmm_core.machine import kinematics as kin  # noqa: E402
 from cmm_core.model import ROWS, Problem, fit, parse_spec, select, simulate  # noqa: E402
 from cmm_core.model import normal as normal_module  # noqa: E402
@@ -100,7 +101,7 @@ def jacobian_pass(data):
     in blocks of ``ROWS`` (what one accumulation of the normal equations must evaluate)."""
     obs = select(data)
     m = parse_spec("kinematic21")
-    terms = kin.KinematicTerms(m.active, tuple(obs.range_mm), m.periods)
+    terms = KinematicTerms(m.active, tuple(obs.range_mm), m.periods)
     coef = np.random.default_rng(0).normal(0, 5, terms.n)
     x, p = obs.r_mm - obs.p_mm, obs.p_mm
     t = time.perf_counter()
@@ -161,7 +162,7 @@ def forward_model(data, repeats=5):
         return
     obs = select(data)
     m = parse_spec("kinematic21")
-    terms = kin.KinematicTerms(m.active, tuple(obs.range_mm), m.periods)
+    terms = KinematicTerms(m.active, tuple(obs.range_mm), m.periods)
     coef = np.random.default_rng(0).normal(0, 5, terms.n)
     x, p = obs.r_mm - obs.p_mm, obs.p_mm
     for label, fn in (("jacobian", "jacobian"), ("model_point", "model_point")):

@@ -4,6 +4,7 @@ from contextlib import nullcontext
 
 import numpy as np
 import pandas as pd
+import plotly.express as px
 import streamlit as st
 
 from cmm_core import analysis as A
@@ -38,16 +39,21 @@ c[3].metric("BIC", f"{r.bic:.1f}")
 frame.misfit_banner(r)
 
 st.subheader("Where the model fails")
+# lazy tabs: a hidden tab's figure (the 3-D map's WebGL scene above all) is neither built
+# nor drawn, so the page and every rerun of it (Add, Undo) draw one figure here (issue 27)
 t_pat, t_map, t_tab, t_time = st.tabs(["Residual pattern", "Residual map (3D)",
-                                       "Per position and probe", "Against time and direction"])
+                                       "Per position and probe", "Against time and direction"],
+                                      key="w_diag_tab", on_change="rerun")
 with t_pat, calls.guarded("Residual pattern"):
-    st.plotly_chart(cached.figure("pattern", fkey, A.fig_pattern, r.table,
-                             r.residuals_um, "Residuals per observation (µm)"),
-                    key="diag_resid")
+    if t_pat.open:
+        st.plotly_chart(cached.figure("pattern", fkey, A.fig_pattern, r.table,
+                                 r.residuals_um, "Residuals per observation (µm)"),
+                        key="diag_resid")
 with t_map, calls.guarded("Residual map"):
     comp = st.radio("Component", ["norm", "x", "y", "z"], horizontal=True, key="w_map_comp")
-    st.plotly_chart(cached.figure("resmap", (fkey, comp), A.fig_residual_map, r, comp),
-                    key="diag_map")
+    if t_map.open:
+        st.plotly_chart(cached.figure("resmap", (fkey, comp), A.fig_residual_map, r, comp),
+                        key="diag_map")
 with t_tab, calls.guarded("Residual table"):
     by = st.radio("Group by", ["position", "probe", "ball"], horizontal=True,
                   key="w_breakdown_by")
@@ -60,9 +66,8 @@ with t_tab, calls.guarded("Residual table"):
                      hide_index=True, key="diag_trends")
 with t_time, calls.guarded("Residuals against time"):
     rf = r.residuals_frame()
-    if "time_min" in rf and rf["time_min"].notna().all():
-        import plotly.express as px
-
+    timed = "time_min" in rf and rf["time_min"].notna().all()
+    if timed and t_time.open:
         long = rf.rename(columns={"rx_um": "x", "ry_um": "y", "rz_um": "z"}).melt(
             id_vars=["position", "probe", "ball", "time_min"], value_vars=["x", "y", "z"],
             var_name="component", value_name="residual_um")
@@ -71,7 +76,7 @@ with t_time, calls.guarded("Residuals against time"):
                                                         "residual_um": "residual (µm)"})
         fig.for_each_annotation(lambda a: a.update(text=a.text.split("=")[-1]))
         st.plotly_chart(fig, key="diag_time")
-    else:
+    elif not timed:
         st.info("No time_min column: the measurement order is the row order of the files, "
                 "and drift is scored over that order at one minute per row: its µm/h are "
                 "µm per 60 rows, not per hour of clock time.")

@@ -122,7 +122,7 @@ KEEP_PREFIXES = ("sim_", "w_gp_")
 
 
 KEEP_KEYS = ("hist_gp", "w_mpe_u", "w_u_npts", "w_u_seed",  # the report reads these
-             "w_kin_tab")  # the open tab of the Kinematic page, as the user left it
+             "w_kin_tab", "w_diag_tab")  # the open tabs of two pages, as the user left them
 
 
 def keep_widget_state():

@@ -989,3 +989,19 @@ def test_placements_drawn_as_three_views_and_in_3d_on_request():
     fig = fig_placement_views(thesis_dataset())
     # one trace per placement and view, plus the volume outline in each view
     assert len(fig.data) == 3 * (6 + 1)
+
+
+def test_diagnose_page_draws_only_the_open_tabs_figure():
+    """Issue 27: the 3-D residual map (WebGL) was drawn in its hidden tab on every visit
+    and every rerun (Add, Undo); the tabs are lazy, as on the Kinematic page."""
+    at = _new()
+    at.switch_page("pages/diagnose.py")
+    at.run()
+    _ok(at)
+    keys = [c.key for c in at.get("plotly_chart")]
+    assert "diag_resid" in keys and "diag_map" not in keys
+    at.session_state["w_diag_tab"] = "Residual map (3D)"
+    at.run()
+    _ok(at)
+    keys = [c.key for c in at.get("plotly_chart")]
+    assert "diag_map" in keys and "diag_resid" not in keys

@@ -19,6 +19,7 @@ from test_instruments import fd_rows_jacobian, plate_and_joint_with_predicted_u
 
 from cmm_core.cli import main
 from cmm_core.io import DataError, read_setup
+from cmm_core.machine import KinematicTerms
 from cmm_core.machine import kinematics as kin
 from cmm_core.model import (
     INSTRUMENT_KINDS,
@@ -101,7 +102,7 @@ def test_ball_bar_sign_a_scale_error_and_a_squareness_error():
     L = 800.0
     t1 = np.tile([200.0, 100.0, 0.0], (theta.size, 1))
     t2 = t1 + L * np.column_stack([np.cos(theta), np.sin(theta), np.zeros(theta.size)])
-    scale = kin.KinematicTerms((("dxx", 1),), rng_mm)
+    scale = KinematicTerms((("dxx", 1),), rng_mm)
     bar = _indicated(scale, [1.0], t1, t2, L)
     k = 2e-3 / 1200  # x* = x (1 + k): the indicated x span is the true one / (1 + k)
     exact = np.hypot(L * np.cos(theta) / (1 + k), L * np.sin(theta))
@@ -111,7 +112,7 @@ def test_ball_bar_sign_a_scale_error_and_a_squareness_error():
     assert np.allclose(bar.predict(scale, np.array([1.0]), False)[0], 0, atol=1e-8)
     np.testing.assert_allclose(bar.predict(scale, np.array([0.0]), False)[0],
                                (exact - L) * 1e3, atol=1e-6)
-    sq = kin.KinematicTerms((("sxy", 1),), rng_mm)
+    sq = KinematicTerms((("sxy", 1),), rng_mm)
     c = np.array([600.0, 500.0, 0.0])
     dirs = np.array([[1, 1, 0], [1, -1, 0], [1, 0, 0], [0, 1, 0]]) / np.array(
         [[np.sqrt(2)], [np.sqrt(2)], [1], [1]])

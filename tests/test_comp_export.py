@@ -23,7 +23,7 @@ from cmm_core.export import Model, compensate, load_model, model_from_result, sa
 from cmm_core.export import comp_tables as ct
 from cmm_core.export import results as rx
 from cmm_core.io import DataError
-from cmm_core.machine import kinematics as kin
+from cmm_core.machine import ERROR_NAMES, KinematicTerms
 
 ROOT = Path(__file__).resolve().parents[1]
 CHAINS = {"moving_bridge_fxyz": "Fxyz", "moving_bridge_fyxz": "Fyxz",
@@ -50,7 +50,7 @@ def _random_model(layout, seed=20261124):
     """A model with every function at order 3 and a periodic x scale error, coefficients
     of a few µm / µrad (a poor machine: corrections of tens of µm), a random covariance."""
     rng = np.random.default_rng(seed)
-    terms = kin.KinematicTerms(tuple((n, 3) for n in kin.ERROR_NAMES), (1000.0, 800.0, 600.0),
+    terms = KinematicTerms(tuple((n, 3) for n in ERROR_NAMES), (1000.0, 800.0, 600.0),
                                (("dxx", 180.0),), layout)
     coef = rng.normal(0.0, 4.0, terms.n)
     a = rng.normal(0.0, 0.1, (terms.n, terms.n))

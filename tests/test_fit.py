@@ -20,6 +20,7 @@ from cmm_core.model import (
     simulator_effects,
     weighted_residual,
 )
+from cmm_core.units import UM
 
 SIM_EFFECTS = {e.token: e for e in simulator_effects()}
 EXACT_PLATE = {"plate": {"form_um": 2.0, "certificate_u_um": 0.0}}
@@ -348,7 +349,7 @@ def test_aligned_error_u_matches_a_monte_carlo_with_the_placement_refitted():
     rng = np.random.default_rng(3)
     draws = rng.multivariate_normal(r.kinematic_coef, r.kinematic_cov, size=800,
                                     method="eigh")
-    e = np.array([(kin.model_point(r.terms, d, x, p) - x - p).ravel() / kin.UM
+    e = np.array([(kin.model_point(r.terms, d, x, p) - x - p).ravel() / UM
                   for d in draws])
     resid = e.T - G @ np.linalg.lstsq(G, e.T, rcond=None)[0]
     u_mc = resid.std(axis=1, ddof=1).reshape(-1, 3)

@@ -15,6 +15,7 @@ import pytest
 from cmm_core.cli import main
 from cmm_core.diagnosis import score
 from cmm_core.io import SAMPLE_DIR, DataError
+from cmm_core.machine import KinematicTerms
 from cmm_core.machine import kinematics as kin
 from cmm_core.model import (
     LaserRun,
@@ -148,7 +149,7 @@ def test_sign_convention_a_machine_that_runs_long():
     """dxx[1] = 1 µm: at the far end of x the carriage is 2 µm beyond its reading (the
     basis T1(s) + 1 is 2 there), so the laser reads -2 µm (indicated minus true), the
     compensation adds +2 µm, and a 1000 mm gauge along x measures 1000 - 0.001667 mm."""
-    terms = kin.KinematicTerms((("dxx", 1),), (1200.0, 1000.0, 700.0))
+    terms = KinematicTerms((("dxx", 1),), (1200.0, 1000.0, 700.0))
     x = np.column_stack([XS, np.zeros((XS.size, 2))])
     assert np.allclose(kin.error(terms, [1.0], x, np.zeros(3))[:, 0], 2 * XS / 1200)
     m = XS.size

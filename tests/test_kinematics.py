@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from cmm_core.machine import ERROR_NAMES, SQUARENESS, STRAIGHTNESS, KinematicTerms, axis_of, basis
 from cmm_core.machine import kinematics as kin
 from cmm_core.model import parse_spec
 
@@ -11,7 +12,7 @@ RANGE = (1200.0, 1000.0, 700.0)
 
 def _terms(order, spec="kinematic21"):
     m = parse_spec(spec, default_order=order)
-    return kin.KinematicTerms(m.active, RANGE, m.periods)
+    return KinematicTerms(m.active, RANGE, m.periods)
 
 
 @pytest.mark.parametrize("order", [1, 2, 3, 5])
@@ -38,13 +39,13 @@ def test_jacobian_matches_central_differences(order, seed, spec):
 
 
 def test_error_functions_are_zero_at_origin_and_straightness_at_both_ends():
-    for name in kin.ERROR_NAMES:
-        if name in kin.SQUARENESS:
+    for name in ERROR_NAMES:
+        if name in SQUARENESS:
             continue
-        stroke = RANGE[kin.axis_of(name)]
-        B = kin.basis(name, np.array([0.0, stroke]), 4, stroke)
+        stroke = RANGE[axis_of(name)]
+        B = basis(name, np.array([0.0, stroke]), 4, stroke)
         assert np.allclose(B[0], 0, atol=1e-12)
-        if name in kin.STRAIGHTNESS:
+        if name in STRAIGHTNESS:
             assert np.allclose(B[1], 0, atol=1e-12)  # no linear term
         else:
             assert not np.allclose(B[1], 0)
@@ -108,7 +109,7 @@ def _reference_point(terms, coef, x, p):
         def v(name, i=i, c=c):
             if name not in sl:
                 return 0.0
-            return float(terms.design(name, x[i:i + 1, kin.axis_of(name)])[0] @ c[sl[name]])
+            return float(terms.design(name, x[i:i + 1, axis_of(name)])[0] @ c[sl[name]])
         R = {a: rot(*(v(f"r{a}{b}") * 1e-6 for b in "xyz")) for a in "xyz"}
         X = np.array([x[i, 0] + v("dxx") * 1e-3, v("dxy") * 1e-3, v("dxz") * 1e-3])
         Y = np.array([v("dyx") * 1e-3 + v("sxy") * 1e-6, x[i, 1] + v("dyy") * 1e-3,

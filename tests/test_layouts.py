@@ -11,7 +11,16 @@ import pytest
 from cmm_core.diagnosis import diagnose
 from cmm_core.export import compensate, model_from_dict, model_to_dict
 from cmm_core.io import DataError, read_setup
-from cmm_core.machine import forward_block, split_chain
+from cmm_core.machine import (
+    DEFAULT_LAYOUT,
+    ERROR_NAMES,
+    LAYOUTS,
+    SQUARENESS,
+    KinematicTerms,
+    axis_of,
+    forward_block,
+    split_chain,
+)
 from cmm_core.machine import kinematics as kin
 from cmm_core.model import (
     evaluate,
@@ -21,6 +30,7 @@ from cmm_core.model import (
     simulate,
     thesis_machine_setup,
 )
+from cmm_core.units import UM, URAD
 
 RANGE_MM = (1200.0, 1000.0, 700.0)
 # one layout per distinct chain (the gantries share the moving bridges' chains)
@@ -33,7 +43,7 @@ EXACT_PLATE = {"plate": {"form_um": 2.0, "certificate_u_um": 0.0}}
 
 def _terms(layout, order=2, spec="kinematic21"):
     m = parse_spec(spec, default_order=order)
-    return kin.KinematicTerms(m.active, RANGE_MM, m.periods, layout)
+    return KinematicTerms(m.active, RANGE_MM, m.periods, layout)
 
 
 def _setup(layout):
@@ -45,33 +55,33 @@ def _setup(layout):
 # --- the list of layouts -------------------------------------------------------------
 
 def test_every_layout_is_a_chain_of_the_three_axes_with_the_moving_bridge_first():
-    assert next(iter(kin.LAYOUTS)) == kin.DEFAULT_LAYOUT == "moving_bridge_fxyz"
-    for name, chain in kin.LAYOUTS.items():
+    assert next(iter(LAYOUTS)) == DEFAULT_LAYOUT == "moving_bridge_fxyz"
+    for name, chain in LAYOUTS.items():
         assert sorted(chain) == sorted("Fxyz"), name
         table, tool = split_chain(chain)
         assert tool[-1] == "z" or name.startswith("horizontal_arm"), name
         assert bool(table) == name.startswith("fixed_bridge"), name
-    assert set(CHAINS.items()) <= set(kin.LAYOUTS.items())
-    assert kin.KinematicTerms((), RANGE_MM).layout == kin.DEFAULT_LAYOUT
+    assert set(CHAINS.items()) <= set(LAYOUTS.items())
+    assert KinematicTerms((), RANGE_MM).layout == DEFAULT_LAYOUT
 
 
 def test_unknown_layout_is_refused_with_the_list_and_a_suggestion():
     with pytest.raises(ValueError, match="did you mean 'fixed_bridge_xfyz'") as exc:
         _terms("fixed_bridge_xfy")
-    assert all(name in str(exc.value) for name in kin.LAYOUTS)
+    assert all(name in str(exc.value) for name in LAYOUTS)
     with pytest.raises(DataError, match="did you mean 'horizontal_arm_fxzy'") as exc:
         read_setup(_setup("horizontal-arm_fxzy"))
     assert exc.value.column == "machine.layout"
-    assert all(name in str(exc.value) for name in kin.LAYOUTS)
+    assert all(name in str(exc.value) for name in LAYOUTS)
     with pytest.raises(DataError, match="banana.*expected one of: moving_bridge_fxyz"):
         read_setup(_setup("banana"))
-    for name in kin.LAYOUTS:
+    for name in LAYOUTS:
         assert read_setup(_setup(name)).raw["machine"]["layout"] == name
 
 
 # --- the forward model -----------------------------------------------------------------
 
-@pytest.mark.parametrize("layout", list(kin.LAYOUTS))
+@pytest.mark.parametrize("layout", list(LAYOUTS))
 @pytest.mark.parametrize("order", [1, 3])
 def test_jacobian_matches_central_differences(layout, order):
     rng = np.random.default_rng(order)
@@ -92,7 +102,7 @@ def test_jacobian_matches_central_differences(layout, order):
                                    err_msg=f"{layout} {terms.labels[j]}")
 
 
-@pytest.mark.parametrize("layout", list(kin.LAYOUTS))
+@pytest.mark.parametrize("layout", list(LAYOUTS))
 def test_probe_jacobian_matches_central_differences_and_is_a_rotation(layout):
     rng = np.random.default_rng(4)
     terms = _terms(layout, 3)
@@ -111,7 +121,7 @@ def test_probe_jacobian_matches_central_differences_and_is_a_rotation(layout):
                                atol=1e-12)
 
 
-@pytest.mark.parametrize("layout", list(kin.LAYOUTS))
+@pytest.mark.parametrize("layout", list(LAYOUTS))
 def test_invert_reaches_the_target(layout):
     rng = np.random.default_rng(5)
     terms = _terms(layout, 3)
@@ -127,7 +137,7 @@ def test_moving_bridge_default_is_the_thesis_model_and_the_generic_chain_reprodu
     evaluator on the same chain agrees to round-off, and a gantry of the same axis order
     is the same model, bit for bit."""
     rng = np.random.default_rng(6)
-    terms = _terms(kin.DEFAULT_LAYOUT, 3)
+    terms = _terms(DEFAULT_LAYOUT, 3)
     coef = rng.normal(0, 50, terms.n)
     x = rng.uniform(0, 1, (40, 3)) * RANGE_MM
     p = rng.normal(0, 100, (40, 3))
@@ -164,22 +174,22 @@ def test_sign_conventions_of_a_moving_table():
     dxx = terms.design("dxx", x[:1])[0, 0] * 2.0
     np.testing.assert_allclose(e, [-dxx, 0, 0], atol=1e-9)
     e, terms = _single("fixed_bridge_xfyz", "rxz[1]", 5.0, x, p)
-    yaw_rad = terms.design("rxz", x[:1])[0, 0] * 5.0 * kin.URAD
-    np.testing.assert_allclose(e, np.array([tip[1], -tip[0], 0]) * yaw_rad / kin.UM,
+    yaw_rad = terms.design("rxz", x[:1])[0, 0] * 5.0 * URAD
+    np.testing.assert_allclose(e, np.array([tip[1], -tip[0], 0]) * yaw_rad / UM,
                                atol=1e-4)
     e_bridge, _ = _single("moving_bridge_fxyz", "rxz[1]", 5.0, x, p)
-    np.testing.assert_allclose(e_bridge, np.array([-tip[1], p[0], 0]) * yaw_rad / kin.UM,
+    np.testing.assert_allclose(e_bridge, np.array([-tip[1], p[0], 0]) * yaw_rad / UM,
                                atol=1e-4)
     e, terms = _single("fixed_bridge_yfxz", "dyz[2]", 1.5, x, p)
     dyz = terms.design("dyz", x[1:2])[0, 0] * 1.5
     np.testing.assert_allclose(e, [0, 0, -dyz], atol=1e-9)
     e, terms = _single("fixed_bridge_yfxz", "ryx[1]", 5.0, x, p)
-    roll_rad = terms.design("ryx", x[1:2])[0, 0] * 5.0 * kin.URAD
-    np.testing.assert_allclose(e, np.array([0, tip[2], -tip[1]]) * roll_rad / kin.UM,
+    roll_rad = terms.design("ryx", x[1:2])[0, 0] * 5.0 * URAD
+    np.testing.assert_allclose(e, np.array([0, tip[2], -tip[1]]) * roll_rad / UM,
                                atol=1e-4)
 
 
-@pytest.mark.parametrize("layout", list(kin.LAYOUTS))
+@pytest.mark.parametrize("layout", list(LAYOUTS))
 def test_squareness_means_the_same_in_every_layout(layout):
     """Squareness is the angle between the measured axes: sxy adds sxy*y to x, sxz*z to x,
     syz*z to y, whichever carriage moves."""
@@ -188,7 +198,7 @@ def test_squareness_means_the_same_in_every_layout(layout):
     for label, expected in (("sxy", [x[1], 0, 0]), ("sxz", [x[2], 0, 0]),
                             ("syz", [0, x[2], 0])):
         e, _ = _single(layout, label, 10.0, x, p)
-        np.testing.assert_allclose(e, np.array(expected) * 10.0 * kin.URAD / kin.UM,
+        np.testing.assert_allclose(e, np.array(expected) * 10.0 * URAD / UM,
                                    atol=1e-9, err_msg=label)
 
 
@@ -203,9 +213,9 @@ def _first_order_error_um(terms, coef, x_mm, p_mm):
     with d in µm, ε in rad and levers in mm, so ε × lever / UM is in µm."""
     n = len(x_mm)
     val = {}
-    for name in kin.ERROR_NAMES:
+    for name in ERROR_NAMES:
         sl = terms.slices.get(name)
-        val[name] = (terms.design(name, x_mm[:, kin.axis_of(name)]) @ coef[sl]
+        val[name] = (terms.design(name, x_mm[:, axis_of(name)]) @ coef[sl]
                      if sl is not None else np.zeros(n))
     chain = terms.chain
     f = chain.index("F")
@@ -236,7 +246,7 @@ def test_exact_model_agrees_with_the_first_order_derivation(layout):
     rng = np.random.default_rng(7)
     terms = _terms(layout, 3)
     coef = rng.normal(0, 5, terms.n)
-    for s in kin.SQUARENESS:
+    for s in SQUARENESS:
         coef[terms.slices[s]] = 20.0 * rng.choice([-1, 1])
     x = rng.uniform(0, 1, (500, 3)) * RANGE_MM
     p = rng.normal(0, 100, (500, 3))
@@ -244,7 +254,7 @@ def test_exact_model_agrees_with_the_first_order_derivation(layout):
     assert np.abs(e - _first_order_error_um(terms, coef, x, p)).max() < 0.01
     if layout in MOVING_TABLE:
         # the test discriminates: the same errors on a moving bridge are microns away
-        bridge = kin.KinematicTerms(terms.orders, RANGE_MM, terms.periods)
+        bridge = KinematicTerms(terms.orders, RANGE_MM, terms.periods)
         assert np.abs(e - kin.error(bridge, coef, x, p)).max() > 5.0
 
 
@@ -309,7 +319,7 @@ def test_saved_model_carries_the_layout_and_compensates(layout):
     m = model_from_dict(d)
     assert m.terms == r.terms
     old = {k: v for k, v in d.items() if k != "layout"}  # a file from before layouts
-    assert model_from_dict(old).terms.layout == kin.DEFAULT_LAYOUT
+    assert model_from_dict(old).terms.layout == DEFAULT_LAYOUT
     with pytest.raises(DataError, match="layout 'banana' is not a known machine layout"):
         model_from_dict({**d, "layout": "banana"})
     # corrected points against the true errors of this layout

@@ -22,6 +22,7 @@ from cmm_core.machine import kinematics as kin
 from cmm_core.machine import rigid_fit
 from cmm_core.model import fit, select
 from cmm_core.monitor import interim_check, remeasured
+from cmm_core.units import UM
 
 LAYOUTS = ("pitch100_4pos", "pitch80_3pos")
 
@@ -93,7 +94,7 @@ def test_chi2_without_model_uncertainty_is_the_rigid_fit_residual():
         sel = obs.pos == k
         c = obs.plate0_mm[obs.ball[sel]]
         R, t = rigid_fit(c, true_tip[sel])
-        ss += float(np.sum(((c @ R.T + t - true_tip[sel]) / kin.UM) ** 2))
+        ss += float(np.sum(((c @ R.T + t - true_tip[sel]) / UM) ** 2))
     assert not np.any(obs.cert_u_um)
     assert res.chi2 == pytest.approx(ss / 0.25, rel=1e-6)
     assert res.dof == 3 * len(obs.r_mm) - 6 * len(obs.positions)

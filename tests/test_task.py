@@ -11,9 +11,11 @@ import pytest
 
 from cmm_core.export import Model, load_model, save_model
 from cmm_core.io import DataError
+from cmm_core.machine import KinematicTerms
 from cmm_core.machine import kinematics as kin
 from cmm_core.model import fit
 from cmm_core.plan import read_task, task_uncertainty
+from cmm_core.units import UM
 
 ROOT = Path(__file__).resolve().parents[1]
 PLANS = ROOT / "sample_data" / "plans"
@@ -48,7 +50,7 @@ def test_linear_task_agrees_with_the_law_of_propagation(model_file):
     p = model.probes_mm["1"]
     x = task.points_mm - p
     _, J = kin.jacobian(model.terms, model.coef, x, np.broadcast_to(p, x.shape))
-    g = (J[1, 0] - J[0, 0]) / kin.UM  # µm of length per coefficient unit
+    g = (J[1, 0] - J[0, 0]) / UM  # µm of length per coefficient unit
     L_mm = 500.0
     u_thermal = L_mm * 1e3 * math.hypot(11.5e-6 * 0.1, 0.5 * 1e-6)
     u_expected = math.sqrt(g @ model.cov @ g + 2 * 0.5 ** 2 + u_thermal ** 2)
@@ -61,7 +63,7 @@ def test_linear_task_agrees_with_the_law_of_propagation(model_file):
 
 def _perfect_model(sigma_um=0.5):
     """No machine error and no model uncertainty: only the task's own influences."""
-    terms = kin.KinematicTerms((("dxx", 2),), (1200.0, 1000.0, 700.0))
+    terms = KinematicTerms((("dxx", 2),), (1200.0, 1000.0, 700.0))
     return Model("dxx", terms, np.zeros(terms.n), np.zeros((terms.n, terms.n)),
                  {"1": np.array([0.0, 0.0, -100.0])}, False, {"sigma_um": sigma_um})
 

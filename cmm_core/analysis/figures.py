@@ -14,8 +14,7 @@ from plotly.subplots import make_subplots
 
 from ..gum import MpeResult
 from ..io import Dataset
-from ..machine import kinematics as kin
-from ..machine import rigid_fit
+from ..machine import SQUARENESS, STRAIGHTNESS, axis_of, basis, periodic_basis, rigid_fit
 from ..model import FitResult
 from ..units import UM
 from ..units import label as unit_label
@@ -41,7 +40,7 @@ def error_function_curves(result: FitResult, name: str, n: int = 61
     """``(u_mm, value, u95)`` of one fitted error function along its axis, with the 95 %
     band half-width (k = 2). Units: µm for d.., µrad for r.. and s.. (squareness angle)."""
     terms = result.terms
-    axis = kin.axis_of(name)
+    axis = axis_of(name)
     stroke = float(terms.range_mm[axis])
     u = np.linspace(0.0, stroke, n)
     sl = terms.slices.get(name)
@@ -49,7 +48,7 @@ def error_function_curves(result: FitResult, name: str, n: int = 61
         return u, np.zeros(n), np.zeros(n)
     coef = result.kinematic_coef[sl]
     V = result.kinematic_cov[sl, sl]
-    if name in kin.SQUARENESS:  # the coefficient is the angle itself (µrad)
+    if name in SQUARENESS:  # the coefficient is the angle itself (µrad)
         val = np.full(n, float(coef[0]))
         sd = np.full(n, float(np.sqrt(max(V[0, 0], 0.0))))
     else:
@@ -66,7 +65,7 @@ def true_function_curve(truth: dict, name: str, u_mm: np.ndarray, range_mm: Arra
                         ) -> np.ndarray | None:
     """A simulation's true error function along its axis (µm or µrad), from the truth's
     coefficient labels (``dyz[3]``, ``dxx[sin180]``); None when the truth has none."""
-    if name in kin.SQUARENESS:
+    if name in SQUARENESS:
         return None if name not in truth else np.full(len(u_mm), float(truth[name]))
     poly: dict[int, float] = {}
     per: dict[float, dict[str, float]] = {}
@@ -81,15 +80,15 @@ def true_function_curve(truth: dict, name: str, u_mm: np.ndarray, range_mm: Arra
             per.setdefault(float(k[3:]), {})[k[:3]] = float(v)
     if not poly and not per:
         return None
-    stroke = float(np.asarray(range_mm, float)[kin.axis_of(name)])
+    stroke = float(np.asarray(range_mm, float)[axis_of(name)])
     val = np.zeros(len(u_mm))
     if poly:
         order = max(poly)
-        first = 2 if name in kin.STRAIGHTNESS else 1
+        first = 2 if name in STRAIGHTNESS else 1
         coef = np.array([poly.get(j, 0.0) for j in range(first, order + 1)])
-        val += kin.basis(name, np.asarray(u_mm, float), order, stroke) @ coef
+        val += basis(name, np.asarray(u_mm, float), order, stroke) @ coef
     for period, sc in per.items():
-        val += kin.periodic_basis(np.asarray(u_mm, float), period) @ np.array(
+        val += periodic_basis(np.asarray(u_mm, float), period) @ np.array(
             [sc.get("sin", 0.0), sc.get("cos", 0.0)])
     return val
 
@@ -111,7 +110,7 @@ def fig_error_functions(result: FitResult, names: list | tuple | None = None, co
     for i, name in enumerate(names):
         r, c = i // cols + 1, i % cols + 1
         u, val, band = error_function_curves(result, name)
-        colour = AXIS_COLOURS["xyz"[kin.axis_of(name)]]
+        colour = AXIS_COLOURS["xyz"[axis_of(name)]]
         if np.isfinite(band).all():
             traces.append(go.Scatter(x=np.r_[u, u[::-1]], y=np.r_[val + band, (val - band)[::-1]],
                                      fill="toself", fillcolor="rgba(120,120,120,0.25)",
@@ -134,7 +133,7 @@ def fig_error_functions(result: FitResult, names: list | tuple | None = None, co
                                      hovertemplate=f"true {name}: %{{y:.3f}}<extra></extra>"))
             trows.append(r)
             tcols.append(c)
-        ax = kin.axis_of(name)
+        ax = axis_of(name)
         x_meas = result.problem.obs.r_mm[:, ax] - result.problem.obs.p_mm[:, ax]
         n = "" if i == 0 else str(i + 1)
         # the measured span as one layout shape per panel, all set at once: add_vrect
@@ -143,7 +142,7 @@ def fig_error_functions(result: FitResult, names: list | tuple | None = None, co
                       "x0": float(x_meas.min()), "x1": float(x_meas.max()), "y0": 0, "y1": 1,
                       "fillcolor": "rgba(31,119,180,0.07)", "line": {"width": 0},
                       "layer": "below"})
-        axes[f"xaxis{n}"] = {"title": {"text": f"{'xyz'[kin.axis_of(name)]} (mm)"}}
+        axes[f"xaxis{n}"] = {"title": {"text": f"{'xyz'[axis_of(name)]} (mm)"}}
         axes[f"yaxis{n}"] = {"title": {"text": FUNCTION_UNITS[name[0]]}}
     fig.add_traces(traces, rows=trows, cols=tcols)
     fig.update_layout(axes, shapes=spans)

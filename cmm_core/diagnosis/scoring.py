@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize, stats
 
-from ..machine import kinematics as kin
+from ..machine import periodic_basis
 from ..model import (
     PERIOD_SCAN,
     PERIODIC,
@@ -209,7 +209,7 @@ def scan_period(base: FitResult, token: str, U: np.ndarray | None = None
 
     def gain(lam):
         X = np.zeros((r.size, 2))
-        X[a: 3 * n: 3] = kin.periodic_basis(u, lam) / base.sigma_um
+        X[a: 3 * n: 3] = periodic_basis(u, lam) / base.sigma_um
         X -= U @ (U.T @ X)
         q, rr = np.linalg.qr(X)
         if abs(rr[-1, -1]) <= 1e-9 * abs(rr[0, 0]):

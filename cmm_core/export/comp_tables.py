@@ -30,8 +30,7 @@ import pandas as pd
 
 from .. import __version__
 from ..io import DataError
-from ..machine import kinematics as kin
-from ..machine import split_chain
+from ..machine import AXES, split_chain
 from ..model import BY_TOKEN, CHI2_ALPHA, FitResult
 from .correction import (
     Model,
@@ -174,7 +173,7 @@ def compensation_grid(obj: Model | FitResult, step_mm=100.0, *, probe: str | Non
         raise ValueError(f"the grid's corners must be finite with upper >= lower, found "
                          f"{lo.tolist()} to {hi.tolist()} mm.")
     axes = [a0 + axis_nodes(b - a0, st, limit=201, axis=a)
-            for a0, b, st, a in zip(lo, hi, step, kin.AXES, strict=True)]
+            for a0, b, st, a in zip(lo, hi, step, AXES, strict=True)]
     n = math.prod(len(a) for a in axes)
     if n > MAX_GRID_NODES:
         # the uncertainty at every node costs a Jacobian row: keep it to seconds
@@ -215,11 +214,11 @@ def axis_functions(axis: str) -> list[tuple[str, str]]:
     """``(function, what it is)`` of the six error functions of one axis, in the order
     positioning, straightness, straightness, rotation about x, y, z."""
     out = []
-    for c in kin.AXES:
+    for c in AXES:
         name = f"d{axis}{c}"
         what = "positioning" if c == axis else f"straightness in {c}"
-        out.append((name, f"{what} (ISO 230-1 E{_ISO[kin.AXES.index(c)]}{axis.upper()})"))
-    for i, c in enumerate(kin.AXES):
+        out.append((name, f"{what} (ISO 230-1 E{_ISO[AXES.index(c)]}{axis.upper()})"))
+    for i, c in enumerate(AXES):
         out.append((f"r{axis}{c}", f"{_ROTATION[axis][i]}, rotation about {c} "
                                    f"(ISO 230-1 E{_ISO_ROT[i]}{axis.upper()})"))
     out.sort(key=lambda f: (f[0][0] == "r", f[0][0] == "d" and f[0][2] != axis))
@@ -235,7 +234,7 @@ def axis_table(obj: Model | FitResult, axis: str, step_mm: float) -> pd.DataFram
     ``kinematics.basis`` (zero at the axis origin; sign conventions in docs/layouts.md).
     """
     m = as_model(obj)
-    a = kin.AXES.index(axis)
+    a = AXES.index(axis)
     u_mm = axis_nodes(m.terms.range_mm[a], float(step_mm), axis=axis)
     out = {f"{axis}_mm": u_mm}
     for name, _ in axis_functions(axis):
@@ -263,7 +262,7 @@ def axis_roles(m: Model) -> dict:
     -1)``: the sign with which its translations enter the correction (docs/layouts.md)."""
     table, _ = split_chain(m.terms.chain)
     return {a: (("moves the table", -1) if a in table else ("carries the probe", +1))
-            for a in kin.AXES}
+            for a in AXES}
 
 
 def model_lines(obj: Model | FitResult, source: str | None = None) -> list[str]:
@@ -327,7 +326,7 @@ def grid_csv(obj: Model | FitResult, grid: pd.DataFrame, probe: str | None = Non
     m = as_model(obj)
     p = probe_offset(m, probe)
     axes = []
-    for c in kin.AXES:
+    for c in AXES:
         v = np.unique(grid[f"{c}_mm"].to_numpy())
         axes.append(f"{c} {v[0]:g} to {v[-1]:g} mm, {len(v)} nodes"
                     + (f", step {v[1] - v[0]:g}" if len(v) > 1 else ""))
@@ -352,7 +351,7 @@ def axis_tables(obj: Model | FitResult, step_mm: float, *,
     m = as_model(obj)
     if not allow_undetermined:
         _refuse_undetermined(m)
-    return {**{a: axis_table(m, a, step_mm) for a in kin.AXES},
+    return {**{a: axis_table(m, a, step_mm) for a in AXES},
             "squareness": squareness_table(m)}
 
 
@@ -365,7 +364,7 @@ def axis_tables_csv(obj: Model | FitResult, step_mm: float, source: str | None =
     roles = axis_roles(m)
     common = model_lines(obj, source)
     out = {}
-    for a in kin.AXES:
+    for a in AXES:
         role, sign = roles[a]
         lines = [f"format: {AXIS_FORMAT}", *common,
                  f"axis {a}: this carriage {role}; rows: {a}_mm, its scale reading",

@@ -39,8 +39,10 @@ from ..io import (
 )
 from ..io.delimited import file_rows, numeric_column, read_csv_text, require_columns, require_rows
 from ..io.errors import cut_repr
+from ..machine import DEFAULT_LAYOUT, LAYOUTS, KinematicTerms
 from ..machine import kinematics as kin
 from ..model import MAX_ORDER, REGISTRY, FitResult, checked_cov, parse_spec
+from ..units import UM
 
 COMPENSATING = tuple(b for b in REGISTRY if b.model_keys)
 """Blocks that act on new points, in the order of their parameters in the joint
@@ -75,7 +77,7 @@ class Model:
     """
 
     spec: str
-    terms: kin.KinematicTerms
+    terms: KinematicTerms
     coef: np.ndarray
     cov: np.ndarray
     probes_mm: dict
@@ -148,7 +150,7 @@ def model_to_dict(model: Model | FitResult) -> dict:
             "periods": [list(o) for o in m.terms.periods],
             # the default layout is left out: model files of the moving bridge stay
             # readable by releases before layouts existed
-            **({} if m.terms.layout == kin.DEFAULT_LAYOUT else {"layout": m.terms.layout}),
+            **({} if m.terms.layout == DEFAULT_LAYOUT else {"layout": m.terms.layout}),
             "labels": m.terms.labels, "coef": m.coef.tolist(), "cov": m.cov.tolist(),
             "probes_mm": {k: list(map(float, v)) for k, v in m.probes_mm.items()},
             "undetermined": m.undetermined, "summary": m.summary,
@@ -237,10 +239,10 @@ def _checked_model_header(d, name):
     if d.get("format") != MODEL_FORMAT:
         raise DataError(f"is not a model file written by 'fit --save' (expected \"format\": "
                         f"\"{MODEL_FORMAT}\", found {cut_repr(d.get('format'))}).", file=name)
-    layout = d.get("layout", kin.DEFAULT_LAYOUT)  # files written before layouts existed
-    if not isinstance(layout, str) or layout not in kin.LAYOUTS:
+    layout = d.get("layout", DEFAULT_LAYOUT)  # files written before layouts existed
+    if not isinstance(layout, str) or layout not in LAYOUTS:
         raise DataError(f"layout {cut_repr(layout)} is not a known machine layout; expected one "
-                        f"of: {', '.join(kin.LAYOUTS)}.", file=name, column="layout",
+                        f"of: {', '.join(LAYOUTS)}.", file=name, column="layout",
                         hint="refit and save the model again (fit --save); do not edit it.")
     return layout
 
@@ -248,7 +250,7 @@ def _checked_model_header(d, name):
 def _parsed_model(d, name, layout):
     """The model's terms and arrays, or a DataError when the file's structure is wrong."""
     try:
-        terms = kin.KinematicTerms(tuple((str(n), int(o)) for n, o in d["orders"]),
+        terms = KinematicTerms(tuple((str(n), int(o)) for n, o in d["orders"]),
                                    tuple(float(x) for x in d["range_mm"]),
                                    tuple((str(n), float(p)) for n, p in d.get("periods", [])),
                                    layout)
@@ -351,7 +353,7 @@ def _checked_magnitudes(terms, coef, cov, probes, name):
         return
     x, p = _sample_points(terms, probes)
     _, J = kin.jacobian(terms, np.zeros(terms.n), x, p)
-    sens = np.abs(J).max(axis=(0, 1)) / kin.UM  # µm of error per unit coefficient
+    sens = np.abs(J).max(axis=(0, 1)) / UM  # µm of error per unit coefficient
     for what, size, col in (("coefficient", np.abs(coef), "coef"),
                             ("standard uncertainty of coefficient",
                              np.sqrt(np.clip(np.diag(cov), 0, None)), "cov")):
@@ -574,8 +576,8 @@ def _propagated(m: Model, factor: _Factor, x: np.ndarray, p: np.ndarray,
         s = slice(a, a + step)
         with np.errstate(over="ignore", invalid="ignore"):  # refused after, one line
             xs, J = kin.jacobian(m.terms, m.coef, x[s], p[s])
-        e_um[s] = (xs - x[s] - p[s]) / kin.UM  # as propagate_error: the same doubles
-        J = J / kin.UM
+        e_um[s] = (xs - x[s] - p[s]) / UM  # as propagate_error: the same doubles
+        J = J / UM
         if extra_jac:
             # each part enters linearly: its Jacobian columns follow the kinematic ones
             J = np.concatenate([J, *(j[s] for j in extra_jac)], axis=2)
@@ -643,7 +645,7 @@ def _corrected(m: Model, factor: _Factor, points: pd.DataFrame, r: np.ndarray, n
     if m.undetermined:
         u[:] = np.nan
     out = points.copy()
-    out["xc_mm"], out["yc_mm"], out["zc_mm"] = (r + e_um * kin.UM).T
+    out["xc_mm"], out["yc_mm"], out["zc_mm"] = (r + e_um * UM).T
     out["ex_um"], out["ey_um"], out["ez_um"] = e_um.T
     out["u_x_um"], out["u_y_um"], out["u_z_um"] = u.T
     out["extrapolated"] = extrapolation_note(m, x)

@@ -28,35 +28,17 @@ from numpy.typing import ArrayLike
 from ..units import UM, URAD
 from .layouts import forward_block, probe_rotation
 from .terms import (
-    AXES,
-    DEFAULT_LAYOUT,
-    ERROR_NAMES,
-    LAYOUTS,
-    POSITIONING,
-    ROTATIONAL,
     SQUARENESS,
-    STRAIGHTNESS,
-    TRANSLATIONAL,
     KinematicTerms,
     _dmv,
     _Evaluation,
     _mm,
     _mv,
     _to_rows,
-    axis_of,
-    basis,
-    check_layout,
     direction_of,
-    n_coefficients,
-    periodic_basis,
 )
 
-# The model's vocabulary is re-exported: ``kin.LAYOUTS``, ``kin.KinematicTerms`` read
-# where the forward model is used, and the units its coefficients carry.
-__all__ = ["model_point", "error", "jacobian", "probe_jacobian", "invert",
-           "AXES", "DEFAULT_LAYOUT", "ERROR_NAMES", "LAYOUTS", "POSITIONING", "ROTATIONAL",
-           "SQUARENESS", "STRAIGHTNESS", "TRANSLATIONAL", "KinematicTerms", "axis_of", "basis",
-           "check_layout", "direction_of", "n_coefficients", "periodic_basis", "UM", "URAD"]
+__all__ = ["model_point", "error", "jacobian", "probe_jacobian", "invert"]
 
 
 def model_point(terms: KinematicTerms, coef: ArrayLike, x_mm: ArrayLike,

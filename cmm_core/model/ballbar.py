@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..machine import KinematicTerms
 from ..machine import kinematics as kin
 from ..units import UM
 from .instruments import length_change, truth_of
@@ -83,7 +84,7 @@ class BallBar:
         w = 1.0 / self.u_um
         return np.diag(w), np.eye(w.size)
 
-    def predict(self, terms: kin.KinematicTerms, coef: np.ndarray, want_jac: bool
+    def predict(self, terms: KinematicTerms, coef: np.ndarray, want_jac: bool
             ) -> tuple[np.ndarray, np.ndarray | None]:
         """Eq. 3 in µm and its Jacobian (µm per coefficient unit, (m, terms.n)) when
         wanted."""

@@ -48,6 +48,7 @@ import pandas as pd
 from numpy.typing import ArrayLike
 
 from ..io import DataError
+from ..machine import KinematicTerms
 from ..machine import kinematics as kin
 from ..units import UM
 from .blocks.plate import Plate
@@ -239,7 +240,7 @@ class LaserRun:
             parts.append((sel, *_orthocomplement(np.column_stack(cols), 1.0 / self.u_um[sel])))
         return _stacked(parts, len(self.run))
 
-    def predict(self, terms: kin.KinematicTerms, coef: np.ndarray, want_jac: bool
+    def predict(self, terms: KinematicTerms, coef: np.ndarray, want_jac: bool
             ) -> tuple[np.ndarray, np.ndarray | None]:
         """Predicted error readings (µm, eq. 1 without the nuisances) minus the measured
         ones, and their Jacobian (µm per coefficient unit, (m, terms.n)) when wanted."""
@@ -297,7 +298,7 @@ class StepGauge:
         m = diag.w.size
         return _Rows((m, m), diag.rows), _Rows((m, m), diag.back)
 
-    def predict(self, terms: kin.KinematicTerms, coef: np.ndarray, want_jac: bool
+    def predict(self, terms: KinematicTerms, coef: np.ndarray, want_jac: bool
             ) -> tuple[np.ndarray, np.ndarray | None]:
         """Eq. 2 in µm and its Jacobian (µm per coefficient unit)."""
         change, Jp = length_change(terms, coef, self.r1_mm, self.r2_mm, self.p_mm, want_jac)
@@ -307,7 +308,7 @@ class StepGauge:
         return list(self.gauge)
 
 
-def length_change(terms: kin.KinematicTerms, coef: np.ndarray, r1_mm: np.ndarray,
+def length_change(terms: KinematicTerms, coef: np.ndarray, r1_mm: np.ndarray,
               r2_mm: np.ndarray, p_mm: np.ndarray, want_jac: bool
               ) -> tuple[np.ndarray, np.ndarray | None]:
     """The model's change of the distance between two indicated points (mm),
@@ -480,13 +481,13 @@ def residuals_frame(result: Any) -> pd.DataFrame:
 
 # --- simulation from a Simulation's truth ------------------------------------------------
 
-def truth_of(sim: Any) -> tuple[kin.KinematicTerms, np.ndarray]:
+def truth_of(sim: Any) -> tuple[KinematicTerms, np.ndarray]:
     """``(KinematicTerms, coefficients)`` of a ``simulate.Simulation``'s true machine: its
     kinematic spec, order, strokes and layout, the coefficients from ``sim.truth``."""
 
     km, setup = sim.config["kinematic"], sim.dataset.setup
     spec = parse_spec(km["spec"], default_order=int(km["order"]))
-    terms = kin.KinematicTerms(spec.active, tuple(setup.range_mm), spec.periods,
+    terms = KinematicTerms(spec.active, tuple(setup.range_mm), spec.periods,
                                setup_layout(setup))
     return terms, np.array([sim.truth[lab] for lab in terms.labels])
 

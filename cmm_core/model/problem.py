@@ -10,8 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from ..machine import kinematics as kin
-from ..machine import plate_effect_basis, rigid_fit
+from ..machine import KinematicTerms, plate_effect_basis, rigid_fit
 from ..units import UM
 from . import hole_plate
 from . import normal as _normal
@@ -58,7 +57,7 @@ class Problem:
 
     def __init__(self, obs: Observations, spec: ModelSpec, plate: str):
         self.obs, self.spec, self.plate = obs, spec, plate
-        self.terms = kin.KinematicTerms(spec.active, tuple(obs.range_mm), spec.periods,
+        self.terms = KinematicTerms(spec.active, tuple(obs.range_mm), spec.periods,
                                         obs.layout)
         self.n_obs = len(obs.r_mm)
         # an instrument-only fit has no plate (instrument_observations)

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from ..machine import kinematics as kin
+from ..machine import KinematicTerms
 from .problem import Problem
 from .state import State
 
@@ -120,7 +120,7 @@ class FitResult:
     covariance_noise: np.ndarray | None = field(default=None, repr=False)
 
     @property
-    def terms(self) -> kin.KinematicTerms:
+    def terms(self) -> KinematicTerms:
         """Kinematic terms of the model."""
         return self.problem.terms
 

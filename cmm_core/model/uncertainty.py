@@ -22,7 +22,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..machine import KinematicTerms
 from ..machine import kinematics as kin
+from ..units import UM
 from .certificate_prior import residual_u_um
 from .result import FitResult
 
@@ -65,7 +67,7 @@ def _probe_vector(result: FitResult, probe):
     return p
 
 
-def propagate_error(terms: kin.KinematicTerms, coef: np.ndarray, cov: np.ndarray,
+def propagate_error(terms: KinematicTerms, coef: np.ndarray, cov: np.ndarray,
                 x_mm: np.ndarray, p_mm: np.ndarray, extra_jac: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Error ``e(x, p)`` (µm) and its standard uncertainty ``sqrt(diag(J V Jᵀ))`` per
@@ -77,8 +79,8 @@ def propagate_error(terms: kin.KinematicTerms, coef: np.ndarray, cov: np.ndarray
     is the caller's.
     """
     xs, J = kin.jacobian(terms, coef, x_mm, p_mm)
-    e = (xs - x_mm - p_mm) / kin.UM
-    Je = J / kin.UM
+    e = (xs - x_mm - p_mm) / UM
+    Je = J / UM
     if extra_jac is not None:
         Je = np.concatenate([Je, extra_jac], axis=2)
     u = np.sqrt(np.clip(np.einsum("mik,kl,mil->mi", Je, cov, Je), 0, None))
@@ -178,7 +180,7 @@ def error_covariance(result: FitResult, x_mm: ArrayLike, probe: str | None = Non
 def _error_jacobian(result: FitResult, x, p) -> np.ndarray:
     """(3m, k) derivative of the error (µm) at the points wrt the kinematic coefficients."""
     _, J = kin.jacobian(result.terms, result.kinematic_coef, x, p)
-    return (J / kin.UM).reshape(-1, J.shape[2])
+    return (J / UM).reshape(-1, J.shape[2])
 
 
 def aligned_error_u(result: FitResult) -> np.ndarray:

@@ -42,6 +42,7 @@ from ..io import (
     write_certificate,
     write_long_csv,
 )
+from ..machine import KinematicTerms
 from ..machine import kinematics as kin
 from .blocks import BY_TOKEN
 from .blocks.base import SimContext
@@ -193,7 +194,7 @@ def simulate(config: dict | None = None, *, name: str = "simulation config") -> 
         spec = parse_spec(km["spec"], default_order=int(km["order"]))
     except ValueError as exc:
         raise DataError(str(exc), file=name, column="kinematic.spec") from None
-    terms = kin.KinematicTerms(spec.active, tuple(setup.range_mm), spec.periods,
+    terms = KinematicTerms(spec.active, tuple(setup.range_mm), spec.periods,
                                setup_layout(setup))
     _check_against_setup(cfg, setup, terms, name, config.get("probes_per_position"))
     coef = np.zeros(terms.n)

@@ -43,6 +43,7 @@ from ..io import DataError, Dataset, range_tolerance
 from ..machine import kinematics as kin
 from ..machine import rigid_fit
 from ..model import Observations, select
+from ..units import UM
 
 MAX_OBSERVATIONS = 1500
 """Largest number of probed ball centres a check takes (its dense covariance is
@@ -313,8 +314,8 @@ def check_system(model: Model, dataset: Dataset, *, sigma_um: float | None = Non
             # ω × q in µm for ω in µrad and q in mm: 1e-3 · (-[q]×) ω
             A[3 * i:3 * i + 3, 6 * k + 3:6 * k + 6] = -1e-3 * _cross_matrix(q[j])
     placed = np.einsum("nij,nj->ni", R, plate) + t
-    d = ((corrected - placed) / kin.UM).ravel()
-    J = (Jk / kin.UM).reshape(3 * n, -1)
+    d = ((corrected - placed) / UM).ravel()
+    J = (Jk / UM).reshape(3 * n, -1)
     noise = sigma**2 * np.eye(3 * n)
     if obs.cert_u_um is not None:
         # each ball's certificate error moves every observation of it: R_k diag(u²) R_lᵀ

@@ -24,6 +24,7 @@ from .._blas import single_blas_thread
 from ..export import Model
 from ..io import DataError
 from ..machine import kinematics as kin
+from ..units import UM
 from .changes import holm
 
 MAX_MAP_NODES_PER_AXIS = 21
@@ -212,8 +213,8 @@ def _map_change(m1: Model, m2: Model, n: int) -> pd.DataFrame:
     e, var = [], []
     for m in (m1, m2):
         xs, J = kin.jacobian(m.terms, m.coef, x, p)
-        Je = J / kin.UM
-        e.append((xs - x - p) / kin.UM)
+        Je = J / UM
+        e.append((xs - x - p) / UM)
         var.append(np.clip(np.einsum("mik,kl,mil->mi", Je, m.cov, Je), 0, None))
     out = pd.DataFrame({"x_mm": x[:, 0], "y_mm": x[:, 1], "z_mm": x[:, 2]})
     for a, ax in enumerate("xyz"):

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import copy
 
-from ..machine import kinematics as kin
+from ..machine import KinematicTerms
 from ..model import Simulation, parse_spec, simulate, thesis_machine_setup
 
 
@@ -69,4 +69,4 @@ def _kinematic_labels(sim: Simulation) -> set:
     km = sim.config["kinematic"]
     spec = parse_spec(km["spec"], default_order=int(km["order"]))
     setup = sim.dataset.setup
-    return set(kin.KinematicTerms(spec.active, tuple(setup.range_mm), spec.periods).labels)
+    return set(KinematicTerms(spec.active, tuple(setup.range_mm), spec.periods).labels)

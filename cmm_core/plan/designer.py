@@ -38,6 +38,7 @@ from scipy import linalg
 from .._blas import single_blas_thread
 from ..machine import kinematics as kin
 from ..model import Problem, augmented_state, rigid_body_projector, select, weighted_residual
+from ..units import UM
 from .detect import POWER, detection_limits, noncentrality_for_power
 from .evaluation import PlanEvaluation, evaluate
 from .plans import Plan, fit_plan_data, simulate_plan
@@ -121,7 +122,7 @@ class PoolModel:
         for q in obs.probes:
             p = np.broadcast_to(obs.p_mm[obs.probe == obs.probes.index(q)][0], pts.shape)
             _, Jk = kin.jacobian(base.terms, base.kinematic_coef, pts, p)
-            Je = (Jk / kin.UM).reshape(-1, Jk.shape[2])
+            Je = (Jk / UM).reshape(-1, Jk.shape[2])
             self.Eu[q] = (rigid_body_projector(pts) @ Je, kin_cols)
         self.rank_rtol = base.rank_rtol
         # each detection target's level and shape: the diagnosis's, on the whole pool

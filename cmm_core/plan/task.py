@@ -52,6 +52,7 @@ from ..gum import coverage_intervals
 from ..io import DataError, read_json, refuse_unknown_keys
 from ..io.errors import cut_repr
 from ..machine import kinematics as kin
+from ..units import UM
 
 TASKS = ("distance", "circle", "plane")
 TASK_KEYS = ("task", "points", "probing_sigma_um", "temperature", "scale_u_ppm",
@@ -349,7 +350,7 @@ def task_uncertainty(model, task: Task, *, trials: int | None = None,
     x = task.points_mm - p
     n = len(x)
     outside = _check_on_machine(model, task, x)
-    e = kin.error(model.terms, model.coef, x, p) * kin.UM  # µm -> mm
+    e = kin.error(model.terms, model.coef, x, p) * UM  # µm -> mm
     alpha, dT = task.cte_per_K, task.temp_C - 20.0
     corr = task.points_mm + e
     c0 = corr.mean(0)
@@ -385,7 +386,7 @@ def task_uncertainty(model, task: Task, *, trials: int | None = None,
             draws = model.coef + rng.standard_normal((t, len(model.coef))) @ L.T
             xs = np.tile(x, (t, 1))
             pts += kin.error(model.terms, np.repeat(draws, n, axis=0), xs,
-                             np.tile(p, (t, 1))).reshape(t, n, 3) * kin.UM
+                             np.tile(p, (t, 1))).reshape(t, n, 3) * UM
         else:
             pts += e
         pts += rng.normal(0.0, sigma * 1e-3, pts.shape)

@@ -58,14 +58,14 @@ import numpy as np
 
 from ...io import DataError
 from ...io.errors import cut_repr
-from ...machine import kinematics as kin
+from ...machine import DEFAULT_LAYOUT, LAYOUTS
 from ...units import UM, URAD
 from .base import Block, Correction, Effect, ModelPart, SimParam, checked_cov, shared_cols
 
 LABELS = ("bridge_twist.lin", "bridge_twist.mid")
 SECTION_KEYS = ("twist_urad", "cov_joint")
 """Keys of the model file's ``bridge_twist`` section."""
-BRIDGES = {name: chain for name, chain in kin.LAYOUTS.items()
+BRIDGES = {name: chain for name, chain in LAYOUTS.items()
            if name.startswith(("moving_bridge", "gantry"))}
 """Layouts whose first tool carriage is a moving bridge carrying the second."""
 
@@ -201,7 +201,7 @@ class BridgeTwist(Block):
     @classmethod
     def part_from_file(cls, d, n_before, name):
         sec = d.get("bridge_twist")
-        layout = d.get("layout", kin.DEFAULT_LAYOUT)
+        layout = d.get("layout", DEFAULT_LAYOUT)
         if sec is None:
             spec = d.get("spec")
             if layout in BRIDGES and isinstance(spec, str) and "bridge_twist" in spec:
