@@ -11,12 +11,19 @@ layout, Plotly drawing) plus Streamlit's own round trips.
 Actions (medians of ``--runs`` repetitions, each in a new browser context, i.e. a new
 session; the first load cold starts a new server each time):
 
-- first load: a cold server, and a new session on a warm server (``/data``, thesis data);
+- first load: a cold server, and a new session on a warm server (``/data``, thesis data),
+  each in a browser context with an empty cache (a first visit ever: Streamlit's frontend
+  fetches the scripts of each element kind on first use, plotly's 3.5 MB and the data
+  grid's among them), and a new session of a browser that opened the app before;
 - the first visit of every page in a session;
 - Run the diagnosis (first in a session: the server's cache may hold it from an earlier
   session, as it would for a second user), Add this effect, Undo last step;
 - Exclude all flagged outliers on the Data page, and Include all again;
 - Load uploaded files (the six thesis tables as CSVs).
+
+The peer of the first loads, in the same run: an empty Streamlit app (a title and one
+metric) opened the same way, the part of a first load that is Streamlit's own frontend
+(its script bundle in a browser context with an empty cache) rather than this app.
 
 Goals: every action and page visit under 1 s, the first load under 2 s.
 
@@ -58,17 +65,22 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-class Server:
-    """``streamlit run app.py`` on a free port with a run log and a sessions folder of its
-    own."""
+EMPTY_APP = 'import streamlit as st\n\nst.title("Empty")\nst.sidebar.metric("RMS (µm)", "0")\n'
+"""The peer of a first load: a Streamlit app with a title and one metric, what Streamlit's
+own frontend costs before this app draws anything."""
 
-    def __init__(self, tmp: Path):
+
+class Server:
+    """``streamlit run app.py`` (or ``script``) on a free port with a run log and a sessions
+    folder of its own."""
+
+    def __init__(self, tmp: Path, script: Path = ROOT / "app.py"):
         self.log = tmp / f"runs-{time.time_ns()}.jsonl"
         port = _free_port()
         env = {**os.environ, "STREAMLIT_BROWSER_GATHER_USAGE_STATS": "false",
                "CMM_LAB_RUN_LOG": str(self.log), "CMM_LAB_SESSIONS": str(tmp / "sessions")}
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "streamlit", "run", str(ROOT / "app.py"),
+            [sys.executable, "-m", "streamlit", "run", str(script),
              "--server.headless", "true", "--server.port", str(port), "--server.address",
              "127.0.0.1", "--server.fileWatcherType", "none"],
             cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -206,11 +218,38 @@ def main(argv=None) -> int:
                 ctx.close()
             finally:
                 server.stop()
+        empty = Path(tmp) / "empty_app.py"
+        empty.write_text(EMPTY_APP)
+        for _ in range(args.runs):
+            server = Server(Path(tmp), empty)
+            try:
+                for label in ("peer: an empty Streamlit app, cold server",
+                              "peer: an empty Streamlit app, warm server"):
+                    ctx, pg = _new_page(browser)
+                    t0 = time.time()
+                    pg.goto(server.url)
+                    pg.get_by_text("Empty").first.wait_for()
+                    _idle(pg)
+                    results.setdefault(label, []).append((time.time() - t0 - 0.3, 0.0))
+                    ctx.close()
+            finally:
+                server.stop()
         server = Server(Path(tmp))
         try:
             one_session(server, browser, {})  # warm-up: the server's caches, imports
             for _ in range(args.runs):
                 one_session(server, browser, results)
+            # a returning user: the browser has Streamlit's and plotly's scripts in its
+            # cache (a new page of a context that opened the app before is a new session)
+            ctx, pg = _new_page(browser)
+            _open(server, pg)()
+            _idle(pg)
+            for _ in range(args.runs):
+                pg.close()
+                pg = ctx.new_page()
+                results.setdefault("first load, new session, browser cache warm", []).append(
+                    timed(server, pg, _open(server, pg)))
+            ctx.close()
         finally:
             server.stop()
         browser.close()
