@@ -38,6 +38,7 @@ from .inputs import (
     dataset_of,
     exclusions_of,
     instruments_of,
+    number_arg,
     sigma_of,
 )
 from .plan import (
@@ -57,6 +58,7 @@ __all__ = [
     "AXIS_TABLE_FILES", "build_parser", "CERT_HELP", "cmd_air", "cmd_budget", "cmd_compensate",
     "cmd_diagnose", "cmd_fit", "cmd_gp", "cmd_plan", "cmd_report", "cmd_simulate", "cmd_task",
     "command", "data_of", "dataset_of", "exclusions_of", "instruments_of", "main", "MAX_CHECK_TRIALS",
-    "MAX_MESSAGE", "MAX_TRIALS", "MAX_WORKERS", "MEAS_HELP", "MIN_TRIALS", "ORDER_HELP",
+    "MAX_MESSAGE", "MAX_TRIALS", "MAX_WORKERS", "MEAS_HELP", "MIN_TRIALS", "number_arg",
+    "ORDER_HELP",
     "output_files", "PLATE_HELP", "run", "run_plan", "run_task", "SETUP_HELP", "sigma_of"
 ]

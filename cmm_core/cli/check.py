@@ -22,6 +22,7 @@ from ..monitor import (
     interim_check,
     what_changed,
 )
+from .inputs import number_arg
 
 _MODEL_HELP = ("the stored calibration: a model file written by 'fit --save' (kinematic "
                "coefficients with their covariance, σ, layout, strokes and styli)")
@@ -50,27 +51,8 @@ _NODES_HELP = (f"grid nodes per axis of the error map's change, 2 to {MAX_MAP_NO
                "(default: %(default)s)")
 
 
-def _level(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a level such as 0.05, found "
-                                         f"{text[:40]!r}") from None
-    if not (math.isfinite(v) and 0.001 <= v <= 0.2):
-        raise argparse.ArgumentTypeError(f"expected a level from 0.001 to 0.2, found {v:g}")
-    return v
-
-
-def _sigma(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a repeatability in µm (e.g. 0.5), found "
-                                         f"{text[:40]!r}") from None
-    if not (math.isfinite(v) and 1e-3 <= v < 1e3):
-        raise argparse.ArgumentTypeError(f"expected a repeatability in µm from 0.001 to 1000, "
-                                         f"found {v:g}")
-    return v
+_LEVEL = number_arg(float, 0.001, 0.2)
+"""A false-alarm level: 0.1 % to 20 %."""
 
 
 def _mpe(text: str) -> tuple[float, float]:
@@ -84,18 +66,6 @@ def _mpe(text: str) -> tuple[float, float]:
     return a, d
 
 
-def _nodes(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number of nodes, found "
-                                         f"{text[:40]!r}") from None
-    if not 2 <= v <= MAX_MAP_NODES_PER_AXIS:
-        raise argparse.ArgumentTypeError(f"expected 2 to {MAX_MAP_NODES_PER_AXIS} nodes, "
-                                         f"found {v}")
-    return v
-
-
 def add_parser(subparsers) -> None:
     """Add ``check`` and ``compare`` to the sub-parsers of ``cli.build_parser``."""
     p = subparsers.add_parser(
@@ -105,9 +75,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("meas", nargs="+", metavar="MEAS.csv", help=_MEAS_HELP)
     p.add_argument("--setup", metavar="SETUP.json", required=True, help=_SETUP_HELP)
     p.add_argument("--certificate", metavar="CERT.csv", help=_CERT_HELP)
-    p.add_argument("--sigma-um", type=_sigma, default=None, metavar="UM", help=_SIGMA_HELP)
-    p.add_argument("--alpha", type=_level, default=0.05, metavar="LEVEL", help=_ALPHA_HELP)
-    p.add_argument("--family-alpha", type=_level, default=0.05, metavar="LEVEL",
+    p.add_argument("--sigma-um", type=number_arg(float, 1e-3, 999.999, "µm"), default=None, metavar="UM", help=_SIGMA_HELP)
+    p.add_argument("--alpha", type=_LEVEL, default=0.05, metavar="LEVEL", help=_ALPHA_HELP)
+    p.add_argument("--family-alpha", type=_LEVEL, default=0.05, metavar="LEVEL",
                    help=_FAMILY_HELP)
     p.add_argument("--positions", default=None, metavar="P1,P2", help=_POS_HELP)
     p.add_argument("--mpe", type=_mpe, default=None, metavar="A,D", help=_MPE_HELP)
@@ -118,9 +88,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("models", nargs="+", metavar="MODEL.json", help=_MODELS_HELP)
     p.add_argument("--dates", nargs="+", required=True, metavar="YYYY-MM-DD",
                    help=_DATES_HELP)
-    p.add_argument("--family-alpha", type=_level, default=0.05, metavar="LEVEL",
+    p.add_argument("--family-alpha", type=_LEVEL, default=0.05, metavar="LEVEL",
                    help=_FAMILY_HELP)
-    p.add_argument("--nodes", type=_nodes, default=5, metavar="N", help=_NODES_HELP)
+    p.add_argument("--nodes", type=number_arg(int, 2, MAX_MAP_NODES_PER_AXIS), default=5, metavar="N", help=_NODES_HELP)
     p.set_defaults(func=_command_compare)
 
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import tempfile
 from dataclasses import replace
@@ -45,6 +44,7 @@ from .inputs import (
     dataset_of,
     exclusions_of,
     instruments_of,
+    number_arg,
     sigma_of,
 )
 from .plan import add_plan_arguments, add_task_arguments, run_plan, run_task
@@ -180,27 +180,6 @@ _JSON_HELP = ("write the JSON result to FILE instead of stdout, whole or not at 
               "the command; default: stdout)")
 
 
-def _number(kind, lo, hi, unit=""):
-    """An argparse type: a ``kind`` (int or float) from ``lo`` to ``hi``, refused in one
-    line with the range otherwise."""
-    what = "a whole number" if kind is int else "a number"
-    unit = f" {unit}" if unit else ""
-
-    def parse(text):
-        try:
-            v = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"expected {what} from {lo:g} to {hi:g}{unit}, found {text[:40]!r}") from None
-        if not (math.isfinite(v) and lo <= v <= hi):
-            raise argparse.ArgumentTypeError(
-                f"expected {what} from {lo:g} to {hi:g}{unit}, found {v:g}")
-        return v
-
-    parse.__name__ = kind.__name__  # argparse names the type in its own messages
-    return parse
-
-
 def build_parser():
     """Argument parser with one sub-command per command of docs/formats.md."""
     ap = _Parser(prog="python -m cmm_core", description="CMM error lab")
@@ -260,7 +239,7 @@ def build_parser():
                         "one noise level per stylus, when the data carry several styli; "
                         "'tip' = the tip coordinates only (default: %(default)s)")
     add_outlier_args(p)
-    p.add_argument("--order", type=_number(int, 1, MAX_ORDER), default=2, metavar="N",
+    p.add_argument("--order", type=number_arg(int, 1, MAX_ORDER), default=2, metavar="N",
                    help=f"polynomial order of the kinematic model for --mean kinematic, 1 "
                         f"to {MAX_ORDER} (default: %(default)s)")
     p.add_argument("--plate", choices=("fixed", "prior", "free"), help=PLATE_HELP)
@@ -286,15 +265,15 @@ def build_parser():
     p.set_defaults(func=cmd_report)
     p = sub.add_parser("air", help="refractive index of air (modified Edlén)")
     # the ranges of the modified Edlén equation (gum.refractive_index_edlen checks them too)
-    p.add_argument("--t-C", type=_number(float, 0, 40, "°C"), required=True, dest="t_C",
+    p.add_argument("--t-C", type=number_arg(float, 0, 40, "°C"), required=True, dest="t_C",
                    metavar="DEG_C", help="air temperature in °C, 0 to 40 (required)")
-    p.add_argument("--p-Pa", type=_number(float, 60_000, 120_000, "Pa"), required=True,
+    p.add_argument("--p-Pa", type=number_arg(float, 60_000, 120_000, "Pa"), required=True,
                    dest="p_Pa", metavar="PA",
                    help="air pressure in Pa, 60000 to 120000, e.g. 101325 (required)")
-    p.add_argument("--rh-percent", type=_number(float, 0, 100, "%"), required=True,
+    p.add_argument("--rh-percent", type=number_arg(float, 0, 100, "%"), required=True,
                    dest="rh_percent", metavar="PERCENT",
                    help="relative humidity in %%, 0 to 100 (required)")
-    p.add_argument("--wavelength-nm", type=_number(float, 350, 1100, "nm"), required=True,
+    p.add_argument("--wavelength-nm", type=number_arg(float, 350, 1100, "nm"), required=True,
                    dest="wavelength_nm", metavar="NM",
                    help="vacuum wavelength of the laser in nm, 350 to 1100, e.g. 632.99 "
                         "for a HeNe laser (required)")

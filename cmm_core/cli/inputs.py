@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import io
+import math
 from pathlib import Path
 
 from ..diagnosis import detect_outliers, estimate_sigma
@@ -325,3 +326,24 @@ def exclusions_of(data, exclude_flagged):
     out = [{k: o[k] for k in ("position", "probe", "ball", "axis", "deviation_um")}
            for o in rep.outliers]
     return out, (rep.exclusions if exclude_flagged else [])
+
+
+def number_arg(kind, lo, hi, unit=""):
+    """An argparse type: a ``kind`` (int or float) from ``lo`` to ``hi``, refused in one
+    line with the range otherwise."""
+    what = "a whole number" if kind is int else "a number"
+    unit = f" {unit}" if unit else ""
+
+    def parse(text):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected {what} from {lo:g} to {hi:g}{unit}, found {text[:40]!r}") from None
+        if not (math.isfinite(v) and lo <= v <= hi):
+            raise argparse.ArgumentTypeError(
+                f"expected {what} from {lo:g} to {hi:g}{unit}, found {v:g}")
+        return v
+
+    parse.__name__ = kind.__name__  # argparse names the type in its own messages
+    return parse

@@ -19,7 +19,15 @@ from ..plan import (
     propose,
     simulate_outcomes,
 )
-from .inputs import _order_arg, _sigma_arg, _spec_arg, add_data_args, dataset_of, sigma_of
+from .inputs import (
+    _order_arg,
+    _sigma_arg,
+    _spec_arg,
+    add_data_args,
+    dataset_of,
+    number_arg,
+    sigma_of,
+)
 
 _MAX_TOP = 100
 """Most proposals ``--top`` lists."""
@@ -33,33 +41,6 @@ def _rivals_arg(text):
             f"expected two different effect tokens separated by a comma (e.g. "
             f"'probe_offset,drift'), found {text[:60]!r}")
     return tuple(parts)
-
-
-def _fraction_arg(lo, hi):
-    def parse(text):
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"expected a number from {lo} to {hi}, found {text[:40]!r}") from None
-        if not lo < v <= hi:
-            raise argparse.ArgumentTypeError(f"expected a number above {lo} up to {hi}, "
-                                             f"found {v:g}")
-        return v
-
-    return parse
-
-
-def _top_arg(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected a whole number from 1 to {_MAX_TOP}, found {text[:40]!r}") from None
-    if not 1 <= v <= _MAX_TOP:
-        raise argparse.ArgumentTypeError(f"expected a whole number from 1 to {_MAX_TOP}, "
-                                         f"found {v}")
-    return v
 
 
 def _add_arguments(p) -> None:
@@ -82,13 +63,13 @@ def _add_arguments(p) -> None:
                    help="the two effects to tell apart, as model tokens separated by a "
                         "comma, e.g. 'probe_offset,drift' (default: the diagnosis's first "
                         "candidate and its alias, or its runner-up)")
-    p.add_argument("--top", type=_top_arg, default=5, metavar="N",
+    p.add_argument("--top", type=number_arg(int, 1, _MAX_TOP), default=5, metavar="N",
                    help=f"how many proposals to list, best first, 1 to {_MAX_TOP} (default: "
                         "%(default)s)")
     p.add_argument("--reference", metavar="PLACEMENT", default=None,
                    help="placement the candidates are derived from (default: the first "
                         "horizontal one)")
-    p.add_argument("--target-power", type=_fraction_arg(0.0, 0.999), default=TARGET_POWER,
+    p.add_argument("--target-power", type=number_arg(float, 0.01, 0.999), default=TARGET_POWER,
                    metavar="P",
                    help="power at which a proposal counts as deciding the pair (default: "
                         "%(default)s)")
