@@ -12,8 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from cmm_core.model import instruments as ins
-from cmm_core.model import simulate
-from cmm_core.model import simulate_ball_bar
+from cmm_core.model import simulate, simulate_ball_bar
 from cmm_core.model.instrument_files import write_ball_bar, write_laser, write_step_gauge
 
 HERE = Path(__file__).resolve().parent
