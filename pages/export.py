@@ -9,7 +9,7 @@ import streamlit as st
 from cmm_core import analysis as A
 from cmm_core import export as ex
 from cmm_core.model import correction_columns
-from pages import cached, calls, frame
+from pages import cached, calls, frame, session
 from pages.plan import task_section
 
 frame.page_start()
@@ -196,7 +196,7 @@ with st.container(border=True):
 st.checkbox("Include a GP summary of the measured errors in the report (mean and "
                         "kernel as chosen on the Gaussian process page; adds a few seconds)",
                         key="w_report_gp")
-record = calls.safe(A.record_from_session, s, what="Analysis record")
+record = calls.safe(session.session_record, s, what="Analysis record")
 
 
 @st.cache_data(show_spinner=False, max_entries=4)

@@ -22,6 +22,24 @@ from pages.state import (
     set_instruments,
 )
 
+SESSION_CHOICES = {"spec": "spec", "order": "order", "plate": "plate",
+                   "sigma_um": "sigma_um", "positions": "positions", "probes": "probes",
+                   "exclusions": "exclusions", "history": "history", "diagnose": "diag_on",
+                   "exclude_outliers": "exclude_outliers", "magnification": "magnification",
+                   "uncertainty_points": "w_u_npts", "uncertainty_seed": "w_u_seed",
+                   "gp_kernel": "w_gp_kernel", "mpe_u_source": "w_mpe_u"}
+"""Each field of the analysis record and the session key (canonical or widget) holding it:
+the app's keys stay in the app, the core reads record fields only."""
+
+
+def session_record(state) -> A.AnalysisRecord:
+    """The analysis record of an app session (``st.session_state``, or a mapping with its
+    keys): the Export page's downloads, the report and the session kept for a reload."""
+    choices = {field: state.get(key) for field, key in SESSION_CHOICES.items()}
+    choices["gp_mean"] = state.get("w_gp_mean") if state.get("w_report_gp") else None
+    return A.record_from_inline(state["ds_files"], state.get("instruments") or (),
+                                **choices)
+
 
 def restore_record(record, source: str) -> str:
     """Make the analysis ``record`` (an :class:`cmm_core.analysis.AnalysisRecord`, read from
@@ -165,7 +183,7 @@ def autosave():
     if s.get("saved_fingerprint") == fp or "ds_files" not in s:
         return
     try:
-        text = A.record_to_project_json(A.record_from_session(s))
+        text = A.record_to_project_json(session_record(s))
         s["saved_path"] = str(session_store().save(s["session_id"], text))
         s.pop("save_error", None)
     except Exception as exc:  # noqa: BLE001 - a failed save must not stop the page

@@ -16,6 +16,7 @@ from scenarios import perturb, simulated
 from cmm_core import analysis as A
 from cmm_core.io import DataError
 from cmm_core.model import fit
+from pages.session import session_record
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_data" / "analysis" / "thesis.json"
@@ -40,7 +41,7 @@ def test_sample_record_reads_and_round_trips():
 
 
 def test_session_record_round_trips_through_json_and_the_project_file():
-    rec = A.record_from_session(_session(exclusions=[("BP112", "2", 7)], diag_on=True,
+    rec = session_record(_session(exclusions=[("BP112", "2", 7)], diag_on=True,
                                          w_mpe_u="cmm_spec", magnification=1500.0))
     assert rec.diagnose and rec.mpe_u_source == "cmm_spec" and rec.magnification == 1500.0
     assert rec.history == (("kinematic21", "baseline"),)
@@ -53,13 +54,13 @@ def test_session_record_round_trips_through_json_and_the_project_file():
 def test_a_record_with_sigma_auto_round_trips_through_the_project_file():
     """A command-line record may say σ "auto": its project file keeps it (it was refused
     before, so such a record could not be saved as a project)."""
-    rec = dataclasses.replace(A.record_from_session(_session()), sigma_um="auto")
+    rec = dataclasses.replace(session_record(_session()), sigma_um="auto")
     assert A.record_from_project(A.record_to_project_json(rec)) == rec
 
 
 def test_session_defaults_are_the_record_defaults():
     """The app's defaults and a record file's defaults agree (one outlier rule)."""
-    rec = A.record_from_session(_session())
+    rec = session_record(_session())
     default = A.AnalysisRecord(rec.data, history=rec.history)
     assert rec == default
     assert A.DEFAULT_EXCLUDE_OUTLIERS is False and rec.exclude_outliers is False
@@ -144,7 +145,7 @@ def _with_instruments(rec, *kinds_files):
 
 def test_record_with_instruments_round_trips_through_json_session_and_project():
     laser = (INSTRUMENTS / "laser_x.csv").read_text()
-    rec = A.record_from_session(_session(instruments=[("laser", "laser_x.csv", laser)]))
+    rec = session_record(_session(instruments=[("laser", "laser_x.csv", laser)]))
     (inst,) = rec.data.instruments
     assert inst.kind == "laser" and inst.file.name == "laser_x.csv"
     assert inst.file.text() == laser
@@ -210,7 +211,7 @@ def _mapped_session():
     from pages import state as C
 
     thesis = C.thesis_files()
-    ds = A.load_data(A.record_from_session(_session()))
+    ds = A.load_data(session_record(_session()))
     lines = ["Feature;X;Y;Z"] + [
         f"{r.position}_P{r.probe}_B{r.ball};" + ";".join(
             f"{v * 1e3:.3f}".replace(".", ",") for v in (r.x_mm, r.y_mm, r.z_mm))
@@ -226,7 +227,7 @@ def _mapped_session():
 
 def test_a_mapped_table_round_trips_with_its_mapping_and_reloads():
     state, ds, table_text, mapping = _mapped_session()
-    rec = A.record_from_session(state)
+    rec = session_record(state)
     (f,) = rec.data.measurements
     assert f.name == "vendor.csv" and f.content == table_text
     assert f.mapping == mapping.to_dict()
@@ -249,7 +250,7 @@ def test_a_mapped_table_round_trips_with_its_mapping_and_reloads():
 
 def test_a_bad_mapping_in_a_record_is_refused_naming_the_key():
     state, *_ = _mapped_session()
-    doc = A.record_to_dict(A.record_from_session(state))
+    doc = A.record_to_dict(session_record(state))
     doc["data"]["measurements"][0]["mapping"]["unit"] = "furlong"
     with pytest.raises(DataError, match="unit") as exc:
         A.record_from_dict(doc, "a.json")
@@ -280,7 +281,7 @@ def test_a_bad_mapping_in_a_record_is_refused_naming_the_key():
 def test_a_project_file_of_the_wrong_shape_is_one_line_naming_the_key(path, value, column):
     """Issue 25: a wrong type anywhere in a project file is a DataError naming the key,
     never a Python TypeError or AttributeError (the app shows the same line)."""
-    doc = json.loads(A.record_to_project_json(A.record_from_session(_session())))
+    doc = json.loads(A.record_to_project_json(session_record(_session())))
     parent = doc
     for key in path[:-1]:
         parent = parent.setdefault(key, {})

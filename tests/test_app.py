@@ -10,6 +10,7 @@ pytest.importorskip("streamlit")
 from streamlit.testing.v1 import AppTest  # noqa: E402
 
 from cmm_core.export import downloads as export
+from pages.session import session_record
 
 ROOT = Path(__file__).resolve().parents[1]
 APP = str(ROOT / "app.py")
@@ -937,7 +938,7 @@ def test_a_laser_upload_shows_its_residuals_and_the_uncertainty_gain(inst_app):
 
     state = {k: at.session_state[k] for k in ("ds_files", "spec", "order", "plate",
                                                "sigma_um", "instruments")}
-    text = A.record_to_project_json(A.record_from_session(state))
+    text = A.record_to_project_json(session_record(state))
     at.switch_page("pages/data.py")
     at.run()
     at.button(key="rm_instrument_0").click()

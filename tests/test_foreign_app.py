@@ -15,6 +15,7 @@ from test_msl import msl_files_of, simulated_machine
 from cmm_core import analysis as A
 from cmm_core.io import TableMapping, apply_mapping
 from cmm_core.model import simulate
+from pages.session import session_record
 
 ROOT = Path(__file__).resolve().parents[1]
 APP = str(ROOT / "app.py")
@@ -133,7 +134,7 @@ def test_a_mapped_vendor_table_keeps_its_mapping_in_the_record():
     ((source, source_text, mapping),) = files["mapped"].values()
     assert source == "vendor.csv" and source_text == table.decode()
     assert mapping["label"] == "Feature" and mapping["pattern"] == PATTERN
-    rec = A.record_from_session({"ds_files": files})
+    rec = session_record({"ds_files": files})
     assert rec.data.measurements[0].mapping == mapping
     back = A.load_data(A.record_from_project(A.record_to_project_json(rec)))
     np.testing.assert_allclose(back.meas[["x_mm", "y_mm", "z_mm"]].to_numpy(),
@@ -152,7 +153,7 @@ def test_restored_mapped_project_keeps_the_mapping():
     files = {"name": "v", "measurements": [(t.csv_name, t.csv_text)],
              "setup": json.dumps(sim.dataset.setup.raw), "certificate": ("c.csv", ctext),
              "mapped": {t.csv_name: (t.name, t.source_text, t.mapping)}}
-    rec = A.record_from_session({"ds_files": files})
+    rec = session_record({"ds_files": files})
     text = A.record_to_project_json(rec)
     at = AppTest.from_file(APP, default_timeout=90)
     at.run()
@@ -163,5 +164,5 @@ def test_restored_mapped_project_keeps_the_mapping():
     at.button(key="restore_project").click()
     at.run()
     assert not at.exception and not at.error, [e.value for e in at.error]
-    again = A.record_from_session({"ds_files": at.session_state["ds_files"]})
+    again = session_record({"ds_files": at.session_state["ds_files"]})
     assert again.data.measurements[0].mapping == m.to_dict()

@@ -15,6 +15,7 @@ from scenarios import simulated
 from cmm_core import analysis as A
 from cmm_core.analysis import report as rep
 from cmm_core.cli import main
+from pages.session import session_record
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_data" / "analysis" / "thesis.json"
@@ -44,7 +45,7 @@ def test_export_page_calls_the_cli_function_on_the_session_record():
     """No AppTest needed: the page builds the record with the core function and renders
     it with the function the CLI calls; it assembles no report arguments itself."""
     src = (ROOT / "pages" / "export.py").read_text()
-    assert "A.record_from_session, s," in src and "A.analysis_report(_record)" in src
+    assert "session.session_record, s," in src and "A.analysis_report(_record)" in src
     assert "build_report" not in src
     cli = (ROOT / "cmm_core" / "analysis" / "report.py").read_text()
     assert "res = run(read_record(Path(analysis_path)))" in cli and "text = render(res)" in cli
@@ -53,7 +54,7 @@ def test_export_page_calls_the_cli_function_on_the_session_record():
 
 @pytest.fixture(scope="module")
 def thesis_app():
-    record = A.record_from_session(_session(exclusions=list(FLAGGED)))
+    record = session_record(_session(exclusions=list(FLAGGED)))
     return record, rep.analysis_report(record)
 
 
@@ -113,7 +114,7 @@ def test_simulated_hidden_effect_app_and_cli_byte_identical(tmp_path, capsys):
     sim = simulated("pitch100_4pos", 5, effects={"plate_sag": {"uu": -3.0, "uv": 0.5,
                                                                "vv": -2.0}})
     d, state = _sim_session(tmp_path, sim, diag_on=True)
-    record = A.record_from_session(state)
+    record = session_record(state)
     app_html = rep.analysis_report(record)
     by_path = dataclasses.replace(record, data=A.DataSources(
         "simulated", (A.DataFile("measurements.csv", str(d / "measurements.csv")),),
@@ -132,7 +133,7 @@ def test_simulated_hidden_effect_app_and_cli_byte_identical(tmp_path, capsys):
 
 def test_clean_simulation_passes_without_an_inflation_row(tmp_path):
     _, state = _sim_session(tmp_path, simulated("pitch100_4pos", 1))
-    res = A.run(A.record_from_session(state))
+    res = A.run(session_record(state))
     assert not res.fit.fails_chi2_test
     html = rep.render(res)
     assert "χ² test passed" in html and "passes at 1 %" in html
@@ -178,7 +179,7 @@ def test_report_with_an_instrument_app_and_cli_byte_identical(tmp_path, capsys):
              "measurements": [("measurements.csv", (sim / "measurements.csv").read_text())],
              "setup": (sim / "setup.json").read_text(),
              "certificate": ("certificate.csv", (sim / "certificate.csv").read_text())}
-    record = A.record_from_session(_session(
+    record = session_record(_session(
         ds_files=files, instruments=[("laser", "laser_x.csv", (ins / "laser_x.csv").read_text())]))
     app_html = rep.analysis_report(record)
     by_path = dataclasses.replace(record, data=A.DataSources(

@@ -60,8 +60,8 @@ from .record_io import (
     instruments_from_list,
     read_record,
     record_from_dict,
+    record_from_inline,
     record_from_project,
-    record_from_session,
     record_to_dict,
     record_to_json,
     record_to_project_json,
@@ -111,7 +111,7 @@ __all__ = [
     "load_data", "load_instruments", "measured_error_from_residuals_um", "measured_error_um",
     "ModelComparison", "MPE_U_SOURCES", "placement_plane_grid", "PlaneGrid", "PLATE_CHOICES",
     "plate_coordinates_mm", "plotly_loader", "position_trends", "read_record",
-    "record_from_dict", "record_from_project", "record_from_session", "record_to_dict",
+    "record_from_dict", "record_from_inline", "record_from_project", "record_to_dict",
     "record_to_json", "record_to_project_json", "render", "residual_summary", "run",
     "TIMESTAMP", "true_function_curve", "uncertainty_gain", "VERSION", "with_instruments",
     "write_report"

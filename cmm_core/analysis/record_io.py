@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -31,7 +31,7 @@ from .record import (
 )
 
 __all__ = ["KEYS", "instruments_from_list", "record_from_dict", "record_to_dict",
-           "record_to_json", "read_record", "record_from_session",
+           "record_to_json", "read_record", "record_from_inline",
            "record_to_project_json", "record_from_project"]
 
 KEYS = [f.name for f in fields(AnalysisRecord)]
@@ -249,35 +249,29 @@ def _inline(name, measurements, setup, certificate, instruments=()) -> dict:
             "instruments": [{"kind": k, "name": n, "content": c} for k, n, c in instruments]}
 
 
-def record_from_session(state: Mapping[str, Any]) -> AnalysisRecord:
-    """The record of an app session (the Export page passes ``st.session_state``).
+def record_from_inline(files: Mapping[str, Any], instruments: Iterable = (),
+                       **choices: Any) -> AnalysisRecord:
+    """A record whose data travel as text (the app's session, a saved session).
 
-    ``state`` is a mapping with the app's canonical keys: ``ds_files`` (name, measurements
-    as (file name, text) pairs, setup text, certificate pair or None, and ``mapped``:
-    file name -> (source name, source table text, column mapping) for the measurement
-    files converted from another tool's table, kept so that the record reloads them
-    through their mapping), ``instruments``
-    (``(kind, file name, text)`` triples, optional), ``spec, order,
-    plate, sigma_um, positions, probes, exclusions, history, diag_on, magnification`` and,
-    when set, ``w_mpe_u, w_u_npts, w_u_seed`` and, with ``w_report_gp`` true, ``w_gp_mean,
-    w_gp_kernel``. Missing keys take the record's defaults.
+    ``files``: ``name``, ``measurements`` as (file name, text) pairs, ``setup`` text,
+    ``certificate`` as a (file name, text) pair or None, and optionally ``mapped``: file
+    name -> (source name, source table text, column mapping) for the measurement files
+    converted from another tool's table, kept so that the record reloads them through
+    their mapping. ``instruments``: ``(kind, file name, text)`` triples. ``choices``: the
+    record's own fields by name (:class:`AnalysisRecord`: ``spec``, ``order``, ``plate``,
+    ``sigma_um``, ``positions``, ``probes``, ``exclusions``, ``history`` as
+    ``{"spec", "change"}`` dicts, ``diagnose`` ...); None or missing takes the record's
+    default, an empty history the baseline step of ``spec``.
     """
-    f = state["ds_files"]
-    mapped = {k: tuple(v) for k, v in (f.get("mapped") or {}).items()}
-    g: Callable[[str], Any] = state.get  # a value, or None when the key is unset
-    keys = {"spec": "spec", "order": "order", "plate": "plate", "sigma_um": "sigma_um",
-            "positions": "positions", "probes": "probes", "diagnose": "diag_on",
-            "exclude_outliers": "exclude_outliers", "uncertainty_points": "w_u_npts",
-            "uncertainty_seed": "w_u_seed", "gp_kernel": "w_gp_kernel",
-            "mpe_u_source": "w_mpe_u", "magnification": "magnification"}
-    doc = {k: list(g(s)) if isinstance(g(s), tuple) else g(s) for k, s in keys.items()
-           if g(s) is not None or k in ("positions", "probes")}
-    hist = g("history") or [{"spec": doc.get("spec", "kinematic21"), "change": "baseline"}]
-    doc.update(format=FORMAT, exclusions=[list(e) for e in g("exclusions") or []],
-               history=[dict(h) for h in hist], gp_mean=g("w_gp_mean") if g("w_report_gp")
-               else None, data=_inline(f["name"], [mapped.get(m[0], m) for m in
-                                                   f["measurements"]], f["setup"],
-                                       f.get("certificate"), g("instruments") or ()))
+    mapped = {k: tuple(v) for k, v in (files.get("mapped") or {}).items()}
+    doc = {k: list(v) if isinstance(v, tuple) else v for k, v in choices.items()
+           if v is not None or k in ("positions", "probes")}
+    hist = doc.get("history") or [{"spec": doc.get("spec", "kinematic21"),
+                                   "change": "baseline"}]
+    doc.update(format=FORMAT, exclusions=[list(e) for e in doc.get("exclusions") or []],
+               history=[dict(h) for h in hist],
+               data=_inline(files["name"], [mapped.get(m[0], m) for m in files["measurements"]],
+                            files["setup"], files.get("certificate"), instruments))
     return record_from_dict(doc, "session")
 
 
