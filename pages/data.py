@@ -327,10 +327,21 @@ def _show_upload_report():
     if not report:
         return
     st.error(f"Validation found {report['count']} problem(s); the current dataset is "
-             "unchanged.")
+             "unchanged."
+             + (" The upload fields are cleared: upload the corrected files (all of "
+                "them)." if report.get("cleared") else ""))
     table = pd.DataFrame(report["problems"]).drop(columns="_more")
     table["row"] = table["row"].astype("Int64")  # whole row numbers, blank when none
     frame.dataframe(table, hide_index=True, key="upload_problems")
+    # a table cell cuts long text ("did you mea…"): every problem and hint in full below
+    with st.expander("Each problem in full"):
+        st.markdown("\n".join(
+            "- " + ", ".join(x for x in (f"**{p['file']}**" if p["file"] else "",
+                                         f"row {p['row']}" if p["row"] is not None else "",
+                                         f"column {p['column']}" if p["column"] else "")
+                             if x)
+            + f": {p['problem']}" + (f" *{p['hint']}*" if p["hint"] else "")
+            for p in report["problems"]))
 
 
 tab_thesis, tab_upload, tab_other, tab_sim, tab_proj = st.tabs(
@@ -384,8 +395,13 @@ with tab_upload:
                                                   st.session_state.get("mapped_meas"),
                                                   cert_statement)
         if problems:
+            # the fields are cleared after a refusal too: a corrected file must not be
+            # judged together with the refused one it replaces (issue 27)
             st.session_state["upload_report"] = {"problems": problems,
-                                                 "count": _count(problems)}
+                                                 "count": _count(problems),
+                                                 "cleared": True}
+            st.session_state["upload_gen"] = gen + 1
+            st.rerun()  # draw the emptied fields now; the report is kept in the state
         else:
             state.set_dataset(files)
             st.session_state["upload_count"] = st.session_state.get("upload_count", 0) + 1

@@ -221,8 +221,13 @@ if s["diag_on"]:
                                f"{c_['separate_by']}")
                 else:
                     st.caption(f"To confirm it: {c_['separate_by']}")
-                if st.toggle("Show residuals beside its signature", value=i == 0,
-                             key=f"w_sig_{c_['effect']}"):
+                # open for the named effect (the first when none is named), and fresh for
+                # each diagnosis: a toggle left on for another candidate no longer carries
+                # over (issue 27)
+                opened = c_["is_verdict"] or (i == 0 and not any(
+                    x["is_verdict"] for x in cands))
+                if st.toggle("Show residuals beside its signature", value=opened,
+                             key=f"w_sig_{hash(fkey) & 0xFFFFFFFF:x}_{c_['effect']}"):
                     f1, f2 = st.columns(2)
                     f1.plotly_chart(cached.figure("pattern_small", fkey, A.fig_pattern,
                                              base.table, base.residuals_um,

@@ -203,6 +203,10 @@ def test_diagnosis_add_an_effect_rms_falls_and_history_records_it():
     assert len(table) > 5
     best = str(table.iloc[0]["effect"])
     assert best == "plate_sag"  # docs/thesis-data.md: the bowl of the horizontal plates
+    # the signature plot is open for the named effect only (issue 27)
+    sig = {t.key: t.value for t in at.toggle if t.key.startswith("w_sig_")}
+    assert [v for k, v in sig.items() if k.endswith("_plate_sag")] == [True]
+    assert not any(v for k, v in sig.items() if not k.endswith("_plate_sag"))
     at.button(key=f"add_{best}").click()
     at.run()
     _ok(at)
@@ -263,6 +267,17 @@ def test_upload_long_form_csv_and_a_malformed_one():
     assert probs.iloc[0]["file"] == "BP111.csv"
     assert probs.iloc[0]["row"] == 3 and probs.iloc[0]["column"] == "x_mm"
     assert any("long.csv" in m.value for m in at.sidebar.markdown)  # unchanged
+    # issue 27: the refused file left its field (the corrected one is judged alone), and
+    # every problem is shown in full below the table, hint included
+    assert any("fields are cleared" in e.value for e in at.error)
+    assert not _uploader(at, "Measurement CSV").value
+    full = " ".join(m.value for m in at.markdown if m.value.startswith("- "))
+    assert "**BP111.csv**, row 3, column x_mm:" in full and probs.iloc[0]["hint"] in full
+    good = "ball,x_mm,y_mm,z_mm\n" + "".join(f"{b},{133 * (b - 1)},0,0\n" for b in range(1, 5))
+    _uploader(at, "Measurement CSV").set_value([("BP111.csv", good.encode(), "text/csv")])
+    at.button(key="load_upload").click()
+    at.run()
+    _ok(at)
 
 
 def test_upload_with_its_own_setup_never_borrows_the_thesis_certificate(tmp_path):
