@@ -66,7 +66,7 @@ def _mpe(text: str) -> tuple[float, float]:
     return a, d
 
 
-def add_parser(subparsers) -> None:
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``check`` and ``compare`` to the sub-parsers of ``cli.build_parser``."""
     p = subparsers.add_parser(
         "check", help="interim check of new measurements against a stored calibration: χ² "

@@ -68,7 +68,7 @@ def _jsonable(o):
 _SIM_FILES = ("measurements.csv", "setup.json", "certificate.csv", "truth.json")
 
 
-def cmd_simulate(args):
+def cmd_simulate(args: argparse.Namespace) -> dict:
     # read like every JSON input (a byte-order mark tolerated), refusals name the file
     cfg, name = read_json(Path(args.config))
     sim = simulate(cfg, name=name)
@@ -81,7 +81,7 @@ def cmd_simulate(args):
     return {"out": str(args.out), "n_obs": len(sim.dataset.meas), "files": list(_SIM_FILES)}
 
 
-def cmd_fit(args):
+def cmd_fit(args: argparse.Namespace) -> dict:
     instruments = instruments_of(args)
     data = data_of(args, instruments)
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
@@ -99,7 +99,7 @@ def cmd_fit(args):
             "outliers": outliers, "excluded": [list(e) for e in exclude]}
 
 
-def cmd_diagnose(args):
+def cmd_diagnose(args: argparse.Namespace) -> dict:
     instruments = instruments_of(args)
     data = data_of(args, instruments)
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
@@ -115,13 +115,13 @@ def cmd_diagnose(args):
     return out
 
 
-def cmd_compensate(args):
+def cmd_compensate(args: argparse.Namespace) -> dict:
     # streamed a chunk at a time: the memory does not grow with the number of points
     return compensate(load_model(args.model), args.points, out=args.out,
                       allow_extrapolation=args.allow_extrapolation)
 
 
-def cmd_gp(args):
+def cmd_gp(args: argparse.Namespace) -> dict:
     data = dataset_of(args)
     _, exclude = exclusions_of(data, args.exclude_outliers)
     r = fit(data, "kinematic21" if args.mean == "kinematic" else "rigid", order=args.order,
@@ -140,23 +140,23 @@ def cmd_gp(args):
             "loo_coverage_95": comps.loo_coverage(0.95), "components": comps.summary()}
 
 
-def cmd_budget(args):
+def cmd_budget(args: argparse.Namespace) -> dict:
     return read_budget(Path(args.budget))
 
 
-def cmd_report(args):
+def cmd_report(args: argparse.Namespace) -> dict:
     return write_report(args.analysis, args.out)
 
 
-def cmd_air(args):
+def cmd_air(args: argparse.Namespace) -> dict:
     return air_from_args(args.t_C, args.p_Pa, args.rh_percent, args.wavelength_nm)
 
 
-def cmd_plan(args):
+def cmd_plan(args: argparse.Namespace) -> dict:
     return run_plan(args)
 
 
-def cmd_task(args):
+def cmd_task(args: argparse.Namespace) -> dict:
     return run_task(args)
 
 
@@ -180,7 +180,7 @@ _JSON_HELP = ("write the JSON result to FILE instead of stdout, whole or not at 
               "the command; default: stdout)")
 
 
-def build_parser():
+def build_parser() -> argparse.ArgumentParser:
     """Argument parser with one sub-command per command of docs/formats.md."""
     ap = _Parser(prog="python -m cmm_core", description="CMM error lab")
     ap.add_argument("--json", metavar="FILE", help=_JSON_HELP)
@@ -367,7 +367,7 @@ def _one_line(exc, name) -> str:
     return text if len(text) <= MAX_MESSAGE else text[:MAX_MESSAGE - 1] + "…"
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status (a usage error exits 2 from argparse)."""
     args = build_parser().parse_args(argv)
     try:  # before any work: outputs that would destroy an input or each other

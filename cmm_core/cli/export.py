@@ -100,7 +100,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--allow-undetermined", action="store_true", help=_UNDET_HELP)
 
 
-def add_parser(subparsers) -> argparse.ArgumentParser:
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add the ``export`` sub-command to the sub-parsers of ``cli.build_parser``."""
     p = subparsers.add_parser(
         "export", help="compensation tables (3-D grid, per-axis) and results files (JSON, "
@@ -114,7 +114,7 @@ AXIS_TABLE_FILES = (*(f"axis_{a}.csv" for a in AXES), "squareness.csv")
 """The files ``--axis-tables DIR`` writes into its folder."""
 
 
-def output_files(args) -> tuple[dict, dict]:
+def output_files(args: argparse.Namespace) -> tuple[dict, dict]:
     """``(outputs, folders)`` of ``export`` for ``io.check_outputs``: option -> file(s)
     written, option -> folder created."""
     outs = {"--grid": args.grid, "--results-json": args.results_json,
@@ -126,7 +126,7 @@ def output_files(args) -> tuple[dict, dict]:
     return outs, folders
 
 
-def command(args) -> dict:
+def command(args: argparse.Namespace) -> dict:
     """Write the files asked for; the JSON summary (what was written where).
 
     Raises DataError / OSError on bad input (one line each): an output that is the model
@@ -188,7 +188,7 @@ def _write(args, model, source) -> dict:
     return out
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Run ``export`` on parsed arguments: summary JSON on stdout and 0, or one line on
     stderr naming the file, row and column and 2."""
     try:

@@ -8,12 +8,14 @@ import argparse
 import hashlib
 import io
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 from ..diagnosis import detect_outliers, estimate_sigma
 from ..io import (
     DMIS_SUFFIXES,
     DataError,
+    Dataset,
     combine_plates,
     load_dataset,
     read_foreign,
@@ -26,7 +28,7 @@ from ..io import (
 from ..model import MAX_ORDER, Observations, instrument_observations, read_instrument
 
 
-def dataset_of(args):
+def dataset_of(args: argparse.Namespace) -> Dataset:
     """The dataset the fitting commands read: this project's files, tables from other
     software through ``--mapping`` or a DMIS pattern, or MSL cmm-error-map snapshots."""
     if args.msl:
@@ -64,7 +66,7 @@ def dataset_of(args):
         raise
 
 
-def data_of(args, instruments):
+def data_of(args: argparse.Namespace, instruments: list) -> Dataset | Observations:
     """The fitting commands' data: the dataset of :func:`dataset_of`, or, with instrument
     files and no measurement file, an instrument-only fit's observations (the machine
     from ``--setup``, which then needs no positions, or from an ``--msl-bar``'s
@@ -135,7 +137,7 @@ _BALL_BAR_HELP = ("ball bar CSV, machine axes: [bar,]x1_mm,y1_mm,z1_mm,x2_mm,y2_
                   "with the plate; repeatable (docs/instruments.md). Default: none")
 
 
-def add_instrument_args(p):
+def add_instrument_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--laser", action="append", default=[], metavar="RUN.csv",
                    help=_LASER_HELP)
     p.add_argument("--step-gauge", action="append", default=[], metavar="SG.csv",
@@ -144,7 +146,7 @@ def add_instrument_args(p):
                    help=_BALL_BAR_HELP)
 
 
-def instruments_of(args):
+def instruments_of(args: argparse.Namespace) -> list:
     """The instrument files of ``--laser``, ``--step-gauge`` and ``--ball-bar``, read
     (DataError if bad)."""
 
@@ -185,7 +187,7 @@ def _refuse_twice(files: list) -> None:
         seen[digest] = str(f)
 
 
-def add_foreign_args(p):
+def add_foreign_args(p: argparse.ArgumentParser) -> None:
     """Files other tools write (docs/foreign-formats.md, docs/msl-format.md)."""
     p.add_argument("--mapping", metavar="MAPPING.json",
                    help="column mapping JSON: read every MEAS file as a table from other "
@@ -221,7 +223,7 @@ def add_foreign_args(p):
                         "--msl-kind measured (default: none; required then)")
 
 
-def add_data_args(p):
+def add_data_args(p: argparse.ArgumentParser) -> None:
     """The data files of every fitting command: this project's, or other tools'."""
     p.add_argument("meas", nargs="*", metavar="MEAS.csv", help=MEAS_HELP)
     p.add_argument("--setup", metavar="SETUP.json", help=SETUP_HELP)
@@ -229,7 +231,7 @@ def add_data_args(p):
     add_foreign_args(p)
 
 
-def add_fit_args(p, *, baseline=False):
+def add_fit_args(p: argparse.ArgumentParser, *, baseline: bool = False) -> None:
     add_data_args(p)
     if baseline:
         p.add_argument("--baseline", default="kinematic21", metavar="SPEC", type=_spec_arg,
@@ -254,7 +256,7 @@ def add_fit_args(p, *, baseline=False):
     add_outlier_args(p)
 
 
-def add_outlier_args(p):
+def add_outlier_args(p: argparse.ArgumentParser) -> None:
     """The outlier rule of the app and the analysis record (``analysis.
     DEFAULT_EXCLUDE_OUTLIERS``): flagged observations are listed, and kept unless asked."""
     p.add_argument("--exclude-outliers", action="store_true",
@@ -305,7 +307,8 @@ def _sigma_arg(text):
     return value
 
 
-def sigma_of(args, data, exclude, spec):
+def sigma_of(args: argparse.Namespace, data: Dataset | Observations, exclude: list,
+             spec: str) -> tuple[float, dict]:
     """``(σ µm, JSON record)``: the stated value, or the estimate for ``--sigma-um auto``."""
     if args.sigma_um != "auto":
         return args.sigma_um, {"value_um": args.sigma_um, "auto": False}
@@ -319,7 +322,8 @@ def sigma_of(args, data, exclude, spec):
     return est.value_um, {**est.to_dict(), "auto": True}
 
 
-def exclusions_of(data, exclude_flagged):
+def exclusions_of(data: Dataset | Observations, exclude_flagged: bool
+                  ) -> tuple[list, list]:
     if isinstance(data, Observations):  # instruments only: no plate, no plate outlier
         return [], []
     rep = detect_outliers(data)
@@ -328,7 +332,7 @@ def exclusions_of(data, exclude_flagged):
     return out, (rep.exclusions if exclude_flagged else [])
 
 
-def number_arg(kind, lo, hi, unit=""):
+def number_arg(kind: type, lo: float, hi: float, unit: str = "") -> Callable[[str], float]:
     """An argparse type: a ``kind`` (int or float) from ``lo`` to ``hi``, refused in one
     line with the range otherwise."""
     what = "a whole number" if kind is int else "a number"

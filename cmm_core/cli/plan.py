@@ -46,7 +46,7 @@ def _whole(lo, hi):
     return parse
 
 
-def add_plan_arguments(p) -> None:
+def add_plan_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``plan``."""
     p.add_argument("plan", metavar="PLAN.json",
                    help="measurement plan: setup (machine, placements, styli offsets in mm), "
@@ -73,7 +73,7 @@ def add_plan_arguments(p) -> None:
                         f"1 to {MAX_WORKERS} (default: %(default)s)")
 
 
-def run_plan(args) -> dict:
+def run_plan(args: argparse.Namespace) -> dict:
     """``plan``: evaluate every strategy; design and check when asked."""
 
     pf = read_plan(args.plan)
@@ -96,7 +96,7 @@ def run_plan(args) -> dict:
     return out
 
 
-def add_task_arguments(p) -> None:
+def add_task_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``task``."""
     p.add_argument("model", metavar="MODEL.json",
                    help="fitted model written by 'fit --save' (kinematic coefficients and "
@@ -114,7 +114,7 @@ def add_task_arguments(p) -> None:
                         "value, else 20000)")
 
 
-def run_task(args) -> dict:
+def run_task(args: argparse.Namespace) -> dict:
     """``task``: task-specific uncertainty of a measurement with the fitted machine."""
 
     model = load_model(args.model)

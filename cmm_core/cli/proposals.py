@@ -88,7 +88,7 @@ def _add_arguments(p) -> None:
                         "(docs/planning.md; default: not written)")
 
 
-def add_parser(subparsers) -> argparse.ArgumentParser:
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add the ``next`` sub-command to the sub-parsers of ``cli.build_parser``."""
     p = subparsers.add_parser(
         "next", help="propose the measurement that tells two rival effects apart")
@@ -97,7 +97,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def run(args) -> dict:
+def run(args: argparse.Namespace) -> dict:
     """``next``: rank candidate measurements; optionally simulate the best and write it
     as a plan file."""
     data = dataset_of(args)
