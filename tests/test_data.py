@@ -259,8 +259,15 @@ def _upload_app():
     return at
 
 
+def _sfx(at) -> str:
+    """The key suffix of the current upload fields: each load, accepted or refused, gives
+    the next upload empty fields under new keys."""
+    gen = at.session_state["upload_gen"] if "upload_gen" in at.session_state else 0
+    return "" if gen == 0 else f"_{gen}"
+
+
 def _upload(at, files):
-    at.file_uploader(key="up_meas").set_value(
+    at.file_uploader(key=f"up_meas{_sfx(at)}").set_value(
         [(n, t.encode(), "text/csv") for n, t in files])
     at.button(key="load_upload").click()
     at.run()
@@ -351,8 +358,9 @@ def test_the_data_page_takes_a_certificate_statement_for_a_certificate_without_u
     at.switch_page("pages/data.py")
     at.run()
 
-    def load(sfx, choice, a=0.0, b=0.0):
-        """Upload the three kinds of file (widget keys of upload generation ``sfx``)."""
+    def load(choice, a=0.0, b=0.0):
+        """Upload the three kinds of file (widget keys of the current upload generation)."""
+        sfx = _sfx(at)
         at.file_uploader(key=f"up_meas{sfx}").set_value(meas)
         at.file_uploader(key=f"up_setup{sfx}").set_value(setup)
         at.file_uploader(key=f"up_cert{sfx}").set_value(cert)
@@ -365,12 +373,12 @@ def test_the_data_page_takes_a_certificate_statement_for_a_certificate_without_u
         at.run()
         assert not at.exception
 
-    load("", 0)  # as the file or setup states it: neither does
+    load(0)  # as the file or setup states it: neither does
     assert "gives no uncertainty" in " ".join(_problem_table(at)["problem"])
-    load("", 2)  # exact
+    load(2)  # exact (the refusal above emptied the fields: new keys)
     assert _problem_table(at) is None and not at.error
     assert json.loads(at.session_state["ds_files"]["setup"])["certificate"]["exact"] is True
-    load("_1", 1, 0.26, 0.0019)  # the fields of the next upload generation
+    load(1, 0.26, 0.0019)  # the fields of the next upload generation
     assert _problem_table(at) is None and not at.error
     files = at.session_state["ds_files"]
     ds = load_dataset([(io.StringIO(t), n) for n, t in files["measurements"]],
