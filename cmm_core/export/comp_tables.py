@@ -27,6 +27,7 @@ from datetime import UTC, datetime
 
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike
 
 from .. import __version__
 from ..io import DataError
@@ -128,9 +129,10 @@ def _refuse_undetermined(model: Model) -> None:
                         column="undetermined", hint="measure more placements and refit.")
 
 
-def compensation_grid(obj: Model | FitResult, step_mm=100.0, *, probe: str | None = None,
-                      allow_undetermined: bool = False, lower_mm=None,
-                      upper_mm=None) -> pd.DataFrame:
+def compensation_grid(obj: Model | FitResult, step_mm: float | ArrayLike = 100.0, *,
+                      probe: str | None = None, allow_undetermined: bool = False,
+                      lower_mm: ArrayLike | None = None,
+                      upper_mm: ArrayLike | None = None) -> pd.DataFrame:
     """Correction and its standard uncertainty on a regular grid over the strokes.
 
     The one grid of the package: the app's error map (``export.error_map_grid``) is this

@@ -37,7 +37,14 @@ from ..io import (
     atomic_writer,
     read_json,
 )
-from ..io.delimited import file_rows, numeric_column, read_csv_text, require_columns, require_rows
+from ..io.delimited import (
+    FileSource,
+    file_rows,
+    numeric_column,
+    read_csv_text,
+    require_columns,
+    require_rows,
+)
 from ..io.errors import cut_repr
 from ..machine import DEFAULT_LAYOUT, LAYOUTS, KinematicTerms
 from ..machine import kinematics as kin
@@ -435,20 +442,20 @@ def extrapolation_note(m: Model, x_mm: np.ndarray) -> np.ndarray:
     return note
 
 
-def save_model(model: Model | FitResult, path) -> None:
+def save_model(model: Model | FitResult, path: str | os.PathLike) -> None:
     """Write a model JSON file (atomically: a reader never sees half of it, a failed
     write leaves an existing file as it was)."""
     atomic_write_text(path, json.dumps(model_to_dict(model), indent=1))
 
 
-def load_model(path) -> Model:
+def load_model(path: FileSource) -> Model:
     """Read a model JSON file (a path, or bytes / file-like as uploaded), every field
     checked (:func:`model_from_dict`)."""
     d, name = read_json(Path(path) if isinstance(path, str) else path)
     return model_from_dict(d, name=name)
 
 
-def read_points(source, *, name=None) -> pd.DataFrame:
+def read_points(source: FileSource, *, name: str | None = None) -> pd.DataFrame:
     """Read points to correct: ``x_mm,y_mm,z_mm`` and ``probe`` (plus any other columns),
     the whole file at once (at most :data:`cmm_core.io.MAX_BYTES`); :func:`compensate` with
     ``out`` streams a file of any size instead."""
@@ -487,8 +494,9 @@ def compensate(model: Model | FitResult, points: str | os.PathLike, *, out: str 
                allow_extrapolation: bool = True, chunk_points: int = _CHUNK_POINTS) -> dict: ...
 
 
-def compensate(model, points, *, out=None, allow_extrapolation=True,
-               chunk_points=_CHUNK_POINTS):
+def compensate(model: Model | FitResult, points: pd.DataFrame | str | os.PathLike, *,
+               out: str | os.PathLike | None = None, allow_extrapolation: bool = True,
+               chunk_points: int = _CHUNK_POINTS) -> pd.DataFrame | dict:
     """Corrected points ``xc_mm, yc_mm, zc_mm`` with standard uncertainties in µm.
 
     ``points`` needs ``x_mm, y_mm, z_mm`` (reported tip centres, machine frame) and a
@@ -537,6 +545,9 @@ def compensate(model, points, *, out=None, allow_extrapolation=True,
     m = model_from_result(model) if isinstance(model, FitResult) else model
     if out is not None:
         return _compensate_file(m, Path(points), out, allow_extrapolation, chunk_points)
+    if not isinstance(points, pd.DataFrame):
+        raise ValueError("points: expected a DataFrame (or a file path together with out=), "
+                         f"found {type(points).__name__}.")
     name = points.attrs.get("source", "points")
     r = _coordinates(points, name)
     _refuse_metres(m, float(np.abs(r).max()) if len(r) else 0.0, name)

@@ -40,12 +40,14 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from ..io import DataError, read_json
+from ..io import DataError, FileSource, read_json
 from .air import refractive_index_sensitivities
 from .evaluate import budget_from_dict
 from .framework import GumResult, gum_combine
@@ -123,13 +125,13 @@ def plate_lengths_mm(pitch_mm: float = PLATE_PITCH_MM, n: int = PLATE_BALLS_PER_
     return np.array(sorted(v)) * pitch_mm
 
 
-def cmm_uncertainty_um(length_mm) -> np.ndarray:
+def cmm_uncertainty_um(length_mm: ArrayLike) -> np.ndarray:
     """CMM uncertainty U(k=2) = sqrt(0.52² + (1.4e-3 L)²) µm (thesis §6.2, appendix 1)."""
     L = np.asarray(length_mm, float)
     return np.sqrt(0.52**2 + (1.4e-3 * L) ** 2)
 
 
-def plate_uncertainty_um(length_mm) -> np.ndarray:
+def plate_uncertainty_um(length_mm: ArrayLike) -> np.ndarray:
     """Ball-plate certificate uncertainty U(k=2) = sqrt(0.26² + (1.9e-3 L)²) µm (appendix 1)."""
     L = np.asarray(length_mm, float)
     return np.sqrt(0.26**2 + (1.9e-3 * L) ** 2)
@@ -375,7 +377,7 @@ class LengthDependence:
 
 
 def budget_vs_length(inputs: BallPlateBudgetInputs | dict | None = None,
-                     lengths_mm=None, *, coverage_probability: float = 0.95
+                     lengths_mm: ArrayLike | None = None, *, coverage_probability: float = 0.95
                      ) -> LengthDependence:
     """U(L) over the ball-to-ball lengths (default :func:`plate_lengths_mm`, 133-752 mm)."""
     base = ballplate_budget(inputs, coverage_probability=coverage_probability).inputs
@@ -416,7 +418,8 @@ def budget_spec_dict(budget: BallPlateBudget) -> dict:
             "monte_carlo_trials": 200000}
 
 
-def read_budget(source, *, name=None, progress=None) -> dict:
+def read_budget(source: FileSource, *, name: str | None = None,
+                progress: Callable[[float, str], object] | None = None) -> dict:
     """Read and evaluate a budget JSON file (the ``budget`` command's input).
 
     The file is read like every JSON input (UTF-8 byte-order mark tolerated; binary or

@@ -19,7 +19,7 @@ import errno
 import os
 import secrets
 import stat
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO
 
@@ -33,7 +33,7 @@ def _target(path) -> Path:
 
 
 @contextlib.contextmanager
-def atomic_writer(path, mode: str = "wb", encoding: str | None = None) -> Iterator[IO]:
+def atomic_writer(path: str | os.PathLike, mode: str = "wb", encoding: str | None = None) -> Iterator[IO]:
     """A file to write whose content replaces ``path`` when the ``with`` block ends
     without an exception: a temporary file in the same folder, fsync, ``os.replace``, so
     an output too large to hold in memory is written a piece at a time under the same
@@ -98,7 +98,7 @@ def atomic_writer(path, mode: str = "wb", encoding: str | None = None) -> Iterat
     _sync_folder(folder)
 
 
-def atomic_write_bytes(path, data: bytes) -> None:
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically (:func:`atomic_writer`): a temporary file in
     the same folder, fsync, ``os.replace``; on any failure an existing ``path`` is left
     untouched."""
@@ -106,7 +106,7 @@ def atomic_write_bytes(path, data: bytes) -> None:
         f.write(data)
 
 
-def atomic_write_text(path, text: str, encoding: str = "utf-8") -> None:
+def atomic_write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> None:
     """Write ``text`` to ``path`` atomically (:func:`atomic_write_bytes`), encoded as is:
     line ends are written as they are in ``text``."""
     atomic_write_bytes(path, text.encode(encoding))
@@ -136,7 +136,7 @@ def _same(a: Path, b: Path) -> bool:
     return os.path.normcase(os.path.realpath(a)) == os.path.normcase(os.path.realpath(b))
 
 
-def check_outputs(outputs: dict, inputs=(), *, folders: dict | None = None) -> None:
+def check_outputs(outputs: dict, inputs: Iterable = (), *, folders: dict | None = None) -> None:
     """Refuse outputs that would destroy an input or each other, before any work.
 
     Parameters

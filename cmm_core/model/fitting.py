@@ -15,7 +15,9 @@ determine, and those that they do not are named in the result.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -41,9 +43,11 @@ observation) and no other's."""
 
 @single_blas_thread
 def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, order: int = 2,
-        plate: str | None = None, sigma_um: float = 0.5, positions=None, probes=None,
-        exclude=(), rank_rtol: float = 1e-4, max_iter: int = 500, tol: float = 1e-9,
-        certificate_test: bool = True, nominal=None, instruments=None) -> FitResult:
+        plate: str | None = None, sigma_um: float = 0.5,
+        positions: Sequence[str] | None = None, probes: Sequence[str] | None = None,
+        exclude: Iterable[tuple[str, str, int]] = (), rank_rtol: float = 1e-4,
+        max_iter: int = 500, tol: float = 1e-9, certificate_test: bool = True,
+        nominal: Any = None, instruments: Sequence | None = None) -> FitResult:
     """Fit a model to ball-plate measurements by Gauss-Newton (thesis §4.5.1).
 
     Parameters

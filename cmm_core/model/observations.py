@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike
 
 from ..io import DataError, Dataset, Setup, refuse_unknown_keys
 from ..machine import DEFAULT_LAYOUT, LAYOUTS
@@ -214,7 +215,7 @@ def select(data: Dataset, *, positions: Iterable[str] | None = None,
                                        "no certificate: the plate is self-calibrated"))
 
 
-def instrument_observations(instruments: Iterable, range_mm, layout: str = DEFAULT_LAYOUT,
+def instrument_observations(instruments: Iterable, range_mm: ArrayLike, layout: str = DEFAULT_LAYOUT,
                         *, name: str = "setup") -> Observations:
     """Observations of an instrument-only fit: laser runs, step gauges or ball bars on a
     machine of strokes ``range_mm`` (mm) and ``layout``, with no ball-plate observation

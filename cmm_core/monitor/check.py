@@ -31,6 +31,7 @@ model file does not hold the certificate it was fitted with).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -196,7 +197,8 @@ class InterimCheck:
 
 @single_blas_thread
 def interim_check(model: Model, dataset: Dataset, *, sigma_um: float | None = None,
-                  alpha: float = 0.05, positions=None, probes=None) -> InterimCheck:
+                  alpha: float = 0.05, positions: Sequence[str] | None = None,
+                  probes: Sequence[str] | None = None) -> InterimCheck:
     """Test new ball-plate measurements against a stored calibration.
 
     Parameters
@@ -279,7 +281,8 @@ def _observation_table(sys: CheckSystem, res: np.ndarray, u: np.ndarray,
 
 @single_blas_thread
 def check_system(model: Model, dataset: Dataset, *, sigma_um: float | None = None,
-                 positions=None, probes=None) -> CheckSystem:
+                 positions: Sequence[str] | None = None,
+                 probes: Sequence[str] | None = None) -> CheckSystem:
     """The linear system of an interim check (module docstring), validated at the entry.
 
     Raises DataError (one line) as :func:`interim_check` says.

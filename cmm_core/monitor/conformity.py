@@ -23,6 +23,7 @@ import numpy as np
 
 from ..export import Model
 from ..gum import MpeResult, conformity_uncertainty_um, mpe_check
+from ..io import DataError, Dataset
 from .changes import Changes, what_changed
 from .check import InterimCheck
 
@@ -68,7 +69,7 @@ RULE = ("ISO 14253-1 with the test's expanded uncertainty U (k = 2) as guard ban
         "inconclusive otherwise")
 
 
-def conformity(model: Model, check: InterimCheck, dataset, *, mpe_a_um: float = 0.6,
+def conformity(model: Model, check: InterimCheck, dataset: Dataset, *, mpe_a_um: float = 0.6,
                mpe_per_mm: float = 1.0 / 600.0, changes: Changes | None = None) -> Conformity:
     """The machine's conformity to ``MPE = a + L·per_mm`` from an interim check's data.
 
@@ -92,6 +93,9 @@ def conformity(model: Model, check: InterimCheck, dataset, *, mpe_a_um: float = 
     """
     changes = what_changed(model, check) if changes is None else changes
     cert = dataset.certificate
+    if cert is None:  # the interim check refuses such data already; a direct call too
+        raise DataError("a conformity statement needs the plate's certificate; found none.",
+                        file=dataset.name, hint="load the certificate with the data.")
     n = int(round(np.sqrt(len(cert.balls))))
     mpe = None
     if n * n == len(cert.balls) and n >= 2:

@@ -14,6 +14,7 @@ diag(J₂V₂J₂ᵀ))`` (JCGM 100 eq. 13 for each model).
 from __future__ import annotations
 
 import datetime as dt
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -88,7 +89,7 @@ class History:
 
 
 @single_blas_thread
-def compare_calibrations(models_with_dates, *, family_alpha: float = 0.05,
+def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, family_alpha: float = 0.05,
                          nodes_per_axis: int = 5) -> History:
     """Every shared parameter's change between consecutive calibrations of one machine.
 
