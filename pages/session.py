@@ -169,10 +169,9 @@ def session_fingerprint() -> str:
     """A cheap hash of everything the saved analysis holds (the record's inputs), so it is
     written only when one of them changed."""
     s = st.session_state
-    keys = ("ds_key", "instruments_key", "spec", "order", "plate", "sigma_um", "positions",
-            "probes", "exclusions", "history", "diag_on", "magnification",
-            "exclude_outliers", "w_mpe_u", "w_u_npts", "w_u_seed", "w_gp_kernel",
-            "w_gp_mean", "w_report_gp")
+    # the files by their keys, then every key session_record reads
+    keys = ("ds_key", "instruments_key", *SESSION_CHOICES.values(), "w_gp_mean",
+            "w_report_gp")
     return hashlib.sha1(repr([s.get(k) for k in keys]).encode()).hexdigest()
 
 

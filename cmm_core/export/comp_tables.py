@@ -32,10 +32,9 @@ from numpy.typing import ArrayLike
 from .. import __version__
 from ..io import DataError
 from ..machine import AXES, split_chain
-from ..model import BY_TOKEN, CHI2_ALPHA, FitResult
+from ..model import BY_TOKEN, CHI2_ALPHA, FitResult, covariance_factor
 from .correction import (
     Model,
-    _Factor,
     _propagated,
     _refuse_non_finite,
     extrapolation_note,
@@ -184,7 +183,7 @@ def compensation_grid(obj: Model | FitResult, step_mm: float | ArrayLike = 100.0
                          f"step of about {math.ceil(hint):d} mm or more, or a smaller box.")
     Z, Y, X = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
     x = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
-    e, u = _propagated(m, _Factor.of(m, joint=False), x, np.broadcast_to(p, x.shape))
+    e, u = _propagated(m, covariance_factor(m.cov), x, np.broadcast_to(p, x.shape))
     _refuse_non_finite(m, None, e, u, m.name)
     if m.undetermined:
         u[:] = np.nan

@@ -48,7 +48,15 @@ from ..io.delimited import (
 from ..io.errors import cut_repr
 from ..machine import DEFAULT_LAYOUT, LAYOUTS, KinematicTerms
 from ..machine import kinematics as kin
-from ..model import MAX_ORDER, REGISTRY, FitResult, checked_cov, parse_spec
+from ..model import (
+    MAX_ORDER,
+    REGISTRY,
+    FitResult,
+    checked_cov,
+    covariance_factor,
+    parse_spec,
+    propagate_error,
+)
 from ..units import UM
 
 COMPENSATING = tuple(b for b in REGISTRY if b.model_keys)
@@ -551,50 +559,28 @@ def compensate(model: Model | FitResult, points: pd.DataFrame | str | os.PathLik
     name = points.attrs.get("source", "points")
     r = _coordinates(points, name)
     _refuse_metres(m, float(np.abs(r).max()) if len(r) else 0.0, name)
-    return _corrected(m, _Factor.of(m), points, r, name, chunk_points)
+    return _corrected(m, covariance_factor(m.joint_cov), points, r, name, chunk_points)
 
 
-@dataclass(frozen=True)
-class _Factor:
-    """A factor ``L`` of the model's joint covariance, ``V = L Lᵀ``: the uncertainty of
-    a correction is then the norm of ``J L`` per coordinate, one matrix product per
-    chunk (``diag(J V Jᵀ)`` term by term costs k² per coordinate)."""
-
-    L: np.ndarray
-    """(k, k) factor (eigen-decomposition, so that a semi-definite V has one too)."""
-
-    @staticmethod
-    def of(m: Model, joint: bool = True) -> _Factor:
-        """The factor of ``m.joint_cov`` (of ``m.cov``, the kinematic coefficients',
-        when not ``joint``)."""
-        V = m.joint_cov if joint else m.cov
-        w, Q = np.linalg.eigh((V + V.T) / 2)
-        return _Factor(Q * np.sqrt(np.clip(w, 0, None)))
-
-
-def _propagated(m: Model, factor: _Factor, x: np.ndarray, p: np.ndarray,
+def _propagated(m: Model, L: np.ndarray, x: np.ndarray, p: np.ndarray,
                 extra_jac: list | None = None, chunk_points: int = _CHUNK_POINTS
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Kinematic error ``e(x, p)`` (µm, thesis eq. 4.13) at scale readings ``x`` with
-    offsets ``p`` (mm), and the standard uncertainty of ``e`` plus the linear terms whose
-    Jacobians (µm per unit, (m, 3, k) each) ``extra_jac`` holds: ``u² = diag(J V Jᵀ)``
-    (JCGM 100 eq. 13) as the squared row norms of ``J L``, ``chunk_points`` points at a
-    time (the memory of one chunk's Jacobian)."""
+    """Kinematic error ``e(x, p)`` (µm) at scale readings ``x`` with offsets ``p`` (mm)
+    and its standard uncertainty with the linear terms whose Jacobians (µm per unit,
+    (m, 3, k) each) ``extra_jac`` holds (:func:`cmm_core.model.propagate_error` with the
+    covariance's factor ``L``, :func:`cmm_core.model.covariance_factor` of
+    ``m.joint_cov``, computed once per model), ``chunk_points`` points at a time (the
+    memory of one chunk's Jacobian)."""
     e_um = np.empty_like(x)
     u = np.empty_like(x)
     step = max(int(chunk_points), 1)
     for a in range(0, len(x), step):
         s = slice(a, a + step)
         with np.errstate(over="ignore", invalid="ignore"):  # refused after, one line
-            xs, J = kin.jacobian(m.terms, m.coef, x[s], p[s])
-        e_um[s] = (xs - x[s] - p[s]) / UM  # as propagate_error: the same doubles
-        J = J / UM
-        if extra_jac:
-            # each part enters linearly: its Jacobian columns follow the kinematic ones
-            J = np.concatenate([J, *(j[s] for j in extra_jac)], axis=2)
-        with np.errstate(over="ignore", invalid="ignore"):
-            JL = J.reshape(-1, J.shape[2]) @ factor.L
-            u[s] = np.sqrt(np.einsum("ij,ij->i", JL, JL)).reshape(-1, 3)
+            e_um[s], u[s] = propagate_error(
+                m.terms, m.coef, None, x[s], p[s],
+                np.concatenate([j[s] for j in extra_jac], axis=2) if extra_jac else None,
+                factor=L)
     return e_um, u
 
 
@@ -639,7 +625,7 @@ def _probe_offsets(m: Model, points: pd.DataFrame, name: str) -> np.ndarray:
     return table[inverse.ravel()]
 
 
-def _corrected(m: Model, factor: _Factor, points: pd.DataFrame, r: np.ndarray, name: str,
+def _corrected(m: Model, factor: np.ndarray, points: pd.DataFrame, r: np.ndarray, name: str,
                chunk_points: int) -> pd.DataFrame:
     """:func:`compensate` of a table whose coordinates ``r`` are checked."""
     p = _probe_offsets(m, points, name)
@@ -688,7 +674,7 @@ def _compensate_file(m: Model, path: Path, out, allow_extrapolation: bool,
                      chunk_points: int) -> dict:
     """:func:`compensate` of the points file ``path`` streamed to ``out``."""
     name = path.name
-    factor = _Factor.of(m)
+    factor = covariance_factor(m.joint_cov)
     whole = "backlash" in m.parts  # directions follow the order over the whole file
     tables = iter([read_points(path)]) if whole else _point_chunks(path, name, chunk_points)
     n, n_off, first_off, max_abs, max_corr = 0, 0, None, 0.0, 0.0

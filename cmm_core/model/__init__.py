@@ -93,6 +93,7 @@ from .state import State
 from .uncertainty import (
     UncertaintySummary,
     aligned_error_u,
+    covariance_factor,
     error_at,
     error_covariance,
     evaluate,
@@ -116,6 +117,7 @@ __all__ = [
     "measured_normal", "MIN_BAR_MM", "ModelSpec", "monte_carlo_error", "needs", "Normal",
     "normal_equations", "NormalEquations", "Observations", "OFFSET_COLUMNS", "parse_spec",
     "PERIOD_SCAN", "PERIODIC", "PHYSICAL", "Plate", "PLATE_MODES", "Problem", "propagate_error",
+    "covariance_factor",
     "RANGE_MARGIN", "read_ball_bar", "read_instrument", "read_laser", "read_step_gauge",
     "REGISTRY", "residual_u", "residual_u_um", "residuals_frame", "rigid_body_projector",
     "rigid_removed_error_u", "ROUNDING", "ROWS", "rows_of", "select", "setup_layout",

@@ -67,23 +67,37 @@ def _probe_vector(result: FitResult, probe):
     return p
 
 
-def propagate_error(terms: KinematicTerms, coef: np.ndarray, cov: np.ndarray,
-                x_mm: np.ndarray, p_mm: np.ndarray, extra_jac: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Error ``e(x, p)`` (µm) and its standard uncertainty ``sqrt(diag(J V Jᵀ))`` per
-    component, J the analytic Jacobian of the error with respect to the coefficients.
+def covariance_factor(cov: np.ndarray) -> np.ndarray:
+    """A factor ``L`` of a covariance, ``V = L Lᵀ`` (eigen-decomposition, so that a
+    semi-definite V has one too): :func:`propagate_error` takes it to propagate many
+    points without factoring V again."""
+    w, Q = np.linalg.eigh((cov + cov.T) / 2)
+    return Q * np.sqrt(np.clip(w, 0, None))
+
+
+def propagate_error(terms: KinematicTerms, coef: np.ndarray, cov: np.ndarray | None,
+                    x_mm: np.ndarray, p_mm: np.ndarray, extra_jac: np.ndarray | None = None,
+                    *, factor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Error ``e(x, p)`` (µm, thesis eq. 4.13) and its standard uncertainty
+    ``sqrt(diag(J V Jᵀ))`` per component (JCGM 100 eq. 13), J the analytic Jacobian of
+    the error with respect to the coefficients, computed as the row norms of ``J L``
+    (``V = L Lᵀ``, :func:`covariance_factor`; ``factor`` when the caller has it, else
+    from ``cov``): one matrix product, where ``diag(J V Jᵀ)`` term by term costs k² per
+    coordinate.
 
     ``extra_jac`` (m, 3, k) appends the sensitivities of further linear terms (the
     compensation parts of effect blocks: backlash spans, scale expansion coefficients)
-    whose coefficients follow the kinematic ones in ``cov``; their contribution to ``e``
-    is the caller's.
+    whose coefficients follow the kinematic ones in the covariance; their contribution to
+    ``e`` is the caller's.
     """
     xs, J = kin.jacobian(terms, coef, x_mm, p_mm)
     e = (xs - x_mm - p_mm) / UM
     Je = J / UM
     if extra_jac is not None:
         Je = np.concatenate([Je, extra_jac], axis=2)
-    u = np.sqrt(np.clip(np.einsum("mik,kl,mil->mi", Je, cov, Je), 0, None))
+    L = covariance_factor(np.asarray(cov, float)) if factor is None else factor
+    JL = Je.reshape(-1, Je.shape[2]) @ L
+    u = np.sqrt(np.einsum("ij,ij->i", JL, JL)).reshape(-1, 3)
     return e, u
 
 
