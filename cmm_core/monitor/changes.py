@@ -123,7 +123,7 @@ def what_changed(model: Model, check: InterimCheck, *,
     SiA = linalg.cho_solve(g.factor, sys.A)
     SiJ = linalg.cho_solve(g.factor, sys.J)
     M = sys.A.T @ SiA
-    PiJ = SiJ - SiA @ np.linalg.solve(M, sys.A.T @ SiJ)  # Π J
+    PiJ = SiJ - SiA @ np.linalg.solve(M, sys.A.T @ SiJ) if M.size else SiJ  # Π J
     H = sys.J.T @ PiJ  # Jᵀ Π J
     H = (H + H.T) / 2
     # the stored model corrects with c; the machine now has c + δ: d = -J δ + A β + ε

@@ -32,7 +32,7 @@ model file does not hold the certificate it was fitted with).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -43,7 +43,7 @@ from ..export import Model
 from ..io import DataError, Dataset, range_tolerance
 from ..machine import kinematics as kin
 from ..machine import rigid_fit
-from ..model import Observations, select
+from ..model import Observations, instrument_observations, select
 from ..units import UM
 
 MAX_OBSERVATIONS = 1500
@@ -79,6 +79,11 @@ class CheckSystem:
         Scale readings of the observations (reported tip minus the nominal offset).
     sigma_um : float
         σ of one probed coordinate used for the new data.
+    n_plate_rows : int
+        The first ``n_plate_rows`` (``3n``) rows are the plate's; the rest the instruments'.
+    instrument_rows : tuple
+        ``(instrument, start, stop)`` per instrument: its rows ``start:stop`` of ``d_um``
+        (weighted by ``1/u``, nuisances eliminated: unit noise covariance).
     """
 
     obs: Observations
@@ -89,6 +94,13 @@ class CheckSystem:
     cov: np.ndarray
     x_mm: np.ndarray
     sigma_um: float
+    n_plate_rows: int = -1
+    instrument_rows: tuple = ()
+
+    @property
+    def n_plate(self) -> int:
+        """Number of plate rows (all rows for a system built before instruments)."""
+        return len(self.d_um) if self.n_plate_rows < 0 else self.n_plate_rows
 
 
 @dataclass(frozen=True)
@@ -159,6 +171,9 @@ class InterimCheck:
         The linear system (for :func:`what_changed`).
     gls : GlsFit
         The pose fit (for :func:`what_changed`).
+    instruments : DataFrame
+        One row per instrument of the check: ``kind``, ``file``, ``rows`` (its weighted,
+        nuisance-free rows), ``rms_En`` and ``max_abs_En`` of those rows; empty without.
     """
 
     status: str
@@ -175,6 +190,7 @@ class InterimCheck:
     outside_region: int
     system: CheckSystem
     gls: GlsFit
+    instruments: pd.DataFrame = field(default_factory=pd.DataFrame)
 
     @property
     def passes(self) -> bool:
@@ -192,28 +208,34 @@ class InterimCheck:
                 "sigma_um": self.sigma_um, "outside_region": self.outside_region,
                 "largest_En": [{"position": str(r.position), "probe": str(r.probe),
                                 "ball": int(r.ball), "En": float(r.En)}
-                               for r in worst.itertuples()]}
+                               for r in worst.itertuples()],
+                "instruments": self.instruments.to_dict("records")}
 
 
 @single_blas_thread
-def interim_check(model: Model, dataset: Dataset, *, sigma_um: float | None = None,
+def interim_check(model: Model, dataset: Dataset | None, *, sigma_um: float | None = None,
                   alpha: float = 0.05, positions: Sequence[str] | None = None,
-                  probes: Sequence[str] | None = None) -> InterimCheck:
-    """Test new ball-plate measurements against a stored calibration.
+                  probes: Sequence[str] | None = None,
+                  instruments: Sequence = ()) -> InterimCheck:
+    """Test new measurements against a stored calibration.
 
     Parameters
     ----------
     model : Model
         The stored calibration (``export.load_model``), kinematic terms with covariance.
-    dataset : Dataset
-        New measurements with their setup and the plate's certificate; one placement is
-        enough.
+    dataset : Dataset or None
+        New ball-plate measurements with their setup and the plate's certificate; one
+        placement is enough. None: the instruments alone are the check.
     sigma_um : float, optional
         Repeatability of one probed coordinate (µm); default the stored model's σ.
     alpha : float
         False-alarm level of the χ² test (0 < alpha < 0.5).
     positions, probes : list of str, optional
         Subsets of the new data to use (default all).
+    instruments : sequence, optional
+        Laser runs, step gauges or ball bars (``model.read_instrument``) measured on the
+        same machine: their rows join the test with their own u (a partial check: a ball
+        bar in a few orientations, a step gauge along one axis, a laser run).
 
     Returns
     -------
@@ -225,32 +247,40 @@ def interim_check(model: Model, dataset: Dataset, *, sigma_um: float | None = No
         One line naming the model or data file when they cannot be compared: another
         machine layout or strokes, a stylus the model does not know, no certificate, a
         hole plate, a model with effect parts this check does not propagate, an
-        undetermined model, too many observations.
+        undetermined model, too many observations, an instrument point off the strokes.
     """
     if not 0 < alpha < 0.5:
         raise ValueError(f"alpha must be in (0, 0.5), got {alpha}.")
     sys = check_system(model, dataset, sigma_um=sigma_um, positions=positions,
-                       probes=probes)
+                       probes=probes, instruments=instruments)
     g = gls_fit(sys)
-    n = len(sys.obs.r_mm)
+    n, m = len(sys.obs.r_mm), sys.n_plate
     u = np.sqrt(np.clip(g.residual_cov_diag, 0, None))
     En = g.residual_um / u
     p_value = float(stats.chi2.sf(g.chi2, g.dof))
     status = "passes" if p_value >= alpha else "fails"
-    table = _observation_table(sys, g.residual_um, u, En)
+    table = _observation_table(sys, g.residual_um[:m], u[:m], En[:m])
+    inst = _instrument_table(sys, En)
     lo, hi = (np.asarray(model.summary.get("region_mm", [[-np.inf] * 3, [np.inf] * 3]), float))
     outside = int((~((sys.x_mm >= lo - 1.0) & (sys.x_mm <= hi + 1.0)).all(axis=1)).sum())
     worst = int(np.argmax(np.abs(En)))
-    row = table.iloc[worst // 3]
+    what = [f"{n} ball centres, {len(sys.obs.positions)} placement(s), poses fitted"] \
+        if n else []
+    what += [f"{it.kind} {it.source} ({stop - start} row(s))"
+             for it, start, stop in sys.instrument_rows]
+    if worst < m:
+        row = table.iloc[worst // 3]
+        where = (f"{'xyz'[worst % 3]} of ball {int(row.ball)}, {row.position}/{row.probe}")
+    else:
+        it, start, _ = next(r for r in sys.instrument_rows if r[1] <= worst < r[2])
+        where = f"row {worst - start + 1} of {it.kind} {it.source}"
     msg = (f"Interim check against {model.name}: χ² = {g.chi2:.1f} on {g.dof} degrees of "
-           f"freedom ({n} ball centres, {len(sys.obs.positions)} placement(s), poses "
-           f"fitted), p = {p_value:.3g}: the machine "
+           f"freedom ({'; '.join(what)}), p = {p_value:.3g}: the machine "
            + ("behaves as the stored model predicts" if status == "passes" else
               "no longer behaves as the stored model predicts")
            + f" at the {100 * alpha:g} % level. Largest |E_n| = {abs(En[worst]):.2f} "
-           f"({'xyz'[worst % 3]} of ball {int(row.ball)}, {row.position}/{row.probe}); "
-           f"{100 * np.mean(np.abs(En) <= 1.96):.1f} % of the components lie within their "
-           "95 % intervals.")
+           f"({where}); {100 * np.mean(np.abs(En) <= 1.96):.1f} % of the components lie "
+           "within their 95 % intervals.")
     if model.summary.get("fails_chi2_test"):
         msg += (f" The stored model failed its own χ² test (Birge ratio "
                 f"{float(model.summary.get('birge_ratio', float('nan'))):.2f}): its σ "
@@ -260,8 +290,18 @@ def interim_check(model: Model, dataset: Dataset, *, sigma_um: float | None = No
         msg += (f" {outside} observation(s) lie outside the region the model was fitted in "
                 "(its predictions there are extrapolated).")
     return InterimCheck(status, msg, float(g.chi2), int(g.dof), p_value, float(alpha),
-                        model.name, list(sys.obs.positions), table,
-                        float(np.mean(np.abs(En) <= 1.96)), sys.sigma_um, outside, sys, g)
+                        model.name, list(sys.obs.positions) if n else [], table,
+                        float(np.mean(np.abs(En) <= 1.96)), sys.sigma_um, outside, sys, g,
+                        inst)
+
+
+def _instrument_table(sys: CheckSystem, En: np.ndarray) -> pd.DataFrame:
+    """One row per instrument of the check: its rows and their normalised errors."""
+    return pd.DataFrame([{"kind": it.kind, "file": it.source, "rows": stop - start,
+                          "rms_En": float(np.sqrt(np.mean(En[start:stop] ** 2))),
+                          "max_abs_En": float(np.max(np.abs(En[start:stop])))}
+                         for it, start, stop in sys.instrument_rows],
+                        columns=["kind", "file", "rows", "rms_En", "max_abs_En"])
 
 
 def _observation_table(sys: CheckSystem, res: np.ndarray, u: np.ndarray,
@@ -280,20 +320,60 @@ def _observation_table(sys: CheckSystem, res: np.ndarray, u: np.ndarray,
 
 
 @single_blas_thread
-def check_system(model: Model, dataset: Dataset, *, sigma_um: float | None = None,
+def check_system(model: Model, dataset: Dataset | None, *, sigma_um: float | None = None,
                  positions: Sequence[str] | None = None,
-                 probes: Sequence[str] | None = None) -> CheckSystem:
+                 probes: Sequence[str] | None = None,
+                 instruments: Sequence = ()) -> CheckSystem:
     """The linear system of an interim check (module docstring), validated at the entry.
 
-    Raises DataError (one line) as :func:`interim_check` says.
+    ``instruments`` (laser runs, step gauges, ball bars as ``model.read_instrument`` gives
+    them) add their nuisance-free weighted rows (``model.instruments``: ``T (pred −
+    measured)``, unit covariance) below the plate's; with ``dataset`` None they are the
+    whole check. Raises DataError (one line) as :func:`interim_check` says.
     """
-    obs = select(dataset, positions=positions, probes=probes)
-    name = dataset.name
-    _refuse_incomparable(model, obs, name)
+    items = tuple(instruments)
+    if dataset is None:
+        if not items:
+            raise DataError("no measurements and no instrument files: nothing to check.",
+                            file=model.name, hint="give ball-plate data or instrument files.")
+        obs = instrument_observations(items, model.terms.range_mm, model.terms.layout,
+                                      name=model.name)
+        name = items[0].source
+        _refuse_model(model)
+    else:
+        obs = select(dataset, positions=positions, probes=probes)
+        name = dataset.name
+        _refuse_incomparable(model, obs, name)
+    _refuse_instruments_off_strokes(model, items)
     sigma = float(model.summary.get("sigma_um", 0.5) if sigma_um is None else sigma_um)
     if not (np.isfinite(sigma) and sigma > 0):
         raise DataError(f"σ must be a positive number of µm, found {sigma}.", file=model.name,
                         column="summary.sigma_um", hint="give sigma_um.")
+    n, P = len(obs.r_mm), len(obs.positions) if len(obs.r_mm) else 0
+    k = len(model.coef)
+    x = obs.r_mm - obs.p_mm if n else np.zeros((0, 3))
+    d = np.zeros(0)
+    J = np.zeros((0, k))
+    A = np.zeros((0, 6 * P))
+    noise = np.zeros((0, 0))
+    if n:
+        d, A, J, noise = _plate_rows(model, obs, sigma)
+    rows = []
+    for it in items:  # the instruments' rows: whitened, their nuisances eliminated
+        r_it, Jp = it.predict(model.terms, model.coef, True)
+        T = it.transform[0]
+        y, G = np.asarray(T @ r_it, float), np.asarray(T @ Jp, float)
+        rows.append((it, len(d), len(d) + len(y)))
+        d = np.concatenate([d, y])
+        J = np.vstack([J, G])
+        A = np.vstack([A, np.zeros((len(y), A.shape[1]))])
+        noise = linalg.block_diag(noise, np.eye(len(y)))
+    cov = noise + J @ model.cov @ J.T
+    return CheckSystem(obs, d, A, J, noise, cov, x, sigma, 3 * n, tuple(rows))
+
+
+def _plate_rows(model: Model, obs: Observations, sigma: float) -> tuple:
+    """``(d, A, J, noise)`` of the plate's observations (module docstring)."""
     p = np.array([model.probes_mm[q] for q in obs.probes], float)[obs.probe]
     # as the fit's model (fitting.py): scale readings from the nominal offsets the CMM
     # reported with, the tip from the model's effective offsets (a fitted offset error
@@ -326,8 +406,22 @@ def check_system(model: Model, dataset: Dataset, *, sigma_um: float | None = Non
         for row, b in enumerate(obs.ball):
             K[3 * row:3 * row + 3, 3 * b:3 * b + 3] = R[row]
         noise += (K * (obs.cert_u_um.ravel() ** 2)) @ K.T
-    cov = noise + J @ model.cov @ J.T
-    return CheckSystem(obs, d, A, J, noise, cov, x, sigma)
+    return d, A, J, noise
+
+
+def _refuse_instruments_off_strokes(model: Model, items: tuple) -> None:
+    """One-line DataError for an instrument point outside the model's strokes."""
+    rng_model = np.asarray(model.terms.range_mm, float)
+    tol = range_tolerance(rng_model)
+    for it in items:
+        for xi, _ in it.points():
+            bad = ((xi < -tol) | (xi > rng_model + tol)).any(axis=1)
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                raise DataError(f"scale reading {np.round(xi[i], 1).tolist()} mm is outside "
+                                f"the model's strokes {rng_model.tolist()} mm.",
+                                file=it.source, row=int(it.rows[i]), column="x_mm",
+                                hint="check the units and the machine.")
 
 
 def _cross_matrix(v: np.ndarray) -> np.ndarray:
@@ -339,12 +433,16 @@ def _cross_matrix(v: np.ndarray) -> np.ndarray:
 def gls_fit(sys: CheckSystem) -> GlsFit:
     """The poses by generalised least squares with the system's full covariance."""
     factor = linalg.cho_factor(sys.cov, lower=True)
-    SiA = linalg.cho_solve(factor, sys.A)
-    M = sys.A.T @ SiA
-    beta = np.linalg.solve(M, SiA.T @ sys.d_um)
-    res = sys.d_um - sys.A @ beta
+    if sys.A.shape[1] == 0:  # instruments alone: no pose
+        beta, res = np.zeros(0), sys.d_um.copy()
+        lev = np.zeros(len(res))
+    else:
+        SiA = linalg.cho_solve(factor, sys.A)
+        M = sys.A.T @ SiA
+        beta = np.linalg.solve(M, SiA.T @ sys.d_um)
+        res = sys.d_um - sys.A @ beta
+        lev = np.einsum("ij,ij->i", sys.A @ np.linalg.inv(M), sys.A)
     chi2 = float(res @ linalg.cho_solve(factor, res))
-    lev = np.einsum("ij,ij->i", sys.A @ np.linalg.inv(M), sys.A)
     dof = sys.A.shape[0] - sys.A.shape[1]
     return GlsFit(factor, res, np.diag(sys.cov) - lev, chi2, int(dof), beta)
 
@@ -361,6 +459,15 @@ def _refuse_incomparable(model: Model, obs: Observations, name: str) -> None:
                         f"has {np.asarray(obs.range_mm).tolist()} mm.", file=name,
                         column="machine.range_mm",
                         hint="check the new data against a model of the same machine.")
+    _refuse_model(model)
+    if getattr(obs, "artefact", "ball_plate") != "ball_plate":
+        raise DataError(f"the check takes ball-plate data; the setup's artefact is "
+                        f"{obs.artefact}.", file=name, column="artefact")
+    _refuse_plate_data(model, obs, name)
+
+
+def _refuse_model(model: Model) -> None:
+    """One-line DataErrors for a stored model the check cannot propagate."""
     if model.parts:
         raise DataError(f"the model {model.name} has {', '.join(model.parts)}, which the "
                         "interim check does not propagate yet; expected a kinematic model "
@@ -371,9 +478,11 @@ def _refuse_incomparable(model: Model, obs: Observations, name: str) -> None:
                         "its predictions have no uncertainty to test against.",
                         file=model.name, column="undetermined",
                         hint="check against a fully determined calibration.")
-    if getattr(obs, "artefact", "ball_plate") != "ball_plate":
-        raise DataError(f"the check takes ball-plate data; the setup's artefact is "
-                        f"{obs.artefact}.", file=name, column="artefact")
+
+
+def _refuse_plate_data(model: Model, obs: Observations, name: str) -> None:
+    """One-line DataErrors for plate data the stored model cannot predict."""
+    rng_model = np.asarray(model.terms.range_mm, float)
     if not obs.has_certificate:
         raise DataError("the interim check needs the plate's certificate (the balls' "
                         "calibrated positions); none was given.", file=name,
