@@ -10,6 +10,8 @@ limits the threads of the already-loaded BLAS; without it this is a no-op.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
+from typing import Any
 
 try:
     from threadpoolctl import threadpool_limits
@@ -19,8 +21,12 @@ except ImportError:  # pragma: no cover - threadpoolctl is in requirements.txt
 __all__ = ["single_blas_thread"]
 
 
-def single_blas_thread(func):
-    """Decorator: run ``func`` with BLAS limited to one thread (nested calls are cheap)."""
+def single_blas_thread(func: Callable[..., Any]) -> Any:
+    """Decorator: run ``func`` with BLAS limited to one thread (nested calls are cheap).
+
+    Typed as returning ``Any``: callers reach the undecorated function through
+    ``__wrapped__`` (which ``Callable`` does not declare).
+    """
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):

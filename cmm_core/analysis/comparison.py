@@ -13,6 +13,7 @@ else that shows this comparison, reads :class:`ModelComparison` rather than reco
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -233,7 +234,7 @@ def placement_plane_grid(result: Any, position: str, kinematic_um: ArrayLike,
 
 
 def coverage_reasons(coverage_pct: float, z_loo: ArrayLike, meta: pd.DataFrame,
-                     noise_by_probe: ArrayLike | None = None, probe_names=(),
+                     noise_by_probe: ArrayLike | None = None, probe_names: Sequence[str] = (),
                      several_probes: bool = False, degenerate: bool = False) -> list[str]:
     """Why a GP's leave-one-out 95 % coverage is off 95 %, in sentences driven by the
     numbers: the standardised leave-one-out errors ``z_loo`` (one per point, rows of

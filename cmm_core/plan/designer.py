@@ -334,7 +334,8 @@ def figures(ev: PlanEvaluation, target: dict) -> dict:
             "U3_um": max(ev.U3_um.values()) if ev.U3_um else np.inf, "detect": det}
 
 
-def random_plans(pm: PoolModel, target: dict, n: int, rng) -> list:
+def random_plans(pm: PoolModel, target: dict, n: int,
+                 rng: np.random.Generator) -> list:
     """``n`` random plans of the pool meeting the target: units in random order, added
     until the target is met (the fast figures)."""
     out: list[list[int]] = []

@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from ..diagnosis import FAMILY_ALPHA
-from ..io import DataError, read_json, read_setup, refuse_unknown_keys
+from ..io import DataError, Setup, read_json, read_setup, refuse_unknown_keys
 from ..io.errors import cut_repr
 from ..model import MAX_ORDER, PLATE_MODES, parse_spec
-from .designer import design
+from .designer import DesignResult, design
 from .evaluation import evaluate
 from .plans import Plan, _build
 
@@ -166,7 +166,8 @@ def _plan_model(raw, name):
     return model
 
 
-def read_plan(source, *, name: str | None = None, base_dir=None) -> PlanFile:
+def read_plan(source: str | Path | bytes | dict, *, name: str | None = None,
+              base_dir: str | Path | None = None) -> PlanFile:
     """Read a plan file (path, JSON text, bytes or an already parsed dict) and check it.
 
     A ``setup`` given as a file name is read relative to the plan file (or to
@@ -229,7 +230,8 @@ def read_plan(source, *, name: str | None = None, base_dir=None) -> PlanFile:
     return PlanFile(strategies, base, design, name)
 
 
-def units_of(spec, setup, defaults, name, column) -> dict:
+def units_of(spec: list | dict, setup: Setup, defaults: dict, name: str,
+             column: str) -> dict:
     """Placements and styli of a strategy: a list of placement names (each with its
     setup stylus) or an object placement: [styli]; every name checked against the setup."""
     if isinstance(spec, list):
@@ -308,9 +310,12 @@ def read_design(section: dict, base: Plan, name: str) -> dict:
             "seed": int(section.get("seed", 0)), "name": str(section.get("name", "designed"))}
 
 
-def design_from_file(pf):
+def design_from_file(pf: PlanFile) -> DesignResult:
     """Run the ``design`` section of a read plan file (:func:`read_plan`); returns the
-    ``plan_design.DesignResult``."""
+    :class:`~cmm_core.plan.DesignResult`."""
+    if pf.design is None:
+        raise DataError("has no 'design' section to run; add one (pool, target) or "
+                        "evaluate the plan's strategies instead.", file=pf.name)
     kw = read_design(pf.design, pf.base, pf.name)
 
     return design(pf.base, **kw)

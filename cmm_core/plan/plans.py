@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
+from typing import Any, Literal, overload
 
 import numpy as np
 
@@ -107,8 +108,8 @@ def _build(plan: Plan, probes_of: dict, name: str) -> Plan:
 
 
 def simulation_config(plan: Plan, *, seed: int = 0, noise_um: float = 0.0,
-                      prior: bool = False, coefficients=None, spec=None,
-                      effects=None) -> dict:
+                      prior: bool = False, coefficients: dict | None = None,
+                      spec: str | None = None, effects: dict | None = None) -> dict:
     """Virtual-CMM configuration (``simulate``) measuring the plan.
 
     ``noise_um = 0`` and ``prior = False`` give the noise-free, error-free design data;
@@ -138,7 +139,14 @@ def simulation_config(plan: Plan, *, seed: int = 0, noise_um: float = 0.0,
             "minutes_per_ball": m["minutes_per_ball"], "repeats": m["repeats"]}
 
 
-def simulate_plan(plan: Plan, *, with_truth: bool = False, **kwargs):
+@overload
+def simulate_plan(plan: Plan, *, with_truth: Literal[False] = ...,
+                  **kwargs: Any) -> Dataset: ...
+@overload
+def simulate_plan(plan: Plan, *, with_truth: Literal[True],
+                  **kwargs: Any) -> tuple[Dataset, dict]: ...
+def simulate_plan(plan: Plan, *, with_truth: bool = False,
+                  **kwargs: Any) -> Dataset | tuple[Dataset, dict]:
     """Data of the plan from the virtual CMM (see :func:`simulation_config`) with the plan's
     certificate uncertainty: the certificate at the true plate for the noise-free design
     data, and off it by N(0, u²) per coordinate for noisy data (studies, Monte Carlo
@@ -158,7 +166,7 @@ def simulate_plan(plan: Plan, *, with_truth: bool = False, **kwargs):
     return (data, sim.truth) if with_truth else data
 
 
-def fit_plan_data(plan: Plan, data: Dataset, spec=None) -> FitResult:
+def fit_plan_data(plan: Plan, data: Dataset, spec: str | None = None) -> FitResult:
     """The fit the plan's data will get: the plan's model, order, plate geometry and σ."""
     return fit(data, spec or plan.model["spec"], order=plan.model["order"],
                plate=plan.plate["geometry"], sigma_um=plan.noise_um, max_iter=2000)

@@ -41,12 +41,14 @@ test), and so are the two points of a distance closer than :data:`MIN_LENGTH_MM`
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from .._blas import single_blas_thread
-from ..export import OFF_MACHINE
+from ..export import OFF_MACHINE, Model
 from ..export.correction import extrapolation_note
 from ..gum import coverage_intervals
 from ..io import DataError, read_json, refuse_unknown_keys
@@ -125,7 +127,7 @@ def _num(name, column, value, lo, hi, integer=False):
     return int(value) if integer else float(value)
 
 
-def read_task(source, *, name=None) -> Task:
+def read_task(source: str | Path | bytes | dict, *, name: str | None = None) -> Task:
     """Read and check a task file (path, JSON text, bytes or a parsed dict); refusals
     name the file and the key (``points[2].probe``)."""
     if isinstance(source, dict):
@@ -325,8 +327,9 @@ def _influences(model, task, x, p, sigma):
 
 
 @single_blas_thread
-def task_uncertainty(model, task: Task, *, trials: int | None = None,
-                     progress=None, chunk: int = 5000) -> TaskResult:
+def task_uncertainty(model: Model, task: Task, *, trials: int | None = None,
+                     progress: Callable[[float, str], None] | None = None,
+                     chunk: int = 5000) -> TaskResult:
     """Task-specific uncertainty (module docstring).
 
     Parameters
