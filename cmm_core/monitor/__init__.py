@@ -5,7 +5,9 @@ Owns: :mod:`.check` (:func:`interim_check`: the χ² test of new measurements ag
 stored model, poses fitted as nuisances, E_n per observation), :mod:`.changes`
 (:func:`what_changed`: the stored model refitted on the new data as its own prior),
 :mod:`.conformity` (the ISO 14253-1 statement against the MPE), :mod:`.history`
-(:func:`compare_calibrations`: a machine's calibrations compared), :mod:`.scenario`
+(:func:`compare_calibrations`: a machine's calibrations compared), :mod:`.outcome`
+(:func:`run_check`: the check, what changed, the new effect named by the diagnosis, the
+verdict and conformity), :mod:`.scenario`
 (:func:`remeasured`: a simulated machine measured again). May import: ``machine``,
 ``io``, ``model``, ``diagnosis``, ``gum``, ``export``.
 """
@@ -25,9 +27,11 @@ from .check import (
 )
 from .conformity import RULE, STATEMENTS, Conformity, conformity
 from .history import MAX_MAP_NODES_PER_AXIS, History, compare_calibrations
+from .outcome import VERDICTS, CheckOutcome, NewEffects, name_new_effects, run_check
 from .scenario import remeasured
 
 __all__ = ["CheckSystem", "check_system", "GlsFit", "gls_fit", "interim_check", "InterimCheck",
            "MAX_OBSERVATIONS", "PROBE_TOLERANCE_MM", "remeasured", "Changes", "MIN_RESOLVED", "what_changed",
            "Conformity", "conformity", "RULE", "STATEMENTS", "holm", "History",
-           "compare_calibrations", "MAX_MAP_NODES_PER_AXIS"]
+           "compare_calibrations", "MAX_MAP_NODES_PER_AXIS", "CheckOutcome", "NewEffects",
+           "name_new_effects", "run_check", "VERDICTS"]

@@ -1,0 +1,243 @@
+"""An interim check's full outcome: the test, what changed, the new effect named by the
+diagnosis, what the check cannot see, and conformity (issue 28, docs/monitoring.md).
+
+The new effect. The new data are corrected by the stored model (each probed tip replaced
+by the model's true tip ``x*(r − p, p')``, thesis eq. 4.13), so what is left is what the
+stored model does not explain; the diagnosis (``diagnosis.diagnose``) then runs on them
+against the rigid baseline (each placement's pose only, the plate fixed to its
+certificate) and names the missing effect as it names effects in a calibration: a new
+squareness after a crash as ``sxy``, a drift as ``drift``, with its fitted size. The
+diagnosis counts σ and the certificate but not the stored model's own uncertainty
+(``J V Jᵀ``): a kinematic parameter of the stored model it names is confirmed only when
+the V-aware test of that parameter alone (``changes.what_changed``, Holm) is significant
+too; an effect outside the stored model (a drift) has no stored uncertainty to count.
+
+The verdict in one word (:data:`VERDICTS`): ``"no change seen"`` when the χ² test passes
+and the check sees every combination of the stored model's parameters; ``"partial: no
+change seen in what was measured"`` when it passes but some combinations are unseen (a
+change there would pass unnoticed: never "conforms"); ``"changed"`` when the test fails.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..diagnosis import Diagnosis, diagnose
+from ..export import Model
+from ..io import Dataset
+from ..machine import kinematics as kin
+from .changes import Changes, what_changed
+from .check import InterimCheck, interim_check
+from .conformity import RULE, Conformity, conformity
+
+VERDICTS = ("no change seen", "partial: no change seen in what was measured", "changed")
+"""The one-line verdicts of :class:`CheckOutcome`."""
+
+
+@dataclass(frozen=True)
+class NewEffects:
+    """The diagnosis of the new data against the stored model (module docstring).
+
+    Attributes
+    ----------
+    message : str
+        The effects named, with their sizes, or why none is.
+    named : list of dict
+        One per significant effect the diagnosis names, best first: ``effect`` (the
+        diagnosis's token, e.g. ``sxy``, ``drift``), ``title``, ``fitted`` (label ->
+        ``{unit, value, u}``), ``p_value``, ``in_stored_model`` (its parameters are the
+        stored model's) and ``confirmed`` (the V-aware test agrees; always True for an
+        effect outside the stored model).
+    verdict : str or None
+        The diagnosis's verdict token (``Diagnosis.verdict``).
+    cannot_see : dict
+        Effects the check's design cannot see (``Diagnosis.unseen``), with the reason.
+    diagnosis : Diagnosis or None
+        The diagnosis itself; None when the check has no plate data.
+    """
+
+    message: str
+    named: list
+    verdict: str | None
+    cannot_see: dict
+    diagnosis: Diagnosis | None
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary."""
+        return {"message": self.message, "named": list(self.named), "verdict": self.verdict,
+                "cannot_see": dict(self.cannot_see),
+                "baseline": "the stored model (its residuals: the rigid poses only)"}
+
+
+def name_new_effects(model: Model, check: InterimCheck, changes: Changes, *,
+                     alpha: float | None = None) -> NewEffects:
+    """The diagnosis of ``check``'s plate data against ``model`` as the baseline.
+
+    Parameters
+    ----------
+    model : Model
+        The stored calibration of the check.
+    check : InterimCheck
+        :func:`interim_check` of the new data against ``model``.
+    changes : Changes
+        :func:`what_changed` of the same check (its V-aware tests confirm the effects of
+        the stored model's parameters).
+    alpha : float, optional
+        The diagnosis's family-wise level (default its own, ``diagnosis.FAMILY_ALPHA``).
+
+    Returns
+    -------
+    NewEffects
+    """
+    obs = check.system.obs
+    if not len(obs.r_mm):
+        return NewEffects("The diagnosis names effects from ball-plate data; this check has "
+                          "instruments only (what changed is told by the parameters above).",
+                          [], None, {}, None)
+    p = np.array([model.probes_mm[q] for q in obs.probes], float)[obs.probe]
+    true_tip = kin.model_point(model.terms, model.coef, obs.r_mm - obs.p_mm, p)
+    corrected = replace(obs, r_mm=true_tip + (obs.p_mm - p), instruments=())
+    kw = {} if alpha is None else {"alpha": alpha}
+    diag = diagnose(corrected, "rigid", plate="fixed", sigma_um=check.sigma_um, **kw)
+    labels = set(model.terms.labels)
+    alone = changes.table.set_index("label")["significant_alone"]
+    named = []
+    for c in diag.candidates:
+        if not c.significant:
+            continue
+        fitted = {lab: {"unit": unit, "value": float(v), "u": float(u)}
+                  for lab, (unit, v, u) in c.fitted.items()}
+        own = bool(fitted) and all(lab in labels for lab in fitted)
+        confirmed = (not own) or any(bool(alone.get(lab, False)) for lab in fitted)
+        named.append({"effect": c.effect, "title": c.title, "fitted": fitted,
+                      "p_value": float(c.p_value), "in_stored_model": own,
+                      "confirmed": confirmed})
+    named.sort(key=lambda e: (not e["confirmed"]))
+    shown = [e for e in named if e["confirmed"]]
+    if diag.verdict is not None and shown and shown[0]["effect"] != diag.verdict:
+        shown.sort(key=lambda e: e["effect"] != diag.verdict)
+    if shown:
+        best = shown[0]
+        size = ", ".join(f"{lab} {f['value']:+.3g} ± {f['u']:.2g} {_unit(f['unit'])}"
+                         for lab, f in best["fitted"].items())
+        msg = (f"The diagnosis of the new data against the stored model names "
+               f"{best['title']} ({best['effect']}{': ' + size if size else ''})"
+               + (f"; other candidates explain part of the same pattern: "
+                  f"{', '.join(e['effect'] for e in shown[1:4])}" if len(shown) > 1 else "")
+               + ".")
+    else:
+        msg = ("The diagnosis of the new data against the stored model names no new "
+               "effect" + (" (the effects of the stored model's parameters it found are "
+                           "within the stored model's own uncertainty)" if named else "")
+               + ".")
+    if diag.unseen:
+        msg += (f" This check cannot see {len(diag.unseen)} candidate effect(s) at all (e.g. "
+                f"{next(iter(diag.unseen))}: {next(iter(diag.unseen.values()))}).")
+    return NewEffects(msg, shown + [e for e in named if not e["confirmed"]], diag.verdict,
+                      dict(diag.unseen), diag)
+
+
+def _unit(code: str) -> str:
+    """A unit code as printed (``urad`` -> ``µrad``)."""
+    return {"urad": "µrad", "um": "µm"}.get(code, code)
+
+
+@dataclass(frozen=True)
+class CheckOutcome:
+    """Everything an interim check reports (:func:`run_check`).
+
+    Attributes
+    ----------
+    verdict : str
+        One of :data:`VERDICTS`.
+    message : str
+        The verdict in one paragraph, with what the check could not see.
+    check : InterimCheck
+        The χ² test and the E_n table.
+    changes : Changes
+        The stored model refitted on the new data with itself as the prior.
+    effects : NewEffects or None
+        The diagnosis of the new data against the stored model (None when not asked).
+    conformity : Conformity or None
+        The ISO 14253-1 statement (None without an MPE or without a plate).
+    """
+
+    verdict: str
+    message: str
+    check: InterimCheck
+    changes: Changes
+    effects: NewEffects | None
+    conformity: Conformity | None
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (the ``check`` command's output)."""
+        return {"verdict": self.verdict, "message": self.message,
+                "check": self.check.to_dict(), "changes": self.changes.to_dict(),
+                "new_effects": None if self.effects is None else self.effects.to_dict(),
+                "conformity": None if self.conformity is None else self.conformity.to_dict()}
+
+
+def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = (),
+              sigma_um: float | None = None, alpha: float = 0.05,
+              family_alpha: float = 0.05, positions: Sequence[str] | None = None,
+              mpe: tuple[float, float] | None = None, name_effects: bool = True
+              ) -> CheckOutcome:
+    """The interim check, what changed, the new effect and (with ``mpe``) conformity.
+
+    Parameters
+    ----------
+    model : Model
+        The stored calibration.
+    dataset : Dataset or None
+        The new ball-plate data (None: instruments only).
+    instruments : sequence
+        Laser runs, step gauges, ball bars of the check (``interim_check``).
+    sigma_um, alpha, positions
+        As :func:`interim_check`.
+    family_alpha : float
+        Family-wise level of :func:`what_changed`.
+    mpe : (float, float), optional
+        ``(A µm, D)``: MPE = A + L/D, the conformity statement's limit.
+    name_effects : bool
+        Run the diagnosis of the new data against the stored model when the test fails.
+
+    Returns
+    -------
+    CheckOutcome
+    """
+    check = interim_check(model, dataset, sigma_um=sigma_um, alpha=alpha,
+                          positions=positions, instruments=instruments)
+    changes = what_changed(model, check, family_alpha=family_alpha)
+    effects = None
+    if name_effects and not check.passes:
+        effects = name_new_effects(model, check, changes)
+    conf = None
+    if mpe is not None:
+        if dataset is None:
+            conf = Conformity("cannot say", f"Cannot say whether the machine conforms to "
+                              f"MPE = {mpe[0]:g} µm + L/{mpe[1]:g}: the check has no plate "
+                              "lengths to decide on, and it cannot see "
+                              f"{len(changes.unseen)} combination(s) of the machine's errors."
+                              , {}, None, RULE, list(changes.unseen))
+        else:
+            conf = conformity(model, check, dataset, mpe_a_um=mpe[0], mpe_per_mm=1 / mpe[1],
+                              changes=changes)
+    if not check.passes:
+        verdict = VERDICTS[2]
+        msg = "The machine changed: " + changes.message
+        if effects is not None:
+            msg += " " + effects.message
+    elif changes.unseen:
+        verdict = VERDICTS[1]
+        msg = (f"No change seen in what this check measures, but it cannot see "
+               f"{len(changes.unseen)} combination(s) of the stored model's parameters (e.g. "
+               f"{changes.unseen[0]}): a change there would pass unnoticed. This partial "
+               "check does not say that the machine is unchanged.")
+    else:
+        verdict = VERDICTS[0]
+        msg = ("No change seen: the check sees every combination of the stored model's "
+               "parameters and the machine behaves as the stored model predicts.")
+    return CheckOutcome(verdict, msg, check, changes, effects, conf)
