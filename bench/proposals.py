@@ -39,7 +39,7 @@ from _timing import median_time  # noqa: E402
 from scenarios import simulated  # noqa: E402
 
 from cmm_core.diagnosis import diagnose  # noqa: E402
-from cmm_core.model import fit  # noqa: E402
+from cmm_core.model import BY_TOKEN, fit  # noqa: E402
 from cmm_core.plan import append_measurement, fit_rivals, propose  # noqa: E402
 
 NOISE_UM = 0.5
@@ -59,17 +59,43 @@ CASES = {
         "pitch80_3pos", {"kinematic": {"spec": "kinematic21,rxz:4",
                                        "coefficients": {"rxz[4]": 1.0}}},
         "kinematic21,-sxy", "rxz:4", "sxy"),
+    # styli measured in blocks (the simulator's default order): each placement's second
+    # stylus comes later, so a stylus's offset and the placement's drift look alike
+    "probe offset vs drift, styli in blocks, 80 mm plate": (
+        "pitch80_3pos", {"effects": {"probe_offset": {"sd_um": 1.0}}},
+        "kinematic21", "probe_offset", "drift"),
+    # the other way round: each placement drifts (a new placement drifts anew, drawn
+    # from the same spread)
+    "drift vs probe offset, styli in blocks, 80 mm plate": (
+        "pitch80_3pos", {"effects": {"drift": {"sd_um_per_h": 1.0}}},
+        "kinematic21", "drift", "probe_offset"),
 }
+
+
+# effects whose parameters belong to the machine or the styli, not to one placement
+# (a new placement has its own drift, unknown): carried into an appended measurement
+_CARRIED = {"probe_offset": lambda lab: lab.startswith("probe")}
+# effects of each placement, drawn as a spread: drawn anew for the appended placement
+_REDRAWN = ("drift",)
 
 
 def true_machine(sim) -> dict:
     """Simulator keys that reproduce the simulation's own machine (every kinematic
-    coefficient drawn, by label) for a measurement appended to its data."""
+    coefficient drawn, by label; the styli's offsets) for a measurement appended to its
+    data."""
     km = sim.config["kinematic"]
+    effects = {}
+    for tok, own in _CARRIED.items():
+        vals = {k: v for k, v in sim.truth.items() if own(k)}
+        if tok in sim.config.get("effects", {}) and vals:
+            effects[tok] = BY_TOKEN[tok].injection(vals)
+    for tok in _REDRAWN:
+        if tok in sim.config.get("effects", {}):
+            effects[tok] = sim.config["effects"][tok]
     return {"kinematic": {"spec": km["spec"], "order": km["order"],
                           "coefficients": {k: v for k, v in sim.truth.items()
-                                           if "." not in k}},
-            "noise_um": NOISE_UM}
+                                           if "." not in k and not k.startswith("probe")}},
+            "effects": effects, "noise_um": NOISE_UM}
 
 
 def nested_rejects(data, rf, truth, rival) -> bool:
@@ -85,8 +111,13 @@ def nested_rejects(data, rf, truth, rival) -> bool:
     return bool(p < rf.levels[truth])
 
 
-def _named(d, truth):
-    return d.verdict == truth, (d.verdict or "").partition(":")[0] == truth.partition(":")[0]
+def _named(d, truth, rival):
+    """(strict, by function, decided): the verdict is the truth; is of its function; is
+    the truth and the rival is no longer its alias (``Outcome.separated``)."""
+    al = list(d.candidates[0].aliases) if d.candidates else []
+    return (d.verdict == truth,
+            (d.verdict or "").partition(":")[0] == truth.partition(":")[0],
+            d.verdict == truth and rival not in al)
 
 
 def run_case(name, seeds):
@@ -95,22 +126,23 @@ def run_case(name, seeds):
     for seed in range(seeds):
         sim = simulated(layout, 1000 + seed, noise_um=NOISE_UM, **extra)
         data = sim.dataset
-        before = _named(diagnose(data, base), truth)
+        before = _named(diagnose(data, base), truth, rival)
         pr = propose(data, (truth, rival), baseline=base)
         top = pr.ranked[0]
         cfg = true_machine(sim)
         aug = append_measurement(data, top.candidate, config=cfg, seed=5000 + seed)
-        after = _named(diagnose(aug, base), truth)
+        after = _named(diagnose(aug, base), truth, rival)
         rng = np.random.default_rng(seed)
         same = [p for p in pr.ranked[1:] if p.candidate.time_min == top.candidate.time_min]
         other = same[rng.integers(len(same))]
         aug_r = append_measurement(data, other.candidate, config=cfg, seed=5000 + seed)
-        random_ = _named(diagnose(aug_r, base), truth)
+        random_ = _named(diagnose(aug_r, base), truth, rival)
         rf = fit_rivals(data, (truth, rival), baseline=base)
         sep = nested_rejects(aug, rf, truth, rival)
         rows.append((before, after, random_, top.power[truth], sep, top.candidate.name))
         print(f"  seed {seed}: top {top.candidate.name} (power {top.power[truth]:.2f}), "
-              f"named before/after/random: {before[0]}/{after[0]}/{random_[0]} "
+              f"named before/after/random: {before[0]}/{after[0]}/{random_[0]}, decided "
+              f"{before[2]}/{after[2]}/{random_[2]} "
               f"({other.candidate.name}), separated {sep}", flush=True)
     return rows
 
@@ -125,23 +157,31 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=50, help="seeds per alias case")
     ap.add_argument("--repeats", type=int, default=5, help="timing repeats (medians)")
+    ap.add_argument("--cases", default="",
+                    help="run only the cases whose name contains one of these comma-"
+                         "separated words (default: all)")
+    ap.add_argument("--no-timing", action="store_true", help="skip the timing")
     args = ap.parse_args()
+    words = [w.strip() for w in args.cases.split(",") if w.strip()]
+    names = [n for n in CASES if not words or any(w in n for w in words)]
 
     layout, extra, base, truth, rival = CASES[next(iter(CASES))]
     data = simulated(layout, 7, noise_um=NOISE_UM, **extra).dataset
-    t_prop, pr = median_time(lambda: propose(data, (truth, rival), baseline=base),
-                             args.repeats)
-    t_diag, _ = median_time(lambda: diagnose(data, base), args.repeats)
-    print(f"propose, {len(pr.ranked)} candidates ({layout}): {t_prop:.2f} s; one diagnose "
-          f"of the same data {t_diag:.2f} s; ratio {t_prop / t_diag:.2f}")
+    if not args.no_timing:
+        t_prop, pr = median_time(lambda: propose(data, (truth, rival), baseline=base),
+                                 args.repeats)
+        t_diag, _ = median_time(lambda: diagnose(data, base), args.repeats)
+        print(f"propose, {len(pr.ranked)} candidates ({layout}): {t_prop:.2f} s; one "
+              f"diagnose of the same data {t_diag:.2f} s; ratio {t_prop / t_diag:.2f}")
 
-    for name in CASES:
+    for name in names:
         print(f"\n{name} ({args.seeds} seeds; truth {CASES[name][3]}, rival {CASES[name][4]})")
         rows = run_case(name, args.seeds)
         for label, i in (("data alone", 0), ("top proposal appended", 1),
                          ("random candidate, same time", 2)):
             print(f"  {label:30s} names the truth: strict {_share([r[i][0] for r in rows])},"
-                  f" by function {_share([r[i][1] for r in rows])}")
+                  f" by function {_share([r[i][1] for r in rows])}, decided "
+                  f"{_share([r[i][2] for r in rows])}")
         pred = float(np.mean([r[3] for r in rows]))
         print(f"  predicted power {100 * pred:.1f} %, Monte Carlo separation "
               f"{_share([r[4] for r in rows])}, difference "

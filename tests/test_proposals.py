@@ -83,7 +83,7 @@ def test_predicted_delta_chi2_matches_a_full_fit(clean80):
     for p in pr.ranked[:3]:
         aug = append_measurement(clean80, p.candidate, config=cfg)
         other = fit(aug, rf.specs["rxz:4"], sigma_um=0.5, max_iter=2000)
-        assert p.delta_chi2["sxy"] == pytest.approx(other.chi2, rel=0.02), p.candidate.name
+        assert p.delta_chi2_fitted["sxy"] == pytest.approx(other.chi2, rel=0.02), p.candidate.name
 
 
 def test_proposals_rank_by_decision_then_time(clean80):
@@ -191,7 +191,7 @@ def test_instrument_candidates_predict_the_misfit_of_a_joint_fit(clean80):
     zero = _error_free(clean80)
     checked = 0
     for p in pr.ranked:
-        if p.delta_chi2["sxy"] < 10:  # below that the comparison is of near-zero numbers
+        if p.delta_chi2_fitted["sxy"] < 10:  # below that the comparison is of near-zero numbers
             continue
         c = p.candidate
         if c.instrument["kind"] == "ball_bar":  # its noise moves a ball: not removable here
@@ -204,6 +204,6 @@ def test_instrument_candidates_predict_the_misfit_of_a_joint_fit(clean80):
                                                                   - zero_run.certified_mm))
         other = fit(clean80, rf.specs["rxz:4"], sigma_um=0.5, max_iter=2000,
                     instruments=[clean])
-        assert p.delta_chi2["sxy"] == pytest.approx(other.chi2, rel=0.02), c.name
+        assert p.delta_chi2_fitted["sxy"] == pytest.approx(other.chi2, rel=0.02), c.name
         checked += 1
     assert checked >= 2

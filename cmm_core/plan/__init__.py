@@ -69,6 +69,8 @@ from .proposals import (
     plate_grid,
     propose,
     propose_many,
+    restrict,
+    rival_pairs,
     rivals_of,
     simulate_outcomes,
     truth_config,
@@ -114,5 +116,5 @@ __all__ = [
     "PlateGrid", "Proposal", "Proposals", "RivalFits", "append_measurement", "fit_rivals",
     "measurement_candidates", "measurement_observations", "plan_file", "plate_grid",
     "propose", "rivals_of", "simulate_outcomes", "truth_config", "CHUNK", "propose_many",
-    "wide_candidates", "instrument_candidates", "instrument_of",
+    "wide_candidates", "instrument_candidates", "instrument_of", "rival_pairs", "restrict",
 ]

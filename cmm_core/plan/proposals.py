@@ -23,7 +23,12 @@ linear-model power of ``detect.py``). The power to separate is
     power_A = P(F(k_A, ν, λ_A) > F⁻¹(1 − α_A; k_A, ν)),
 
 α_A the level the diagnosis tests A at (its share of the family-wise rate, weighted
-Bonferroni). A candidate decides the pair with power ``min(power_A, power_B)``. Proposals are
+Bonferroni). The fitted ``θ̂_A`` carries noise, and the more so the worse the current data
+separate the rivals (that is why a proposal is asked for): ``E‖M θ̂‖² = ‖M θ‖² +
+tr(M C Mᵀ)`` for an unbiased ``θ̂`` of covariance ``C`` (``M = (I − P_B) J_A``), so λ_A is
+taken as ``‖M θ̂_A‖² − tr(M C_A Mᵀ)`` (at least 0): at exactly the fitted size it would
+overstate the separation (by Δχ² ≈ 15 of 45 for a probe offset against drift on the 80 mm
+layout, bench/proposals.py); the size itself is kept as ``delta_chi2_fitted``. A candidate decides the pair with power ``min(power_A, power_B)``. Proposals are
 ranked: those reaching ``target`` power first, by machine time; then the others by power.
 
 The candidate's observations are simulated on the virtual CMM (``simulate``) in the data's
@@ -36,7 +41,9 @@ from __future__ import annotations
 
 import copy
 import json
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -47,8 +54,13 @@ from ..diagnosis import FAMILY_ALPHA, Diagnosis, diagnose
 from ..io import DataError, Dataset, read_setup, resolve
 from ..model import (
     BY_TOKEN,
+    BallBar,
     FitResult,
+    LaserRun,
+    Observations,
     Problem,
+    Simulation,
+    StepGauge,
     fit,
     select,
     simulate,
@@ -77,6 +89,9 @@ _NO_ERRORS = {"random_um": 0.0, "random_urad": 0.0}
 """Simulator keys: no kinematic errors drawn (the simulator's default draws 1 µm, 1 µrad)."""
 
 _COLUMNS = ["position", "probe", "ball", "time_min", "temp_C", "x_mm", "y_mm", "z_mm"]
+
+_RESOLVED = ("mx_mm", "my_mm", "mz_mm")
+"""Columns ``io.resolve`` adds (machine-frame tip centres): computed again on a subset."""
 
 
 @dataclass(frozen=True)
@@ -126,7 +141,9 @@ class Proposal:
         The two rival tokens (A, B).
     delta_chi2 : dict
         Rival taken as the truth -> expected Δχ² (non-centrality λ) the other rival leaves
-        on the noise-free augmented data.
+        on the noise-free augmented data, its size's noise taken out: ``‖M θ̂‖² −
+        tr(M C Mᵀ)`` (at least 0), ``C`` the covariance of the fitted ``θ̂`` (module
+        docstring).
     dof : dict
         Rival taken as the truth -> (k, ν): numerator and denominator dof of its nested
         F-test.
@@ -140,6 +157,9 @@ class Proposal:
         The smaller expected Δχ² per minute of machine time.
     outcome : str
         The predicted outcome in words.
+    delta_chi2_fitted : dict
+        Rival taken as the truth -> Δχ² at exactly its fitted size (``‖M θ̂‖²``): the χ²
+        the other rival leaves on noise-free data simulated from the fit.
     """
 
     candidate: NextMeasurement
@@ -151,6 +171,7 @@ class Proposal:
     power_min: float
     per_minute: float
     outcome: str
+    delta_chi2_fitted: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """JSON-ready record."""
@@ -159,6 +180,7 @@ class Proposal:
                 "positions": c.positions, "probes": c.probes, "probes_of": c.probes_of,
                 "instrument": c.instrument,
                 "rivals": list(self.rivals), "delta_chi2": self.delta_chi2,
+                "delta_chi2_fitted": self.delta_chi2_fitted,
                 "dof": {k: list(v) for k, v in self.dof.items()}, "level": self.level,
                 "power": self.power, "power_min": self.power_min,
                 "delta_chi2_per_min": self.per_minute, "outcome": self.outcome}
@@ -381,7 +403,8 @@ def _tagged(c: NextMeasurement, tag: str) -> NextMeasurement:
         {ren(p): [ren(q) for q in qs] for p, qs in c.probes_of.items()}, c.time_min)
 
 
-def wide_candidates(data: Dataset, fractions=(0.25, 0.5, 0.75)) -> list[NextMeasurement]:
+def wide_candidates(data: Dataset, fractions: Sequence[float] = (0.25, 0.5, 0.75)
+                    ) -> list[NextMeasurement]:
     """A large candidate set: :func:`measurement_candidates` from every placement as the
     reference and at each shift ``fractions`` of the pitch (a study for
     :func:`propose_many`); duplicates are kept once (same placement, styli and offsets)."""
@@ -449,22 +472,89 @@ def append_measurement(data: Dataset, cand: NextMeasurement, *, config: dict | N
                    f"{data.name} + {cand.name}")
 
 
+def rival_pairs(candidates: Sequence[Mapping[str, Any]], *, top: int = 3
+                ) -> list[tuple[str, str]]:
+    """Every pair a diagnosis leaves open, most pressing first: the first candidate
+    with each of its aliases; its runner-up (the next significant candidate of another
+    function); then each alias of the next ``top - 1`` significant candidates. Each pair
+    once, whichever its order.
+
+    Parameters
+    ----------
+    candidates : sequence of mappings
+        The diagnosis's ranked candidates as ``Candidate.to_dict`` gives them (at least
+        ``effect``, ``aliases`` (list of tokens) and ``significant``).
+    top : int
+        How many of the first candidates' aliases count.
+    """
+    out: list[tuple[str, str]] = []
+
+    def add(a: str, b: str) -> None:
+        if a != b and (a, b) not in out and (b, a) not in out:
+            out.append((a, b))
+
+    if not candidates:
+        return out
+    first = candidates[0]
+    for al in first["aliases"]:
+        add(first["effect"], al)
+    name = str(first["effect"]).partition(":")[0]
+    other = next((c for c in candidates[1:] if c["significant"]
+                  and str(c["effect"]).partition(":")[0] != name), None)
+    if other is not None:
+        add(first["effect"], other["effect"])
+    for c in [c for c in candidates[1:] if c["significant"]][:max(top - 1, 0)]:
+        for al in c["aliases"]:
+            add(c["effect"], al)
+    return out
+
+
 def rivals_of(diagnosis: Diagnosis) -> tuple[str, str]:
     """The pair the diagnosis leaves open: its first candidate and its first alias, or
-    else the next significant candidate of another function (a runner-up)."""
+    else the next significant candidate of another function (a runner-up); the first of
+    :func:`rival_pairs`."""
     cands = diagnosis.candidates
     if not cands:
         raise ValueError("the diagnosis ranked no candidate: there is nothing to decide.")
-    top = cands[0]
-    if top.aliases:
-        return top.effect, top.aliases[0]
-    name = top.effect.partition(":")[0]
-    other = next((c for c in cands[1:] if c.significant
-                  and c.effect.partition(":")[0] != name), None)
-    if other is None:
-        raise ValueError(f"the diagnosis names {top.effect} with no alias and no significant "
-                         "runner-up: there is nothing to decide; give the rivals.")
-    return top.effect, other.effect
+    pairs = rival_pairs([{"effect": c.effect, "aliases": list(c.aliases),
+                          "significant": bool(c.significant)} for c in cands[:1]]
+                        + [{"effect": c.effect, "aliases": [],
+                            "significant": bool(c.significant)} for c in cands[1:]], top=1)
+    if not pairs:
+        raise ValueError(f"the diagnosis names {cands[0].effect} with no alias and no "
+                         "significant runner-up: there is nothing to decide; give the rivals.")
+    return pairs[0]
+
+
+def restrict(data: Dataset, *, positions: Sequence[str] | None = None,
+             probes: Sequence[str] | None = None,
+             exclude: Iterable[Sequence] = ()) -> Dataset:
+    """The data set as a fit selects it (``select``'s ``positions``, ``probes``,
+    ``exclude``): the observations left out are dropped, and the placements with no
+    observation left leave the setup. The data set itself when nothing is left out."""
+    meas = data.meas
+    keep = np.ones(len(meas), bool)
+    if positions is not None:
+        keep &= meas["position"].isin(list(positions)).to_numpy()
+    if probes is not None:
+        keep &= meas["probe"].isin(list(probes)).to_numpy()
+    drop = {(str(p), str(q), int(b)) for p, q, b in exclude}
+    if drop:
+        keep &= ~np.array([(str(p), str(q), int(b)) in drop for p, q, b in
+                           zip(meas["position"], meas["probe"], meas["ball"], strict=True)],
+                          bool)
+    if keep.all():
+        return data
+    if not keep.any():
+        raise DataError("the selection leaves no observation; expected at least one "
+                        "placement measured.", file=data.name, column="position")
+    raw = copy.deepcopy(data.setup.raw)
+    used = set(meas.loc[keep, "position"])
+    raw["positions"] = {p: pl for p, pl in raw["positions"].items() if p in used}
+    setup = read_setup(raw, name=data.name)
+    fresh = data.meas.drop(columns=list(_RESOLVED), errors="ignore")
+    return Dataset(resolve(fresh[keep].reset_index(drop=True), setup, data.certificate),
+                   setup, data.certificate, data.name)
 
 
 def _basis(A: np.ndarray, rtol: float, sv_ref: float | None = None) -> tuple:
@@ -510,22 +600,35 @@ def _stack(d1: _Design, d2: _Design) -> _Design:
 
 
 def _separation(des: _Design, truth: str, other: str, theta: dict, *, rank_rtol: float,
-                level: float) -> tuple:
-    """(λ, k, ν, power) of the nested test "``truth`` is needed once ``other`` is in" on
-    the noise-free design with ``truth`` true at ``theta`` (module docstring)."""
+                level: float, spread: tuple | None = None) -> tuple:
+    """(λ, k, ν, power, λ at the fitted size) of the nested test "``truth`` is needed
+    once ``other`` is in" on the noise-free design with ``truth`` true at ``theta``
+    (module docstring). ``spread``: ``(labels, covariance)`` of ``theta``'s fit; λ is
+    then the expected-size estimate ``‖M θ‖² − tr(M C Mᵀ)`` (at least 0), which takes
+    out what the fitted size owes to noise (module docstring)."""
     lab_b = des.has[other]
     own = [i for i, lab in enumerate(des.labels) if lab in des.has[truth] and lab not in lab_b]
     JB = des.J[:, [i for i, lab in enumerate(des.labels) if lab in lab_b]]
     JA = des.J[:, own]
     U, sv_max = _basis(JB, rank_rtol)
     mu = JA @ np.array([theta.get(des.labels[i], 0.0) for i in own])
-    lam = float(np.sum((mu - U @ (U.T @ mu)) ** 2))
-    k = _basis(JA - U @ (U.T @ JA), rank_rtol, sv_max)[0].shape[1] if own else 0
+    lam_fit = float(np.sum((mu - U @ (U.T @ mu)) ** 2))
+    M = JA - U @ (U.T @ JA)
+    k = _basis(M, rank_rtol, sv_max)[0].shape[1] if own else 0
     nu = max(des.J.shape[0] - U.shape[1] - k, 1)
     if k == 0:
-        return 0.0, 0, nu, 0.0
+        return 0.0, 0, nu, 0.0, 0.0
+    lam = lam_fit
+    if spread is not None:
+        at = {lab: i for i, lab in enumerate(spread[0])}
+        ix = [at.get(des.labels[i], -1) for i in own]
+        C = np.zeros((len(own), len(own)))
+        got = [j for j, i in enumerate(ix) if i >= 0]
+        C[np.ix_(got, got)] = np.asarray(spread[1])[np.ix_([ix[j] for j in got],
+                                                          [ix[j] for j in got])]
+        lam = max(lam_fit - float(np.sum((M @ C) * M)), 0.0)
     power = float(stats.ncf.sf(stats.f.isf(level, k, nu), k, nu, lam))
-    return lam, k, nu, power
+    return lam, k, nu, power, lam_fit
 
 
 def _outcome(cand: NextMeasurement, rivals, lam: dict, power_min: float) -> str:
@@ -557,7 +660,7 @@ class RivalFits:
     levels: dict
 
 
-def fit_rivals(data: Dataset, rivals, *, baseline: str = "kinematic21", order: int = 2,
+def fit_rivals(data: Dataset, rivals: Sequence[str], *, baseline: str = "kinematic21", order: int = 2,
                plate: str | None = None, sigma_um: float = 0.5,
                alpha: float = FAMILY_ALPHA) -> RivalFits:
     """Fit the baseline with each rival added to the current data (their fitted sizes),
@@ -580,11 +683,12 @@ def _score_on(des: _Design, rf: RivalFits) -> dict:
     for t, o in ((a, b), (b, a)):
         f = rf.fits[t]
         out[t] = _separation(des, t, o, dict(zip(f.labels, f.values, strict=True)),
-                             rank_rtol=f.rank_rtol, level=rf.levels[t])
+                             rank_rtol=f.rank_rtol, level=rf.levels[t],
+                             spread=(f.labels, f.covariance))
     return out
 
 
-def measurement_observations(data: Dataset, cands: list):
+def measurement_observations(data: Dataset, cands: list) -> Observations:
     """The candidates' own noise-free, error-free observations (virtual CMM, nominal
     certificate), all in one simulation (each candidate is its own placement): their
     Jacobian rows stack onto the current data's.
@@ -705,7 +809,8 @@ def _error_free(data: Dataset):
                                "certificate_u_um": 0.0}}, name="proposals")
 
 
-def instrument_of(cand: NextMeasurement, sim, seed: int | None = 0):
+def instrument_of(cand: NextMeasurement, sim: Simulation, seed: int | None = 0
+                  ) -> LaserRun | StepGauge | BallBar:
     """The candidate's instrument measured on ``sim``'s machine (a ``Simulation``)."""
     kw = {k: v for k, v in cand.instrument.items() if k != "kind"}
     return _SIMULATORS[cand.instrument["kind"]](sim, seed=seed, **kw)
@@ -730,7 +835,7 @@ def _rows(des: _Design, keep: np.ndarray) -> _Design:
 
 
 def _proposals(results, rivals, rf: RivalFits) -> list:
-    """Proposals from ``(candidate, {rival: (λ, k, ν, power)})`` pairs."""
+    """Proposals from ``(candidate, {rival: (λ, k, ν, power, λ fitted)})`` pairs."""
     out = []
     for cand, res in results:
         lam = {t: v[0] for t, v in res.items()}
@@ -738,7 +843,8 @@ def _proposals(results, rivals, rf: RivalFits) -> list:
         pmin = min(power.values())
         out.append(Proposal(cand, rivals, lam, {t: (v[1], v[2]) for t, v in res.items()},
                             dict(rf.levels), power, pmin, min(lam.values()) / cand.time_min,
-                            _outcome(cand, rivals, lam, pmin)))
+                            _outcome(cand, rivals, lam, pmin),
+                            {t: v[4] for t, v in res.items()}))
     return out
 
 
@@ -764,7 +870,7 @@ def _score_candidates(now: _Design, obs, ok: list, rf: RivalFits):
 
 
 @single_blas_thread
-def propose(data: Dataset, rivals=None, *, baseline: str = "kinematic21", order: int = 2,
+def propose(data: Dataset, rivals: Sequence[str] | None = None, *, baseline: str = "kinematic21", order: int = 2,
             plate: str | None = None, sigma_um: float = 0.5, alpha: float = FAMILY_ALPHA,
             cands: list | None = None, target: float = TARGET_POWER,
             diagnosis: Diagnosis | None = None) -> Proposals:
@@ -827,9 +933,9 @@ def _score_chunk(cands: list, data: Dataset, rivals, settings: dict) -> Proposal
     return propose(data, rivals, cands=cands, **settings)
 
 
-def propose_many(data: Dataset, rivals, cands: list, *, client=None,
-                 scheduler: str | None = None, workers: int = 2, chunk: int = CHUNK,
-                 **settings) -> Proposals:
+def propose_many(data: Dataset, rivals: Sequence[str], cands: list, *,
+                 client: Any = None, scheduler: str | None = None, workers: int = 2,
+                 chunk: int = CHUNK, **settings: Any) -> Proposals:
     """:func:`propose` for a large candidate set (e.g. :func:`wide_candidates`), scored
     in chunks of ``chunk`` candidates on Dask: ``client``, else a scheduler address, else
     a ``LocalCluster`` of ``workers`` processes (``study.dask_client``, as the plan
@@ -861,11 +967,12 @@ def propose_many(data: Dataset, rivals, cands: list, *, client=None,
                      msg)
 
 
-def truth_config(fitted: FitResult, exclude_positions=()) -> dict:
+def truth_config(fitted: FitResult, exclude_positions: Iterable[str] = ()) -> dict:
     """Simulator keys (``kinematic``, ``effects``) that make a rival's fit the truth: all
     its kinematic coefficients and its effects' fitted parameters (``Block.injection``);
     parameters of the data's own placements (drift, ...) are left out, since a new
     placement has its own."""
+    exclude_positions = tuple(exclude_positions)
     vals = dict(zip(fitted.labels, fitted.values, strict=True))
     groups = dict(zip(fitted.labels, fitted.groups, strict=True))
     kin = {lab: float(v) for lab, v in vals.items() if groups[lab] == "kinematic"}
