@@ -48,8 +48,10 @@ from .record import (
     PLATE_CHOICES,
     VERSION,
     AnalysisRecord,
+    CheckChoices,
     DataFile,
     DataSources,
+    HistoryChoices,
     InstrumentFile,
     instrument_kinds,
     measured_error_from_residuals_um,
@@ -88,7 +90,15 @@ from .residuals import (
     residual_summary,
     uncertainty_gain,
 )
-from .runner import AnalysisResult, load_data, load_instruments, run, with_instruments
+from .runner import (
+    AnalysisResult,
+    load_data,
+    load_instruments,
+    load_stored_model,
+    results_document,
+    run,
+    with_instruments,
+)
 from .sessions import (
     KEEP_DAYS,
     SavedSession,
@@ -101,11 +111,12 @@ from .sessions import (
 __all__ = [
     "against_coordinates", "analysis_report", "AnalysisRecord", "AnalysisResult",
     "approach_split", "AXIS_COLOURS", "breakdown", "build_report", "chi2_html",
-    "chi2_test_numbers", "compare_models", "ComparisonFigure", "coverage_reasons", "DataFile", "DataSources", "default_session_folder", "DEFAULT_EXCLUDE_OUTLIERS",
+    "chi2_test_numbers", "CheckChoices", "compare_models", "ComparisonFigure", "coverage_reasons", "DataFile", "DataSources", "default_session_folder", "DEFAULT_EXCLUDE_OUTLIERS",
     "deviations_plate_frame", "diagnosis_conclusion", "diagnosis_rows", "ERROR_CONVENTION",
     "error_function_curves", "fig_deviation", "fig_detection_limits", "fig_error_functions", "fig_history", "fig_mpe",
     "fig_pattern", "fig_placement_views", "fig_placements", "fig_residual_map", "fig_signature_scatter",
     "fig_surface_grid", "figure_html", "FORMAT", "FUNCTION_UNITS", "GP_KERNELS", "GP_MEANS",
+    "HistoryChoices", "load_stored_model", "results_document",
     "instrument_kinds", "instrument_tables", "InstrumentFile", "instruments_from_list", "KEEP_DAYS",
     "KEYS", "new_session_id", "SavedSession", "SessionStore", "valid_session_id",
     "load_data", "load_instruments", "measured_error_from_residuals_um", "measured_error_um",

@@ -18,7 +18,8 @@ from ..model import INSTRUMENT_KINDS, read_instrument
 __all__ = ["FORMAT", "VERSION", "DEFAULT_EXCLUDE_OUTLIERS", "ERROR_CONVENTION",
            "PLATE_CHOICES", "GP_MEANS", "GP_KERNELS", "MPE_U_SOURCES", "measured_error_um",
            "measured_error_from_residuals_um", "DataFile", "instrument_kinds",
-           "InstrumentFile", "DataSources", "AnalysisRecord"]
+           "InstrumentFile", "DataSources", "CheckChoices", "HistoryChoices",
+           "AnalysisRecord"]
 
 FORMAT = "cmm-error-lab-analysis"
 """Value of the ``format`` key of an analysis record file."""
@@ -121,6 +122,39 @@ class DataSources:
 
 
 @dataclass(frozen=True)
+class CheckChoices:
+    """An interim check of the record's data against a stored calibration
+    (docs/monitoring.md): the record's measurements and instruments are the new data."""
+
+    model: DataFile
+    """The stored calibration: a model file written by ``fit --save``."""
+    alpha: float = 0.05
+    """False-alarm level of the χ² test."""
+    family_alpha: float = 0.05
+    """Family-wise level of the parameter changes (Holm)."""
+    sigma_um: float | None = None
+    """Repeatability of the new data, µm; None: the stored model's σ."""
+    mpe: tuple | None = None
+    """``(A µm, D)``: MPE = A + L/D for the conformity statement; None: no statement."""
+
+
+@dataclass(frozen=True)
+class HistoryChoices:
+    """The machine's calibration history beside the record's analysis
+    (docs/monitoring.md)."""
+
+    models: tuple
+    """``(DataFile, date)`` per earlier calibration (model files, ISO 8601 dates)."""
+    family_alpha: float = 0.05
+    """Family-wise level of the changes (Holm over pairs and parameters)."""
+    nodes: int = 5
+    """Grid nodes per axis of the error map's change."""
+    date: str | None = None
+    """This analysis's calibration date: its own fit joins the history as the latest
+    calibration; None: the model files alone."""
+
+
+@dataclass(frozen=True)
 class AnalysisRecord:
     """Everything that decides the numbers of an analysis (docs/report.md)."""
 
@@ -158,3 +192,8 @@ class AnalysisRecord:
     """U of the MPE decision: "test" (certificate and σ) or "cmm_spec"."""
     magnification: float = 2000.0
     """Magnification of the deviation plots."""
+    interim_check: CheckChoices | None = None
+    """Check the record's data against a stored calibration (report section "Interim
+    check"); None: no check."""
+    calibration_history: HistoryChoices | None = None
+    """Compare the machine's calibrations (report section "History"); None: none."""

@@ -4,6 +4,7 @@ the key and what was expected."""
 
 from __future__ import annotations
 
+import datetime as dt
 import json
 import os
 from collections.abc import Iterable, Mapping
@@ -24,8 +25,10 @@ from .record import (
     PLATE_CHOICES,
     VERSION,
     AnalysisRecord,
+    CheckChoices,
     DataFile,
     DataSources,
+    HistoryChoices,
     InstrumentFile,
     instrument_kinds,
 )
@@ -191,7 +194,85 @@ def record_from_dict(doc: Any, name: str = "ANALYSIS.json", base: Path | None = 
         h.get("spec"), str) for h in hist), name, "history",
         "a list of {\"spec\": ..., \"change\": ...} steps", hist)
     out["history"] = tuple((h["spec"], str(h.get("change") or "")) for h in hist)
+    if doc.get("interim_check") is not None:
+        out["interim_check"] = _check_choices(doc["interim_check"], name, base)
+    if doc.get("calibration_history") is not None:
+        out["calibration_history"] = _history_choices(doc["calibration_history"], name, base)
     return AnalysisRecord(**out)
+
+
+_LEVEL = (_num(0.001, 0.2, False), "a level from 0.001 to 0.2")
+
+
+def _check_choices(obj: Any, name: str, base: Path | None) -> CheckChoices:
+    """The ``interim_check`` block: ``{"model": file, "alpha", "family_alpha", "sigma_um",
+    "mpe": [A, D]}``."""
+    key = "interim_check"
+    _check(isinstance(obj, dict) and "model" in obj, name, key,
+           "an object {\"model\": {\"path\": ...}, \"alpha\": ..., \"mpe\": [A, D]}", obj)
+    refuse_unknown_keys(obj, ("model", "alpha", "family_alpha", "sigma_um", "mpe"), name,
+                        key + ".")
+    out: dict[str, Any] = {"model": _file(obj["model"], name, key + ".model", base)}
+    for k in ("alpha", "family_alpha"):
+        if k in obj:
+            _check(_LEVEL[0](obj[k]), name, f"{key}.{k}", _LEVEL[1], obj[k])
+            out[k] = float(obj[k])
+    if obj.get("sigma_um") is not None:
+        _check(_num(1e-3, 1e3, False)(obj["sigma_um"]), name, key + ".sigma_um",
+               "a repeatability in µm from 0.001 to 1000, or null (the model's)",
+               obj["sigma_um"])
+        out["sigma_um"] = float(obj["sigma_um"])
+    if obj.get("mpe") is not None:
+        m = obj["mpe"]
+        _check(isinstance(m, list) and len(m) == 2 and _num(0, 1e4, False)(m[0])
+               and _num(1e-6, 1e9, False)(m[1]) and m[1] > 0, name, key + ".mpe",
+               "[A, D]: MPE = A µm + L/D with A >= 0 and D > 0, e.g. [0.6, 600]", m)
+        out["mpe"] = (float(m[0]), float(m[1]))
+    return CheckChoices(**out)
+
+
+def _history_choices(obj: Any, name: str, base: Path | None) -> HistoryChoices:
+    """The ``calibration_history`` block: ``{"models": [{"path", "date"}, ...],
+    "family_alpha", "nodes", "date"}``."""
+    key = "calibration_history"
+    _check(isinstance(obj, dict) and isinstance(obj.get("models"), list), name, key,
+           "an object {\"models\": [{\"path\": ..., \"date\": \"YYYY-MM-DD\"}, ...]}", obj)
+    refuse_unknown_keys(obj, ("models", "family_alpha", "nodes", "date"), name, key + ".")
+    models = []
+    for i, m in enumerate(obj["models"]):
+        where = f"{key}.models[{i}]"
+        _check(isinstance(m, dict) and _date(m.get("date")), name, where + ".date",
+               "a calibration date YYYY-MM-DD", m.get("date") if isinstance(m, dict) else m)
+        models.append((_file({k: v for k, v in m.items() if k != "date"}, name, where, base),
+                       str(m["date"])))
+    out: dict[str, Any] = {"models": tuple(models)}
+    if "family_alpha" in obj:
+        _check(_LEVEL[0](obj["family_alpha"]), name, key + ".family_alpha", _LEVEL[1],
+               obj["family_alpha"])
+        out["family_alpha"] = float(obj["family_alpha"])
+    if "nodes" in obj:
+        _check(_num(2, 21)(obj["nodes"]), name, key + ".nodes", "a whole number 2-21",
+               obj["nodes"])
+        out["nodes"] = int(obj["nodes"])
+    if obj.get("date") is not None:
+        _check(_date(obj["date"]), name, key + ".date",
+               "this analysis's calibration date YYYY-MM-DD, or null", obj["date"])
+        out["date"] = str(obj["date"])
+    _check(len(models) + (out.get("date") is not None) >= 2, name, key + ".models",
+           "at least two calibrations (the model files, and this analysis when date is "
+           "given)", obj["models"])
+    return HistoryChoices(**out)
+
+
+def _date(v: Any) -> bool:
+    """An ISO 8601 calendar date ``YYYY-MM-DD``."""
+    if not isinstance(v, str):
+        return False
+    try:
+        dt.date.fromisoformat(v)
+    except ValueError:
+        return False
+    return len(v) == 10
 
 
 def record_to_dict(record: AnalysisRecord, relative_to: str | Path | None = None) -> dict:
@@ -217,10 +298,24 @@ def record_to_dict(record: AnalysisRecord, relative_to: str | Path | None = None
         out["data"]["instruments"] = [{"kind": i.kind, **file(i.file)} for i in d.instruments]
     for k in KEYS[1:]:
         v = getattr(record, k)
+        if k in ("interim_check", "calibration_history"):
+            if v is not None:  # written only when there is one: older records stay
+                out[k] = _monitor_block(v, file)
+            continue
         out[k] = ([{"spec": s, "change": c} for s, c in v] if k == "history" else
                   [list(e) for e in v] if k == "exclusions" else
                   list(v) if isinstance(v, tuple) else v)
     return out
+
+
+def _monitor_block(v: CheckChoices | HistoryChoices, file: Any) -> dict:
+    """The ``interim_check`` or ``calibration_history`` block of a record (``file``
+    writes one DataFile)."""
+    if isinstance(v, CheckChoices):
+        return {"model": file(v.model), "alpha": v.alpha, "family_alpha": v.family_alpha,
+                "sigma_um": v.sigma_um, "mpe": None if v.mpe is None else list(v.mpe)}
+    return {"models": [{**file(f), "date": d} for f, d in v.models],
+            "family_alpha": v.family_alpha, "nodes": v.nodes, "date": v.date}
 
 
 def record_to_json(record: AnalysisRecord, relative_to: str | Path | None = None) -> str:
@@ -285,6 +380,10 @@ def record_to_project_json(record: AnalysisRecord) -> str:
                                       "probes")}
     rest = {k: v for k, v in full.items() if k not in ("data", "format", "version",
                                                        "exclusions", "history")}
+    for k in ("interim_check", "calibration_history"):  # the project carries the files
+        if getattr(record, k) is not None:
+            rest[k] = _monitor_block(getattr(record, k), lambda f: {
+                "name": f.name, "content": f.source_text()})
     if d.instruments:
         rest["instruments"] = [{"kind": i.kind, "name": i.file.name, "content": i.file.text()}
                                for i in d.instruments]

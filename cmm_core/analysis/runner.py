@@ -16,14 +16,16 @@ from __future__ import annotations
 import io
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from ..diagnosis import Diagnosis, detect_outliers, diagnose, estimate_sigma
+from ..export import Model, model_from_dict, model_from_result, results_dict
 from ..gp import GPComponents, gp_components
 from ..gum import MpeResult, check_dataset
-from ..io import Dataset, load_dataset
+from ..io import Dataset, load_dataset, read_json
 from ..model import (
     FitResult,
     Observations,
@@ -35,13 +37,17 @@ from ..model import (
     select,
     summary,
 )
+from ..monitor import CheckOutcome, History, compare_calibrations, run_check
 from .record import (
     AnalysisRecord,
+    CheckChoices,
     DataFile,
+    HistoryChoices,
     measured_error_from_residuals_um,
 )
 
-__all__ = ["load_data", "load_instruments", "with_instruments", "AnalysisResult", "run"]
+__all__ = ["load_data", "load_instruments", "with_instruments", "AnalysisResult", "run",
+           "load_stored_model", "results_document"]
 
 
 def load_data(record: AnalysisRecord) -> Dataset:
@@ -108,6 +114,12 @@ class AnalysisResult:
     rows, χ², rms_um, max_abs_z ...); empty without instruments."""
     instrument_residuals: pd.DataFrame | None = None
     """``instruments.residuals_frame`` of the fit (one row per reading), None without."""
+    interim: CheckOutcome | None = None
+    """The interim check of the record's data against its stored calibration
+    (``record.interim_check``), None without."""
+    calibration_history: History | None = None
+    """The machine's calibrations compared (``record.calibration_history``), None
+    without."""
 
 
 def _fit_kwargs(r: AnalysisRecord, exclude, **more) -> dict:
@@ -160,8 +172,48 @@ def run(record: AnalysisRecord) -> AnalysisResult:
         vals = measured_error_from_residuals_um(r.residuals_um) if kin else err
         gp = gp_components(obs.r_mm, vals, mean="zero" if kin else record.gp_mean,
                            kernel=record.gp_kernel, restarts=1, probe_mm=obs.p_mm)
+    interim = None if record.interim_check is None else _interim(
+        record.interim_check, ds, inst, record)
+    hist = None if record.calibration_history is None else _history(
+        record.calibration_history, r, ds.name)
     return AnalysisResult(record=record, dataset=ds, fit=r, exclusions=excl, flagged=flagged,
                           sigma=sigma, uncertainty=unc, history=tuple(history),
                           measured_error_um=err, diagnosis=diag, mpe=mpe, gp=gp,
                           instruments=tuple(summary(r)) if inst else (),
-                          instrument_residuals=residuals_frame(r) if inst else None)
+                          instrument_residuals=residuals_frame(r) if inst else None,
+                          interim=interim, calibration_history=hist)
+
+
+def load_stored_model(f: DataFile) -> Model:
+    """A stored calibration (a model file written by ``fit --save``) the record names;
+    DataError naming the file when it is not one."""
+    doc, _ = read_json(f.source_text().encode(), f.name)
+    return model_from_dict(doc, name=f.name)
+
+
+def _interim(c: CheckChoices, ds: Dataset, inst: tuple, record: AnalysisRecord
+             ) -> CheckOutcome:
+    """The interim check of the record's data (its selection, its instruments)."""
+    return run_check(load_stored_model(c.model), ds, instruments=inst, sigma_um=c.sigma_um,
+                     alpha=c.alpha, family_alpha=c.family_alpha,
+                     positions=record.positions and list(record.positions), mpe=c.mpe)
+
+
+def _history(h: HistoryChoices, r: FitResult, name: str) -> History:
+    """The calibration history: the model files, and this analysis's fit at its date."""
+    models = [(load_stored_model(f), d) for f, d in h.models]
+    if h.date is not None:
+        own = model_from_result(r)
+        models.append((replace(own, name=name), h.date))
+    return compare_calibrations(models, family_alpha=h.family_alpha,
+                                nodes_per_axis=h.nodes)
+
+
+def results_document(res: AnalysisResult, **kw: Any) -> dict:
+    """The results document (``export.results_dict``) of the record's fit with its
+    sections "interim_check" and "history" when the record asks for them (``kw``: the
+    coverage factor, source, created)."""
+    return results_dict(res.fit, interim_check=None if res.interim is None else
+                        res.interim.results_section(),
+                        history=None if res.calibration_history is None else
+                        res.calibration_history.results_section(), **kw)

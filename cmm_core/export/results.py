@@ -112,8 +112,14 @@ def _num(v):
 
 
 def results_dict(obj: Model | FitResult, *, coverage_factor: float = DEFAULT_COVERAGE_FACTOR,
-                 source: str | None = None, created: str | None = None) -> dict:
-    """The results document (JSON-ready; schema in docs/compensation.md)."""
+                 source: str | None = None, created: str | None = None,
+                 interim_check: dict | None = None, history: dict | None = None) -> dict:
+    """The results document (JSON-ready; schema in docs/compensation.md).
+
+    ``interim_check`` and ``history``: the sections of an interim check against a stored
+    calibration and of the machine's calibration history (``monitor``'s
+    ``CheckOutcome.results_section`` and ``History.results_section``, docs/monitoring.md),
+    written under those keys when given."""
     if not (math.isfinite(coverage_factor) and 1.0 <= coverage_factor <= 10.0):
         raise ValueError(f"the coverage factor must be from 1 to 10, found {coverage_factor!r}.")
     m = as_model(obj)
@@ -148,7 +154,9 @@ def results_dict(obj: Model | FitResult, *, coverage_factor: float = DEFAULT_COV
                           "chi2_test_dof": _num(t["chi2_test_dof"]), "dof": t["dof"],
                           "p_value": _num(t["p_value"]), "alpha": t["alpha"],
                           "fails": t["fails"], "birge_ratio": _num(t["birge_ratio"])},
-            "characteristics": chars}
+            "characteristics": chars,
+            **({} if interim_check is None else {"interim_check": interim_check}),
+            **({} if history is None else {"history": history})}
 
 
 def results_json(obj: Model | FitResult, **kw: Any) -> str:

@@ -26,12 +26,22 @@ from .check import (
     interim_check,
 )
 from .conformity import RULE, STATEMENTS, Conformity, conformity
-from .history import MAX_MAP_NODES_PER_AXIS, History, compare_calibrations
-from .outcome import VERDICTS, CheckOutcome, NewEffects, name_new_effects, run_check
+from .history import HISTORY_RULE, MAX_MAP_NODES_PER_AXIS, History, compare_calibrations
+from .outcome import (
+    CHANGE_RULE,
+    TEST_RULE,
+    VERDICTS,
+    CheckOutcome,
+    NewEffects,
+    json_num,
+    name_new_effects,
+    run_check,
+)
 from .scenario import remeasured
 
 __all__ = ["CheckSystem", "check_system", "GlsFit", "gls_fit", "interim_check", "InterimCheck",
            "MAX_OBSERVATIONS", "PROBE_TOLERANCE_MM", "remeasured", "Changes", "MIN_RESOLVED", "what_changed",
            "Conformity", "conformity", "RULE", "STATEMENTS", "holm", "History",
            "compare_calibrations", "MAX_MAP_NODES_PER_AXIS", "CheckOutcome", "NewEffects",
-           "name_new_effects", "run_check", "VERDICTS"]
+           "name_new_effects", "run_check", "VERDICTS", "TEST_RULE", "CHANGE_RULE",
+           "HISTORY_RULE", "json_num"]

@@ -28,6 +28,12 @@ from ..machine import kinematics as kin
 from ..units import UM
 from .changes import holm
 
+HISTORY_RULE = ("a parameter changed between two consecutive calibrations when E_n = "
+                "(c₂ − c₁) / sqrt(u₁² + u₂²) (two-sided, standard normal) is rejected by "
+                "Holm's step-down procedure at family_alpha over every pair and shared "
+                "parameter")
+"""The history's decision rule, as the results document states it."""
+
 MAX_MAP_NODES_PER_AXIS = 21
 """Largest grid of the error-map change (21³ = 9261 nodes)."""
 
@@ -73,6 +79,28 @@ class History:
     only_in: dict
     family_alpha: float
     map_change: pd.DataFrame
+
+    def results_section(self) -> dict:
+        """The "history" section of the results document (``export.results_dict``): every
+        shared parameter's change with its standard uncertainty and E_n, the decision
+        rule, the error map's largest change; numbers JSON-safe (NaN: null)."""
+        def num(v):
+            v = float(v)
+            return v if np.isfinite(v) else None
+
+        d = self.map_change
+        return {"models": list(self.names), "dates": list(self.dates),
+                "family_alpha": self.family_alpha, "method": "Holm",
+                "decision_rule": HISTORY_RULE, "message": self.message,
+                "changes": [{"name": r.label, "unit": r.unit, "date_from": r.date_from,
+                             "date_to": r.date_to, "value_from": num(r.value_from),
+                             "value_to": num(r.value_to), "change": num(r.change),
+                             "standard_uncertainty": num(r.u_change), "En": num(r.En),
+                             "p_value": num(r.p_value), "significant": bool(r.significant)}
+                            for r in self.changes.itertuples()],
+                "only_in": {k: list(v) for k, v in self.only_in.items()},
+                "map_change_max_um": {a: num(np.abs(d[f"de{a}_um"]).max()) for a in "xyz"},
+                "map_change_u_max_um": {a: num(d[f"u_de{a}_um"].max()) for a in "xyz"}}
 
     def to_dict(self) -> dict:
         """JSON-ready summary."""

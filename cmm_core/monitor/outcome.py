@@ -33,6 +33,17 @@ from .changes import Changes, what_changed
 from .check import InterimCheck, interim_check
 from .conformity import RULE, Conformity, conformity
 
+TEST_RULE = ("the machine no longer behaves as the stored model predicts when P(χ²_dof > χ²) "
+             "< alpha, χ² the generalised least-squares residual of the new data with the "
+             "covariance σ² I + J V Jᵀ + K U_cert Kᵀ (each placement's pose fitted; dof = "
+             "rows − 6 per placement)")
+"""The interim check's decision rule, as the results document states it."""
+CHANGE_RULE = ("a parameter moved when its change E_n = s / u(s) (the stored model refitted "
+               "on the new data with itself as the prior) is rejected by Holm's step-down "
+               "procedure at family_alpha over the parameters the new data resolve (at "
+               "least 10 % of their prior variance); *_alone: the same parameter's change "
+               "had it alone moved (score test, Holm at family_alpha)")
+"""The parameter changes' decision rule, as the results document states it."""
 VERDICTS = ("no change seen", "partial: no change seen in what was measured", "changed")
 """The one-line verdicts of :class:`CheckOutcome`."""
 
@@ -140,6 +151,14 @@ def name_new_effects(model: Model, check: InterimCheck, changes: Changes, *,
                       dict(diag.unseen), diag)
 
 
+def json_num(v: object) -> float | None:
+    """A JSON number: None for NaN, infinity or None."""
+    if v is None:
+        return None
+    f = float(v)  # type: ignore[arg-type]
+    return f if np.isfinite(f) else None
+
+
 def _unit(code: str) -> str:
     """A unit code as printed (``urad`` -> ``µrad``)."""
     return {"urad": "µrad", "um": "µm"}.get(code, code)
@@ -171,6 +190,39 @@ class CheckOutcome:
     changes: Changes
     effects: NewEffects | None
     conformity: Conformity | None
+
+    def results_section(self) -> dict:
+        """The "interim_check" section of the results document (``export.results_dict``):
+        the test, each tested parameter's change with its standard uncertainty, the new
+        effect, conformity, each with its decision rule; numbers JSON-safe (NaN: null)."""
+        c, ch = self.check, self.changes
+        tested = ch.table[ch.table["tested"]]
+        return {
+            "model": c.model_name, "verdict": self.verdict, "message": self.message,
+            "test": {"statistic": "chi2", "chi2": json_num(c.chi2), "dof": c.dof,
+                     "p_value": json_num(c.p_value), "alpha": c.alpha,
+                     "passes": c.passes, "decision_rule": TEST_RULE,
+                     "sigma_um": json_num(c.sigma_um), "n_ball_centres": len(c.table),
+                     "positions": list(c.positions),
+                     "coverage_95": json_num(c.coverage_95),
+                     "instruments": [{k: (json_num(v) if isinstance(v, float) else v)
+                                      for k, v in r.items()}
+                                     for r in c.instruments.to_dict("records")]},
+            "changes": {"family_alpha": ch.family_alpha, "method": "Holm",
+                        "decision_rule": CHANGE_RULE, "n_tested": ch.n_tested,
+                        "parameters": [
+                            {"name": r.label, "unit": r.unit, "stored": json_num(r.stored),
+                             "change": json_num(r.change),
+                             "standard_uncertainty": json_num(r.u_change),
+                             "En": json_num(r.En), "significant": bool(r.significant),
+                             "change_alone": json_num(r.change_alone),
+                             "standard_uncertainty_alone": json_num(r.u_change_alone),
+                             "significant_alone": bool(r.significant_alone),
+                             "resolved": json_num(r.resolved)}
+                            for r in tested.itertuples()],
+                        "unseen": list(ch.unseen)},
+            "new_effects": None if self.effects is None else self.effects.to_dict(),
+            "conformity": None if self.conformity is None else self.conformity.to_dict()}
 
     def to_dict(self) -> dict:
         """JSON-ready summary (the ``check`` command's output)."""
