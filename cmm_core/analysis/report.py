@@ -31,6 +31,7 @@ from ..diagnosis import Diagnosis
 from ..gum import MpeResult
 from ..io import DataError, Dataset, atomic_write_text
 from ..model import FitResult
+from ..monitor import CHANGE_RULE, HISTORY_RULE, TEST_RULE, VERDICTS, CheckOutcome, History
 from .figures import (
     fig_deviation,
     fig_error_functions,
@@ -231,7 +232,14 @@ def write_report(analysis_path: str | Path, out_path: str | Path) -> dict:
     return {"out": str(out_path), "bytes": len(text.encode()), **res.fit.summary(),
             "sigma": res.sigma,
             "excluded": [list(e) for e in res.exclusions],
-            "flagged_outliers": [list(e) for e in res.flagged]}
+            "flagged_outliers": [list(e) for e in res.flagged],
+            **({} if res.interim is None else {"interim_check": {
+                "verdict": res.interim.verdict, "chi2": res.interim.check.chi2,
+                "dof": res.interim.check.dof, "p_value": res.interim.check.p_value,
+                "new_effects": [] if res.interim.effects is None else
+                [e["effect"] for e in res.interim.effects.named if e["confirmed"]]}}),
+            **({} if res.calibration_history is None else {"history": {
+                "significant": list(res.calibration_history.significant)}})}
 
 
 def render(res: AnalysisResult, *, generated: str | None = None) -> str:
@@ -240,11 +248,125 @@ def render(res: AnalysisResult, *, generated: str | None = None) -> str:
     if res.diagnosis is not None:
         diag = pd.DataFrame(diagnosis_rows(res.diagnosis))
         text = diagnosis_conclusion(res.diagnosis)
+    figs: dict[str, str] = {}
+    sections = _record_sections(res) + monitor_sections(res.interim, res.calibration_history,
+                                                        figs)
     return build_report(res.dataset, res.fit, exclusions=res.exclusions,
                         history=list(res.history), uncertainty=res.uncertainty,
                         diagnosis=diag, magnification=res.record.magnification,
                         diagnosis_conclusion=text, mpe=res.mpe, generated=generated,
-                        sigma=res.sigma, extra_sections=_record_sections(res))
+                        sigma=res.sigma, extra_sections=sections, extra_figures=figs)
+
+
+def _esc(text: str) -> str:
+    return html.escape(str(text))
+
+
+def monitor_sections(interim: CheckOutcome | None, hist: History | None,
+                     figures: dict) -> list:
+    """The report's sections "Interim check" and "History" (docs/monitoring.md): the
+    test with its decision rule, the E_n map, what changed with the uncertainties, the
+    new effect the diagnosis names, what the check cannot see, conformity; the history's
+    changes with u and E_n, a trend plot, the error map's change. Figures go into
+    ``figures`` (ids ``mon1``, ``mon2`` ...)."""
+    out = []
+
+    def fig(f: go.Figure) -> str:
+        return figure_html(f, f"mon{len(figures) + 1}", figures)
+
+    if interim is not None:
+        c, ch = interim.check, interim.changes
+        ok = interim.verdict == VERDICTS[0]
+        kv = [("Stored calibration", c.model_name), ("Verdict", interim.verdict),
+              ("χ²", f"{c.chi2:.2f}"), ("Degrees of freedom", str(c.dof)),
+              ("p-value", f"{c.p_value:.3g}"), ("Level α", f"{c.alpha:g}"),
+              ("σ of the new data", f"{c.sigma_um:g} µm"),
+              ("Ball centres", str(len(c.table))),
+              ("Placements", ", ".join(map(str, c.positions)) or "none"),
+              ("Within their 95 % intervals", f"{100 * c.coverage_95:.1f} %")]
+        rows = "".join(f"<tr><th>{_esc(k)}</th><td>{_esc(v)}</td></tr>" for k, v in kv)
+        body = [f"<p class='chi2{'' if ok else ' fail'}'><b>{_esc(interim.verdict)}</b>: "
+                f"{_esc(interim.message)}</p>", f"<table class='kv'>{rows}</table>",
+                f"<p>{_esc(c.message)}</p>",
+                f"<p class='note'>Decision rule: {_esc(TEST_RULE)}.</p>"]
+        if len(c.table):
+            t = c.table.assign(En=c.table[["En_x", "En_y", "En_z"]].abs().max(axis=1))
+            f = go.Figure(go.Scatter(
+                x=t["x_mm"], y=t["y_mm"], mode="markers",
+                marker={"color": t["En"], "colorscale": "Reds", "cmin": 0, "cmax": 4,
+                        "size": 9, "colorbar": {"title": "largest |E_n|"}},
+                text=[f"{p}/{q} ball {b}" for p, q, b in zip(t["position"], t["probe"],
+                                                             t["ball"], strict=True)]))
+            f.update_layout(title="Normalised errors of the new observations (scale "
+                                  "readings)", xaxis_title="x (mm)", yaxis_title="y (mm)",
+                            height=450)
+            body.append(fig(f))
+            cols = ["position", "probe", "ball", "dx_um", "dy_um", "dz_um", "u_dx_um",
+                    "u_dy_um", "u_dz_um", "En_x", "En_y", "En_z"]
+            body.append("<p class='note'>The 10 largest |E_n| (residual: measured minus "
+                        "predicted after the pose fit, µm; u: its standard uncertainty "
+                        "with the stored model's, the certificate's and σ).</p>"
+                        + _table_html(t.nlargest(min(10, len(t)), "En")[cols]))
+        if len(c.instruments):
+            body.append(_table_html(c.instruments))
+        tested = ch.table[ch.table["tested"]]
+        body.append(f"<h3>What changed</h3><p>{_esc(ch.message)}</p>" + _table_html(
+            tested[["label", "unit", "stored", "change", "u_change", "En", "significant",
+                    "change_alone", "u_change_alone", "En_alone", "significant_alone",
+                    "resolved"]])
+            + f"<p class='note'>Decision rule: {_esc(CHANGE_RULE)}.</p>")
+        if interim.effects is not None:
+            body.append(f"<h3>New effect (the diagnosis against the stored model)</h3><p>"
+                        f"{_esc(interim.effects.message)}</p>")
+            if interim.effects.named:
+                body.append(_table_html(pd.DataFrame([
+                    {"effect": e["effect"], "title": e["title"],
+                     "size": "; ".join(f"{k} {v['value']:+.3g} ± {v['u']:.2g} {v['unit']}"
+                                       for k, v in e["fitted"].items()),
+                     "p_value": e["p_value"], "confirmed": e["confirmed"]}
+                    for e in interim.effects.named])))
+        unseen = ch.unseen
+        body.append("<h3>What this check cannot see</h3>" + (
+            f"<p>{len(unseen)} combination(s) of the stored model's parameters (a change "
+            "there passes unnoticed):</p><ul>" + "".join(f"<li>{_esc(u)}</li>"
+                                                         for u in unseen) + "</ul>"
+            if unseen else "<p>Nothing: the new data resolve every combination of the "
+                           "stored model's parameters.</p>"))
+        if interim.conformity is not None:
+            cf = interim.conformity
+            body.append(f"<h3>Conformity</h3><p><b>{_esc(cf.statement)}</b>: "
+                        f"{_esc(cf.message)}</p>")
+        out.append(("Interim check", "".join(body)))
+    if hist is not None:
+        body = [f"<p>{_esc(hist.message)}</p>",
+                "<p class='note'>Calibrations: " + _esc(", ".join(
+                    f"{n} ({d})" for n, d in zip(hist.names, hist.dates, strict=True)))
+                + f". Decision rule: {_esc(HISTORY_RULE)}.</p>"]
+        chg = hist.changes
+        sig = list(dict.fromkeys(chg.loc[chg["significant"], "label"]))
+        shown = sig or list(dict.fromkeys(hist.trend["label"]))[:4]
+        f = go.Figure()
+        for lab in shown:
+            tr = hist.trend[hist.trend["label"] == lab]
+            f.add_trace(go.Scatter(x=tr["date"], y=tr["value"], name=lab,
+                                   mode="lines+markers",
+                                   error_y={"type": "data", "array": tr["u"]}))
+        f.update_layout(title=("Significant changes" if sig else "Parameters") +
+                        " over the calibrations (± u)", xaxis_title="date",
+                        yaxis_title="value (µm or µrad)", height=400)
+        body.append(fig(f))
+        body.append(_table_html(chg))
+        d = hist.map_change
+        body.append("<p class='note'>The error map's change, first to last calibration, "
+                    "over the working volume (ram reference point): largest |change| and "
+                    "largest standard uncertainty per component (µm).</p>" + _table_html(
+                        pd.DataFrame([{"component": a,
+                                       "largest |change| (µm)": float(np.abs(
+                                           d[f"de{a}_um"]).max()),
+                                       "largest u (µm)": float(d[f"u_de{a}_um"].max())}
+                                      for a in "xyz"])))
+        out.append(("History", "".join(body)))
+    return out
 
 
 def diagnosis_rows(d: Diagnosis) -> list:
@@ -265,7 +387,7 @@ def build_report(dataset: Dataset, result: FitResult, *, exclusions: Iterable = 
                  diagnosis: pd.DataFrame | None = None, magnification: float = 2000.0,
                  extra_sections: Iterable = (), diagnosis_conclusion: str = "",
                  mpe: MpeResult | None = None, generated: str | None = None,
-                 sigma: dict | None = None) -> str:
+                 sigma: dict | None = None, extra_figures: dict | None = None) -> str:
     """A self-contained HTML report of a fit: summary, figures and tables.
 
     Prefer :func:`analysis_report`, which builds every argument from one analysis record.
@@ -291,6 +413,9 @@ def build_report(dataset: Dataset, result: FitResult, *, exclusions: Iterable = 
         Generation time printed (default: now, UTC, to the minute).
     sigma : dict, optional
         How σ was chosen (``{"auto": bool, ...}``, :func:`cmm_core.analysis.run`).
+    extra_figures : dict, optional
+        The figures of ``extra_sections`` (div id -> figure JSON, :func:`figure_html`),
+        packed with the report's own.
 
     Returns
     -------
@@ -298,7 +423,7 @@ def build_report(dataset: Dataset, result: FitResult, *, exclusions: Iterable = 
         One HTML document; plotly.js is embedded once, compressed (no network needed).
     """
     parts: list[str] = []
-    figures: dict[str, str] = {}
+    figures: dict[str, str] = dict(extra_figures or {})
 
     def fig_html(fig):
         return figure_html(fig, f"fig{len(figures) + 1}", figures)
