@@ -1,4 +1,4 @@
-"""The command line (``python -m cmm_core``): one subcommand per task, JSON on stdout with
+"""The command line (``cmm-error-lab``, or ``python -m cmm_core``): one subcommand per task, JSON on stdout with
 ``--json``, one-line errors on stderr and a non-zero exit (``docs/formats.md``).
 
 Owns: :mod:`.commands` (the parser and :func:`main`), :mod:`.inputs` (shared arguments),
@@ -21,6 +21,7 @@ from .commands import (
     cmd_simulate,
     cmd_task,
     main,
+    program_name,
 )
 from .export import AXIS_TABLE_FILES, add_arguments, add_parser, command, output_files, run
 from .inputs import (
@@ -60,5 +61,5 @@ __all__ = [
     "command", "data_of", "dataset_of", "exclusions_of", "instruments_of", "main", "MAX_CHECK_TRIALS",
     "MAX_MESSAGE", "MAX_TRIALS", "MAX_WORKERS", "MEAS_HELP", "MIN_TRIALS", "number_arg",
     "ORDER_HELP",
-    "output_files", "PLATE_HELP", "run", "run_plan", "run_task", "SETUP_HELP", "sigma_of"
+    "output_files", "PLATE_HELP", "program_name", "run", "run_plan", "run_task", "SETUP_HELP", "sigma_of"
 ]

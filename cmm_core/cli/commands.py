@@ -180,9 +180,16 @@ _JSON_HELP = ("write the JSON result to FILE instead of stdout, whole or not at 
               "the command; default: stdout)")
 
 
+def program_name() -> str:
+    """How the user called the command line, for usage lines and hints: ``cmm-error-lab``
+    (the installed console script) or ``python -m cmm_core``."""
+    called = Path(sys.argv[0]).name if sys.argv and sys.argv[0] else ""
+    return "cmm-error-lab" if called.startswith("cmm-error-lab") else "python -m cmm_core"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Argument parser with one sub-command per command of docs/formats.md."""
-    ap = _Parser(prog="python -m cmm_core", description="CMM error lab")
+    ap = _Parser(prog=program_name(), description="CMM error lab")
     ap.add_argument("--json", metavar="FILE", help=_JSON_HELP)
     sub = ap.add_subparsers(dest="command", required=True)
     p = sub.add_parser("simulate", help="simulate a virtual CMM")
