@@ -13,23 +13,32 @@ import argparse
 import math
 from pathlib import Path
 
-from ..export import load_model
-from ..io import DataError, load_dataset
-from ..monitor import (
-    MAX_MAP_NODES_PER_AXIS,
-    compare_calibrations,
-    conformity,
-    interim_check,
-    what_changed,
+from ..analysis import (
+    AnalysisRecord,
+    CheckChoices,
+    DataFile,
+    DataSources,
+    InstrumentFile,
+    render,
+    run,
 )
-from .inputs import number_arg
+from ..export import load_model, results_json
+from ..io import DataError, atomic_write_text, check_outputs, load_dataset
+from ..monitor import MAX_MAP_NODES_PER_AXIS, compare_calibrations, run_check
+from .inputs import add_instrument_args, instruments_of, number_arg
 
 _MODEL_HELP = ("the stored calibration: a model file written by 'fit --save' (kinematic "
                "coefficients with their covariance, σ, layout, strokes and styli)")
 _MEAS_HELP = ("the new measurements (long CSV, docs/formats.md): one placement of the plate "
-              "is enough; several files are read as one")
+              "is enough; several files are read as one; none when instruments alone "
+              "(--laser, --step-gauge, --ball-bar) are the check")
 _SETUP_HELP = ("setup JSON of the new measurements (layout, strokes, placements, styli; "
-               "required): the machine must be the model's")
+               "required with measurements): the machine must be the model's")
+_REPORT_HELP = ("write the HTML report of the check (an analysis record of the new data "
+                "with its section 'Interim check', docs/report.md); needs plate "
+                "measurements")
+_RESULTS_HELP = ("write the results document (JSON, docs/compensation.md) with its section "
+                 "'%s': the numbers with their uncertainties and decision rules")
 _CERT_HELP = ("certificate CSV of the plate (calibrated ball centres with their "
               "uncertainties): the check predicts the balls from it (default: the one the "
               "setup names; one of the two is required)")
@@ -72,8 +81,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "check", help="interim check of new measurements against a stored calibration: χ² "
                       "test, E_n per ball, what changed, conformity to the MPE")
     p.add_argument("model", metavar="MODEL.json", help=_MODEL_HELP)
-    p.add_argument("meas", nargs="+", metavar="MEAS.csv", help=_MEAS_HELP)
-    p.add_argument("--setup", metavar="SETUP.json", required=True, help=_SETUP_HELP)
+    p.add_argument("meas", nargs="*", metavar="MEAS.csv", help=_MEAS_HELP)
+    p.add_argument("--setup", metavar="SETUP.json", default=None, help=_SETUP_HELP)
     p.add_argument("--certificate", metavar="CERT.csv", help=_CERT_HELP)
     p.add_argument("--sigma-um", type=number_arg(float, 1e-3, 999.999, "µm"), default=None, metavar="UM", help=_SIGMA_HELP)
     p.add_argument("--alpha", type=_LEVEL, default=0.05, metavar="LEVEL", help=_ALPHA_HELP)
@@ -81,6 +90,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help=_FAMILY_HELP)
     p.add_argument("--positions", default=None, metavar="P1,P2", help=_POS_HELP)
     p.add_argument("--mpe", type=_mpe, default=None, metavar="A,D", help=_MPE_HELP)
+    add_instrument_args(p)
+    p.add_argument("--report", metavar="OUT.html", default=None, help=_REPORT_HELP)
+    p.add_argument("--results-json", metavar="OUT.json", default=None,
+                   help=_RESULTS_HELP % "interim_check")
     p.set_defaults(func=_command_check)
     p = subparsers.add_parser(
         "compare", help="a machine's calibration history: every shared parameter's change "
@@ -91,33 +104,77 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--family-alpha", type=_LEVEL, default=0.05, metavar="LEVEL",
                    help=_FAMILY_HELP)
     p.add_argument("--nodes", type=number_arg(int, 2, MAX_MAP_NODES_PER_AXIS), default=5, metavar="N", help=_NODES_HELP)
+    p.add_argument("--results-json", metavar="OUT.json", default=None,
+                   help=(_RESULTS_HELP % "history") + " beside the latest calibration's "
+                   "parameters")
     p.set_defaults(func=_command_compare)
 
 
 def _command_check(args) -> dict:
-    """The interim check, what changed and (with ``--mpe``) conformity, as a JSON dict."""
+    """The interim check, what changed, the new effect and (with ``--mpe``) conformity,
+    as a JSON dict; with ``--report`` / ``--results-json`` those files too."""
+    inputs = [args.model, *args.meas, args.setup, args.certificate, *args.laser,
+              *args.step_gauge, *args.ball_bar]
+    check_outputs({"--report": args.report, "--results-json": args.results_json}, inputs)
+    if not args.meas and (args.setup or args.certificate):
+        raise DataError("--setup and --certificate describe plate measurements; none was "
+                        "given.", file="command line", column="MEAS.csv",
+                        hint="give the measurements, or check with instruments alone.")
+    if args.meas and args.setup is None:
+        raise DataError("the measurements need their setup (--setup SETUP.json).",
+                        file="command line", column="--setup")
+    if args.report and not args.meas:
+        raise DataError("--report needs plate measurements (the report is that of an "
+                        "analysis of them); use --results-json for instruments alone.",
+                        file="command line", column="--report")
     model = load_model(args.model)
-    data = load_dataset(args.meas, args.setup, args.certificate,
-                        name=", ".join(Path(m).name for m in args.meas))
+    instruments = instruments_of(args)
+    if not args.meas and not instruments:
+        raise DataError("nothing to check: give measurements (MEAS.csv --setup ...) or "
+                        "instrument files (--laser, --step-gauge, --ball-bar).",
+                        file="command line", column="MEAS.csv")
+    data = None
+    if args.meas:
+        data = load_dataset(args.meas, args.setup, args.certificate,
+                            name=", ".join(Path(m).name for m in args.meas))
     positions = None if args.positions is None else \
         [p.strip() for p in args.positions.split(",") if p.strip()]
     if positions is not None:
-        unknown = [p for p in positions if p not in set(map(str, data.positions))]
+        known = [] if data is None else list(map(str, data.positions))
+        unknown = [p for p in positions if p not in set(known)]
         if unknown:
             raise DataError(f"placement {unknown[0]!r} is not in the data (known: "
-                            f"{', '.join(map(str, data.positions))}).", file=data.name,
+                            f"{', '.join(known) or 'none'}).",
+                            file="command line" if data is None else data.name,
                             column="position")
-    check = interim_check(model, data, sigma_um=args.sigma_um, alpha=args.alpha,
-                          positions=positions)
-    changes = what_changed(model, check, family_alpha=args.family_alpha)
-    out: dict[str, object] = {"model": Path(args.model).name, "check": check.to_dict(),
-                              "changes": changes.to_dict()}
-    if args.mpe is not None:
-        a, d = args.mpe
-        out["conformity"] = conformity(model, check, data, mpe_a_um=a, mpe_per_mm=1 / d,
-                                       changes=changes).to_dict()
-    else:
-        out["conformity"] = None
+    outcome = run_check(model, data, instruments=instruments, sigma_um=args.sigma_um,
+                        alpha=args.alpha, family_alpha=args.family_alpha,
+                        positions=positions, mpe=args.mpe)
+    out: dict[str, object] = {"model": Path(args.model).name, **outcome.to_dict()}
+    if args.results_json:
+        atomic_write_text(args.results_json, results_json(
+            model, source=Path(args.model).name,
+            interim_check=outcome.results_section()))
+        out["results_json"] = str(args.results_json)
+    if args.report:
+        record = AnalysisRecord(
+            DataSources(", ".join(Path(m).name for m in args.meas),
+                        tuple(DataFile(Path(m).name, str(m)) for m in args.meas),
+                        DataFile(Path(args.setup).name, str(args.setup)),
+                        None if args.certificate is None else
+                        DataFile(Path(args.certificate).name, str(args.certificate)),
+                        tuple(InstrumentFile(k, DataFile(Path(f).name, str(f)))
+                              for k, fs in (("laser", args.laser),
+                                            ("step_gauge", args.step_gauge),
+                                            ("ball_bar", args.ball_bar)) for f in fs)),
+            spec=model.spec, sigma_um=float(outcome.check.sigma_um),
+            positions=None if positions is None else tuple(positions),
+            interim_check=CheckChoices(DataFile(Path(args.model).name, str(args.model)),
+                                       args.alpha, args.family_alpha, args.sigma_um,
+                                       args.mpe))
+        text = render(run(record))
+        atomic_write_text(args.report, text)
+        out["report"] = str(args.report)
     return out
 
 
@@ -127,7 +184,15 @@ def _command_compare(args) -> dict:
         raise DataError(f"{len(args.models)} model(s) but {len(args.dates)} date(s); give "
                         "one date per model, in the same order.", file="command line",
                         column="--dates")
+    check_outputs({"--results-json": args.results_json}, args.models)
     models = [load_model(m) for m in args.models]
-    return compare_calibrations(list(zip(models, args.dates, strict=True)),
-                                family_alpha=args.family_alpha,
-                                nodes_per_axis=args.nodes).to_dict()
+    h = compare_calibrations(list(zip(models, args.dates, strict=True)),
+                             family_alpha=args.family_alpha, nodes_per_axis=args.nodes)
+    out = h.to_dict()
+    if args.results_json:
+        last = max(range(len(models)), key=lambda i: args.dates[i])
+        atomic_write_text(args.results_json, results_json(
+            models[last], source=Path(args.models[last]).name,
+            history=h.results_section()))
+        out["results_json"] = str(args.results_json)
+    return out
