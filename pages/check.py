@@ -11,6 +11,7 @@ import streamlit as st
 from cmm_core import export as ex
 from cmm_core import io as cio
 from cmm_core import monitor as mon
+from cmm_core.model import INSTRUMENT_KINDS, read_instrument
 from pages import calls, frame
 
 frame.page_start()
@@ -30,16 +31,19 @@ def _model(name: str, text: str):
 
 
 @st.cache_data(show_spinner=False, max_entries=8)
-def run_check(model_name, model_text, meas, setup, cert, alpha, family_alpha, mpe):
-    """The check, what changed and (with an MPE) conformity, as plain tables and dicts."""
+def run_check(model_name, model_text, meas, setup, cert, alpha, family_alpha, mpe,
+              instruments=()):
+    """The check, what changed, the new effect the diagnosis names and (with an MPE)
+    conformity, as plain tables and dicts (``monitor.run_check``); ``meas`` None: the
+    instruments (``(kind, name, bytes)``) alone are the check."""
     model = _model(model_name, model_text)
-    data = cio.load_dataset([(io.BytesIO(meas[1]), meas[0])], io.BytesIO(setup[1]),
-                            (io.BytesIO(cert[1]), cert[0]), name=meas[0])
-    check = mon.interim_check(model, data, alpha=alpha)
-    changes = mon.what_changed(model, check, family_alpha=family_alpha)
-    conf = None if mpe is None else mon.conformity(
-        model, check, data, mpe_a_um=mpe[0], mpe_per_mm=1 / mpe[1], changes=changes).to_dict()
-    return check.to_dict(), check.table, changes.to_dict(), changes.table, conf
+    data = None if meas is None else cio.load_dataset(
+        [(io.BytesIO(meas[1]), meas[0])], io.BytesIO(setup[1]),
+        None if cert is None else (io.BytesIO(cert[1]), cert[0]), name=meas[0])
+    inst = [read_instrument(io.BytesIO(b), kind, name=n) for kind, n, b in instruments]
+    out = mon.run_check(model, data, instruments=inst, alpha=alpha,
+                        family_alpha=family_alpha, mpe=mpe)
+    return out.to_dict(), out.check.table, out.changes.table
 
 
 @st.cache_data(show_spinner=False, max_entries=8)
@@ -67,7 +71,7 @@ with t_check:
         st.caption(f"Stored calibration: {SAMPLE_MODEL}.")
         files = ((SAMPLE_MODEL, (HISTORY / SAMPLE_MODEL).read_text()),
                  _read(folder / "measurements.csv"), _read(folder / "setup.json"),
-                 _read(folder / "certificate.csv"))
+                 _read(folder / "certificate.csv"), ())
     else:
         up_model = st.file_uploader("Stored model (fit --save JSON)", type=["json"],
                                     key="chk_model")
@@ -75,13 +79,22 @@ with t_check:
                                    key="chk_meas")
         up_setup = st.file_uploader("Setup (JSON)", type=["json"], key="chk_setup")
         up_cert = st.file_uploader("Certificate (CSV)", type=["csv", "txt"], key="chk_cert")
-        if all(u is not None for u in (up_model, up_meas, up_setup, up_cert)):
+        kind = st.selectbox("Instrument files are", list(INSTRUMENT_KINDS), key="chk_kind",
+                            help="laser runs, step gauges or ball bars of the check "
+                                 "(docs/instruments.md): alone, or beside the plate")
+        up_inst = st.file_uploader("Instrument files (CSV, optional)", type=["csv", "txt"],
+                                   accept_multiple_files=True, key="chk_inst")
+        plate = all(u is not None for u in (up_meas, up_setup, up_cert))
+        if up_model is not None and (plate or up_inst):
             files = ((up_model.name, up_model.getvalue().decode("utf-8", "replace")),
-                     (up_meas.name, up_meas.getvalue()), (up_setup.name, up_setup.getvalue()),
-                     (up_cert.name, up_cert.getvalue()))
+                     (up_meas.name, up_meas.getvalue()) if plate else None,
+                     (up_setup.name, up_setup.getvalue()) if plate else None,
+                     (up_cert.name, up_cert.getvalue()) if plate else None,
+                     tuple((kind, u.name, u.getvalue()) for u in up_inst or ()))
         else:
-            st.info("Upload the stored model, the new measurements, their setup and the "
-                    "plate's certificate.")
+            st.info("Upload the stored model and the new data: the measurements with "
+                    "their setup and the plate's certificate, or instrument files, or "
+                    "both.")
     c1, c2, c3 = st.columns(3)
     alpha = c1.number_input("χ² test level", 0.001, 0.2, 0.05, 0.01, key="chk_alpha",
                             help="fraction of checks of an unchanged machine that fail")
@@ -101,31 +114,52 @@ with t_check:
                      f"{mpe_text[:40]!r}.")
     if files is not None:
         out = calls.safe(run_check, files[0][0], files[0][1], files[1], files[2], files[3],
-                     float(alpha), float(family), mpe, what="Interim check")
+                         float(alpha), float(family), mpe, files[4], what="Interim check")
         if out is not None:
-            chk, table, chg, chg_table, conf = out
+            res, table, chg_table = out
+            chk, chg, eff, conf = (res["check"], res["changes"], res["new_effects"],
+                                   res["conformity"])
             m1, m2, m3 = st.columns(3)
             m1.metric("χ² / dof", f"{chk['chi2']:.1f} / {chk['dof']}")
             m2.metric("p-value", f"{chk['p_value']:.3g}")
             m3.metric("Within 95 % intervals", f"{100 * chk['coverage_95']:.1f} %")
-            (st.success if chk["status"] == "passes" else st.warning)(chk["message"])
-            with calls.guarded("E_n map"):
-                t = table.assign(En=table[["En_x", "En_y", "En_z"]].abs().max(axis=1))
-                fig = px.scatter(t, x="x_mm", y="y_mm", color="En", symbol="position",
-                                 hover_data=["probe", "ball", "En_x", "En_y", "En_z"],
-                                 color_continuous_scale="Reds", range_color=(0, 4),
-                                 labels={"x_mm": "x (mm)", "y_mm": "y (mm)",
-                                         "En": "largest |E_n|"},
-                                 title="Normalised errors of the new observations "
-                                       "(scale readings)")
-                st.plotly_chart(fig, key="chk_map")
+            # a changed machine is a result, not a failure of the page: a warning; a
+            # partial check says what it could not see
+            show = {"no change seen": st.success, "changed": st.warning}.get(
+                res["verdict"], st.info)
+            show(f"**Verdict: {res['verdict']}.** {res['message']}")
+            st.caption(chk["message"])
+            if len(table):
+                with calls.guarded("E_n map"):
+                    t = table.assign(En=table[["En_x", "En_y", "En_z"]].abs().max(axis=1))
+                    fig = px.scatter(t, x="x_mm", y="y_mm", color="En", symbol="position",
+                                     hover_data=["probe", "ball", "En_x", "En_y", "En_z"],
+                                     color_continuous_scale="Reds", range_color=(0, 4),
+                                     labels={"x_mm": "x (mm)", "y_mm": "y (mm)",
+                                             "En": "largest |E_n|"},
+                                     title="Normalised errors of the new observations "
+                                           "(scale readings)")
+                    st.plotly_chart(fig, key="chk_map")
+            if chk.get("instruments"):
+                frame.dataframe(pd.DataFrame(chk["instruments"]), hide_index=True,
+                                key="chk_instruments")
+            if eff is not None:
+                st.subheader("New effect")
+                st.write(eff["message"])
+                if eff["named"]:
+                    frame.dataframe(pd.DataFrame([
+                        {"effect": e["effect"], "title": e["title"],
+                         "size": "; ".join(f"{k} {v['value']:+.3g} ± {v['u']:.2g} "
+                                           f"{v['unit']}" for k, v in e["fitted"].items()),
+                         "p-value": e["p_value"], "confirmed": e["confirmed"]}
+                        for e in eff["named"]]), hide_index=True, key="chk_effects")
             st.subheader("What changed")
             st.write(chg["message"])
             shown = chg_table[chg_table["tested"]].copy()
             frame.dataframe(shown[["label", "unit", "change", "u_change", "En", "significant",
-                               "change_alone", "u_change_alone", "En_alone",
-                               "significant_alone", "resolved"]],
-                        hide_index=True, key="chk_changes")
+                                   "change_alone", "u_change_alone", "En_alone",
+                                   "significant_alone", "resolved"]],
+                            hide_index=True, key="chk_changes")
             if chg["unseen"]:
                 with st.expander(f"{len(chg['unseen'])} combination(s) the new data cannot "
                                  "see"):

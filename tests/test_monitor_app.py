@@ -28,8 +28,11 @@ def test_crash_sample_fails_names_sxy_and_history_shows_it():
     at = _page()
     assert any("Interim check" in t.value for t in at.title)
     _ok(at)  # the default sample: the check after the crash
-    assert any("no longer behaves" in w.value for w in at.warning)
+    assert any("Verdict: changed" in w.value for w in at.warning)
+    assert any("no longer behaves" in c.value for c in at.caption)
     assert any("sxy" in m.value for m in at.markdown)
+    # the diagnosis against the stored model names the crash's squareness
+    assert any("names squareness XY (sxy" in m.value for m in at.markdown)
     # the history tab: the squareness's change between the last two calibrations
     assert any("sxy" in m.value and "significant" in m.value for m in at.markdown)
 
@@ -38,7 +41,10 @@ def test_quiet_sample_passes_and_bad_mpe_is_one_message():
     at = _page()
     at.selectbox(key="chk_sample").set_value("quiet (2024-06-17, one placement)").run()
     _ok(at)
-    assert any("behaves as the stored model predicts" in s.value for s in at.success)
+    # one placement passes but cannot see every combination: partial, never "unchanged"
+    assert any("behaves as the stored model predicts" in c.value for c in at.caption)
+    assert any("partial" in i.value and "cannot see" in i.value for i in at.info)
+    assert not at.success
     at.text_input(key="chk_mpe").set_value("six").run()
     assert not at.exception
     assert [e.value for e in at.error] and "MPE" in at.error[0].value
