@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 from dataclasses import replace
@@ -400,5 +401,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: {_one_line(exc, None)}", file=sys.stderr)
             return 2
     else:
-        print(text)
+        try:
+            print(text)
+            sys.stdout.flush()
+        except BrokenPipeError:
+            # the reader stopped early (``| head``): not an error of this command; stdout
+            # is pointed at devnull so that the interpreter's own flush at exit is quiet
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0
