@@ -75,3 +75,57 @@ def test_check_help_states_the_decision_rule():
                if isinstance(a, argparse._SubParsersAction))
     text = sub.choices["check"].format_help()
     assert "--mpe" in text and "ISO 14253-1" in text
+
+
+def test_check_names_the_new_effect_and_writes_report_and_results(capsys, tmp_path):
+    rep, res = tmp_path / "check.html", tmp_path / "results.json"
+    code, out, _ = _run(_check_args(CRASH, "--mpe", "0.6,600", "--report", str(rep),
+                                    "--results-json", str(res)), capsys)
+    assert code == 0
+    d = json.loads(out)
+    assert d["verdict"] == "changed"
+    assert d["new_effects"]["named"][0]["effect"] == "sxy"
+    assert d["report"] == str(rep) and d["results_json"] == str(res)
+    text = rep.read_text()
+    assert "<h2>Interim check</h2>" in text and "names squareness XY (sxy" in text
+    doc = json.loads(res.read_text())
+    # the stored model's parameters, and the check's section with the same numbers
+    assert doc["model"]["name"] == "calibration_2024-03-04.json"
+    assert doc["interim_check"]["test"]["chi2"] == d["check"]["chi2"]
+
+
+def test_check_with_a_ball_bar_alone_is_partial(capsys, tmp_path):
+    # two ball-bar lengths (indicated centres exactly 500 mm apart): two rows see a few
+    # combinations of 33; whatever the test says, the verdict is never "no change seen"
+    bar = tmp_path / "bar.csv"
+    bar.write_text("bar,x1_mm,y1_mm,z1_mm,x2_mm,y2_mm,z2_mm,certified_mm,u_um\n"
+                   "B1,250,400,300,750,400,300,500.0,0.3\n"
+                   "B2,500,150,300,500,650,300,500.0,0.3\n")
+    code, out, err = _run(["check", str(H / "calibration_2024-03-04.json"), "--ball-bar",
+                           str(bar), "--mpe", "0.6,600"], capsys)
+    assert code == 0, err
+    d = json.loads(out)
+    assert d["check"]["dof"] == 2 and d["check"]["instruments"][0]["kind"] == "ball_bar"
+    assert d["verdict"] != "no change seen"
+    assert d["conformity"]["statement"] == "cannot say"
+
+
+@pytest.mark.parametrize("extra, text", [
+    ([], "nothing to check"),
+    (["--setup", "s.json"], "--setup and --certificate describe plate measurements"),
+])
+def test_check_without_new_data_is_refused_in_one_line(extra, text, capsys):
+    code, out, err = _run(["check", str(H / "calibration_2024-03-04.json"), *extra], capsys)
+    assert code == 2 and out == "" and text in err and err.count("\n") == 1
+
+
+def test_compare_writes_the_history_into_the_results(capsys, tmp_path):
+    res = tmp_path / "history.json"
+    models = sorted(str(p) for p in H.glob("calibration_*.json"))
+    code, out, _ = _run(["compare", *models, "--dates", "2023-03-01", "2024-03-04",
+                         "2025-03-03", "--results-json", str(res)], capsys)
+    assert code == 0
+    doc = json.loads(res.read_text())
+    assert doc["model"]["name"] == "calibration_2025-03-03.json"
+    assert doc["history"]["dates"] == ["2023-03-01", "2024-03-04", "2025-03-03"]
+    assert [r["name"] for r in doc["history"]["changes"] if r["significant"]] == ["sxy"]

@@ -33,12 +33,14 @@ _MEAS_HELP = ("the new measurements (long CSV, docs/formats.md): one placement o
               "is enough; several files are read as one; none when instruments alone "
               "(--laser, --step-gauge, --ball-bar) are the check")
 _SETUP_HELP = ("setup JSON of the new measurements (layout, strokes, placements, styli; "
-               "required with measurements): the machine must be the model's")
+               "required with measurements; default: none, for instruments alone): the "
+               "machine must be the model's")
 _REPORT_HELP = ("write the HTML report of the check (an analysis record of the new data "
                 "with its section 'Interim check', docs/report.md); needs plate "
-                "measurements")
+                "measurements (default: no report)")
 _RESULTS_HELP = ("write the results document (JSON, docs/compensation.md) with its section "
-                 "'%s': the numbers with their uncertainties and decision rules")
+                 "'%s': the numbers with their uncertainties and decision rules (default: "
+                 "none)")
 _CERT_HELP = ("certificate CSV of the plate (calibrated ball centres with their "
               "uncertainties): the check predicts the balls from it (default: the one the "
               "setup names; one of the two is required)")
@@ -105,8 +107,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help=_FAMILY_HELP)
     p.add_argument("--nodes", type=number_arg(int, 2, MAX_MAP_NODES_PER_AXIS), default=5, metavar="N", help=_NODES_HELP)
     p.add_argument("--results-json", metavar="OUT.json", default=None,
-                   help=(_RESULTS_HELP % "history") + " beside the latest calibration's "
-                   "parameters")
+                   help=(_RESULTS_HELP % "history").replace(" (default", ", beside the "
+                                                             "latest calibration's parameters "
+                                                             "(default"))
     p.set_defaults(func=_command_compare)
 
 
