@@ -13,6 +13,149 @@ from cmm_core.diagnosis import BLUNDERS
 from cmm_core.model import PERIODIC, catalogue_entry, parse_spec
 from pages import cached, calls, frame, state
 
+NEXT_TOP = 3
+"""Proposals shown with their buttons (the rest in the table below them)."""
+
+
+# --- measure next: thin cached wrappers into cmm_core.plan.proposals (issue 29) ---------
+# cmm_core.plan is imported inside them: only a user who opens "Measure next" pays for it
+
+
+def _selected(key: cached.FitKey, ds):
+    """The data set as the fit selects it (positions, probes, exclusions)."""
+    from cmm_core.plan import restrict
+
+    kw = key.fit_kwargs()
+    return restrict(ds, positions=kw["positions"], probes=kw["probes"], exclude=kw["exclude"])
+
+
+def _settings(key: cached.FitKey) -> dict:
+    kw = key.fit_kwargs()
+    return {"baseline": key.spec, "order": kw["order"], "plate": kw["plate"],
+            "sigma_um": kw["sigma_um"]}
+
+
+@st.cache_data(show_spinner="Scoring candidate measurements…", max_entries=16)
+def cached_proposals(key: cached.FitKey, rivals: tuple, _ds):
+    """``plan.propose`` of the default candidate set for the two rivals (``Proposals``)."""
+    from cmm_core.plan import propose
+
+    return propose(_selected(key, _ds), rivals, **_settings(key))
+
+
+@st.cache_data(show_spinner="Simulating the proposal with each rival as the truth…",
+               max_entries=16)
+def cached_outcomes(key: cached.FitKey, rivals: tuple, name: str, seed: int, _ds,
+                    _proposal) -> dict:
+    """``plan.simulate_outcomes`` of proposal ``name`` (the rivals' proposal of ``key``):
+    ``{truth: {verdict, aliases, separated, message}}``."""
+    from cmm_core.plan import simulate_outcomes
+
+    outs = simulate_outcomes(_selected(key, _ds), _proposal, seed=seed, **_settings(key))
+    return {t: {"verdict": o.verdict, "aliases": list(o.aliases), "separated": o.separated,
+                "message": o.message} for t, o in outs.items()}
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
+def cached_plan_text(key: cached.FitKey, rivals: tuple, name: str, _ds, _proposal) -> str:
+    """The proposal as a ``plan`` JSON document (``plan.plan_file``)."""
+    import json
+
+    from cmm_core.plan import plan_file
+
+    return json.dumps(plan_file(_selected(key, _ds), _proposal, baseline=key.spec,
+                                order=key.order, noise_um=key.sigma_um), indent=1)
+
+
+def _pairs(cands: list) -> list:
+    """The rivals the diagnosis leaves open (``plan.rival_pairs``) from the page's rows
+    (their aliases joined into one string)."""
+    from cmm_core.plan import rival_pairs
+
+    return rival_pairs([{"effect": c["effect"], "significant": c["significant"],
+                         "aliases": [a for a in str(c["aliases"] or "").split(", ") if a]}
+                        for c in cands])
+
+
+def _outcome_words(truth: str, other: str, o: dict) -> str:
+    if o["separated"]:
+        return (f"with **{truth}** as the truth the diagnosis names `{o['verdict']}`, "
+                f"{other} no longer its alias: **separated**")
+    named = f"names `{o['verdict']}`" if o["verdict"] else "names no effect"
+    still = f", still aliased with {', '.join(o['aliases'])}" if o["aliases"] else ""
+    return f"with **{truth}** as the truth the diagnosis {named}{still}: **not separated**"
+
+
+def measure_next(ds, fkey: cached.FitKey, cands: list) -> None:
+    """The proposals beside the rivals of the current verdict: the top ones in words,
+    each with "Simulate it" and "Use as the plan"; the others in a table."""
+    s = st.session_state
+    pairs = _pairs(cands)
+    if not pairs:
+        st.info("The diagnosis leaves no pair of rival effects open (no alias, no "
+                "significant runner-up of another function): nothing to decide.")
+        return
+    st.caption("Rivals of the current verdict: its aliases and its runner-up. Each candidate "
+               "measurement (the plate shifted, moved, rotated, stood up, another stylus) "
+               "is scored by how surely the diagnosis would then tell the two apart, each "
+               "rival in turn the truth at its size fitted here (docs/proposals.md).")
+    if fkey.instruments:
+        st.caption("The instrument files fitted with the plate are left out of the proposals.")
+    pair = st.selectbox("Rivals to tell apart", pairs, key="w_next_pair",
+                        format_func=lambda p: f"{p[0]} against {p[1]}")
+    pair = tuple(pair)
+    pr = calls.safe(cached_proposals, fkey, pair, ds, what="Measure next")
+    if pr is None:
+        return
+    now = min(pr.current.values())
+    st.markdown(f"The current data decide **{pair[0]}** against **{pair[1]}** with "
+                f"{100 * now:.0f} % power (target {100 * pr.target:.0f} %).")
+    if not pr.ranked:
+        st.warning(pr.message)
+        return
+    for i, p in enumerate(pr.ranked[:NEXT_TOP]):
+        name = p.candidate.name
+        with st.container(border=True):
+            st.markdown(f"**{i + 1}.** {p.outcome[0].upper() + p.outcome[1:]}.")
+            b1, b2 = st.columns(2)
+            plate = not p.candidate.instrument
+            if b1.button("Simulate it", key=f"next_sim_{name}", disabled=not plate,
+                         help="Simulate this measurement with each rival in turn as the "
+                              "truth (its fit on these data, noise σ), append it to the data "
+                              "and run the diagnosis."):
+                s["next_sim"] = (fkey, pair, name)
+            if b2.button("Use as the plan", key=f"next_plan_{name}", disabled=not plate,
+                         help="Open this measurement on the Plan page as a plan file: "
+                              "the current placements, and with it."):
+                text = calls.safe(cached_plan_text, fkey, pair, name, ds, p,
+                                  what="Plan file")
+                if text is not None:
+                    s["plan_proposal"] = {"data": fkey.data, "name": name,
+                                          "outcome": p.outcome, "text": text, "fresh": True}
+                    st.switch_page("pages/plan.py")
+            if s.get("next_sim") == (fkey, pair, name):
+                outs = calls.safe(cached_outcomes, fkey, pair, name, 0, ds, p,
+                                  what="Simulating the proposal")
+                if outs is not None:
+                    a, b = pair
+                    st.markdown("Simulated (seed 0): " + "; ".join(
+                        _outcome_words(t, o_, outs[t]) for t, o_ in ((a, b), (b, a))) + ".")
+                    if all(o["separated"] for o in outs.values()):
+                        st.success("The rivals separate: measured, this tells them apart.")
+                    else:
+                        st.warning("The rivals do not both separate in this simulation "
+                                   "(one seed; the power above is the rate over many).")
+    frame.dataframe(pd.DataFrame([{
+        "measurement": p.candidate.description, "time (min)": p.candidate.time_min,
+        "Δχ² (min)": min(p.delta_chi2.values()), "power": p.power_min}
+        for p in pr.ranked]), hide_index=True, key="next_table",
+        column_config={"Δχ² (min)": st.column_config.NumberColumn(format="%.1f"),
+                       "power": st.column_config.NumberColumn(format="%.2f"),
+                       "time (min)": st.column_config.NumberColumn(format="%.0f")})
+    if pr.skipped:
+        st.caption("Not scored: " + "; ".join(f"{k}: {v}" for k, v in pr.skipped.items()))
+
+
 frame.page_start()
 st.title("Compare and diagnose")
 st.caption("The model against the measurements: where it fails, which physical effect the "
@@ -249,6 +392,13 @@ if s["diag_on"]:
                     st.caption(f"Correlation of residual and signature r = {corr:.2f}: the "
                                f"effect accounts for {100 * corr**2:.0f} % of the residual "
                                "sum of squares; the rest is what remains after adding it.")
+        # the measurement that would settle what these data cannot (issue 29); computed
+        # only while open, as the tabs above
+        with st.expander("Measure next: the measurement that would tell the rivals apart",
+                         key="w_diag_next", on_change="rerun") as nxt, \
+                calls.guarded("Measure next"):
+            if nxt.open:
+                measure_next(ds, fkey, cands)
 
 st.subheader("History")
 st.checkbox("Also compute the GP discrepancy amplitude of each step (a GP over the "

@@ -65,22 +65,59 @@ def u_map(text: str, name: str, z_mm: float, n: int = 25):
     return gx, gy, rigid_removed_error_u(r, pts).reshape(n, n, 3)
 
 
+def _download_name(text: str) -> str:
+    """``plan_<name>.json`` from the plan's own name (letters, digits, _ and -)."""
+    try:
+        name = str(json.loads(text).get("name") or "plan")
+    except (json.JSONDecodeError, AttributeError):
+        name = "plan"
+    safe = "".join(ch if ch.isalnum() or ch in "_-" else "_" for ch in name).strip("_")
+    return f"plan_{safe[:60] or 'plan'}.json"
+
+
 def _fmt(v, digits=3):
     return "—" if v is None else f"{v:.{digits}g}"
 
 
+def proposal() -> dict | None:
+    """The measurement the Diagnose page handed over as a plan ("Use as the plan"), for
+    the current dataset: ``{data, name, outcome, text, fresh}``; None without one."""
+    prop = st.session_state.get("plan_proposal")
+    if not prop or prop.get("data") != st.session_state.get("ds_key"):
+        return None
+    return prop
+
+
+def proposal_label(prop: dict) -> str:
+    return f"measure next: {prop['name']} (from the Diagnose page)"
+
+
 def _plan_text() -> str | None:
     s = st.session_state
+    prop = proposal()
+    options = ([proposal_label(prop)] if prop else []) + list(SAMPLES)
+    if prop and prop.get("fresh"):  # just handed over: shown as the plan
+        s["w_plan_sample"] = options[0]
+        s["plan_proposal"] = {**prop, "fresh": False}
+    if s.get("w_plan_sample") not in options:  # a proposal of a previous dataset
+        s.pop("w_plan_sample", None)
     c1, c2 = st.columns([2, 3])
-    sample = c1.selectbox("Start from", list(SAMPLES), key="w_plan_sample")
+    sample = c1.selectbox("Start from", options, key="w_plan_sample")
     up = c2.file_uploader("…or upload a PLAN.json (a setup given by file name is read "
                           "from sample_data/plans)", type="json", key="w_plan_upload")
+    from_proposal = prop is not None and up is None and sample == options[0]
     default = (up.getvalue().decode("utf-8-sig") if up is not None
+               else prop["text"] if from_proposal
                else (PLANS_DIR / SAMPLES[sample]).read_text())
+    source = (sample, up.name if up else None, prop["text"] if from_proposal else None)
     # a new dataset resets every widget (state.reset_widgets), the text box too: refill it
-    if s.get("plan_source") != (sample, up.name if up else None) or "w_plan_text" not in s:
-        s["plan_source"] = (sample, up.name if up else None)
+    if s.get("plan_source") != source or "w_plan_text" not in s:
+        s["plan_source"] = source
         s["w_plan_text"] = default
+    if from_proposal:
+        st.info(f"The plan is the measurement proposed on the Diagnose page: "
+                f"{prop['outcome']}. Its two strategies: the current placements, and with "
+                "the proposed one.")
     with st.expander("Plan file (edit and press Ctrl+Enter)", expanded=False):
         text = st.text_area("PLAN.json", key="w_plan_text", height=320,
                             help="Format: docs/planning.md. Lengths in mm, σ and "
@@ -162,6 +199,10 @@ def plan_page() -> None:
     text = _plan_text()
     if text is None:
         return
+    st.download_button("Download the plan (PLAN.json)", text, _download_name(text),
+                       "application/json", key="w_plan_download",
+                       help="The plan file as shown (and edited) above: `plan PLAN.json` "
+                            "on the command line evaluates it the same way.")
     evals = calls.safe(evaluate_plans, text, what="Plan")
     if not evals:
         return

@@ -1,0 +1,146 @@
+"""AppTest interaction tests of "measure next" (issue 29) in the app: the Diagnose page's
+proposals beside the rivals of its verdict, their one-click simulation, and the hand-over
+of a proposal to the Plan page as a plan file (no browser).
+
+The case: the 80 mm layout of ``tests/scenarios.py`` with a high-order rotation of the X
+carriage about Z (``rxz:4``, 3 µrad) hidden from a baseline without squareness
+(``kinematic21,-sxy``), seed 7: the diagnosis names one of squareness ``sxy`` and
+``rxz:4`` with the other as its alias (docs/proposals.md; the pair
+``tests/test_proposals.py`` checks in the core). Which of the two it names depends on the
+last digits of the files (ΔBIC -114 against -112), so either is accepted.
+"""
+
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("streamlit")
+from streamlit.testing.v1 import AppTest  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).parent))
+from scenarios import simulated  # noqa: E402
+
+from cmm_core.plan import read_plan  # noqa: E402
+from pages.state import files_key  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+APP = str(ROOT / "app.py")
+TIMEOUT = 120
+BASE = "kinematic21,-sxy"
+RIVALS = ("sxy", "rxz:4")
+
+
+def _ok(at):
+    assert not at.exception, [e.message for e in at.exception]
+    assert not at.error, [e.value for e in at.error]
+
+
+@pytest.fixture(scope="module")
+def alias_files() -> dict:
+    """The alias case as the Data page's simulator loads a simulation (its three files)."""
+    sim = simulated("pitch80_3pos", 7, noise_um=0.5,
+                    kinematic={"spec": "kinematic21,rxz:4", "coefficients": {"rxz[4]": 3.0}})
+    with tempfile.TemporaryDirectory() as tmp:
+        sim.write(tmp)
+        p = Path(tmp)
+        return {"name": "simulated alias case (rxz:4 hidden, 80 mm plate)", "kind": "simulated",
+                "setup_source": "the simulation's setup", "certificate_source":
+                "the simulation's certificate",
+                "measurements": [("measurements.csv", (p / "measurements.csv").read_text())],
+                "setup": (p / "setup.json").read_text(),
+                "certificate": ("certificate.csv", (p / "certificate.csv").read_text())}
+
+
+def _diagnosed(files: dict) -> AppTest:
+    """The app on the alias case, the Diagnose page's diagnosis run, "Measure next" open."""
+    at = AppTest.from_file(APP, default_timeout=TIMEOUT)
+    at.session_state["ds_files"] = files
+    at.session_state["ds_key"] = files_key(files)
+    at.session_state["spec"] = BASE
+    at.run()
+    at.switch_page("pages/diagnose.py")
+    at.run()
+    _ok(at)
+    at.button(key="run_diagnosis").click()
+    at.run()
+    _ok(at)
+    named = [m.value for m in at.success if m.value.startswith("Most likely missing")]
+    assert len(named) == 1 and ("(`sxy`)" in named[0] or "(`rxz:4`)" in named[0]), named
+    # the section computes only while it is open (as the page's tabs)
+    assert not any(b.key and b.key.startswith("next_sim_") for b in at.button)
+    at.session_state["w_diag_next"] = True
+    at.run()
+    _ok(at)
+    return at
+
+
+def _top_name(at) -> str:
+    return next(b.key for b in at.button if b.key and b.key.startswith("next_sim_"))[
+        len("next_sim_"):]
+
+
+def test_diagnose_page_shows_proposals_beside_the_rivals_and_simulates_one(alias_files):
+    at = _diagnosed(alias_files)
+    pair = at.selectbox(key="w_next_pair")
+    a, b = pair.value
+    assert {a, b} == set(RIVALS)  # the verdict and its alias, the verdict first
+    texts = [m.value for m in at.markdown]
+    # the current data leave the pair open; the top proposals say what they would decide
+    now = next(t for t in texts if t.startswith(f"The current data decide **{a}**"))
+    assert "% power" in now
+    outcomes = [t for t in texts if t.startswith("**1.** With ")]
+    assert len(outcomes) == 1
+    assert f"{a} and {b} differ by Δχ² ≈" in outcomes[0]
+    assert "decided with" in outcomes[0] and "% power in" in outcomes[0]
+    sims = [b for b in at.button if b.key and b.key.startswith("next_sim_")]
+    assert len(sims) == 3  # NEXT_TOP proposals, each with its own buttons
+    assert len([b for b in at.button if b.key and b.key.startswith("next_plan_")]) == 3
+    name = _top_name(at)
+    # one click: the proposal simulated with each rival as the truth, appended, diagnosed
+    at.button(key=f"next_sim_{name}").click()
+    at.run()
+    _ok(at)
+    said = next(m.value for m in at.markdown if m.value.startswith("Simulated (seed 0):"))
+    assert "with **sxy** as the truth" in said and "with **rxz:4** as the truth" in said
+    # the top proposal decides the pair with power near 1 on this case (docs/proposals.md:
+    # 98 % of 50 seeds name the truth with it appended): both rivals separate here
+    assert said.count("**separated**") == 2, said
+    assert any("The rivals separate" in s.value for s in at.success)
+
+
+def test_a_proposal_handed_to_the_plan_page_is_the_plan(alias_files):
+    at = _diagnosed(alias_files)
+    name = _top_name(at)
+    at.button(key=f"next_plan_{name}").click()
+    at.run()
+    _ok(at)
+    # the Plan page opens on the proposal as its plan
+    assert at.session_state["w_plan_sample"].startswith(f"measure next: {name}")
+    assert any(i.value.startswith("The plan is the measurement proposed on the Diagnose page")
+               for i in at.info)
+    text = at.session_state["w_plan_text"]
+    doc = json.loads(text)
+    assert doc["name"] == f"measure next: {name}"
+    assert doc["model"]["spec"] == BASE
+    # a plan file the command line's `plan` reads: the current placements, and with it
+    plan = read_plan(doc, name="proposal")
+    assert [p.name for p in plan.strategies][0] == "current data"
+    assert plan.strategies[1].time_min > plan.strategies[0].time_min
+    # both strategies evaluated on the page, side by side
+    table = next(d.value for d in at.dataframe if "strategy" in d.value.columns)
+    assert list(table["strategy"]) == [p.name for p in plan.strategies]
+    # downloadable as the plan file shown
+    dl = [d for d in at.get("download_button") if d.proto.label.startswith("Download the plan")]
+    assert len(dl) == 1
+    # another sample is still one choice away, and the proposal stays among the choices
+    opts = at.selectbox(key="w_plan_sample").options
+    assert opts[0].startswith("measure next:") and len(opts) == 3
+    # (AppTest reruns the page it was last switched to: the script's switch is the app's)
+    at.switch_page("pages/plan.py")
+    at.selectbox(key="w_plan_sample").set_value(opts[1])
+    at.run()
+    _ok(at)
+    assert json.loads(at.session_state["w_plan_text"])["name"] != doc["name"]
