@@ -967,6 +967,22 @@ def test_a_laser_upload_shows_its_residuals_and_the_uncertainty_gain(inst_app):
     assert [i[1] for i in at.session_state["instruments"]] == ["laser_x.csv"]
 
 
+def test_the_same_instrument_file_twice_is_refused_and_nothing_changes(inst_app):
+    """A copy of a file already fitted (other name, same readings) would count its readings
+    double: refused in one line naming both, the session's instruments unchanged."""
+    at = inst_app
+    before = list(at.session_state["instruments"])
+    assert [i[1] for i in before] == ["laser_x.csv"]
+    _uploader(at, "Laser interferometer").set_value(
+        [("laser_copy.csv", LASER.read_bytes(), "text/csv")])
+    at.button(key="add_instruments").click()
+    at.run()
+    assert not at.exception
+    (err,) = [e.value for e in at.error]
+    assert "\n" not in err and "laser_copy.csv" in err and "laser_x.csv" in err
+    assert list(at.session_state["instruments"]) == before
+
+
 def test_simulated_moving_table_with_instruments_fits_within_its_noise():
     at = _new()
     at.selectbox(key="sim_layout").set_value("fixed_bridge_xfyz")

@@ -117,7 +117,27 @@ def test_an_instrument_file_given_twice_or_copied_is_refused_naming_both(tmp_pat
     rc, lines = _cli([*fit, "--laser", INS / "laser_x.csv", "--step-gauge", STEP_GAUGE_PATH,
                       "--laser", copy_])
     assert rc == 2 and len(lines) == 1
-    assert "copy.csv: has the same content as" in lines[0] and "laser_x.csv" in lines[0]
+    assert "copy.csv: holds the same readings as" in lines[0] and "laser_x.csv" in lines[0]
+
+
+def test_the_fit_itself_refuses_the_same_readings_twice(tmp_path):
+    """The check lives in the model, so the app, the analysis record and code calling
+    ``fit`` get it too; the same positions with other readings (a repeat run) pass."""
+    from cmm_core.io import load_dataset
+    from cmm_core.model import fit, read_instrument
+
+    ds = load_dataset([SIM / "measurements.csv"], SIM / "setup.json", SIM / "certificate.csv")
+    a = read_instrument(INS / "laser_x.csv", "laser")
+    b = read_instrument(io.StringIO(LASER), "laser", name="renamed.csv")
+    with pytest.raises(DataError, match=r"renamed.csv.*holds the same readings as laser_x.csv"):
+        fit(ds, "translational", instruments=[a, b])
+    lines = LASER.splitlines()
+    head, rows = lines[0], lines[1:]
+    col = head.split(",").index("error_um")
+    bumped = [",".join(f"{float(v) + 0.01:.4f}" if i == col else v
+                       for i, v in enumerate(r.split(","))) for r in rows]
+    c = read_instrument(io.StringIO("\n".join([head, *bumped])), "laser", name="repeat.csv")
+    assert fit(ds, "translational", instruments=[a, c]).status == "converged"
 
 
 

@@ -5,7 +5,6 @@ help texts a metrologist reads in ``--help``."""
 from __future__ import annotations
 
 import argparse
-import hashlib
 import io
 import math
 from collections.abc import Callable
@@ -25,7 +24,13 @@ from ..io import (
     read_msl_plate,
     sniff,
 )
-from ..model import MAX_ORDER, Observations, instrument_observations, read_instrument
+from ..model import (
+    MAX_ORDER,
+    Observations,
+    instrument_observations,
+    read_instrument,
+    refuse_repeated,
+)
 
 
 def dataset_of(args: argparse.Namespace) -> Dataset:
@@ -154,7 +159,6 @@ def instruments_of(args: argparse.Namespace) -> list:
                                            ("step_gauge", args.step_gauge),
                                            ("ball_bar", args.ball_bar)) for f in files]
     out = [read_instrument(f, kind) for kind, f in given]  # each reader bounds the size
-    _refuse_twice([f for _, f in given])
     bars = getattr(args, "msl_bar", [])
     # the metadata files pair with the bars when no plate snapshot (--msl) takes them
     metas = (getattr(args, "msl_metadata", []) if not getattr(args, "msl", []) else []) \
@@ -164,27 +168,8 @@ def instruments_of(args: argparse.Namespace) -> list:
                            certificate_u=_certificate_u_arg(args.msl_certificate_u))
         out.append(read_instrument(io.BytesIO(bar.step_gauge_csv.encode()), "step_gauge",
                                    name=f"{bar.name} (as a step gauge)"))
+    refuse_repeated(out)  # before any work, as the fit itself would
     return out
-
-
-def _refuse_twice(files: list) -> None:
-    """The same instrument file (one path, or two files of the same content) given twice
-    would be fitted twice, its readings counted double and every u it gives divided by
-    √2 without a word: refused naming both."""
-    seen: dict[str, str] = {}
-    for f in files:
-        path = Path(f)
-        # a pipe (``<(...)``) is read once, by its reader: compared by its name only
-        digest = (hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file()
-                  else str(path))
-        if digest in seen:
-            same = Path(seen[digest]).resolve() == Path(f).resolve()
-            raise DataError(f"{'is given twice' if same else 'has the same content as '}"
-                            f"{'' if same else seen[digest]}; each instrument file may be "
-                            "fitted once (twice would count its readings double).",
-                            file=str(f), hint="drop the repeated --laser/--step-gauge/"
-                            "--ball-bar option.")
-        seen[digest] = str(f)
 
 
 def add_foreign_args(p: argparse.ArgumentParser) -> None:

@@ -64,11 +64,14 @@ from .instrument_files import (
     write_step_gauge,
 )
 from .instruments import (
+    MAX_INSTRUMENT_READINGS,
     RANGE_MARGIN,
     Instruments,
     LaserRun,
     StepGauge,
+    content_key,
     length_change,
+    refuse_repeated,
     residuals_frame,
     simulate_laser,
     simulate_step_gauge,
@@ -124,7 +127,7 @@ __all__ = [
     "shortest_resolvable_period", "signed_sum", "SimParam", "simulate", "simulate_ball_bar",
     "simulate_laser", "simulate_step_gauge", "Simulation", "simulator_effects",
     "SimulatorEffect", "solve", "State", "STEP_GAUGE_COLUMNS", "STEP_GAUGE_OPTIONAL",
-    "StepGauge", "summary", "surely_determined", "thesis_machine_setup", "tilt_note",
+    "StepGauge", "summary", "MAX_INSTRUMENT_READINGS", "content_key", "refuse_repeated", "surely_determined", "thesis_machine_setup", "tilt_note",
     "TILT_NOTE_RAD", "TILT_USE_RAD", "truth_of", "UncertaintySummary", "weighted_residual",
     "write_ball_bar", "write_instrument", "write_laser", "write_step_gauge", "blocks"
 ]

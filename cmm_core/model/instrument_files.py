@@ -33,7 +33,7 @@ from ..io.delimited import (
 )
 from ..io.errors import Problems, cut_repr, likely_typo
 from .ballbar import BallBar
-from .instruments import LaserRun, StepGauge
+from .instruments import MAX_INSTRUMENT_READINGS, LaserRun, StepGauge
 
 __all__ = ["read_laser", "read_step_gauge", "read_ball_bar", "read_instrument",
            "write_laser", "write_step_gauge", "write_ball_bar", "write_instrument",
@@ -77,13 +77,6 @@ offset is zero or at least a stylus's length; 0.15 is a 150 mm stylus in metres.
 _METRE_SPAN_MM = 2.0
 """An instrument file whose points span less than this in every axis is in metres (as
 the measurement reader judges a plate): instrument lines and gauges span decimetres."""
-_MAX_READINGS = 20_000
-"""Most rows of one instrument file. A laser run in steps has tens to hundreds of
-targets (ISO 230-2: at least five per metre, five times in each direction), step gauges
-and ball bars tens of lengths; every row adds a dense row of the fit's Jacobian, so a
-file of 10⁶ readings (a continuous-mode log) would ask the fit for gigabytes. Every
-reader also refuses a file above ``io.MAX_BYTES`` (50 MB) before reading it."""
-
 _LASER_HINT = ("Columns: [run,]axis[,component],x_mm,y_mm,z_mm,error_um,u_um"
                "[,offset_x_mm,offset_y_mm,offset_z_mm]; docs/instruments.md.")
 _SG_HINT = ("Columns: [gauge,]x1_mm,y1_mm,z1_mm,x2_mm,y2_mm,z2_mm,measured_mm,certified_mm,"
@@ -181,9 +174,9 @@ def read_laser(source: FileSource, name: str | None = None) -> LaserRun:
         Naming file, row and column: unknown or missing columns, unreadable numbers, an
         axis other than x/y/z, u outside :data:`_U_RANGE_UM`, an error reading beyond
         :data:`MAX_ERROR_UM`, points in metres or µm, an offset in metres, more than
-        :data:`_MAX_READINGS` rows, a run that leaves its line or has too few readings.
+        :data:`MAX_INSTRUMENT_READINGS` rows, a run that leaves its line or has too few readings.
     """
-    df, name = read_csv_text(source, name, max_rows=_MAX_READINGS)
+    df, name = read_csv_text(source, name, max_rows=MAX_INSTRUMENT_READINGS)
     _columns(df, name, LASER_COLUMNS, LASER_OPTIONAL, "laser", _LASER_HINT)
     found = Problems(name, file_rows(df), df.columns)
     axis = _axes(df, "axis", name, found)
@@ -276,12 +269,12 @@ def read_step_gauge(source: FileSource, name: str | None = None) -> StepGauge:
     DataError
         Naming file, row and column: unknown or missing columns, unreadable numbers, u
         outside :data:`_U_RANGE_UM`, points in metres or µm, an offset in metres, more
-        than :data:`_MAX_READINGS` rows, a certified length not positive, measured and
+        than :data:`MAX_INSTRUMENT_READINGS` rows, a certified length not positive, measured and
         certified lengths more than
         :data:`MAX_LENGTH_DIFF_MM` apart, a measured length that is not the distance of the
         probed points (within :data:`MAX_STYLUS_MM`), a temperature without a CTE.
     """
-    df, name = read_csv_text(source, name, max_rows=_MAX_READINGS)
+    df, name = read_csv_text(source, name, max_rows=MAX_INSTRUMENT_READINGS)
     _columns(df, name, STEP_GAUGE_COLUMNS, STEP_GAUGE_OPTIONAL, "step-gauge", _SG_HINT)
     found = Problems(name, file_rows(df), df.columns)
     num = {c: numeric_column(df, c, name, problems=found) for c in STEP_GAUGE_COLUMNS[:8]}
@@ -348,12 +341,12 @@ def read_ball_bar(source: FileSource, name: str | None = None) -> BallBar:
     DataError
         Naming file, row and column: unknown or missing columns, unreadable numbers, u
         outside :data:`_U_RANGE_UM`, points in metres or µm, an offset in metres, more
-        than :data:`_MAX_READINGS` rows, a certified length not positive, two centres
+        than :data:`MAX_INSTRUMENT_READINGS` rows, a certified length not positive, two centres
         closer than
         :data:`MIN_BAR_MM` (one ball named twice), a distance of the centres more than
         :data:`MAX_LENGTH_DIFF_MM` from the certified length, a temperature without a CTE.
     """
-    df, name = read_csv_text(source, name, max_rows=_MAX_READINGS)
+    df, name = read_csv_text(source, name, max_rows=MAX_INSTRUMENT_READINGS)
     _columns(df, name, BALL_BAR_COLUMNS, BALL_BAR_OPTIONAL, "ball-bar", _BB_HINT)
     found = Problems(name, file_rows(df), df.columns)
     num = {c: numeric_column(df, c, name, problems=found) for c in BALL_BAR_COLUMNS[:7]}

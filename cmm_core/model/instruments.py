@@ -38,8 +38,9 @@ two probed ball centres, eq. 3) are in :mod:`cmm_core.instruments_ballbar`.
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from functools import cached_property
 from typing import Any
 
@@ -58,7 +59,8 @@ from .state import State
 
 __all__ = ["LaserRun", "StepGauge", "Instruments", "RANGE_MARGIN", "summary",
            "residuals_frame", "truth_of", "simulate_laser", "simulate_step_gauge",
-           "length_change"]
+           "length_change", "MAX_INSTRUMENT_READINGS", "content_key",
+           "refuse_repeated"]
 
 RANGE_MARGIN = 0.05
 """Share of each axis stroke an instrument point may lie outside ``[0, range]``: beyond,
@@ -66,11 +68,14 @@ the Chebyshev error functions would be extrapolated (and a point that far out is
 likely in another frame or unit than a real reading)."""
 
 
-_MAX_READINGS = 100_000
-"""Most readings (or lengths) of one instrument file that are fitted. A laser calibration
-takes tens to a few hundred readings per run; each reading costs a row of the kinematic
-Jacobian (8 bytes per coefficient) in every iteration of the fit, so a file of 10^6
-readings would take gigabytes for no gain in what the model can tell."""
+MAX_INSTRUMENT_READINGS = 20_000
+"""Most readings (rows) of one instrument file, read or fitted. A laser run in steps has
+tens to hundreds of targets (ISO 230-2: at least five per metre, five times in each
+direction), step gauges and ball bars tens of lengths; each reading costs a row of the
+kinematic Jacobian in every iteration of the fit, so a file of 10^6 readings would take
+gigabytes for no gain in what the model can tell. The readers
+(``model.read_instrument``) refuse a longer file before reading it whole; the fit checks
+again for readings built in code."""
 
 
 class _Rows:
@@ -344,6 +349,7 @@ class Instruments:
         self.cols = problem.layout.blocks.get("kinematic", slice(0, 0))
         if self.items:
             _check_size(self.items)
+            refuse_repeated(self.items)
             _check_in_range(self.items, np.asarray(problem.obs.range_mm, float))
 
     @property
@@ -403,14 +409,44 @@ class Instruments:
 
 
 def _check_size(items):
-    """Refuse an instrument file of more than :data:`_MAX_READINGS` readings, naming it."""
+    """Refuse an instrument file of more than :data:`MAX_INSTRUMENT_READINGS` readings,
+    naming it."""
     for it in items:
-        if len(it.rows) > _MAX_READINGS:
-            raise DataError(f"{len(it.rows):,} readings; at most {_MAX_READINGS:,} of one "
+        if len(it.rows) > MAX_INSTRUMENT_READINGS:
+            raise DataError(f"{len(it.rows):,} readings; at most {MAX_INSTRUMENT_READINGS:,} of one "
                             f"instrument file are fitted (a calibration takes tens to "
                             "hundreds per run, and each costs a row of the fit's Jacobian "
                             "in every iteration).", file=it.source,
                             hint="thin the readings out (keep every n-th row).")
+
+
+def content_key(item: Any) -> str:
+    """Fingerprint of an instrument's readings: its kind and every array it holds but the
+    file's row numbers (the same readings read from two files give the same key)."""
+    h = hashlib.sha256(type(item).__name__.encode())
+    for f in fields(item):
+        v = getattr(item, f.name)
+        if f.name != "rows" and isinstance(v, np.ndarray):
+            h.update(f.name.encode() + np.ascontiguousarray(v).tobytes())
+    return h.hexdigest()
+
+
+def refuse_repeated(items: Sequence[Any]) -> None:
+    """Refuse the same readings given twice (one file twice, or two files of the same
+    content): fitted twice, they would count double and divide every uncertainty they
+    give by √2 without a word. Every entry point (CLI, app, analysis record) fits through
+    here."""
+    seen: dict[str, str] = {}
+    for it in items:
+        key = content_key(it)
+        if key in seen:
+            same = seen[key] == it.source
+            raise DataError(
+                ("is given twice" if same else f"holds the same readings as {seen[key]}")
+                + "; each instrument file may be fitted once (twice would count its "
+                "readings double).", file=it.source,
+                hint="remove the repeated instrument file.")
+        seen[key] = it.source
 
 
 def _check_in_range(items, range_mm):
