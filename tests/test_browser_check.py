@@ -1,0 +1,98 @@
+"""The Interim check page in a real browser (issue 28): streamlit run of the app and
+headless Debian chromium through Playwright, as tests/test_browser.py drives it.
+
+Opens the page from the app's navigation, checks the sample history's check after a
+crash against the stored calibration (the sample is the page's default data): the
+verdict, the E_n map, the new effect the diagnosis names; then the quiet one-placement
+check: partial, with what it cannot see; then the History tab's trend.
+"""
+
+from pathlib import Path
+
+import pytest
+from test_browser import _browser_context, _goto, _idle, _start_server, _stop_server
+
+pytestmark = pytest.mark.slow  # a real browser: seconds a test (`make test-fast` skips)
+
+CHROMIUM = "/usr/bin/chromium"
+ROOT = Path(__file__).resolve().parents[1]
+ART = ROOT / "tests" / "artifacts"
+
+if not Path(CHROMIUM).exists():
+    pytest.skip(f"{CHROMIUM} is not installed", allow_module_level=True)
+try:
+    from playwright.sync_api import expect, sync_playwright
+except ImportError:  # pragma: no cover
+    pytest.skip("the playwright package is not installed", allow_module_level=True)
+
+expect.set_options(timeout=60_000)  # a wait for the page, not a speed requirement
+
+
+@pytest.fixture(scope="module")
+def server():
+    proc, url = _start_server()  # the app itself (app.py)
+    yield url
+    _stop_server(proc)
+
+
+@pytest.fixture()
+def page(server):
+    ART.mkdir(parents=True, exist_ok=True)
+    with sync_playwright() as pw:
+        browser, ctx = _browser_context(pw)
+        pg = ctx.new_page()
+        pg.set_default_timeout(90_000)
+        pg.goto(server)
+        _idle(pg)
+        _goto(pg, "Interim check")
+        yield pg
+        ctx.close()
+        browser.close()
+
+
+def _no_exception(pg):
+    assert pg.locator('[data-testid="stException"]').count() == 0
+    assert pg.locator('[data-testid="stAlertContentError"]').count() == 0
+
+
+def _choose(pg, label: str, option: str):
+    """Pick ``option`` in the selectbox labelled ``label``."""
+    box = pg.locator('[data-testid="stSelectbox"]').filter(has_text=label).first
+    box.click()
+    pg.get_by_role("option", name=option, exact=True).click()
+    _idle(pg)
+
+
+def test_sample_check_after_a_crash_shows_verdict_map_and_effect(page):
+    # the sample history is the page's default data: the check after the crash runs
+    expect(page.get_by_text("Stored calibration: calibration_2024-03-04.json")).to_be_visible()
+    expect(page.get_by_text("Verdict: changed").first).to_be_visible()
+    # the E_n map: a plotly chart with its title, one marker per ball centre
+    chart = page.locator(".st-key-chk_map [data-testid='stPlotlyChart']")
+    expect(chart).to_be_visible()
+    expect(chart.get_by_text("Normalised errors of the new observations")).to_be_visible()
+    assert chart.locator("path.point").count() == 200  # 4 placements × 25 balls × 2 styli
+    # what changed, named as the diagnosis names effects
+    expect(page.get_by_text("names squareness XY (sxy").first).to_be_visible()
+    expect(page.get_by_role("heading", name="Conformity")).to_be_visible()
+    _no_exception(page)
+    page.screenshot(path=str(ART / "check_01_after_crash.png"), full_page=True)
+
+
+def test_quiet_one_placement_check_is_partial(page):
+    _choose(page, "Sample check", "quiet (2024-06-17, one placement)")
+    expect(page.get_by_text("Verdict: partial").first).to_be_visible()
+    expect(page.get_by_text("cannot see 19 combination(s)").first).to_be_visible()
+    chart = page.locator(".st-key-chk_map [data-testid='stPlotlyChart']")
+    expect(chart).to_be_visible()
+    assert chart.locator("path.point").count() == 50  # one placement, two styli
+    _no_exception(page)
+    page.screenshot(path=str(ART / "check_02_quiet.png"), full_page=True)
+
+
+def test_history_tab_shows_the_squareness_trend(page):
+    page.get_by_role("tab", name="History").click()
+    _idle(page)
+    expect(page.locator(".st-key-hist_trend [data-testid='stPlotlyChart']")).to_be_visible()
+    expect(page.get_by_text("sxy over the calibrations").first).to_be_visible()
+    _no_exception(page)
