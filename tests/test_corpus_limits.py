@@ -247,3 +247,20 @@ def test_any_value_anywhere_in_a_setup_is_refused_naming_it_or_read_finite(where
     for p in s.probes.values():
         assert np.isfinite(p).all()
     assert np.isfinite(s.cte_per_K)
+
+
+def test_files_of_one_run_are_written_all_or_none(tmp_path):
+    """A failure at the second of two outputs (its folder has gone) leaves the first as
+    it was, no mix of new and old files, and no temporary file behind; without a
+    failure both are replaced."""
+    from cmm_core.io import atomic_write_all
+
+    a, b = tmp_path / "grid.csv", tmp_path / "tables" / "results.json"
+    a.write_text("old grid")
+    with pytest.raises(DataError, match="folder"):
+        atomic_write_all({a: "new grid", b: b"new results"})
+    assert a.read_text() == "old grid"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["grid.csv"]
+    b.parent.mkdir()
+    atomic_write_all({a: "new grid", b: b"new results"})
+    assert a.read_text() == "new grid" and b.read_bytes() == b"new results"

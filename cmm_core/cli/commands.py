@@ -26,7 +26,7 @@ from ..gp import gp_components
 from ..gum import air_from_args, read_budget
 from ..io import (
     DataError,
-    atomic_write_bytes,
+    atomic_write_all,
     atomic_write_text,
     check_outputs,
     read_json,
@@ -75,10 +75,9 @@ def cmd_simulate(args: argparse.Namespace) -> dict:
     sim = simulate(cfg, name=name)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory() as tmp:  # all four made before the first is replaced
+    with tempfile.TemporaryDirectory() as tmp:  # all four made, then written all or none
         sim.write(tmp)
-        for f in _SIM_FILES:
-            atomic_write_bytes(out / f, (Path(tmp) / f).read_bytes())
+        atomic_write_all({out / f: (Path(tmp) / f).read_bytes() for f in _SIM_FILES})
     return {"out": str(args.out), "n_obs": len(sim.dataset.meas), "files": list(_SIM_FILES)}
 
 

@@ -5,7 +5,7 @@ parser (its ``func`` returns the JSON summary ``cli.main`` prints); :func:`run` 
 its own: the summary on stdout, exit status 0; bad input exits with status 2 and one line
 on stderr naming the file, row and column. No output may be the model file or another
 output (:func:`output_files`, ``io.check_outputs``); each file is written whole or not at
-all (``io.atomic_write_text``).
+all, and the files of one run all or none (``io.atomic_write_all``).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from pathlib import Path
 from ..export import comp_tables as ct
 from ..export import load_model
 from ..export import results as rx
-from ..io import DataError, atomic_write_text, check_outputs
+from ..io import DataError, atomic_write_all, check_outputs
 from ..machine import AXES
 
 _MODEL_HELP = ("fitted model written by 'fit --save' (its kinematic coefficients, their "
@@ -183,8 +183,7 @@ def _write(args, model, source) -> dict:
         out["results_xml"] = str(args.results_xml)
     if args.axis_tables:
         Path(args.axis_tables).mkdir(parents=True, exist_ok=True)
-    for path, text in texts.items():
-        atomic_write_text(path, text)
+    atomic_write_all(texts)  # all or nothing: never a grid beside another model's tables
     return out
 
 

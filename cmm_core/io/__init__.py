@@ -72,7 +72,13 @@ from .msl import (
     read_msl_plate,
     sniff,
 )
-from .output import atomic_write_bytes, atomic_write_text, atomic_writer, check_outputs
+from .output import (
+    atomic_write_all,
+    atomic_write_bytes,
+    atomic_write_text,
+    atomic_writer,
+    check_outputs,
+)
 from .setup import (
     ARTEFACTS,
     AXIS_TOLERANCE_DEG,
@@ -110,7 +116,7 @@ from .table_mapping import (
 )
 
 __all__ = [
-    "apply_mapping", "ARTEFACTS", "atomic_write_bytes", "atomic_write_text", "atomic_writer",
+    "apply_mapping", "ARTEFACTS", "atomic_write_all", "atomic_write_bytes", "atomic_write_text", "atomic_writer",
     "AXIS_TOLERANCE_DEG", "Certificate", "CertificateUncertainty", "check_celsius",
     "check_outputs", "COLUMN_ALIASES", "COMBINE", "combine_plates", "CTE_RANGE_PER_K",
     "cut_repr", "DataError", "Dataset", "DECIMALS", "DELIMITERS", "DMIS_SUFFIXES",

@@ -19,7 +19,7 @@ import errno
 import os
 import secrets
 import stat
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import IO
 
@@ -110,6 +110,21 @@ def atomic_write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8
     """Write ``text`` to ``path`` atomically (:func:`atomic_write_bytes`), encoded as is:
     line ends are written as they are in ``text``."""
     atomic_write_bytes(path, text.encode(encoding))
+
+
+def atomic_write_all(files: Mapping[Path, str | bytes],
+                     encoding: str = "utf-8") -> None:
+    """Write several files all or nothing: each to its temporary file first
+    (:func:`atomic_writer`), and only when every one is written whole are they renamed
+    into place. A failure while writing any of them (a disk that fills up on the third)
+    removes every temporary file and leaves every existing output as it was, so a run
+    never leaves a mix of new and old files (a grid from this model beside axis tables
+    from the last)."""
+    with contextlib.ExitStack() as stack:
+        for path, content in files.items():
+            f = stack.enter_context(atomic_writer(path, "wb"))
+            f.write(content.encode(encoding) if isinstance(content, str) else content)
+        # leaving the stack renames each temporary file into place
 
 
 def _sync_folder(folder: Path) -> None:
