@@ -9,15 +9,23 @@ machine is measured again (new noise, new certificate draw) and checked against 
 - a squareness step of ``--step`` u (u of ``sxy`` in the stored model) after a crash,
   with the full plate and with one placement (the layout's first): the power.
 
+With ``--oracle`` each unchanged check is also made against the machine's *true*
+coefficients (the stored model replaced by the truth, its covariance by ~0): the same new
+data, so the two rates differ only by what the stored model's uncertainty adds; an excess
+the oracle shares lies in the new data, not in the model's covariance. ``--first-seed``
+runs another block of seeds (disjoint seed sets pool into larger counts).
+
 Rates are printed with their binomial standard errors. With ``--timing``: the median
 time of the check's GLS step (``gls_fit``: Cholesky of the dense covariance) with one BLAS
 thread, beside the same function with the default threads in the same run. Usage:
-``python bench/monitor.py [--seeds N] [--layouts a,b] [--step 3] [--plate fixed|free] [--timing]``.
+``python bench/monitor.py [--seeds N] [--first-seed S] [--layouts a,b] [--step 3]
+[--plate fixed|free] [--oracle] [--timing]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import statistics
 import sys
 import time
@@ -36,23 +44,29 @@ from cmm_core.monitor import check_system, gls_fit, interim_check, remeasured  #
 
 
 def one_seed(layout: str, seed: int, step_u: float, alpha: float, label: str = "sxy",
-             plate: str = "fixed"):
+             plate: str = "fixed", oracle: bool = False):
     """(rejects when unchanged, coverage, rejects after the step with the full plate, with
-    one placement) for one seed; the calibration fitted with ``plate`` (fixed to its
-    certificate, or free: self-calibrated)."""
+    one placement[, the oracle's rejects when unchanged]) for one seed; the calibration
+    fitted with ``plate`` (fixed to its certificate, or free: self-calibrated)."""
     cal = sc.simulated(layout, seed)
     model = model_from_result(fit(cal.dataset, "kinematic21", plate=plate))
     j = model.terms.labels.index(label)
     step = {label: step_u * float(np.sqrt(model.cov[j, j]))}
     ppp = cal.config["probes_per_position"]
     first = str(cal.dataset.positions[0])
-    same = interim_check(model, remeasured(cal, 10_000 + seed).dataset, alpha=alpha)
+    new = remeasured(cal, 10_000 + seed).dataset
+    same = interim_check(model, new, alpha=alpha)
     full = interim_check(model, remeasured(cal, 20_000 + seed, changes=step).dataset,
                          alpha=alpha)
     single = interim_check(model, remeasured(cal, 30_000 + seed, changes=step,
                                              probes_per_position={first: ppp[first]}).dataset,
                            alpha=alpha)
-    return (not same.passes, same.coverage_95, not full.passes, not single.passes)
+    out = (not same.passes, same.coverage_95, not full.passes, not single.passes)
+    if oracle:
+        truth = np.array([cal.truth[lab] for lab in model.terms.labels])
+        exact = dataclasses.replace(model, coef=truth, cov=model.cov * 1e-8)
+        out += (not interim_check(exact, new, alpha=alpha).passes,)
+    return out
 
 
 def timing(layout: str, repeats: int = 21) -> None:
@@ -76,6 +90,9 @@ def timing(layout: str, repeats: int = 21) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=400, help="seeds per layout")
+    ap.add_argument("--first-seed", type=int, default=0, help="first seed (default 0)")
+    ap.add_argument("--oracle", action="store_true",
+                    help="also check the same new data against the true coefficients")
     ap.add_argument("--layouts", default="pitch100_4pos,pitch80_3pos",
                     help="comma-separated layouts of tests/scenarios.py")
     ap.add_argument("--step", type=float, default=3.0, help="squareness step in u of sxy")
@@ -91,13 +108,15 @@ def main() -> None:
         return
     for layout in args.layouts.split(","):
         t0 = time.perf_counter()
-        rows = np.array([one_seed(layout, s, args.step, args.alpha, plate=args.plate)
-                         for s in range(args.seeds)], float)
+        seeds = range(args.first_seed, args.first_seed + args.seeds)
+        rows = np.array([one_seed(layout, s, args.step, args.alpha, plate=args.plate,
+                                  oracle=args.oracle) for s in seeds], float)
         n = len(rows)
-        fa, cov, pf, p1 = rows.mean(axis=0)
+        fa, cov, pf, p1 = rows.mean(axis=0)[:4]
 
         se = np.sqrt(rows.mean(axis=0) * (1 - rows.mean(axis=0)) / n)
-        print(f"{layout} (calibration plate {args.plate}): {n} seeds, "
+        print(f"{layout} (calibration plate {args.plate}): {n} seeds "
+              f"({seeds.start}-{seeds.stop - 1}), "
               f"{time.perf_counter() - t0:.0f} s")
         print(f"  false alarms (no change)      {100 * fa:5.1f} % ± {100 * se[0]:.1f} "
               f"(stated {100 * args.alpha:g} %)")
@@ -106,6 +125,9 @@ def main() -> None:
         print(f"  power, sxy + {args.step:g} u, full plate  {100 * pf:5.1f} % ± {100 * se[2]:.1f}")
         print(f"  power, sxy + {args.step:g} u, one placement {100 * p1:5.1f} % ± "
               f"{100 * se[3]:.1f}")
+        if args.oracle:
+            print(f"  false alarms, true coefficients {100 * rows[:, 4].mean():5.1f} % ± "
+                  f"{100 * se[4]:.1f} (the same new data)")
 
 
 if __name__ == "__main__":
