@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import difflib
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.polynomial import chebyshev as C
@@ -139,19 +140,29 @@ class KinematicTerms:
         """Kinematic chain of the layout, e.g. ``Fxyz`` or ``xFyz`` (see :data:`LAYOUTS`)."""
         return LAYOUTS[self.layout]
 
-    @property
+    @cached_property
     def functions(self) -> tuple:
         """``(name, order)`` of every function with coefficients (order 0 when a
         positioning function carries only its periodic term), ``ERROR_NAMES`` order."""
         od, per = dict(self.orders), dict(self.periods)
         return tuple((n, od.get(n, 0)) for n in ERROR_NAMES if od.get(n, 0) > 0 or n in per)
 
+    @cached_property
+    def _order_of(self) -> dict:
+        """``orders`` as a dict (every lookup of the evaluation uses it)."""
+        return dict(self.orders)
+
+    @cached_property
+    def _period_of(self) -> dict:
+        """``periods`` as a dict."""
+        return dict(self.periods)
+
     def n_of(self, name: str) -> int:
         """Number of coefficients of one function (polynomial and periodic)."""
-        return (n_coefficients(name, dict(self.orders).get(name, 0))
-                + 2 * (name in dict(self.periods)))
+        return (n_coefficients(name, self._order_of.get(name, 0))
+                + 2 * (name in self._period_of))
 
-    @property
+    @cached_property
     def slices(self) -> dict:
         """Coefficient slice of each function in the kinematic coefficient vector."""
         out, i = {}, 0
@@ -161,7 +172,7 @@ class KinematicTerms:
             i += k
         return out
 
-    @property
+    @cached_property
     def n(self) -> int:
         """Total number of kinematic coefficients."""
         return sum(self.n_of(nm) for nm, _ in self.functions)
@@ -185,11 +196,18 @@ class KinematicTerms:
         """Unit of a coefficient: µm for translational, µrad for rotations and squareness."""
         return "um" if label.startswith("d") else "urad"
 
+    def design_key(self, name: str) -> tuple:
+        """What :meth:`design` depends on besides the points: functions with the same key
+        have the same basis matrix (every rotation of an axis at one order, say)."""
+        kind = ("s" if name in SQUARENESS else "t" if name in STRAIGHTNESS else "p")
+        return (axis_of(name), kind, self._order_of.get(name, 0),
+                self._period_of.get(name))
+
     def design(self, name: str, u_mm: np.ndarray) -> np.ndarray:
         """Basis matrix of one function at axis coordinates ``u_mm``."""
-        order = dict(self.orders).get(name, 0)
+        order = self._order_of.get(name, 0)
         D = basis(name, u_mm, order, self.range_mm[axis_of(name)])
-        per = dict(self.periods)
+        per = self._period_of
         if name in per:
             D = np.hstack([D, periodic_basis(u_mm, per[name])])
         return D
@@ -262,8 +280,16 @@ class _Evaluation:
         n = xyz_mm.shape[0]
         sl = terms.slices
         wanted = ROTATIONAL if rotations_only else ERROR_NAMES
-        self.designs = {nm: terms.design(nm, xyz_mm[:, axis_of(nm)])
-                        for nm, _ in terms.functions if nm in wanted}
+        # one basis matrix per distinct (axis, kind, order, period): the functions of an
+        # axis share it (21 functions, at most 9 bases at one order)
+        by_key: dict = {}
+        self.designs = {}
+        for nm, _ in terms.functions:
+            if nm in wanted:
+                key = terms.design_key(nm)
+                if key not in by_key:
+                    by_key[key] = terms.design(nm, xyz_mm[:, key[0]])
+                self.designs[nm] = by_key[key]
         self.values = {}
         for name in wanted:
             if name in sl and coef.ndim == 2:  # one coefficient set per point (Monte Carlo)

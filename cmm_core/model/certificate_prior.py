@@ -25,6 +25,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .blocks.plate import Plate
+from .hole_plate import is_hole_plate
+from .normal import _normal_columns
 from .problem import Problem, held_constraints, weighted_residual
 from .solver import Normal
 from .state import State
@@ -43,7 +45,9 @@ def _cert_u_um(prob: Problem) -> np.ndarray:
 
 
 def certificate_terms(prob: Problem, state: State, design_null: np.ndarray, sigma_um: float,
-                  rank_rtol: float, cov: np.ndarray) -> tuple[float, int, np.ndarray]:
+                      rank_rtol: float, cov: np.ndarray,
+                      normal: tuple[float, np.ndarray, np.ndarray, int] | None = None
+                      ) -> tuple[float, int, np.ndarray]:
     """``(χ² test statistic, its dof, covariance)`` of a fit with the certificate fixed,
     the covariance with the certificate's uncertainty propagated.
 
@@ -52,11 +56,20 @@ def certificate_terms(prob: Problem, state: State, design_null: np.ndarray, sigm
     prob : fit.Problem
         The fixed-plate problem, ``state`` its solution, ``design_null`` the combinations
         its design left undetermined (held), ``cov`` its σ-only covariance.
+    normal : tuple, optional
+        ``(cost, JᵀJ, Jᵀr, rows)``: the fixed problem's weighted normal equations at
+        ``state``, when the fit has them. The prior problem's then differ only in its plate
+        columns (the residuals are the same at the certificate): those are computed
+        (``normal._normal_columns``) and the rest is taken from these, instead of a second
+        accumulation over every column.
     """
 
     pp = Problem(prob.obs, prob.spec, "prior")
     st = state.relabelled(prob.layout.labels, pp.layout.labels)
-    _, cost, N, g, n_rows = pp.normal_equations(st, sigma_um)
+    if normal is not None and not is_hole_plate(prob.obs):
+        cost, N, g, n_rows = _prior_normal_equations(prob, pp, st, sigma_um, normal)
+    else:
+        _, cost, N, g, n_rows = pp.normal_equations(st, sigma_um)
     C = pp.constraints()
     if design_null.size:
         C = np.vstack([C, held_constraints(prob.layout.labels, design_null, pp)])
@@ -73,6 +86,28 @@ def certificate_terms(prob: Problem, state: State, design_null: np.ndarray, sigm
     u2 = np.nan_to_num(_cert_u_um(prob).ravel() ** 2, posinf=0.0)  # released: no value
     CG = cov @ G
     return chi2, dof, cov + (CG * u2) @ CG.T
+
+
+def _prior_normal_equations(prob, pp, st, sigma_um, normal):
+    """``(cost, JᵀJ, Jᵀr, rows)`` of the prior problem ``pp`` at ``st`` from the fixed
+    problem's ``normal`` at the same point: every column but the plate's is the fixed
+    problem's (same residuals, same Jacobian), the plate columns are computed, and the
+    prior rows ``(c - c_cert)/u`` (zero at the certificate) are added."""
+    cost, Nf, gf, rows = normal
+    col = {lab: i for i, lab in enumerate(pp.layout.labels)}
+    fixed = np.array([col[lab] for lab in prob.layout.labels], dtype=int)
+    s = pp.layout.blocks["plate"]
+    pc = np.arange(s.start, s.stop)
+    Nc, gc = _normal_columns(pp, st, sigma_um, pc)
+    N, g = np.zeros((pp.layout.n,) * 2), np.zeros(pp.layout.n)
+    N[np.ix_(fixed, fixed)] = Nf
+    N[:, pc] = Nc
+    N[pc, :] = Nc.T
+    g[fixed] = gf
+    g[pc] = gc
+    rp, Jp = pp.block(Plate).prior_rows(st, True)
+    Jp = Jp.toarray()
+    return (float(cost + rp @ rp), N + Jp.T @ Jp, g + Jp.T @ rp, int(rows + rp.size))
 
 
 def residual_u_um(result: FitResult, chunk: int = 30000) -> np.ndarray:

@@ -169,7 +169,8 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     cert = None
     if plate == "fixed" and obs.cert_u_um is not None and certificate_test:
         # the certificate's own uncertainty: in the χ² test and in every parameter's u
-        cert = certificate_terms(prob, state, C_run[C.shape[0]:], sigma_um, rank_rtol, cov)
+        cert = certificate_terms(prob, state, C_run[C.shape[0]:], sigma_um, rank_rtol, cov,
+                                 normal=(cost, N, g, n_rows))
     null = np.hstack([unseen.T, null0, ne.null])
     cov_noise = None
     if cert is not None:
