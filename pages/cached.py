@@ -11,9 +11,8 @@ import numpy as np
 import streamlit as st
 
 from cmm_core import analysis as A
-from cmm_core.diagnosis import detect_outliers
-from cmm_core.model import fit as core_fit
-from cmm_core.model import read_instrument
+from cmm_core.diagnosis import detect_outliers, discrepancy_gp
+from cmm_core.model import evaluate, read_instrument
 from pages.calls import describe_error, safe
 from pages.state import dataset, instruments_key
 
@@ -38,7 +37,9 @@ def instrument_data(key: FitKey | None = None) -> tuple:
 @dataclass(frozen=True)
 class FitKey:
     """What decides one fit of the app, built by keyword from the session (:func:`fit_key`):
-    the cache key of every cached core call, hashable, never indexed by position."""
+    the cache key of every cached core call, hashable, never indexed by position. It has
+    the fit fields of an analysis record (``analysis.FitChoices``), so the core fits and
+    diagnoses it as it does a record (``analysis.fit_record``, ``diagnose_record``)."""
 
     data: str
     """Key of the dataset files (:func:`files_key`)."""
@@ -61,12 +62,9 @@ class FitKey:
     none."""
 
     def fit_kwargs(self) -> dict:
-        """Keyword arguments of ``cmm_core.fit.fit`` (and ``diagnose``) but the spec."""
-        return {"order": self.order, "plate": None if self.plate == "auto" else self.plate,
-                "sigma_um": self.sigma_um,
-                "positions": None if self.positions is None else list(self.positions),
-                "probes": None if self.probes is None else list(self.probes),
-                "exclude": list(self.exclusions)}
+        """Keyword arguments of ``model.fit`` (and ``diagnose``) but the spec: the core's
+        one translation of an analysis's fit choices (``analysis.fit_kwargs``)."""
+        return A.fit_kwargs(self, sigma_um=self.sigma_um)
 
     def with_spec(self, spec: str) -> FitKey:
         """The same fit of another model (the rigid placements, a history step)."""
@@ -76,9 +74,9 @@ class FitKey:
 @st.cache_data(show_spinner=False, max_entries=256)
 def cached_fit(key: FitKey, _ds, _instruments=()):
     """The fit ``key`` names, with ``_instruments`` (the readings ``key.instruments``
-    names) fitted jointly."""
-    return core_fit(_ds, key.spec, instruments=list(_instruments) or None,
-                    **key.fit_kwargs())
+    names) fitted jointly: ``analysis.fit_record``, the fit of an analysis record that
+    ``analysis.run`` (the CLI, the report) makes of the same choices."""
+    return A.fit_record(key, _ds, _instruments)
 
 
 def fit_of(key: FitKey):
@@ -134,7 +132,6 @@ def current_fit(spec=None, *, show_error=True, instruments: bool = True):
 
 @st.cache_data(show_spinner=False, max_entries=64)
 def cached_uncertainty(key: FitKey, n_random, seed, _result):
-    from cmm_core.model import evaluate
     return evaluate(_result, n_random=n_random, seed=seed)
 
 
@@ -142,8 +139,6 @@ def cached_uncertainty(key: FitKey, n_random, seed, _result):
 def cached_gp_discrepancy(key: FitKey, _result) -> float:
     """GP discrepancy of a fit (µm): the structure a GP over its residuals finds, with the
     model's own design matrix as basis (``diagnose.discrepancy_gp``)."""
-    from cmm_core.diagnosis import discrepancy_gp
-
     return float(discrepancy_gp(_result, restarts=1).rms_amplitude_um)
 
 
@@ -168,12 +163,6 @@ def run_diagnosis(show_progress: bool = False):
 
 @st.cache_data(show_spinner="Running the diagnosis…", max_entries=32)
 def cached_diagnosis(key: FitKey, _ds, _instruments=(), _show_progress=False):
-    from cmm_core.diagnosis import diagnose
-
-    kw = key.fit_kwargs()
-    # with instruments, every model the diagnosis scores or refits carries their rows
-    data = A.with_instruments(_ds, _instruments, positions=kw["positions"],
-                              probes=kw["probes"], exclude=kw["exclude"])
     # created inside the cached function so that a cache replay can recreate it
     bar = st.progress(0.0, text="Scoring candidate effects…") if _show_progress else None
 
@@ -181,7 +170,9 @@ def cached_diagnosis(key: FitKey, _ds, _instruments=(), _show_progress=False):
         if bar is not None:
             bar.progress(frac, text=text)
 
-    d = diagnose(data, baseline=key.spec, progress=report, **kw)
+    # the record's diagnosis (analysis.diagnose_record, as analysis.run): with
+    # instruments, every model it scores or refits carries their rows
+    d = A.diagnose_record(key, _ds, _instruments, progress=report)
     # the core's own row of each candidate (the CLI's JSON), plus what only the page draws
     rows = [{**c.to_dict(), "aliases": ", ".join(c.aliases),
              "significant": bool(c.significant), "confirmed": bool(c.confirmed),

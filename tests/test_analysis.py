@@ -198,6 +198,32 @@ def test_record_run_with_instruments_equals_a_direct_joint_fit():
     assert not A.run(A.read_record(SAMPLE)).instruments  # none: nothing added
 
 
+def test_the_app_fits_and_diagnoses_through_the_records_own_steps():
+    """The app's cache key of a fit (pages.cached.FitKey) is fitted and diagnosed by the
+    same core steps as an analysis record in analysis.run (the CLI, the report): the same
+    numbers to the last digit, with instruments and exclusions (issue 23)."""
+    from pages.cached import FitKey
+
+    rec = _with_instruments(A.read_record(SAMPLE), ("laser", INSTRUMENTS / "laser_x.csv"))
+    rec = dataclasses.replace(rec, diagnose=True, spec="kinematic21", history=(
+        ("kinematic21", "baseline"), ("rigid", "rigid placements")))
+    res = A.run(rec)
+    key = FitKey(data="any", spec=rec.spec, order=rec.order, plate=rec.plate,
+                 sigma_um=float(rec.sigma_um), positions=rec.positions, probes=rec.probes,
+                 exclusions=tuple(tuple(e) for e in res.exclusions))
+    inst = A.load_instruments(rec)
+    app_fit = A.fit_record(key, res.dataset, inst)
+    assert app_fit.chi2 == res.fit.chi2 and np.array_equal(app_fit.values, res.fit.values)
+    rigid = A.fit_record(key.with_spec("rigid"), res.dataset, inst)
+    assert rigid.history_row("rigid placements") == res.history[1]
+    d = A.diagnose_record(key, res.dataset, inst)
+    same = [json.dumps(x.to_dict(), sort_keys=True, default=str)  # NaN u: compared as text
+            for x in (d, res.diagnosis)]
+    assert same[0] == same[1]
+    with pytest.raises(ValueError, match="auto"):
+        A.fit_record(dataclasses.replace(rec, sigma_um="auto"), res.dataset)
+
+
 # --- a table from other software, kept with its column mapping (issue 24) ---------------
 
 _VENDOR_PATTERN = r"(?P<position>BP\d+)_P(?P<probe>\w+)_B(?P<ball>\d+)"

@@ -93,6 +93,10 @@ from .residuals import (
 )
 from .runner import (
     AnalysisResult,
+    FitChoices,
+    diagnose_record,
+    fit_kwargs,
+    fit_record,
     load_data,
     load_instruments,
     load_stored_model,
@@ -110,6 +114,7 @@ from .sessions import (
 )
 
 __all__ = [
+    "diagnose_record", "FitChoices", "fit_kwargs", "fit_record",
     "against_coordinates", "analysis_report", "AnalysisRecord", "AnalysisResult",
     "approach_split", "AXIS_COLOURS", "breakdown", "build_report", "chi2_html",
     "chi2_test_numbers", "CheckChoices", "compare_models", "ComparisonFigure", "coverage_reasons", "DataFile", "DataSources", "default_session_folder", "DEFAULT_EXCLUDE_OUTLIERS",

@@ -14,9 +14,9 @@ measured error (:data:`ERROR_CONVENTION`) and the outlier default
 from __future__ import annotations
 
 import io
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import pandas as pd
@@ -47,6 +47,7 @@ from .record import (
 )
 
 __all__ = ["load_data", "load_instruments", "with_instruments", "AnalysisResult", "run",
+           "FitChoices", "fit_kwargs", "fit_record", "diagnose_record",
            "load_stored_model", "results_document"]
 
 
@@ -122,16 +123,85 @@ class AnalysisResult:
     without."""
 
 
-def _fit_kwargs(r: AnalysisRecord, exclude, **more) -> dict:
-    return {"order": r.order, "plate": None if r.plate == "auto" else r.plate,
-            "positions": r.positions and list(r.positions), "exclude": list(exclude),
-            "probes": r.probes and list(r.probes), **more}
+class FitChoices(Protocol):
+    """What decides one fit: an :class:`AnalysisRecord`, or anything with its fit fields
+    (the app's cache key of a fit)."""
+
+    @property
+    def spec(self) -> str: ...
+    @property
+    def order(self) -> int: ...
+    @property
+    def plate(self) -> str: ...
+    @property
+    def sigma_um(self) -> float | str: ...
+    @property
+    def positions(self) -> Sequence[str] | None: ...
+    @property
+    def probes(self) -> Sequence[str] | None: ...
+    @property
+    def exclusions(self) -> Sequence[Sequence]: ...
+
+
+def fit_kwargs(record: FitChoices, exclusions: Iterable[Sequence] | None = None,
+               **more: Any) -> dict:
+    """Keyword arguments of ``model.fit`` and ``diagnosis.diagnose`` but the spec: the
+    record's order, plate mode, selection and exclusions (``exclusions`` instead, when
+    given: the record's plus the flagged outliers it excludes), and ``more``
+    (``sigma_um``). The one translation of the fit choices into a fit, for :func:`run`
+    and the app alike."""
+    excl = record.exclusions if exclusions is None else exclusions
+    return {"order": record.order, "plate": None if record.plate == "auto" else record.plate,
+            "positions": record.positions and list(record.positions),
+            "exclude": [tuple(e) for e in excl],
+            "probes": record.probes and list(record.probes), **more}
+
+
+def _record_data(ds: Dataset, instruments: Sequence, kw: dict) -> Dataset | Observations:
+    return with_instruments(ds, instruments, positions=kw["positions"], probes=kw["probes"],
+                            exclude=kw["exclude"])
+
+
+def fit_record(record: FitChoices, ds: Dataset, instruments: Sequence = (), *,
+               spec: str | None = None, exclusions: Iterable[Sequence] | None = None,
+               sigma_um: float | None = None) -> FitResult:
+    """The fit of a record's choices to ``ds`` with ``instruments`` fitted jointly: the
+    record's model (or ``spec``: a history step, the rigid placements) at its σ (or
+    ``sigma_um``: an estimate resolved by the caller). What :func:`run` and the app fit.
+
+    Raises
+    ------
+    ValueError
+        σ is ``"auto"`` and no ``sigma_um`` is given (estimate it first:
+        ``diagnosis.estimate_sigma``, as :func:`run` does).
+    """
+    sig = record.sigma_um if sigma_um is None else sigma_um
+    if sig == "auto":
+        raise ValueError("σ is 'auto' in the record: estimate it first and pass sigma_um.")
+    kw = fit_kwargs(record, exclusions, sigma_um=float(sig))
+    return fit(_record_data(ds, instruments, kw), spec or record.spec, **kw)
+
+
+def diagnose_record(record: FitChoices, ds: Dataset, instruments: Sequence = (), *,
+                    spec: str | None = None, exclusions: Iterable[Sequence] | None = None,
+                    sigma_um: float | None = None,
+                    progress: Callable[[float, str], None] | None = None) -> Diagnosis:
+    """The diagnosis of a record's fit (:func:`fit_record`'s arguments): every candidate
+    scored and refitted with the record's instruments, ``spec`` (default the record's
+    model) as the baseline."""
+    sig = record.sigma_um if sigma_um is None else sigma_um
+    if sig == "auto":
+        raise ValueError("σ is 'auto' in the record: estimate it first and pass sigma_um.")
+    kw = fit_kwargs(record, exclusions, sigma_um=float(sig))
+    return diagnose(_record_data(ds, instruments, kw), baseline=spec or record.spec,
+                    progress=progress, **kw)
 
 
 def run(record: AnalysisRecord) -> AnalysisResult:
     """Dataset, fit, history, measured errors, uncertainty, and the optional diagnosis,
-    MPE check and GP of a record, every fit with the record's instruments. The app and
-    the CLI both call this."""
+    MPE check and GP of a record, every fit with the record's instruments. The CLI and
+    the report call this; the app, which computes one page's part at a time, calls its
+    steps (:func:`fit_record`, :func:`diagnose_record`) with the same choices."""
 
     ds = load_data(record)
     check_selection(ds, record.positions, record.probes, record.exclusions,
@@ -145,24 +215,23 @@ def run(record: AnalysisRecord) -> AnalysisResult:
     excl = tuple(sorted(set(record.exclusions) | (set(flagged) if record.exclude_outliers
                                                  else set())))
     inst = load_instruments(record)
-    data = with_instruments(ds, inst, positions=record.positions, probes=record.probes,
-                            exclude=excl)
     if record.sigma_um == "auto":
-        est = estimate_sigma(data, record.spec, **_fit_kwargs(record, excl))
+        kw = fit_kwargs(record, excl)
+        est = estimate_sigma(_record_data(ds, inst, kw), record.spec, **kw)
         sigma = {**est.to_dict(), "value_um": float(est.value_um), "auto": True}
     else:
         sigma = {"value_um": float(record.sigma_um), "auto": False}
-    kw = _fit_kwargs(record, excl, sigma_um=sigma["value_um"])
-    r = fit(data, record.spec, **kw)
-    history = [(r if spec == record.spec else fit(data, spec, **kw)).history_row(change)
-               for spec, change in record.history]
-    rigid = fit(data, "rigid", **kw)
+    steps = {"exclusions": excl, "sigma_um": sigma["value_um"]}
+    r = fit_record(record, ds, inst, **steps)
+    history = [(r if spec == record.spec else fit_record(record, ds, inst, spec=spec, **steps))
+               .history_row(change) for spec, change in record.history]
+    rigid = fit_record(record, ds, inst, spec="rigid", **steps)
     err = measured_error_from_residuals_um(rigid.residuals_um)
     try:
         unc = evaluate(r, n_random=record.uncertainty_points, seed=record.uncertainty_seed)
     except (ValueError, np.linalg.LinAlgError):
         unc = None
-    diag = diagnose(data, record.spec, **kw) if record.diagnose else None
+    diag = diagnose_record(record, ds, inst, **steps) if record.diagnose else None
     mpe, _ = check_dataset(ds, u_source=record.mpe_u_source, sigma_um=r.sigma_um)
     gp = None
     if record.gp_mean is not None:
