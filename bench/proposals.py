@@ -36,11 +36,17 @@ sys.path.insert(0, str(ROOT / "bench"))
 sys.path.insert(0, str(ROOT / "tests"))
 
 from _timing import median_time  # noqa: E402
-from scenarios import simulated  # noqa: E402
+from scenarios import perturb, placement_scale, simulated  # noqa: E402
 
-from cmm_core.diagnosis import diagnose  # noqa: E402
-from cmm_core.model import BY_TOKEN, fit  # noqa: E402
-from cmm_core.plan import append_measurement, fit_rivals, propose  # noqa: E402
+from cmm_core.diagnosis import OUTSIDE, diagnose  # noqa: E402
+from cmm_core.model import BY_TOKEN, fit, weighted_residual  # noqa: E402
+from cmm_core.plan import (  # noqa: E402
+    PLACEMENT_SCALE,
+    append_measurement,
+    fit_rivals,
+    propose,
+    scale_columns,
+)
 
 NOISE_UM = 0.5
 
@@ -69,6 +75,13 @@ CASES = {
     "drift vs probe offset, styli in blocks, 80 mm plate": (
         "pitch80_3pos", {"effects": {"drift": {"sd_um_per_h": 1.0}}},
         "kinematic21", "drift", "probe_offset"),
+    # outside the catalogue: each placement reads Z lengths with its own scale (5 ppm
+    # spread, balls in random order; tests/scenarios.py placement_scale), which a
+    # high-order Z positioning term dzz:4 can stand in for; a new placement has its own
+    # scale, drawn from the same spread ("_placement_scale": spread in ppm, axis)
+    "per-placement scale vs high-order dzz:4, 150 mm plate": (
+        "pitch150_5pos", {"order": "random", "_placement_scale": (5.0, 2)},
+        "kinematic21", PLACEMENT_SCALE, "dzz:4"),
 }
 
 
@@ -100,7 +113,25 @@ def true_machine(sim) -> dict:
 
 def nested_rejects(data, rf, truth, rival) -> bool:
     """The nested F-test of the parameters ``truth`` adds to ``rival`` (both full fits,
-    as the diagnosis's ``verdict._nested_p``) rejects at ``truth``'s level."""
+    as the diagnosis's ``verdict._nested_p``) rejects at ``truth``'s level; for the
+    placement scales, the F-test of their columns added to the rival's fit (linearised
+    there, as the diagnosis's placement-scale test)."""
+    if truth == PLACEMENT_SCALE:
+        small = fit(data, rf.specs[rival], sigma_um=NOISE_UM, max_iter=2000,
+                    certificate_test=False)
+        r, J = weighted_residual(small.problem, small.state, small.sigma_um, True)[1:]
+        J = J.toarray()
+        S = scale_columns(small.problem.obs, small.sigma_um, r.size)[0]
+        U, sv, _ = np.linalg.svd(J, full_matrices=False)
+        Q = U[:, sv > small.rank_rtol * sv.max()]
+        Sp = S - Q @ (Q.T @ S)
+        Us, ss, _ = np.linalg.svd(Sp / np.linalg.norm(S, axis=0), full_matrices=False)
+        Qs = Us[:, ss > 1e-3]
+        dk = Qs.shape[1]
+        dchi2 = float(np.sum((Qs.T @ r) ** 2))
+        nu = max(small.dof - dk, 1)
+        p = stats.f.sf((dchi2 / dk) / ((small.chi2 - dchi2) / nu), dk, nu)
+        return bool(p < rf.levels[truth])
     small = fit(data, rf.specs[rival], sigma_um=NOISE_UM, max_iter=2000, certificate_test=False)
     big = fit(data, rf.specs[truth].with_token(rival), sigma_um=NOISE_UM, max_iter=2000,
               certificate_test=False)
@@ -113,7 +144,11 @@ def nested_rejects(data, rf, truth, rival) -> bool:
 
 def _named(d, truth, rival):
     """(strict, by function, decided): the verdict is the truth; is of its function; is
-    the truth and the rival is no longer its alias (``Outcome.separated``)."""
+    the truth and the rival is no longer its alias (``Outcome.separated``). The placement
+    scales are named by the outside-catalogue verdict with them as its evidence."""
+    if truth == PLACEMENT_SCALE:
+        hit = d.verdict == OUTSIDE and "each placement's own scale" in d.message
+        return hit, hit, hit
     al = list(d.candidates[0].aliases) if d.candidates else []
     return (d.verdict == truth,
             (d.verdict or "").partition(":")[0] == truth.partition(":")[0],
@@ -122,22 +157,40 @@ def _named(d, truth, rival):
 
 def run_case(name, seeds):
     layout, extra, base, truth, rival = CASES[name]
+    scale = extra.get("_placement_scale")
+    sim_keys = {k: v for k, v in extra.items() if not k.startswith("_")}
     rows = []
     for seed in range(seeds):
-        sim = simulated(layout, 1000 + seed, noise_um=NOISE_UM, **extra)
+        sim = simulated(layout, 1000 + seed, noise_um=NOISE_UM, **sim_keys)
         data = sim.dataset
+        if scale:
+            data = placement_scale(data, np.random.default_rng(2000 + seed), *scale)
         before = _named(diagnose(data, base), truth, rival)
-        pr = propose(data, (truth, rival), baseline=base)
+        # a placement-scale rival comes second (plan.fit_rivals)
+        pr = propose(data, (rival, truth) if truth == PLACEMENT_SCALE else (truth, rival),
+                     baseline=base)
         top = pr.ranked[0]
         cfg = true_machine(sim)
-        aug = append_measurement(data, top.candidate, config=cfg, seed=5000 + seed)
+
+        def appended(cand, data=data, cfg=cfg, seed=seed):
+            aug = append_measurement(data, cand, config=cfg, seed=5000 + seed)
+            if scale:  # the new placement's own scale, drawn from the same spread
+                new = aug.meas["position"].isin(list(cand.positions)).to_numpy()
+                xyz = aug.meas[["mx_mm", "my_mm", "mz_mm"]].to_numpy()
+                s = np.random.default_rng(7000 + seed).normal(0, scale[0]) * 1e-6
+                delta = np.zeros_like(xyz)
+                delta[new, scale[1]] = s * (xyz[new, scale[1]] - xyz[new, scale[1]].mean())
+                aug = perturb(aug, delta)
+            return aug
+
+        aug = appended(top.candidate)
         after = _named(diagnose(aug, base), truth, rival)
         rng = np.random.default_rng(seed)
         same = [p for p in pr.ranked[1:] if p.candidate.time_min == top.candidate.time_min]
         other = same[rng.integers(len(same))]
-        aug_r = append_measurement(data, other.candidate, config=cfg, seed=5000 + seed)
+        aug_r = appended(other.candidate)
         random_ = _named(diagnose(aug_r, base), truth, rival)
-        rf = fit_rivals(data, (truth, rival), baseline=base)
+        rf = fit_rivals(data, pr.rivals, baseline=base)
         sep = nested_rejects(aug, rf, truth, rival)
         rows.append((before, after, random_, top.power[truth], sep, top.candidate.name))
         print(f"  seed {seed}: top {top.candidate.name} (power {top.power[truth]:.2f}), "

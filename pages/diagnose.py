@@ -73,7 +73,10 @@ def _pairs(cands: list) -> list:
     from cmm_core.plan import rival_pairs
 
     return rival_pairs([{"effect": c["effect"], "significant": c["significant"],
-                         "aliases": [a for a in str(c["aliases"] or "").split(", ") if a]}
+                         "aliases": [a for a in str(c["aliases"] or "").split(", ") if a],
+                         # the leave-one-placement-out check's reason says so
+                         "stands_in_for_scale": "placement's own scale" in str(
+                             c.get("holdout") or "")}
                         for c in cands])
 
 
@@ -89,6 +92,8 @@ def _outcome_words(truth: str, other: str, o: dict) -> str:
 def measure_next(ds, fkey: cached.FitKey, cands: list) -> None:
     """The proposals beside the rivals of the current verdict: the top ones in words,
     each with "Simulate it" and "Use as the plan"; the others in a table."""
+    from cmm_core.plan import PLACEMENT_SCALE
+
     s = st.session_state
     pairs = _pairs(cands)
     if not pairs:
@@ -119,10 +124,15 @@ def measure_next(ds, fkey: cached.FitKey, cands: list) -> None:
             st.markdown(f"**{i + 1}.** {p.outcome[0].upper() + p.outcome[1:]}.")
             b1, b2 = st.columns(2)
             plate = not p.candidate.instrument
-            if b1.button("Simulate it", key=f"next_sim_{name}", disabled=not plate,
+            # a placement's own scale is outside the catalogue: the virtual CMM cannot
+            # measure it as the truth
+            can_sim = plate and PLACEMENT_SCALE not in pair
+            if b1.button("Simulate it", key=f"next_sim_{name}", disabled=not can_sim,
                          help="Simulate this measurement with each rival in turn as the "
                               "truth (its fit on these data, noise σ), append it to the data "
-                              "and run the diagnosis."):
+                              "and run the diagnosis." + ("" if can_sim else
+                              " Not for a placement's own scale: outside the catalogue, the "
+                              "virtual CMM cannot simulate it.")):
                 s["next_sim"] = (fkey, pair, name)
             if b2.button("Use as the plan", key=f"next_plan_{name}", disabled=not plate,
                          help="Open this measurement on the Plan page as a plan file: "

@@ -50,6 +50,8 @@ from .files import (
 from .plans import STROKE_POINTS, Plan, design_fit, fit_plan_data, simulate_plan, simulation_config
 from .proposals import (
     CHUNK,
+    PLACEMENT_SCALE,
+    SCALE_RTOL,
     SHIFT_FRACTION,
     STYLUS_OFFSET_MM,
     TARGET_POWER,
@@ -59,6 +61,7 @@ from .proposals import (
     Proposal,
     Proposals,
     RivalFits,
+    ScaleFit,
     append_measurement,
     fit_rivals,
     instrument_candidates,
@@ -72,6 +75,7 @@ from .proposals import (
     restrict,
     rival_pairs,
     rivals_of,
+    scale_columns,
     simulate_outcomes,
     truth_config,
     wide_candidates,
@@ -117,4 +121,5 @@ __all__ = [
     "measurement_candidates", "measurement_observations", "plan_file", "plate_grid",
     "propose", "rivals_of", "simulate_outcomes", "truth_config", "CHUNK", "propose_many",
     "wide_candidates", "instrument_candidates", "instrument_of", "rival_pairs", "restrict",
+    "PLACEMENT_SCALE", "ScaleFit", "scale_columns", "SCALE_RTOL",
 ]

@@ -50,7 +50,7 @@ import pandas as pd
 from scipy import stats
 
 from .._blas import single_blas_thread
-from ..diagnosis import FAMILY_ALPHA, Diagnosis, diagnose
+from ..diagnosis import FAMILY_ALPHA, SCALE_ALPHA, Diagnosis, diagnose
 from ..io import DataError, Dataset, read_setup, resolve
 from ..model import (
     BY_TOKEN,
@@ -84,6 +84,16 @@ CHUNK = 16
 
 STYLUS_OFFSET_MM = 60.0
 """Lateral offset (mm) of the extra styli proposed."""
+
+SCALE_RTOL = 1e-3
+"""Part of a placement-scale column (its norm) that must be left once the baseline's
+columns are projected out for that scale to be fitted (``diagnosis.crossval``'s rank
+rule)."""
+
+PLACEMENT_SCALE = "placement_scale"
+"""A rival that is not a model token: each placement's own scale along each machine axis
+it spans (outside the catalogue; the diagnosis's placement-scale test,
+``diagnosis.placement_scale_columns``). A new placement brings its own scales."""
 
 _NO_ERRORS = {"random_um": 0.0, "random_urad": 0.0}
 """Simulator keys: no kinematic errors drawn (the simulator's default draws 1 µm, 1 µrad)."""
@@ -483,7 +493,10 @@ def rival_pairs(candidates: Sequence[Mapping[str, Any]], *, top: int = 3
     ----------
     candidates : sequence of mappings
         The diagnosis's ranked candidates as ``Candidate.to_dict`` gives them (at least
-        ``effect``, ``aliases`` (list of tokens) and ``significant``).
+        ``effect``, ``aliases`` (list of tokens) and ``significant``); optional
+        ``stands_in_for_scale``: true when the placement-scale test found the candidate
+        standing in for each placement's own scale (then it and :data:`PLACEMENT_SCALE`
+        are a pair, after the aliases).
     top : int
         How many of the first candidates' aliases count.
     """
@@ -506,18 +519,25 @@ def rival_pairs(candidates: Sequence[Mapping[str, Any]], *, top: int = 3
     for c in [c for c in candidates[1:] if c["significant"]][:max(top - 1, 0)]:
         for al in c["aliases"]:
             add(c["effect"], al)
+    for c in candidates[:max(top, 1)]:
+        if c.get("stands_in_for_scale"):
+            add(c["effect"], PLACEMENT_SCALE)
     return out
 
 
 def rivals_of(diagnosis: Diagnosis) -> tuple[str, str]:
     """The pair the diagnosis leaves open: its first candidate and its first alias, or
-    else the next significant candidate of another function (a runner-up); the first of
-    :func:`rival_pairs`."""
+    else the next significant candidate of another function (a runner-up), or else
+    :data:`PLACEMENT_SCALE` when the candidate failed the placement-scale test; the
+    first of :func:`rival_pairs`."""
     cands = diagnosis.candidates
     if not cands:
         raise ValueError("the diagnosis ranked no candidate: there is nothing to decide.")
+    scale = {h.effect for h in diagnosis.holdout
+             if not h.passed and h.scale_p < SCALE_ALPHA}  # stands in for the scales
     pairs = rival_pairs([{"effect": c.effect, "aliases": list(c.aliases),
-                          "significant": bool(c.significant)} for c in cands[:1]]
+                          "significant": bool(c.significant),
+                          "stands_in_for_scale": c.effect in scale} for c in cands[:1]]
                         + [{"effect": c.effect, "aliases": [],
                             "significant": bool(c.significant)} for c in cands[1:]], top=1)
     if not pairs:
@@ -579,13 +599,50 @@ class _Design:
     has: dict
 
 
+def _both(rf: RivalFits):
+    """The model holding both rivals (the baseline for a placement-scale rival)."""
+    a, b = rf.rivals
+    return rf.specs[a] if b == PLACEMENT_SCALE else rf.specs[a].with_token(b)
+
+
+def scale_columns(obs: Observations, sigma_um: float, n_rows: int
+                  ) -> tuple[np.ndarray, list[str]]:
+    """Weighted columns of each placement's own scale (1 ppm) along each machine axis it
+    spans (at least a quarter of its longest extent), rows as the weighted residual's
+    (three per observation first; further rows zero), at the nominal placement: the
+    columns of ``diagnosis.placement_scale_columns`` for any observations. Labels
+    ``<placement>.scale_<axis>``."""
+    cols, labels = [], []
+    xyz = np.einsum("nac,nc->na", obs.R0[obs.pos], obs.plate0_mm[obs.ball]) + obs.t0_mm[obs.pos]
+    for k, name in enumerate(obs.positions):
+        sel = np.flatnonzero(obs.pos == k)
+        if not sel.size:
+            continue
+        span = np.ptp(xyz[sel], axis=0)
+        for a in range(3):
+            if span[a] < 0.25 * span.max():
+                continue
+            c = np.zeros(n_rows)
+            x = xyz[sel, a]
+            c[3 * sel + a] = (x - x.mean()) * 1e-3 / sigma_um
+            cols.append(c)
+            labels.append(f"{name}.scale_{'xyz'[a]}")
+    return (np.column_stack(cols) if cols else np.zeros((n_rows, 0))), labels
+
+
 def _design(obs, rf: RivalFits) -> _Design:
     a, b = rf.rivals
     f = rf.fits[a]
-    prob = Problem(obs, rf.specs[a].with_token(b), f.plate)
+    prob = Problem(obs, _both(rf), f.plate)
     J = weighted_residual(prob, prob.initial_state(), f.sigma_um, True)[2].toarray()
-    return _Design(J, list(prob.layout.labels),
-                   {r: set(Problem(obs, rf.specs[r], f.plate).layout.labels) for r in (a, b)})
+    labels = list(prob.layout.labels)
+    has = {r: set(Problem(obs, rf.specs[r], f.plate).layout.labels) for r in (a, b)}
+    if PLACEMENT_SCALE in rf.rivals:
+        S, lab_s = scale_columns(obs, f.sigma_um, J.shape[0])
+        J = np.hstack([J, S])
+        labels += lab_s
+        has[PLACEMENT_SCALE] |= set(lab_s)
+    return _Design(J, labels, has)
 
 
 def _stack(d1: _Design, d2: _Design) -> _Design:
@@ -665,16 +722,76 @@ def fit_rivals(data: Dataset, rivals: Sequence[str], *, baseline: str = "kinemat
                alpha: float = FAMILY_ALPHA) -> RivalFits:
     """Fit the baseline with each rival added to the current data (their fitted sizes),
     and the level the diagnosis tests each at (``detect.candidate_tokens``)."""
+    if rivals[0] == PLACEMENT_SCALE:
+        raise ValueError(f"give {PLACEMENT_SCALE} as the second rival (after the effect it "
+                         "is told apart from).")
     base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um, max_iter=2000)
     spec0 = base.problem.spec
-    specs = {r: spec0.with_token(r) for r in rivals}
-    fits = {r: fit(data, specs[r], plate=base.plate, sigma_um=sigma_um, max_iter=2000,
-                   certificate_test=False) for r in rivals}
-    levels = candidate_tokens(base, alpha)[2]
+    specs = {r: spec0 if r == PLACEMENT_SCALE else spec0.with_token(r) for r in rivals}
+    fits = {r: _scale_fit(base) if r == PLACEMENT_SCALE else
+            fit(data, specs[r], plate=base.plate, sigma_um=sigma_um, max_iter=2000,
+                certificate_test=False) for r in rivals}
+    levels = {**candidate_tokens(base, alpha)[2], PLACEMENT_SCALE: SCALE_ALPHA}
     fallback = alpha / max(len(levels), 1)
     return RivalFits(tuple(rivals), specs, fits,
                      {r: float(levels.get(r, levels.get(r.partition(":")[0], fallback)))
                       for r in rivals})
+
+
+@dataclass(frozen=True)
+class ScaleFit:
+    """Each placement's own scale fitted to the baseline's residual (the rival
+    :data:`PLACEMENT_SCALE`, linearised at the baseline's fit as the diagnosis's
+    placement-scale test): what :class:`RivalFits` reads of a fit.
+
+    Attributes
+    ----------
+    labels : list of str
+        ``<placement>.scale_<axis>`` (:func:`scale_columns`).
+    values : ndarray
+        Fitted scales (ppm).
+    covariance : ndarray
+        Their covariance (ppm²) from σ.
+    rank_rtol : float
+        The baseline fit's rank rule.
+    problem : Problem
+        The baseline's problem.
+    sigma_um : float
+        σ of the fit (µm).
+    plate : str
+        The baseline's plate geometry.
+    """
+
+    labels: list
+    values: np.ndarray
+    covariance: np.ndarray
+    rank_rtol: float
+    problem: Problem
+    sigma_um: float
+    plate: str
+
+
+def _scale_fit(base: FitResult) -> ScaleFit:
+    """The placement scales fitted to the baseline's weighted residual with the
+    baseline's columns projected out (Frisch-Waugh-Lovell)."""
+    r, J = weighted_residual(base.problem, base.state, base.sigma_um, True)[1:]
+    J = J.toarray()
+    S, labels = scale_columns(base.problem.obs, base.sigma_um, r.size)
+    Q, _ = _basis(J, base.rank_rtol)
+    norms = np.linalg.norm(S, axis=0)
+    norms = np.where(norms > 0, norms, 1.0)
+    Sp = (S - Q @ (Q.T @ S)) / norms
+    # the scales the baseline leaves undetermined (what is left of a column after the
+    # baseline is projected out is below SCALE_RTOL of it) are not fitted: zero, zero
+    # variance (as the placement-scale test's rank rule)
+    U, sv, Vt = np.linalg.svd(Sp, full_matrices=False)
+    keep = sv > SCALE_RTOL
+    V, inv = Vt[keep].T, 1.0 / sv[keep]
+    # r is readings minus model: a placement's scale moves its readings by s (x - x̄)
+    values = (V * inv) @ (U[:, keep].T @ r) / norms
+    cov = ((V * inv**2) @ V.T) / np.outer(norms, norms)
+    return ScaleFit(labels, values, cov, base.rank_rtol, base.problem, base.sigma_um,
+                    base.plate)
 
 
 def _score_on(des: _Design, rf: RivalFits) -> dict:
@@ -818,9 +935,8 @@ def instrument_of(cand: NextMeasurement, sim: Simulation, seed: int | None = 0
 
 def _instrument_design(obs, now: _Design, rf: RivalFits, inst) -> _Design:
     """The design rows of one instrument: the rows it appends to the current data's."""
-    a, b = rf.rivals
-    f = rf.fits[a]
-    prob = Problem(replace(obs, instruments=(inst,)), rf.specs[a].with_token(b), f.plate)
+    f = rf.fits[rf.rivals[0]]
+    prob = Problem(replace(obs, instruments=(inst,)), _both(rf), f.plate)
     J = weighted_residual(prob, prob.initial_state(), f.sigma_um, True)[2].toarray()
     return _Design(J[now.J.shape[0]:], list(prob.layout.labels), now.has)
 
@@ -1030,6 +1146,9 @@ def simulate_outcomes(data: Dataset, proposal: Proposal, *, baseline: str = "kin
     simulate the proposal with noise σ, append it to the data and run the diagnosis.
     Returns ``{rival: Outcome}``."""
     _plate_only(proposal)
+    if PLACEMENT_SCALE in proposal.rivals:
+        raise ValueError(f"{PLACEMENT_SCALE} is outside the catalogue: the virtual CMM "
+                         "cannot simulate it as the truth (score the proposal instead).")
     a, b = proposal.rivals
     rf = fit_rivals(data, proposal.rivals, baseline=baseline, order=order, plate=plate,
                     sigma_um=sigma_um)
