@@ -684,8 +684,19 @@ def _separation(des: _Design, truth: str, other: str, theta: dict, *, rank_rtol:
         C[np.ix_(got, got)] = np.asarray(spread[1])[np.ix_([ix[j] for j in got],
                                                           [ix[j] for j in got])]
         lam = max(lam_fit - float(np.sum((M @ C) * M)), 0.0)
-    power = float(stats.ncf.sf(stats.f.isf(level, k, nu), k, nu, lam))
-    return lam, k, nu, power, lam_fit
+    return lam, k, nu, _power(lam, k, nu, level), lam_fit
+
+
+def _power(lam: float, k: int, nu: int, level: float) -> float:
+    """P(F(k, ν, λ) > F⁻¹(1 − level; k, ν)): the level itself at λ = 0 (scipy's ``ncf``
+    returns nonsense there, e.g. -0.99), the χ² limit (ν → ∞) if ``ncf`` fails."""
+    if lam <= 0.0:
+        return float(level)
+    crit = stats.f.isf(level, k, nu)
+    p = float(stats.ncf.sf(crit, k, nu, lam))
+    if not 0.0 <= p <= 1.0:
+        p = float(stats.ncx2.sf(k * crit, k, lam))
+    return min(max(p, float(level)), 1.0)
 
 
 def _outcome(cand: NextMeasurement, rivals, lam: dict, power_min: float) -> str:
