@@ -164,8 +164,11 @@ def test_normal_columns_are_those_of_the_full_accumulation(thesis_clean):
     Jp = Jp.toarray()
     s = prob.layout.blocks["plate"]
     cols = np.arange(s.start, s.stop)
-    Nc, gc = normal_module._normal_columns(prob, state, 0.5, cols, rows=100)
-    np.testing.assert_allclose(Nc, (whole.N - Jp.T @ Jp)[:, cols], rtol=1e-12,
-                               atol=1e-12 * np.abs(whole.N).max())
-    np.testing.assert_allclose(gc, (whole.g - Jp.T @ rp)[cols], rtol=1e-12,
-                               atol=1e-12 * np.abs(whole.g).max())
+    # blocks along the balls (one ball's columns in every row) and along the placements
+    # (every ball's: the sparse rows), as the certificate cuts them
+    for key in (None, prob.obs.pos):
+        Nc, gc = normal_module._normal_columns(prob, state, 0.5, cols, rows=100, key=key)
+        np.testing.assert_allclose(Nc, (whole.N - Jp.T @ Jp)[:, cols], rtol=1e-12,
+                                   atol=1e-12 * np.abs(whole.N).max())
+        np.testing.assert_allclose(gc, (whole.g - Jp.T @ rp)[cols], rtol=1e-12,
+                                   atol=1e-12 * np.abs(whole.g).max())

@@ -98,7 +98,8 @@ def _prior_normal_equations(prob, pp, st, sigma_um, normal):
     fixed = np.array([col[lab] for lab in prob.layout.labels], dtype=int)
     s = pp.layout.blocks["plate"]
     pc = np.arange(s.start, s.stop)
-    Nc, gc = _normal_columns(pp, st, sigma_um, pc)
+    # blocks along the fixed problem's placements (runs of the data), not the balls
+    Nc, gc = _normal_columns(pp, st, sigma_um, pc, key=prob.obs.pos)
     N, g = np.zeros((pp.layout.n,) * 2), np.zeros(pp.layout.n)
     N[np.ix_(fixed, fixed)] = Nf
     N[:, pc] = Nc

@@ -27,6 +27,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
+import scipy.sparse as sp
 from scipy.linalg.blas import dsyrk
 
 from .blocks.kinematic import Kinematic
@@ -170,7 +171,8 @@ def _columns(prob: Any) -> dict:
     return columns
 
 
-def _blocks(prob: Any, rows: int) -> Iterable[tuple[Any, Any]]:
+def _blocks(prob: Any, rows: int, key: np.ndarray | None = None
+            ) -> Iterable[tuple[Any, Any]]:
     """``prob``'s blocks of at most ``rows`` observations along :func:`_block_key`, each
     with its sub-problem (same layout, terms and blocks).
 
@@ -178,27 +180,24 @@ def _blocks(prob: Any, rows: int) -> Iterable[tuple[Any, Any]]:
     file is one placement) make a block of their own when at least ``rows / 2`` long: its
     fields are views of the problem's, not picked. Picking 8192 rows spread over 10^6
     (ten arrays and the table) cost 9 ms a block, half the time of a fit. Shorter runs are
-    picked together into blocks of ``rows``."""
-    order = _ordered(prob)
-    key = _block_key(prob)[order]
+    picked together into blocks of ``rows``. ``key``: another key than
+    :func:`_block_key` (one number per observation)."""
+    order = _ordered(prob) if key is None else np.argsort(key, kind="stable")
+    key = (_block_key(prob) if key is None else key)[order]
     # runs: consecutive observations with one key, as [start, stop) into ``order``
     cut = np.flatnonzero((np.diff(order) != 1) | (np.diff(key) != 0)) + 1
     starts = np.r_[0, cut]
-    stops = np.r_[cut, order.size]
-    picked: list = []
-    for a, b in zip(starts.tolist(), stops.tolist(), strict=True):
-        if b - a < rows // 2:
-            picked.append(order[a:b])
-            continue
-        for lo in range(a, b, rows):
-            hi = min(lo + rows, b)
+    lengths = np.diff(np.r_[starts, order.size])
+    long = lengths >= max(rows // 2, 1)
+    for a, n in zip(starts[long].tolist(), lengths[long].tolist(), strict=True):
+        for lo in range(a, a + n, rows):
+            hi = min(lo + rows, a + n)
             sl = slice(int(order[lo]), int(order[hi - 1]) + 1)
             yield sl, _subproblem(prob, sl)
-    if picked:
-        rest = np.concatenate(picked)
-        for lo in range(0, rest.size, rows):
-            idx = rest[lo:lo + rows]
-            yield idx, _subproblem(prob, idx, _columns(prob))
+    rest = order[~np.repeat(long, lengths)]
+    for lo in range(0, rest.size, rows):
+        idx = rest[lo:lo + rows]
+        yield idx, _subproblem(prob, idx, _columns(prob))
 
 
 def _subproblem(prob, idx, columns=None):
@@ -356,38 +355,70 @@ def accumulate(prob: Any, state: State, sigma_um: float, rows: int = ROWS
 
 
 def _normal_columns(prob: Any, state: State, sigma_um: float, cols: np.ndarray,
-                   rows: int = ROWS) -> tuple[np.ndarray, np.ndarray]:
+                    rows: int = ROWS, key: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Columns ``cols`` of the weighted ``JᵀJ`` of ``prob``'s observation rows at
     ``state``, ``(p, len(cols))``, and the entries ``cols`` of ``Jᵀr``; the plate prior's
     and the instruments' rows are not included. One Jacobian pass, but only products with
     the wanted columns: the certificate's terms (``certificate_prior``) need the plate
-    columns of a prior problem whose other columns the fixed fit already has."""
+    columns of a prior problem whose other columns the fixed fit already has.
+
+    A piece of the Jacobian wholly in ``cols`` (the plate's: three columns per ball, one
+    ball per row) enters as a sparse matrix per component, so that blocks may be cut
+    along ``key`` (the placements, runs of the data: views) and still cost a few products
+    per row; any other piece touching ``cols`` is written densely."""
     p = prob.layout.n
     cols = np.asarray(cols)
     where = np.full(p, -1)
     where[cols] = np.arange(cols.size)
     Nc, gc = np.zeros((p, cols.size)), np.zeros(cols.size)
     parts: Iterable[tuple[Any, Any]]
-    parts = [(slice(None), prob)] if prob.n_obs <= rows else _blocks(prob, rows)
+    parts = [(slice(None), prob)] if prob.n_obs <= rows else _blocks(prob, rows, key)
     for _, sub in parts:
         db, ev = sub._evaluate(state, True)
         pieces, kin = _pieces(sub, ev)
         del ev
         if kin is not None and (where[kin[0]] >= 0).any():
             pieces, kin = pieces + [kin], None
-        S3, u = _dense(sub.n_obs, p, pieces, extra=db)
+        sparse = [pc for pc in pieces if (where[pc[0]] >= 0).all()]
+        dense = [pc for pc in pieces if not (where[pc[0]] >= 0).all()]
+        S3, u = _dense(sub.n_obs, p, dense, extra=db)
         sel = np.flatnonzero(where[u] >= 0)
-        if not sel.size:
-            continue
         C3 = S3[:, :, sel]
         to = where[u[sel]]
-        SC = sum(S3[c].T @ C3[c] for c in range(3))  # (k + 1, wanted): d last
-        Nc[np.ix_(u, to)] += SC[:-1]
-        gc[to] += SC[-1]
-        if kin is not None:
-            kc, K, _ = kin
-            Kt = K.transpose(1, 2, 0)
-            Nc[np.ix_(kc, to)] += sum(Kt[c] @ C3[c] for c in range(3))
+        Kt = None if kin is None else kin[1].transpose(1, 2, 0)  # (3, k, m)
+        if sel.size:
+            SC = sum(S3[c].T @ C3[c] for c in range(3))  # (k + 1, wanted): d last
+            Nc[np.ix_(u, to)] += SC[:-1]
+            gc[to] += SC[-1]
+            if Kt is not None:
+                Nc[np.ix_(kin[0], to)] += sum(Kt[c] @ C3[c] for c in range(3))
+        for pcols, M, shared in sparse:
+            m, _, k = M.shape
+            pc = np.broadcast_to(pcols if shared else pcols[:, None, :], (m, 3, k))
+            for c in range(3):
+                # (m, wanted) sparse rows of component c: the piece's k entries per row
+                Cc = sp.csr_matrix((np.ascontiguousarray(M[:, c, :]).ravel(),
+                                    where[pc[:, c, :]].ravel(), np.arange(m + 1) * k),
+                                   shape=(m, cols.size))
+                CtS = (Cc.T @ S3[c]).T  # (dense columns + d, wanted)
+                Nc[u] += CtS[:-1]
+                gc += CtS[-1]
+                if sel.size:  # the sparse rows against the dense wanted columns
+                    Nc[np.ix_(cols, to)] += Cc.T @ C3[c]
+                if Kt is not None:
+                    Nc[kin[0]] += (Cc.T @ Kt[c].T).T
+                Nc[cols] += (Cc.T @ Cc).toarray()
+                for qcols, Q, qshared in sparse:  # other sparse wanted pieces
+                    if Q is M:
+                        continue
+                    mq, _, kq = Q.shape
+                    qc = np.broadcast_to(qcols if qshared else qcols[:, None, :],
+                                         (mq, 3, kq))
+                    Qc = sp.csr_matrix((np.ascontiguousarray(Q[:, c, :]).ravel(),
+                                        where[qc[:, c, :]].ravel(), np.arange(mq + 1) * kq),
+                                       shape=(mq, cols.size))
+                    Nc[cols] += (Qc.T @ Cc).toarray()
     w = 1.0 / sigma_um**2
     return Nc * w, gc * w
 
