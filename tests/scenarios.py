@@ -109,3 +109,35 @@ def local_bump(data: Dataset, centre_mm, width_mm=60.0, amp_um=3.0, axis=1) -> D
 def simulated(name: str, seed: int, **extra):
     """``simulate`` of one layout."""
     return simulate({**layout_config(name, **extra), "seed": seed})
+
+
+def layout_data(name: str, layout: str, seed: int, **extra):
+    """``simulate`` of one scenario on another machine layout (``gantry_fxyz`` ...)."""
+    cfg = {**layout_config(name, **extra), "seed": seed}
+    cfg["setup"] = {**cfg["setup"], "machine": {**cfg["setup"]["machine"], "layout": layout}}
+    return simulate(cfg)
+
+
+def bridge_roll(data: Dataset, layout: str, range_mm, amp_urad: float, shape: str = "s2",
+                axis_height_mm: float = 0.0) -> Dataset:
+    """Outside the block's exact shapes: the bridge (or gantry beam) of a ``layout`` with
+    x and y bridge axes rolls about its travel axis a by ``θ = amp · g(s) · v`` (the
+    carriage's load share ``v`` across the bridge times how the supports' compliance
+    changes along the travel, ``s``; ``blocks.bridge_twist``), about a roll axis at
+    height ``axis_height_mm`` (a gantry's rails stand above the table). Shapes g:
+    ``"s2"`` (s², a rail stiffer at its middle), ``"s3"`` (s³), ``"sin"`` (sin(π s/2)
+    ... an asymmetric support), ``"lin"`` (s, the block's own first shape). Evaluated at
+    the tips' machine coordinates; the tip moves by ``θ e_a × (r − (·, 0, h))``."""
+    chain = {"moving_bridge_fxyz": "xy", "gantry_fxyz": "xy",
+             "moving_bridge_fyxz": "yx", "gantry_fyxz": "yx"}[layout]
+    a, b = "xyz".index(chain[0]), "xyz".index(chain[1])
+    xyz = machine_xyz(data)
+    rng = np.asarray(range_mm, float)
+    s = 2 * xyz[:, a] / rng[a] - 1
+    v = 2 * xyz[:, b] / rng[b] - 1
+    g = {"s2": s**2, "s3": s**3, "sin": np.sin(np.pi * s / 2), "lin": s}[shape]
+    theta = amp_urad * 1e-6 * g * v
+    lever = xyz.copy()
+    lever[:, a] = 0.0
+    lever[:, 2] -= axis_height_mm
+    return perturb(data, theta[:, None] * np.cross(np.eye(3)[a], lever))

@@ -6,7 +6,8 @@ estimate), :mod:`.scoring` (the significance rule: Δχ², family-wise levels, B
 :mod:`.verdict` (conclusion, aliases, encompassing), :mod:`.crossval` (leave-one-placement-
 out check), :mod:`.certificate_check`, :mod:`.discrepancy` (GP on the residuals),
 :mod:`.replicates` (σ from repeats and residuals), :mod:`.outliers`, :mod:`.blunders`
-(flagged outliers that dominate the misfit are the verdict before any effect).
+(flagged outliers that dominate the misfit are the verdict before any effect),
+:mod:`.certnoise` (a fixed certificate's own errors in the candidates' F-tests).
 May import: ``machine``, ``io``, ``model``, ``gp``.
 """
 
@@ -14,6 +15,18 @@ from __future__ import annotations
 
 from .blunders import ACTION, BLUNDERS, DOMINANT_SHARE, BlunderCheck, blunder_check
 from .certificate_check import ALPHA, CertificateCheck, check_certificate, released
+from .certnoise import (
+    MIN_FORM_DOF,
+    CertNoise,
+    cert_columns,
+    cert_noise,
+    cert_scales,
+    critical_ratio,
+    null_p_value,
+    quadratic_form_sf,
+    rejection_probability,
+    size_for_power,
+)
 from .crossval import (
     MATERIAL,
     MIN_PLACEMENTS,
@@ -42,7 +55,9 @@ from .scoring import (
     PHYSICAL_SHARE,
     ScoreCache,
     baseline_basis,
+    candidate_noise,
     candidate_stats,
+    certificate_noise,
     family_levels,
     needs_met,
     scan_period,
@@ -59,5 +74,8 @@ __all__ = [
     "family_levels", "flexible_spec", "from_repeats", "from_residuals", "HoldoutCheck",
     "kinematic_basis", "MATERIAL", "MIN_PLACEMENTS", "misfit_location", "needs_met",
     "OutlierReport", "OUTSIDE", "PHYSICAL_SHARE", "placement_scale_columns", "placement_scale_test", "plate_columns", "SCALE_ALPHA", "released", "scan_period", "score",
-    "ScoreCache", "SigmaEstimate", "stylus_offsets", "UNIFORM_ALPHA", "Uniformity", "uniformity"
+    "ScoreCache", "SigmaEstimate", "stylus_offsets", "UNIFORM_ALPHA", "Uniformity", "uniformity",
+    "candidate_noise", "certificate_noise", "CertNoise", "cert_columns", "cert_noise",
+    "cert_scales", "critical_ratio", "MIN_FORM_DOF", "null_p_value", "quadratic_form_sf",
+    "rejection_probability", "size_for_power",
 ]

@@ -216,7 +216,8 @@ def plate_columns(base: FitResult, n_rows: int) -> np.ndarray:
     return P
 
 
-def placement_scale_test(r, X, S, n_rows: int, B) -> tuple[float, float]:
+def placement_scale_test(r: np.ndarray, X: np.ndarray, S: np.ndarray, n_rows: int,
+                         B: np.ndarray) -> tuple[float, float]:
     """Does the effect stand in for each placement's own scale? ``(p_S|E, p_E|S)``.
 
     ``r``, ``X``, ``S``: the baseline's weighted residual, the effect's columns and the

@@ -45,10 +45,11 @@ from ..model import (
     surely_determined,
     weighted_residual,
 )
+from .certnoise import CertNoise, null_p_value
 
 __all__ = [
     "FAMILY_ALPHA", "PHYSICAL_SHARE", "ScoreCache", "score", "scan_period", "baseline_basis",
-    "candidate_stats", "family_levels", "needs_met"
+    "candidate_stats", "family_levels", "needs_met", "certificate_noise", "candidate_noise"
 ]
 
 FAMILY_ALPHA = 0.008
@@ -179,6 +180,40 @@ def score(base: FitResult, token: str, cache: ScoreCache | None = None
     return base.chi2 - chi2_new, rank - base.rank, sig, chi2_new, u_new, combos
 
 
+def certificate_noise(base: FitResult, cache: ScoreCache | None = None) -> CertNoise | None:
+    """The baseline's certificate errors for its candidates' tests (``certnoise``), or
+    None when the plate is not fixed to a certificate with uncertainties."""
+    o = base.problem.obs
+    if base.plate != "fixed" or o.cert_u_um is None or o.artefact == "hole_plate":
+        return None
+    n_rows = weighted_residual(base.problem, base.state, base.sigma_um, False)[1].size
+    return CertNoise(base, baseline_basis(base), n_rows)
+
+
+def candidate_noise(noise: CertNoise | None, base: FitResult, token: str, dk: int,
+                    cache: ScoreCache | None = None) -> tuple | None:
+    """``(w, c2, c1_each)`` of the certificate's errors in the test of ``token`` (rank
+    ``dk``): the eigenvalues of its Δχ²'s noise, its residual's scale, and each added
+    parameter's own variance inflation (its column beyond the baseline and the other
+    added ones); None without a certificate (the plain F-test)."""
+    if noise is None or dk <= 0:
+        return None
+    prob = Problem(base.problem.obs, base.problem.spec.with_token(token), base.plate)
+    old = set(base.labels)
+    new = [i for i, lab in enumerate(prob.layout.labels) if lab not in old]
+    idx = None if cache is None else cache.columns(prob)
+    if cache is not None and idx is not None:
+        JE = cache.J[:, idx[new]]
+    else:
+        JE = weighted_residual(prob, augmented_state(base, prob), base.sigma_um,
+                               True)[2].toarray()[:, new]
+    if noise.MG is None or JE.shape[0] != noise.MG.shape[0]:
+        return None
+    nu = max(base.dof - dk, 1)
+    w, c2 = noise.of(JE, dk, nu)
+    return w, c2, noise.each(JE)
+
+
 def baseline_basis(base: FitResult) -> np.ndarray:
     """Orthonormal basis of the baseline's determined column space (weighted J)."""
     J = weighted_residual(base.problem, base.state, base.sigma_um, True)[2]
@@ -229,19 +264,25 @@ def scan_period(base: FitResult, token: str, U: np.ndarray | None = None
     return f"{token}:{best:.0f}", periods, gains, aliases
 
 
-def candidate_stats(base: FitResult, dchi2: float, dk: int, chi2_new: float, n_scan: int = 1
-                ) -> tuple[float, float, int]:
+def candidate_stats(base: FitResult, dchi2: float, dk: int, chi2_new: float, n_scan: int = 1,
+                    noise: tuple | None = None) -> tuple[float, float, int]:
     """ΔBIC, F-test p-value and residual dof of adding ``dk`` parameters. A candidate
     chosen as the best of ``n_scan`` (a scanned period) pays for the choice: one more
     parameter in the BIC and a Bonferroni factor ``n_scan`` on p (conservative: the
-    scanned periods are correlated)."""
+    scanned periods are correlated). ``noise``: ``(w, c2)`` of a fixed certificate's
+    errors in the candidate's test (``certnoise.CertNoise.of``); p is then the tail of
+    the statistic with them (``certnoise.null_p_value``), else the F distribution's."""
     n_rows = base.dof + base.rank
     dof_new = max(n_rows - base.rank - dk, 1)
     dbic = -dchi2 + (dk + (n_scan > 1)) * np.log(n_rows)
     if dk <= 0 or dchi2 <= 0:
         return dbic, 1.0, dof_new
     F = (dchi2 / dk) / max(chi2_new / dof_new, 1e-300)
-    return dbic, min(1.0, n_scan * float(stats.f.sf(F, dk, dof_new))), dof_new
+    if noise is not None and len(noise[0]) == dk:
+        p = null_p_value(F, noise[0], noise[1], dof_new)
+    else:
+        p = float(stats.f.sf(F, dk, dof_new))
+    return dbic, min(1.0, n_scan * p), dof_new
 
 
 @dataclass

@@ -65,7 +65,9 @@ from .scoring import (
     ScoreCache,
     _Scored,
     baseline_basis,
+    candidate_noise,
     candidate_stats,
+    certificate_noise,
     family_levels,
     needs_met,
     scan_period,
@@ -300,13 +302,7 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
         scored.append(_Scored(tok, *score(base, tok, cache), n_scan=n_scan,
                               period_aliases=period_aliases, family=family))
     levels = family_levels([sc.family for sc in scored], alpha)
-    memo = {}
-
-    def stats_of(sc):  # sorted on several times: each F-test once
-        key = (sc.dchi2, sc.dk, sc.chi2_new, sc.n_scan)
-        if key not in memo:
-            memo[key] = candidate_stats(base, *key)
-        return memo[key]
+    noise_of, stats_of = _tests(base, cache)
 
     def significant(sc):
         return sc.dk > 0 and stats_of(sc)[1] < levels[sc.family]
@@ -341,6 +337,10 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
             k_of_level[lv] = float(stats.norm.isf(lv / 2) + stats.norm.isf(0.2))
         k_detect = k_of_level[lv]
         scale = float(np.sqrt(sc.chi2_new / dof_new))
+        # with a fixed certificate its errors add to each parameter's own direction (c1)
+        # and to the residual scatter (c2): the test counts both (certnoise), so does the
+        # size it sees (plan.detect's limits, for one parameter alone)
+        inflate = _inflation(noise_of(sc), list(sc.u_new))
         e = catalogue_entry(sc.token)
         # Unconfirmed candidates: RMS from the one-step χ² (prior rows are few).
         rms = sc.refit.rms_um if sc.refit is not None else float(
@@ -352,7 +352,8 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
             p_value=p, significant=significant(sc), confirmed=sc.refit is not None,
             signature_um=sc.signature,
             # an undetermined parameter has no limit (u reported as 0): inf, never 0
-            detectable={lab: (unit, k_detect * scale * ui if ui > 0 else np.inf)
+            detectable={lab: (unit, k_detect * scale * ui * inflate.get(lab, 1.0)
+                              if ui > 0 else np.inf)
                         for lab, (unit, ui) in sc.u_new.items()},
             level=levels[sc.family],
             would_leave_undetermined=list(sc.combos), fitted=_fitted(sc)))
@@ -396,6 +397,39 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
     return Diagnosis(baseline=base, candidates=out, verdict=verdict, skipped=skipped,
                      message=msg, holdout=checks, sigma=sigma, uniformity=uniform,
                      where=where, certificate=cert, blunders=blunders, unseen=unseen)
+
+
+def _inflation(noise, labels) -> dict:
+    """``{label: sqrt(c1_j / c2)}``: how much a fixed certificate's errors scale the size
+    at which each added parameter is seen (empty: no certificate)."""
+    if noise is None:
+        return {}
+    return dict(zip(labels, np.sqrt(noise[2] / noise[1]), strict=False))
+
+
+def _tests(base, cache):
+    """``(noise_of, stats_of)``: a candidate's certificate noise (``candidate_noise``: a
+    fixed certificate's own errors in its test) and its ΔBIC, p-value and dof
+    (``candidate_stats`` with that noise), each computed once (the candidates are sorted
+    on them several times)."""
+    cert = certificate_noise(base, cache)
+    noises: dict = {}
+    memo: dict = {}
+
+    def noise_of(sc):
+        if (sc.token, sc.dk) not in noises:
+            noises[sc.token, sc.dk] = candidate_noise(cert, base, sc.token, sc.dk, cache)
+        return noises[sc.token, sc.dk]
+
+    def stats_of(sc):
+        key = (sc.dchi2, sc.dk, sc.chi2_new, sc.n_scan)
+        if (sc.token, key) not in memo:
+            nz = noise_of(sc)
+            memo[sc.token, key] = candidate_stats(base, *key,
+                                                  noise=None if nz is None else nz[:2])
+        return memo[sc.token, key]
+
+    return noise_of, stats_of
 
 
 def _fitted(sc) -> dict:

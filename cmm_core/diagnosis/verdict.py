@@ -11,6 +11,7 @@ is :data:`OUTSIDE` the catalogue, with where the residual lives
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Protocol
 
 import numpy as np
 from scipy import stats
@@ -20,6 +21,13 @@ from ..units import label as unit_label
 from . import crossval as holdout
 from .blunders import BLUNDERS
 from .replicates import axis_weights
+
+
+class _Named(Protocol):
+    """What :func:`fitted_text` reads of a candidate (``search.Candidate``)."""
+
+    effect: str
+    fitted: dict
 
 OUTSIDE = "outside_catalogue"
 """Verdict when the misfit is significant and no catalogue effect passes the checks."""
@@ -250,7 +258,7 @@ def stylus_offsets(fitted: dict) -> dict:
     return out
 
 
-def fitted_text(c) -> str:
+def fitted_text(c: _Named) -> str:
     """The named effect's numbers: a probe offset names the stylus furthest off (the
     largest offset vector, with u), other effects their parameters largest against u."""
     if not c.fitted:

@@ -9,6 +9,7 @@ and ``-name``; plus the physical effects of the effect blocks (``blocks.REGISTRY
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 from ..machine import ERROR_NAMES, ROTATIONAL, SQUARENESS, TRANSLATIONAL
@@ -254,7 +255,7 @@ def parse_spec(spec: str, *, default_order: int = 2) -> ModelSpec:
                                           if n in periods))
 
 
-def correction_columns(model) -> tuple:
+def correction_columns(model: str | ModelSpec | Iterable) -> tuple:
     """Columns (besides ``x_mm, y_mm, z_mm, probe``) that points need to be corrected by a
     model: each compensating block's :meth:`~blocks.base.Block.correction_columns`, in
     ``blocks.REGISTRY`` order, without repeats.

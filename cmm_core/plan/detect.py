@@ -18,10 +18,21 @@ at which the test rejects with 80 % probability:
     ncf.sf(f.isf(α_E, k, ν), k, ν, λ(s)) = 0.8.
 
 With the plate fixed to a certificate, the certificate's own errors are a second noise,
-common to every placement's image of a ball: they add to the χ² the effect's columns take
-and to the residual χ² by the factors ``c1`` and ``c2`` (:func:`cert_scales`), and the
-limit solves ``ncf.sf(f.isf(α_E, k, ν) c2/c1, k, ν, λ(s)/c1) = 0.8`` (the Δχ² is then
-about ``c1`` times a non-central χ²(k, λ/c1), Satterthwaite 1946).
+common to every placement's image of a ball (``diagnosis.certnoise``): within the k
+directions the effect's columns span, the Δχ² is the quadratic form
+``Σ_i w_i (z_i + δ_i)²`` of k standard normals, ``w_i`` the eigenvalues of its noise
+covariance there (their mean ``c1``, :func:`cert_scales`) and ``δ_i`` the effect's
+pattern in the eigenvectors over ``√w_i`` (a generalised non-central χ²); the residual χ²
+is about ``c2`` times a central χ²(ν) (Satterthwaite 1946). The diagnosis's p-value is
+the tail of its statistic under that null (``certnoise.null_p_value``), so the test
+rejects when ``Δχ² − a c2 χ²_ν > 0``, ``a`` its critical ``Δχ²/χ²_res``
+(``certnoise.critical_ratio``), and the probability of that at size s is Imhof's (1961,
+eq. 3.2) integral (:func:`rejection_probability`). The limit is the size at which it is
+0.8. With equal ``w_i`` (k = 1) it is exactly ``ncf.sf(f.isf(α_E, k, ν), k, ν,
+λ(s)/c1) = 0.8`` (:func:`noncentrality_for_power`). ``bench/plan.py`` found the former
+shortcut (one scale ``c1`` for all k directions, the plain F-test) 1-2 points optimistic
+for backlash and plate sag, whose directions the certificate's errors load unevenly
+(eigenvalues 1.06-1.29 and 1.00-1.20 on the thesis plan).
 
 Sizes are in the effect's parameter units along its shape ``e`` (largest weight 1):
 ``docs/planning.md`` lists the shapes. An effect with several shapes (a probe offset
@@ -40,18 +51,28 @@ import numpy as np
 from scipy import linalg, optimize, stats
 
 from .._blas import single_blas_thread
-from ..diagnosis import scan_period, score
+from ..diagnosis import (
+    MIN_FORM_DOF,
+    cert_columns,
+    cert_noise,
+    cert_scales,
+    rejection_probability,
+    scan_period,
+    score,
+    size_for_power,
+)
 from ..diagnosis import scoring as sc
 from ..model import (
     BY_TOKEN,
     PERIODIC,
     FitResult,
+    Observations,
     Problem,
     augmented_state,
     parse_spec,
     weighted_residual,
 )
-from .plans import fit_plan_data, simulate_plan
+from .plans import Plan, fit_plan_data, simulate_plan
 
 POWER = 0.8
 """Probability of detection that defines the detection limit."""
@@ -93,10 +114,16 @@ class DetectionLimit:
     family : str
         The diagnosis's candidate token (``periodic_x`` for ``periodic_x:420``).
     numerator_scale, denominator_scale : float
-        Noise scales of the test's Δχ² per degree of freedom and of its residual χ²/ν
-        (1 for white noise at σ; above 1 with a fixed certificate, whose own errors add
-        to both: :func:`cert_scales`). λ is divided by the first, and the critical value
-        multiplied by their ratio.
+        Noise scales ``c1``, ``c2`` of the test's Δχ² per degree of freedom and of its
+        residual χ²/ν (1 for white noise at σ; above 1 with a fixed certificate, whose own
+        errors add to both: :func:`cert_scales`). λ is divided by the first; the test
+        itself counts both (``diagnosis.certnoise``).
+    noise_weights : tuple of float
+        Eigenvalues ``w_i`` of the Δχ²'s noise covariance in the effect's k directions
+        (empty: all equal to ``numerator_scale``).
+    signal_per_unit2 : tuple of float
+        ``δ_i²`` per unit size² along ``shape`` in those eigen-directions (with
+        ``noise_weights``; their ``w``-weighted sum is ``noncentrality_per_unit2``).
     """
 
     effect: str
@@ -111,6 +138,8 @@ class DetectionLimit:
     family: str = field(default="", repr=False)
     numerator_scale: float = 1.0
     denominator_scale: float = 1.0
+    noise_weights: tuple = field(default=(), repr=False)
+    signal_per_unit2: tuple = field(default=(), repr=False)
 
     def to_dict(self) -> dict:
         """JSON record ``{"size", "unit", ...}`` (an infinite size is null)."""
@@ -123,8 +152,13 @@ class DetectionLimit:
         if self.n_params <= 0:
             return self.level
         c1, c2 = self.numerator_scale, self.denominator_scale
+        if self.noise_weights:
+            return rejection_probability(np.asarray(self.noise_weights),
+                                         size ** 2 * np.asarray(self.signal_per_unit2),
+                                         self.dof, self.level, c2)
+        # the test divides F by c1/c2 (certnoise.null_p_value): the plain critical value
         lam = size ** 2 * self.noncentrality_per_unit2 / c1
-        crit = stats.f.isf(self.level, self.n_params, self.dof) * c2 / c1
+        crit = stats.f.isf(self.level, self.n_params, self.dof)
         return float(stats.ncf.sf(crit, self.n_params, self.dof, lam))
 
 
@@ -162,38 +196,7 @@ def baseline_basis(base: FitResult) -> tuple:
     return U[:, keep], float(sv.max())
 
 
-def cert_columns(base: FitResult, spec=None) -> np.ndarray | None:
-    """The certificate's own errors in the weighted residual: the plate coordinates'
-    weighted columns (the plate block of the same model with the certificate as a prior)
-    times the certificate's standard uncertainties, observation rows only; their Gram
-    matrix is the errors' covariance. None when the plate is not fixed to a certificate
-    with uncertainties, or for a hole plate. The designer sums the same columns per unit."""
-    o = base.problem.obs
-    if base.plate != "fixed" or o.cert_u_um is None or o.artefact == "hole_plate":
-        return None
-    pp = Problem(o, base.problem.spec if spec is None else spec, "prior")
-    Jp = weighted_residual(pp, augmented_state(base, pp), base.sigma_um, True)[2]
-    blk = pp.layout.blocks["plate"]
-    Jc = Jp.toarray()[: 3 * pp.n_obs, blk.start:blk.stop]
-    return Jc * np.nan_to_num(np.asarray(o.cert_u_um, float).ravel(), posinf=0.0)
-
-
-def cert_scales(MG, R, k: int, nu: int) -> tuple[float, float]:
-    """``(c1, c2)``: how much a fixed certificate's errors inflate the test's Δχ² per
-    degree of freedom (their share in the effect's columns, ``1 + tr(P_R D)/k``) and its
-    residual χ²/ν (``1 + tr((M − P_R) D)/ν``), ``D = M G Gᵀ M`` their covariance. The
-    diagnosis's F-test takes σ as white; the certificate's errors are common to every
-    placement's image of a ball, so the limit must count them (bench/plan.py found the
-    plain non-central F 5-10 points optimistic on the thesis plan)."""
-    if MG is None or k <= 0:
-        return 1.0, 1.0
-    Ur, sv, _ = np.linalg.svd(R, full_matrices=False)
-    Q = Ur[:, :k]
-    on = float(np.sum((Q.T @ MG) ** 2))
-    return 1.0 + on / k, 1.0 + (float(np.sum(MG**2)) - on) / max(nu, 1)
-
-
-def _shapes(token, labels, base_spec, positions, probes):
+def _shapes(token: str, labels: list, base_spec, positions, probes) -> list:
     """Candidate shapes ``(name, {label: weight})`` of an effect (see docs/planning.md):
     a physical effect's are its block's (``Block.detection_shapes``; by default each of
     its parameters alone, the worst reported)."""
@@ -209,7 +212,7 @@ def _shapes(token, labels, base_spec, positions, probes):
     return [("highest new degree" if present else "lowest degree", {lab: 1.0})]
 
 
-def default_period(obs, axis: int) -> float:
+def default_period(obs: Observations, axis: int) -> float:
     """Period (mm) at which a periodic error along ``axis`` is judged when the plan does
     not give one: the geometric mean of the scanned range (shortest resolvable period to
     the span of the balls)."""
@@ -218,7 +221,7 @@ def default_period(obs, axis: int) -> float:
     return float(np.sqrt(shortest * max(span, 2 * shortest)))
 
 
-def candidate_tokens(base: FitResult, alpha: float):
+def candidate_tokens(base: FitResult, alpha: float) -> tuple[list, dict, dict]:
     """The tokens the diagnosis would try on this design, the reasons for those it would
     skip, and each tried family's level ``{family: α_E}``."""
     needs_met, levels, _, _, _ = _diagnosis_rules()
@@ -245,7 +248,8 @@ def _all_candidates_spec(base: FitResult, tokens):
     return spec
 
 
-def detection_limits(base: FitResult, plan, *, power: float = POWER):
+def detection_limits(base: FitResult, plan: Plan, *, power: float = POWER
+                     ) -> tuple:
     """Detection limit of every catalogue effect the diagnosis would try on the plan's
     data (module docstring). Returns ``({token: DetectionLimit}, {token: skip reason})``.
     """
@@ -287,8 +291,10 @@ def detection_limits(base: FitResult, plan, *, power: float = POWER):
         nu = max(n_rows - base.rank - k, 1)
         level = levels[fam] / scan
         c1, c2 = cert_scales(MG, R, k, nu)
-        lam = (c1 * noncentrality_for_power(k, nu, level, power, round(c2 / c1, 6))
-               if k > 0 else np.inf)
+        lam = c1 * noncentrality_for_power(k, nu, level, power) if k > 0 else np.inf
+        w, V, Q = cert_noise(MG, R, k) if k > 0 else (np.ones(0), None, None)
+        # unequal noise in the k directions: the generalised non-central χ² (docstring)
+        uneven = k > 1 and nu + k >= MIN_FORM_DOF and float(w.max() - w.min()) > 1e-6 * float(w.max())
         sizes = {}
         for sname, shape in _shapes(fam, labels, base.problem.spec, obs.positions,
                                     obs.probes):
@@ -298,9 +304,14 @@ def detection_limits(base: FitResult, plan, *, power: float = POWER):
             # the fit's rank rule: a pattern the baseline absorbs but for a relative
             # remainder below rank_rtol (scaled) is not seen at all
             seen = k > 0 and pattern > 0 and np.sqrt(q) > base.rank_rtol * sv_max * pattern
-            sizes[sname] = (float(np.sqrt(lam / q)) if seen else np.inf, shape, q)
+            d2: tuple = ()
+            size = float(np.sqrt(lam / q)) if seen else np.inf
+            if seen and uneven:
+                d2 = tuple((V.T @ (Q.T @ (R @ e))) ** 2 / w)
+                size = size_for_power(w, np.array(d2), int(nu), level, c2, power, size)
+            sizes[sname] = (size, shape, q, d2)
         sname = max(sizes, key=lambda n: sizes[n][0])
-        size, shape, q = sizes[sname]
+        size, shape, q, d2 = sizes[sname]
         unit = units[max(shape, key=lambda lab: abs(shape[lab]))]
         note = f"shape: {sname}"
         if len(sizes) > 1:
@@ -313,11 +324,12 @@ def detection_limits(base: FitResult, plan, *, power: float = POWER):
             note = ("the baseline absorbs this pattern (or the design cannot determine it): "
                     "no size is detectable. " + note)
         out[token] = DetectionLimit(token, size, unit, shape, k, int(nu), float(level), q,
-                                    note, fam, c1, c2)
+                                    note, fam, c1, c2,
+                                    tuple(map(float, w)) if d2 else (), d2)
     return out, skipped
 
 
-def injection(limit: DetectionLimit, plan, size: float) -> dict:
+def injection(limit: DetectionLimit, plan: Plan, size: float) -> dict:
     """``simulation_config`` keywords that hide the effect at ``size`` along its shape in
     simulated data of ``plan`` (the kinematic coefficients otherwise drawn from the
     plan's prior sizes)."""
@@ -347,14 +359,16 @@ def diagnosis_detects(base: FitResult, limit: DetectionLimit) -> tuple:
     dchi2, dk, _, chi2_new, _, _ = score(base, token)
     if dk <= 0:
         return False, 1.0, 0.0
-    p = stats_of(base, dchi2, dk, chi2_new, scan)[1]
+    # the fixed certificate's own errors in the test, as the diagnosis counts them
+    nz = sc.candidate_noise(sc.certificate_noise(base), base, token, dk)
+    p = stats_of(base, dchi2, dk, chi2_new, scan, None if nz is None else nz[:2])[1]
     # the level already carries the scan factor; stats_of multiplies p by it instead
     level = limit.level * (scan if limit.family in PERIODIC else 1)
     return bool(p < level), float(p), float(dchi2)
 
 
 @single_blas_thread
-def detection_trial(plan, limit: DetectionLimit, size: float, seed: int) -> tuple:
+def detection_trial(plan: Plan, limit: DetectionLimit, size: float, seed: int) -> tuple:
     """One Monte Carlo trial of a detection limit: simulate the plan's data with noise,
     the prior kinematic errors and the effect at ``size``, fit the plan's model and run
     the diagnosis's test of the effect. Returns ``(detected, p_value, Δχ²)``."""

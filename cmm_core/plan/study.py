@@ -19,8 +19,10 @@ effect's detection rate with its binomial standard error (80 % expected).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +31,12 @@ from ..model import BY_TOKEN
 from ..model import evaluate as evaluate_u
 from .detect import DetectionLimit, detection_trial
 from .plans import Plan, fit_plan_data, simulate_plan
+
+if TYPE_CHECKING:
+    from .evaluation import PlanEvaluation
+
+_Progress = Callable[[float, str], object] | None
+"""``progress(fraction, text)``, called as tasks complete (None: silent)."""
 
 PHYSICAL_CHECKS = tuple(t for t, b in BY_TOKEN.items() if b.physical_check)
 """Effects checked by default (those whose limit is finite for the plan): the blocks with
@@ -77,13 +85,17 @@ def run_task(task: StudyTask) -> dict:
             "z": z, "chi2_p": r.chi2_p_value}
 
 
-def tasks_for(evals, trials: int, effects=None, seed0: int = 1000) -> list:
+def tasks_for(evals: Sequence[PlanEvaluation], trials: int,
+              effects: Sequence[str] | None = None, seed0: int = 1000) -> list[StudyTask]:
     """The tasks of a study: ``trials`` clean data sets per plan and ``trials`` per effect
     checked (``effects``: tokens or families; default the physical effects whose limit
     is finite for the plan)."""
     out = []
     for i, ev in enumerate(evals):
         plan = ev.plan
+        if plan is None:
+            raise ValueError(f"the evaluation {ev.name!r} keeps no plan to simulate; "
+                             "evaluate the plan again (plan.evaluate).")
         out += [StudyTask(plan, seed0 + s, None, i) for s in range(trials)]
         for lim in ev.detection_limits.values():
             wanted = (lim.family in PHYSICAL_CHECKS if effects is None
@@ -94,7 +106,8 @@ def tasks_for(evals, trials: int, effects=None, seed0: int = 1000) -> list:
 
 
 @contextmanager
-def dask_client(scheduler: str | None = None, workers: int = 2, processes: bool = True):
+def dask_client(scheduler: str | None = None, workers: int = 2, processes: bool = True
+                ) -> Iterator[Any]:
     """A ``dask.distributed`` client: on the scheduler at ``scheduler`` (an address such
     as ``tcp://host:8786``), or on a new ``LocalCluster`` of ``workers`` single-threaded
     workers (processes by default; threads with ``processes=False``)."""
@@ -112,8 +125,8 @@ def dask_client(scheduler: str | None = None, workers: int = 2, processes: bool 
         yield client
 
 
-def run_tasks(tasks, *, client=None, scheduler=None, workers: int = 2, progress=None,
-              processes: bool = True) -> list:
+def run_tasks(tasks: Sequence[StudyTask], *, client: Any = None, scheduler: str | None = None,
+              workers: int = 2, progress: _Progress = None, processes: bool = True) -> list:
     """Run tasks on Dask (``client``, else a scheduler address or a local cluster), in
     completion order with ``progress(fraction, text)`` after each; returns the records in
     task order. An exception raised by ``progress`` (a changed input in the app) cancels
@@ -141,7 +154,7 @@ def run_tasks(tasks, *, client=None, scheduler=None, workers: int = 2, progress=
         return go(c)
 
 
-def run_serial(tasks, progress=None) -> list:
+def run_serial(tasks: Sequence[StudyTask], progress: _Progress = None) -> list:
     """The same tasks in a plain loop (the benchmark's peer)."""
     out = []
     for i, t in enumerate(tasks, 1):
@@ -175,13 +188,15 @@ class StudyResult:
         return {"plans": self.plans, "n_tasks": self.n_tasks}
 
 
-def summarise(evals, tasks, records) -> StudyResult:
+def summarise(evals: Sequence[PlanEvaluation], tasks: Sequence[StudyTask],
+              records: Sequence[dict]) -> StudyResult:
     """Observed against predicted, per plan (see :class:`StudyResult`)."""
     out = []
     for i, ev in enumerate(evals):
         clean = [r for r in records if r["plan"] == i and r["effect"] is None]
         rec = {"name": ev.name, "trials": len(clean)}
-        if clean and ev.U2_um is not None and clean[0]["U2_um"] is not None:
+        if clean and ev.U2_um is not None and ev.U3_um is not None \
+                and clean[0]["U2_um"] is not None:
             obs2 = {a: float(np.mean([r["U2_um"][a] for r in clean])) for a in "xyz"}
             obs3 = {a: float(np.mean([r["U3_um"][a] for r in clean])) for a in "xyz"}
             rel = max(abs(obs2[a] / ev.U2_um[a] - 1) for a in "xyz")
@@ -212,8 +227,10 @@ def summarise(evals, tasks, records) -> StudyResult:
     return StudyResult(out, len(records))
 
 
-def check_plans(evals, *, trials: int, effects=None, scheduler=None, workers: int = 2,
-                progress=None, client=None, processes: bool = True) -> StudyResult:
+def check_plans(evals: Sequence[PlanEvaluation], *, trials: int,
+                effects: Sequence[str] | None = None, scheduler: str | None = None,
+                workers: int = 2, progress: _Progress = None, client: Any = None,
+                processes: bool = True) -> StudyResult:
     """Monte Carlo check of the plans' predictions on Dask (module docstring)."""
     tasks = tasks_for(evals, trials, effects)
     records = run_tasks(tasks, client=client, scheduler=scheduler, workers=workers,

@@ -8,6 +8,8 @@ with its block and listing it here (its catalogue text is the block's ``entry``)
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from . import periodic
 from .backlash import Backlash
 from .base import Block, Eval
@@ -21,6 +23,9 @@ from .plate_sag import PlateSag
 from .plate_thermal import PlateThermal
 from .probe_offset import ProbeOffset
 
+if TYPE_CHECKING:
+    from ..observations import Observations
+
 __all__ = ["REGISTRY", "BY_TOKEN", "Block", "Eval", "needs"]
 
 REGISTRY = (Plate, Placement, Kinematic, PlateThermal, PlateSag, ProbeOffset, Drift,
@@ -32,7 +37,7 @@ run (thermal expansion before sag)."""
 BY_TOKEN = {b.token: b for b in REGISTRY if b.token}
 
 
-def needs(token: str, obs) -> str | None:
+def needs(token: str, obs: Observations) -> str | None:
     """Why ``obs`` cannot determine the effect ``token`` adds (None: they can)."""
     name = token.partition(":")[0]
     if name in BY_TOKEN and not len(obs.r_mm):

@@ -498,7 +498,7 @@ parameter: a metre or a radian is no CMM's error, and larger variances overflow 
 propagation (a grid's J V Jᵀ)."""
 
 
-def checked_cov(cov, n, name, column):
+def checked_cov(cov: np.ndarray, n: int, name: str | None, column: str) -> None:
     """Refuse a model file's covariance unless it is an n × n finite, symmetric, positive
     semi-definite matrix: a NaN or a negative variance would give NaN or imaginary
     uncertainties, silently."""
@@ -530,11 +530,11 @@ def checked_cov(cov, n, name, column):
                         hint="refit and save the model again (fit --save).")
 
 
-def per_group_cols(start: int, group: np.ndarray):
+def per_group_cols(start: int, group: np.ndarray) -> np.ndarray:
     """Columns ``start + 3 g + (0, 1, 2)`` of per-group xyz parameters, (n, 3)."""
     return start + 3 * group[:, None] + np.arange(3)
 
 
-def shared_cols(start: int, k: int, n: int):
+def shared_cols(start: int, k: int, n: int) -> np.ndarray:
     """The same ``k`` columns for every observation, (n, k)."""
     return np.broadcast_to(np.arange(start, start + k), (n, k))

@@ -34,11 +34,25 @@ roll at the stroke's corners):
   ends of the travel (a gantry's rail between its pillars), whose deflection under a
   moving point load is ``∝ s²(1 − s)²`` in the travel fraction, i.e. ``(1 − s²)²``.
 
-The roll turns everything the bridge carries about the bridge's reference line: the
-lever is the tip relative to it, ``w = (carried readings) + p`` (the tip with its a
-coordinate replaced by the probe's), and the true tip moves by ``θ e_a × w`` (first
-order; the products with the other errors, µrad × µm, are dropped). It is a reading
-stage term like ``machine_thermal``'s, evaluated at the scale readings.
+The roll turns everything the bridge carries about the line it rocks on: the lever is
+the tip relative to it. With the line at height ``z0``, ``w − z0 e_z``, ``w = (carried
+readings) + p`` (the tip with its a coordinate replaced by the probe's), and the true tip
+moves by ``θ e_a × (w − z0 e_z)`` (first order; the products with the other errors,
+µrad × µm, are dropped). The line's height in the machine's frame is not known: a moving
+bridge rocks on its bearings on the table, below the machine's z = 0 by the ram's lowest
+reach; a gantry rocks on rails raised to the top of its stroke and above. So the block
+also fits ``θ_k z0`` for each shape as its own parameter, the tip's shear along the
+carriage's axis ``e_a × (−Z e_z)`` (``Z`` = 1 m: µrad, the twist times the line's height
+in metres):
+
+- ``bridge_twist.lin_h``, ``bridge_twist.mid_h``: ``t_lin z0/Z``, ``t_mid z0/Z``.
+
+A shear of the carriage's axis that grows with ``s·v`` is no rigid error either (a scale
+of b that changes along a). Fitted free, not tied to ``t_k z0``, they also take a
+line that is not level. Without them a gantry's twist (z0 ≈ 1 m above the table) left
+most of its pattern to high orders and the plate's sag (``tests/scenarios.py``,
+``bridge_roll``: plate_sag named on gantry_fxyz, pitch150_5pos). It is a reading stage
+term like ``machine_thermal``'s, evaluated at the scale readings.
 
 Fixed bridges (``fixed_bridge_*``) do not move: their deflection under the carriage
 depends on the carriage alone (rigid, item 1); the horizontal arm's column bends under
@@ -47,12 +61,15 @@ the arm (another effect). There the block adds no parameter and says why.
 New points are corrected with the same term at their readings (``compensate``): no
 further columns are needed. The model file keeps the section ``bridge_twist``: the
 fitted ``twist_urad`` and ``cov_joint``, the joint covariance of the kinematic
-coefficients, the compensating blocks before it and these two; the strokes and the
+coefficients, the compensating blocks before it and these four (a file of the two-shape
+block, without the height terms, is still read); the strokes and the
 layout are the model's own ``range_mm`` and ``layout``. A layout without a bridge keeps
 no section (a file of a bridge layout whose spec has the block must have it).
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -62,7 +79,10 @@ from ...machine import DEFAULT_LAYOUT, LAYOUTS
 from ...units import UM, URAD
 from .base import Block, Correction, Effect, ModelPart, SimParam, checked_cov, shared_cols
 
-LABELS = ("bridge_twist.lin", "bridge_twist.mid")
+LABELS = ("bridge_twist.lin", "bridge_twist.mid", "bridge_twist.lin_h",
+          "bridge_twist.mid_h")
+Z_REF_MM = 1000.0
+"""Reference height ``Z`` of the height terms (module docstring): 1 m."""
 SECTION_KEYS = ("twist_urad", "cov_joint")
 """Keys of the model file's ``bridge_twist`` section."""
 BRIDGES = {name: chain for name, chain in LAYOUTS.items()
@@ -76,7 +96,7 @@ def _axes(layout):
     return "xyz".index(chain[1]), "xyz".index(chain[2])
 
 
-def basis(u_mm, range_mm, layout):
+def basis(u_mm: np.ndarray, range_mm: Sequence[float], layout: str) -> np.ndarray:
     """The two twist shapes at scale readings ``u_mm`` (n, 3): (n, 2), ``s·v`` and
     ``(1 − s²)² v`` (module docstring)."""
     a, b = _axes(layout)
@@ -86,7 +106,15 @@ def basis(u_mm, range_mm, layout):
     return np.column_stack([s * v, (1.0 - s**2) ** 2 * v])
 
 
-def direction_um(r_mm, u_mm, layout):
+def height_direction_um(n: int, layout: str) -> np.ndarray:
+    """``e_a × (−Z e_z)`` in µm per µrad (n, 3): the tip's shear for a unit height term
+    (the roll about a line ``Z`` above the machine's z = 0, less the roll about z = 0)."""
+    a, _ = _axes(layout)
+    d = np.cross(np.eye(3)[a], -Z_REF_MM * np.eye(3)[2]) * (URAD / UM)
+    return np.broadcast_to(d, (n, 3))
+
+
+def direction_um(r_mm: np.ndarray, u_mm: np.ndarray, layout: str) -> np.ndarray:
     """``e_a × w`` in µm per µrad of roll: the tip's motion for a unit roll of the bridge,
     ``w`` the tip relative to the bridge's reference line (reported tip ``r_mm`` with its
     a coordinate replaced by the probe's, ``r_a − u_a``)."""
@@ -96,9 +124,22 @@ def direction_um(r_mm, u_mm, layout):
     return np.cross(np.eye(3)[a], w) * (URAD / UM)
 
 
+def twist_columns(B: np.ndarray, r_mm: np.ndarray, u_mm: np.ndarray, layout: str,
+                  k: int = len(LABELS)) -> np.ndarray:
+    """(n, 3, k) µm per µrad: the tip's motion for each parameter, the two shapes times
+    the roll's lever (:func:`direction_um`) and then times the height terms' shear
+    (:func:`height_direction_um`); ``k = 2``: the roll terms alone (a model file of the
+    two-shape block)."""
+    g = direction_um(r_mm, u_mm, layout)
+    cols = [g[:, :, None] * B[:, None, :]]
+    if k > 2:
+        cols.append(height_direction_um(len(B), layout)[:, :, None] * B[:, None, :])
+    return np.concatenate(cols, axis=2)[:, :, :k]
+
+
 class BridgeTwist(Block):
     """Roll of the bridge about its travel axis that grows with the carriage's load share
-    (µrad at the corners of the strokes)."""
+    (µrad at the corners of the strokes), with the height of the line it rolls about."""
 
     token = "bridge_twist"
     entry = Effect(
@@ -117,20 +158,34 @@ class BridgeTwist(Block):
         "placement across the bridge at two bridge positions): a rigid roll is the same "
         "at both, the twist changes sign with the carriage's side.")
 
-    sim_keys = frozenset({"lin_urad", "mid_urad"})
-    sim_ranges = {"lin_urad": (-1e3, 1e3), "mid_urad": (-1e3, 1e3)}
+    sim_keys = frozenset({"lin_urad", "mid_urad", "axis_height_mm", "lin_h_urad",
+                          "mid_h_urad"})
+    sim_ranges = {"lin_urad": (-1e3, 1e3), "mid_urad": (-1e3, 1e3),
+                  "axis_height_mm": (-1e4, 1e4), "lin_h_urad": (-1e3, 1e3),
+                  "mid_h_urad": (-1e3, 1e3)}
     sim_label = "Bridge twist (carriage load)"
     sim_help = ("A roll of a moving bridge or gantry about its travel axis that depends on "
                 "where the carriage stands on it (non-rigid; other layouts: no effect).")
     sim_params = (SimParam("lin_urad", "twist s·v (µrad)", "urad", 3.0, -20.0, 20.0, 0.5),
                   SimParam("mid_urad", "twist (1−s²)²·v (µrad)", "urad", 0.0, -20.0, 20.0,
-                           0.5))
+                           0.5),
+                  SimParam("axis_height_mm", "height of the line it rolls about (mm)",
+                           "mm", 0.0, -1000.0, 2000.0, 50.0))
     physical_check = True
 
     @classmethod
     def draw(cls, cfg, sim, rng):
-        return {"bridge_twist.lin": float(cfg.get("lin_urad", 0.0)),
-                "bridge_twist.mid": float(cfg.get("mid_urad", 0.0))}
+        t = [float(cfg.get("lin_urad", 0.0)), float(cfg.get("mid_urad", 0.0))]
+        z0 = float(cfg.get("axis_height_mm", 0.0)) / Z_REF_MM
+        return {"bridge_twist.lin": t[0], "bridge_twist.mid": t[1],
+                "bridge_twist.lin_h": t[0] * z0 + float(cfg.get("lin_h_urad", 0.0)),
+                "bridge_twist.mid_h": t[1] * z0 + float(cfg.get("mid_h_urad", 0.0))}
+
+    @classmethod
+    def detection_shapes(cls, labels, positions, probes):
+        """The twist's two shapes about the machine's z = 0 (the height terms are the
+        same roll about another line, not an effect of their own)."""
+        return [(f"{lab} alone", {lab: 1.0}) for lab in labels if not lab.endswith("_h")]
 
     @classmethod
     def injection(cls, values):
@@ -153,23 +208,24 @@ class BridgeTwist(Block):
         return [("bridge_twist", list(LABELS), "urad")] if obs.layout in BRIDGES else []
 
     def _terms(self, ev):
-        """``(basis (n, 2), direction (n, 3))`` at the observations' readings."""
+        """``(basis (n, 2), columns (n, 3, 4))`` at the observations' readings: each
+        parameter's motion of the tip (:func:`twist_columns`)."""
         o = ev.obs
         u = o.r_mm - o.p_mm
-        return basis(u, o.range_mm, o.layout), direction_um(o.r_mm, u, o.layout)
+        B = basis(u, o.range_mm, o.layout)
+        return B, twist_columns(B, o.r_mm, u, o.layout)
 
     def reading_stage(self, ev, d):
         if ev.obs.layout not in BRIDGES:
             return d
-        B, g = self._terms(ev)
-        return d + (B @ ev.x("bridge_twist"))[:, None] * g
+        _, cols = self._terms(ev)
+        return d + cols @ ev.x("bridge_twist")
 
     def jacobian(self, ev):
         if ev.obs.layout not in BRIDGES:
             return []
-        B, g = self._terms(ev)
-        return [(shared_cols(ev.start("bridge_twist"), 2, len(B)),
-                 g[:, :, None] * B[:, None, :])]
+        B, cols = self._terms(ev)
+        return [(shared_cols(ev.start("bridge_twist"), len(LABELS), len(B)), cols)]
 
     # --- compensation of new points -----------------------------------------------------
     model_keys = ("bridge_twist",)
@@ -218,7 +274,6 @@ class BridgeTwist(Block):
             raise DataError(f"the {cut_repr(layout)} layout has no bridge twist; the file "
                             "holds one.", file=name, column=col,
                             hint="refit and save the model again (fit --save).")
-        k = len(LABELS)
         try:
             t = np.asarray(sec["twist_urad"], float)
             cov = np.asarray(sec["cov_joint"], float)
@@ -226,8 +281,10 @@ class BridgeTwist(Block):
         except (KeyError, TypeError, ValueError) as exc:
             raise DataError(f"expected numbers ({cut_repr(str(exc), 80)}).", file=name,
                             column=col) from None
+        # 4 terms; 2 in a file of the two-shape block (no height terms)
+        k = t.shape[0] if t.ndim == 1 and t.shape[0] in (2, len(LABELS)) else len(LABELS)
         if t.shape != (k,) or not np.isfinite(t).all():
-            raise DataError(f"expected {k} finite twists (µrad), "
+            raise DataError(f"expected {len(LABELS)} finite twists (µrad), "
                             f"found {cut_repr(sec['twist_urad'])}.", file=name,
                             column=f"{col}.twist_urad")
         checked_cov(cov, n_before + k, name, f"{col}.cov_joint")
@@ -238,6 +295,6 @@ class BridgeTwist(Block):
         layout = part.context["layout"]
         r = points[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
         B = basis(x_mm, part.context["range_mm"], layout)
-        g = direction_um(r, x_mm, layout)
+        cols = twist_columns(B, r, x_mm, layout, len(part.values))
         # the fit's reading stage (module docstring), per point
-        return Correction((B @ part.values)[:, None] * g, g[:, :, None] * B[:, None, :])
+        return Correction(cols @ part.values, cols)

@@ -5,7 +5,12 @@ ride in the kinematic block's terms; this module holds what the data must resolv
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..observations import Observations
 
 PERIODIC = {"periodic_x": "dxx", "periodic_y": "dyy", "periodic_z": "dzz"}
 """Periodic scale error tokens (``periodic_x:200``: period 200 mm) and the positioning
@@ -25,7 +30,7 @@ that varies from ball to ball or placement to placement (certificate errors, a
 placement's own scale), so a margin is kept."""
 
 
-def shortest_resolvable_period(obs, axis: int):
+def shortest_resolvable_period(obs: Observations, axis: int) -> tuple[float, float]:
     """Shortest period (mm) of a periodic error along ``axis`` that the design resolves,
     and the ball spacing behind it: ``NYQUIST_FACTOR`` times the largest spacing of
     distinct ball coordinates along the axis in any placement-and-stylus group that
@@ -45,7 +50,7 @@ def shortest_resolvable_period(obs, axis: int):
     return max(NYQUIST_FACTOR * spacing, PERIOD_SCAN[0]), spacing
 
 
-def needs(obs, token: str):
+def needs(obs: Observations, token: str) -> str | None:
     """Why a periodic error along the token's axis cannot be resolved (None: it can)."""
     axis = token.partition(":")[0][-1]
     a = "xyz".index(axis)
