@@ -24,6 +24,7 @@ import pytest
 
 from cmm_core.model import Plate, Problem, fit, parse_spec, select, simulate
 from cmm_core.model import normal as normal_module
+from cmm_core.model.certificate_prior import certificate_terms
 
 NAN = float("nan")  # u of a parameter the design cannot determine
 
@@ -172,3 +173,20 @@ def test_normal_columns_are_those_of_the_full_accumulation(thesis_clean):
                                    atol=1e-12 * np.abs(whole.N).max())
         np.testing.assert_allclose(gc, (whole.g - Jp.T @ rp)[cols], rtol=1e-12,
                                    atol=1e-12 * np.abs(whole.g).max())
+
+
+def test_certificate_terms_from_the_fit_equal_a_second_accumulation(thesis_clean):
+    """The certificate's χ² test and covariance from the fit's last accumulation (its plate
+    columns kept beside it) equal those of the prior problem accumulated afresh."""
+    data, exclusions = thesis_clean
+    r = fit(data, "kinematic21", exclude=exclusions)
+    prob, state = r.problem, r.state
+    assert normal_module._plate_cross(prob, state) is not None
+    ne = prob.normal_equations(state, r.sigma_um)
+    held = r.design_null
+    fast = certificate_terms(prob, state, held, r.sigma_um, r.rank_rtol, r.covariance_noise,
+                             normal=(ne.cost, ne.N, ne.g, ne.rows))
+    slow = certificate_terms(prob, state, held, r.sigma_um, r.rank_rtol, r.covariance_noise)
+    assert fast[1] == slow[1]
+    assert fast[0] == pytest.approx(slow[0], rel=1e-10)
+    np.testing.assert_allclose(fast[2], slow[2], rtol=1e-9, atol=1e-12 * np.abs(slow[2]).max())

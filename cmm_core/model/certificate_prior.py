@@ -26,7 +26,7 @@ import numpy as np
 
 from .blocks.plate import Plate
 from .hole_plate import is_hole_plate
-from .normal import _normal_columns
+from .normal import _normal_columns, _plate_cross
 from .problem import Problem, held_constraints, weighted_residual
 from .solver import Normal
 from .state import State
@@ -67,7 +67,8 @@ def certificate_terms(prob: Problem, state: State, design_null: np.ndarray, sigm
     pp = Problem(prob.obs, prob.spec, "prior")
     st = state.relabelled(prob.layout.labels, pp.layout.labels)
     if normal is not None and not is_hole_plate(prob.obs):
-        cost, N, g, n_rows = _prior_normal_equations(prob, pp, st, sigma_um, normal)
+        cost, N, g, n_rows = _prior_normal_equations(prob, pp, state, st, sigma_um,
+                                                             normal)
     else:
         _, cost, N, g, n_rows = pp.normal_equations(st, sigma_um)
     C = pp.constraints()
@@ -88,7 +89,7 @@ def certificate_terms(prob: Problem, state: State, design_null: np.ndarray, sigm
     return chi2, dof, cov + (CG * u2) @ CG.T
 
 
-def _prior_normal_equations(prob, pp, st, sigma_um, normal):
+def _prior_normal_equations(prob, pp, state, st, sigma_um, normal):
     """``(cost, JᵀJ, Jᵀr, rows)`` of the prior problem ``pp`` at ``st`` from the fixed
     problem's ``normal`` at the same point: every column but the plate's is the fixed
     problem's (same residuals, same Jacobian), the plate columns are computed, and the
@@ -98,8 +99,14 @@ def _prior_normal_equations(prob, pp, st, sigma_um, normal):
     fixed = np.array([col[lab] for lab in prob.layout.labels], dtype=int)
     s = pp.layout.blocks["plate"]
     pc = np.arange(s.start, s.stop)
-    # blocks along the fixed problem's placements (runs of the data), not the balls
-    Nc, gc = _normal_columns(pp, st, sigma_um, pc, key=prob.obs.pos)
+    kept = _plate_cross(prob, state)
+    if kept is not None:  # from the fit's last accumulation, at this state
+        G, gc, Ncc = kept
+        Nc = np.zeros((pp.layout.n, pc.size))
+        Nc[fixed] = G
+        Nc[pc] = Ncc
+    else:  # blocks along the placements (runs of the data), not the balls
+        Nc, gc = _normal_columns(pp, st, sigma_um, pc, key=prob.obs.pos)
     N, g = np.zeros((pp.layout.n,) * 2), np.zeros(pp.layout.n)
     N[np.ix_(fixed, fixed)] = Nf
     N[:, pc] = Nc

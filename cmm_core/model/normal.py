@@ -290,6 +290,32 @@ def _syrk(A: np.ndarray) -> np.ndarray:
     return dsyrk(1.0, np.ascontiguousarray(A).T, trans=0)
 
 
+_PLATE_CROSS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+"""Fixed-certificate problem -> (the state of its last accumulation, and there the
+weighted ``Jᵀ J_c`` (p, 3B), ``J_cᵀ r`` (3B,) and ``J_cᵀ J_c`` (3B, 3B) of the plate
+columns ``J_c`` it does not fit): the certificate's terms at the fit's solution
+(``certificate_prior``) without another pass over the observations."""
+
+
+def _plate_rows(sub: Any, ev: Any, width: int) -> list:
+    """The plate columns' Jacobian rows of one evaluation as a sparse ``(m, width)``
+    matrix per component: the Plate block's ``-R_k s`` (``blocks.plate``) at the ball's
+    three columns, for a problem whose plate is fixed (no Plate block)."""
+    M = -ev.Rk * np.reshape(ev.plate_scale, (-1, 1, 1))
+    m = M.shape[0]
+    cols = (3 * sub.obs.ball[:, None] + np.arange(3)).ravel()
+    ptr = np.arange(m + 1) * 3
+    return [sp.csr_matrix((np.ascontiguousarray(M[:, c, :]).ravel(), cols, ptr),
+                          shape=(m, width)) for c in range(3)]
+
+
+def _plate_cross(prob: Any, state: State) -> tuple | None:
+    """``(Jᵀ J_c, J_cᵀ r, J_cᵀ J_c)`` of a fixed-certificate problem's plate columns at
+    ``state`` when its last accumulation was there (:data:`_PLATE_CROSS`), else None."""
+    kept = _PLATE_CROSS.get(prob)
+    return kept[1:] if kept is not None and kept[0] is state else None
+
+
 def accumulate(prob: Any, state: State, sigma_um: float, rows: int = ROWS
                ) -> NormalEquations:
     """Weighted normal equations of ``prob`` at ``state`` (``fit.Problem.normal_equations``).
@@ -310,16 +336,24 @@ def accumulate(prob: Any, state: State, sigma_um: float, rows: int = ROWS
     cost = 0.0
     parts: Iterable[tuple[Any, Any]]
     parts = [(slice(None), prob)] if n <= rows else _blocks(prob, rows)
+    # a fixed certificate's plate columns, for its terms (``certificate_prior``): the
+    # prior problem's columns that the fixed one lacks, from the same Jacobian rows
+    cross = None
+    if prob.plate == "fixed" and prob.obs.cert_u_um is not None:
+        W = 3 * len(prob.obs.balls)
+        cross = (np.zeros((p, W)), np.zeros(W), np.zeros((W, W)))
     for idx, sub in parts:
         db, ev = sub._evaluate(state, True)
         d[idx] = db
         pieces, kin = _pieces(sub, ev)
+        plate = None if cross is None else _plate_rows(sub, ev, cross[1].size)
         del ev
         S3, u = _dense(sub.n_obs, p, pieces, extra=db)
         SS = _syrk(S3.reshape(-1, S3.shape[2]))
         N[np.ix_(u, u)] += SS[:-1, :-1]
         g[u] += SS[:-1, -1]
         cost += float(SS[-1, -1])
+        Kt = None
         if kin is not None:
             kc, K, _ = kin
             Kt = K.transpose(1, 2, 0)  # (3, k, m): rows of contiguous points, no copy
@@ -327,7 +361,16 @@ def accumulate(prob: Any, state: State, sigma_um: float, rows: int = ROWS
             KS = sum(Kt[c] @ S3[c] for c in range(3))
             N[np.ix_(kc, u)] += KS[:, :-1]
             g[kc] += KS[:, -1]
-        del S3, pieces, kin
+        if cross is not None and plate is not None:
+            G, gc, Ncc = cross
+            for c, Ec in enumerate(plate):
+                ES = Ec.T @ S3[c]
+                G[u] += ES[:, :-1].T
+                gc += ES[:, -1]
+                if Kt is not None:
+                    G[kin[0]] += (Ec.T @ Kt[c].T).T
+                Ncc += (Ec.T @ Ec).toarray()
+        del S3, pieces, kin, Kt, plate
     # the blocks filled the upper triangle of JᵀJ (row < column); a column's own entry
     # may sit in either part's product: mirror the strict upper triangle only
     upper = np.triu(N, 1)
@@ -337,6 +380,8 @@ def accumulate(prob: Any, state: State, sigma_um: float, rows: int = ROWS
     N *= w
     g *= w
     cost *= w
+    if cross is not None:
+        _PLATE_CROSS[prob] = (state, *(a * w for a in cross))
     rp = None
     if prob.plate == "prior":
         rp, Jp = prob.block(Plate).prior_rows(state, True)
