@@ -76,7 +76,8 @@ def _pairs(cands: list) -> list:
                          "aliases": [a for a in str(c["aliases"] or "").split(", ") if a],
                          # the leave-one-placement-out check's reason says so
                          "stands_in_for_scale": "placement's own scale" in str(
-                             c.get("holdout") or "")}
+                             c.get("holdout") or ""),
+                         "would_leave_undetermined": c.get("would_leave_undetermined")}
                         for c in cands])
 
 
@@ -92,7 +93,7 @@ def _outcome_words(truth: str, other: str, o: dict) -> str:
 def measure_next(ds, fkey: cached.FitKey, cands: list) -> None:
     """The proposals beside the rivals of the current verdict: the top ones in words,
     each with "Simulate it" and "Use as the plan"; the others in a table."""
-    from cmm_core.plan import PLACEMENT_SCALE
+    from cmm_core.plan import PSEUDO
 
     s = st.session_state
     pairs = _pairs(cands)
@@ -124,15 +125,16 @@ def measure_next(ds, fkey: cached.FitKey, cands: list) -> None:
             st.markdown(f"**{i + 1}.** {p.outcome[0].upper() + p.outcome[1:]}.")
             b1, b2 = st.columns(2)
             plate = not p.candidate.instrument
-            # a placement's own scale is outside the catalogue: the virtual CMM cannot
-            # measure it as the truth
-            can_sim = plate and PLACEMENT_SCALE not in pair
+            # a placement's own scale is outside the catalogue (the virtual CMM cannot
+            # measure it as the truth); against the baseline the power is the outcome
+            can_sim = plate and not set(pair) & PSEUDO
             if b1.button("Simulate it", key=f"next_sim_{name}", disabled=not can_sim,
                          help="Simulate this measurement with each rival in turn as the "
                               "truth (its fit on these data, noise σ), append it to the data "
                               "and run the diagnosis." + ("" if can_sim else
-                              " Not for a placement's own scale: outside the catalogue, the "
-                              "virtual CMM cannot simulate it.")):
+                              " Not for a placement's own scale (outside the catalogue, "
+                              "the virtual CMM cannot simulate it) nor against the baseline "
+                              "(the power above is the outcome).")):
                 s["next_sim"] = (fkey, pair, name)
             if b2.button("Use as the plan", key=f"next_plan_{name}", disabled=not plate,
                          help="Open this measurement on the Plan page as a plan file: "
@@ -157,7 +159,7 @@ def measure_next(ds, fkey: cached.FitKey, cands: list) -> None:
                                    "(one seed; the power above is the rate over many).")
     frame.dataframe(pd.DataFrame([{
         "measurement": p.candidate.description, "time (min)": p.candidate.time_min,
-        "Δχ² (min)": min(p.delta_chi2.values()), "power": p.power_min}
+        "Δχ² (min)": p.per_minute * p.candidate.time_min, "power": p.power_min}
         for p in pr.ranked]), hide_index=True, key="next_table",
         column_config={"Δχ² (min)": st.column_config.NumberColumn(format="%.1f"),
                        "power": st.column_config.NumberColumn(format="%.2f"),

@@ -217,7 +217,7 @@ def test_rival_pairs_lists_every_open_pair_once():
     """By hand: the first candidate with each alias, its runner-up of another function,
     the aliases of the next significant candidates, then the placement-scale pair; a pair
     once whichever its order."""
-    from cmm_core.plan import PLACEMENT_SCALE, rival_pairs
+    from cmm_core.plan import BASELINE, PLACEMENT_SCALE, rival_pairs
 
     cands = [{"effect": "sxy", "aliases": ["rxz:4"], "significant": True,
               "stands_in_for_scale": False},
@@ -232,6 +232,10 @@ def test_rival_pairs_lists_every_open_pair_once():
         ("sxy", "rxz:4")]  # the runner-up alone
     assert rival_pairs(cands[3:]) == [("drift", "probe_offset")]  # aliases need no test
     assert rival_pairs([{"effect": "plate_sag", "aliases": [], "significant": True}]) == []
+    # an effect whose addition leaves combinations undetermined: against the baseline
+    assert rival_pairs([{"effect": "rzy:4", "aliases": [], "significant": False,
+                         "would_leave_undetermined": ["rzy[4] + probe4.x"]}]) == [
+        ("rzy:4", BASELINE)]
 
 
 def test_restrict_keeps_what_the_fit_selects(clean80):
@@ -284,3 +288,22 @@ def test_the_expected_separation_takes_out_the_fitted_sizes_noise(clean80):
     for p in pr.ranked:
         for t in p.rivals:
             assert 0 < p.delta_chi2[t] < p.delta_chi2_fitted[t]
+
+
+def test_against_the_baseline_a_proposal_is_scored_by_the_rank_it_adds(clean80):
+    """A probe offset against the model as it is (the rival of an effect the data cannot
+    determine in full): by hand, the 80 mm layout's four styli have 12 offsets, 9
+    determined (the fit's gauge takes one stylus's three); a new stylus adds its three."""
+    from cmm_core.plan import BASELINE, simulate_outcomes
+
+    cands = {c.name: c for c in measurement_candidates(clean80)}
+    pr = propose(clean80, ("probe_offset", BASELINE), baseline=BASE,
+                 cands=[cands["stylus_x"], cands["shift_x"]])
+    assert set(pr.current) == {"probe_offset"}  # nothing to see with the baseline true
+    ranks = {p.candidate.name: p.dof["probe_offset"][0] for p in pr.ranked}
+    assert ranks == {"stylus_x": 12, "shift_x": 9}
+    top = next(p for p in pr.ranked if p.candidate.name == "stylus_x")
+    assert "determine 12 parameter combination(s) of probe_offset (9 now)" in top.outcome
+    assert top.power_min == top.power["probe_offset"]  # the baseline's own does not count
+    with pytest.raises(ValueError, match="nothing to simulate"):
+        simulate_outcomes(clean80, top, baseline=BASE)

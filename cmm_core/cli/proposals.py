@@ -12,6 +12,7 @@ import json
 
 from ..io import atomic_write_text
 from ..plan import (
+    PSEUDO,
     TARGET_POWER,
     instrument_candidates,
     measurement_candidates,
@@ -61,8 +62,10 @@ def _add_arguments(p) -> None:
                         "'auto' to estimate it from the data (default: %(default)s µm)")
     p.add_argument("--rivals", type=_rivals_arg, metavar="A,B", default=None,
                    help="the two effects to tell apart, as model tokens separated by a "
-                        "comma, e.g. 'probe_offset,drift' (default: the diagnosis's first "
-                        "candidate and its alias, or its runner-up)")
+                        "comma, e.g. 'probe_offset,drift'; second may be 'placement_scale' "
+                        "(each placement's own scale) or 'baseline' (the model as it is: "
+                        "for an effect the data cannot determine in full) (default: the "
+                        "diagnosis's first candidate and its alias, or its runner-up)")
     p.add_argument("--top", type=number_arg(int, 1, _MAX_TOP), default=5, metavar="N",
                    help=f"how many proposals to list, best first, 1 to {_MAX_TOP} (default: "
                         "%(default)s)")
@@ -112,7 +115,9 @@ def run(args: argparse.Namespace) -> dict:
     out = pr.to_dict()
     out["proposals"] = out["proposals"][:args.top]
     out["sigma"] = sigma_rec
-    if plates and args.simulate:
+    if plates and args.simulate and set(pr.rivals) & PSEUDO:
+        out["simulated"] = {"skipped": f"{pr.rivals[1]} cannot be simulated as the truth"}
+    elif plates and args.simulate:
         outs = simulate_outcomes(data, plates[0], seed=args.seed, **settings)
         out["simulated"] = {t: {"verdict": o.verdict, "aliases": o.aliases,
                                 "separated": o.separated, "message": o.message}

@@ -49,8 +49,10 @@ from .files import (
 )
 from .plans import STROKE_POINTS, Plan, design_fit, fit_plan_data, simulate_plan, simulation_config
 from .proposals import (
+    BASELINE,
     CHUNK,
     PLACEMENT_SCALE,
+    PSEUDO,
     SCALE_RTOL,
     SHIFT_FRACTION,
     STYLUS_OFFSET_MM,
@@ -121,5 +123,6 @@ __all__ = [
     "measurement_candidates", "measurement_observations", "plan_file", "plate_grid",
     "propose", "rivals_of", "simulate_outcomes", "truth_config", "CHUNK", "propose_many",
     "wide_candidates", "instrument_candidates", "instrument_of", "rival_pairs", "restrict",
-    "PLACEMENT_SCALE", "ScaleFit", "scale_columns", "SCALE_RTOL",
+    "PLACEMENT_SCALE", "ScaleFit", "scale_columns", "SCALE_RTOL", "BASELINE",
+    "PSEUDO",
 ]

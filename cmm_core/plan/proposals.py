@@ -90,6 +90,17 @@ SCALE_RTOL = 1e-3
 columns are projected out for that scale to be fitted (``diagnosis.crossval``'s rank
 rule)."""
 
+BASELINE = "baseline"
+"""A rival that adds nothing: the model as it is. The rival of an effect whose addition
+would leave parameter combinations undetermined (``Candidate.would_leave_undetermined``):
+a proposal is scored by the rank the effect then adds (``Proposal.dof``, against the
+current data's in the outcome) and its power to be seen; with the baseline true there is
+nothing to see, so only the effect's power counts."""
+
+PSEUDO = frozenset({"placement_scale", "baseline"})
+"""Rivals that are not model tokens (:data:`PLACEMENT_SCALE`, :data:`BASELINE`): given
+second."""
+
 PLACEMENT_SCALE = "placement_scale"
 """A rival that is not a model token: each placement's own scale along each machine axis
 it spans (outside the catalogue; the diagnosis's placement-scale test,
@@ -170,6 +181,10 @@ class Proposal:
     delta_chi2_fitted : dict
         Rival taken as the truth -> Δχ² at exactly its fitted size (``‖M θ̂‖²``): the χ²
         the other rival leaves on noise-free data simulated from the fit.
+    own : dict
+        Rival -> how many parameters it has that the other has not (on the augmented
+        data; a gauge, such as a probe offset's reference, counts too): the rank it adds,
+        ``dof[rival][0]``, is what the data determine of them.
     """
 
     candidate: NextMeasurement
@@ -182,6 +197,7 @@ class Proposal:
     per_minute: float
     outcome: str
     delta_chi2_fitted: dict = field(default_factory=dict)
+    own: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """JSON-ready record."""
@@ -190,7 +206,7 @@ class Proposal:
                 "positions": c.positions, "probes": c.probes, "probes_of": c.probes_of,
                 "instrument": c.instrument,
                 "rivals": list(self.rivals), "delta_chi2": self.delta_chi2,
-                "delta_chi2_fitted": self.delta_chi2_fitted,
+                "delta_chi2_fitted": self.delta_chi2_fitted, "own_parameters": self.own,
                 "dof": {k: list(v) for k, v in self.dof.items()}, "level": self.level,
                 "power": self.power, "power_min": self.power_min,
                 "delta_chi2_per_min": self.per_minute, "outcome": self.outcome}
@@ -208,7 +224,8 @@ class Proposals:
         Spec of the baseline the rivals are added to.
     current : dict
         Rival taken as the truth -> power of its nested test with the current data alone
-        (the same formula without a candidate): what the data already decide.
+        (the same formula without a candidate): what the data already decide (not for
+        :data:`BASELINE`, which has nothing to see).
     ranked : list of Proposal
         Best first: those reaching ``target`` power by machine time (at equal time by
         power, then Δχ² per minute), then the rest by power.
@@ -496,7 +513,9 @@ def rival_pairs(candidates: Sequence[Mapping[str, Any]], *, top: int = 3
         ``effect``, ``aliases`` (list of tokens) and ``significant``); optional
         ``stands_in_for_scale``: true when the placement-scale test found the candidate
         standing in for each placement's own scale (then it and :data:`PLACEMENT_SCALE`
-        are a pair, after the aliases).
+        are a pair, after the aliases); optional ``would_leave_undetermined`` (list):
+        the parameter combinations its addition leaves undetermined (then it and
+        :data:`BASELINE` are a pair, last).
     top : int
         How many of the first candidates' aliases count.
     """
@@ -522,6 +541,9 @@ def rival_pairs(candidates: Sequence[Mapping[str, Any]], *, top: int = 3
     for c in candidates[:max(top, 1)]:
         if c.get("stands_in_for_scale"):
             add(c["effect"], PLACEMENT_SCALE)
+    for c in candidates[:max(top, 1)]:
+        if c.get("would_leave_undetermined"):
+            add(c["effect"], BASELINE)
     return out
 
 
@@ -602,7 +624,7 @@ class _Design:
 def _both(rf: RivalFits):
     """The model holding both rivals (the baseline for a placement-scale rival)."""
     a, b = rf.rivals
-    return rf.specs[a] if b == PLACEMENT_SCALE else rf.specs[a].with_token(b)
+    return rf.specs[a] if b in PSEUDO else rf.specs[a].with_token(b)
 
 
 def scale_columns(obs: Observations, sigma_um: float, n_rows: int
@@ -658,8 +680,8 @@ def _stack(d1: _Design, d2: _Design) -> _Design:
 
 def _separation(des: _Design, truth: str, other: str, theta: dict, *, rank_rtol: float,
                 level: float, spread: tuple | None = None) -> tuple:
-    """(λ, k, ν, power, λ at the fitted size) of the nested test "``truth`` is needed
-    once ``other`` is in" on the noise-free design with ``truth`` true at ``theta``
+    """(λ, k, ν, power, λ at the fitted size, parameter count) of the nested test
+    "``truth`` is needed once ``other`` is in" on the noise-free design with ``truth`` true at ``theta``
     (module docstring). ``spread``: ``(labels, covariance)`` of ``theta``'s fit; λ is
     then the expected-size estimate ``‖M θ‖² − tr(M C Mᵀ)`` (at least 0), which takes
     out what the fitted size owes to noise (module docstring)."""
@@ -674,7 +696,7 @@ def _separation(des: _Design, truth: str, other: str, theta: dict, *, rank_rtol:
     k = _basis(M, rank_rtol, sv_max)[0].shape[1] if own else 0
     nu = max(des.J.shape[0] - U.shape[1] - k, 1)
     if k == 0:
-        return 0.0, 0, nu, 0.0, 0.0
+        return 0.0, 0, nu, 0.0, 0.0, len(own)
     lam = lam_fit
     if spread is not None:
         at = {lab: i for i, lab in enumerate(spread[0])}
@@ -684,7 +706,7 @@ def _separation(des: _Design, truth: str, other: str, theta: dict, *, rank_rtol:
         C[np.ix_(got, got)] = np.asarray(spread[1])[np.ix_([ix[j] for j in got],
                                                           [ix[j] for j in got])]
         lam = max(lam_fit - float(np.sum((M @ C) * M)), 0.0)
-    return lam, k, nu, _power(lam, k, nu, level), lam_fit
+    return lam, k, nu, _power(lam, k, nu, level), lam_fit, len(own)
 
 
 def _power(lam: float, k: int, nu: int, level: float) -> float:
@@ -699,8 +721,15 @@ def _power(lam: float, k: int, nu: int, level: float) -> float:
     return min(max(p, float(level)), 1.0)
 
 
-def _outcome(cand: NextMeasurement, rivals, lam: dict, power_min: float) -> str:
+def _outcome(cand: NextMeasurement, rivals, lam: dict, power_min: float,
+             rank: tuple | None = None) -> str:
     a, b = rivals
+    if b == BASELINE:
+        k, k_now = rank or (0, 0)
+        return (f"with {cand.description}, the data determine {k} parameter "
+                f"combination(s) of {a} ({k_now} now) and it stands out by Δχ² ≈ "
+                f"{lam[a]:.0f}: decided with {100 * power_min:.0f} % power in "
+                f"{cand.time_min:.0f} min")
     return (f"with {cand.description}, {a} and {b} differ by Δχ² ≈ {min(lam.values()):.0f}"
             f" ({a} true: {lam[a]:.0f}, {b} true: {lam[b]:.0f}): decided with "
             f"{100 * power_min:.0f} % power in {cand.time_min:.0f} min")
@@ -733,16 +762,17 @@ def fit_rivals(data: Dataset, rivals: Sequence[str], *, baseline: str = "kinemat
                alpha: float = FAMILY_ALPHA) -> RivalFits:
     """Fit the baseline with each rival added to the current data (their fitted sizes),
     and the level the diagnosis tests each at (``detect.candidate_tokens``)."""
-    if rivals[0] == PLACEMENT_SCALE:
-        raise ValueError(f"give {PLACEMENT_SCALE} as the second rival (after the effect it "
-                         "is told apart from).")
+    if rivals[0] in PSEUDO:
+        raise ValueError(f"give {rivals[0]} as the second rival (after the effect it is "
+                         "told apart from).")
     base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um, max_iter=2000)
     spec0 = base.problem.spec
-    specs = {r: spec0 if r == PLACEMENT_SCALE else spec0.with_token(r) for r in rivals}
-    fits = {r: _scale_fit(base) if r == PLACEMENT_SCALE else
+    specs = {r: spec0 if r in PSEUDO else spec0.with_token(r) for r in rivals}
+    fits = {r: _scale_fit(base) if r == PLACEMENT_SCALE else base if r == BASELINE else
             fit(data, specs[r], plate=base.plate, sigma_um=sigma_um, max_iter=2000,
                 certificate_test=False) for r in rivals}
-    levels = {**candidate_tokens(base, alpha)[2], PLACEMENT_SCALE: SCALE_ALPHA}
+    levels = {**candidate_tokens(base, alpha)[2], PLACEMENT_SCALE: SCALE_ALPHA,
+              BASELINE: alpha}
     fallback = alpha / max(len(levels), 1)
     return RivalFits(tuple(rivals), specs, fits,
                      {r: float(levels.get(r, levels.get(r.partition(":")[0], fallback)))
@@ -961,17 +991,21 @@ def _rows(des: _Design, keep: np.ndarray) -> _Design:
                    des.has)
 
 
-def _proposals(results, rivals, rf: RivalFits) -> list:
+def _proposals(results, rivals, rf: RivalFits, rank_now: int = 0) -> list:
     """Proposals from ``(candidate, {rival: (λ, k, ν, power, λ fitted)})`` pairs."""
     out = []
     for cand, res in results:
         lam = {t: v[0] for t, v in res.items()}
         power = {t: v[3] for t, v in res.items()}
-        pmin = min(power.values())
+        # with the baseline true there is nothing to see: the effect's power decides
+        pmin = min(v for t, v in power.items() if t != BASELINE)
+        lmin = min(v for t, v in lam.items() if t != BASELINE)
+        a = rivals[0]
         out.append(Proposal(cand, rivals, lam, {t: (v[1], v[2]) for t, v in res.items()},
-                            dict(rf.levels), power, pmin, min(lam.values()) / cand.time_min,
-                            _outcome(cand, rivals, lam, pmin),
-                            {t: v[4] for t, v in res.items()}))
+                            dict(rf.levels), power, pmin, lmin / cand.time_min,
+                            _outcome(cand, rivals, lam, pmin, (res[a][1], rank_now)),
+                            {t: v[4] for t, v in res.items()},
+                            {t: v[5] for t, v in res.items()}))
     return out
 
 
@@ -1031,19 +1065,22 @@ def propose(data: Dataset, rivals: Sequence[str] | None = None, *, baseline: str
     rf = fit_rivals(data, rivals, baseline=baseline, order=order, plate=plate,
                     sigma_um=sigma_um, alpha=alpha)
     now = _design(select(data), rf)
-    current = {t: v[3] for t, v in _score_on(now, rf).items()}
+    scores_now = _score_on(now, rf)
+    current = {t: v[3] for t, v in scores_now.items() if t != BASELINE}
+    rank_now = scores_now[rivals[0]][1]
     cands = list(cands if cands is not None else measurement_candidates(data))
     plates = [c for c in cands if not c.instrument]
     scored, skipped = [], {}
     for i in range(0, len(plates), CHUNK):  # one simulation and design per chunk
         obs, ok, out = _in_machine(data, plates[i:i + CHUNK])
         skipped.update(out)
-        scored += _proposals(_score_candidates(now, obs, ok, rf), rivals, rf)
+        scored += _proposals(_score_candidates(now, obs, ok, rf), rivals, rf, rank_now)
     tools = [c for c in cands if c.instrument]
     if tools:
         sim0, obs_now = _error_free(data), select(data)
         scored += _proposals(((c, _score_on(_stack(now, _instrument_design(
-            obs_now, now, rf, instrument_of(c, sim0))), rf)) for c in tools), rivals, rf)
+            obs_now, now, rf, instrument_of(c, sim0))), rf)) for c in tools), rivals, rf,
+            rank_now)
     scored.sort(key=_rank_key(target))
     a, b = rivals
     if scored:
@@ -1160,6 +1197,9 @@ def simulate_outcomes(data: Dataset, proposal: Proposal, *, baseline: str = "kin
     if PLACEMENT_SCALE in proposal.rivals:
         raise ValueError(f"{PLACEMENT_SCALE} is outside the catalogue: the virtual CMM "
                          "cannot simulate it as the truth (score the proposal instead).")
+    if BASELINE in proposal.rivals:
+        raise ValueError(f"against the {BASELINE} the outcome is the effect's own test: "
+                         "its power is the proposal's score (nothing to simulate).")
     a, b = proposal.rivals
     rf = fit_rivals(data, proposal.rivals, baseline=baseline, order=order, plate=plate,
                     sigma_um=sigma_um)
