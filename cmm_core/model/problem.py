@@ -5,7 +5,9 @@ residuals and their analytic Jacobian, gauge constraints and weighted residual r
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -22,6 +24,9 @@ from .effects import ModelSpec
 from .instruments import Instruments
 from .observations import Observations
 from .state import State
+
+if TYPE_CHECKING:
+    from .result import FitResult
 
 __all__ = ["Problem", "held_constraints", "augmented_state", "weighted_residual"]
 
@@ -202,7 +207,8 @@ class Problem:
         return new
 
 
-def held_constraints(labels, design_null, prob: Problem):
+def held_constraints(labels: Sequence[str], design_null: np.ndarray, prob: Problem
+                     ) -> np.ndarray:
     """Constraint rows, in ``prob``'s parameter vector, that hold the combinations a fit
     with parameters ``labels`` could not determine (its ``design_null``): a model scored
     or tested from that fit keeps them held, or it would be credited with them."""
@@ -213,15 +219,17 @@ def held_constraints(labels, design_null, prob: Problem):
     return held
 
 
-def augmented_state(base, prob: Problem) -> State:
+def augmented_state(base: FitResult, prob: Problem) -> State:
     """A fit's solution expressed in another problem's parameter vector on the same
     observations (parameters the fit does not have start at zero): the linearisation
     point from which a candidate effect is scored (``diagnose.score``, ``holdout``)."""
     return base.state.relabelled(base.labels, prob.layout.labels)
 
 
-def weighted_residual(prob: Problem, state, sigma_um: float, want_jac: bool):
-    """Residuals (µm, (n, 3)), the weighted residual vector and its Jacobian.
+def weighted_residual(prob: Problem, state: State, sigma_um: float, want_jac: bool
+                      ) -> tuple[np.ndarray, np.ndarray, Any]:
+    """Residuals (µm, (n, 3)), the weighted residual vector and its Jacobian (a sparse
+    CSR matrix; None when ``want_jac`` is False).
 
     Observation rows are divided by σ; with a plate prior, rows ``(c - c_cert) / u_cert``
     follow (the certificate weighted by its uncertainty), then the instruments' rows.
