@@ -141,7 +141,7 @@ with st.container(border=True):
                 "(true − indicated, added to the reading, µm) with uncertainties; the "
                 "per-axis error functions and squareness a controller needs (µm, µrad); the "
                 "fitted model's parameters with uncertainties and its χ² test as JSON and "
-                "QIF-like XML. The same files as `python -m cmm_core export cmm_model.json` "
+                "QIF-like XML. The same files as `cmm-error-lab export cmm_model.json` "
                 "gives from the *Fitted model* download above (only the creation time "
                 "differs); every fitted parameter, plate and placements included, is in "
                 "the parameters CSV.")
@@ -192,7 +192,7 @@ with st.container(border=True):
 
 
 # One analysis record from the session: the report, the record file and the project file
-# all come from it, and `python -m cmm_core report` gives the same report from the record.
+# all come from it, and `cmm-error-lab report` gives the same report from the record.
 st.checkbox("Include a GP summary of the measured errors in the report (mean and "
                         "kernel as chosen on the Gaussian process page; adds a few seconds)",
                         key="w_report_gp")
@@ -219,12 +219,12 @@ if record is not None:
                        "text/html", key="dl_report", on_click="ignore",
                        help="Summary with the fit's χ² test, figures (plotly embedded once, "
                             "no network needed), uncertainty, parameter and residual tables. "
-                            "The same as `python -m cmm_core report ANALYSIS.json`.")
+                            "The same as `cmm-error-lab report ANALYSIS.json`.")
     c2.download_button("Analysis record (ANALYSIS.json)", A.record_to_json(record),
                        fname("ANALYSIS.json"), "application/json", key="dl_analysis",
                        on_click="ignore",
                        help="Data, selection, exclusions, model, σ and report choices: "
-                            "`python -m cmm_core report ANALYSIS.json --out REPORT.html` "
+                            "`cmm-error-lab report ANALYSIS.json --out REPORT.html` "
                             "reproduces this report.")
     c1.download_button("Project file (JSON)", _project_text, fname("cmm_project.json"),
                        "application/json", key="dl_project", on_click="ignore",

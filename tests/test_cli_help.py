@@ -59,3 +59,17 @@ def test_help_runs_and_never_points_outside_the_repository():
     for name, parser in _subparsers():
         text = parser.format_help()
         assert not re.search(r"SPEC\.md|\.\./shared", text), name
+
+
+@pytest.mark.parametrize("argv0, prog", [
+    ("/home/u/lab/.venv/bin/cmm-error-lab", "cmm-error-lab"),
+    ("/home/u/lab/cmm_core/__main__.py", "python -m cmm_core"),
+    ("", "python -m cmm_core")])
+def test_usage_names_the_command_as_it_was_called(monkeypatch, argv0, prog):
+    """The installed console script is named in usage lines and error hints as the user
+    typed it; ``python -m cmm_core`` otherwise."""
+    monkeypatch.setattr(sys, "argv", [argv0])
+    ap = build_parser()
+    assert ap.prog == prog
+    with pytest.raises(SystemExit):
+        ap.parse_args(["fit", "--bogus"])

@@ -264,3 +264,41 @@ def test_files_of_one_run_are_written_all_or_none(tmp_path):
     b.parent.mkdir()
     atomic_write_all({a: "new grid", b: b"new results"})
     assert a.read_text() == "new grid" and b.read_bytes() == b"new results"
+
+
+def test_a_write_failing_on_disk_leaves_every_old_file(tmp_path, monkeypatch):
+    """The failure that small files meet: the data reach the disk only at the flush, and
+    the fsync of the first file fails (a full disk). Nothing is renamed: both old files
+    stay, and no temporary file is left."""
+    import os
+
+    from cmm_core.io import atomic_write_all
+
+    a, b = tmp_path / "grid.csv", tmp_path / "results.json"
+    a.write_text("old grid")
+    b.write_text("old results")
+    real_fsync, calls = os.fsync, []
+
+    def fsync(fd):
+        calls.append(fd)
+        if len(calls) == 1:
+            raise OSError(28, "No space left on device")
+        return real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    with pytest.raises(OSError, match="No space left") as exc:
+        atomic_write_all({a: "new grid", b: "new results"})
+    assert exc.value.filename == str(a)  # the output, not its temporary file
+    monkeypatch.undo()
+    assert a.read_text() == "old grid" and b.read_text() == "old results"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["grid.csv", "results.json"]
+
+
+def test_running_the_design_of_a_plan_without_one_is_one_line():
+    from cmm_core.plan import design_from_file, read_plan
+
+    pf = read_plan(ROOT / "sample_data" / "plans" / "thesis_plan.json")
+    assert pf.design is None
+    with pytest.raises(DataError, match=r"thesis_plan.json.*no 'design' section") as exc:
+        design_from_file(pf)
+    assert "\n" not in str(exc.value)

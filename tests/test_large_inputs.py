@@ -206,10 +206,13 @@ def test_laser_rows_by_reflectors_equal_the_complete_q():
 
 
 def test_an_instrument_file_beyond_the_stated_size_is_refused_in_one_line():
-    """100,001 readings of one file: refused when the problem is built, naming the file
-    and the limit, before any Jacobian is evaluated."""
+    """One reading more than ``MAX_INSTRUMENT_READINGS`` (the readers' limit too), built
+    in code: refused when the problem is built, naming the file and the limit, before
+    any Jacobian is evaluated."""
+    from cmm_core.model import MAX_INSTRUMENT_READINGS
+
     sim = simulate({"seed": 1})
-    m = 100_001
+    m = MAX_INSTRUMENT_READINGS + 1
     xs = np.linspace(0.0, 1200.0, m)
     big = ins.simulate_laser(sim, "x", [0, 100, 50], xs, u_um=0.2, seed=1,
                              source="huge_laser.csv")
@@ -217,8 +220,8 @@ def test_an_instrument_file_beyond_the_stated_size_is_refused_in_one_line():
     with pytest.raises(DataError) as exc:
         Problem(obs, parse_spec("kinematic21"), "fixed")
     msg = str(exc.value)
-    assert "huge_laser.csv" in msg and "100,001 readings" in msg and "100,000" in msg
-    assert "\n" not in msg
+    assert "huge_laser.csv" in msg and f"{m:,} readings" in msg
+    assert f"{MAX_INSTRUMENT_READINGS:,}" in msg and "\n" not in msg
 
 
 # --- the fit's blocks ---------------------------------------------------------------------

@@ -32,6 +32,70 @@ def _target(path) -> Path:
     return Path(os.path.realpath(os.fspath(path)))
 
 
+class _Temp:
+    """The temporary file that will replace one output: staged beside its target, then
+    committed (renamed into place) or discarded. Refuses, before anything is written, a
+    target that is a folder or whose folder does not exist."""
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.shown = Path(path)
+        self.target = _target(path)
+        if self.target.is_dir():
+            raise DataError("is a folder, not a file; name a file to write.",
+                            file=str(self.shown))
+        if not self.target.parent.is_dir():
+            raise DataError(f"No such file or directory: the folder {self.shown.parent} "
+                            "does not exist.", file=str(self.shown),
+                            hint="create it or write elsewhere.")
+        try:  # an existing file keeps its permissions
+            self.keep: int | None = stat.S_IMODE(self.target.stat().st_mode)
+        except OSError:
+            self.keep = None
+        self.tmp: Path | None = None
+
+    def open(self, mode: str, encoding: str | None) -> IO:
+        """Create the temporary file (0o666 less the umask, as a new file gets)."""
+        for _ in range(100):
+            tmp = self.target.parent / f".{self.target.name}.{secrets.token_hex(4)}.tmp"
+            try:
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL
+                             | getattr(os, "O_BINARY", 0), 0o666)
+            except FileExistsError:
+                continue
+            self.tmp = tmp
+            if mode == "w":
+                return open(fd, "w", encoding=encoding or "utf-8", newline="")
+            return open(fd, "wb")
+        raise FileExistsError(errno.EEXIST, "no free temporary name",  # pragma: no cover
+                              str(self.target))
+
+    @staticmethod
+    def finish(f: IO) -> None:
+        """Everything written reaches the disk before any rename."""
+        f.flush()
+        os.fsync(f.fileno())
+
+    def commit(self) -> None:
+        """Rename the finished temporary file over the target."""
+        assert self.tmp is not None
+        if self.keep is not None:
+            os.chmod(self.tmp, self.keep)
+        os.replace(self.tmp, self.target)
+        self.tmp = None
+        _sync_folder(self.target.parent)
+
+    def discard(self) -> None:
+        """Remove the temporary file (nothing happens to the target)."""
+        if self.tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(self.tmp)
+            self.tmp = None
+
+    def error(self, exc: OSError) -> OSError:
+        """``exc`` naming the output, not the temporary file."""
+        return OSError(exc.errno, exc.strerror or str(exc), str(self.shown))
+
+
 @contextlib.contextmanager
 def atomic_writer(path: str | os.PathLike, mode: str = "wb", encoding: str | None = None) -> Iterator[IO]:
     """A file to write whose content replaces ``path`` when the ``with`` block ends
@@ -51,51 +115,16 @@ def atomic_writer(path: str | os.PathLike, mode: str = "wb", encoding: str | Non
     """
     if mode not in ("wb", "w"):
         raise ValueError(f"mode: expected 'wb' or 'w', found {mode!r}.")
-    shown = Path(path)
-    target = _target(path)
-    if target.is_dir():
-        raise DataError("is a folder, not a file; name a file to write.", file=str(shown))
-    folder = target.parent
-    if not folder.is_dir():
-        raise DataError(f"No such file or directory: the folder {shown.parent} does not "
-                        "exist.", file=str(shown),
-                        hint="create it or write elsewhere.")
+    t = _Temp(path)
     try:
-        keep: int | None = stat.S_IMODE(target.stat().st_mode)  # an existing file keeps it
-    except OSError:
-        keep = None
-    tmp = None
-    try:
-        for _ in range(100):
-            tmp = folder / f".{target.name}.{secrets.token_hex(4)}.tmp"
-            try:  # 0o666 less the umask, as a new file gets
-                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL
-                             | getattr(os, "O_BINARY", 0), 0o666)
-                break
-            except FileExistsError:
-                continue
-        else:  # pragma: no cover - 100 collisions of 32 random bits
-            raise FileExistsError(errno.EEXIST, "no free temporary name", str(tmp))
-        f: IO
-        if mode == "w":
-            f = open(fd, "w", encoding=encoding or "utf-8", newline="")
-        else:
-            f = open(fd, "wb")
-        with f:
+        with t.open(mode, encoding) as f:
             yield f
-            f.flush()
-            os.fsync(f.fileno())
-        if keep is not None:
-            os.chmod(tmp, keep)
-        os.replace(tmp, target)
-        tmp = None
+            t.finish(f)
+        t.commit()
     except OSError as exc:
-        raise OSError(exc.errno, exc.strerror or str(exc), str(shown)) from exc
+        raise t.error(exc) from exc
     finally:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-    _sync_folder(folder)
+        t.discard()
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
@@ -112,19 +141,31 @@ def atomic_write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8
     atomic_write_bytes(path, text.encode(encoding))
 
 
-def atomic_write_all(files: Mapping[Path, str | bytes],
-                     encoding: str = "utf-8") -> None:
-    """Write several files all or nothing: each to its temporary file first
-    (:func:`atomic_writer`), and only when every one is written whole are they renamed
-    into place. A failure while writing any of them (a disk that fills up on the third)
-    removes every temporary file and leaves every existing output as it was, so a run
-    never leaves a mix of new and old files (a grid from this model beside axis tables
-    from the last)."""
-    with contextlib.ExitStack() as stack:
-        for path, content in files.items():
-            f = stack.enter_context(atomic_writer(path, "wb"))
-            f.write(content.encode(encoding) if isinstance(content, str) else content)
-        # leaving the stack renames each temporary file into place
+def atomic_write_all(files: Mapping[Path, str | bytes], encoding: str = "utf-8") -> None:
+    """Write several files all or none, in two phases: every one is written to its
+    temporary file and flushed to disk first; only when all are on disk are they renamed
+    into place, one after another. A failure in the first phase (a disk that fills up
+    on the third file, a folder that has gone) removes every temporary file and leaves
+    every existing output as it was, so a run does not leave a grid from this model
+    beside axis tables from the last. A rename failing part-way through the second
+    phase (rare: the temporary files sit beside their targets) can still leave a mix;
+    the error then names the file."""
+    temps = [_Temp(path) for path in files]  # every target checked before any write
+    current = temps[0] if temps else None
+    try:
+        for t, content in zip(temps, files.values(), strict=True):
+            current = t
+            with t.open("wb", None) as f:
+                f.write(content.encode(encoding) if isinstance(content, str) else content)
+                t.finish(f)
+        for t in temps:
+            current = t
+            t.commit()
+    except OSError as exc:
+        raise (current.error(exc) if current is not None else exc) from exc
+    finally:
+        for t in temps:
+            t.discard()
 
 
 def _sync_folder(folder: Path) -> None:

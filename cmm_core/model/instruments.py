@@ -445,7 +445,8 @@ def refuse_repeated(items: Sequence[Any]) -> None:
                 ("is given twice" if same else f"holds the same readings as {seen[key]}")
                 + "; each instrument file may be fitted once (twice would count its "
                 "readings double).", file=it.source,
-                hint="remove the repeated instrument file.")
+                hint="remove the repeated instrument file (on the command line: the "
+                "repeated --laser, --step-gauge or --ball-bar).")
         seen[key] = it.source
 
 

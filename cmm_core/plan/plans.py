@@ -145,6 +145,9 @@ def simulate_plan(plan: Plan, *, with_truth: Literal[False] = ...,
 @overload
 def simulate_plan(plan: Plan, *, with_truth: Literal[True],
                   **kwargs: Any) -> tuple[Dataset, dict]: ...
+@overload
+def simulate_plan(plan: Plan, *, with_truth: bool,
+                  **kwargs: Any) -> Dataset | tuple[Dataset, dict]: ...
 def simulate_plan(plan: Plan, *, with_truth: bool = False,
                   **kwargs: Any) -> Dataset | tuple[Dataset, dict]:
     """Data of the plan from the virtual CMM (see :func:`simulation_config`) with the plan's
