@@ -684,18 +684,21 @@ if rep is not None:
 
 st.subheader("Placements in the machine volume")
 with calls.guarded("Placement views"):
-    # three flat views by default (SVG: drawn at once); the WebGL scene on request, as it
-    # cost most of a first page load (issue 27)
+    # three flat views as plain SVG by default: the app's first screen then needs none of
+    # Plotly's 4.7 MB of script (issue 27); the WebGL scene on request
     if st.toggle("3-D view", key="w_place_3d",
                  help="Rotate the placements in 3-D (slower to draw than the three views)."):
         st.plotly_chart(cached.figure("placements", (s["ds_key"],), A.fig_placements, ds),
                         key="fig_placements")
     else:
-        st.plotly_chart(cached.figure("placement_views", (s["ds_key"],),
-                                 A.fig_placement_views, ds),
-                        key="fig_placement_views", width="stretch")
+        st.html(cached.figure("placement_views", (s["ds_key"],), A.placement_views_svg, ds))
+        st.caption("Probed ball centres (tip centres, machine frame, mm); the dashed box is "
+                   "the working volume. Hover a marker for its placement, stylus and "
+                   "ball.")
 
 with st.expander("Measurements (as read, mm)"):
     frame.dataframe(m, hide_index=True, key="meas_table")
 with st.expander("Setup (JSON)"):
-    st.code(json.dumps(ds.setup.raw, indent=1), language="json")
+    # a JSON tree rather than highlighted code: the highlighter's 1.6 MB of script would
+    # load with the app's first screen (issue 27)
+    st.json(ds.setup.raw, expanded=2)

@@ -1002,25 +1002,48 @@ def test_simulated_moving_table_with_instruments_fits_within_its_noise():
 
 
 def test_placements_drawn_as_three_views_and_in_3d_on_request():
-    """Issue 27: the WebGL 3-D scene cost most of the first page load; the Data page draws
-    three orthographic views (SVG) and the 3-D scene only when asked."""
+    """Issue 27: the Data page, the app's first screen, draws the placements as three
+    orthographic views in plain SVG (no Plotly script on a first load) and the WebGL 3-D
+    scene only when asked."""
     at = _new()
     at.switch_page("pages/data.py")
     at.run()
     _ok(at)
-    keys = [c.key for c in at.get("plotly_chart")]
-    assert "fig_placement_views" in keys and "fig_placements" not in keys
+    assert not at.get("plotly_chart")
+    (svg,) = [h.proto.body for h in at.get("html") if "<svg" in h.proto.body]
+    assert svg.count("<title>BP111, probe") == 3 * 25  # every ball of a placement, 3 views
     at.toggle(key="w_place_3d").set_value(True)
     at.run()
     _ok(at)
-    keys = [c.key for c in at.get("plotly_chart")]
-    assert "fig_placements" in keys and "fig_placement_views" not in keys
-    from cmm_core.analysis import fig_placement_views
-    from cmm_core.io import thesis_dataset
+    assert [c.key for c in at.get("plotly_chart")] == ["fig_placements"]
 
-    fig = fig_placement_views(thesis_dataset())
-    # one trace per placement and view, plus the volume outline in each view
-    assert len(fig.data) == 3 * (6 + 1)
+
+def test_placement_views_put_every_ball_where_it_is(rng):
+    """The SVG's markers sit at the ball's coordinates: in each view, the marker centres
+    are an affine image of the two coordinates with one scale on both axes (px per mm),
+    and the y axis points up. Checked on a simulated dataset with random placements."""
+    import re
+
+    from cmm_core.analysis import placement_views_svg
+    from cmm_core.model import simulate
+
+    ds = simulate({"seed": int(rng.integers(1000)), "noise_um": 0.0}).dataset
+    svg = placement_views_svg(ds)
+    xyz = ds.meas[["mx_mm", "my_mm", "mz_mm"]].to_numpy()
+    # circles (first placement) are centred at cx, cy; squares (second) at x + r, y + r
+    marks = [(t[1], float(t[2]), t[3], float(t[4]), float(t[5] or t[7]) + (3.5 if t[7] else 0),
+              float(t[6] or t[8]) + (3.5 if t[8] else 0))
+             for t in re.findall(r'<title>([^<]*): ([XYZ]) (-?[\d.]+), ([XYZ]) (-?[\d.]+) mm'
+                                 r'</title>(?:<circle cx="(-?[\d.]+)" cy="(-?[\d.]+)"|'
+                                 r'<rect x="(-?[\d.]+)" y="(-?[\d.]+)")', svg)]
+    for a, b in (("X", "Y"), ("X", "Z"), ("Y", "Z")):
+        pts = np.array([m[1:2] + m[3:] for m in marks if (m[0], m[2]) == (a, b)])
+        assert len(pts) == 100  # two placements of 25 balls, two styli each
+        fx, fy = np.polyfit(pts[:, 0], pts[:, 2], 1), np.polyfit(pts[:, 1], pts[:, 3], 1)
+        assert fx[0] > 0 and fy[0] == pytest.approx(-fx[0], rel=1e-2)  # one scale, y up
+        for f, u, v in ((fx, 0, 2), (fy, 1, 3)):  # 0.1 px rounding of the coordinates
+            assert np.abs(np.polyval(f, pts[:, u]) - pts[:, v]).max() < 0.2
+    assert svg.count("<title>") == 3 * len(xyz) + 3 + ds.meas["position"].nunique()
 
 
 def test_diagnose_page_draws_only_the_open_tabs_figure():

@@ -31,7 +31,6 @@ from .figures import (
     fig_history,
     fig_mpe,
     fig_pattern,
-    fig_placement_views,
     fig_placements,
     fig_residual_map,
     fig_signature_scatter,
@@ -112,15 +111,16 @@ from .sessions import (
     new_session_id,
     valid_session_id,
 )
+from .svg import placement_views_svg
 
 __all__ = [
-    "diagnose_record", "FitChoices", "fit_kwargs", "fit_record",
+    "placement_views_svg", "diagnose_record", "FitChoices", "fit_kwargs", "fit_record",
     "against_coordinates", "analysis_report", "AnalysisRecord", "AnalysisResult",
     "approach_split", "AXIS_COLOURS", "breakdown", "build_report", "chi2_html",
     "chi2_test_numbers", "CheckChoices", "compare_models", "ComparisonFigure", "coverage_reasons", "DataFile", "DataSources", "default_session_folder", "DEFAULT_EXCLUDE_OUTLIERS",
     "deviations_plate_frame", "diagnosis_conclusion", "diagnosis_rows", "ERROR_CONVENTION",
     "error_function_curves", "fig_deviation", "fig_detection_limits", "fig_error_functions", "fig_history", "fig_mpe",
-    "fig_pattern", "fig_placement_views", "fig_placements", "fig_residual_map", "fig_signature_scatter",
+    "fig_pattern", "fig_placements", "fig_residual_map", "fig_signature_scatter",
     "fig_surface_grid", "figure_html", "FORMAT", "FUNCTION_UNITS", "GP_KERNELS", "GP_MEANS",
     "HistoryChoices", "load_stored_model", "results_document",
     "instrument_kinds", "instrument_tables", "InstrumentFile", "instruments_from_list", "KEEP_DAYS",

@@ -444,47 +444,6 @@ def fig_placements(dataset: Dataset, certificate_xyz: ArrayLike | None = None) -
     return _layout(fig, "Plate placements in the machine volume (mm)", height=560)
 
 
-def fig_placement_views(dataset: Dataset) -> go.Figure:
-    """The plate placements in three orthographic views of the machine volume (top XY,
-    front XZ, side YZ; mm), one colour per placement, equal scales on both axes of a view.
-
-    The views answer what the 3-D view does (where each placement sits, which planes it
-    spans) in plain SVG: a browser draws them in milliseconds, where the WebGL scene of
-    :func:`fig_placements` took 1.8 s on a first page load (issue 27)."""
-    rng = np.asarray(dataset.setup.range_mm, float)
-    views = (("X", "Y", 0, 1), ("X", "Z", 0, 2), ("Y", "Z", 1, 2))
-    fig = make_subplots(rows=1, cols=3, horizontal_spacing=0.07,
-                        subplot_titles=["XY (top)", "XZ (front)", "YZ (side)"],
-                        column_widths=[rng[0] + rng[1] * 0.2, rng[0] + rng[2] * 0.2,
-                                       rng[1] + rng[2] * 0.2])
-    m = dataset.meas
-    cols = ("mx_mm", "my_mm", "mz_mm")
-    palette = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b",
-               "#e377c2", "#7f7f7f", "#bcbd22", "#17becf")
-    symbols = ("circle-open", "square-open", "diamond-open", "x-thin-open", "cross-thin-open",
-               "triangle-up-open", "star-open", "hexagon-open")
-    for c, (a, b, i, j) in enumerate(views, start=1):
-        fig.add_trace(go.Scatter(x=[0, rng[i], rng[i], 0, 0], y=[0, 0, rng[j], rng[j], 0],
-                                 mode="lines", line={"color": "grey", "width": 1},
-                                 name="working volume", showlegend=c == 1,
-                                 hoverinfo="skip"), row=1, col=c)
-        for k, (pos, g) in enumerate(m.groupby("position", sort=False)):
-            fig.add_trace(go.Scatter(
-                x=g[cols[i]], y=g[cols[j]], mode="markers", name=str(pos),
-                legendgroup=str(pos), showlegend=c == 1,
-                # symbols of their own: placements that overlap in a view stay visible
-                marker={"size": 6, "color": palette[k % len(palette)],
-                        "symbol": symbols[k % len(symbols)]},
-                text=g["probe"].astype(str).radd("probe ") + ", ball "
-                + g["ball"].astype(str),
-                hovertemplate=f"%{{text}}<br>{a} %{{x:.1f}}, {b} %{{y:.1f}} mm<extra>"
-                              + str(pos) + "</extra>"), row=1, col=c)
-        fig.update_xaxes(title_text=f"{a} (mm)", row=1, col=c)
-        fig.update_yaxes(title_text=f"{b} (mm)", scaleanchor=f"x{'' if c == 1 else c}",
-                         scaleratio=1, row=1, col=c)
-    return _layout(fig, "Plate placements in the machine volume (mm)", height=400)
-
-
 def fig_surface_grid(xg: ArrayLike, yg: ArrayLike, values: ArrayLike, *, title: str, unit: str,
                      points: ArrayLike | None = None, colorscale: str = "RdBu_r",
                      xlabel: str = "X (mm)", ylabel: str = "Y (mm)",
