@@ -4,23 +4,27 @@ Prints, in one run:
 
 1. the median wall time of ``propose`` for the default candidate set, beside the median
    time of one ``diagnose`` of the same data (its peer in the interactive flow), and their
-   ratio;
+   ratio (``--no-timing`` skips it);
 2. for each alias case (a true effect and its rival on a simulated layout of
-   ``tests/scenarios.py``, other than the sample data's): over N seeds, the share of
-   seeds where the diagnosis names the true effect (a) on the data alone, (b) with the top
-   proposal measured (simulated from the true machine, with noise) and appended, (c) with a
-   random other candidate of the same machine time appended instead; each with its
-   binomial standard error. "Names" is counted strictly (the verdict is the true token) and
-   by function (``rxz:3`` for a true ``rxz:4``: the Occam rule names the lower order
-   when the higher does not beat it);
+   ``tests/scenarios.py``, other than the sample data's: a high-order rotation against
+   squareness on two plates and a weak one; a probe offset against drift with styli
+   measured in blocks, both ways; each placement's own Z scale against ``dzz:4``): over N
+   seeds, the share of seeds where the diagnosis names the true effect (a) on the data
+   alone, (b) with the top proposal measured (simulated from the true machine, with noise)
+   and appended, (c) with a random other candidate of the same machine time appended
+   instead; each with its binomial standard error. "Names" is counted strictly (the
+   verdict is the true token), by function (``rxz:3`` for a true ``rxz:4``: the Occam rule
+   names the lower order when the higher does not beat it), and "decided" (named, the
+   rival no longer among its aliases). The placement scales are named by the
+   outside-catalogue verdict with them as its evidence;
 3. the predicted power of the top proposal (mean over seeds of its power with the truth
    as the truth at its fitted size) against the Monte Carlo separation rate: the share of
    seeds where the nested F-test "the truth is still needed once the rival is in" rejects
    at the diagnosis's level on the augmented noisy data. The issue asks for agreement
    within ±8 points.
 
-Run: ``.venv/bin/python bench/proposals.py [--seeds N]`` (default 50; about 10 s a seed on
-the shared two-core machine).
+Run: ``.venv/bin/python bench/proposals.py [--seeds N] [--cases WORDS]`` (default 50
+seeds; 10-20 s a seed on the shared two-core machine; docs/proposals.md has 30).
 """
 
 import argparse
