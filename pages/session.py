@@ -9,11 +9,9 @@ import hashlib
 import streamlit as st
 
 from cmm_core import analysis as A
-from cmm_core.diagnosis import estimate_sigma
 from pages.calls import describe_error, safe
 from pages.state import (
     check_instruments,
-    dataset,
     files_key,
     init_state,
     load_files,
@@ -71,13 +69,18 @@ def restore_record(record, source: str) -> str:
                          + ". Remove them from the file or restore it with its own data.")
     inst = [(i.kind, i.file.name, i.file.text()) for i in d.instruments]
     check_instruments(inst, new_ds)  # before anything changes
+    # what analysis.run leaves out and the σ it uses, so the app fits what the report does
+    excl, _ = A.record_exclusions(record, new_ds)
+    sigma = (safe(A.resolve_sigma, record, new_ds, A.load_instruments(record), excl,
+                  what="Estimating σ") if record.sigma_um == "auto"
+             else A.resolve_sigma(record, new_ds))
     set_dataset(files)
     s = st.session_state
-    for k in ("spec", "order", "plate", "sigma_um", "magnification", "exclude_outliers"):
+    for k in ("spec", "order", "plate", "magnification", "exclude_outliers"):
         s[k] = getattr(record, k)
     s["positions"] = None if record.positions is None else list(record.positions)
     s["probes"] = None if record.probes is None else list(record.probes)
-    s["exclusions"] = [list(e) for e in record.exclusions]
+    s["exclusions"] = [list(e) for e in excl]
     s["diag_on"] = bool(record.diagnose)
     s["history"] = [{"spec": spec, "change": change} for spec, change in record.history]
     if s["history"] and s["history"][-1]["spec"] != s["spec"]:
@@ -85,15 +88,19 @@ def restore_record(record, source: str) -> str:
         s["history"].append({"spec": s["spec"], "change": "edited by hand"})
     s["reset_note"] = []  # the analysis's own settings, not defaults
     note = ""
-    if s["sigma_um"] == "auto":  # a record written by the command line
-        est = safe(estimate_sigma, dataset(), s["spec"], order=int(s["order"]),
-                   plate=None if s["plate"] == "auto" else s["plate"],
-                   exclude=[tuple(e) for e in s["exclusions"]], what="Estimating σ")
-        s["sigma_um"] = 0.5 if est is None else round(float(est.value_um), 4)
-        note = (f" Its σ is 'auto': estimated from the data as {s['sigma_um']:.4g} ± "
-                f"{est.u_um:.2g} µm ({est.method})." if est is not None else
-                " Its σ is 'auto' and could not be estimated: 0.5 µm is used; set it in "
-                "the sidebar.")
+    if len(excl) > len(record.exclusions):
+        note += (f" Its outlier rule excludes the {len(excl) - len(record.exclusions)} "
+                 "flagged observation(s), as the report does.")
+    if record.sigma_um != "auto":
+        s["sigma_um"] = sigma["value_um"]
+    elif sigma is None:
+        s["sigma_um"] = 0.5
+        note += (" Its σ is 'auto' and could not be estimated: 0.5 µm is used; set it in "
+                 "the sidebar.")
+    else:  # a record written by the command line: σ as analysis.run estimates it
+        s["sigma_um"] = sigma["value_um"]
+        note += (f" Its σ is 'auto': estimated from the data as {s['sigma_um']:.4g} ± "
+                 f"{sigma['u_um']:.2g} µm ({sigma['method']}).")
     set_instruments(inst)
     reset_widgets()
     # the choices of other pages that the report reads, as their widgets would hold them

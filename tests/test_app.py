@@ -1060,3 +1060,37 @@ def test_diagnose_page_draws_only_the_open_tabs_figure():
     _ok(at)
     keys = [c.key for c in at.get("plotly_chart")]
     assert "diag_map" in keys and "diag_resid" not in keys
+
+
+def test_a_restored_record_is_fitted_as_the_report_fits_it():
+    """Issue 23: a record with σ 'auto', a selection of positions and the outlier rule on,
+    restored in the app, gives the fit analysis.run gives it (the CLI's and the report's):
+    the same σ, the same exclusions, the same numbers on the Kinematic page."""
+    import dataclasses
+
+    from cmm_core import analysis as A
+
+    rec = dataclasses.replace(
+        A.read_record(ROOT / "sample_data" / "analysis" / "thesis.json"), sigma_um="auto",
+        exclude_outliers=True, exclusions=(), positions=("BP111", "BP112", "BP211", "BP212"),
+        spec="kinematic21", history=(("kinematic21", "baseline"),), diagnose=False)
+    res = A.run(rec)
+    assert res.sigma["auto"] and len(res.exclusions) > len(rec.exclusions)
+    at = _new()
+    at.switch_page("pages/data.py")
+    at.run()
+    at.file_uploader(key="up_project").set_value(
+        ("r.json", A.record_to_project_json(rec).encode(), "application/json"))
+    at.run()
+    at.button(key="restore_project").click()
+    at.run()
+    _ok(at)
+    assert at.session_state["sigma_um"] == res.sigma["value_um"]
+    assert {tuple(e) for e in at.session_state["exclusions"]} == set(res.exclusions)
+    at.switch_page("pages/kinematic.py")
+    at.run()
+    _ok(at)
+    shown = {m.label: m.value for m in at.metric}
+    assert shown["RMS residual"] == f"{res.fit.rms_um:.3f} µm"
+    assert shown["χ²/dof"] == f"{res.fit.chi2_dof:.2f}"
+    assert int(shown["Parameters (rank)"]) == res.fit.rank

@@ -99,6 +99,8 @@ from .runner import (
     load_data,
     load_instruments,
     load_stored_model,
+    record_exclusions,
+    resolve_sigma,
     results_document,
     run,
     with_instruments,
@@ -114,7 +116,7 @@ from .sessions import (
 from .svg import placement_views_svg
 
 __all__ = [
-    "placement_views_svg", "diagnose_record", "FitChoices", "fit_kwargs", "fit_record",
+    "placement_views_svg", "record_exclusions", "resolve_sigma", "diagnose_record", "FitChoices", "fit_kwargs", "fit_record",
     "against_coordinates", "analysis_report", "AnalysisRecord", "AnalysisResult",
     "approach_split", "AXIS_COLOURS", "breakdown", "build_report", "chi2_html",
     "chi2_test_numbers", "CheckChoices", "compare_models", "ComparisonFigure", "coverage_reasons", "DataFile", "DataSources", "default_session_folder", "DEFAULT_EXCLUDE_OUTLIERS",

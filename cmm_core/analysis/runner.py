@@ -47,7 +47,8 @@ from .record import (
 )
 
 __all__ = ["load_data", "load_instruments", "with_instruments", "AnalysisResult", "run",
-           "FitChoices", "fit_kwargs", "fit_record", "diagnose_record",
+           "FitChoices", "fit_kwargs", "fit_record", "diagnose_record", "record_exclusions",
+           "resolve_sigma",
            "load_stored_model", "results_document"]
 
 
@@ -197,6 +198,33 @@ def diagnose_record(record: FitChoices, ds: Dataset, instruments: Sequence = (),
                     progress=progress, **kw)
 
 
+def record_exclusions(record: AnalysisRecord, ds: Dataset) -> tuple[tuple, tuple]:
+    """``(exclusions, flagged)``: the observations a record's fits leave out (its own
+    exclusions, plus the robust outlier check's flags when ``exclude_outliers``), and the
+    flagged ones whether excluded or not."""
+    try:
+        flagged = tuple(tuple(e) for e in detect_outliers(ds).exclusions)
+    except ValueError:  # too few positions to compare: nothing flagged unless asked to
+        if record.exclude_outliers:
+            raise
+        flagged = ()
+    excl = tuple(sorted(set(map(tuple, record.exclusions))
+                        | (set(flagged) if record.exclude_outliers else set())))
+    return excl, flagged
+
+
+def resolve_sigma(record: AnalysisRecord, ds: Dataset, instruments: Sequence = (),
+                  exclusions: Iterable[Sequence] | None = None) -> dict:
+    """The σ a record's fits use: ``{"value_um", "auto"}``, plus the estimate's fields
+    (``u_um``, ``method`` ...) when the record says ``"auto"`` (estimated from the
+    record's data as selected, with its instruments and ``exclusions``)."""
+    if record.sigma_um != "auto":
+        return {"value_um": float(record.sigma_um), "auto": False}
+    kw = fit_kwargs(record, exclusions)
+    est = estimate_sigma(_record_data(ds, instruments, kw), record.spec, **kw)
+    return {**est.to_dict(), "value_um": float(est.value_um), "auto": True}
+
+
 def run(record: AnalysisRecord) -> AnalysisResult:
     """Dataset, fit, history, measured errors, uncertainty, and the optional diagnosis,
     MPE check and GP of a record, every fit with the record's instruments. The CLI and
@@ -206,21 +234,9 @@ def run(record: AnalysisRecord) -> AnalysisResult:
     ds = load_data(record)
     check_selection(ds, record.positions, record.probes, record.exclusions,
                     "analysis record")
-    try:
-        flagged = tuple(tuple(e) for e in detect_outliers(ds).exclusions)
-    except ValueError:  # too few positions to compare: nothing flagged unless asked to
-        if record.exclude_outliers:
-            raise
-        flagged = ()
-    excl = tuple(sorted(set(record.exclusions) | (set(flagged) if record.exclude_outliers
-                                                 else set())))
+    excl, flagged = record_exclusions(record, ds)
     inst = load_instruments(record)
-    if record.sigma_um == "auto":
-        kw = fit_kwargs(record, excl)
-        est = estimate_sigma(_record_data(ds, inst, kw), record.spec, **kw)
-        sigma = {**est.to_dict(), "value_um": float(est.value_um), "auto": True}
-    else:
-        sigma = {"value_um": float(record.sigma_um), "auto": False}
+    sigma = resolve_sigma(record, ds, inst, excl)
     steps = {"exclusions": excl, "sigma_um": sigma["value_um"]}
     r = fit_record(record, ds, inst, **steps)
     history = [(r if spec == record.spec else fit_record(record, ds, inst, spec=spec, **steps))
