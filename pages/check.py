@@ -43,7 +43,8 @@ def run_check(model_name, model_text, meas, setup, cert, alpha, family_alpha, mp
     inst = [read_instrument(io.BytesIO(b), kind, name=n) for kind, n, b in instruments]
     out = mon.run_check(model, data, instruments=inst, alpha=alpha,
                         family_alpha=family_alpha, mpe=mpe)
-    return out.to_dict(), out.check.table, out.changes.table
+    return out.to_dict(), out.check.table, out.changes.table, ex.results_json(
+        model, source=model_name, interim_check=out.results_section())
 
 
 @st.cache_data(show_spinner=False, max_entries=8)
@@ -116,7 +117,7 @@ with t_check:
         out = calls.safe(run_check, files[0][0], files[0][1], files[1], files[2], files[3],
                          float(alpha), float(family), mpe, files[4], what="Interim check")
         if out is not None:
-            res, table, chg_table = out
+            res, table, chg_table, results = out
             chk, chg, eff, conf = (res["check"], res["changes"], res["new_effects"],
                                    res["conformity"])
             m1, m2, m3 = st.columns(3)
@@ -173,6 +174,12 @@ with t_check:
                 (st.success if conf["statement"] == "conforms" else
                  st.warning if conf["statement"] == "does not conform" else st.info)(
                     f"**{conf['statement']}**: {conf['message']}")
+            st.download_button(
+                "Download the results (JSON)", results, file_name="interim_check_results.json",
+                mime="application/json", key="chk_results",
+                help="the stored model's parameters and the section interim_check: the "
+                     "test, each parameter's change with its uncertainty, the new effect, "
+                     "conformity, each with its decision rule (docs/monitoring.md)")
 
 with t_hist:
     hsrc = st.radio("Calibrations", ["Sample history", "Upload model files"],

@@ -48,3 +48,10 @@ def test_quiet_sample_passes_and_bad_mpe_is_one_message():
     at.text_input(key="chk_mpe").set_value("six").run()
     assert not at.exception
     assert [e.value for e in at.error] and "MPE" in at.error[0].value
+
+
+def test_check_offers_its_results_document():
+    at = _page()
+    _ok(at)
+    buttons = at.get("download_button")
+    assert [b for b in buttons if "results (JSON)" in b.proto.label]
