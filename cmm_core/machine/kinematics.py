@@ -72,7 +72,7 @@ def error(terms: KinematicTerms, coef: ArrayLike, x_mm: ArrayLike, p_mm: ArrayLi
 _BLOCK = 8192
 
 
-def _forward(terms, coef, x_mm, p_mm, want_jac=False):
+def _forward(terms, coef, x_mm, p_mm, want_jac=False, scale=1.0):
     """x*(x, p) (n, 3) and, if asked, J (n, 3, terms.n), computed by blocks of points.
 
     J is a view of a coefficient-major ``(3, terms.n, n)`` array: a function's column is
@@ -84,18 +84,22 @@ def _forward(terms, coef, x_mm, p_mm, want_jac=False):
     xs = np.empty((n, 3))
     J = np.empty((3, terms.n, n)).transpose(2, 0, 1) if want_jac else None
     sl = terms.slices
-    block = _forward_block
-    if terms.chain != "Fxyz":
-        block = forward_block
     for lo in range(0, n, _BLOCK):
         b = slice(lo, min(lo + _BLOCK, n))
-        block(terms, sl, coef[b] if coef.ndim == 2 else coef, x_mm[b], p_mm[b],
-              xs[b], None if J is None else J[b])
+        args = (terms, sl, coef[b] if coef.ndim == 2 else coef, x_mm[b], p_mm[b], xs[b],
+                None if J is None else J[b])
+        if terms.chain == "Fxyz":
+            _forward_block(*args, scale=scale)
+        else:
+            forward_block(*args)
+            if J is not None and scale != 1.0:
+                J[b] *= scale
     return xs, J
 
 
-def _forward_block(terms, sl, coef, x_mm, p_mm, xs_out, J_out):
-    """One block of ``_forward``: fills ``xs_out`` (m, 3) and ``J_out`` (m, 3, terms.n)."""
+def _forward_block(terms, sl, coef, x_mm, p_mm, xs_out, J_out, scale=1.0):
+    """One block of ``_forward``: fills ``xs_out`` (m, 3) and ``J_out`` (m, 3, terms.n),
+    the latter times ``scale``."""
     ev = _Evaluation(terms, coef, x_mm)
     v = ev.values
     x, y, z = x_mm.T
@@ -131,23 +135,23 @@ def _forward_block(terms, sl, coef, x_mm, p_mm, xs_out, J_out):
         D = designs[name]
         if name in SQUARENESS:
             k = 0 if name in ("sxy", "sxz") else 1
-            col = (Rx if name == "sxy" else RxRy)[:, k] * URAD
+            col = (Rx if name == "sxy" else RxRy)[:, k] * (URAD * scale)
         elif name[0] == "d":
             ax, comp = name[1], direction_of(name)
             if ax == "x":
                 # the x carriage's translations act along the machine axes themselves
                 s = sl[name]
                 Jt[:, s] = 0.0
-                np.multiply(D, UM, out=Jt[comp, s])
+                np.multiply(D, UM * scale, out=Jt[comp, s])
                 continue
-            col = (Rx if ax == "y" else RxRy)[:, comp] * UM
+            col = (Rx if ax == "y" else RxRy)[:, comp] * (UM * scale)
         else:
             ax, comp = name[1], direction_of(name)
             outer, w = turned[ax]
             col = _cross(_omega(ev.R[ax], ev.angles[ax], comp), w)
             if outer is not None:
                 col = _mv(outer, col)
-            col *= URAD
+            col *= URAD * scale
         np.multiply(col[:, None, :], D[None, :, :], out=Jt[:, sl[name]])
 
 
@@ -168,8 +172,8 @@ def _cross(a, b):
                      a[0] * b[1] - a[1] * b[0]])
 
 
-def jacobian(terms: KinematicTerms, coef: ArrayLike, x_mm: ArrayLike, p_mm: ArrayLike
-         ) -> tuple[np.ndarray, np.ndarray]:
+def jacobian(terms: KinematicTerms, coef: ArrayLike, x_mm: ArrayLike, p_mm: ArrayLike,
+             *, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Model point and its analytic Jacobian.
 
     Returns
@@ -178,10 +182,12 @@ def jacobian(terms: KinematicTerms, coef: ArrayLike, x_mm: ArrayLike, p_mm: Arra
         ``x*(x, p)`` in mm.
     J : array (n, 3, terms.n)
         ``d x* / d coef`` in mm per coefficient unit (µm or µrad); a view of a
-        coefficient-major ``(3, terms.n, n)`` array (``np.ascontiguousarray`` gives rows).
+        coefficient-major ``(3, terms.n, n)`` array (``np.ascontiguousarray`` gives rows);
+        times ``scale`` when given (``1 / UM``: µm per coefficient unit, written once
+        instead of a second pass over J).
     """
     return _forward(terms, np.asarray(coef, float), np.asarray(x_mm, float),
-                    np.asarray(p_mm, float), want_jac=True)
+                    np.asarray(p_mm, float), want_jac=True, scale=float(scale))
 
 
 def probe_jacobian(terms: KinematicTerms, coef: ArrayLike, x_mm: ArrayLike) -> np.ndarray:
