@@ -165,3 +165,17 @@ def test_instrument_off_the_strokes_is_refused_in_one_line():
     with pytest.raises(DataError) as e:
         interim_check(model, None, instruments=[bad])
     assert "outside the model's strokes" in str(e.value) and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_a_new_drift_is_named_drift(layout):
+    # a drift the stored model has no parameter for (simulator's drift, 4 µm/h sd per
+    # placement and axis): the check fails and the diagnosis names it as it names a
+    # drift in a calibration; no stored uncertainty to confirm it against
+    cal, model = calibrated(layout, 3)
+    sim = remeasured(cal, 4_021, effects={"drift": {"sd_um_per_h": 4.0}})
+    out = run_check(model, sim.dataset)
+    assert out.verdict == "changed"
+    assert out.effects.verdict == "drift"
+    best = out.effects.named[0]
+    assert best["effect"] == "drift" and best["confirmed"] and not best["in_stored_model"]
