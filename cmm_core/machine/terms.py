@@ -76,7 +76,8 @@ def n_coefficients(name: str, order: int) -> int:
     return order
 
 
-def basis(name: str, u_mm: np.ndarray, order: int, stroke_mm: float) -> np.ndarray:
+def basis(name: str, u_mm: np.ndarray, order: int, stroke_mm: float, *,
+          vander: np.ndarray | None = None) -> np.ndarray:
     """Chebyshev basis of one error function, shape ``(n, n_coefficients)``.
 
     Positioning and rotation functions use ``T_j(s) - T_j(-1)``, j = 1..order, so they are
@@ -84,6 +85,9 @@ def basis(name: str, u_mm: np.ndarray, order: int, stroke_mm: float) -> np.ndarr
     its values at both ends of the stroke, j = 2..order: zero at both ends, so their linear
     part (squareness or frame orientation, SPEC) is not duplicated. Squareness is the axis
     coordinate itself in mm (the coefficient is an angle in µrad).
+
+    ``vander``: ``chebvander(2 u / stroke - 1, K)`` for some K >= order, when the caller
+    has it (the functions of one axis share it); its first columns are this order's.
     """
     u = np.asarray(u_mm, dtype=float)
     k = n_coefficients(name, order)
@@ -92,7 +96,7 @@ def basis(name: str, u_mm: np.ndarray, order: int, stroke_mm: float) -> np.ndarr
     if name in SQUARENESS:
         return u.reshape(-1, 1).copy()
     s = 2.0 * u / stroke_mm - 1.0
-    V = C.chebvander(s, order)  # columns T_0..T_order
+    V = C.chebvander(s, order) if vander is None else vander[:, :order + 1]  # T_0..T_order
     if name in STRAIGHTNESS:
         j = np.arange(2, order + 1)
         lo = (-1.0) ** j
@@ -203,10 +207,12 @@ class KinematicTerms:
         return (axis_of(name), kind, self._order_of.get(name, 0),
                 self._period_of.get(name))
 
-    def design(self, name: str, u_mm: np.ndarray) -> np.ndarray:
-        """Basis matrix of one function at axis coordinates ``u_mm``."""
+    def design(self, name: str, u_mm: np.ndarray, *, vander: np.ndarray | None = None
+               ) -> np.ndarray:
+        """Basis matrix of one function at axis coordinates ``u_mm`` (``vander``: see
+        :func:`basis`)."""
         order = self._order_of.get(name, 0)
-        D = basis(name, u_mm, order, self.range_mm[axis_of(name)])
+        D = basis(name, u_mm, order, self.range_mm[axis_of(name)], vander=vander)
         per = self._period_of
         if name in per:
             D = np.hstack([D, periodic_basis(u_mm, per[name])])
@@ -284,11 +290,18 @@ class _Evaluation:
         # axis share it (21 functions, at most 9 bases at one order)
         by_key: dict = {}
         self.designs = {}
+        top: dict[int, int] = {}  # highest Chebyshev order of each axis: one Vandermonde matrix per axis
+        for nm, order in terms.functions:
+            if nm in wanted and nm not in SQUARENESS:
+                top[axis_of(nm)] = max(top.get(axis_of(nm), 0), order)
+        vander = {a: C.chebvander(2.0 * xyz_mm[:, a] / terms.range_mm[a] - 1.0, k)
+                  for a, k in top.items()}
         for nm, _ in terms.functions:
             if nm in wanted:
                 key = terms.design_key(nm)
                 if key not in by_key:
-                    by_key[key] = terms.design(nm, xyz_mm[:, key[0]])
+                    by_key[key] = terms.design(nm, xyz_mm[:, key[0]],
+                                               vander=vander.get(key[0]))
                 self.designs[nm] = by_key[key]
         self.values = {}
         for name in wanted:

@@ -142,8 +142,9 @@ def _block_key(prob):
 
 
 _ORDERED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-"""Problem -> (its observations, their order along the block key, the table's columns to
-pick rows from or None): made by the first accumulation, reused by the next ones."""
+"""Problem -> [its observations, their order along the block key, the table's columns to
+pick rows from or None, (block size, the blocks that are views, the rest of the order) or
+None]: made by the first accumulation, reused by the next ones."""
 
 
 def _ordered(prob: Any) -> np.ndarray:
@@ -152,7 +153,7 @@ def _ordered(prob: Any) -> np.ndarray:
     if kept is not None and kept[0] is prob.obs:
         return kept[1]
     order = np.argsort(_block_key(prob), kind="stable")
-    _ORDERED[prob] = [prob.obs, order, None]
+    _ORDERED[prob] = [prob.obs, order, None, None]
     return order
 
 
@@ -192,19 +193,28 @@ def _blocks(prob: Any, rows: int, key: np.ndarray | None = None
     (ten arrays and the table) cost 9 ms a block, half the time of a fit. Shorter runs are
     picked together into blocks of ``rows``. ``key``: another key than
     :func:`_block_key` (one number per observation)."""
-    order = _ordered(prob) if key is None else np.argsort(key, kind="stable")
-    key = (_block_key(prob) if key is None else key)[order]
-    # runs: consecutive observations with one key, as [start, stop) into ``order``
-    cut = np.flatnonzero((np.diff(order) != 1) | (np.diff(key) != 0)) + 1
-    starts = np.r_[0, cut]
-    lengths = np.diff(np.r_[starts, order.size])
-    long = lengths >= max(rows // 2, 1)
-    for a, n in zip(starts[long].tolist(), lengths[long].tolist(), strict=True):
-        for lo in range(a, a + n, rows):
-            hi = min(lo + rows, a + n)
-            sl = slice(int(order[lo]), int(order[hi - 1]) + 1)
-            yield sl, _subproblem(prob, sl)
-    rest = order[~np.repeat(long, lengths)]
+    kept = _ORDERED.get(prob) if key is None else None
+    if kept is not None and kept[0] is prob.obs and kept[3] is not None \
+            and kept[3][0] == rows:
+        views, rest = kept[3][1:]
+    else:
+        order = _ordered(prob) if key is None else np.argsort(key, kind="stable")
+        ordered_key = (_block_key(prob) if key is None else key)[order]
+        # runs: consecutive observations with one key, as [start, stop) into ``order``
+        cut = np.flatnonzero((np.diff(order) != 1) | (np.diff(ordered_key) != 0)) + 1
+        starts = np.r_[0, cut]
+        lengths = np.diff(np.r_[starts, order.size])
+        long = lengths >= max(rows // 2, 1)
+        views = []  # the blocks that are views: kept, they hold no copy of the data
+        for a, n in zip(starts[long].tolist(), lengths[long].tolist(), strict=True):
+            for lo in range(a, a + n, rows):
+                hi = min(lo + rows, a + n)
+                sl = slice(int(order[lo]), int(order[hi - 1]) + 1)
+                views.append((sl, _subproblem(prob, sl)))
+        rest = order[~np.repeat(long, lengths)]
+        if key is None:
+            _ORDERED[prob][3] = (rows, views, rest)
+    yield from views
     for lo in range(0, rest.size, rows):
         idx = rest[lo:lo + rows]
         yield idx, _subproblem(prob, idx, _columns(prob))
