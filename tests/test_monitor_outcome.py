@@ -179,3 +179,28 @@ def test_a_new_drift_is_named_drift(layout):
     assert out.effects.verdict == "drift"
     best = out.effects.named[0]
     assert best["effect"] == "drift" and best["confirmed"] and not best["in_stored_model"]
+
+
+def test_the_same_readings_twice_and_too_many_rows_are_refused_in_one_line():
+    """As in a fit (model.refuse_repeated): one ball-bar file given twice, or a copy under
+    another name, would count its readings double; and a check whose dense covariance
+    would exceed (3 · MAX_OBSERVATIONS)² numbers is refused before it is built."""
+    import dataclasses
+
+    from cmm_core.monitor import MAX_OBSERVATIONS
+
+    cal, model = calibrated("pitch100_4pos", 3)
+    sim = remeasured(cal, 4_014)
+    bar = _bars(sim, 4_015)
+    copy = dataclasses.replace(bar, source="copy.csv")
+    for pair in ([bar, bar], [bar, copy]):
+        with pytest.raises(DataError, match="same readings|given twice") as e:
+            interim_check(model, None, instruments=pair)
+        assert "\n" not in str(e.value)
+    rng = np.asarray(sim.dataset.setup.range_mm, float)
+    xs = np.linspace(0.05, 0.95, 3 * MAX_OBSERVATIONS + 10) * rng[0]  # a zero per run
+    long_run = simulate_laser(sim, "x", [0, rng[1] / 2, rng[2] / 2], xs, u_um=0.2, seed=1,
+                              source="long.csv")
+    with pytest.raises(DataError, match=r"long.csv.*at most 4500") as e:
+        interim_check(model, None, instruments=[long_run])
+    assert "\n" not in str(e.value)

@@ -23,7 +23,7 @@ from ..analysis import (
     run,
 )
 from ..export import load_model, results_json
-from ..io import DataError, atomic_write_text, check_outputs, load_dataset
+from ..io import DataError, atomic_write_all, atomic_write_text, check_outputs, load_dataset
 from ..monitor import MAX_MAP_NODES_PER_AXIS, compare_calibrations, run_check
 from .inputs import add_instrument_args, instruments_of, number_arg
 
@@ -154,10 +154,10 @@ def _command_check(args) -> dict:
                         alpha=args.alpha, family_alpha=args.family_alpha,
                         positions=positions, mpe=args.mpe)
     out: dict[str, object] = {"model": Path(args.model).name, **outcome.to_dict()}
+    texts: dict[Path, str] = {}  # written together, all or none, when all are made
     if args.results_json:
-        atomic_write_text(args.results_json, results_json(
-            model, source=Path(args.model).name,
-            interim_check=outcome.results_section()))
+        texts[Path(args.results_json)] = results_json(
+            model, source=Path(args.model).name, interim_check=outcome.results_section())
         out["results_json"] = str(args.results_json)
     if args.report:
         record = AnalysisRecord(
@@ -175,9 +175,9 @@ def _command_check(args) -> dict:
             interim_check=CheckChoices(DataFile(Path(args.model).name, str(args.model)),
                                        args.alpha, args.family_alpha, args.sigma_um,
                                        args.mpe))
-        text = render(run(record))
-        atomic_write_text(args.report, text)
+        texts[Path(args.report)] = render(run(record))
         out["report"] = str(args.report)
+    atomic_write_all(texts)
     return out
 
 

@@ -43,7 +43,7 @@ from ..export import Model
 from ..io import DataError, Dataset, range_tolerance
 from ..machine import kinematics as kin
 from ..machine import rigid_fit
-from ..model import Observations, instrument_observations, select
+from ..model import Observations, instrument_observations, refuse_repeated, select
 from ..units import UM
 
 MAX_OBSERVATIONS = 1500
@@ -332,6 +332,7 @@ def check_system(model: Model, dataset: Dataset | None, *, sigma_um: float | Non
     whole check. Raises DataError (one line) as :func:`interim_check` says.
     """
     items = tuple(instruments)
+    refuse_repeated(items)  # one file twice would count its readings double, as in a fit
     if dataset is None:
         if not items:
             raise DataError("no measurements and no instrument files: nothing to check.",
@@ -345,6 +346,12 @@ def check_system(model: Model, dataset: Dataset | None, *, sigma_um: float | Non
         name = dataset.name
         _refuse_incomparable(model, obs, name)
     _refuse_instruments_off_strokes(model, items)
+    m = 3 * len(obs.r_mm) + sum(it.transform[0].shape[0] for it in items)
+    if m > 3 * MAX_OBSERVATIONS:
+        raise DataError(f"{m} rows to check (ball coordinates and instrument readings); the "
+                        f"check takes at most {3 * MAX_OBSERVATIONS} (its covariance is "
+                        "dense: (rows)² numbers).", file=name,
+                        hint="thin the instrument readings out or check fewer placements.")
     sigma = float(model.summary.get("sigma_um", 0.5) if sigma_um is None else sigma_um)
     if not (np.isfinite(sigma) and sigma > 0):
         raise DataError(f"σ must be a positive number of µm, found {sigma}.", file=model.name,
