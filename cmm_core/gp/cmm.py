@@ -279,7 +279,7 @@ class Grid:
     points_mm: np.ndarray
     shape: tuple
 
-    def surface(self, values):
+    def surface(self, values: ArrayLike) -> np.ndarray:
         """Reshape per-point values (m,) to the grid's shape (rows = second axis)."""
         return np.asarray(values).reshape(self.shape)
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg as sla
+from numpy.typing import ArrayLike
 from scipy.spatial.distance import cdist
 from scipy.stats import norm
 
@@ -202,7 +203,8 @@ class GPResult:
             return float("nan")
         return float(np.mean(np.abs(z) <= norm.ppf(0.5 + level / 2)))
 
-    def predict(self, X_new, H_new=None, *, include_mean: bool = True):
+    def predict(self, X_new: ArrayLike, H_new: ArrayLike | None = None, *,
+                include_mean: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Predictive mean and variance of the latent function at ``X_new``.
 
         f̄* = k*ᵀ K_y⁻¹ (y - Hβ̄) + h*ᵀβ̄ and

@@ -30,6 +30,7 @@ any one unit is removed are the binding ones.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -140,7 +141,7 @@ class PoolModel:
             self.shapes[tok] = np.array([lim.shape.get(L.labels[c], 0.0)
                                          for c in self.effect_cols[tok]])
 
-    def cost(self, sel) -> float:
+    def cost(self, sel: Sequence[int]) -> float:
         """Measuring time (minutes) of a subset of units (indices)."""
         m = self.plan.measurement
         balls = self.plan.plate["rows"] * self.plan.plate["cols"]
@@ -158,7 +159,7 @@ class PoolModel:
         N = self.gram[list(sel)].sum(0) + self.prior_gram
         return N
 
-    def check(self, sel) -> dict:
+    def check(self, sel: Sequence[int]) -> dict:
         """Fast figures of a subset: determined, U3 (max over axes, µm; inf when
         undetermined) and each detection target's limit."""
         if not sel:
@@ -225,7 +226,7 @@ class PoolModel:
                 k, nu, self.levels[tok], POWER, round(c2 / c1, 6)) / q)) if ok else np.inf)
         return {"determined": determined, "U3_um": u3, "detect": det}
 
-    def criterion(self, sel, kind: str) -> float:
+    def criterion(self, sel: Sequence[int], kind: str) -> float:
         """Bayesian D (log det of the kinematic posterior precision) or A (minus the sum
         of kinematic posterior variances in units of their prior variances); larger is
         better."""
