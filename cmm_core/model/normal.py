@@ -317,16 +317,29 @@ columns ``J_c`` it does not fit): the certificate's terms at the fit's solution
 (``certificate_prior``) without another pass over the observations."""
 
 
-def _plate_rows(sub: Any, ev: Any, width: int) -> list:
-    """The plate columns' Jacobian rows of one evaluation as a sparse ``(m, width)``
-    matrix per component: the Plate block's ``-R_k s`` (``blocks.plate``) at the ball's
-    three columns, for a problem whose plate is fixed (no Plate block)."""
+def _plate_rows(sub: Any, ev: Any, width: int) -> tuple[list, np.ndarray]:
+    """The plate columns' Jacobian rows of one evaluation, for a problem whose plate is
+    fixed (no Plate block): the Plate block's ``-R_k s`` (``blocks.plate``) at the ball's
+    three columns. Returned as their transpose per component, ``(width, m)`` sparse
+    (CSC: the rows' own arrays, no conversion), and their ``J_cᵀ J_c`` (width, width),
+    summed per ball (3 × 3 blocks on the diagonal)."""
     M = -ev.Rk * np.reshape(ev.plate_scale, (-1, 1, 1))
     m = M.shape[0]
-    cols = (3 * sub.obs.ball[:, None] + np.arange(3)).ravel()
+    ball = sub.obs.ball
+    cols = (3 * ball[:, None] + np.arange(3)).ravel()
     ptr = np.arange(m + 1) * 3
-    return [sp.csr_matrix((np.ascontiguousarray(M[:, c, :]).ravel(), cols, ptr),
-                          shape=(m, width)) for c in range(3)]
+    Et = [sp.csc_matrix((np.ascontiguousarray(M[:, c, :]).ravel(), cols, ptr),
+                        shape=(width, m)) for c in range(3)]
+    MtM = np.einsum("nca,ncb->nab", M, M).reshape(m, 9)
+    B = width // 3
+    Ncc = np.zeros((B, 3, 3))
+    for e in range(9):
+        Ncc[:, e // 3, e % 3] = np.bincount(ball, weights=MtM[:, e], minlength=B)
+    out = np.zeros((width, width))
+    for a in range(3):
+        for b in range(3):
+            out[a::3, b::3][np.arange(B), np.arange(B)] = Ncc[:, a, b]
+    return Et, out
 
 
 def _plate_cross(prob: Any, state: State) -> tuple | None:
@@ -383,13 +396,14 @@ def accumulate(prob: Any, state: State, sigma_um: float, rows: int = ROWS
             g[kc] += KS[:, -1]
         if cross is not None and plate is not None:
             G, gc, Ncc = cross
-            for c, Ec in enumerate(plate):
-                ES = Ec.T @ S3[c]
+            Et, EE = plate
+            for c in range(3):
+                ES = Et[c] @ S3[c]
                 G[u] += ES[:, :-1].T
                 gc += ES[:, -1]
                 if Kt is not None:
-                    G[kin[0]] += (Ec.T @ Kt[c].T).T
-                Ncc += (Ec.T @ Ec).toarray()
+                    G[kin[0]] += (Et[c] @ Kt[c].T).T
+            Ncc += EE
         del S3, pieces, kin, Kt, plate
     # the blocks filled the upper triangle of JᵀJ (row < column); a column's own entry
     # may sit in either part's product: mirror the strict upper triangle only
