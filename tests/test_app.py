@@ -53,6 +53,16 @@ def _uploader(at, label):
     return next(u for u in at.file_uploader if u.label.startswith(label))
 
 
+def _restore(at, content) -> None:
+    """Upload ``content`` (text or bytes) as a project file on the Data page and press
+    Restore project."""
+    data = content.encode() if isinstance(content, str) else content
+    at.file_uploader(key="up_project").set_value(("p.json", data, "application/json"))
+    at.run()
+    at.button(key="restore_project").click()
+    at.run()
+
+
 def _sidebar_text(at) -> str:
     return " ".join([m.value for m in at.sidebar.markdown] + [c.value for c in at.sidebar.caption])
 
@@ -455,10 +465,7 @@ def test_downloads_present_and_project_roundtrip():
                  {"spec": "kinematic21,plate_sag", "change": "plate_sag"}])
     at.switch_page("pages/data.py")
     at.run()
-    at.file_uploader(key="up_project").set_value(("p.json", text.encode(), "application/json"))
-    at.run()
-    at.button(key="restore_project").click()
-    at.run()
+    _restore(at, text)
     _ok(at)
     assert at.session_state["spec"] == "kinematic21,plate_sag"
     assert len(at.session_state["exclusions"]) == 2
@@ -490,11 +497,7 @@ def test_a_project_with_sigma_auto_restores_with_the_estimate():
     doc = json.loads(_thesis_project_text([]))
     doc["model"]["sigma_um"] = "auto"
     at = _new()
-    at.file_uploader(key="up_project").set_value(
-        ("p.json", json.dumps(doc).encode(), "application/json"))
-    at.run()
-    at.button(key="restore_project").click()
-    at.run()
+    _restore(at, json.dumps(doc))
     _ok(at)
     want = estimate_sigma(thesis_dataset(), "kinematic21", plate="fixed").value_um
     assert at.session_state["sigma_um"] == pytest.approx(want, abs=1e-4)
@@ -505,19 +508,11 @@ def test_project_exclusions_are_checked_and_unflagged_ones_shown():
     """Acceptance finding: an exclusion of a ball the data do not have restored silently,
     and one the detector does not flag could be neither seen nor undone."""
     at = _new()
-    at.file_uploader(key="up_project").set_value(
-        ("p.json", _thesis_project_text([("BP999", "1", 3)]).encode(), "application/json"))
-    at.run()
-    at.button(key="restore_project").click()
-    at.run()
+    _restore(at, _thesis_project_text([("BP999", "1", 3)]))
     assert not at.exception
     assert any("BP999 probe 1 ball 3" in e.value for e in at.error)
     assert any("thesis tables" in m.value for m in at.sidebar.markdown)  # nothing lost
-    at.file_uploader(key="up_project").set_value(
-        ("p.json", _thesis_project_text([("BP111", "1", 17)]).encode(), "application/json"))
-    at.run()
-    at.button(key="restore_project").click()
-    at.run()
+    _restore(at, _thesis_project_text([("BP111", "1", 17)]))
     _ok(at)
     assert any("BP111 probe 1 ball 17" in i.value for i in at.info)
     at.button(key="include_unflagged").click()
@@ -527,10 +522,7 @@ def test_project_exclusions_are_checked_and_unflagged_ones_shown():
 
 def test_bad_project_file_is_a_message():
     at = _new()
-    at.file_uploader(key="up_project").set_value(("p.json", b"{not json", "application/json"))
-    at.run()
-    at.button(key="restore_project").click()
-    at.run()
+    _restore(at, b"{not json")
     assert not at.exception
     assert any("not valid JSON" in e.value for e in at.error)
 
@@ -959,10 +951,7 @@ def test_a_laser_upload_shows_its_residuals_and_the_uncertainty_gain(inst_app):
     at.button(key="rm_instrument_0").click()
     at.run()
     assert not at.session_state["instruments"]
-    at.file_uploader(key="up_project").set_value(("p.json", text.encode(), "application/json"))
-    at.run()
-    at.button(key="restore_project").click()
-    at.run()
+    _restore(at, text)
     _ok(at)
     assert [i[1] for i in at.session_state["instruments"]] == ["laser_x.csv"]
 
@@ -1079,11 +1068,7 @@ def test_a_restored_record_is_fitted_as_the_report_fits_it():
     at = _new()
     at.switch_page("pages/data.py")
     at.run()
-    at.file_uploader(key="up_project").set_value(
-        ("r.json", A.record_to_project_json(rec).encode(), "application/json"))
-    at.run()
-    at.button(key="restore_project").click()
-    at.run()
+    _restore(at, A.record_to_project_json(rec))
     _ok(at)
     assert at.session_state["sigma_um"] == res.sigma["value_um"]
     assert {tuple(e) for e in at.session_state["exclusions"]} == set(res.exclusions)
