@@ -10,24 +10,36 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import stats
 
 sys.path.insert(0, str(Path(__file__).parent))
-from scenarios import layout_config, simulated  # noqa: E402
+from scenarios import layout_config, placement_scale, simulated  # noqa: E402
 
+from cmm_core.diagnosis import diagnose  # noqa: E402
 from cmm_core.io import Certificate, DataError, Dataset  # noqa: E402
 from cmm_core.model import fit  # noqa: E402
 from cmm_core.plan import (  # noqa: E402
+    BASELINE,
+    PLACEMENT_SCALE,
     append_measurement,
+    dask_client,
     fit_rivals,
+    instrument_candidates,
+    instrument_of,
     measurement_candidates,
     plate_grid,
     propose,
+    propose_many,
     read_plan,
     restrict,
+    rival_pairs,
     rivals_of,
+    simulate_outcomes,
     truth_config,
+    wide_candidates,
 )
 from cmm_core.plan import plan_file as to_plan  # noqa: E402
+from cmm_core.plan import proposals as P  # noqa: E402
 
 # squareness hidden from a baseline without it, on the 80 mm plate: a high-order
 # rotation of the X carriage about Z (rxz:4) is its alias there (bench/proposals.py)
@@ -120,9 +132,6 @@ def test_one_click_separates_the_rivals_on_simulated_alias_data():
     top proposal, simulated with each rival as the truth (its fit on these data) and
     appended, makes the diagnosis name that rival, the other no longer its alias
     (bench/proposals.py measures the rate over seeds)."""
-    from cmm_core.diagnosis import diagnose
-    from cmm_core.plan import simulate_outcomes
-
     data = simulated("pitch80_3pos", 3, noise_um=0.5,
                      kinematic={"spec": "kinematic21,rxz:4",
                                 "coefficients": {"rxz[4]": 3.0}}).dataset
@@ -143,8 +152,6 @@ def test_a_large_candidate_set_on_dask_ranks_as_the_serial_loop(clean80):
     """``propose_many`` (chunks on a Dask client; threads here to keep the test light)
     gives the serial ranking, and its numbers to rounding (each chunk's design holds other
     candidates' columns, so the sums run in another order: 1e-12 relative)."""
-    from cmm_core.plan import dask_client, propose_many, wide_candidates
-
     cands = wide_candidates(clean80, fractions=(0.5,))[:20]
     assert len({c.name for c in cands}) == len(cands)
     serial = propose(clean80, ("sxy", "rxz:4"), baseline=BASE, cands=cands)
@@ -162,8 +169,6 @@ def test_the_top_proposal_measured_on_the_true_machine_names_the_truth(layout, s
     """The data of two seeds of bench/proposals.py's cases (50 each there): rxz:4 hidden, the
     diagnosis does not name it; the top proposal, simulated from the true machine (every
     kinematic coefficient, noise 0.5 µm) and appended, makes it name rxz:4."""
-    from cmm_core.diagnosis import diagnose
-
     sim = simulated(layout, seed, noise_um=0.5,
                     kinematic={"spec": "kinematic21,rxz:4", "coefficients": {"rxz[4]": 3.0}})
     assert diagnose(sim.dataset, BASE).verdict != "rxz:4"
@@ -181,9 +186,6 @@ def test_instrument_candidates_predict_the_misfit_of_a_joint_fit(clean80):
     simulated on the true machine without noise (the simulator's noise removed by
     subtracting the same seed's run on an error-free machine): equal to the linearisation's
     accuracy (2 %)."""
-    from cmm_core.plan import instrument_candidates, instrument_of
-    from cmm_core.plan.proposals import _error_free
-
     sim = simulated("pitch80_3pos", 4, noise_um=0.0, plate={"certificate_u_um": 0.0},
                     **SQUARENESS)
     tools = {c.name: c for c in instrument_candidates(clean80)}
@@ -192,7 +194,7 @@ def test_instrument_candidates_predict_the_misfit_of_a_joint_fit(clean80):
     assert tools["laser_x"].time_min == pytest.approx(21 * 0.5 + 10)  # plan time model
     pr = propose(clean80, ("sxy", "rxz:4"), baseline=BASE, cands=list(tools.values()))
     rf = fit_rivals(clean80, ("sxy", "rxz:4"), baseline=BASE)
-    zero = _error_free(clean80)
+    zero = P._error_free(clean80)
     checked = 0
     for p in pr.ranked:
         if p.delta_chi2_fitted["sxy"] < 10:  # below that the comparison is of near-zero numbers
@@ -217,8 +219,6 @@ def test_rival_pairs_lists_every_open_pair_once():
     """By hand: the first candidate with each alias, its runner-up of another function,
     the aliases of the next significant candidates, then the placement-scale pair; a pair
     once whichever its order."""
-    from cmm_core.plan import BASELINE, PLACEMENT_SCALE, rival_pairs
-
     cands = [{"effect": "sxy", "aliases": ["rxz:4"], "significant": True,
               "stands_in_for_scale": False},
              {"effect": "rxz:4", "aliases": ["sxy"], "significant": True},
@@ -257,10 +257,6 @@ def test_a_placement_scale_is_a_rival_fitted_up_to_the_baselines_common_scale():
     differences between placements are the injected ones (their common part is the
     baseline's own Z scale, dzz[1]), to the linearisation's accuracy (1e-3 ppm of tens of
     ppm; 0.05 ppm allowed)."""
-    from scenarios import placement_scale
-
-    from cmm_core.plan import PLACEMENT_SCALE, simulate_outcomes
-
     sim = simulated("pitch150_5pos", 5, noise_um=0.0, plate={"certificate_u_um": 0.0})
     rng = np.random.default_rng(3)
     data = placement_scale(sim.dataset, np.random.default_rng(3), 20.0, axis=2)
@@ -294,8 +290,6 @@ def test_against_the_baseline_a_proposal_is_scored_by_the_rank_it_adds(clean80):
     """A probe offset against the model as it is (the rival of an effect the data cannot
     determine in full): by hand, the 80 mm layout's four styli have 12 offsets, 9
     determined (the fit's gauge takes one stylus's three); a new stylus adds its three."""
-    from cmm_core.plan import BASELINE, simulate_outcomes
-
     cands = {c.name: c for c in measurement_candidates(clean80)}
     pr = propose(clean80, ("probe_offset", BASELINE), baseline=BASE,
                  cands=[cands["stylus_x"], cands["shift_x"]])
@@ -307,3 +301,73 @@ def test_against_the_baseline_a_proposal_is_scored_by_the_rank_it_adds(clean80):
     assert top.power_min == top.power["probe_offset"]  # the baseline's own does not count
     with pytest.raises(ValueError, match="nothing to simulate"):
         simulate_outcomes(clean80, top, baseline=BASE)
+
+
+def test_a_plate_prior_scores_candidates_as_a_fixed_plate_does_at_most():
+    """``plate="prior"`` (review 2, #1: the prior's rows after the observations' broke the
+    candidates' row selection). Noise-free data, so both fits hold the true sizes: B with
+    the plate's columns free under the prior can absorb more of A's pattern than with the
+    plate fixed, never less (min over more columns, the prior's rows zero for A's
+    pattern), so λ with the prior is at most λ fixed; the certificate's u (the scenario's
+    default) is small against these pitch-wide patterns, so within 10 % of it (3 %
+    measured)."""
+    data = simulated("pitch80_3pos", 4, noise_um=0.0, **SQUARENESS).dataset
+    by = {c.name: c for c in measurement_candidates(data)}
+    cands = [by["shift_x"], by["xz"]]
+    fixed = propose(data, ("sxy", "rxz:4"), baseline=BASE, plate="fixed", cands=cands)
+    prior = propose(data, ("sxy", "rxz:4"), baseline=BASE, plate="prior", cands=cands)
+    assert sorted(p.candidate.name for p in prior.ranked) == ["shift_x", "xz"]
+    lam = {p.candidate.name: p.delta_chi2_fitted for p in fixed.ranked}
+    for p in prior.ranked:
+        for t in ("sxy", "rxz:4"):
+            assert 0.9 * lam[p.candidate.name][t] <= p.delta_chi2_fitted[t] \
+                <= lam[p.candidate.name][t] * (1 + 1e-9), (p.candidate.name, t)
+
+
+def test_a_rival_the_baseline_already_holds_is_refused(clean80):
+    """sxy is in kinematic21: "sxy against rxz:4" there would read as a measured 0 %
+    power (review 2, #6); refused in one line that names the fix."""
+    with pytest.raises(ValueError, match=r"sxy is already in the baseline kinematic21; "
+                                         r"give a baseline without it \(e\.g\. "
+                                         r"'kinematic21,-sxy'\)") as err:
+        propose(clean80, ("sxy", "rxz:4"), cands=[])
+    assert "\n" not in str(err.value)
+
+
+def test_power_at_no_separation_is_the_level():
+    """λ = 0: the test rejects at its level (scipy's ncf gives -0.999 there)."""
+    for k, nu, level in ((1, 10, 0.05), (3, 500, 1e-3), (12, 10**6, 1.7e-4)):
+        assert P._power(0.0, k, nu, level) == level
+
+
+def test_power_of_one_parameter_is_the_two_sided_t_tests():
+    """k = 1: F(1, ν, λ) is the square of a t with ν dof and non-centrality √λ, so the
+    power is P(|t| > t_crit) from scipy's nct (an independent route; both are computed to
+    ~1e-12, 1e-6 allowed)."""
+    for nu, lam, level in ((10, 4.0, 0.05), (200, 25.0, 1e-3), (3000, 9.0, 1e-4)):
+        tc = np.sqrt(stats.f.isf(level, 1, nu))
+        d = np.sqrt(lam)
+        ref = stats.nct.sf(tc, nu, d) + stats.nct.cdf(-tc, nu, d)
+        assert P._power(lam, 1, nu, level) == pytest.approx(ref, rel=1e-6)
+
+
+def test_power_increases_with_the_separation():
+    """Monotone in λ from the level at 0 to 1 (k = 3, ν = 500, level 1e-3)."""
+    lam = np.linspace(0.0, 200.0, 81)
+    p = np.array([P._power(x, 3, 500, 1e-3) for x in lam])
+    assert np.all(np.diff(p) >= 0.0) and np.all(np.diff(p[:40]) > 0.0)
+    assert p[0] == 1e-3 and p[-1] > 0.999
+
+
+def test_power_at_large_dof_is_the_chi2_limit(monkeypatch):
+    """ν → ∞: F(k, ν, λ)·k → χ²(k, λ). At ν = 1e7 the F power equals the χ² limit
+    ``ncx2.sf(k·F⁻¹(1 − level; k, ν), k, λ)`` to O(1/ν) (1e-4 relative allowed); and
+    when scipy's ncf returns something that is no probability (NaN), the fallback is that
+    limit exactly."""
+    k, nu, level = 3, 10**7, 1e-4
+    for lam in (1.0, 10.0, 40.0):
+        ref = stats.ncx2.sf(k * stats.f.isf(level, k, nu), k, lam)
+        assert P._power(lam, k, nu, level) == pytest.approx(ref, rel=1e-4)
+    monkeypatch.setattr(P.stats.ncf, "sf", lambda *a: float("nan"))
+    ref = stats.ncx2.sf(k * stats.f.isf(level, k, nu), k, 10.0)
+    assert P._power(10.0, k, nu, level) == pytest.approx(ref, rel=1e-12)

@@ -761,13 +761,25 @@ def fit_rivals(data: Dataset, rivals: Sequence[str], *, baseline: str = "kinemat
                plate: str | None = None, sigma_um: float = 0.5,
                alpha: float = FAMILY_ALPHA) -> RivalFits:
     """Fit the baseline with each rival added to the current data (their fitted sizes),
-    and the level the diagnosis tests each at (``detect.candidate_tokens``)."""
+    and the level the diagnosis tests each at (``detect.candidate_tokens``).
+
+    Raises
+    ------
+    ValueError
+        When a rival is a pseudo-rival given first, or a rival token the baseline already
+        holds (adding it changes nothing: there would be nothing to tell apart).
+    """
     if rivals[0] in PSEUDO:
         raise ValueError(f"give {rivals[0]} as the second rival (after the effect it is "
                          "told apart from).")
     base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um, max_iter=2000)
     spec0 = base.problem.spec
     specs = {r: spec0 if r in PSEUDO else spec0.with_token(r) for r in rivals}
+    for r in rivals:
+        if r not in PSEUDO and specs[r] == spec0:
+            b0 = spec0.to_string()
+            raise ValueError(f"{r} is already in the baseline {b0}; give a baseline without "
+                             f"it (e.g. '{b0},-{r.partition(':')[0]}').")
     fits = {r: _scale_fit(base) if r == PLACEMENT_SCALE else base if r == BASELINE else
             fit(data, specs[r], plate=base.plate, sigma_um=sigma_um, max_iter=2000,
                 certificate_test=False) for r in rivals}
@@ -984,8 +996,10 @@ def _instrument_design(obs, now: _Design, rf: RivalFits, inst) -> _Design:
 
 def _rows(des: _Design, keep: np.ndarray) -> _Design:
     """The design of some observations only (``keep``: one flag per observation; three
-    weighted rows each), without the columns that are empty there."""
-    J = des.J[:des.J.shape[0] // 3 * 3][np.repeat(keep, 3)]
+    weighted rows each, first), without the columns that are empty there. Rows after the
+    observations' (a plate prior's, three per certificate ball) are left out: the current
+    data's design holds them once."""
+    J = des.J[:3 * len(keep)][np.repeat(keep, 3)]
     used = np.abs(J).sum(axis=0) > 0
     return _Design(J[:, used], [lab for lab, u in zip(des.labels, used, strict=True) if u],
                    des.has)
