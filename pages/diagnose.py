@@ -1,5 +1,6 @@
 """Compare and diagnose: where the model fails, which effect is missing, add it, watch."""
 
+import json
 from contextlib import nullcontext
 
 import numpy as np
@@ -59,26 +60,22 @@ def cached_outcomes(key: cached.FitKey, rivals: tuple, name: str, seed: int, _ds
 @st.cache_data(show_spinner=False, max_entries=16)
 def cached_plan_text(key: cached.FitKey, rivals: tuple, name: str, _ds, _proposal) -> str:
     """The proposal as a ``plan`` JSON document (``plan.plan_file``)."""
-    import json
-
     from cmm_core.plan import plan_file
 
     return json.dumps(plan_file(_selected(key, _ds), _proposal, baseline=key.spec,
                                 order=key.order, noise_um=key.sigma_um), indent=1)
 
 
-def _pairs(cands: list) -> list:
-    """The rivals the diagnosis leaves open (``plan.rival_pairs``) from the page's rows
-    (their aliases joined into one string)."""
-    from cmm_core.plan import rival_pairs
+def _pairs(cands: list, holdout: list | None) -> list:
+    """The rivals the diagnosis leaves open, by the core's one rule (``plan.open_pairs``,
+    as the ``next`` command's default): the page's rows (``Candidate.to_dict`` with the
+    aliases joined into one string) and the diagnosis's leave-one-placement-out checks
+    (``Diagnosis.to_dict``'s ``holdout``; none: no placement-scale pair)."""
+    from cmm_core.plan import open_pairs
 
-    return rival_pairs([{"effect": c["effect"], "significant": c["significant"],
-                         "aliases": [a for a in str(c["aliases"] or "").split(", ") if a],
-                         # the leave-one-placement-out check's reason says so
-                         "stands_in_for_scale": "placement's own scale" in str(
-                             c.get("holdout") or ""),
-                         "would_leave_undetermined": c.get("would_leave_undetermined")}
-                        for c in cands])
+    return open_pairs({"candidates": [
+        {**c, "aliases": [a for a in str(c["aliases"] or "").split(", ") if a]}
+        for c in cands], "holdout": list(holdout or [])})
 
 
 def _outcome_words(truth: str, other: str, o: dict) -> str:
@@ -90,13 +87,14 @@ def _outcome_words(truth: str, other: str, o: dict) -> str:
     return f"with **{truth}** as the truth the diagnosis {named}{still}: **not separated**"
 
 
-def measure_next(ds, fkey: cached.FitKey, cands: list) -> None:
+def measure_next(ds, fkey: cached.FitKey, cands: list, holdout: list | None = None) -> None:
     """The proposals beside the rivals of the current verdict: the top ones in words,
-    each with "Simulate it" and "Use as the plan"; the others in a table."""
+    each with "Simulate it" and "Use as the plan"; the others in a table. ``holdout``:
+    the diagnosis's leave-one-placement-out checks (``Diagnosis.to_dict``)."""
     from cmm_core.plan import PSEUDO
 
     s = st.session_state
-    pairs = _pairs(cands)
+    pairs = _pairs(cands, holdout)
     if not pairs:
         st.info("The diagnosis leaves no pair of rival effects open (no alias, no "
                 "significant runner-up of another function): nothing to decide.")
@@ -410,7 +408,7 @@ if s["diag_on"]:
                          key="w_diag_next", on_change="rerun") as nxt, \
                 calls.guarded("Measure next"):
             if nxt.open:
-                measure_next(ds, fkey, cands)
+                measure_next(ds, fkey, cands, info.get("holdout"))
 
 st.subheader("History")
 st.checkbox("Also compute the GP discrepancy amplitude of each step (a GP over the "

@@ -4,6 +4,7 @@ Reference values: the plate's grid and the time model (docs/planning.md) by hand
 predicted Δχ² against a full non-linear fit of noise-free simulated data (the linear-model
 identity λ = min χ² of the other rival, Scheffé 1959 §2.8)."""
 
+import json
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -15,7 +16,13 @@ from scipy import stats
 sys.path.insert(0, str(Path(__file__).parent))
 from scenarios import layout_config, placement_scale, simulated  # noqa: E402
 
-from cmm_core.diagnosis import diagnose  # noqa: E402
+from cmm_core.diagnosis import (  # noqa: E402
+    SCALE_ALPHA,
+    Candidate,
+    Diagnosis,
+    HoldoutCheck,
+    diagnose,
+)
 from cmm_core.io import Certificate, DataError, Dataset  # noqa: E402
 from cmm_core.model import fit  # noqa: E402
 from cmm_core.plan import (  # noqa: E402
@@ -27,6 +34,7 @@ from cmm_core.plan import (  # noqa: E402
     instrument_candidates,
     instrument_of,
     measurement_candidates,
+    open_pairs,
     plate_grid,
     propose,
     propose_many,
@@ -371,3 +379,64 @@ def test_power_at_large_dof_is_the_chi2_limit(monkeypatch):
     monkeypatch.setattr(P.stats.ncf, "sf", lambda *a: float("nan"))
     ref = stats.ncx2.sf(k * stats.f.isf(level, k, nu), k, 10.0)
     assert P._power(10.0, k, nu, level) == pytest.approx(ref, rel=1e-12)
+
+
+def _cand(effect, aliases=(), significant=True, level=1e-3, undetermined=()):
+    """A ranked candidate as the diagnosis gives it (only what the pairs read matters)."""
+    return Candidate(effect, effect, "", "", "", 1.0, 1.0, 10.0, 1, -5.0, 1e-4, significant,
+                     True, np.zeros((0, 3)), list(aliases), level=level,
+                     would_leave_undetermined=list(undetermined))
+
+
+def _held(effect, passed, scale_p, effect_given_scale_p):
+    return HoldoutCheck(effect, True, passed, 10.0, 2.0, {}, "", scale_p=scale_p,
+                        effect_given_scale_p=effect_given_scale_p)
+
+
+def test_open_pairs_judge_the_placement_scale_as_the_diagnosis_does():
+    """By hand (review 2, #7): an effect stands in for the placements' scales when the
+    scales are still needed with it (p < SCALE_ALPHA) and it adds nothing once they are in
+    (p ≥ its own level): crossval's rule, not "failed the check and p_s small". The
+    Diagnosis and its JSON document give the same pairs."""
+    cands = [_cand("dzz:4"), _cand("dyy:3"), _cand("rxz:3")]
+    small = SCALE_ALPHA / 10
+    holdout = [_held("dzz:4", False, small, 0.5),  # stands in: paired with the scales
+               _held("dyy:3", False, small, 1e-5),  # failed otherwise: still needed
+               _held("rxz:3", True, float("nan"), float("nan"))]  # test not run
+    d = Diagnosis(None, cands, None, {}, "", holdout=holdout)
+    pairs = [("dzz:4", "dyy:3"), ("dzz:4", PLACEMENT_SCALE)]
+    assert open_pairs(d) == pairs
+    doc = {"candidates": [{**c.to_dict()} for c in cands],
+           "holdout": [h.to_dict() for h in holdout]}
+    assert json.loads(json.dumps(doc)) and open_pairs(doc) == pairs
+    assert open_pairs({"candidates": doc["candidates"]}) == [("dzz:4", "dyy:3")]
+    # alone, the effect that failed the check for another reason has no rival
+    alone = Diagnosis(None, cands[1:2], None, {}, "", holdout=holdout[1:2])
+    assert open_pairs(alone) == []
+    with pytest.raises(ValueError, match="nothing to decide"):
+        rivals_of(alone)
+
+
+def test_the_default_rivals_of_an_effect_the_data_cannot_determine_are_the_baseline():
+    """An effect whose addition leaves combinations undetermined, with no alias nor
+    runner-up: ``next``'s default rivals are it and the baseline, as the app offers
+    (review 2, #7), not "nothing to decide"."""
+    d = Diagnosis(None, [_cand("rzy:4", significant=False,
+                               undetermined=["rzy[4] + probe4.x"])], None, {}, "")
+    assert open_pairs(d) == [("rzy:4", BASELINE)]
+    assert rivals_of(d) == ("rzy:4", BASELINE)
+
+
+def test_open_pairs_agree_with_the_diagnosis_s_own_holdout_verdict():
+    """Each placement's own Z scale (20 ppm spread, tests/scenarios.py placement_scale):
+    the effects the leave-one-placement-out check says stand in for the scales are those
+    open_pairs pairs with PLACEMENT_SCALE, no more (the two copies of crossval's rule
+    agree on a real diagnosis)."""
+    sim = simulated("pitch150_5pos", 5, noise_um=0.5)
+    d = diagnose(placement_scale(sim.dataset, np.random.default_rng(3), 20.0, axis=2),
+                 "kinematic21")
+    assert d.holdout
+    pairs = open_pairs(d, top=len(d.candidates))
+    for h in d.holdout:
+        assert ((h.effect, PLACEMENT_SCALE) in pairs) == h.reason.startswith(
+            "it stands in for each placement's own scale"), h.effect

@@ -70,6 +70,7 @@ from .proposals import (
     instrument_of,
     measurement_candidates,
     measurement_observations,
+    open_pairs,
     plan_file,
     plate_grid,
     propose,
@@ -124,5 +125,5 @@ __all__ = [
     "propose", "rivals_of", "simulate_outcomes", "truth_config", "CHUNK", "propose_many",
     "wide_candidates", "instrument_candidates", "instrument_of", "rival_pairs", "restrict",
     "PLACEMENT_SCALE", "ScaleFit", "scale_columns", "SCALE_RTOL", "BASELINE",
-    "PSEUDO",
+    "PSEUDO", "open_pairs",
 ]

@@ -547,24 +547,80 @@ def rival_pairs(candidates: Sequence[Mapping[str, Any]], *, top: int = 3
     return out
 
 
+def _stands_in(scale_p: float, effect_given_scale_p: float, level: float) -> bool:
+    """``diagnosis.crossval.check``'s rule: the placements' own scales are still needed
+    with the effect in (``scale_p < SCALE_ALPHA``) while the effect adds nothing once they
+    are in (``effect_given_scale_p ≥ level``, the effect's own level in the diagnosis).
+    False when the test was not run (NaN)."""
+    return bool(scale_p < SCALE_ALPHA and effect_given_scale_p >= level)
+
+
+def _p(x: Any) -> float:
+    """A p-value of a JSON document (``None`` for not run) as a float (NaN)."""
+    return float("nan") if x is None else float(x)
+
+
+def open_pairs(diagnosis: Diagnosis | Mapping[str, Any], *, top: int = 3
+               ) -> list[tuple[str, str]]:
+    """Every pair of rivals a diagnosis leaves open (:func:`rival_pairs`), read from the
+    diagnosis itself: each candidate's aliases and significance, whether it stands in
+    for each placement's own scale (the leave-one-placement-out check's placement-scale
+    test judged as ``diagnosis.crossval.check`` judges it, at the candidate's own level;
+    not merely a failed check), and the combinations its addition would leave
+    undetermined (then it and :data:`BASELINE` are a pair). The one rule of the ``next``
+    command's default rivals (:func:`rivals_of`) and the app's "Measure next".
+
+    Parameters
+    ----------
+    diagnosis : Diagnosis or mapping
+        A :class:`~cmm_core.diagnosis.Diagnosis`, or its JSON document
+        (``Diagnosis.to_dict``, the ``diagnose`` command's output): ``candidates`` as
+        ``Candidate.to_dict`` gives them (aliases as a list), ``holdout`` as
+        ``HoldoutCheck.to_dict`` (absent: no placement-scale pair).
+    top : int
+        How many of the first candidates count (:func:`rival_pairs`).
+    """
+    if isinstance(diagnosis, Diagnosis):
+        cands = [{"effect": c.effect, "aliases": list(c.aliases),
+                  "significant": bool(c.significant), "level": float(c.level),
+                  "would_leave_undetermined": list(c.would_leave_undetermined)}
+                 for c in diagnosis.candidates]
+        scale = {h.effect: (h.scale_p, h.effect_given_scale_p) for h in diagnosis.holdout}
+    else:
+        cands = [dict(c) for c in diagnosis.get("candidates") or []]
+        scale = {h["effect"]: (_p(h["placement_scale"]["scale_given_effect_p"]),
+                               _p(h["placement_scale"]["effect_given_scale_p"]))
+                 for h in diagnosis.get("holdout") or [] if h.get("placement_scale")}
+    return rival_pairs([{"effect": c["effect"], "aliases": list(c["aliases"]),
+                         "significant": bool(c["significant"]),
+                         "stands_in_for_scale": c["effect"] in scale and _stands_in(
+                             *scale[c["effect"]], float(c["level"])),
+                         "would_leave_undetermined": list(
+                             c.get("would_leave_undetermined") or [])}
+                        for c in cands], top=top)
+
+
 def rivals_of(diagnosis: Diagnosis) -> tuple[str, str]:
-    """The pair the diagnosis leaves open: its first candidate and its first alias, or
-    else the next significant candidate of another function (a runner-up), or else
-    :data:`PLACEMENT_SCALE` when the candidate failed the placement-scale test; the
-    first of :func:`rival_pairs`."""
+    """The pair the diagnosis leaves open: the first of :func:`open_pairs` for its first
+    candidate (``top=1``): its first alias, or else the next significant candidate of
+    another function (a runner-up), or else :data:`PLACEMENT_SCALE` when it stands in
+    for each placement's own scale, or else :data:`BASELINE` when its addition would
+    leave combinations undetermined.
+
+    Raises
+    ------
+    ValueError
+        When the diagnosis ranked no candidate or leaves no pair open.
+    """
     cands = diagnosis.candidates
     if not cands:
         raise ValueError("the diagnosis ranked no candidate: there is nothing to decide.")
-    scale = {h.effect for h in diagnosis.holdout
-             if not h.passed and h.scale_p < SCALE_ALPHA}  # stands in for the scales
-    pairs = rival_pairs([{"effect": c.effect, "aliases": list(c.aliases),
-                          "significant": bool(c.significant),
-                          "stands_in_for_scale": c.effect in scale} for c in cands[:1]]
-                        + [{"effect": c.effect, "aliases": [],
-                            "significant": bool(c.significant)} for c in cands[1:]], top=1)
+    pairs = open_pairs(diagnosis, top=1)
     if not pairs:
-        raise ValueError(f"the diagnosis names {cands[0].effect} with no alias and no "
-                         "significant runner-up: there is nothing to decide; give the rivals.")
+        raise ValueError(f"the diagnosis names {cands[0].effect} with no alias, no "
+                         "significant runner-up, no stand-in for the placements' scales "
+                         "and nothing left undetermined: there is nothing to decide; give "
+                         "the rivals.")
     return pairs[0]
 
 
