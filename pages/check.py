@@ -44,7 +44,7 @@ def run_check(model_name, model_text, meas, setup, cert, alpha, family_alpha, mp
     out = mon.run_check(model, data, instruments=inst, alpha=alpha,
                         family_alpha=family_alpha, mpe=mpe)
     return out.to_dict(), out.check.table, out.changes.table, ex.results_json(
-        model, source=model_name, interim_check=out.results_section())
+        model, source=model_name, interim_check=out.results_section()), out.check.readings
 
 
 @st.cache_data(show_spinner=False, max_entries=8)
@@ -117,7 +117,7 @@ with t_check:
         out = calls.safe(run_check, files[0][0], files[0][1], files[1], files[2], files[3],
                          float(alpha), float(family), mpe, files[4], what="Interim check")
         if out is not None:
-            res, table, chg_table, results = out
+            res, table, chg_table, results, readings = out
             chk, chg, eff, conf = (res["check"], res["changes"], res["new_effects"],
                                    res["conformity"])
             m1, m2, m3 = st.columns(3)
@@ -132,8 +132,7 @@ with t_check:
             st.caption(chk["message"])
             if len(table):
                 with calls.guarded("E_n map"):
-                    t = table.assign(En=table[["En_x", "En_y", "En_z"]].abs().max(axis=1))
-                    fig = px.scatter(t, x="x_mm", y="y_mm", color="En", symbol="position",
+                    fig = px.scatter(table, x="x_mm", y="y_mm", color="En", symbol="position",
                                      hover_data=["probe", "ball", "En_x", "En_y", "En_z"],
                                      color_continuous_scale="Reds", range_color=(0, 4),
                                      labels={"x_mm": "x (mm)", "y_mm": "y (mm)",
@@ -144,6 +143,8 @@ with t_check:
             if chk.get("instruments"):
                 frame.dataframe(pd.DataFrame(chk["instruments"]), hide_index=True,
                                 key="chk_instruments")
+                with st.expander("E_n of each instrument reading (file row)"):
+                    frame.dataframe(readings, hide_index=True, key="chk_readings")
             if eff is not None:
                 st.subheader("New effect")
                 st.write(eff["message"])
@@ -157,7 +158,8 @@ with t_check:
             st.subheader("What changed")
             st.write(chg["message"])
             shown = chg_table[chg_table["tested"]].copy()
-            frame.dataframe(shown[["label", "unit", "change", "u_change", "En", "significant",
+            frame.dataframe(shown[["label", "unit", "change", "u_updated", "u_null", "En",
+                                   "significant",
                                    "change_alone", "u_change_alone", "En_alone",
                                    "significant_alone", "resolved"]],
                             hide_index=True, key="chk_changes")

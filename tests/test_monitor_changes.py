@@ -4,12 +4,26 @@ what one placement cannot see."""
 
 from __future__ import annotations
 
+import functools
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy import stats
 from test_monitor import LAYOUTS, calibrated
 
-from cmm_core.monitor import interim_check, remeasured, what_changed
+from cmm_core.export import load_model
+from cmm_core.io import load_dataset
+from cmm_core.model import read_instrument
+from cmm_core.monitor import (
+    CHANGE_RULE,
+    MIN_RESOLVED,
+    holm,
+    interim_check,
+    remeasured,
+    run_check,
+    what_changed,
+)
 
 
 @pytest.mark.slow
@@ -83,3 +97,63 @@ def test_new_drift_fails_the_check():
         data = remeasured(cal, 60 + s, effects={"drift": {"sd_um_per_h": 4.0}}).dataset
         fails += not interim_check(model, data).passes
     assert fails >= 4, fails
+
+
+H = Path(__file__).resolve().parents[1] / "sample_data"
+
+
+@functools.cache
+def _stored():
+    return load_model(H / "history" / "calibration_2024-03-04.json")
+
+
+def test_alone_tested_only_where_the_data_resolve_the_parameter():
+    # review 2 #3: six ball-bar lengths against the sample calibration. Before, every
+    # parameter with any sensitivity was tested alone: ryz[2] (h V = 0.7 %) came out
+    # "significant" at +5.0e5 ± 9.9e4 µrad and Holm's m was 33. Now a parameter is tested
+    # alone only when h V_jj >= MIN_RESOLVED, the others carry NaN (measured: 28 of 33
+    # tested, 15 significant)
+    m = _stored()
+    bb = read_instrument(H / "instruments" / "ball_bar.csv", "ball_bar")
+    ch = what_changed(m, interim_check(m, None, instruments=[bb]))
+    t = ch.table.set_index("label")
+    assert t.loc["ryz[2]", "resolved_alone"] < MIN_RESOLVED
+    assert not t.loc["ryz[2]", "tested_alone"] and not t.loc["ryz[2]", "significant_alone"]
+    assert np.isnan(t.loc["ryz[2]", ["change_alone", "u_change_alone", "En_alone"]]
+                    .astype(float)).all()
+    assert ch.n_tested_alone == int(t["tested_alone"].sum()) < len(t)
+    assert (t["resolved_alone"] >= MIN_RESOLVED).eq(t["tested_alone"]).all()
+    assert not (t["significant_alone"] & ~t["tested_alone"]).any()
+    assert "ryz[2]" not in ch.significant_alone
+    # a tested change alone is no absurd size: within 10 prior u of the stored value
+    sig = t[t["significant_alone"]]
+    u_prior = np.sqrt(np.diag(m.cov))[[m.terms.labels.index(lab) for lab in sig.index]]
+    assert (np.abs(sig["change_alone"]) < 10 * u_prior).all()
+
+
+def test_change_carries_its_posterior_sd_not_its_null_sd():
+    # review 2 #4, the one-placement sample check: the null sd of s (u_null, the E_n
+    # denominator) is smaller than the change's posterior sd (measured sxy 1.76 against
+    # 2.23, sxz 1.80 against 3.86 µrad); the message and the results document give the
+    # posterior sd as the standard uncertainty, and u_null beside it
+    m = _stored()
+    f = H / "history" / "check_2024-06-17"
+    ds = load_dataset([f / "measurements.csv"], f / "setup.json", f / "certificate.csv")
+    out = run_check(m, ds)
+    t = out.changes.table.set_index("label")
+    post = np.sqrt(np.diag(out.changes.posterior_cov))
+    assert np.allclose(t["u_updated"], post, rtol=1e-12)
+    assert t.loc["sxy", "u_updated"] > 1.2 * t.loc["sxy", "u_null"]
+    assert t.loc["sxz", "u_updated"] > 2 * t.loc["sxz", "u_null"]
+    doc = {p["name"]: p for p in out.results_section()["changes"]["parameters"]}
+    assert doc["sxy"]["standard_uncertainty"] == t.loc["sxy", "u_updated"]
+    assert doc["sxy"]["u_null"] == t.loc["sxy", "u_null"]
+    assert f"{100 * MIN_RESOLVED:g} %" in CHANGE_RULE and "posterior" in CHANGE_RULE
+
+
+def test_holm_never_rejects_a_nan_p_value():
+    # review 2 #9: NaN compared False with alpha/(m - i), so NaN was rejected
+    assert holm(np.array([np.nan, 0.001]), 2, 0.05).tolist() == [False, True]
+    assert holm(np.array([0.001, np.inf, 0.02]), 3, 0.05).tolist() == [True, False, True]
+    # Holm's steps: 0.01 <= 0.05/3, 0.02 <= 0.05/2, 0.06 > 0.05/1
+    assert holm(np.array([0.06, 0.01, 0.02]), 3, 0.05).tolist() == [False, True, True]

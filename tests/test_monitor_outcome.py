@@ -9,6 +9,7 @@ again by ``monitor.remeasured`` (new noise, new plate and certificate draws).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
@@ -20,6 +21,7 @@ from cmm_core.export import model_from_result
 from cmm_core.io import DataError
 from cmm_core.model import fit, simulate_ball_bar, simulate_laser, simulate_step_gauge
 from cmm_core.monitor import (
+    MAX_OBSERVATIONS,
     MIN_RESOLVED,
     VERDICTS,
     interim_check,
@@ -185,10 +187,6 @@ def test_the_same_readings_twice_and_too_many_rows_are_refused_in_one_line():
     """As in a fit (model.refuse_repeated): one ball-bar file given twice, or a copy under
     another name, would count its readings double; and a check whose dense covariance
     would exceed (3 · MAX_OBSERVATIONS)² numbers is refused before it is built."""
-    import dataclasses
-
-    from cmm_core.monitor import MAX_OBSERVATIONS
-
     cal, model = calibrated("pitch100_4pos", 3)
     sim = remeasured(cal, 4_014)
     bar = _bars(sim, 4_015)
@@ -204,3 +202,37 @@ def test_the_same_readings_twice_and_too_many_rows_are_refused_in_one_line():
     with pytest.raises(DataError, match=r"long.csv.*at most 4500") as e:
         interim_check(model, None, instruments=[long_run])
     assert "\n" not in str(e.value)
+
+
+def test_an_instruments_En_is_per_reading_named_by_its_file_row():
+    # review 2 #2: the check's rows of a laser run are rotated combinations of the
+    # readings (19 readings, one run: 18 rows); E_n is given per reading, mapped back
+    # by the run's Q, and the message names the reading by its file row
+    cal, model = calibrated("pitch100_4pos", 3)
+    rng = np.asarray(model.terms.range_mm, float)
+    sim = remeasured(cal, 4_016)
+    laser = simulate_laser(sim, "x", [0, rng[1] / 2, rng[2] / 2],
+                           np.linspace(50, rng[0] - 50, 19), u_um=0.2, seed=4_017)
+    c = interim_check(model, None, instruments=[laser])
+    r = c.readings
+    assert c.dof == 18 and len(r) == 19 and list(r["row"]) == list(laser.rows)
+    assert c.instruments.iloc[0][["readings", "rows"]].tolist() == [19, 18]
+    worst = int(np.abs(r["En"]).argmax())
+    assert f"file row {laser.rows[worst]} of laser" in c.message
+    assert c.coverage_95 == np.mean(np.abs(r["En"]) <= 1.96)
+    # reference: with the stored model taken as exact (V = 0) each reading's residual is
+    # the prediction minus the reading less the run's weighted mean (equal u: the mean),
+    # and its sd u·sqrt(1 - 1/19) (the offset's leverage)
+    exact = dataclasses.replace(model, cov=np.zeros_like(model.cov))
+    r0 = interim_check(exact, None, instruments=[laser]).readings
+    d = laser.predict(model.terms, model.coef, False)[0]
+    assert np.allclose(r0["residual_um"], d - d.mean(), rtol=0, atol=1e-9)
+    assert np.allclose(r0["u_residual_um"], 0.2 * np.sqrt(1 - 1 / 19), rtol=1e-9)
+    # the stored model's uncertainty widens every reading's interval
+    assert (r["u_residual_um"] > r0["u_residual_um"]).all()
+    # a ball bar has no nuisance: its E_n per reading is its row's, named by file row
+    bar = _bars(sim, 4_018)
+    b = interim_check(model, None, instruments=[bar])
+    g = b.gls
+    assert np.allclose(b.readings["En"], g.residual_um / np.sqrt(g.residual_cov_diag))
+    assert "file row " + str(bar.rows[int(np.abs(b.readings["En"]).argmax())]) in b.message

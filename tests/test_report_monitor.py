@@ -23,9 +23,9 @@ from cmm_core.analysis import (
     run,
     write_report,
 )
-from cmm_core.export import results_json
+from cmm_core.export import load_model, results_json
 from cmm_core.io import DataError
-from cmm_core.monitor import CHANGE_RULE, HISTORY_RULE, TEST_RULE
+from cmm_core.monitor import CHANGE_RULE, HISTORY_RULE, TEST_RULE, run_check
 
 H = Path(__file__).resolve().parents[1] / "sample_data" / "history"
 RECORD = H / "analysis_after_crash.json"
@@ -80,7 +80,8 @@ def test_report_has_the_interim_check_with_its_numbers():
     assert "names squareness XY (sxy" in sec
     row = res.interim.changes.table.set_index("label").loc["sxy"]
     assert row.significant_alone
-    assert f"sxy by {row.change:+.3g} ± {row.u_change:.2g}" in sec
+    # the change with its posterior sd (u_updated), not the null sd u_null (review 2 #4)
+    assert f"sxy by {row.change:+.3g} ± {row.u_updated:.2g}" in sec
     # the E_n map is a figure of the report, and the conformity statement with its rule
     assert "id='mon1'" in sec
     assert "<h3>Conformity</h3>" in sec and "ISO 14253-1" in sec
@@ -107,7 +108,8 @@ def test_results_document_has_both_sections():
     assert ic["test"]["dof"] == c.dof and ic["test"]["decision_rule"] == TEST_RULE
     sxy = next(p for p in ic["changes"]["parameters"] if p["name"] == "sxy")
     row = res.interim.changes.table.set_index("label").loc["sxy"]
-    assert sxy["change"] == row.change and sxy["standard_uncertainty"] == row.u_change
+    assert sxy["change"] == row.change and sxy["standard_uncertainty"] == row.u_updated
+    assert sxy["u_null"] == row.u_null
     assert ic["new_effects"]["named"][0]["effect"] == "sxy"
     assert ic["conformity"]["rule"].startswith("ISO 14253-1")
     assert hi["decision_rule"] == HISTORY_RULE and hi["dates"][-1] == "2025-03-03"
@@ -122,3 +124,24 @@ def test_write_report_prints_the_verdict(tmp_path):
     assert out["interim_check"]["new_effects"][0] == "sxy"
     assert any(s.startswith("sxy") for s in out["history"]["significant"])
     assert re.search(r"<h2>Interim check</h2>", (tmp_path / "r.html").read_text())
+
+
+def test_the_records_check_takes_its_styli_and_exclusions():
+    # review 2 #5: the record's interim check took its placements only; its styli and
+    # exclusions (the fit's data) were dropped, so an excluded outlier came back into the
+    # check's χ². Now the check tests the data the record's fit used: styli A, B, C (not
+    # D, E: 150 of the 200 ball centres) and without H0/A ball 7, and its χ² is
+    # run_check's with the same selection
+    doc = {k: v for k, v in json.loads(RECORD.read_text()).items()
+           if k != "calibration_history"}
+    rec = record_from_dict({**doc, "probes": ["A", "B", "C"],
+                            "exclusions": [["H0", "A", 7]]}, base=H)
+    res = run(rec)
+    t = res.interim.check.table
+    assert set(t["probe"]) == {"A", "B", "C"} and len(t) == 150 - 1
+    assert not ((t.position == "H0") & (t.probe == "A") & (t.ball == 7)).any()
+    assert ("H0", "A", 7) in res.exclusions
+    same = run_check(load_model(H / "calibration_2024-03-04.json"), res.dataset,
+                     probes=["A", "B", "C"], exclude=[("H0", "A", 7)], name_effects=False)
+    assert res.interim.check.chi2 == pytest.approx(same.check.chi2, rel=1e-9)
+    assert res.interim.check.dof == same.check.dof == 3 * 149 - 6 * 4

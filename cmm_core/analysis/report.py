@@ -290,7 +290,7 @@ def monitor_sections(interim: CheckOutcome | None, hist: History | None,
                 f"<p>{_esc(c.message)}</p>",
                 f"<p class='note'>Decision rule: {_esc(TEST_RULE)}.</p>"]
         if len(c.table):
-            t = c.table.assign(En=c.table[["En_x", "En_y", "En_z"]].abs().max(axis=1))
+            t = c.table  # its En: the largest |E_n| of each ball (InterimCheck.table)
             f = go.Figure(go.Scatter(
                 x=t["x_mm"], y=t["y_mm"], mode="markers",
                 marker={"color": t["En"], "colorscale": "Reds", "cmin": 0, "cmax": 4,
@@ -306,15 +306,26 @@ def monitor_sections(interim: CheckOutcome | None, hist: History | None,
             body.append("<p class='note'>The 10 largest |E_n| (residual: measured minus "
                         "predicted after the pose fit, µm; u: its standard uncertainty "
                         "with the stored model's, the certificate's and σ).</p>"
-                        + _table_html(t.nlargest(min(10, len(t)), "En")[cols]))
+                        + _table_html(c.largest_En(10)[cols]))
         if len(c.instruments):
-            body.append(_table_html(c.instruments))
+            r = c.readings
+            body.append(_table_html(c.instruments)
+                        + "<p class='note'>The instrument readings of largest |E_n| (file "
+                          "row; residual: the stored model's prediction minus the reading, "
+                          "the run's offset and slope removed, µm; u: its standard "
+                          "uncertainty).</p>"
+                        + _table_html(r.loc[r["En"].abs().nlargest(min(10, len(r))).index]))
         tested = ch.table[ch.table["tested"]]
         body.append(f"<h3>What changed</h3><p>{_esc(ch.message)}</p>" + _table_html(
-            tested[["label", "unit", "stored", "change", "u_change", "En", "significant",
+            tested[["label", "unit", "stored", "change", "u_updated", "u_null", "En",
+                    "significant",
                     "change_alone", "u_change_alone", "En_alone", "significant_alone",
                     "resolved"]])
-            + f"<p class='note'>Decision rule: {_esc(CHANGE_RULE)}.</p>")
+            + "<p class='note'>change: the posterior mean of the change (shrunk toward 0 "
+              "by about its resolved fraction); u_updated: its standard uncertainty (the "
+              "posterior sd); u_null: the sd of the change if nothing changed (the E_n "
+              "denominator); change_alone: the unshrunk change had the parameter alone "
+              f"moved. Decision rule: {_esc(CHANGE_RULE)}.</p>")
         if interim.effects is not None:
             body.append(f"<h3>New effect (the diagnosis against the stored model)</h3><p>"
                         f"{_esc(interim.effects.message)}</p>")

@@ -258,7 +258,7 @@ def run(record: AnalysisRecord) -> AnalysisResult:
         gp = gp_components(obs.r_mm, vals, mean="zero" if kin else record.gp_mean,
                            kernel=record.gp_kernel, restarts=1, probe_mm=obs.p_mm)
     interim = None if record.interim_check is None else _interim(
-        record.interim_check, ds, inst, record)
+        record.interim_check, ds, inst, record, excl)
     hist = None if record.calibration_history is None else _history(
         record.calibration_history, r, ds.name)
     return AnalysisResult(record=record, dataset=ds, fit=r, exclusions=excl, flagged=flagged,
@@ -276,12 +276,16 @@ def load_stored_model(f: DataFile) -> Model:
     return model_from_dict(doc, name=f.name)
 
 
-def _interim(c: CheckChoices, ds: Dataset, inst: tuple, record: AnalysisRecord
-             ) -> CheckOutcome:
-    """The interim check of the record's data (its selection, its instruments)."""
+def _interim(c: CheckChoices, ds: Dataset, inst: tuple, record: AnalysisRecord,
+             exclusions: Iterable[Sequence] = ()) -> CheckOutcome:
+    """The interim check of the record's data as its fit takes them: its placements and
+    styli, without ``exclusions`` (the record's own and its outlier rule's,
+    :func:`record_exclusions`), with its instruments."""
     return run_check(load_stored_model(c.model), ds, instruments=inst, sigma_um=c.sigma_um,
                      alpha=c.alpha, family_alpha=c.family_alpha,
-                     positions=record.positions and list(record.positions), mpe=c.mpe)
+                     positions=record.positions and list(record.positions),
+                     probes=record.probes and list(record.probes),
+                     exclude=list(exclusions), mpe=c.mpe)
 
 
 def _history(h: HistoryChoices, r: FitResult, name: str) -> History:

@@ -24,7 +24,7 @@ from ..analysis import (
 )
 from ..export import load_model, results_json
 from ..io import DataError, atomic_write_all, atomic_write_text, check_outputs, load_dataset
-from ..monitor import MAX_MAP_NODES_PER_AXIS, compare_calibrations, run_check
+from ..monitor import MAX_MAP_NODES_PER_AXIS, check_sigma_um, compare_calibrations, run_check
 from .inputs import add_instrument_args, instruments_of, number_arg
 
 _MODEL_HELP = ("the stored calibration: a model file written by 'fit --save' (kinematic "
@@ -150,15 +150,7 @@ def _command_check(args) -> dict:
                             f"{', '.join(known) or 'none'}).",
                             file="command line" if data is None else data.name,
                             column="position")
-    outcome = run_check(model, data, instruments=instruments, sigma_um=args.sigma_um,
-                        alpha=args.alpha, family_alpha=args.family_alpha,
-                        positions=positions, mpe=args.mpe)
-    out: dict[str, object] = {"model": Path(args.model).name, **outcome.to_dict()}
     texts: dict[Path, str] = {}  # written together, all or none, when all are made
-    if args.results_json:
-        texts[Path(args.results_json)] = results_json(
-            model, source=Path(args.model).name, interim_check=outcome.results_section())
-        out["results_json"] = str(args.results_json)
     if args.report:
         record = AnalysisRecord(
             DataSources(", ".join(Path(m).name for m in args.meas),
@@ -170,12 +162,28 @@ def _command_check(args) -> dict:
                               for k, fs in (("laser", args.laser),
                                             ("step_gauge", args.step_gauge),
                                             ("ball_bar", args.ball_bar)) for f in fs)),
-            spec=model.spec, sigma_um=float(outcome.check.sigma_um),
+            spec=model.spec, sigma_um=check_sigma_um(model, args.sigma_um),
             positions=None if positions is None else tuple(positions),
             interim_check=CheckChoices(DataFile(Path(args.model).name, str(args.model)),
                                        args.alpha, args.family_alpha, args.sigma_um,
                                        args.mpe))
-        texts[Path(args.report)] = render(run(record))
+        # the report's analysis and its check: the check printed and written is that
+        # one (the record's selection and exclusions), not a second computation
+        res = run(record)
+        texts[Path(args.report)] = render(res)
+        if res.interim is None:  # the record asks for it: run() always makes it
+            raise RuntimeError("the analysis record's interim check is missing")
+        outcome = res.interim
+    else:
+        outcome = run_check(model, data, instruments=instruments, sigma_um=args.sigma_um,
+                            alpha=args.alpha, family_alpha=args.family_alpha,
+                            positions=positions, mpe=args.mpe)
+    out: dict[str, object] = {"model": Path(args.model).name, **outcome.to_dict()}
+    if args.results_json:
+        texts[Path(args.results_json)] = results_json(
+            model, source=Path(args.model).name, interim_check=outcome.results_section())
+        out["results_json"] = str(args.results_json)
+    if args.report:
         out["report"] = str(args.report)
     atomic_write_all(texts)
     return out

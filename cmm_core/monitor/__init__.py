@@ -7,7 +7,8 @@ stored model, poses fitted as nuisances, E_n per observation), :mod:`.changes`
 :mod:`.conformity` (the ISO 14253-1 statement against the MPE), :mod:`.history`
 (:func:`compare_calibrations`: a machine's calibrations compared), :mod:`.outcome`
 (:func:`run_check`: the check, what changed, the new effect named by the diagnosis, the
-verdict and conformity), :mod:`.scenario`
+verdict and conformity), :mod:`.numbers` (:func:`json_num`: JSON-safe numbers of
+both results sections), :mod:`.scenario`
 (:func:`remeasured`: a simulated machine measured again). May import: ``machine``,
 ``io``, ``model``, ``diagnosis``, ``gum``, ``export``.
 """
@@ -21,25 +22,26 @@ from .check import (
     CheckSystem,
     GlsFit,
     InterimCheck,
+    check_sigma_um,
     check_system,
     gls_fit,
     interim_check,
 )
 from .conformity import RULE, STATEMENTS, Conformity, conformity
 from .history import HISTORY_RULE, MAX_MAP_NODES_PER_AXIS, History, compare_calibrations
+from .numbers import json_num
 from .outcome import (
     CHANGE_RULE,
     TEST_RULE,
     VERDICTS,
     CheckOutcome,
     NewEffects,
-    json_num,
     name_new_effects,
     run_check,
 )
 from .scenario import remeasured
 
-__all__ = ["CheckSystem", "check_system", "GlsFit", "gls_fit", "interim_check", "InterimCheck",
+__all__ = ["CheckSystem", "check_sigma_um", "check_system", "GlsFit", "gls_fit", "interim_check", "InterimCheck",
            "MAX_OBSERVATIONS", "PROBE_TOLERANCE_MM", "remeasured", "Changes", "MIN_RESOLVED", "what_changed",
            "Conformity", "conformity", "RULE", "STATEMENTS", "holm", "History",
            "compare_calibrations", "MAX_MAP_NODES_PER_AXIS", "CheckOutcome", "NewEffects",

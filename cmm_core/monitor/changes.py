@@ -13,9 +13,16 @@ Gelman et al. 2013 §14.8; Rao 1973 §4a.3 for the pose profile) is::
 and if nothing changed ``s ~ N(0, V Jᵀ Π J V)``: each parameter's ``E_n = s_j / u(s_j)``
 is standard normal. A single parameter that moved alone (the others as stored) is
 tested by its score, ``z_j = -(Jᵀ Π d)_j / sqrt((Jᵀ Π J)_jj)``, standard normal if nothing
-changed: the sharper test when one effect appeared (a crash). Parameters are tested at a family-wise level by Holm's step-down
-procedure (Holm 1979) over those the new data resolve (at least
-:data:`MIN_RESOLVED` of their prior variance). In the prior's whitened coordinates
+changed: the sharper test when one effect appeared (a crash). It is made only where the
+data resolve the parameter moving alone, ``(Jᵀ Π J)_jj V_jj >=`` :data:`MIN_RESOLVED`
+(elsewhere the estimate ``-(Jᵀ Π d)_j / (Jᵀ Π J)_jj`` is an extrapolation: a ball bar
+of six lengths gave ``ryz[2]`` a "significant" 5·10⁵ µrad). ``s`` is the posterior
+mean, shrunk toward 0 by about the resolved fraction; its uncertainty is the posterior
+sd ``u_updated``, not ``u(s)`` (the sd of ``s`` if nothing changed, ``u_null``, the
+E_n denominator); the alone estimate is unshrunk. Parameters are tested at a
+family-wise level by Holm's step-down procedure (Holm 1979) over those the new data
+resolve (at least :data:`MIN_RESOLVED` of their prior variance), the joint and the
+alone tests each over their own count. In the prior's whitened coordinates
 (``V = L Lᵀ``) the eigenvalues of ``Lᵀ Jᵀ Π J L`` are the fractions of the prior
 variance the new data resolve along each combination; combinations below
 :data:`MIN_RESOLVED` are those the new data cannot determine (a change there is unseen).
@@ -32,6 +39,7 @@ from scipy import linalg, stats
 from .._blas import single_blas_thread
 from ..export import Model
 from .check import InterimCheck
+from .numbers import json_num
 
 MIN_RESOLVED = 0.1
 """A parameter (or combination) is tested (seen) when the new data resolve at least this
@@ -50,14 +58,19 @@ class Changes:
         Family-wise false-alarm level of the Holm procedure over the tested parameters.
     table : DataFrame
         One row per kinematic parameter: ``label``, ``unit``, ``stored`` (value),
-        ``change`` (posterior change s), ``u_change`` (its sd if nothing changed),
-        ``En``, ``p_value`` (two-sided), ``resolved`` (fraction of the prior variance the
-        new data resolve), ``tested``, ``significant``, ``updated`` (stored + change) and
-        ``u_updated`` (posterior sd).
-        ``change_alone``, ``u_change_alone``, ``En_alone`` and ``significant_alone``: the
-        same parameter's change if it alone had moved (the others as stored; the score
-        test of ``δ = t e_j``, Holm at ``family_alpha``), the test that names a single
-        new effect (a squareness after a crash) with its size.
+        ``change`` (the posterior mean s of the change: shrunk toward 0 by about
+        ``resolved``), ``u_null`` (sd of s if nothing changed: the E_n denominator, not
+        the change's uncertainty), ``En``, ``p_value`` (two-sided), ``resolved``
+        (fraction of the prior variance the new data resolve), ``tested``,
+        ``significant``, ``updated`` (stored + change) and ``u_updated`` (posterior sd:
+        the standard uncertainty of the change and of the updated value).
+        ``change_alone``, ``u_change_alone``, ``En_alone``, ``p_value_alone`` and
+        ``significant_alone``: the same parameter's change if it alone had moved (the
+        others as stored; the unshrunk estimate of the score test of ``δ = t e_j``, Holm
+        at ``family_alpha``), the test that names a single new effect (a squareness after
+        a crash) with its size; ``resolved_alone`` (``h_jj V_jj``, its information
+        relative to the prior) and ``tested_alone`` (``resolved_alone >=``
+        :data:`MIN_RESOLVED`): untested rows carry NaN.
     significant : list of str
         Parameters that moved beyond their joint uncertainty (Holm, ``family_alpha``).
     significant_alone : list of str
@@ -69,11 +82,13 @@ class Changes:
         count is a property of the design but whose vectors are not unique (any rotation
         within the subspace is as good).
     n_tested : int
-        Parameters tested.
+        Parameters tested jointly.
     posterior_coef : ndarray (k,)
         Stored coefficients plus the change.
     posterior_cov : ndarray (k, k)
         Their posterior covariance.
+    n_tested_alone : int
+        Parameters tested alone (Holm's m of the one-parameter tests).
     """
 
     message: str
@@ -85,13 +100,15 @@ class Changes:
     n_tested: int
     posterior_coef: np.ndarray
     posterior_cov: np.ndarray
+    n_tested_alone: int = 0
 
     def to_dict(self) -> dict:
         """JSON-ready summary."""
         rows = self.table[self.table["significant"]]
         return {"message": self.message, "family_alpha": self.family_alpha,
                 "method": "Holm", "n_tested": self.n_tested,
-                "significant": [{k: (float(v) if isinstance(v, float | np.floating) else v)
+                "n_tested_alone": self.n_tested_alone,
+                "significant": [{k: (json_num(v) if isinstance(v, float | np.floating) else v)
                                  for k, v in r.items()}
                                 for r in rows.to_dict("records")],
                 "significant_alone": list(self.significant_alone),
@@ -137,53 +154,62 @@ def what_changed(model: Model, check: InterimCheck, *,
     En = np.where(u_s > 0, s / np.where(u_s > 0, u_s, 1), 0.0)
     p = 2 * stats.norm.sf(np.abs(En))
     significant = holm(np.where(tested, p, 1.0), int(tested.sum()), family_alpha) & tested
-    # one parameter moved alone, the others as stored: the score test of δ = t e_j
+    # one parameter moved alone, the others as stored: the score test of δ = t e_j, only
+    # where the data resolve the parameter moving alone (h V_jj >= MIN_RESOLVED: its
+    # alone estimate's variance 1/h at most 10 × its prior variance); elsewhere the
+    # estimate g/h is an extrapolation of a whisper (a ball bar gave ryz[2] 5e5 µrad)
     g_alone = -(PiJ.T @ sys.d_um)
     h = np.clip(np.diag(H), 0, None)
-    seen = h > 0
-    z = np.where(seen, g_alone / np.sqrt(np.where(seen, h, 1)), 0.0)
-    p_alone = 2 * stats.norm.sf(np.abs(z))
-    alone = holm(np.where(seen, p_alone, 1.0), int(seen.sum()), family_alpha) & seen
+    resolved_alone = h * np.diag(V)
+    seen = resolved_alone >= MIN_RESOLVED
+    hs = np.where(seen, h, 1.0)
+    z = np.where(seen, g_alone / np.sqrt(hs), np.nan)
+    p_alone = np.where(seen, 2 * stats.norm.sf(np.abs(np.nan_to_num(z))), np.nan)
+    alone = holm(p_alone, int(seen.sum()), family_alpha) & seen
     labels = model.terms.labels
+    u_post = np.sqrt(np.clip(np.diag(post), 0, None))
     table = pd.DataFrame({"label": labels, "unit": [model.terms.unit(lab) for lab in labels],
-                          "stored": model.coef, "change": s, "u_change": u_s, "En": En,
+                          "stored": model.coef, "change": s, "u_null": u_s, "En": En,
                           "p_value": p, "resolved": resolved, "tested": tested,
                           "significant": significant,
-                          "change_alone": np.where(seen, g_alone / np.where(seen, h, 1), np.nan),
-                          "u_change_alone": np.where(seen, 1 / np.sqrt(np.where(seen, h, 1)),
-                                                     np.nan),
-                          "En_alone": z, "significant_alone": alone,
-                          "updated": model.coef + s,
-                          "u_updated": np.sqrt(np.clip(np.diag(post), 0, None))})
+                          "change_alone": np.where(seen, g_alone / hs, np.nan),
+                          "u_change_alone": np.where(seen, 1 / np.sqrt(hs), np.nan),
+                          "En_alone": z, "p_value_alone": p_alone,
+                          "resolved_alone": resolved_alone, "tested_alone": seen,
+                          "significant_alone": alone,
+                          "updated": model.coef + s, "u_updated": u_post})
     unseen = _unseen(V, H, labels)
     sig = [labels[j] for j in np.flatnonzero(significant)]
     msg = (f"Refit of {model.name} on the new data with the stored model as the prior: "
            f"{int(tested.sum())} of {len(labels)} parameters resolved well enough to test "
            f"(at least {100 * MIN_RESOLVED:g} % of their prior variance); "
            + (f"{len(sig)} moved beyond their joint uncertainty ("
-              + ", ".join(f"{lab} by {table.change[j]:+.3g} ± {table.u_change[j]:.2g} "
+              + ", ".join(f"{lab} by {table.change[j]:+.3g} ± {table.u_updated[j]:.2g} "
                           f"(E_n {table.En[j]:+.1f})"
                           for lab, j in zip(sig, np.flatnonzero(significant), strict=True))
               + ")" if sig else "none moved beyond its joint uncertainty")
            + f" (Holm, family-wise false-alarm level {100 * family_alpha:g} %).")
-    best = int(np.argmax(np.where(alone, np.abs(z), -1)))
+    best = int(np.argmax(np.where(alone, np.abs(np.nan_to_num(z)), -1)))
     if alone.any():
-        msg += (f" Taken alone (the others as stored), {int(alone.sum())} parameter(s) would "
+        msg += (f" Taken alone (the others as stored; {int(seen.sum())} parameter(s) resolved "
+                f"enough to test so), {int(alone.sum())} would "
                 f"explain a significant part of the change; the strongest: "
                 f"{labels[best]} {table.change_alone[best]:+.3g} ± "
                 f"{table.u_change_alone[best]:.2g} (E_n {z[best]:+.1f}).")
     if unseen:
         msg += (f" The new data cannot determine {len(unseen)} combination(s) of the "
                 f"parameters (a change there is not seen), e.g. {unseen[0]}.")
-    strongest = [labels[j] for j in np.argsort(-np.abs(z)) if alone[j]]
+    strongest = [labels[j] for j in np.argsort(-np.abs(np.nan_to_num(z))) if alone[j]]
     return Changes(msg, float(family_alpha), table, sig, strongest, unseen, int(tested.sum()),
-                   model.coef + s, post)
+                   model.coef + s, post, int(seen.sum()))
 
 
 def holm(p: np.ndarray, m: int, alpha: float) -> np.ndarray:
     """Holm's step-down rejections at family-wise level ``alpha`` (Holm 1979): the p-values
     in ascending order are rejected while ``p_(i) <= alpha / (m - i)``; ``m`` is the number
-    tested (the others carry p = 1)."""
+    tested (the others carry p = 1; a NaN or infinite p-value counts as 1, never rejected)."""
+    p = np.asarray(p, float)
+    p = np.where(np.isfinite(p), p, 1.0)  # NaN (not tested, 0/0) is never a rejection
     order = np.argsort(p)
     reject = np.zeros(p.size, bool)
     for i, j in enumerate(order[:m]):

@@ -31,7 +31,7 @@ model file does not hold the certificate it was fitted with).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,6 +45,7 @@ from ..machine import kinematics as kin
 from ..machine import rigid_fit
 from ..model import Observations, instrument_observations, refuse_repeated, select
 from ..units import UM
+from .numbers import json_num
 
 MAX_OBSERVATIONS = 1500
 """Largest number of probed ball centres a check takes (its dense covariance is
@@ -157,23 +158,36 @@ class InterimCheck:
     table : DataFrame
         One row per observation: ``position, probe, ball``, the scale readings
         ``x_mm, y_mm, z_mm`` (for a map), the residual ``dx_um, dy_um, dz_um`` (measured
-        minus predicted after the pose fit), its standard uncertainty ``u_dx_um ...`` and
-        ``En_x, En_y, En_z`` (residual over its standard uncertainty).
+        minus predicted after the pose fit), its standard uncertainty ``u_dx_um ...``,
+        ``En_x, En_y, En_z`` (residual over its standard uncertainty) and ``En`` (the
+        largest of the three in absolute value: the map's colour, :meth:`largest_En`).
     coverage_95 : float
-        Fraction of the residual components within their 95 % intervals (``|E_n| <=
-        1.96``); about 0.95 when the model holds.
+        Fraction of the plate's residual components and of the instruments' readings
+        (``readings``) within their 95 % intervals (``|E_n| <= 1.96``); about 0.95 when
+        the model holds.
     sigma_um : float
         σ of one probed coordinate of the new data (µm).
     outside_region : int
-        Observations whose scale readings lie outside the region the stored model was
-        fitted in (predicted by extrapolation: it is stated, not refused).
+        Ball centres and instrument points whose scale readings lie outside the region
+        the stored model was fitted in (predicted by extrapolation: it is stated, not
+        refused).
     system : CheckSystem
         The linear system (for :func:`what_changed`).
     gls : GlsFit
         The pose fit (for :func:`what_changed`).
     instruments : DataFrame
-        One row per instrument of the check: ``kind``, ``file``, ``rows`` (its weighted,
-        nuisance-free rows), ``rms_En`` and ``max_abs_En`` of those rows; empty without.
+        One row per instrument of the check: ``kind``, ``file``, ``readings``, ``rows``
+        (its weighted, nuisance-free rows: the χ² degrees of freedom it adds),
+        ``rms_En`` and ``max_abs_En`` over its readings; empty without.
+    readings : DataFrame
+        One row per instrument reading: ``kind``, ``file``, ``row`` (the file row),
+        ``label`` (run, bar or gauge), ``residual_um`` (the stored model's prediction
+        minus the reading, the run's offset and slope removed), ``u_residual_um`` (its
+        standard uncertainty: σ of the readings and the stored model's) and ``En``.
+        The check's rows are rotated combinations of the readings (``T (pred −
+        measured)``, one fewer per eliminated offset or slope); they are mapped back by
+        the instrument's ``Q`` (``transform[1]``), each reading's variance
+        ``u² diag(Q Σ_rows Qᵀ)`` (``Σ_rows`` the rows' block of the covariance).
     """
 
     status: str
@@ -191,16 +205,21 @@ class InterimCheck:
     system: CheckSystem
     gls: GlsFit
     instruments: pd.DataFrame = field(default_factory=pd.DataFrame)
+    readings: pd.DataFrame = field(default_factory=pd.DataFrame)
 
     @property
     def passes(self) -> bool:
         """True when the χ² test does not reject the stored model."""
         return self.status == "passes"
 
+    def largest_En(self, n: int = 10) -> pd.DataFrame:
+        """The ``n`` ball centres of largest |E_n| (``table``'s ``En``: the largest of
+        each ball's three components), largest first: the report's and the page's list."""
+        return self.table.nlargest(min(int(n), len(self.table)), "En")
+
     def to_dict(self) -> dict:
         """JSON-ready summary (the table's worst rows included)."""
-        worst = self.table.assign(En=self.table[["En_x", "En_y", "En_z"]].abs().max(axis=1))
-        worst = worst.nlargest(min(10, len(worst)), "En")
+        worst = self.largest_En(10)
         return {"status": self.status, "message": self.message, "chi2": self.chi2,
                 "dof": self.dof, "p_value": self.p_value, "alpha": self.alpha,
                 "model": self.model_name, "positions": list(self.positions),
@@ -209,14 +228,23 @@ class InterimCheck:
                 "largest_En": [{"position": str(r.position), "probe": str(r.probe),
                                 "ball": int(r.ball), "En": float(r.En)}
                                for r in worst.itertuples()],
-                "instruments": self.instruments.to_dict("records")}
+                "instruments": [{k: (json_num(v) if isinstance(v, float) else v)
+                                 for k, v in r.items()}
+                                for r in self.instruments.to_dict("records")],
+                "largest_En_readings": [
+                    {"kind": str(r.kind), "file": str(r.file), "row": int(r.row),
+                     "label": str(r.label), "En": json_num(r.En)}
+                    for r in self.readings.assign(a=self.readings["En"].abs())
+                    .nlargest(min(10, len(self.readings)), "a").itertuples()]
+                if len(self.readings) else []}
 
 
 @single_blas_thread
 def interim_check(model: Model, dataset: Dataset | None, *, sigma_um: float | None = None,
                   alpha: float = 0.05, positions: Sequence[str] | None = None,
                   probes: Sequence[str] | None = None,
-                  instruments: Sequence = ()) -> InterimCheck:
+                  instruments: Sequence = (),
+                  exclude: Iterable[Sequence] = ()) -> InterimCheck:
     """Test new measurements against a stored calibration.
 
     Parameters
@@ -236,6 +264,9 @@ def interim_check(model: Model, dataset: Dataset | None, *, sigma_um: float | No
         Laser runs, step gauges or ball bars (``model.read_instrument``) measured on the
         same machine: their rows join the test with their own u (a partial check: a ball
         bar in a few orientations, a step gauge along one axis, a laser run).
+    exclude : iterable of (position, probe, ball)
+        Observations left out of the check (``model.select``): an analysis's own
+        exclusions and its outlier rule's, so the check tests the data the fit used.
 
     Returns
     -------
@@ -252,7 +283,7 @@ def interim_check(model: Model, dataset: Dataset | None, *, sigma_um: float | No
     if not 0 < alpha < 0.5:
         raise ValueError(f"alpha must be in (0, 0.5), got {alpha}.")
     sys = check_system(model, dataset, sigma_um=sigma_um, positions=positions,
-                       probes=probes, instruments=instruments)
+                       probes=probes, instruments=instruments, exclude=exclude)
     g = gls_fit(sys)
     n, m = len(sys.obs.r_mm), sys.n_plate
     u = np.sqrt(np.clip(g.residual_cov_diag, 0, None))
@@ -260,48 +291,82 @@ def interim_check(model: Model, dataset: Dataset | None, *, sigma_um: float | No
     p_value = float(stats.chi2.sf(g.chi2, g.dof))
     status = "passes" if p_value >= alpha else "fails"
     table = _observation_table(sys, g.residual_um[:m], u[:m], En[:m])
-    inst = _instrument_table(sys, En)
+    readings = _reading_table(sys, g.residual_um)
+    inst = _instrument_table(sys, readings)
     lo, hi = (np.asarray(model.summary.get("region_mm", [[-np.inf] * 3, [np.inf] * 3]), float))
-    outside = int((~((sys.x_mm >= lo - 1.0) & (sys.x_mm <= hi + 1.0)).all(axis=1)).sum())
-    worst = int(np.argmax(np.abs(En)))
+    pts = [sys.x_mm[:n]] + [x for it, _, _ in sys.instrument_rows for x, _ in it.points()]
+    outside = sum(int((~((x >= lo - 1.0) & (x <= hi + 1.0)).all(axis=1)).sum())
+                  for x in pts)
     what = [f"{n} ball centres, {len(sys.obs.positions)} placement(s), poses fitted"] \
         if n else []
-    what += [f"{it.kind} {it.source} ({stop - start} row(s))"
+    what += [f"{it.kind} {it.source} ({len(it.rows)} reading(s), {stop - start} row(s))"
              for it, start, stop in sys.instrument_rows]
+    # the plate's components and the instruments' readings (not their rotated rows)
+    all_En = np.concatenate([En[:m], readings["En"].to_numpy(float)])
+    worst = int(np.argmax(np.abs(all_En)))
     if worst < m:
         row = table.iloc[worst // 3]
         where = (f"{'xyz'[worst % 3]} of ball {int(row.ball)}, {row.position}/{row.probe}")
     else:
-        it, start, _ = next(r for r in sys.instrument_rows if r[1] <= worst < r[2])
-        where = f"row {worst - start + 1} of {it.kind} {it.source}"
+        r = readings.iloc[worst - m]
+        where = f"file row {int(r.row)} of {r.kind} {r.file}, {r.label}"
+    coverage = float(np.mean(np.abs(all_En) <= 1.96))
     msg = (f"Interim check against {model.name}: χ² = {g.chi2:.1f} on {g.dof} degrees of "
            f"freedom ({'; '.join(what)}), p = {p_value:.3g}: the machine "
            + ("behaves as the stored model predicts" if status == "passes" else
               "no longer behaves as the stored model predicts")
-           + f" at the {100 * alpha:g} % level. Largest |E_n| = {abs(En[worst]):.2f} "
-           f"({where}); {100 * np.mean(np.abs(En) <= 1.96):.1f} % of the components lie "
-           "within their 95 % intervals.")
+           + f" at the {100 * alpha:g} % level. Largest |E_n| = {abs(all_En[worst]):.2f} "
+           f"({where}); {100 * coverage:.1f} % of the "
+           + ("components and readings" if len(readings) and m else
+              "readings" if len(readings) else "components")
+           + " lie within their 95 % intervals.")
     if model.summary.get("fails_chi2_test"):
         msg += (f" The stored model failed its own χ² test (Birge ratio "
                 f"{float(model.summary.get('birge_ratio', float('nan'))):.2f}): its σ "
                 "understates its data's scatter, and this check fails more often than "
                 f"{100 * alpha:g} % of an unchanged machine's checks.")
     if outside:
-        msg += (f" {outside} observation(s) lie outside the region the model was fitted in "
-                "(its predictions there are extrapolated).")
+        msg += (f" {outside} ball centre(s) or instrument point(s) lie outside the region "
+                "the model was fitted in (its predictions there are extrapolated).")
     return InterimCheck(status, msg, float(g.chi2), int(g.dof), p_value, float(alpha),
                         model.name, list(sys.obs.positions) if n else [], table,
-                        float(np.mean(np.abs(En) <= 1.96)), sys.sigma_um, outside, sys, g,
-                        inst)
+                        coverage, sys.sigma_um, outside, sys, g, inst, readings)
 
 
-def _instrument_table(sys: CheckSystem, En: np.ndarray) -> pd.DataFrame:
-    """One row per instrument of the check: its rows and their normalised errors."""
-    return pd.DataFrame([{"kind": it.kind, "file": it.source, "rows": stop - start,
-                          "rms_En": float(np.sqrt(np.mean(En[start:stop] ** 2))),
-                          "max_abs_En": float(np.max(np.abs(En[start:stop])))}
-                         for it, start, stop in sys.instrument_rows],
-                        columns=["kind", "file", "rows", "rms_En", "max_abs_En"])
+_READING_COLUMNS = ["kind", "file", "row", "label", "residual_um", "u_residual_um", "En"]
+
+
+def _reading_table(sys: CheckSystem, res: np.ndarray) -> pd.DataFrame:
+    """One row per instrument reading: the rows mapped back by ``Q`` (``InterimCheck``'s
+    ``readings``). An instrument's rows have no pose columns, so their residual is
+    ``d`` itself and its covariance the rows' block of Σ."""
+    frames = []
+    for it, start, stop in sys.instrument_rows:
+        Q = it.transform[1]
+        Qm = np.asarray(Q @ np.eye(stop - start), float)  # (readings, rows)
+        z = np.asarray(Q @ res[start:stop], float)  # weighted residual per reading
+        var = np.einsum("ij,ij->i", Qm @ sys.cov[start:stop, start:stop], Qm)
+        sd = np.sqrt(np.clip(var, 0, None))
+        En = np.where(sd > 0, z / np.where(sd > 0, sd, 1), 0.0)
+        frames.append(pd.DataFrame({"kind": it.kind, "file": it.source,
+                                    "row": np.asarray(it.rows, int), "label": it.labels(),
+                                    "residual_um": it.u_um * z,
+                                    "u_residual_um": it.u_um * sd, "En": En}))
+    return (pd.concat(frames, ignore_index=True) if frames
+            else pd.DataFrame(columns=_READING_COLUMNS))
+
+
+def _instrument_table(sys: CheckSystem, readings: pd.DataFrame) -> pd.DataFrame:
+    """One row per instrument of the check: its readings, rows and their E_n."""
+    out, at = [], 0
+    for it, start, stop in sys.instrument_rows:  # readings in the order of the rows
+        e = readings["En"].to_numpy(float)[at:at + len(it.rows)]
+        at += len(it.rows)
+        out.append({"kind": it.kind, "file": it.source, "readings": len(it.rows),
+                    "rows": stop - start, "rms_En": float(np.sqrt(np.mean(e ** 2))),
+                    "max_abs_En": float(np.max(np.abs(e)))})
+    return pd.DataFrame(out, columns=["kind", "file", "readings", "rows", "rms_En",
+                                      "max_abs_En"])
 
 
 def _observation_table(sys: CheckSystem, res: np.ndarray, u: np.ndarray,
@@ -316,6 +381,7 @@ def _observation_table(sys: CheckSystem, res: np.ndarray, u: np.ndarray,
         v3 = v.reshape(-1, 3)
         for a, ax in enumerate("xyz"):
             t[name.format(ax)] = v3[:, a]
+    t["En"] = t[["En_x", "En_y", "En_z"]].abs().max(axis=1)
     return t
 
 
@@ -323,7 +389,8 @@ def _observation_table(sys: CheckSystem, res: np.ndarray, u: np.ndarray,
 def check_system(model: Model, dataset: Dataset | None, *, sigma_um: float | None = None,
                  positions: Sequence[str] | None = None,
                  probes: Sequence[str] | None = None,
-                 instruments: Sequence = ()) -> CheckSystem:
+                 instruments: Sequence = (),
+                 exclude: Iterable[Sequence] = ()) -> CheckSystem:
     """The linear system of an interim check (module docstring), validated at the entry.
 
     ``instruments`` (laser runs, step gauges, ball bars as ``model.read_instrument`` gives
@@ -342,7 +409,8 @@ def check_system(model: Model, dataset: Dataset | None, *, sigma_um: float | Non
         name = items[0].source
         _refuse_model(model)
     else:
-        obs = select(dataset, positions=positions, probes=probes)
+        obs = select(dataset, positions=positions, probes=probes,
+                     exclude=[(str(a), str(b), int(c)) for a, b, c in exclude])
         name = dataset.name
         _refuse_incomparable(model, obs, name)
     _refuse_instruments_off_strokes(model, items)
@@ -352,10 +420,7 @@ def check_system(model: Model, dataset: Dataset | None, *, sigma_um: float | Non
                         f"check takes at most {3 * MAX_OBSERVATIONS} (its covariance is "
                         "dense: (rows)² numbers).", file=name,
                         hint="thin the instrument readings out or check fewer placements.")
-    sigma = float(model.summary.get("sigma_um", 0.5) if sigma_um is None else sigma_um)
-    if not (np.isfinite(sigma) and sigma > 0):
-        raise DataError(f"σ must be a positive number of µm, found {sigma}.", file=model.name,
-                        column="summary.sigma_um", hint="give sigma_um.")
+    sigma = check_sigma_um(model, sigma_um)
     n, P = len(obs.r_mm), len(obs.positions) if len(obs.r_mm) else 0
     k = len(model.coef)
     x = obs.r_mm - obs.p_mm if n else np.zeros((0, 3))
@@ -377,6 +442,17 @@ def check_system(model: Model, dataset: Dataset | None, *, sigma_um: float | Non
         noise = linalg.block_diag(noise, np.eye(len(y)))
     cov = noise + J @ model.cov @ J.T
     return CheckSystem(obs, d, A, J, noise, cov, x, sigma, 3 * n, tuple(rows))
+
+
+def check_sigma_um(model: Model, sigma_um: float | None = None) -> float:
+    """σ of one probed coordinate of the new data (µm): ``sigma_um``, or the stored
+    model's σ (its ``summary.sigma_um``; 0.5 µm when the file has none). DataError (one
+    line, naming the model file) when it is not a positive number."""
+    sigma = float(model.summary.get("sigma_um", 0.5) if sigma_um is None else sigma_um)
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise DataError(f"σ must be a positive number of µm, found {sigma}.", file=model.name,
+                        column="summary.sigma_um", hint="give sigma_um.")
+    return sigma
 
 
 def _plate_rows(model: Model, obs: Observations, sigma: float) -> tuple:

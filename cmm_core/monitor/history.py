@@ -27,6 +27,7 @@ from ..io import DataError
 from ..machine import kinematics as kin
 from ..units import UM
 from .changes import holm
+from .numbers import json_num
 
 HISTORY_RULE = ("a parameter changed between two consecutive calibrations when E_n = "
                 "(c₂ − c₁) / sqrt(u₁² + u₂²) (two-sided, standard normal) is rejected by "
@@ -84,23 +85,19 @@ class History:
         """The "history" section of the results document (``export.results_dict``): every
         shared parameter's change with its standard uncertainty and E_n, the decision
         rule, the error map's largest change; numbers JSON-safe (NaN: null)."""
-        def num(v):
-            v = float(v)
-            return v if np.isfinite(v) else None
-
         d = self.map_change
         return {"models": list(self.names), "dates": list(self.dates),
                 "family_alpha": self.family_alpha, "method": "Holm",
                 "decision_rule": HISTORY_RULE, "message": self.message,
                 "changes": [{"name": r.label, "unit": r.unit, "date_from": r.date_from,
-                             "date_to": r.date_to, "value_from": num(r.value_from),
-                             "value_to": num(r.value_to), "change": num(r.change),
-                             "standard_uncertainty": num(r.u_change), "En": num(r.En),
-                             "p_value": num(r.p_value), "significant": bool(r.significant)}
+                             "date_to": r.date_to, "value_from": json_num(r.value_from),
+                             "value_to": json_num(r.value_to), "change": json_num(r.change),
+                             "standard_uncertainty": json_num(r.u_change), "En": json_num(r.En),
+                             "p_value": json_num(r.p_value), "significant": bool(r.significant)}
                             for r in self.changes.itertuples()],
                 "only_in": {k: list(v) for k, v in self.only_in.items()},
-                "map_change_max_um": {a: num(np.abs(d[f"de{a}_um"]).max()) for a in "xyz"},
-                "map_change_u_max_um": {a: num(d[f"u_de{a}_um"].max()) for a in "xyz"}}
+                "map_change_max_um": {a: json_num(np.abs(d[f"de{a}_um"]).max()) for a in "xyz"},
+                "map_change_u_max_um": {a: json_num(d[f"u_de{a}_um"].max()) for a in "xyz"}}
 
     def to_dict(self) -> dict:
         """JSON-ready summary."""

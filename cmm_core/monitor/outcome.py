@@ -20,7 +20,7 @@ change there would pass unnoticed: never "conforms"); ``"changed"`` when the tes
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -29,20 +29,25 @@ from ..diagnosis import Diagnosis, diagnose
 from ..export import Model
 from ..io import Dataset
 from ..machine import kinematics as kin
-from .changes import Changes, what_changed
+from .changes import MIN_RESOLVED, Changes, what_changed
 from .check import InterimCheck, interim_check
 from .conformity import RULE, Conformity, conformity
+from .numbers import json_num
 
 TEST_RULE = ("the machine no longer behaves as the stored model predicts when P(χ²_dof > χ²) "
              "< alpha, χ² the generalised least-squares residual of the new data with the "
              "covariance σ² I + J V Jᵀ + K U_cert Kᵀ (each placement's pose fitted; dof = "
              "rows − 6 per placement)")
 """The interim check's decision rule, as the results document states it."""
-CHANGE_RULE = ("a parameter moved when its change E_n = s / u(s) (the stored model refitted "
-               "on the new data with itself as the prior) is rejected by Holm's step-down "
-               "procedure at family_alpha over the parameters the new data resolve (at "
-               "least 10 % of their prior variance); *_alone: the same parameter's change "
-               "had it alone moved (score test, Holm at family_alpha)")
+CHANGE_RULE = ("a parameter moved when its change E_n = s / u_null (s the posterior mean "
+               "of the change, shrunk toward 0, of the stored model refitted on the new "
+               "data with itself as the prior; u_null the sd of s if nothing changed) is "
+               "rejected by Holm's step-down procedure at family_alpha over the parameters "
+               f"the new data resolve (at least {100 * MIN_RESOLVED:g} % of their prior "
+               "variance); standard_uncertainty is the posterior sd; *_alone: the same "
+               "parameter's unshrunk change had it alone moved (score test, Holm at "
+               "family_alpha over the parameters resolved alone, at least "
+               f"{100 * MIN_RESOLVED:g} % of their prior variance)")
 """The parameter changes' decision rule, as the results document states it."""
 VERDICTS = ("no change seen", "partial: no change seen in what was measured", "changed")
 """The one-line verdicts of :class:`CheckOutcome`."""
@@ -151,14 +156,6 @@ def name_new_effects(model: Model, check: InterimCheck, changes: Changes, *,
                       dict(diag.unseen), diag)
 
 
-def json_num(v: object) -> float | None:
-    """A JSON number: None for NaN, infinity or None."""
-    if v is None:
-        return None
-    f = float(v)  # type: ignore[arg-type]
-    return f if np.isfinite(f) else None
-
-
 def _unit(code: str) -> str:
     """A unit code as printed (``urad`` -> ``µrad``)."""
     return {"urad": "µrad", "um": "µm"}.get(code, code)
@@ -193,7 +190,8 @@ class CheckOutcome:
 
     def results_section(self) -> dict:
         """The "interim_check" section of the results document (``export.results_dict``):
-        the test, each tested parameter's change with its standard uncertainty, the new
+        the test, each tested parameter's change with its standard uncertainty (the
+        posterior sd) and its ``u_null`` (the E_n denominator), the new
         effect, conformity, each with its decision rule; numbers JSON-safe (NaN: null)."""
         c, ch = self.check, self.changes
         tested = ch.table[ch.table["tested"]]
@@ -210,10 +208,12 @@ class CheckOutcome:
                                      for r in c.instruments.to_dict("records")]},
             "changes": {"family_alpha": ch.family_alpha, "method": "Holm",
                         "decision_rule": CHANGE_RULE, "n_tested": ch.n_tested,
+                        "n_tested_alone": ch.n_tested_alone,
                         "parameters": [
                             {"name": r.label, "unit": r.unit, "stored": json_num(r.stored),
                              "change": json_num(r.change),
-                             "standard_uncertainty": json_num(r.u_change),
+                             "standard_uncertainty": json_num(r.u_updated),
+                             "u_null": json_num(r.u_null),
                              "En": json_num(r.En), "significant": bool(r.significant),
                              "change_alone": json_num(r.change_alone),
                              "standard_uncertainty_alone": json_num(r.u_change_alone),
@@ -235,7 +235,8 @@ class CheckOutcome:
 def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = (),
               sigma_um: float | None = None, alpha: float = 0.05,
               family_alpha: float = 0.05, positions: Sequence[str] | None = None,
-              mpe: tuple[float, float] | None = None, name_effects: bool = True
+              mpe: tuple[float, float] | None = None, name_effects: bool = True,
+              probes: Sequence[str] | None = None, exclude: Iterable[Sequence] = ()
               ) -> CheckOutcome:
     """The interim check, what changed, the new effect and (with ``mpe``) conformity.
 
@@ -247,8 +248,9 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
         The new ball-plate data (None: instruments only).
     instruments : sequence
         Laser runs, step gauges, ball bars of the check (``interim_check``).
-    sigma_um, alpha, positions
-        As :func:`interim_check`.
+    sigma_um, alpha, positions, probes, exclude
+        As :func:`interim_check`: the selection of the new data and the observations
+        left out (an analysis's exclusions), so the check tests the data its fit used.
     family_alpha : float
         Family-wise level of :func:`what_changed`.
     mpe : (float, float), optional
@@ -260,8 +262,10 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
     -------
     CheckOutcome
     """
+    exclude = list(exclude)
     check = interim_check(model, dataset, sigma_um=sigma_um, alpha=alpha,
-                          positions=positions, instruments=instruments)
+                          positions=positions, probes=probes, instruments=instruments,
+                          exclude=exclude)
     changes = what_changed(model, check, family_alpha=family_alpha)
     effects = None
     if name_effects and not check.passes:
