@@ -129,3 +129,19 @@ def test_compare_writes_the_history_into_the_results(capsys, tmp_path):
     assert doc["model"]["name"] == "calibration_2025-03-03.json"
     assert doc["history"]["dates"] == ["2023-03-01", "2024-03-04", "2025-03-03"]
     assert [r["name"] for r in doc["history"]["changes"] if r["significant"]] == ["sxy"]
+
+
+def test_compare_takes_the_latest_by_date_not_by_string_and_refuses_one_model_twice(
+        capsys, tmp_path):
+    # review 2 #11: "20241105" sorts after "2024-12-01" as a string but is the earlier
+    # date; the results document holds the latest calibration's parameters
+    res = tmp_path / "history.json"
+    a, b = str(H / "calibration_2024-03-04.json"), str(H / "calibration_2025-03-03.json")
+    code, _, _ = _run(["compare", a, b, "--dates", "2024-12-01", "20241105",
+                       "--results-json", str(res)], capsys)
+    assert code == 0
+    doc = json.loads(res.read_text())
+    assert doc["history"]["dates"] == ["2024-11-05", "2024-12-01"]
+    assert doc["model"]["name"] == "calibration_2024-03-04.json"
+    code, out, err = _run(["compare", a, a, "--dates", "2024-01-01", "2025-01-01"], capsys)
+    assert code == 2 and "same calibration" in err and err.count("\n") == 1

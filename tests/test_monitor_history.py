@@ -87,3 +87,35 @@ def test_models_of_different_specs_compare_what_they_share_and_say_the_rest():
     assert len(h.changes) == len(full.terms.labels) - 1
     assert h.only_in == {full.name: ["sxy"]}
     assert "Not compared (in one model only)" in h.message and "sxy" in h.message
+
+
+def test_one_calibration_twice_or_one_date_twice_is_refused():
+    # review 2 #11: compare M M ran and took the two as independent calibrations
+    _, m1 = calibrated("pitch100_4pos", 0)
+    copy = replace(m1, name="copy.json")
+    with pytest.raises(DataError, match="same calibration as") as e:
+        compare_calibrations([(m1, "2024-01-01"), (copy, "2025-01-01")])
+    assert e.value.file == "copy.json" and "\n" not in str(e.value)
+    _, m2 = calibrated("pitch100_4pos", 1)
+    with pytest.raises(DataError, match="two calibrations dated 2024-01-01"):
+        compare_calibrations([(m1, "2024-01-01"), (m2, "20240101")])
+
+
+def test_a_parameter_held_fixed_in_both_is_not_compared():
+    # review 2 #9: u₁ = u₂ = 0 gave E_n = 0/0 (NaN) or ±inf, and Holm marked NaN
+    # significant; now such a parameter is left out, and the message names it
+    _, m1 = calibrated("pitch100_4pos", 0)
+    _, m2 = calibrated("pitch100_4pos", 1)
+    j = m1.terms.labels.index("sxy")
+
+    def held(m, name):
+        cov = m.cov.copy()
+        cov[j, :] = cov[:, j] = 0.0
+        return replace(m, cov=cov, name=name)
+
+    h = compare_calibrations([(held(m1, "a.json"), "2024-01-01"),
+                              (held(m2, "b.json"), "2025-01-01")])
+    assert "sxy" not in set(h.changes["label"])
+    assert len(h.changes) == len(m1.terms.labels) - 1
+    assert np.isfinite(h.changes["En"]).all()
+    assert "held fixed" in h.message and "sxy" in h.message

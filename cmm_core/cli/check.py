@@ -10,6 +10,7 @@ with status 2 and one line on stderr naming the file, row and column.
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import math
 from pathlib import Path
 
@@ -201,7 +202,10 @@ def _command_compare(args) -> dict:
                              family_alpha=args.family_alpha, nodes_per_axis=args.nodes)
     out = h.to_dict()
     if args.results_json:
-        last = max(range(len(models)), key=lambda i: args.dates[i])
+        # the latest by the history's own date order (parsed dates, not strings: the
+        # history refuses two models of one date, so it is one model)
+        last = next(i for i, d in enumerate(args.dates)
+                    if dt.date.fromisoformat(d.strip()).isoformat() == h.dates[-1])
         atomic_write_text(args.results_json, results_json(
             models[last], source=Path(args.models[last]).name,
             history=h.results_section()))

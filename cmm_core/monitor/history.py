@@ -136,8 +136,10 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
     ------
     DataError
         One line: fewer than two models, a date that is not ISO 8601, two models of
-        different machines (layout or strokes), an undetermined model, or models that
-        share no parameter.
+        one date, one calibration given twice (equal coefficients and covariance), two
+        models of different machines (layout or strokes), an undetermined model, or
+        models that share no parameter with an uncertainty (a parameter held fixed in
+        both, u₁ = u₂ = 0, is not compared and the message says so).
     """
     if not 0 < family_alpha < 0.5:
         raise ValueError(f"family_alpha must be in (0, 0.5), got {family_alpha}.")
@@ -153,16 +155,26 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
                for m in models}
     only_in = {k: v for k, v in only_in.items() if v}
     rows = []
+    held: dict[str, list] = {}  # shared parameters with no uncertainty in either model
     for (m1, d1), (m2, d2) in zip(items, items[1:], strict=False):
         common = [lab for lab in m1.terms.labels if lab in set(m2.terms.labels)]
-        if not common:
-            raise DataError(f"the models {m1.name} and {m2.name} share no parameter; "
-                            "nothing can be compared.", file=m2.name, column="labels",
-                            hint="compare calibrations fitted with the same model spec.")
         i1 = [m1.terms.labels.index(lab) for lab in common]
         i2 = [m2.terms.labels.index(lab) for lab in common]
+        u = np.sqrt(np.clip(np.diag(m1.cov)[i1], 0, None)
+                    + np.clip(np.diag(m2.cov)[i2], 0, None))
+        # a parameter both calibrations held fixed (u₁ = u₂ = 0) has no E_n (0/0 or
+        # ±inf): not compared, and said so
+        for k in np.flatnonzero(~(u > 0)):
+            held.setdefault(common[k], []).append(f"{d1.isoformat()} → {d2.isoformat()}")
+        keep = np.flatnonzero(u > 0)
+        common = [common[k] for k in keep]
+        i1, i2, u = [i1[k] for k in keep], [i2[k] for k in keep], u[keep]
+        if not common:
+            raise DataError(f"the models {m1.name} and {m2.name} share no parameter with an "
+                            "uncertainty; nothing can be compared.", file=m2.name,
+                            column="labels",
+                            hint="compare calibrations fitted with the same model spec.")
         v1, v2 = m1.coef[i1], m2.coef[i2]
-        u = np.sqrt(np.diag(m1.cov)[i1] + np.diag(m2.cov)[i2])
         for k, lab in enumerate(common):
             rows.append({"label": lab, "unit": m1.terms.unit(lab),
                          "date_from": d1.isoformat(), "date_to": d2.isoformat(),
@@ -194,6 +206,9 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
     if only_in:
         msg += " Not compared (in one model only): " + "; ".join(
             f"{k}: {', '.join(v)}" for k, v in only_in.items()) + "."
+    if held:
+        msg += (" Not compared (held fixed, no uncertainty in either calibration): "
+                + ", ".join(held) + ".")
     return History(msg, [m.name for m in models], dates, changes, trend, significant,
                    only_in, float(family_alpha), grid)
 
@@ -228,6 +243,20 @@ def _checked(models_with_dates) -> list:
             raise DataError(f"strokes {list(m.terms.range_mm)} mm differ from {first.name}'s "
                             f"{list(first.terms.range_mm)} mm: different machines are not "
                             "compared.", file=m.name, column="range_mm")
+    for (m1, d1), (m2, d2) in zip(out, out[1:], strict=False):
+        if d1 == d2:
+            raise DataError(f"two calibrations dated {d1.isoformat()} ({m1.name} and "
+                            f"{m2.name}); a history needs one calibration per date.",
+                            file=m2.name, column="date",
+                            hint="give each model its own calibration date.")
+    for i, (m1, _) in enumerate(out):
+        for m2, _ in out[i + 1:]:
+            if (m1.terms.labels == m2.terms.labels and np.array_equal(m1.coef, m2.coef)
+                    and np.array_equal(m1.cov, m2.cov)):
+                raise DataError(f"the same calibration as {m1.name} (equal coefficients and "
+                                "covariance): one calibration given twice is not two "
+                                "independent calibrations.", file=m2.name,
+                                hint="give each calibration once.")
     return out
 
 
