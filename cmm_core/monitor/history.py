@@ -164,9 +164,9 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
                     + np.clip(np.diag(m2.cov)[i2], 0, None))
         # a parameter both calibrations held fixed (u₁ = u₂ = 0) has no E_n (0/0 or
         # ±inf): not compared, and said so
-        for k in np.flatnonzero(~(u > 0)):
-            held.setdefault(common[k], []).append(f"{d1.isoformat()} → {d2.isoformat()}")
-        keep = np.flatnonzero(u > 0)
+        for lab in (c for c, ok in zip(common, u > 0, strict=True) if not ok):
+            held.setdefault(lab, []).append(f"{d1.isoformat()} → {d2.isoformat()}")
+        keep = [int(k) for k in np.flatnonzero(u > 0)]
         common = [common[k] for k in keep]
         i1, i2, u = [i1[k] for k in keep], [i2[k] for k in keep], u[keep]
         if not common:
