@@ -17,6 +17,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from scenarios import layout_config, placement_scale, simulated  # noqa: E402
 
 from cmm_core.diagnosis import (  # noqa: E402
+    FAMILY_ALPHA,
     SCALE_ALPHA,
     Candidate,
     Diagnosis,
@@ -29,6 +30,7 @@ from cmm_core.plan import (  # noqa: E402
     BASELINE,
     PLACEMENT_SCALE,
     append_measurement,
+    candidate_tokens,
     dask_client,
     fit_rivals,
     instrument_candidates,
@@ -440,3 +442,17 @@ def test_open_pairs_agree_with_the_diagnosis_s_own_holdout_verdict():
     for h in d.holdout:
         assert ((h.effect, PLACEMENT_SCALE) in pairs) == h.reason.startswith(
             "it stands in for each placement's own scale"), h.effect
+
+
+def test_both_directions_of_a_token_pair_are_judged_at_the_first_rivals_level(clean80):
+    """The diagnosis judges "A given B" and "B given A" at one level, its first
+    candidate's (verdict._encompassing; review 2, #8): so do the powers, at the first
+    rival's own share of the family-wise rate (here sxy and rxz:4 have different shares,
+    so the old per-rival levels differ)."""
+    own = candidate_tokens(fit(clean80, BASE, sigma_um=0.5, max_iter=2000), FAMILY_ALPHA)[2]
+    assert own["sxy"] != own["rxz:4"]
+    for a, b in (("sxy", "rxz:4"), ("rxz:4", "sxy")):
+        assert fit_rivals(clean80, (a, b), baseline=BASE).levels == {a: own[a], b: own[a]}
+    pr = propose(clean80, ("rxz:4", "sxy"), baseline=BASE,
+                 cands=measurement_candidates(clean80)[:1])
+    assert pr.ranked[0].level == {"rxz:4": own["rxz:4"], "sxy": own["rxz:4"]}

@@ -20,15 +20,22 @@ F-test "A is still needed once B is in" (``verdict._encompassing``): F(k_A, ν, 
 the rank A adds to B, ν the residual dof of the model with both (Scheffé 1959, §2.8; the
 linear-model power of ``detect.py``). The power to separate is
 
-    power_A = P(F(k_A, ν, λ_A) > F⁻¹(1 − α_A; k_A, ν)),
+    power_A = P(F(k_A, ν, λ_A) > F⁻¹(1 − α; k_A, ν)),
 
-α_A the level the diagnosis tests A at (its share of the family-wise rate, weighted
-Bonferroni). The fitted ``θ̂_A`` carries noise, and the more so the worse the current data
-separate the rivals (that is why a proposal is asked for): ``E‖M θ̂‖² = ‖M θ‖² +
-tr(M C Mᵀ)`` for an unbiased ``θ̂`` of covariance ``C`` (``M = (I − P_B) J_A``), so λ_A is
-taken as ``‖M θ̂_A‖² − tr(M C_A Mᵀ)`` (at least 0): at exactly the fitted size it would
-overstate the separation (by Δχ² ≈ 15 of 45 for a probe offset against drift on the 80 mm
-layout, bench/proposals.py); the size itself is kept as ``delta_chi2_fitted``. A candidate decides the pair with power ``min(power_A, power_B)``. Proposals are
+α the level the diagnosis judges the pair at: its nested tests judge both directions at
+the level of the candidate it ranks first (``verdict._encompassing``), so both powers of
+two model tokens are taken at the first rival's level (its share of the family-wise rate,
+weighted Bonferroni), which is that candidate's when the rivals are the diagnosis's
+(:func:`rivals_of`, :func:`open_pairs`; for rivals given in the other order, an
+approximation); a placement-scale rival at the placement-scale test's level.
+
+The fitted ``θ̂_A`` carries noise, and the more so the worse the current data separate the
+rivals (that is why a proposal is asked for): ``E‖M θ̂‖² = ‖M θ‖² + tr(M C Mᵀ)`` for an
+unbiased ``θ̂`` of covariance ``C`` (``M = (I − P_B) J_A``), so λ_A is taken as
+``‖M θ̂_A‖² − tr(M C_A Mᵀ)`` (at least 0): at exactly the fitted size it would overstate
+the separation (by Δχ² ≈ 15 of 45 for a probe offset against drift on the 80 mm layout,
+bench/proposals.py); the size itself is kept as ``delta_chi2_fitted``. A candidate
+decides the pair with power ``min(power_A, power_B)``. Proposals are
 ranked: those reaching ``target`` power first, by machine time; then the others by power.
 
 The candidate's observations are simulated on the virtual CMM (``simulate``) in the data's
@@ -169,7 +176,8 @@ class Proposal:
         Rival taken as the truth -> (k, ν): numerator and denominator dof of its nested
         F-test.
     level : dict
-        Rival -> the level the diagnosis tests it at.
+        Rival taken as the truth -> the level its nested test is judged at (two model
+        tokens: both at the first rival's level, as the diagnosis's nested tests).
     power : dict
         Rival taken as the truth -> probability that its nested test rejects the other.
     power_min : float
@@ -804,7 +812,8 @@ class RivalFits:
     fits : dict
         Rival -> its ``FitResult`` on the current data.
     levels : dict
-        Rival -> the level the diagnosis tests it at.
+        Rival -> the level its nested test is judged at: for two model tokens the first
+        rival's level, both directions (:func:`fit_rivals`).
     """
 
     rivals: tuple
@@ -817,7 +826,8 @@ def fit_rivals(data: Dataset, rivals: Sequence[str], *, baseline: str = "kinemat
                plate: str | None = None, sigma_um: float = 0.5,
                alpha: float = FAMILY_ALPHA) -> RivalFits:
     """Fit the baseline with each rival added to the current data (their fitted sizes),
-    and the level the diagnosis tests each at (``detect.candidate_tokens``).
+    and the level each direction is judged at (:func:`_levels`: for two model tokens the
+    first rival's, ``detect.candidate_tokens``).
 
     Raises
     ------
@@ -839,12 +849,23 @@ def fit_rivals(data: Dataset, rivals: Sequence[str], *, baseline: str = "kinemat
     fits = {r: _scale_fit(base) if r == PLACEMENT_SCALE else base if r == BASELINE else
             fit(data, specs[r], plate=base.plate, sigma_um=sigma_um, max_iter=2000,
                 certificate_test=False) for r in rivals}
-    levels = {**candidate_tokens(base, alpha)[2], PLACEMENT_SCALE: SCALE_ALPHA,
-              BASELINE: alpha}
-    fallback = alpha / max(len(levels), 1)
-    return RivalFits(tuple(rivals), specs, fits,
-                     {r: float(levels.get(r, levels.get(r.partition(":")[0], fallback)))
-                      for r in rivals})
+    return RivalFits(tuple(rivals), specs, fits, _levels(base, rivals, alpha))
+
+
+def _levels(base: FitResult, rivals: Sequence[str], alpha: float) -> dict:
+    """Rival -> the level its nested test is judged at (module docstring): both
+    directions of two model tokens at the first rival's own level (its share of
+    ``alpha``, ``detect.candidate_tokens``), as the diagnosis's nested tests judge both
+    at the level of the candidate it ranks first (``verdict._encompassing``), which is
+    the first rival when the rivals are the diagnosis's (:func:`rivals_of`,
+    :func:`open_pairs`); :data:`PLACEMENT_SCALE` at the placement-scale test's level
+    (``SCALE_ALPHA``, as ``crossval.check`` judges it) and the effect against it at its
+    own; :data:`BASELINE` at ``alpha`` (it has nothing to see: not scored)."""
+    own = {**candidate_tokens(base, alpha)[2], PLACEMENT_SCALE: SCALE_ALPHA, BASELINE: alpha}
+    fallback = alpha / max(len(own), 1)
+    a = rivals[0]
+    first = float(own.get(a, own.get(a.partition(":")[0], fallback)))
+    return {r: float(own[r]) if r in PSEUDO else first for r in rivals}
 
 
 @dataclass(frozen=True)
