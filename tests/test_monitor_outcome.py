@@ -236,3 +236,26 @@ def test_an_instruments_En_is_per_reading_named_by_its_file_row():
     g = b.gls
     assert np.allclose(b.readings["En"], g.residual_um / np.sqrt(g.residual_cov_diag))
     assert "file row " + str(bar.rows[int(np.abs(b.readings["En"]).argmax())]) in b.message
+
+
+def test_instrument_points_beyond_the_fits_margin_are_refused_and_counted_outside():
+    # review 2 #10: the check took points up to 100 mm beyond the strokes where the fit
+    # refuses beyond RANGE_MARGIN (5 %); now 8 % beyond is refused, 3 % beyond is taken
+    # and counted among the points outside the region the model was fitted in
+    cal, model = calibrated("pitch100_4pos", 3)
+    rng = np.asarray(model.terms.range_mm, float)
+    assert 0.08 * rng[2] < 100  # inside the old tolerance: it was accepted
+    sim = remeasured(cal, 4_019)
+    c = rng / 2
+    far = simulate_ball_bar(sim, [c], [[c[0], c[1], 1.08 * rng[2]]], u_um=0.3, seed=1,
+                            source="far.csv")
+    with pytest.raises(DataError, match="outside the model's strokes") as e:
+        interim_check(model, None, instruments=[far])
+    assert e.value.file == "far.csv" and "\n" not in str(e.value)
+    near = simulate_ball_bar(sim, [c, c], [[1.03 * rng[0], c[1], c[2]], c + [0, 200, 0]],
+                             u_um=0.3, seed=1)
+    chk = interim_check(model, None, instruments=[near])
+    hi = np.asarray(model.summary["region_mm"], float)[1]
+    x = np.vstack([p for p, _ in near.points()])
+    assert chk.outside_region == int((x > hi + 1.0).any(axis=1).sum()) == 1
+    assert "instrument point(s) lie outside the region" in chk.message
