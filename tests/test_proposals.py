@@ -25,7 +25,7 @@ from cmm_core.diagnosis import (  # noqa: E402
     diagnose,
 )
 from cmm_core.io import Certificate, DataError, Dataset  # noqa: E402
-from cmm_core.model import fit  # noqa: E402
+from cmm_core.model import fit, select  # noqa: E402
 from cmm_core.plan import (  # noqa: E402
     BASELINE,
     PLACEMENT_SCALE,
@@ -456,3 +456,19 @@ def test_both_directions_of_a_token_pair_are_judged_at_the_first_rivals_level(cl
     pr = propose(clean80, ("rxz:4", "sxy"), baseline=BASE,
                  cands=measurement_candidates(clean80)[:1])
     assert pr.ranked[0].level == {"rxz:4": own["rxz:4"], "sxy": own["rxz:4"]}
+
+
+def test_restrict_keeps_the_rows_select_keeps(clean80):
+    """One selection rule (review 2, #12): restrict's rows are model.select's table for a
+    random tenth of the observations excluded (seeded), two placements and one stylus."""
+    rng = np.random.default_rng(29)
+    m = clean80.meas
+    ex = [(p, q, int(b)) for p, q, b in m[["position", "probe", "ball"]].to_numpy()[
+        rng.random(len(m)) < 0.1]]
+    probe = str(m["probe"].iloc[0])
+    kw = {"positions": ["H", "D1"], "probes": [probe], "exclude": ex}
+    got = restrict(clean80, **kw).meas
+    want = select(clean80, **kw).table
+    assert 0 < len(got) == len(want) < len(m)
+    cols = ["position", "probe", "ball", "x_mm", "y_mm", "z_mm"]
+    assert got[cols].equals(want[cols])

@@ -635,32 +635,30 @@ def rivals_of(diagnosis: Diagnosis) -> tuple[str, str]:
 def restrict(data: Dataset, *, positions: Sequence[str] | None = None,
              probes: Sequence[str] | None = None,
              exclude: Iterable[Sequence] = ()) -> Dataset:
-    """The data set as a fit selects it (``select``'s ``positions``, ``probes``,
-    ``exclude``): the observations left out are dropped, and the placements with no
-    observation left leave the setup. The data set itself when nothing is left out."""
-    meas = data.meas
-    keep = np.ones(len(meas), bool)
-    if positions is not None:
-        keep &= meas["position"].isin(list(positions)).to_numpy()
-    if probes is not None:
-        keep &= meas["probe"].isin(list(probes)).to_numpy()
-    drop = {(str(p), str(q), int(b)) for p, q, b in exclude}
-    if drop:
-        keep &= ~np.array([(str(p), str(q), int(b)) in drop for p, q, b in
-                           zip(meas["position"], meas["probe"], meas["ball"], strict=True)],
-                          bool)
-    if keep.all():
+    """The data set as a fit selects it: the rows ``model.select`` keeps for
+    ``positions``, ``probes`` and ``exclude`` (its table, the one selection rule), the
+    placements with no observation left out of the setup. The data set itself when
+    nothing is left out.
+
+    Raises
+    ------
+    DataError
+        When the selection leaves no observation.
+    """
+    try:
+        kept = select(data, positions=positions, probes=probes,
+                      exclude=[tuple(e) for e in exclude]).table
+    except ValueError as exc:
+        raise DataError(f"{exc}", file=data.name, column="position") from None
+    if len(kept) == len(data.meas):
         return data
-    if not keep.any():
-        raise DataError("the selection leaves no observation; expected at least one "
-                        "placement measured.", file=data.name, column="position")
     raw = copy.deepcopy(data.setup.raw)
-    used = set(meas.loc[keep, "position"])
+    used = set(kept["position"])
     raw["positions"] = {p: pl for p, pl in raw["positions"].items() if p in used}
     setup = read_setup(raw, name=data.name)
-    fresh = data.meas.drop(columns=list(_RESOLVED), errors="ignore")
-    return Dataset(resolve(fresh[keep].reset_index(drop=True), setup, data.certificate),
-                   setup, data.certificate, data.name)
+    fresh = kept.drop(columns=list(_RESOLVED), errors="ignore")
+    return Dataset(resolve(fresh, setup, data.certificate), setup, data.certificate,
+                   data.name)
 
 
 def _basis(A: np.ndarray, rtol: float, sv_ref: float | None = None) -> tuple:
