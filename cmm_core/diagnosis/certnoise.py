@@ -68,9 +68,9 @@ def quadratic_form_sf(weights: np.ndarray, dofs: np.ndarray, noncentralities: np
         x = (w * u[:, None]) ** 2
         return (0.25 * h * np.log1p(x) + 0.5 * d2 * x / (1 + x)).sum(axis=1)
 
-    top = 1.0 / np.abs(w).max()
-    while log_rho(np.array([top]))[0] < 40.0:
-        top *= 2.0
+    # the first of u = 2^j / max|w| (j = 0 .. 79) where ρ exceeds e^40, in one evaluation
+    tops = 2.0 ** np.arange(80) / np.abs(w).max()
+    top = float(tops[min(int(np.argmax(log_rho(tops) >= 40.0)), tops.size - 1)])
     rate = 0.5 * float(np.sum(np.abs(w) * (h + d2)))
     n = int(min(max(3 * rate * top, 800), 400_000)) // 2 * 2 + 1
     u = np.linspace(0.0, top, n)[1:]
