@@ -27,7 +27,10 @@ SAMPLE_MODEL = "calibration_2024-03-04.json"
 
 
 def _model(name: str, text: str):
-    return ex.model_from_dict(json.loads(text), name=name)
+    """The stored model as ``analysis.load_stored_model`` reads one: a bad file is a
+    one-line DataError naming it (not the JSON parser's bare "Expecting value")."""
+    doc, _ = cio.read_json(text.encode("utf-8"), name)
+    return ex.model_from_dict(doc, name=name)
 
 
 @st.cache_data(show_spinner=False, max_entries=8)
@@ -106,13 +109,9 @@ with t_check:
     mpe = None
     if mpe_text.strip():
         try:
-            a, d = (float(v) for v in mpe_text.split(","))
-            mpe = (a, d) if a >= 0 and d > 0 else None
-        except ValueError:
-            mpe = None
-        if mpe is None:
-            st.error(f"MPE: expected 'A,D' with A >= 0 µm and D > 0 (e.g. 0.6,600), found "
-                     f"{mpe_text[:40]!r}.")
+            mpe = mon.parse_mpe(mpe_text)  # the CLI's --mpe rule
+        except ValueError as e:
+            st.error(f"MPE: {e}.")
     if files is not None:
         out = calls.safe(run_check, files[0][0], files[0][1], files[1], files[2], files[3],
                          float(alpha), float(family), mpe, files[4], what="Interim check")

@@ -1,14 +1,19 @@
 """The Interim check page (issue 28) in AppTest: the sample history's checks and history
 render without an error, and the crash is reported."""
 
+import json
 from pathlib import Path
 
 import pytest
 
 pytest.importorskip("streamlit")
+from streamlit.runtime.memory_media_file_storage import MemoryMediaFileStorage  # noqa: E402
 from streamlit.testing.v1 import AppTest  # noqa: E402
 
+from cmm_core.export import load_model  # noqa: E402
+
 APP = str(Path(__file__).resolve().parents[1] / "app.py")
+SAMPLES = Path(__file__).resolve().parents[1] / "sample_data"
 
 
 def _page():
@@ -50,8 +55,59 @@ def test_quiet_sample_passes_and_bad_mpe_is_one_message():
     assert [e.value for e in at.error] and "MPE" in at.error[0].value
 
 
-def test_check_offers_its_results_document():
+def test_check_offers_its_results_document(monkeypatch):
+    # review 2 #14: the document downloaded is the check shown. AppTest keeps a download's
+    # bytes in its in-memory media storage; they are caught on their way in
+    files = {}
+    load = MemoryMediaFileStorage.load_and_get_id
+
+    def keep(self, data, mimetype, kind, filename=None):
+        files[filename] = data
+        return load(self, data, mimetype, kind, filename)
+
+    monkeypatch.setattr(MemoryMediaFileStorage, "load_and_get_id", keep)
     at = _page()
     _ok(at)
     buttons = at.get("download_button")
     assert [b for b in buttons if "results (JSON)" in b.proto.label]
+    doc = json.loads(files["interim_check_results.json"])
+    ic = doc["interim_check"]
+    test = ic["test"]
+    shown = next(m.value for m in at.metric if m.label == "χ² / dof")
+    assert shown == f"{test['chi2']:.1f} / {test['dof']}"
+    assert ic["verdict"] == "changed" and ic["model"] == "calibration_2024-03-04.json"
+    assert ic["new_effects"]["named"][0]["effect"] == "sxy"
+    # each change with its posterior sd as the standard uncertainty and u_null (its sd
+    # if nothing changed) beside it: cov(δ | d) = V − cov(s), so u² + u_null² is the
+    # stored model's variance of sxy (to rounding)
+    sxy = next(p for p in ic["changes"]["parameters"] if p["name"] == "sxy")
+    model = load_model(SAMPLES / "history" / "calibration_2024-03-04.json")
+    j = model.terms.labels.index("sxy")
+    assert sxy["standard_uncertainty"] ** 2 + sxy["u_null"] ** 2 == pytest.approx(
+        model.cov[j, j], rel=1e-9)
+
+
+def test_mpe_field_refuses_infinity_as_the_cli_does():
+    # review 2 #12: the page parsed 'A,D' itself and took inf,600; both now call
+    # monitor.parse_mpe
+    at = _page()
+    at.text_input(key="chk_mpe").set_value("inf,600").run()
+    assert not at.exception
+    assert [e.value for e in at.error] and "MPE" in at.error[0].value
+    assert "finite" in at.error[0].value
+
+
+def test_an_uploaded_bad_model_is_one_message_naming_the_file():
+    # review 2 #12: the page read the model with json.loads ("Expecting value: line 1
+    # ..." without the file's name); now as analysis.load_stored_model reads one
+    at = _page()
+    at.radio(key="chk_src").set_value("Upload files").run()
+    at.file_uploader(key="chk_model").set_value(("stored.json", b"not a model", "application/json"))
+    at.selectbox(key="chk_kind").set_value("ball_bar")
+    bar = (SAMPLES / "instruments" / "ball_bar.csv").read_bytes()
+    at.file_uploader(key="chk_inst").set_value([("ball_bar.csv", bar, "text/csv")])
+    at.run()
+    assert not at.exception
+    errors = [e.value for e in at.error]
+    assert len(errors) == 1 and "stored.json" in errors[0], errors
+    assert "\n" not in errors[0].strip()

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
-import math
 from pathlib import Path
 
 from ..analysis import (
@@ -25,7 +24,13 @@ from ..analysis import (
 )
 from ..export import load_model, results_json
 from ..io import DataError, atomic_write_all, atomic_write_text, check_outputs, load_dataset
-from ..monitor import MAX_MAP_NODES_PER_AXIS, check_sigma_um, compare_calibrations, run_check
+from ..monitor import (
+    MAX_MAP_NODES_PER_AXIS,
+    check_sigma_um,
+    compare_calibrations,
+    parse_mpe,
+    run_check,
+)
 from .inputs import add_instrument_args, instruments_of, number_arg
 
 _MODEL_HELP = ("the stored calibration: a model file written by 'fit --save' (kinematic "
@@ -68,14 +73,11 @@ _LEVEL = number_arg(float, 0.001, 0.2)
 
 
 def _mpe(text: str) -> tuple[float, float]:
+    """``--mpe``: ``monitor.parse_mpe`` (the app's field reads it there too)."""
     try:
-        a, d = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected 'A,D' (MPE = A µm + L/D), e.g. 0.6,600, "
-                                         f"found {text[:40]!r}") from None
-    if not (math.isfinite(a) and math.isfinite(d) and a >= 0 and d > 0):
-        raise argparse.ArgumentTypeError(f"expected A >= 0 µm and D > 0, found {text[:40]!r}")
-    return a, d
+        return parse_mpe(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

@@ -27,7 +27,7 @@ from .check import (
     gls_fit,
     interim_check,
 )
-from .conformity import RULE, STATEMENTS, Conformity, conformity
+from .conformity import RULE, STATEMENTS, Conformity, conformity, parse_mpe
 from .history import HISTORY_RULE, MAX_MAP_NODES_PER_AXIS, History, compare_calibrations
 from .numbers import json_num
 from .outcome import (
@@ -43,7 +43,7 @@ from .scenario import remeasured
 
 __all__ = ["CheckSystem", "check_sigma_um", "check_system", "GlsFit", "gls_fit", "interim_check", "InterimCheck",
            "MAX_OBSERVATIONS", "PROBE_TOLERANCE_MM", "remeasured", "Changes", "MIN_RESOLVED", "what_changed",
-           "Conformity", "conformity", "RULE", "STATEMENTS", "holm", "History",
+           "Conformity", "conformity", "parse_mpe", "RULE", "STATEMENTS", "holm", "History",
            "compare_calibrations", "MAX_MAP_NODES_PER_AXIS", "CheckOutcome", "NewEffects",
            "name_new_effects", "run_check", "VERDICTS", "TEST_RULE", "CHANGE_RULE",
            "HISTORY_RULE", "json_num"]

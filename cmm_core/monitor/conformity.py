@@ -64,6 +64,28 @@ class Conformity:
                 "counts": dict(self.counts), "rule": self.rule, "unseen": list(self.unseen)}
 
 
+def parse_mpe(text: str) -> tuple[float, float]:
+    """The machine's MPE for lengths written ``"A,D"`` (ISO 10360-2 style, MPE = A µm +
+    L/D with L in mm, e.g. ``"0.6,600"``) as ``(A, D)``; the CLI's ``--mpe`` and the
+    app's field both read it here.
+
+    Raises
+    ------
+    ValueError
+        One line quoting the text when it is not two finite numbers with A >= 0 and
+        D > 0 (``inf,600`` and ``nan,1`` are refused).
+    """
+    try:
+        a, d = (float(v) for v in str(text).split(","))
+    except ValueError:
+        raise ValueError(f"expected 'A,D' (MPE = A µm + L/D), e.g. 0.6,600, found "
+                         f"{str(text)[:40]!r}") from None
+    if not (np.isfinite(a) and np.isfinite(d) and a >= 0 and d > 0):
+        raise ValueError(f"expected 'A,D' with finite A >= 0 µm and D > 0, e.g. 0.6,600, "
+                         f"found {str(text)[:40]!r}")
+    return a, d
+
+
 RULE = ("ISO 14253-1 with the test's expanded uncertainty U (k = 2) as guard band: a length "
         "conforms when |E| + U <= MPE, does not conform when |E| - U > MPE, and is "
         "inconclusive otherwise")
