@@ -11,6 +11,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from scenarios import simulated  # noqa: E402
 
+from cmm_core.cli.commands import main  # noqa: E402
 from cmm_core.cli.proposals import add_parser  # noqa: E402
 from cmm_core.plan import read_plan  # noqa: E402
 
@@ -69,3 +70,27 @@ def test_instruments_are_scored_on_request(files):
     kinds = {p["instrument"].get("kind") for p in out["proposals"]}
     assert {"laser", "step_gauge", "ball_bar", None} <= kinds
     json.dumps(out)
+
+
+def _inputs(files) -> list:
+    return [str(files / "measurements.csv"), "--setup", str(files / "setup.json"),
+            "--certificate", str(files / "certificate.csv")]
+
+
+def test_next_with_a_plate_prior_runs(files, capsys):
+    """``--plate prior`` (review 2, #1: it ended in an internal error, rc 3)."""
+    rc = main(["next", *_inputs(files), "--baseline", "kinematic21,-sxy", "--rivals",
+               "rxz:4,sxy", "--plate", "prior", "--top", "2"])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    doc = json.loads(out.out)
+    assert len(doc["proposals"]) == 2 and doc["proposals"][0]["power_min"] > 0
+
+
+def test_a_rival_already_in_the_baseline_is_refused_in_one_line(files, capsys):
+    """sxy in the default kinematic21 (review 2, #6): not scored as "0 % power"."""
+    rc = main(["next", *_inputs(files), "--rivals", "sxy,rxz:4"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert err.count("\n") == 1 and err.startswith("error: ")
+    assert "sxy is already in the baseline kinematic21; give a baseline without it" in err
