@@ -82,6 +82,13 @@ def test_report_has_the_interim_check_with_its_numbers():
     assert row.significant_alone
     # the change with its posterior sd (u_updated), not the null sd u_null (review 2 #4)
     assert f"sxy by {row.change:+.3g} ± {row.u_updated:.2g}" in sec
+    # one largest |E_n| (review 2 #12): the table's En column, the check's message and
+    # the report's list of the 10 largest are the same numbers
+    top = c.largest_En(10)
+    assert (c.table["En"] == c.table[["En_x", "En_y", "En_z"]].abs().max(axis=1)).all()
+    assert top["En"].iloc[0] == c.table["En"].max() and len(top) == 10
+    assert f"Largest |E_n| = {top['En'].iloc[0]:.2f}" in c.message
+    assert all(f"<td>{v:.4g}</td>" in sec for v in top["dx_um"])
     # the E_n map is a figure of the report, and the conformity statement with its rule
     assert "id='mon1'" in sec
     assert "<h3>Conformity</h3>" in sec and "ISO 14253-1" in sec
