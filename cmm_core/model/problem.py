@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -24,9 +24,6 @@ from .effects import ModelSpec
 from .instruments import Instruments
 from .observations import Observations
 from .state import State
-
-if TYPE_CHECKING:
-    from .result import FitResult
 
 __all__ = ["Problem", "held_constraints", "augmented_state", "weighted_residual"]
 
@@ -219,8 +216,9 @@ def held_constraints(labels: Sequence[str], design_null: np.ndarray, prob: Probl
     return held
 
 
-def augmented_state(base: FitResult, prob: Problem) -> State:
-    """A fit's solution expressed in another problem's parameter vector on the same
+def augmented_state(base: Any, prob: Problem) -> State:
+    """A fit's solution (``base``: a ``FitResult``; typed Any, as ``result`` imports this
+    module) expressed in another problem's parameter vector on the same
     observations (parameters the fit does not have start at zero): the linearisation
     point from which a candidate effect is scored (``diagnose.score``, ``holdout``)."""
     return base.state.relabelled(base.labels, prob.layout.labels)
