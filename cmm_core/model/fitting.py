@@ -107,7 +107,10 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     status, it = "max_iterations", 0
     # only the normal equations are formed, block by block of observations: never J
     ne0 = nominal(prob) if nominal is not None else None
-    d, cost, N, g, n_rows = ne0 if ne0 is not None else prob.normal_equations(state, sigma_um)
+    # the starting point's accumulation is not the last one (a step follows): the
+    # certificate's plate columns are kept only by the later ones
+    d, cost, N, g, n_rows = ne0 if ne0 is not None else prob.normal_equations(
+        state, sigma_um, plate_cross=False)
     unseen = np.zeros((0, L.n))
     if not has_plate(obs):
         unseen = _unseen_columns(N, rank_rtol)

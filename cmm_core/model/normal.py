@@ -349,8 +349,8 @@ def _plate_cross(prob: Any, state: State) -> tuple | None:
     return kept[1:] if kept is not None and kept[0] is state else None
 
 
-def accumulate(prob: Any, state: State, sigma_um: float, rows: int = ROWS
-               ) -> NormalEquations:
+def accumulate(prob: Any, state: State, sigma_um: float, rows: int = ROWS,
+               plate_cross: bool = True) -> NormalEquations:
     """Weighted normal equations of ``prob`` at ``state`` (``fit.Problem.normal_equations``).
 
     Residual rows are divided by σ; with a plate prior its rows ``(c - c_cert)/u`` are
@@ -362,6 +362,9 @@ def accumulate(prob: Any, state: State, sigma_um: float, rows: int = ROWS
     ``S`` (placements, effects) written densely with the residual ``d`` as a last column,
     so that ``KᵀK`` (dsyrk per component), ``Kᵀ[S d]`` and ``[S d]ᵀ[S d]`` give every
     entry of ``JᵀJ``, ``Jᵀd`` and ``d·d`` in three products (all divided by σ² at the end).
+
+    ``plate_cross``: with the certificate fixed, keep its plate columns beside them
+    (:func:`_plate_cross`); a fit skips them where it knows more accumulations follow.
     """
     n, p = prob.n_obs, prob.layout.n
     N, g = np.zeros((p, p)), np.zeros(p)
@@ -372,7 +375,7 @@ def accumulate(prob: Any, state: State, sigma_um: float, rows: int = ROWS
     # a fixed certificate's plate columns, for its terms (``certificate_prior``): the
     # prior problem's columns that the fixed one lacks, from the same Jacobian rows
     cross = None
-    if prob.plate == "fixed" and prob.obs.cert_u_um is not None:
+    if plate_cross and prob.plate == "fixed" and prob.obs.cert_u_um is not None:
         W = 3 * len(prob.obs.balls)
         cross = (np.zeros((p, W)), np.zeros(W), np.zeros((W, W)))
     for idx, sub in parts:

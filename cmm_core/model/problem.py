@@ -170,7 +170,8 @@ class Problem:
                            np.arange(3 * n + 1, dtype=itype) * k), shape=(3 * n, self.layout.n))
         return d, J
 
-    def normal_equations(self, state, sigma_um: float, rows: int = _normal.ROWS):
+    def normal_equations(self, state: State, sigma_um: float, rows: int = _normal.ROWS,
+                         plate_cross: bool = True) -> _normal.NormalEquations:
         """Weighted normal equations ``JᵀJ``, ``Jᵀr`` at ``state``, accumulated over blocks
         of ``rows`` observations without forming ``J`` (``normal.accumulate``): residuals
         (µm), ``r·r``, N, g and the number of weighted rows."""
@@ -178,7 +179,7 @@ class Problem:
             return _instrument_normal_equations(self, state)
         if hole_plate.is_hole_plate(self.obs):  # projected rows: J assembled
             return _hole_plate_normal_equations(self, state, sigma_um)
-        return _normal.accumulate(self, state, sigma_um, rows)
+        return _normal.accumulate(self, state, sigma_um, rows, plate_cross)
 
     def constraints(self):
         """Gauge constraints C (rows) on the parameter vector: C x = 0."""
