@@ -69,6 +69,8 @@ def test_sample_check_after_a_crash_shows_verdict_map_and_effect(page):
     expect(page.get_by_text("Verdict: changed").first).to_be_visible()
     # the E_n map: a plotly chart with its title, one marker per ball centre
     chart = page.locator(".st-key-chk_map [data-testid='stPlotlyChart']")
+    # a rerun keeps the stale chart beside the new one for a moment: wait for one
+    expect(chart).to_have_count(1)
     expect(chart).to_be_visible()
     expect(chart.get_by_text("Normalised errors of the new observations")).to_be_visible()
     assert chart.locator("path.point").count() == 200  # 4 placements × 25 balls × 2 styli
@@ -84,6 +86,8 @@ def test_quiet_one_placement_check_is_partial(page):
     expect(page.get_by_text("Verdict: partial").first).to_be_visible()
     expect(page.get_by_text("cannot see 19 combination(s)").first).to_be_visible()
     chart = page.locator(".st-key-chk_map [data-testid='stPlotlyChart']")
+    # a rerun keeps the stale chart beside the new one for a moment: wait for one
+    expect(chart).to_have_count(1)
     expect(chart).to_be_visible()
     assert chart.locator("path.point").count() == 50  # one placement, two styli
     _no_exception(page)
