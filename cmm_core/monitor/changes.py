@@ -16,7 +16,7 @@ tested by its score, ``z_j = -(Jᵀ Π d)_j / sqrt((Jᵀ Π J)_jj)``, standard n
 changed: the sharper test when one effect appeared (a crash). It is made only where the
 data resolve the parameter moving alone, ``(Jᵀ Π J)_jj V_jj >=`` :data:`MIN_RESOLVED`
 (elsewhere the estimate ``-(Jᵀ Π d)_j / (Jᵀ Π J)_jj`` is an extrapolation: a ball bar
-of six lengths gave ``ryz[2]`` a "significant" 5·10⁵ µrad). ``s`` is the posterior
+of five lengths gave ``ryz[2]`` a "significant" 4.6·10⁵ µrad). ``s`` is the posterior
 mean, shrunk toward 0 by about the resolved fraction; its uncertainty is the posterior
 sd ``u_updated``, not ``u(s)`` (the sd of ``s`` if nothing changed, ``u_null``, the
 E_n denominator); the alone estimate is unshrunk. Parameters are tested at a
@@ -157,7 +157,7 @@ def what_changed(model: Model, check: InterimCheck, *,
     # one parameter moved alone, the others as stored: the score test of δ = t e_j, only
     # where the data resolve the parameter moving alone (h V_jj >= MIN_RESOLVED: its
     # alone estimate's variance 1/h at most 10 × its prior variance); elsewhere the
-    # estimate g/h is an extrapolation of a whisper (a ball bar gave ryz[2] 5e5 µrad)
+    # estimate g/h is an extrapolation of a whisper (a ball bar gave ryz[2] 4.6e5 µrad)
     g_alone = -(PiJ.T @ sys.d_um)
     h = np.clip(np.diag(H), 0, None)
     resolved_alone = h * np.diag(V)
