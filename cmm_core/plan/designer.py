@@ -37,6 +37,7 @@ import numpy as np
 from scipy import linalg
 
 from .._blas import single_blas_thread
+from ..diagnosis import MIN_FORM_DOF, size_for_power
 from ..machine import kinematics as kin
 from ..model import Problem, augmented_state, rigid_body_projector, select, weighted_residual
 from ..units import UM
@@ -216,14 +217,29 @@ class PoolModel:
             nu = max(n_rows - rank - k, 1)
             ok = k > 0 and q > (self.rank_rtol * sv.max()) ** 2 * float(shape @ NEE @ shape)
             c1 = c2 = 1.0
+            noise: tuple | None = None
             if XG is not None and ok:  # detect.cert_scales from the Gram matrices
                 XE = XG[e_idx] - NEB @ cov @ XB  # Rᵀ M G
                 ws, vs = np.linalg.eigh((schur + schur.T) / 2)
                 top = np.argsort(ws)[::-1][:k]
-                on = float(np.sum((vs[:, top].T @ XE) ** 2 / ws[top][:, None]))
+                C = (vs[:, top].T @ XE) / np.sqrt(ws[top])[:, None]  # Qᵀ M G
+                on = float(np.sum(C ** 2))
                 c1, c2 = 1.0 + on / k, 1.0 + (tr_mg - on) / nu
-            det[tok] = (float(np.sqrt(c1 * noncentrality_for_power(
-                k, nu, self.levels[tok], POWER, round(c2 / c1, 6)) / q)) if ok else np.inf)
+                # detect.cert_noise: the Δχ²'s noise in the k directions, and the shape's
+                # pattern there (Qᵀ R e = S Vᵀ e)
+                w, V2 = np.linalg.eigh(np.eye(k) + C @ C.T)
+                noise = (w, V2.T @ (np.sqrt(ws[top]) * (vs[:, top].T @ shape)))
+            # the diagnosis's test divides F by c1/c2 (diagnosis.certnoise): the plain F's
+            # critical value; uneven noise in k > 1 directions: Imhof's integral, as
+            # detect.detection_limits
+            size = (float(np.sqrt(c1 * noncentrality_for_power(
+                k, nu, self.levels[tok], POWER) / q)) if ok else np.inf)
+            if ok and noise is not None and k > 1 and nu + k >= MIN_FORM_DOF:
+                w, mu = noise
+                if float(w.max() - w.min()) > 1e-6 * float(w.max()):
+                    size = size_for_power(w, mu ** 2 / w, int(nu), self.levels[tok], c2,
+                                          POWER, size)
+            det[tok] = size
         return {"determined": determined, "U3_um": u3, "detect": det}
 
     def criterion(self, sel: Sequence[int], kind: str) -> float:
