@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import inspect
 import statistics
 import sys
 import time
@@ -75,7 +76,7 @@ def timing(layout: str, repeats: int = 21) -> None:
     cal = sc.simulated(layout, 0)
     model = model_from_result(fit(cal.dataset, "kinematic21", plate="fixed"))
     system = check_system(model, remeasured(cal, 1).dataset)
-    for name, fn in (("one BLAS thread", gls_fit), ("default threads", gls_fit.__wrapped__)):
+    for name, fn in (("one BLAS thread", gls_fit), ("default threads", inspect.unwrap(gls_fit))):
         wall, cpu = [], []
         for _ in range(repeats):
             t, c = time.perf_counter(), time.process_time()

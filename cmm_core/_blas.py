@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import Any
+from typing import ParamSpec, TypeVar
 
 try:
     from threadpoolctl import threadpool_limits
@@ -20,16 +20,17 @@ except ImportError:  # pragma: no cover - threadpoolctl is in requirements.txt
 
 __all__ = ["single_blas_thread"]
 
+P = ParamSpec("P")
+R = TypeVar("R")
 
-def single_blas_thread(func: Callable[..., Any]) -> Any:
+
+def single_blas_thread(func: Callable[P, R]) -> Callable[P, R]:
     """Decorator: run ``func`` with BLAS limited to one thread (nested calls are cheap).
-
-    Typed as returning ``Any``: callers reach the undecorated function through
-    ``__wrapped__`` (which ``Callable`` does not declare).
-    """
+    The decorated function keeps ``func``'s signature for the type checker; the
+    undecorated one is ``inspect.unwrap(f)``."""
 
     @functools.wraps(func)
-    def wrapper(*args, **kwargs):
+    def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
         if threadpool_limits is None:
             return func(*args, **kwargs)
         with threadpool_limits(limits=1, user_api="blas"):

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -111,7 +112,7 @@ def check_certificate(data: Dataset | Observations, spec: str = "kinematic21", *
         data, positions=positions, probes=probes, exclude=exclude)
     if not obs.has_certificate or obs.cert_u_um is None:
         return None
-    kw = {"order": order, "sigma_um": sigma_um}
+    kw: dict[str, Any] = {"order": order, "sigma_um": sigma_um}
     have = {fitted.plate: fitted} if fitted is not None else {}
 
     def fit_plate(mode):

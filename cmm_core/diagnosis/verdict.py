@@ -10,6 +10,7 @@ is :data:`OUTSIDE` the catalogue, with where the residual lives
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import replace
 from typing import Protocol
 
@@ -132,7 +133,7 @@ def _refit(base: FitResult, spec, max_iter: int, cache=None) -> FitResult:
     (``fit``'s ``certificate_test``), and no BLAS thread limit of its own (the diagnosis
     holds one). ``cache``: the diagnosis's ``scoring.ScoreCache``, whose normal equations
     at the initial state start the fit."""
-    return fit.__wrapped__(base.problem.obs, spec, plate=base.plate, sigma_um=base.sigma_um,
+    return inspect.unwrap(fit)(base.problem.obs, spec, plate=base.plate, sigma_um=base.sigma_um,
                            rank_rtol=base.rank_rtol, max_iter=max_iter, certificate_test=False,
                            nominal=None if cache is None else cache.nominal)
 

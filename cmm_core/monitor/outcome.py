@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -116,7 +117,7 @@ def name_new_effects(model: Model, check: InterimCheck, changes: Changes, *,
     p = np.array([model.probes_mm[q] for q in obs.probes], float)[obs.probe]
     true_tip = kin.model_point(model.terms, model.coef, obs.r_mm - obs.p_mm, p)
     corrected = replace(obs, r_mm=true_tip + (obs.p_mm - p), instruments=())
-    kw = {} if alpha is None else {"alpha": alpha}
+    kw: dict[str, Any] = {} if alpha is None else {"alpha": alpha}
     diag = diagnose(corrected, "rigid", plate="fixed", sigma_um=check.sigma_um, **kw)
     labels = set(model.terms.labels)
     alone = changes.table.set_index("label")["significant_alone"]
