@@ -51,7 +51,7 @@ class Eval:
     Rk : ndarray (n, 3, 3)
         Rotation of each observation's placement.
     kin_jac : ndarray (n, 3, k) or None
-        Kinematic model Jacobian (mm per coefficient unit).
+        Kinematic model Jacobian (µm per coefficient unit).
     """
 
     problem: object
