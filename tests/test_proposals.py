@@ -390,9 +390,11 @@ def _cand(effect, aliases=(), significant=True, level=1e-3, undetermined=()):
                      would_leave_undetermined=list(undetermined))
 
 
-def _held(effect, passed, scale_p, effect_given_scale_p):
+def _held(effect, passed, scale_p, effect_given_scale_p, effect_level=1e-3):
+    """A leave-one-placement-out check (``effect_level``: the candidate's, ``_cand``)."""
     return HoldoutCheck(effect, True, passed, 10.0, 2.0, {}, "", scale_p=scale_p,
-                        effect_given_scale_p=effect_given_scale_p)
+                        effect_given_scale_p=effect_given_scale_p,
+                        effect_level=effect_level)
 
 
 def test_open_pairs_judge_the_placement_scale_as_the_diagnosis_does():

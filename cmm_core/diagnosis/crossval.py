@@ -102,6 +102,9 @@ class HoldoutCheck:
         when not run: a hole plate, or one placement).
     effect_given_scale_p : float
         p-value of the effect added once the placements' own scales are in the model.
+    effect_level : float
+        The effect's own level in the diagnosis, at which ``effect_given_scale_p`` is
+        judged (NaN when not given).
     """
 
     effect: str
@@ -116,6 +119,15 @@ class HoldoutCheck:
     z: float = float("nan")
     scale_p: float = float("nan")
     effect_given_scale_p: float = float("nan")
+    effect_level: float = float("nan")
+
+    @property
+    def stands_in_for_scale(self) -> bool:
+        """The effect stands in for each placement's own scale: the scales are still
+        needed with it in (``scale_p < SCALE_ALPHA``) while it adds nothing once they are
+        in (``effect_given_scale_p ≥ effect_level``). False when the test was not run."""
+        return bool(self.scale_p < SCALE_ALPHA
+                    and self.effect_given_scale_p >= self.effect_level)
 
     @property
     def share(self) -> float:
@@ -134,6 +146,7 @@ class HoldoutCheck:
                 "sd_held_out": self.sd_held_out if self.applicable else None,
                 "z": self.z if self.applicable else None, "level": ALPHA,
                 "per_placement": self.per_placement, "reason": self.reason,
+                "stands_in_for_scale": self.stands_in_for_scale,
                 "placement_scale": {"scale_given_effect_p": _nan_none(self.scale_p),
                                     "effect_given_scale_p":
                                         _nan_none(self.effect_given_scale_p),
@@ -385,8 +398,8 @@ def check(base: FitResult, token: str, cache: ScoreCache | None = None,
         p_s, p_e = placement_scale_test(r, X, S, base.dof + base.rank,
                                         np.hstack([Jb, plate_columns(base, r.size)]))
     h = _held_out(base, token, added, r, X, pos_of_row, Jb, cov)
-    h = replace(h, scale_p=p_s, effect_given_scale_p=p_e)
-    if p_s < SCALE_ALPHA and p_e >= level:
+    h = replace(h, scale_p=p_s, effect_given_scale_p=p_e, effect_level=level)
+    if h.stands_in_for_scale:
         h = replace(h, passed=False, reason=(
             f"it stands in for each placement's own scale: once the placements' own "
             f"scales are in the model it adds nothing (p = {p_e:.2g} against its level "

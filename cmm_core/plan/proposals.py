@@ -555,26 +555,12 @@ def rival_pairs(candidates: Sequence[Mapping[str, Any]], *, top: int = 3
     return out
 
 
-def _stands_in(scale_p: float, effect_given_scale_p: float, level: float) -> bool:
-    """``diagnosis.crossval.check``'s rule: the placements' own scales are still needed
-    with the effect in (``scale_p < SCALE_ALPHA``) while the effect adds nothing once they
-    are in (``effect_given_scale_p ≥ level``, the effect's own level in the diagnosis).
-    False when the test was not run (NaN)."""
-    return bool(scale_p < SCALE_ALPHA and effect_given_scale_p >= level)
-
-
-def _p(x: Any) -> float:
-    """A p-value of a JSON document (``None`` for not run) as a float (NaN)."""
-    return float("nan") if x is None else float(x)
-
-
 def open_pairs(diagnosis: Diagnosis | Mapping[str, Any], *, top: int = 3
                ) -> list[tuple[str, str]]:
     """Every pair of rivals a diagnosis leaves open (:func:`rival_pairs`), read from the
     diagnosis itself: each candidate's aliases and significance, whether it stands in
-    for each placement's own scale (the leave-one-placement-out check's placement-scale
-    test judged as ``diagnosis.crossval.check`` judges it, at the candidate's own level;
-    not merely a failed check), and the combinations its addition would leave
+    for each placement's own scale (``HoldoutCheck.stands_in_for_scale``, the rule
+    ``diagnosis.crossval.check`` judges by; not merely a failed check), and the combinations its addition would leave
     undetermined (then it and :data:`BASELINE` are a pair). The one rule of the ``next``
     command's default rivals (:func:`rivals_of`) and the app's "Measure next".
 
@@ -593,16 +579,14 @@ def open_pairs(diagnosis: Diagnosis | Mapping[str, Any], *, top: int = 3
                   "significant": bool(c.significant), "level": float(c.level),
                   "would_leave_undetermined": list(c.would_leave_undetermined)}
                  for c in diagnosis.candidates]
-        scale = {h.effect: (h.scale_p, h.effect_given_scale_p) for h in diagnosis.holdout}
+        scale = {h.effect: h.stands_in_for_scale for h in diagnosis.holdout}
     else:
         cands = [dict(c) for c in diagnosis.get("candidates") or []]
-        scale = {h["effect"]: (_p(h["placement_scale"]["scale_given_effect_p"]),
-                               _p(h["placement_scale"]["effect_given_scale_p"]))
-                 for h in diagnosis.get("holdout") or [] if h.get("placement_scale")}
+        scale = {h["effect"]: bool(h.get("stands_in_for_scale"))
+                 for h in diagnosis.get("holdout") or []}
     return rival_pairs([{"effect": c["effect"], "aliases": list(c["aliases"]),
                          "significant": bool(c["significant"]),
-                         "stands_in_for_scale": c["effect"] in scale and _stands_in(
-                             *scale[c["effect"]], float(c["level"])),
+                         "stands_in_for_scale": scale.get(c["effect"], False),
                          "would_leave_undetermined": list(
                              c.get("would_leave_undetermined") or [])}
                         for c in cands], top=top)
