@@ -152,6 +152,7 @@ def held_prior_rows(prob: Problem) -> int:
     if prob.plate != "prior":
         return 0
     plate = prob.block(Plate)
+    assert plate is not None  # a prior plate is a Plate block (Plate.wanted)
     G = prob.instruments.plate_gauge(plate, plate.constraints())  # as the fit applies it
     keep = np.isfinite(_cert_u_um(prob).ravel())
     return int(np.linalg.matrix_rank(G[:, keep])) if keep.any() else 0

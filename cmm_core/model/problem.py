@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import scipy.sparse as sp
@@ -17,7 +17,7 @@ from ..units import UM
 from . import hole_plate
 from . import normal as _normal
 from .blocks import REGISTRY
-from .blocks.base import Eval
+from .blocks.base import Block, Eval
 from .blocks.kinematic import Kinematic
 from .blocks.plate import Plate
 from .effects import ModelSpec
@@ -26,6 +26,8 @@ from .observations import Observations
 from .state import State
 
 __all__ = ["Problem", "held_constraints", "augmented_state", "weighted_residual"]
+
+_B = TypeVar("_B", bound=Block)
 
 
 @dataclass
@@ -57,7 +59,7 @@ class Problem:
     Jacobian columns and its gauge constraints.
     """
 
-    def __init__(self, obs: Observations, spec: ModelSpec, plate: str):
+    def __init__(self, obs: Observations, spec: ModelSpec, plate: str) -> None:
         self.obs, self.spec, self.plate = obs, spec, plate
         self.terms = KinematicTerms(spec.active, tuple(obs.range_mm), spec.periods,
                                         obs.layout)
@@ -77,12 +79,12 @@ class Problem:
         self.instruments = Instruments(self)  # laser and step-gauge rows (their own module)
         self._kinematic = next(b for b in self.blocks if isinstance(b, Kinematic))
 
-    def block(self, cls):
+    def block(self, cls: type[_B]) -> _B | None:
         """The block of this class in the model, or None."""
         return next((b for b in self.blocks if isinstance(b, cls)), None)
 
     # --- state ---------------------------------------------------------------------
-    def initial_state(self):
+    def initial_state(self) -> State:
         """Nominal plate, placements by a rigid fit of the plate to each position."""
         if hole_plate.is_hole_plate(self.obs):  # in-plane fit at the nominal tilt
             return hole_plate.initial_state(self)
@@ -119,7 +121,7 @@ class Problem:
         xs = self._kinematic.model(ev)
         return self._reading(ev, (xs - placed) / UM), ev
 
-    def targets(self, state):
+    def targets(self, state: State) -> tuple[np.ndarray, np.ndarray]:
         """What the kinematic model must return for every residual to vanish (mm), and
         the true probe offsets (mm): the simulator inverts the model to these
         (``simulate``), so that it is the exact inverse of the fit's model."""
@@ -127,9 +129,10 @@ class Problem:
         placed = self._placed(ev)
         # the reading stage is linear in the residual: d = (x* - placed)/UM + L
         L = self._reading(ev, np.zeros_like(placed))
+        assert ev.p_mm is not None  # set by the probe stage (_placed)
         return placed - L * UM, ev.p_mm
 
-    def plate_points(self, state):
+    def plate_points(self, state: State) -> np.ndarray:
         """Plate coordinates of every observation after thermal and sag effects (mm)."""
         ev = Eval(self, state, False)
         c = state.c[self.obs.ball]
@@ -137,9 +140,11 @@ class Problem:
             c = b.plate_stage(ev, c)
         return c
 
-    def residual(self, state, want_jac=False):
+    def residual(self, state: State, want_jac: bool = False) -> tuple[np.ndarray, Any]:
         """Residuals (n, 3) in µm and, if asked, the sparse Jacobian (3n, N); a hole
-        plate's without their components along the plate normal (``hole_plate``)."""
+        plate's without their components along the plate normal (``hole_plate``). The
+        Jacobian is a ``scipy.sparse`` CSR matrix or None, typed Any: scipy ships no
+        type information here (``mypy.ini``)."""
         out = self._residual3(state, want_jac)
         return hole_plate.in_plane(self, state, *out) if hole_plate.is_hole_plate(self.obs) \
             else out
@@ -181,21 +186,22 @@ class Problem:
             return _hole_plate_normal_equations(self, state, sigma_um)
         return _normal.accumulate(self, state, sigma_um, rows, plate_cross)
 
-    def constraints(self):
+    def constraints(self) -> np.ndarray:
         """Gauge constraints C (rows) on the parameter vector: C x = 0."""
         L, rows = self.layout, []
         for b in self.blocks:
             G = b.constraints()
             if G is None:
                 continue
-            G = self.instruments.plate_gauge(b, G)
+            if isinstance(b, Plate):  # an instrument may release the plate's scale
+                G = self.instruments.plate_gauge(b, G)
             s = L.blocks[b.columns(self.obs)[0][0]]
             C = np.zeros((G.shape[0], L.n))
             C[:, s.start:s.start + G.shape[1]] = G  # G may span the block's next groups
             rows.append(C)
         return np.vstack(rows) if rows else np.zeros((0, L.n))
 
-    def update(self, state, step):
+    def update(self, state: State, step: np.ndarray) -> State:
         """Apply a step: placements are updated multiplicatively so the rotation
         parameters stay small increments (exact Jacobian at zero), the plate into its
         coordinates."""
@@ -238,7 +244,9 @@ def weighted_residual(prob: Problem, state: State, sigma_um: float, want_jac: bo
     if J is not None:
         J.data /= sigma_um  # J is this call's own: scaled in place, not copied
     if prob.plate == "prior":
-        rp, Jp = prob.block(Plate).prior_rows(state, want_jac)
+        plate = prob.block(Plate)
+        assert plate is not None  # a prior plate is a Plate block (Plate.wanted)
+        rp, Jp = plate.prior_rows(state, want_jac)
         r = np.concatenate([r, rp])
         if J is not None:
             J = sp.vstack([J, Jp]).tocsr()

@@ -13,13 +13,29 @@ as it did before the blocks corrected new points.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
+import pandas as pd
 
 from ...io import DataError
 from ...io.delimited import numeric_column
 from ...io.errors import cut_repr
-from ..observations import approach_directions
-from .base import Block, Correction, Effect, ModelPart, SimParam, checked_cov, shared_cols
+from ..observations import Observations, approach_directions
+from .base import (
+    Block,
+    Column,
+    Correction,
+    Effect,
+    Eval,
+    Jacobian,
+    ModelPart,
+    Shape,
+    SimContext,
+    SimParam,
+    checked_cov,
+    shared_cols,
+)
 
 LABELS = tuple(f"backlash.{a}" for a in "xyz")
 
@@ -50,30 +66,31 @@ class Backlash(Block):
     physical_check = True
 
     @classmethod
-    def detection_shapes(cls, labels, positions, probes):
+    def detection_shapes(cls, labels: Sequence[str], positions: Sequence[str],
+                         probes: Sequence[str]) -> list[Shape]:
         return [(f"{a} axis", {f"backlash.{a}": 1.0}) for a in "xyz"]
 
     @classmethod
-    def injection(cls, values):
+    def injection(cls, values: dict[str, float]) -> dict | None:
         return {f"{lab[-1]}_um": v for lab, v in values.items()}
 
     @classmethod
-    def draw(cls, cfg, sim, rng):
+    def draw(cls, cfg: dict, sim: SimContext, rng: np.random.Generator) -> dict[str, float]:
         return {f"backlash.{a}": float(cfg.get(f"{a}_um", 0.0)) for a in "xyz"}
 
     @staticmethod
-    def needs(obs):
+    def needs(obs: Observations) -> str | None:
         if not (np.ptp(obs.approach, axis=0) == 2).any():
             return "every ball was approached from the same side along each axis"
         return None
 
-    def columns(self, obs):
+    def columns(self, obs: Observations) -> list[Column]:
         return [("backlash", [f"backlash.{a}" for a in "xyz"], "um")]
 
-    def reading_stage(self, ev, d):
+    def reading_stage(self, ev: Eval, d: np.ndarray) -> np.ndarray:
         return d + ev.x("backlash") * ev.obs.approach / 2
 
-    def jacobian(self, ev):
+    def jacobian(self, ev: Eval) -> Jacobian:
         o = ev.obs
         return [(shared_cols(ev.start("backlash"), 3, len(o.pos)),
                  np.eye(3)[None] * (o.approach / 2)[:, None, :])]
@@ -84,16 +101,16 @@ class Backlash(Block):
     comp_units = "um"
 
     @classmethod
-    def correction_columns(cls, labels=None):
+    def correction_columns(cls, labels: Sequence[str] | None = None) -> tuple[str, ...]:
         """``time_min``: the points' measurement order (else their file order)."""
         return ("time_min",)
 
     @classmethod
-    def part_to_file(cls, part):
+    def part_to_file(cls, part: ModelPart) -> dict:
         return {"backlash_um": part.values.tolist(), "cov_with_backlash": part.cov.tolist()}
 
     @classmethod
-    def part_from_file(cls, d, n_before, name):
+    def part_from_file(cls, d: dict, n_before: int, name: str) -> ModelPart | None:
         if "backlash_um" not in d:
             return None
         try:
@@ -113,7 +130,8 @@ class Backlash(Block):
         return ModelPart(LABELS, spans, joint)
 
     @classmethod
-    def correct(cls, part, points, x_mm, name):
+    def correct(cls, part: ModelPart, points: pd.DataFrame, x_mm: np.ndarray,
+                name: str) -> Correction:
         t = None
         if "time_min" in points:
             t = numeric_column(points, "time_min", name, allow_missing=True)

@@ -21,13 +21,111 @@ from __future__ import annotations
 
 import difflib
 import math
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
+import pandas as pd
 
 from ...io import DataError
 from ...io.errors import cut_repr
 from ...io.setup import check_celsius
+from ...machine import KinematicTerms
+from ..observations import Observations
+from ..state import State
+
+Column = tuple[str, Sequence[str], str | Sequence[str]]
+"""A layout entry :meth:`Block.columns` adds: ``(name, labels, unit)``, the unit one
+string for every label or one per label."""
+
+Jacobian = list[tuple[np.ndarray, np.ndarray]]
+"""What :meth:`Block.jacobian` returns: ``[(cols, values)]``, ``values`` (n, 3, k) the
+derivatives of the three residual components with respect to the ``k`` columns ``cols``
+((n, 3, k) or broadcastable to it, e.g. (n, k))."""
+
+Shape = tuple[str, dict[str, float]]
+"""A detection shape of :meth:`Block.detection_shapes`: ``(name, {label: weight})``."""
+
+
+class LayoutLike(Protocol):
+    """What a block reads of the problem's parameter layout (``problem._Layout``)."""
+
+    @property
+    def blocks(self) -> dict[str, slice]:
+        """Layout name -> slice of the parameter vector."""
+        ...
+
+    @property
+    def n(self) -> int:
+        """Length of the parameter vector."""
+        ...
+
+
+class ProblemLike(Protocol):
+    """What a block reads of the problem it belongs to (``problem.Problem``). A protocol,
+    not the class: ``problem`` imports the blocks, so importing it here would close an
+    import circle (``tests/test_wings.py``)."""
+
+    @property
+    def obs(self) -> Observations:
+        """The observations fitted."""
+        ...
+
+    @property
+    def layout(self) -> LayoutLike:
+        """Column layout of the parameter vector."""
+        ...
+
+    @property
+    def terms(self) -> KinematicTerms:
+        """The kinematic model's terms."""
+        ...
+
+    @property
+    def plate_centre(self) -> np.ndarray:
+        """Centre of the plate (3,) mm, about which it expands."""
+        ...
+
+    @property
+    def sag_basis(self) -> np.ndarray:
+        """Sag shapes of every ball (B, 3)."""
+        ...
+
+
+class SpecLike(Protocol):
+    """What :meth:`Block.wanted` reads of a model spec (``effects.ModelSpec``; a protocol,
+    as ``effects`` imports the blocks)."""
+
+    @property
+    def effects(self) -> Collection[str]:
+        """Physical effects present (catalogue tokens)."""
+        ...
+
+
+class FitLike(Protocol):
+    """What :meth:`Block.compensation` reads of a fit (``result.FitResult``; a protocol,
+    as ``result`` imports the problem, which imports the blocks)."""
+
+    @property
+    def problem(self) -> ProblemLike:
+        """The fitted problem."""
+        ...
+
+    @property
+    def labels(self) -> Sequence[str]:
+        """One label per parameter."""
+        ...
+
+    @property
+    def values(self) -> np.ndarray:
+        """Parameter estimates (p,)."""
+        ...
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """Parameter covariance (p, p)."""
+        ...
 
 
 @dataclass
@@ -54,8 +152,8 @@ class Eval:
         Kinematic model Jacobian (µm per coefficient unit).
     """
 
-    problem: object
-    state: object
+    problem: ProblemLike
+    state: State
     want_jac: bool
     p_mm: np.ndarray | None = None
     plate_mm: np.ndarray | None = None
@@ -65,14 +163,15 @@ class Eval:
     extra: dict = field(default_factory=dict)
 
     @property
-    def obs(self):
+    def obs(self) -> Observations:
+        """The problem's observations."""
         return self.problem.obs
 
-    def x(self, name):
+    def x(self, name: str) -> np.ndarray:
         """Parameters of one layout slice."""
         return self.state.x[self.problem.layout.blocks[name]]
 
-    def start(self, name):
+    def start(self, name: str) -> int:
         """First column of one layout slice."""
         return self.problem.layout.blocks[name].start
 
@@ -146,11 +245,11 @@ class SimCheck:
     positions: tuple
     probes: tuple
 
-    def bad(self, column, message, hint=None) -> DataError:
+    def bad(self, column: str, message: str, hint: str | None = None) -> DataError:
         """A refusal of the key ``column``."""
         return DataError(message, file=self.name, column=column, hint=hint)
 
-    def known(self, column, key, names, what):
+    def known(self, column: str, key: object, names: Collection[str], what: str) -> None:
         """Refuse ``key`` unless it is one of ``names`` (a position or probe of the setup);
         a close name is offered (a typo would silently drop the entry)."""
         if str(key) not in names:
@@ -159,7 +258,8 @@ class SimCheck:
                            f"{cut_repr(', '.join(names), 200)})" + (
                                f"; did you mean {close[0]!r}?" if close else "."))
 
-    def vectors_by_name(self, cfg, where, skip, names, what):
+    def vectors_by_name(self, cfg: dict, where: str, skip: str, names: Collection[str],
+                        what: str) -> None:
         """Every key of ``cfg`` but ``skip`` one of ``names`` (positions or probes of the
         setup), each with a vector of 3 numbers (drift per position, offset per probe)."""
         for key, v in cfg.items():
@@ -167,7 +267,7 @@ class SimCheck:
                 self.known(f"{where}.{key}", key, names, what)
                 self.vector(f"{where}.{key}", v)
 
-    def vector(self, column, v):
+    def vector(self, column: str, v: object) -> None:
         """Refuse anything but 3 finite numbers."""
         if not (isinstance(v, list | tuple) and len(v) == 3 and all(
                 isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
@@ -175,7 +275,7 @@ class SimCheck:
             raise self.bad(column, f"expected 3 finite numbers (µm or µm/h), found "
                            f"{cut_repr(v)}.")
 
-    def start_finish_C(self, column, temps):
+    def start_finish_C(self, column: str, temps: object) -> None:
         """Refuse ``temps`` unless it maps positions of the setup to [start, finish]
         temperatures in °C."""
         if temps is None:
@@ -335,46 +435,46 @@ class Block:
     sim_ranges: dict = {}
     """Numeric simulator keys and their allowed (low, high) range."""
 
-    def __init__(self, problem):
+    def __init__(self, problem: ProblemLike) -> None:
         self.problem = problem
 
     @classmethod
-    def draw(cls, cfg: dict, sim: SimContext, rng) -> dict:
+    def draw(cls, cfg: dict, sim: SimContext, rng: np.random.Generator) -> dict[str, float]:
         """True parameter values (by fit label) for the simulator's ``effects.<token>``
         configuration ``cfg``; random draws come from ``rng``."""
         return {}
 
     @classmethod
-    def wanted(cls, spec, plate: str) -> bool:
+    def wanted(cls, spec: SpecLike, plate: str) -> bool:
         """Whether a model with this spec and plate mode contains the block."""
         return cls.token is not None and cls.token in spec.effects
 
     @staticmethod
-    def needs(obs) -> str | None:
+    def needs(obs: Observations) -> str | None:
         """Why these observations cannot determine the effect (None: they can)."""
         return None
 
-    def columns(self, obs) -> list:
+    def columns(self, obs: Observations) -> list[Column]:
         """Layout entries ``(name, labels, unit)`` the block adds (unit: str or list)."""
         return []
 
     # --- stages ---------------------------------------------------------------------
-    def probe_stage(self, ev: Eval, p):
+    def probe_stage(self, ev: Eval, p: np.ndarray) -> np.ndarray:
         """Probe offsets (n, 3) mm after the block's change (``probe_offset``)."""
         return p
 
-    def plate_stage(self, ev: Eval, c):
+    def plate_stage(self, ev: Eval, c: np.ndarray) -> np.ndarray:
         """Plate coordinates of every observation (n, 3) mm after the block's change
         (``plate_thermal``, ``plate_sag``)."""
         return c
 
-    def reading_stage(self, ev: Eval, d):
+    def reading_stage(self, ev: Eval, d: np.ndarray) -> np.ndarray:
         """Residuals (n, 3) µm after the block's term on the readings (``drift``,
         ``backlash``, ``machine_thermal``, ``bridge_twist``); linear in ``d`` (the
         simulator inverts it: ``Problem.targets``)."""
         return d
 
-    def jacobian(self, ev: Eval) -> list:
+    def jacobian(self, ev: Eval) -> Jacobian:
         """``[(cols (n, 3, k) or broadcastable, values (n, 3, k))]``: derivatives of the
         three residual components with respect to ``k`` columns."""
         return []
@@ -383,13 +483,13 @@ class Block:
         """Gauge constraint rows on the block's own columns (``C x = 0``), or None."""
         return None
 
-    def update(self, new):
+    def update(self, new: State) -> State:
         """The state after a Gauss-Newton step ``new`` (``Problem.update``): a block whose
         parameters are increments moves them into the state (placements, plate) and
         zeroes them; the default keeps the step in the parameter vector."""
         return new
 
-    def report(self, state, v) -> None:
+    def report(self, state: State, v: np.ndarray) -> None:
         """Write the block's reported values into ``v`` (the parameter vector in the
         block's units, ``fitting._report_values``) where they differ from
         ``state.x`` (placements and plate relative to the nominal setup); the default
@@ -402,7 +502,8 @@ class Block:
     test of it is run."""
 
     @classmethod
-    def detection_shapes(cls, labels, positions, probes) -> list:
+    def detection_shapes(cls, labels: Sequence[str], positions: Sequence[str],
+                         probes: Sequence[str]) -> list[Shape]:
         """Shapes ``[(name, {label: weight})]`` along which the planner computes the
         effect's detection limit (largest weight 1; the worst shape is reported).
         ``labels``: the effect's new parameters in the plan's model; ``positions``,
@@ -410,7 +511,7 @@ class Block:
         return [(f"{lab} alone", {lab: 1.0}) for lab in labels]
 
     @classmethod
-    def injection(cls, values: dict) -> dict | None:
+    def injection(cls, values: dict[str, float]) -> dict | None:
         """The simulator's ``effects.<token>`` body that hides the effect with these
         parameter values (fit label -> value in the block's units); None: the block cannot
         be simulated from its parameters."""
@@ -447,7 +548,7 @@ class Block:
     such a file is refused."""
 
     @classmethod
-    def compensation(cls, result, before) -> ModelPart | None:
+    def compensation(cls, result: FitLike, before: np.ndarray) -> ModelPart | None:
         """What a model file must keep of this block to correct new points (None: the
         block is not in the fit, or does not act on new points).
 
@@ -458,8 +559,10 @@ class Block:
             Parameter indices of the kinematic coefficients and of the compensating
             blocks before this one (the leading rows of :attr:`ModelPart.cov`).
         """
+        if not cls.model_keys or cls.token is None:
+            return None
         s = result.problem.layout.blocks.get(cls.token)
-        if not cls.model_keys or s is None:
+        if s is None:
             return None
         idx = np.r_[before, np.arange(s.start, s.stop)]
         return ModelPart(tuple(result.labels[s]), result.values[s].copy(),
@@ -478,14 +581,15 @@ class Block:
         return None
 
     @classmethod
-    def correct(cls, part: ModelPart, points, x_mm: np.ndarray, name: str) -> Correction:
+    def correct(cls, part: ModelPart, points: pd.DataFrame, x_mm: np.ndarray,
+                name: str) -> Correction:
         """The block's correction of new ``points`` (a table with ``x_mm, y_mm, z_mm``
         and what the block needs) at scale readings ``x_mm`` (m, 3); refusals name the
         points file ``name``."""
         raise NotImplementedError(f"{cls.__name__} does not correct new points")
 
     @classmethod
-    def correction_columns(cls, labels=None) -> tuple:
+    def correction_columns(cls, labels: Sequence[str] | None = None) -> tuple[str, ...]:
         """Columns (besides ``x_mm, y_mm, z_mm, probe``) that points need to be corrected
         by this block; ``labels``: the part's fitted labels when known (a block may need
         columns only for some of them). Default: none."""

@@ -72,12 +72,28 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+import pandas as pd
 
 from ...io import DataError
 from ...io.errors import cut_repr
 from ...machine import DEFAULT_LAYOUT, LAYOUTS
 from ...units import UM, URAD
-from .base import Block, Correction, Effect, ModelPart, SimParam, checked_cov, shared_cols
+from ..observations import Observations
+from .base import (
+    Block,
+    Column,
+    Correction,
+    Effect,
+    Eval,
+    FitLike,
+    Jacobian,
+    ModelPart,
+    Shape,
+    SimContext,
+    SimParam,
+    checked_cov,
+    shared_cols,
+)
 
 LABELS = ("bridge_twist.lin", "bridge_twist.mid", "bridge_twist.lin_h",
           "bridge_twist.mid_h")
@@ -174,7 +190,7 @@ class BridgeTwist(Block):
     physical_check = True
 
     @classmethod
-    def draw(cls, cfg, sim, rng):
+    def draw(cls, cfg: dict, sim: SimContext, rng: np.random.Generator) -> dict[str, float]:
         t = [float(cfg.get("lin_urad", 0.0)), float(cfg.get("mid_urad", 0.0))]
         z0 = float(cfg.get("axis_height_mm", 0.0)) / Z_REF_MM
         return {"bridge_twist.lin": t[0], "bridge_twist.mid": t[1],
@@ -182,17 +198,18 @@ class BridgeTwist(Block):
                 "bridge_twist.mid_h": t[1] * z0 + float(cfg.get("mid_h_urad", 0.0))}
 
     @classmethod
-    def detection_shapes(cls, labels, positions, probes):
+    def detection_shapes(cls, labels: Sequence[str], positions: Sequence[str],
+                         probes: Sequence[str]) -> list[Shape]:
         """The twist's two shapes about the machine's z = 0 (the height terms are the
         same roll about another line, not an effect of their own)."""
         return [(f"{lab} alone", {lab: 1.0}) for lab in labels if not lab.endswith("_h")]
 
     @classmethod
-    def injection(cls, values):
+    def injection(cls, values: dict[str, float]) -> dict | None:
         return {f"{lab.split('.')[1]}_urad": v for lab, v in values.items()}
 
     @staticmethod
-    def needs(obs):
+    def needs(obs: Observations) -> str | None:
         if obs.layout not in BRIDGES:
             return (f"the {obs.layout} layout has no moving bridge carrying a carriage (a fixed "
                     "bridge's deflection under its carriage is a rigid error of that axis)")
@@ -204,7 +221,7 @@ class BridgeTwist(Block):
                     "stroke, where the twist is a rigid roll")
         return None
 
-    def columns(self, obs):
+    def columns(self, obs: Observations) -> list[Column]:
         return [("bridge_twist", list(LABELS), "urad")] if obs.layout in BRIDGES else []
 
     def _terms(self, ev):
@@ -215,13 +232,13 @@ class BridgeTwist(Block):
         B = basis(u, o.range_mm, o.layout)
         return B, twist_columns(B, o.r_mm, u, o.layout)
 
-    def reading_stage(self, ev, d):
+    def reading_stage(self, ev: Eval, d: np.ndarray) -> np.ndarray:
         if ev.obs.layout not in BRIDGES:
             return d
         _, cols = self._terms(ev)
         return d + cols @ ev.x("bridge_twist")
 
-    def jacobian(self, ev):
+    def jacobian(self, ev: Eval) -> Jacobian:
         if ev.obs.layout not in BRIDGES:
             return []
         B, cols = self._terms(ev)
@@ -237,7 +254,7 @@ class BridgeTwist(Block):
     model_keys_optional = True
 
     @classmethod
-    def compensation(cls, result, before):
+    def compensation(cls, result: FitLike, before: np.ndarray) -> ModelPart | None:
         """The fitted twist with the strokes and layout it is normalised to (None on a
         layout without a bridge: no parameter)."""
         obs = result.problem.obs
@@ -250,12 +267,12 @@ class BridgeTwist(Block):
                          result.covariance[np.ix_(idx, idx)].copy(), ctx)
 
     @classmethod
-    def part_to_file(cls, part):
+    def part_to_file(cls, part: ModelPart) -> dict:
         return {"bridge_twist": {"twist_urad": part.values.tolist(),
                                  "cov_joint": part.cov.tolist()}}
 
     @classmethod
-    def part_from_file(cls, d, n_before, name):
+    def part_from_file(cls, d: dict, n_before: int, name: str) -> ModelPart | None:
         sec = d.get("bridge_twist")
         layout = d.get("layout", DEFAULT_LAYOUT)
         if sec is None:
@@ -291,7 +308,8 @@ class BridgeTwist(Block):
         return ModelPart(LABELS[:k], t, cov, {"range_mm": rng, "layout": layout})
 
     @classmethod
-    def correct(cls, part, points, x_mm, name):
+    def correct(cls, part: ModelPart, points: pd.DataFrame, x_mm: np.ndarray,
+                name: str) -> Correction:
         layout = part.context["layout"]
         r = points[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
         B = basis(x_mm, part.context["range_mm"], layout)

@@ -4,9 +4,23 @@ row order at one minute per probed ball (said so where it is reported)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
-from .base import Block, Effect, SimParam, per_group_cols
+from ..observations import Observations
+from .base import (
+    Block,
+    Column,
+    Effect,
+    Eval,
+    Jacobian,
+    Shape,
+    SimCheck,
+    SimContext,
+    SimParam,
+    per_group_cols,
+)
 
 
 class Drift(Block):
@@ -31,21 +45,22 @@ class Drift(Block):
     physical_check = True
 
     @classmethod
-    def detection_shapes(cls, labels, positions, probes):
+    def detection_shapes(cls, labels: Sequence[str], positions: Sequence[str],
+                         probes: Sequence[str]) -> list[Shape]:
         """Every placement drifting alike, along each axis."""
         return [(f"every placement along {a}", {f"{p}.drift_{a}": 1.0 for p in positions})
                 for a in "xyz"]
 
     @classmethod
-    def injection(cls, values):
-        vec = {}
+    def injection(cls, values: dict[str, float]) -> dict | None:
+        vec: dict[str, list[float]] = {}
         for lab, v in values.items():
             p, a = lab.rsplit(".drift_", 1)
             vec.setdefault(p, [0.0, 0.0, 0.0])["xyz".index(a)] = v
         return vec
 
     @classmethod
-    def draw(cls, cfg, sim, rng):
+    def draw(cls, cfg: dict, sim: SimContext, rng: np.random.Generator) -> dict[str, float]:
         """Per-position vectors (µm/h), or ``sd_um_per_h``: random rates."""
         out = {}
         for p in sim.positions:
@@ -55,22 +70,22 @@ class Drift(Block):
         return out
 
     @classmethod
-    def check_sim(cls, cfg, where, check):
+    def check_sim(cls, cfg: dict, where: str, check: SimCheck) -> None:
         """Besides ``sd_um_per_h``: positions of the setup, each with a vector (µm/h)."""
         check.vectors_by_name(cfg, where, "sd_um_per_h", check.positions, "position")
 
     @staticmethod
-    def needs(obs):
+    def needs(obs: Observations) -> str | None:
         return "needs measurement times" if np.ptp(obs.hours) == 0 else None
 
-    def columns(self, obs):
+    def columns(self, obs: Observations) -> list[Column]:
         return [("drift", [f"{p}.drift_{a}" for p in obs.positions for a in "xyz"], "um/h")]
 
-    def reading_stage(self, ev, d):
+    def reading_stage(self, ev: Eval, d: np.ndarray) -> np.ndarray:
         o = ev.obs
         return d - ev.x("drift").reshape(-1, 3)[o.pos] * o.hours[:, None]
 
-    def jacobian(self, ev):
+    def jacobian(self, ev: Eval) -> Jacobian:
         o = ev.obs
         return [(per_group_cols(ev.start("drift"), o.pos),
                  -np.eye(3)[None] * o.hours[:, None, None])]

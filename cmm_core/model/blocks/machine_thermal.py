@@ -15,14 +15,31 @@ keeps the section ``machine_thermal``: the fitted ``axes``, their ``cte_ppm_per_
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
+import pandas as pd
 
 from ...io import SCALE_TEMP_COLUMNS, TEMP_RANGE_C, DataError
 from ...io.delimited import file_rows, numeric_column
 from ...io.errors import cut_repr
 from ...io.setup import check_celsius
 from ...units import PPM, UM
-from .base import Block, Correction, Effect, ModelPart, SimParam, checked_cov, shared_cols
+from ..observations import Observations
+from .base import (
+    Block,
+    Column,
+    Correction,
+    Effect,
+    Eval,
+    Jacobian,
+    ModelPart,
+    SimCheck,
+    SimContext,
+    SimParam,
+    checked_cov,
+    shared_cols,
+)
 
 AXES = "xyz"
 SECTION_KEYS = ("axes", "cte_ppm_per_K", "cov_joint")
@@ -65,16 +82,17 @@ class MachineThermal(Block):
     physical_check = False
 
     @classmethod
-    def injection(cls, values):
+    def injection(cls, values: dict[str, float]) -> dict | None:
         return {f"{lab[-1]}_cte_per_K": v * 1e-6 for lab, v in values.items()}
 
     @classmethod
-    def draw(cls, cfg, sim, rng):
+    def draw(cls, cfg: dict, sim: SimContext, rng: np.random.Generator) -> dict[str, float]:
         """``x_cte_per_K`` ... (default 0: that scale is not simulated) and each position's
         scale temperatures at its start and finish (``temp_C``: position -> [start,
         finish], shared by the three scales; default 20.5-20.8 °C, 0.5 K warmer at each
         position, the y and z scales 0.2 and 0.4 K warmer than x)."""
-        temps = cfg.get("temp_C") if isinstance(cfg.get("temp_C"), dict) else {}
+        given = cfg.get("temp_C")
+        temps = given if isinstance(given, dict) else {}
         out = {}
         for a, axis in enumerate(AXES):
             key = f"{axis}_cte_per_K"
@@ -89,7 +107,7 @@ class MachineThermal(Block):
         return out
 
     @staticmethod
-    def needs(obs):
+    def needs(obs: Observations) -> str | None:
         temps = _scale_temps(obs)
         if not temps:
             return "needs the scales' temperatures (temp_x_C, temp_y_C, temp_z_C columns)"
@@ -98,7 +116,7 @@ class MachineThermal(Block):
                     "positioning error")
         return None
 
-    def columns(self, obs):
+    def columns(self, obs: Observations) -> list[Column]:
         axes = sorted(_scale_temps(obs))
         return [("machine_thermal", [f"machine_thermal.cte_{AXES[a]}" for a in axes],
                  "1e-6/K")]
@@ -110,13 +128,13 @@ class MachineThermal(Block):
         u = o.r_mm - o.p_mm
         return [(a, dT * u[:, a] * PPM / UM) for a, dT in sorted(_scale_temps(o).items())]
 
-    def reading_stage(self, ev, d):
+    def reading_stage(self, ev: Eval, d: np.ndarray) -> np.ndarray:
         d = d.copy()
         for alpha, (a, g) in zip(ev.x("machine_thermal"), self._terms(ev), strict=True):
             d[:, a] += alpha * g
         return d
 
-    def jacobian(self, ev):
+    def jacobian(self, ev: Eval) -> Jacobian:
         terms = self._terms(ev)
         n = len(ev.obs.pos)
         M = np.zeros((n, 3, len(terms)))
@@ -125,7 +143,7 @@ class MachineThermal(Block):
         return [(shared_cols(ev.start("machine_thermal"), len(terms), n), M)]
 
     @classmethod
-    def check_sim(cls, cfg, where, check):
+    def check_sim(cls, cfg: dict, where: str, check: SimCheck) -> None:
         check.start_finish_C(f"{where}.temp_C", cfg.get("temp_C"))
 
     # --- compensation of new points -----------------------------------------------------
@@ -137,19 +155,19 @@ class MachineThermal(Block):
     comp_units = "1e-6/K"
 
     @classmethod
-    def correction_columns(cls, labels=None):
+    def correction_columns(cls, labels: Sequence[str] | None = None) -> tuple[str, ...]:
         """The scale temperature of every fitted axis (all three when not known)."""
         axes = [AXES.index(lab[-1]) for lab in labels] if labels is not None else range(3)
         return tuple(SCALE_TEMP_COLUMNS[a] for a in axes)
 
     @classmethod
-    def part_to_file(cls, part):
+    def part_to_file(cls, part: ModelPart) -> dict:
         return {"machine_thermal": {"axes": [lab[-1] for lab in part.labels],
                                     "cte_ppm_per_K": part.values.tolist(),
                                     "cov_joint": part.cov.tolist()}}
 
     @classmethod
-    def part_from_file(cls, d, n_before, name):
+    def part_from_file(cls, d: dict, n_before: int, name: str) -> ModelPart | None:
         sec = d.get("machine_thermal")
         if sec is None:
             return None
@@ -178,7 +196,8 @@ class MachineThermal(Block):
         return ModelPart(tuple(f"machine_thermal.cte_{a}" for a in axes), cte, cov)
 
     @classmethod
-    def correct(cls, part, points, x_mm, name):
+    def correct(cls, part: ModelPart, points: pd.DataFrame, x_mm: np.ndarray,
+                name: str) -> Correction:
         axes = [AXES.index(lab[-1]) for lab in part.labels]
         need = [SCALE_TEMP_COLUMNS[a] for a in axes]
         missing = [c for c in need if c not in points]

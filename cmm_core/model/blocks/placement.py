@@ -12,29 +12,32 @@ from scipy.spatial.transform import Rotation
 from ...machine import skew
 from ...units import UM, URAD
 from ..hole_plate import initial_state, is_hole_plate
-from .base import Block, per_group_cols
+from ..observations import Observations
+from ..state import State
+from .base import Block, Column, Eval, Jacobian, SpecLike, per_group_cols
 
 
 class Placement(Block):
     """Rotation and translation of every position (always in the model)."""
 
     @classmethod
-    def wanted(cls, spec, plate):
+    def wanted(cls, spec: SpecLike, plate: str) -> bool:
         return True
 
-    def columns(self, obs):
+    def columns(self, obs: Observations) -> list[Column]:
         return [("rotation", [f"{p}.r{a}" for p in obs.positions for a in "xyz"], "urad"),
                 ("translation", [f"{p}.t{a}" for p in obs.positions for a in "xyz"], "um")]
 
-    def jacobian(self, ev):
+    def jacobian(self, ev: Eval) -> Jacobian:
         o = ev.obs
+        assert ev.Rk is not None and ev.plate_mm is not None  # set by Problem._placed
         v = np.einsum("nij,nj->ni", ev.Rk, ev.plate_mm)
         n = len(o.pos)
         return [(per_group_cols(ev.start("rotation"), o.pos), skew(v) * UM),
                 (per_group_cols(ev.start("translation"), o.pos),
                  -np.broadcast_to(np.eye(3), (n, 3, 3)))]
 
-    def constraints(self):
+    def constraints(self) -> np.ndarray | None:
         """None for a ball plate. A hole plate sees each placement only in its plane
         (``hole_plate``): its tilt (rotations about the plate's u and v axes) and its
         translation along the normal are held at their start, rows over the rotation and
@@ -53,7 +56,7 @@ class Placement(Block):
             G[3 * k + 2, 3 * P + 3 * k:3 * P + 3 * k + 3] = R[:, 2]
         return G
 
-    def update(self, new):
+    def update(self, new: State) -> State:
         blk = self.problem.layout.blocks
         w = new.x[blk["rotation"]].reshape(-1, 3) * URAD
         tau = new.x[blk["translation"]].reshape(-1, 3) * UM
@@ -63,7 +66,7 @@ class Placement(Block):
         return replace(new, R=Rotation.from_rotvec(w).as_matrix() @ new.R, t=new.t + tau,
                        x=x)
 
-    def report(self, state, v):
+    def report(self, state: State, v: np.ndarray) -> None:
         blk, o = self.problem.layout.blocks, self.problem.obs
         rot = np.array([Rotation.from_matrix(R @ R0.T).as_rotvec() for R, R0 in
                         zip(state.R, o.R0, strict=True)]) / URAD

@@ -5,6 +5,7 @@ absent and the balls sit where the certificate puts them (thesis §4.5.1)."""
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -12,24 +13,27 @@ import scipy.sparse as sp
 from ...machine import skew
 from ...units import UM
 from ..hole_plate import is_hole_plate
-from .base import Block, per_group_cols
+from ..observations import Observations
+from ..state import State
+from .base import Block, Column, Eval, Jacobian, SpecLike, per_group_cols
 
 
 class Plate(Block):
     """Ball coordinates (µm from the certificate or the mean measured plate)."""
 
     @classmethod
-    def wanted(cls, spec, plate):
+    def wanted(cls, spec: SpecLike, plate: str) -> bool:
         return plate not in ("fixed", "none")  # "none": instruments only
 
-    def columns(self, obs):
+    def columns(self, obs: Observations) -> list[Column]:
         return [("plate", [f"ball{b}.{a}" for b in obs.balls for a in "xyz"], "um")]
 
-    def jacobian(self, ev):
+    def jacobian(self, ev: Eval) -> Jacobian:
         scale = np.reshape(ev.plate_scale, (-1, 1, 1))
+        assert ev.Rk is not None  # set by the plate stage (Problem._placed)
         return [(per_group_cols(ev.start("plate"), ev.obs.ball), -ev.Rk * scale)]
 
-    def constraints(self):
+    def constraints(self) -> np.ndarray:
         """Seven gauge freedoms of a self-calibrated plate (thesis appendix 2): three
         translations and three small rotations, which the placements carry, and the
         isotropic scale, which needs an external length reference. The scale is the last
@@ -53,11 +57,14 @@ class Plate(Block):
             G = np.hstack([G[:, [0, 1, 5]], normal, G[:, 6:]])
         return G.T
 
-    def prior_rows(self, state, want_jac):
-        """Rows ``(c - c_cert) / u_cert`` of the certificate prior and their Jacobian. An
-        infinite certificate u releases that coordinate (``certificate_check``): no row, so
-        that it neither counts as an observation nor constrains the plate."""
+    def prior_rows(self, state: State, want_jac: bool) -> tuple[np.ndarray, Any]:
+        """Rows ``(c - c_cert) / u_cert`` of the certificate prior and their Jacobian (a
+        ``scipy.sparse`` CSR matrix, None unless ``want_jac``; typed Any, as scipy ships no
+        type information here). An infinite certificate u releases that coordinate
+        (``certificate_check``): no row, so that it neither counts as an observation nor
+        constrains the plate."""
         prob, o = self.problem, self.problem.obs
+        assert o.cert_u_um is not None  # a prior plate has certificate uncertainties
         s = prob.layout.blocks["plate"]
         dev = (state.c - o.plate0_mm) / UM + state.x[s].reshape(-1, 3)
         keep = np.flatnonzero(np.isfinite(o.cert_u_um.ravel()))
@@ -68,12 +75,12 @@ class Plate(Block):
                               shape=(keep.size, prob.layout.n))
         return dev.ravel()[keep] / u, J
 
-    def update(self, new):
+    def update(self, new: State) -> State:
         s = self.problem.layout.blocks["plate"]
         x = new.x.copy()
         x[s] = 0.0
         return replace(new, c=new.c + new.x[s].reshape(-1, 3) * UM, x=x)
 
-    def report(self, state, v):
+    def report(self, state: State, v: np.ndarray) -> None:
         s = self.problem.layout.blocks["plate"]
         v[s] = ((state.c - self.problem.obs.plate0_mm) / UM).ravel()

@@ -5,10 +5,13 @@ placements do not sag."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from ...units import UM
-from .base import Block, Effect, SimParam, shared_cols
+from ..observations import Observations
+from .base import Block, Column, Effect, Eval, Jacobian, Shape, SimContext, SimParam, shared_cols
 
 
 class PlateSag(Block):
@@ -34,31 +37,33 @@ class PlateSag(Block):
     physical_check = True
 
     @classmethod
-    def detection_shapes(cls, labels, positions, probes):
+    def detection_shapes(cls, labels: Sequence[str], positions: Sequence[str],
+                         probes: Sequence[str]) -> list[Shape]:
         return [("bowl uu = vv", {"plate_sag.uu": 1.0, "plate_sag.vv": 1.0})]
 
     @classmethod
-    def injection(cls, values):
+    def injection(cls, values: dict[str, float]) -> dict | None:
         return {lab.split(".")[1]: v for lab, v in values.items()}
 
     @classmethod
-    def draw(cls, cfg, sim, rng):
+    def draw(cls, cfg: dict, sim: SimContext, rng: np.random.Generator) -> dict[str, float]:
         return {f"plate_sag.{k}": float(cfg.get(k, 0.0)) for k in ("uu", "uv", "vv")}
 
     @staticmethod
-    def needs(obs):
+    def needs(obs: Observations) -> str | None:
         return None if obs.horizontal.any() else "needs at least one horizontal placement"
 
-    def columns(self, obs):
+    def columns(self, obs: Observations) -> list[Column]:
         return [("plate_sag", ["plate_sag.uu", "plate_sag.uv", "plate_sag.vv"], "um")]
 
-    def plate_stage(self, ev, c):
+    def plate_stage(self, ev: Eval, c: np.ndarray) -> np.ndarray:
         o = ev.obs
         w = self.problem.sag_basis[o.ball] @ ev.x("plate_sag") * UM
         return c + np.outer(w * o.horizontal[o.pos], [0, 0, 1])
 
-    def jacobian(self, ev):
+    def jacobian(self, ev: Eval) -> Jacobian:
         o = ev.obs
+        assert ev.Rk is not None  # set by the plate stage (Problem._placed)
         nrm = ev.Rk[:, :, 2] * o.horizontal[o.pos][:, None]
         return [(shared_cols(ev.start("plate_sag"), 3, len(o.pos)),
                  -nrm[:, :, None] * self.problem.sag_basis[o.ball][:, None, :])]

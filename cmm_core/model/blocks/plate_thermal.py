@@ -4,11 +4,25 @@ coefficient; without a certificate at 20 °C it is a uniform scale in every axis
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from ...io import CTE_RANGE_PER_K
 from ...units import PPM, UM
-from .base import Block, Effect, SimParam, shared_cols
+from ..observations import Observations
+from .base import (
+    Block,
+    Column,
+    Effect,
+    Eval,
+    Jacobian,
+    Shape,
+    SimCheck,
+    SimContext,
+    SimParam,
+    shared_cols,
+)
 
 
 class PlateThermal(Block):
@@ -32,46 +46,50 @@ class PlateThermal(Block):
     physical_check = True
 
     @classmethod
-    def detection_shapes(cls, labels, positions, probes):
+    def detection_shapes(cls, labels: Sequence[str], positions: Sequence[str],
+                         probes: Sequence[str]) -> list[Shape]:
         return [("expansion coefficient", {labels[0]: 1.0})]
 
     @classmethod
-    def injection(cls, values):
+    def injection(cls, values: dict[str, float]) -> dict | None:
         return {"cte_per_K": float(sum(values.values())) * 1e-6}
 
     @classmethod
-    def draw(cls, cfg, sim, rng):
+    def draw(cls, cfg: dict, sim: SimContext, rng: np.random.Generator) -> dict[str, float]:
         """``cte_per_K`` (default 11.5e-6, steel) and each position's start and finish
         temperature (default 20.0-20.2 °C, 0.4 K warmer at each position)."""
-        temps = cfg.get("temp_C") if isinstance(cfg.get("temp_C"), dict) else {}
+        given = cfg.get("temp_C")
+        temps = given if isinstance(given, dict) else {}
         for i, p in enumerate(sim.positions):
             t = temps.get(p)
             sim.temps_C[p] = tuple(t) if t else (20.0 + 0.4 * i, 20.2 + 0.4 * i)
         return {"plate_thermal.cte": float(cfg.get("cte_per_K", 11.5e-6)) * 1e6}
 
     @classmethod
-    def check_sim(cls, cfg, where, check):
+    def check_sim(cls, cfg: dict, where: str, check: SimCheck) -> None:
         check.start_finish_C(f"{where}.temp_C", cfg.get("temp_C"))
 
     @staticmethod
-    def needs(obs):
+    def needs(obs: Observations) -> str | None:
         if not obs.has_temp:
             return "needs plate temperatures (temp_C column or setup records)"
         if np.ptp(obs.dT_K) < 1e-6:
             return "the plate temperature never changes, so expansion is a pure scale error"
         return None
 
-    def columns(self, obs):
+    def columns(self, obs: Observations) -> list[Column]:
         return [("plate_thermal", ["plate_thermal.cte"], "1e-6/K")]
 
-    def plate_stage(self, ev, c):
+    def plate_stage(self, ev: Eval, c: np.ndarray) -> np.ndarray:
         alpha = ev.x("plate_thermal")[0] * PPM
-        ev.plate_scale = 1 + alpha * ev.obs.dT_K
+        scale = 1 + alpha * ev.obs.dT_K
+        ev.plate_scale = scale
         centre = self.problem.plate_centre
-        return centre + (c - centre) * ev.plate_scale[:, None]
+        return centre + (c - centre) * scale[:, None]
 
-    def jacobian(self, ev):
+    def jacobian(self, ev: Eval) -> Jacobian:
         o = ev.obs
+        assert ev.Rk is not None  # set by the plate stage (Problem._placed)
         dc = np.einsum("nij,nj->ni", ev.Rk, ev.state.c[o.ball] - self.problem.plate_centre)
         return [(shared_cols(ev.start("plate_thermal"), 1, len(o.pos)),
                  (-dc * o.dT_K[:, None] * PPM / UM)[:, :, None])]

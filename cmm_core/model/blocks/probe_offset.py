@@ -6,11 +6,25 @@ determined (their mean is a placement translation)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from ...machine import kinematics as kin
 from ...units import UM
-from .base import Block, Effect, SimParam, per_group_cols
+from ..observations import Observations
+from .base import (
+    Block,
+    Column,
+    Effect,
+    Eval,
+    Jacobian,
+    Shape,
+    SimCheck,
+    SimContext,
+    SimParam,
+    per_group_cols,
+)
 
 
 class ProbeOffset(Block):
@@ -34,7 +48,8 @@ class ProbeOffset(Block):
     physical_check = True
 
     @classmethod
-    def detection_shapes(cls, labels, positions, probes):
+    def detection_shapes(cls, labels: Sequence[str], positions: Sequence[str],
+                         probes: Sequence[str]) -> list[Shape]:
         """The first stylus against the mean of the others, along each axis."""
         q0, rest = probes[0], probes[1:]
         return [(f"stylus {q0} along {a}", {f"probe{q0}.{a}": 1.0,
@@ -42,15 +57,15 @@ class ProbeOffset(Block):
                                                for q in rest}}) for a in "xyz"]
 
     @classmethod
-    def injection(cls, values):
-        vec = {}
+    def injection(cls, values: dict[str, float]) -> dict | None:
+        vec: dict[str, list[float]] = {}
         for lab, v in values.items():
             q, a = lab[len("probe"):].rsplit(".", 1)
             vec.setdefault(q, [0.0, 0.0, 0.0])["xyz".index(a)] = v
         return vec
 
     @classmethod
-    def draw(cls, cfg, sim, rng):
+    def draw(cls, cfg: dict, sim: SimContext, rng: np.random.Generator) -> dict[str, float]:
         """Per-probe vectors (µm), or ``sd_um``: random errors summing to zero (the
         fit's gauge)."""
         err = {q: np.zeros(3) for q in sim.probes}
@@ -64,24 +79,24 @@ class ProbeOffset(Block):
                 for i, a in enumerate("xyz")}
 
     @classmethod
-    def check_sim(cls, cfg, where, check):
+    def check_sim(cls, cfg: dict, where: str, check: SimCheck) -> None:
         """Besides ``sd_um``: probes of the setup, each with a vector (µm)."""
         check.vectors_by_name(cfg, where, "sd_um", check.probes, "probe")
 
     @staticmethod
-    def needs(obs):
+    def needs(obs: Observations) -> str | None:
         return "needs at least two probes" if len(obs.probes) < 2 else None
 
-    def columns(self, obs):
+    def columns(self, obs: Observations) -> list[Column]:
         return [("probe_offset", [f"probe{q}.{a}" for q in obs.probes for a in "xyz"], "um")]
 
-    def probe_stage(self, ev, p):
+    def probe_stage(self, ev: Eval, p: np.ndarray) -> np.ndarray:
         return p + ev.x("probe_offset").reshape(-1, 3)[ev.obs.probe] * UM
 
-    def jacobian(self, ev):
+    def jacobian(self, ev: Eval) -> Jacobian:
         o = ev.obs
         Jp = kin.probe_jacobian(self.problem.terms, ev.x("kinematic"), o.r_mm - o.p_mm)
         return [(per_group_cols(ev.start("probe_offset"), o.probe), Jp)]
 
-    def constraints(self):
+    def constraints(self) -> np.ndarray | None:
         return np.tile(np.eye(3), (1, len(self.problem.obs.probes)))
