@@ -123,7 +123,7 @@ def model_from_result(result: FitResult) -> Model:
     parts = {}
     for b in COMPENSATING:
         part = b.compensation(result, before)
-        if part is not None:
+        if part is not None and b.token is not None:  # a part has a token (Block.compensation)
             parts[b.token] = part
             before = np.r_[before, np.arange(blk[b.token].start, blk[b.token].stop)]
     # an undetermined span or coefficient would be applied as if known: it makes the

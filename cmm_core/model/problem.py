@@ -34,12 +34,12 @@ _B = TypeVar("_B", bound=Block)
 class _Layout:
     """Column layout of the parameter vector: block name -> slice, plus labels/units."""
 
-    blocks: dict = field(default_factory=dict)
-    labels: list = field(default_factory=list)
-    units: list = field(default_factory=list)
-    groups: list = field(default_factory=list)
+    blocks: dict[str, slice] = field(default_factory=dict)
+    labels: list[str] = field(default_factory=list)
+    units: list[str] = field(default_factory=list)
+    groups: list[str] = field(default_factory=list)
 
-    def add(self, name, labels, unit):
+    def add(self, name: str, labels: Sequence[str], unit: str | Sequence[str]) -> None:
         i = len(self.labels)
         self.blocks[name] = slice(i, i + len(labels))
         self.labels += labels
@@ -47,7 +47,7 @@ class _Layout:
         self.groups += [name] * len(labels)
 
     @property
-    def n(self):
+    def n(self) -> int:
         return len(self.labels)
 
 
@@ -96,7 +96,7 @@ class Problem:
             R[k], t[k] = rigid_fit(o.plate0_mm[o.ball[sel]], o.r_mm[sel])
         return State(o.plate0_mm.copy(), R, t, np.zeros(self.layout.n))
 
-    def _placed(self, ev):
+    def _placed(self, ev: Eval) -> np.ndarray:
         """Probe and plate stages, then the placed ball ``R_k c' + t_k`` (mm)."""
         o, state = self.obs, ev.state
         p = o.p_mm.copy()
@@ -110,12 +110,12 @@ class Problem:
         ev.Rk = state.R[o.pos]
         return np.einsum("nij,nj->ni", ev.Rk, c) + state.t[o.pos]
 
-    def _reading(self, ev, d):
+    def _reading(self, ev: Eval, d: np.ndarray) -> np.ndarray:
         for b in self.blocks:
             d = b.reading_stage(ev, d)
         return d
 
-    def _evaluate(self, state, want_jac):
+    def _evaluate(self, state: State, want_jac: bool) -> tuple[np.ndarray, Eval]:
         ev = Eval(self, state, want_jac)
         placed = self._placed(ev)
         xs = self._kinematic.model(ev)
@@ -149,7 +149,7 @@ class Problem:
         return hole_plate.in_plane(self, state, *out) if hole_plate.is_hole_plate(self.obs) \
             else out
 
-    def _residual3(self, state, want_jac):
+    def _residual3(self, state: State, want_jac: bool) -> tuple[np.ndarray, Any]:
         d, ev = self._evaluate(state, want_jac)
         if not want_jac:
             return d, None

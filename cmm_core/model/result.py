@@ -130,8 +130,8 @@ class FitResult:
         uncertainty of this fit, came from (the file, the setup's statement, exact)."""
         return self.problem.obs.cert_u_source
 
-    def block(self, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(labels, values, u)`` of one parameter block."""
+    def block(self, name: str) -> tuple[list, np.ndarray, np.ndarray]:
+        """``(labels, values, u)`` of one parameter block (labels: a list of str)."""
         s = self.problem.layout.blocks.get(name, slice(0, 0))
         return self.labels[s], self.values[s], self.u[s]
 
