@@ -127,6 +127,14 @@ def _no_exception(pg):
     assert pg.locator('[data-testid="stException"]').count() == 0
 
 
+def _choose(pg, label: str, option: str):
+    """Pick ``option`` in the selectbox labelled ``label``."""
+    box = pg.locator('[data-testid="stSelectbox"]').filter(has_text=label).first
+    box.click()
+    pg.get_by_role("option", name=option, exact=True).click()
+    _idle(pg)
+
+
 NAV = ".st-key-app_nav a"  # the app's own page links in the sidebar (app.py)
 
 

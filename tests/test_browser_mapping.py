@@ -9,21 +9,23 @@ parsed rows, loads and sees the loaded row count; then a .dmo file and a bad pat
 from pathlib import Path
 
 import pytest
-from test_browser import _browser_context, _idle, _start_server, _stop_server
+from test_browser import (
+    _browser_context,
+    _choose,
+    _idle,
+    _no_exception,
+    _start_server,
+    _stop_server,
+)
 
 pytestmark = pytest.mark.slow  # a real browser: seconds a test (`make test-fast` skips)
 
-CHROMIUM = "/usr/bin/chromium"
 ROOT = Path(__file__).resolve().parents[1]
 APP = ROOT / "tests" / "apps" / "mapping_app.py"
 ART = ROOT / "tests" / "artifacts"
 
-if not Path(CHROMIUM).exists():
-    pytest.skip(f"{CHROMIUM} is not installed", allow_module_level=True)
-try:
-    from playwright.sync_api import expect, sync_playwright
-except ImportError:  # pragma: no cover
-    pytest.skip("the playwright package is not installed", allow_module_level=True)
+# importing test_browser (above) skips this module where chromium or playwright is missing
+from playwright.sync_api import expect, sync_playwright  # noqa: E402
 
 expect.set_options(timeout=30_000)  # a wait for the page, not a speed requirement
 
@@ -68,16 +70,6 @@ def _upload(pg, name: str, text: str):
     _idle(pg)
 
 
-def _choose(pg, label: str, option: str):
-    """Pick ``option`` in the selectbox labelled ``label``."""
-    box = pg.locator('[data-testid="stSelectbox"]').filter(has_text=label).first
-    box.click()
-    pg.get_by_role("option", name=option, exact=True).click()
-    _idle(pg)
-
-
-def _no_exception(pg):
-    assert pg.locator('[data-testid="stException"]').count() == 0
 
 
 def test_vendor_table_mapped_previewed_and_loaded(page):
