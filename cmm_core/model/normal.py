@@ -94,11 +94,10 @@ def rows_of(obs: Observations, idx: np.ndarray | slice) -> Observations:
     return dataclasses.replace(obs, **change)
 
 
-def dense_rows(prob: Any, ev: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Jacobian rows of one evaluation ``ev`` of ``prob`` as a dense ``(3 n, k)`` array
-    over the ``k`` columns they touch, and those columns (sorted)."""
-    n, p = prob.n_obs, prob.layout.n
-    used = np.zeros(p, bool)
+def _block_pieces(prob: Any, ev: Any) -> list:
+    """Every block's Jacobian pieces of one evaluation ``[(cols, M (n, 3, k), shared)]``;
+    ``shared``: the same columns in every row (shared, or one placement's in a block cut
+    along the placements), ``cols`` then (k,), written as a slice, not scattered."""
     pieces = []
     for b in prob.blocks:
         for cols, M in b.jacobian(ev):
@@ -109,8 +108,18 @@ def dense_rows(prob: Any, ev: Any) -> tuple[np.ndarray, np.ndarray]:
                                          or bool((cols == cols[0]).all()))
             if shared:
                 cols = cols[0]
-            used[cols] = True
             pieces.append((cols, M, shared))
+    return pieces
+
+
+def dense_rows(prob: Any, ev: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Jacobian rows of one evaluation ``ev`` of ``prob`` as a dense ``(3 n, k)`` array
+    over the ``k`` columns they touch, and those columns (sorted)."""
+    n, p = prob.n_obs, prob.layout.n
+    pieces = _block_pieces(prob, ev)
+    used = np.zeros(p, bool)
+    for cols, _, _ in pieces:
+        used[cols] = True
     u = np.flatnonzero(used)
     loc = np.full(p, -1)
     loc[u] = np.arange(u.size)
@@ -250,17 +259,7 @@ def _pieces(prob: Any, ev: Any) -> tuple[list, Any]:
     shared piece of at least 8 columns whose columns no other piece touches (the
     kinematic coefficients), taken out of the list; None when there is none."""
     p = prob.layout.n
-    pieces = []
-    for b in prob.blocks:
-        for cols, M in b.jacobian(ev):
-            cols = np.asarray(cols)
-            # the same columns in every row (shared, or one placement's in a block cut
-            # along the placements): written as a slice, not scattered
-            shared = cols.ndim == 2 and (cols.strides[0] == 0 or cols.shape[0] == 1
-                                         or bool((cols == cols[0]).all()))
-            if shared:
-                cols = cols[0]
-            pieces.append((cols, M, shared))
+    pieces = _block_pieces(prob, ev)
     wide = [i for i, (c, _, sh) in enumerate(pieces) if sh and c.size >= 8]
     if not wide:
         return pieces, None
