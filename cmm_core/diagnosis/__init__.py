@@ -36,6 +36,7 @@ from .crossval import (
     placement_scale_columns,
     placement_scale_test,
     plate_columns,
+    scale_columns,
 )
 from .discrepancy import Discrepancy, discrepancy_gp, kinematic_basis
 from .outliers import OutlierReport, detect_outliers
@@ -73,7 +74,7 @@ __all__ = [
     "Diagnosis", "Discrepancy", "discrepancy_gp", "estimate", "estimate_sigma", "evidence", "fitted_text", "FAMILY_ALPHA",
     "family_levels", "flexible_spec", "from_repeats", "from_residuals", "HoldoutCheck",
     "kinematic_basis", "MATERIAL", "MIN_PLACEMENTS", "misfit_location", "needs_met",
-    "OutlierReport", "OUTSIDE", "PHYSICAL_SHARE", "placement_scale_columns", "placement_scale_test", "plate_columns", "SCALE_ALPHA", "released", "scan_period", "score",
+    "OutlierReport", "OUTSIDE", "PHYSICAL_SHARE", "placement_scale_columns", "scale_columns", "placement_scale_test", "plate_columns", "SCALE_ALPHA", "released", "scan_period", "score",
     "ScoreCache", "SigmaEstimate", "stylus_offsets", "UNIFORM_ALPHA", "Uniformity", "uniformity",
     "candidate_noise", "certificate_noise", "CertNoise", "cert_columns", "cert_noise",
     "cert_scales", "critical_ratio", "MIN_FORM_DOF", "null_p_value", "quadratic_form_sf",

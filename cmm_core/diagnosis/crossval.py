@@ -41,7 +41,14 @@ import numpy as np
 import scipy.linalg as sla
 from scipy import stats
 
-from ..model import FitResult, Normal, Problem, augmented_state, weighted_residual
+from ..model import (
+    FitResult,
+    Normal,
+    Observations,
+    Problem,
+    augmented_state,
+    weighted_residual,
+)
 
 if TYPE_CHECKING:
     from .scoring import ScoreCache
@@ -157,22 +164,22 @@ def _nan_none(x: float):
     return None if not np.isfinite(x) else float(x)
 
 
-def placement_scale_columns(base: FitResult, n_rows: int) -> tuple[np.ndarray, list]:
+def scale_columns(obs: Observations, sigma_um: float, n_rows: int
+                  ) -> tuple[np.ndarray, list[tuple[str, str]]]:
     """Weighted columns of each placement's own scale along each machine axis it spans
-    (at least a quarter of its longest extent; 1 ppm:
-    the reading of axis ``a`` moves by 1e-3 µm per mm from the placement's mean ``a``),
-    rows as the weighted residual's (three per observation first). Returns ``(S,
-    labels)``, labels ``(position, axis)``; an empty ``S`` for a hole plate, whose
-    residuals live in its plane (the test is not run there)."""
-    o = base.problem.obs
-    if o.artefact == "hole_plate" or len(o.positions) < 2:
-        return np.zeros((n_rows, 0)), []
+    (at least a quarter of its longest extent; 1 ppm: the reading of axis ``a`` moves by
+    1e-3 µm per mm from the placement's mean ``a``), rows as the weighted residual's
+    (three per observation first; further rows zero), at the nominal placement. Returns
+    ``(S, labels)``, labels ``(position, axis)``; ``S`` is ``(n_rows, 0)`` when no
+    placement spans anything."""
     cols, labels = [], []
     # nominal coordinates: the readings' own µm errors (the residual itself) must not
     # enter the columns, or once the plate is projected out they fit the residual
-    xyz = np.einsum("nac,nc->na", o.R0[o.pos], o.plate0_mm[o.ball]) + o.t0_mm[o.pos]
-    for k, name in enumerate(o.positions):
-        sel = np.flatnonzero(o.pos == k)
+    xyz = np.einsum("nac,nc->na", obs.R0[obs.pos], obs.plate0_mm[obs.ball]) + obs.t0_mm[obs.pos]
+    for k, name in enumerate(obs.positions):
+        sel = np.flatnonzero(obs.pos == k)
+        if not sel.size:
+            continue
         span = np.ptp(xyz[sel], axis=0)
         for a in range(3):
             # an axis the placement hardly spans (a horizontal plate's z) has no scale
@@ -181,10 +188,20 @@ def placement_scale_columns(base: FitResult, n_rows: int) -> tuple[np.ndarray, l
                 continue
             c = np.zeros(n_rows)
             x = xyz[sel, a]
-            c[3 * sel + a] = (x - x.mean()) * 1e-3 / base.sigma_um
+            c[3 * sel + a] = (x - x.mean()) * 1e-3 / sigma_um
             cols.append(c)
             labels.append((str(name), "xyz"[a]))
-    return np.column_stack(cols), labels
+    return (np.column_stack(cols) if cols else np.zeros((n_rows, 0))), labels
+
+
+def placement_scale_columns(base: FitResult, n_rows: int) -> tuple[np.ndarray, list]:
+    """:func:`scale_columns` of a fit's observations at its σ; an empty ``S`` for a hole
+    plate, whose residuals live in its plane (the test is not run there), and for a
+    single placement."""
+    o = base.problem.obs
+    if o.artefact == "hole_plate" or len(o.positions) < 2:
+        return np.zeros((n_rows, 0)), []
+    return scale_columns(o, base.sigma_um, n_rows)
 
 
 _RANK_TOL = 1e-3

@@ -58,6 +58,7 @@ from scipy import stats
 
 from .._blas import single_blas_thread
 from ..diagnosis import FAMILY_ALPHA, SCALE_ALPHA, Diagnosis, diagnose
+from ..diagnosis import scale_columns as placement_scales
 from ..io import DataError, Dataset, read_setup, resolve
 from ..model import (
     BY_TOKEN,
@@ -676,26 +677,11 @@ def _both(rf: RivalFits):
 def scale_columns(obs: Observations, sigma_um: float, n_rows: int
                   ) -> tuple[np.ndarray, list[str]]:
     """Weighted columns of each placement's own scale (1 ppm) along each machine axis it
-    spans (at least a quarter of its longest extent), rows as the weighted residual's
-    (three per observation first; further rows zero), at the nominal placement: the
-    columns of ``diagnosis.placement_scale_columns`` for any observations. Labels
+    spans, rows as the weighted residual's (``diagnosis.scale_columns``, the columns of
+    the diagnosis's placement-scale test, for any observations). Labels
     ``<placement>.scale_<axis>``."""
-    cols, labels = [], []
-    xyz = np.einsum("nac,nc->na", obs.R0[obs.pos], obs.plate0_mm[obs.ball]) + obs.t0_mm[obs.pos]
-    for k, name in enumerate(obs.positions):
-        sel = np.flatnonzero(obs.pos == k)
-        if not sel.size:
-            continue
-        span = np.ptp(xyz[sel], axis=0)
-        for a in range(3):
-            if span[a] < 0.25 * span.max():
-                continue
-            c = np.zeros(n_rows)
-            x = xyz[sel, a]
-            c[3 * sel + a] = (x - x.mean()) * 1e-3 / sigma_um
-            cols.append(c)
-            labels.append(f"{name}.scale_{'xyz'[a]}")
-    return (np.column_stack(cols) if cols else np.zeros((n_rows, 0))), labels
+    S, labels = placement_scales(obs, sigma_um, n_rows)
+    return S, [f"{name}.scale_{axis}" for name, axis in labels]
 
 
 def _design(obs, rf: RivalFits) -> _Design:
