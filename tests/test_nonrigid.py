@@ -132,3 +132,14 @@ def test_a_twist_of_another_shape_is_never_a_high_order_rigid_term(layout, name,
     d = diagnose(data, "kinematic21")
     assert d.verdict in ("bridge_twist", "outside_catalogue"), \
         [(c.effect, c.p_value) for c in d.candidates[:4]]
+
+
+def test_a_twist_asked_of_a_layout_without_a_moving_bridge_is_refused():
+    """The simulator used to drop it without a word on a fixed bridge."""
+    from cmm_core.io import DataError
+
+    with pytest.raises(DataError, match=r"effects.bridge_twist.*no moving bridge") as e:
+        _sim("fixed_bridge_xfyz", 1, effects={"bridge_twist": {"lin_urad": 10.0}})
+    assert "\n" not in str(e.value)
+    # no twist asked (a roll line's height alone): nothing is dropped, nothing refused
+    _sim("fixed_bridge_xfyz", 1, effects={"bridge_twist": {"axis_height_mm": 900.0}})

@@ -176,7 +176,7 @@ def _check_against_setup(cfg, setup, terms, name, own_ppp):
     checked against the setup and the model's terms (unknown names are refused: they
     would be dropped silently)."""
     positions, probes = list(setup.positions), list(setup.probes)
-    check = SimCheck(name, tuple(positions), tuple(probes))
+    check = SimCheck(name, tuple(positions), tuple(probes), terms.layout)
     bad, known = check.bad, check.known
     # only the user's own entries: the default names the thesis positions, which a setup
     # of its own need not have

@@ -239,11 +239,14 @@ class SimCheck:
         Positions of the setup being simulated.
     probes : tuple of str
         Probes of that setup.
+    layout : str
+        The simulated machine's layout ("" when not known).
     """
 
     name: str
     positions: tuple
     probes: tuple
+    layout: str = ""
 
     def bad(self, column: str, message: str, hint: str | None = None) -> DataError:
         """A refusal of the key ``column``."""
