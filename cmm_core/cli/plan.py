@@ -12,6 +12,7 @@ import sys
 from ..export import load_model
 from ..io import DataError
 from ..plan import check_plans, design_from_file, evaluate, read_plan, read_task, task_uncertainty
+from .inputs import number_arg
 
 
 def _progress(frac: float, text: str) -> None:
@@ -29,23 +30,6 @@ MAX_WORKERS = 1024
 """Most local Dask workers of ``plan --workers``."""
 
 
-def _whole(lo, hi):
-    """An argparse type: a whole number from ``lo`` to ``hi``."""
-
-    def parse(text):
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"expected a whole number from {lo} to {hi}, found {text[:40]!r}") from None
-        if not lo <= v <= hi:
-            raise argparse.ArgumentTypeError(
-                f"expected a whole number from {lo} to {hi}, found {v}")
-        return v
-
-    return parse
-
-
 def add_plan_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``plan``."""
     p.add_argument("plan", metavar="PLAN.json",
@@ -57,7 +41,7 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-detection", action="store_true",
                    help="skip the detection limits of the catalogue effects (default: "
                         "computed for every effect the diagnosis would try)")
-    p.add_argument("--check-trials", type=_whole(0, MAX_CHECK_TRIALS), default=0,
+    p.add_argument("--check-trials", type=number_arg(int, 0, MAX_CHECK_TRIALS), default=0,
                    metavar="N",
                    help="Monte Carlo check of each strategy (and of the designed plan): "
                         "simulate N data sets with noise and the prior errors, run the real "
@@ -68,7 +52,7 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
                    help="Dask scheduler address for the Monte Carlo check, e.g. "
                         "tcp://10.0.0.5:8786 (default: a local cluster of --workers "
                         "processes on this machine)")
-    p.add_argument("--workers", type=_whole(1, MAX_WORKERS), default=2, metavar="N",
+    p.add_argument("--workers", type=number_arg(int, 1, MAX_WORKERS), default=2, metavar="N",
                    help="workers of the local Dask cluster when no --scheduler is given, "
                         f"1 to {MAX_WORKERS} (default: %(default)s)")
 
@@ -107,7 +91,7 @@ def add_task_arguments(p: argparse.ArgumentParser) -> None:
                         "the stylus) and the influences (probing noise in µm, workpiece "
                         "temperature in °C, optional discrepancy); docs/planning.md, "
                         "example: sample_data/plans/task_distance.json; required")
-    p.add_argument("--trials", type=_whole(MIN_TRIALS, MAX_TRIALS), default=None,
+    p.add_argument("--trials", type=number_arg(int, MIN_TRIALS, MAX_TRIALS), default=None,
                    metavar="N",
                    help=f"Monte Carlo trials (JCGM 101), {MIN_TRIALS} to {MAX_TRIALS}, "
                         "overriding the task file's 'trials' (default: the task file's "

@@ -78,7 +78,7 @@ from .instruments import (
     summary,
     truth_of,
 )
-from .normal import ROWS, NormalEquations, accumulate, cost_of, dense_rows, rows_of
+from .normal import ROWS, NormalEquations, accumulate, cost_of, rows_of
 from .observations import (
     Observations,
     approach_directions,
@@ -112,7 +112,7 @@ __all__ = [
     "accumulate", "aligned_error_u", "approach_directions", "augmented_state",
     "BALL_BAR_COLUMNS", "BALL_BAR_OPTIONAL", "BallBar", "Block", "BY_TOKEN", "catalogue_entry",
     "certificate_terms", "check_selection", "checked_cov", "CHI2_ALPHA", "correction_columns",
-    "cost_of", "DEFAULT_CONFIG", "dense_rows", "describe_null", "error_at", "error_covariance",
+    "cost_of", "DEFAULT_CONFIG", "describe_null", "error_at", "error_covariance",
     "Eval", "evaluate", "fit", "FitResult", "GROUPS", "has_plate", "held_constraints", "held_prior_rows",
     "IMPLAUSIBLE", "in_plane", "initial_state", "instrument_observations", "INSTRUMENT_KINDS", "Instruments",
     "is_hole_plate", "LASER_COLUMNS", "LASER_OPTIONAL", "LaserRun", "length_change",

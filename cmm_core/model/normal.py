@@ -45,7 +45,7 @@ from .blocks.plate import Plate
 from .observations import Observations
 from .state import State
 
-__all__ = ["NormalEquations", "accumulate", "rows_of", "dense_rows"]
+__all__ = ["NormalEquations", "accumulate", "rows_of"]
 
 ROWS = 8192
 """Observations per block (3 residual rows each): 8192 keeps a block's kinematic Jacobian
@@ -110,31 +110,6 @@ def _block_pieces(prob: Any, ev: Any) -> list:
                 cols = cols[0]
             pieces.append((cols, M, shared))
     return pieces
-
-
-def dense_rows(prob: Any, ev: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Jacobian rows of one evaluation ``ev`` of ``prob`` as a dense ``(3 n, k)`` array
-    over the ``k`` columns they touch, and those columns (sorted)."""
-    n, p = prob.n_obs, prob.layout.n
-    pieces = _block_pieces(prob, ev)
-    used = np.zeros(p, bool)
-    for cols, _, _ in pieces:
-        used[cols] = True
-    u = np.flatnonzero(used)
-    loc = np.full(p, -1)
-    loc[u] = np.arange(u.size)
-    A = np.zeros((n, 3, u.size))
-    rows = np.arange(n)[:, None, None]
-    comp = np.arange(3)[None, :, None]
-    for cols, M, shared in pieces:
-        lc = loc[cols]
-        if shared and lc.size and np.all(np.diff(lc) == 1):
-            A[:, :, lc[0]:lc[-1] + 1] = M
-        elif shared:
-            A[:, :, lc] = M
-        else:
-            A[rows, comp, lc[:, None, :]] = M
-    return A.reshape(3 * n, u.size), u
 
 
 _PER_POSITION = frozenset({"rotation", "translation", "drift"})
