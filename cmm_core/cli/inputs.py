@@ -322,16 +322,18 @@ def number_arg(kind: type, lo: float, hi: float, unit: str = "") -> Callable[[st
     line with the range otherwise."""
     what = "a whole number" if kind is int else "a number"
     unit = f" {unit}" if unit else ""
+    # whole numbers written out in full (10000000, not 1e+07)
+    span = f"{int(lo)} to {int(hi)}" if kind is int else f"{lo:g} to {hi:g}"
 
     def parse(text):
         try:
             v = kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(
-                f"expected {what} from {lo:g} to {hi:g}{unit}, found {text[:40]!r}") from None
+                f"expected {what} from {span}{unit}, found {text[:40]!r}") from None
         if not (math.isfinite(v) and lo <= v <= hi):
             raise argparse.ArgumentTypeError(
-                f"expected {what} from {lo:g} to {hi:g}{unit}, found {v:g}")
+                f"expected {what} from {span}{unit}, found {v:g}")
         return v
 
     parse.__name__ = kind.__name__  # argparse names the type in its own messages
