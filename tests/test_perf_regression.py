@@ -190,3 +190,35 @@ def test_certificate_terms_from_the_fit_equal_a_second_accumulation(thesis_clean
     assert fast[1] == slow[1]
     assert fast[0] == pytest.approx(slow[0], rel=1e-10)
     np.testing.assert_allclose(fast[2], slow[2], rtol=1e-9, atol=1e-12 * np.abs(slow[2]).max())
+
+
+def test_cost_alone_does_not_depend_on_the_block_size(thesis_clean):
+    """``cost_of`` evaluated block by block (the fit's last step on large data) equals one
+    evaluation of every row."""
+    data, exclusions = thesis_clean
+    prob = Problem(select(data, exclude=exclusions), parse_spec("kinematic21,drift"), "prior")
+    state = prob.initial_state()
+    d_whole, cost_whole = normal_module.cost_of(prob, state, 0.5, rows=10**6)
+    d_part, cost_part = normal_module.cost_of(prob, state, 0.5, rows=37)
+    np.testing.assert_allclose(d_part, d_whole, rtol=0, atol=1e-12)
+    assert cost_part == pytest.approx(cost_whole, rel=1e-12)
+    assert cost_whole == pytest.approx(normal_module.accumulate(prob, state, 0.5).cost,
+                                       rel=1e-12)
+
+
+def test_a_last_step_taken_for_its_cost_alone_leaves_the_uncertainties():
+    """When the fit's last step is evaluated for its cost alone (its predicted decrease is
+    below the stop), the covariance and the certificate's χ² come from the linearisation
+    one step back: they equal those of a fresh accumulation at the solution to far below
+    any reported digit (1e-9 relative; the step moves the cost by < 1e-9 of itself)."""
+    r = fit(simulate({"seed": 3, "repeats": 30}).dataset, "kinematic21")
+    prob, state = r.problem, r.state
+    # this fit ends so (its solution is not where its normal equations were taken)
+    assert normal_module._plate_cross(prob, state) is None
+    ne = prob.normal_equations(state, r.sigma_um)
+    fresh = certificate_terms(prob, state, r.design_null, r.sigma_um, r.rank_rtol,
+                              r.covariance_noise, normal=(ne.cost, ne.N, ne.g, ne.rows))
+    assert r.chi2 == pytest.approx(ne.cost, rel=1e-12)
+    assert r.chi2_test == pytest.approx(fresh[0], rel=1e-9)
+    np.testing.assert_allclose(r.covariance, fresh[2], rtol=1e-9,
+                               atol=1e-9 * np.abs(fresh[2]).max())

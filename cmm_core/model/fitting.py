@@ -138,14 +138,23 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     ne = Normal(None, None, C, rank_rtol, normal=(N, g))
     null0 = ne.null
     C_run = ne.freeze_null(C)
+    # (state, cost) where N and g were linearised: the state itself, but for a last step
+    # whose predicted decrease is below the stop (see below)
+    lin_state, lin_cost = state, cost
     for it in range(1, max_iter + 1):  # noqa: B007 - `it` reports the iteration count
         if it > 1 or null0.shape[1]:
             ne = Normal(None, None, C_run, rank_rtol, normal=(N, g))
-        accepted = False
+        accepted = last = False
         for attempt in range(16):
-            trial = prob.update(state, ne.step(mu))
-            # the undamped step is nearly always accepted: its normal equations at once
-            if attempt == 0:
+            dx = ne.step(mu)
+            trial = prob.update(state, dx)
+            # the undamped step is nearly always accepted: its normal equations at once,
+            # unless the linearisation predicts it ends the fit (a decrease |r|² - |r +
+            # J dx|² below the stop): then its cost alone (no Jacobian pass, a fifth of
+            # the time), and N, g stay those of this state, a step of < tol of the cost
+            # away (thesis eq. 4.15's covariance is then taken one negligible step back)
+            last = attempt == 0 and -(2 * g @ dx + dx @ N @ dx) <= tol * max(cost, 1.0) / 2
+            if attempt == 0 and not last:
                 dt, new_cost, Nt, gt, _ = normal_equations(trial)
             else:
                 (dt, new_cost), Nt = _normal.cost_of(prob, trial, sigma_um), None
@@ -159,11 +168,12 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
             break
         mu = mu / 10 if mu > 1e-6 else 0.0
         state = trial
-        if Nt is None:
-            dt, new_cost, Nt, gt, _ = normal_equations(state)
-        d, N, g = dt, Nt, gt
         done = cost - new_cost <= tol * max(cost, 1.0)
-        cost = new_cost
+        if Nt is None and not (last and done):
+            dt, new_cost, Nt, gt, _ = normal_equations(state)
+        if Nt is not None:
+            N, g, lin_state, lin_cost = Nt, gt, state, new_cost
+        d, cost = dt, new_cost
         if done:
             status = "converged"
             break
@@ -172,8 +182,10 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     cert = None
     if plate == "fixed" and obs.cert_u_um is not None and certificate_test:
         # the certificate's own uncertainty: in the χ² test and in every parameter's u
-        cert = certificate_terms(prob, state, C_run[C.shape[0]:], sigma_um, rank_rtol, cov,
-                                 normal=(cost, N, g, n_rows))
+        # (from the linearisation's own state and cost: its χ² is that of the linearised
+        # prior problem's minimum, which the negligible last step does not move)
+        cert = certificate_terms(prob, lin_state, C_run[C.shape[0]:], sigma_um, rank_rtol,
+                                 cov, normal=(lin_cost, N, g, n_rows))
     null = np.hstack([unseen.T, null0, ne.null])
     cov_noise = None
     if cert is not None:

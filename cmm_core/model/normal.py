@@ -23,7 +23,8 @@ C-ordered ``(k, m)`` matrix per component) is used where it lies, and the other 
 certificate fixed, the plate columns the fit does not have are accumulated beside them
 for the certificate's terms (``certificate_prior``).
 
-Bench (``bench/fit.py``): a fit of 10^6 observations makes three accumulations.
+Bench (``bench/fit.py``): a fit of 10^6 observations makes two accumulations and one
+evaluation of its cost alone (``fitting.fit``'s last step).
 """
 
 
@@ -42,6 +43,7 @@ from scipy.linalg.blas import dsyrk
 
 from .blocks.kinematic import Kinematic
 from .blocks.plate import Plate
+from .hole_plate import is_hole_plate
 from .observations import Observations
 from .state import State
 
@@ -479,9 +481,17 @@ def _normal_columns(prob: Any, state: State, sigma_um: float, cols: np.ndarray,
     return Nc * w, gc * w
 
 
-def cost_of(prob: Any, state: State, sigma_um: float) -> tuple[np.ndarray, float]:
-    """Residuals (µm, (n, 3)) and ``r·r`` of the weighted residual, without a Jacobian."""
-    d, _ = prob.residual(state, False)
+def cost_of(prob: Any, state: State, sigma_um: float, rows: int = ROWS
+            ) -> tuple[np.ndarray, float]:
+    """Residuals (µm, (n, 3)) and ``r·r`` of the weighted residual, without a Jacobian;
+    in the blocks of :func:`accumulate` (one evaluation's temporaries of 10^6
+    observations at once doubled a fit's peak memory)."""
+    if prob.n_obs <= rows or is_hole_plate(prob.obs):  # projected rows: whole
+        d, _ = prob.residual(state, False)
+    else:
+        d = np.empty((prob.n_obs, 3))
+        for idx, sub in _blocks(prob, rows):
+            d[idx] = sub.residual(state, False)[0]
     r = d.ravel() / sigma_um
     cost = float(r @ r)
     if prob.plate == "prior":
