@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
 from test_monitor import calibrated
 
 from cmm_core.monitor import conformity, interim_check, remeasured, what_changed
@@ -64,3 +65,31 @@ def test_change_one_placement_cannot_see_is_told_so_not_conforms():
     assert not row.tested and row.resolved < 0.1
     c = conformity(model, check, data, mpe_a_um=10.0, mpe_per_mm=1 / 100, changes=ch)
     assert c.statement == "cannot say"
+
+
+def test_a_ball_the_check_left_out_gives_no_length():
+    """A ball measurement the check's fit excludes (a flagged blunder) is not counted in
+    the conformity statement: a 50 µm blunder on it would otherwise fail every length to
+    that ball. The 5 x 5 grid's pairs (``line_pairs``) through one ball: counted directly
+    from the result, the difference to the full check equals them."""
+    cal, model = calibrated("pitch80_3pos", 0)
+    data = remeasured(cal, 5).dataset
+    pos, prb, ball = data.meas.iloc[7][["position", "probe", "ball"]]
+    meas = data.meas.copy()
+    meas.loc[7, "mx_mm"] += 0.05  # a 50 µm blunder along X
+    bad = replace(data, meas=meas)
+    full = conformity(model, interim_check(model, data), data, mpe_a_um=10.0,
+                      mpe_per_mm=1 / 100)
+    kept = conformity(model, interim_check(model, bad, exclude=[(pos, prb, ball)]), bad,
+                      mpe_a_um=10.0, mpe_per_mm=1 / 100)
+    assert kept.statement == "conforms", kept.message
+    assert "1 ball measurement(s) the check's fit left out" in kept.message
+    m = full.mpe
+    i = int(np.flatnonzero(data.certificate.balls == ball)[0]) + 1
+    through = (m.position == f"{pos}/{prb}") & ((m.ball_a == i) | (m.ball_b == i))
+    assert through.sum() > 0
+    assert len(kept.mpe.error_um) == len(m.error_um) - through.sum()
+    # with the blunder counted, the same limit is failed
+    counted = conformity(model, interim_check(model, bad), bad, mpe_a_um=10.0,
+                         mpe_per_mm=1 / 100)
+    assert counted.counts.get("does not conform", 0) > 0

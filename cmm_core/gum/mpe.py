@@ -152,13 +152,18 @@ class MpeResult:
         return float(np.max(np.abs(self.error_um))) if self.error_um.size else float("nan")
 
 
-def _as_points(a, what: str, n_balls: int) -> np.ndarray:
+def _as_points(a, what: str, n_balls: int, missing: bool = False) -> np.ndarray:
+    """``a`` as an (n_balls, 3) array of finite ball centres (``missing``: a ball may be
+    NaN in all three coordinates, not measured or left out)."""
     arr = np.asarray(a, dtype=float)
     if arr.shape != (n_balls, 3):
         raise ValueError(f"{what}: expected a ({n_balls}, 3) array of ball centres in mm, got "
                          f"shape {arr.shape}.")
-    if not np.all(np.isfinite(arr)):
-        bad = int(np.argwhere(~np.isfinite(arr))[0, 0]) + 1
+    bad = ~np.isfinite(arr)
+    if missing:  # a missing ball is NaN in all three coordinates, never in one
+        bad &= ~np.isnan(arr).all(axis=1, keepdims=True)
+    if bad.any():
+        bad = int(np.argwhere(bad)[0, 0]) + 1
         raise ValueError(f"{what}: expected finite coordinates, ball {bad} is not finite.")
     return arr
 
@@ -172,7 +177,9 @@ def mpe_check(tables: Mapping[str, np.ndarray], certificate: ArrayLike, *, n: in
     Parameters
     ----------
     tables : mapping of str to (n*n, 3) array
-        Measured ball centres per position, mm, plate frame, ball order 1..n*n.
+        Measured ball centres per position, mm, plate frame, ball order 1..n*n; a ball
+        not measured or left out (an excluded outlier) is NaN, and its lengths are not
+        counted.
     certificate : (n*n, 3) array
         Calibrated ball centres, mm.
     n : int
@@ -204,16 +211,17 @@ def mpe_check(tables: Mapping[str, np.ndarray], certificate: ArrayLike, *, n: in
     lim = mpe_um(L_cert, mpe_a_um, mpe_per_mm)
     cols: dict[str, list[np.ndarray]] = {k: [] for k in ("position", "a", "b", "d", "L", "e", "U", "m")}
     for name, pts in tables.items():
-        pts = _as_points(pts, f"tables[{name!r}]", n * n)
+        pts = _as_points(pts, f"tables[{name!r}]", n * n, missing=True)
         L_meas = np.linalg.norm(pts[ib] - pts[ia], axis=1)
-        cols["position"].append(np.full(len(pairs), str(name), dtype=object))
-        cols["a"].append(ia + 1)
-        cols["b"].append(ib + 1)
-        cols["d"].append(dirs)
-        cols["L"].append(L_cert)
-        cols["e"].append((L_meas - L_cert) * 1e3)
-        cols["U"].append(U)
-        cols["m"].append(lim)
+        ok = np.isfinite(L_meas)
+        cols["position"].append(np.full(int(ok.sum()), str(name), dtype=object))
+        cols["a"].append(ia[ok] + 1)
+        cols["b"].append(ib[ok] + 1)
+        cols["d"].append(dirs[ok])
+        cols["L"].append(L_cert[ok])
+        cols["e"].append((L_meas[ok] - L_cert[ok]) * 1e3)
+        cols["U"].append(U[ok])
+        cols["m"].append(lim[ok])
     cat = {k: np.concatenate(v) for k, v in cols.items()}
     dec = decide(cat["e"], cat["U"], cat["m"])
     counts = {d: int(np.sum(dec == d)) for d in DECISIONS}

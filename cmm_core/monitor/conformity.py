@@ -122,10 +122,17 @@ def conformity(model: Model, check: InterimCheck, dataset: Dataset, *, mpe_a_um:
     mpe = None
     if n * n == len(cert.balls) and n >= 2:
         tables = {}
+        left_out = 0
         for pos in check.positions:
-            for prb in dict.fromkeys(check.table.loc[check.table.position == pos, "probe"]):
+            at = check.table[check.table.position == pos]
+            for prb in dict.fromkeys(at["probe"]):
                 tab = dataset.plate_frame_table(pos, prb)
-                if np.isfinite(tab).all():
+                # a ball the check's fit left out (an exclusion) gives no length either
+                used = np.isin(cert.balls, at.loc[at.probe == prb, "ball"].to_numpy())
+                measured = np.isfinite(tab).all(axis=1)
+                left_out += int(np.sum(measured & ~used))
+                tab[~used] = np.nan
+                if measured.all():
                     tables[f"{pos}/{prb}"] = tab
         if tables:
             sig = check.sigma_um
@@ -133,7 +140,12 @@ def conformity(model: Model, check: InterimCheck, dataset: Dataset, *, mpe_a_um:
                             mpe_per_mm=mpe_per_mm,
                             uncertainty=lambda L: conformity_uncertainty_um(L, sig))
     counts = dict(mpe.counts) if mpe is not None else {}
-    limit = f"MPE = {mpe_a_um:g} µm + L/{1 / mpe_per_mm:g}"
+    limit = f"MPE = {mpe_a_um:g} µm + L/{1 / mpe_per_mm:g} (L in mm)"
+    if mpe is not None and left_out:
+        note = (f" The lengths to the {left_out} ball measurement(s) the check's fit "
+                     "left out (exclusions) are not counted.")
+    else:
+        note = ""
     if mpe is None:
         statement = "cannot say"
         msg = (f"Cannot say whether the machine conforms to {limit}: the check's plate has no "
@@ -156,5 +168,5 @@ def conformity(model: Model, check: InterimCheck, dataset: Dataset, *, mpe_a_um:
         statement = "conforms"
         msg = (f"Conforms to {limit}: all {len(mpe.error_um)} lengths, and the check sees "
                "every parameter of the stored model.")
-    return Conformity(statement, f"{msg} Decision rule: {RULE}.", counts, mpe, RULE,
+    return Conformity(statement, f"{msg}{note} Decision rule: {RULE}.", counts, mpe, RULE,
                       list(changes.unseen))

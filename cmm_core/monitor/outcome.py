@@ -275,7 +275,7 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
     if mpe is not None:
         if dataset is None:
             conf = Conformity("cannot say", f"Cannot say whether the machine conforms to "
-                              f"MPE = {mpe[0]:g} µm + L/{mpe[1]:g}: the check has no plate "
+                              f"MPE = {mpe[0]:g} µm + L/{mpe[1]:g} (L in mm): the check has no plate "
                               "lengths to decide on, and it cannot see "
                               f"{len(changes.unseen)} combination(s) of the machine's errors."
                               , {}, None, RULE, list(changes.unseen))
