@@ -44,6 +44,7 @@ from .inputs import (
     data_of,
     dataset_of,
     exclusions_of,
+    fit_args_of,
     instruments_of,
     number_arg,
     sigma_of,
@@ -86,8 +87,8 @@ def cmd_fit(args: argparse.Namespace) -> dict:
     data = data_of(args, instruments)
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
     sigma_um, sigma = sigma_of(args, data, exclude, args.model)
-    r = fit(data, args.model, order=args.order, plate=args.plate, sigma_um=sigma_um,
-            exclude=exclude, instruments=instruments or None)
+    r = fit(data, args.model, instruments=instruments or None,
+            **fit_args_of(args, args.model, exclude, sigma_um=sigma_um))
     if args.save:
         save_model(r, args.save)
     return {**r.summary(), "sigma": sigma,
@@ -106,8 +107,8 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
     sigma_um, sigma = sigma_of(args, data, exclude, args.baseline)
     if instruments and not isinstance(data, Observations):  # they ride on the observations into every model the diagnosis fits
         data = replace(select(data, exclude=exclude), instruments=tuple(instruments))
-    d = diagnose(data, args.baseline, order=args.order, plate=args.plate,
-                 sigma_um=sigma_um, exclude=exclude)
+    d = diagnose(data, args.baseline,
+                 **fit_args_of(args, args.baseline, exclude, sigma_um=sigma_um))
     out = d.to_dict()
     out["certificate_u_source"] = d.baseline.certificate_u_source
     out["sigma"] = sigma
@@ -124,8 +125,8 @@ def cmd_compensate(args: argparse.Namespace) -> dict:
 def cmd_gp(args: argparse.Namespace) -> dict:
     data = dataset_of(args)
     _, exclude = exclusions_of(data, args.exclude_outliers)
-    r = fit(data, "kinematic21" if args.mean == "kinematic" else "rigid", order=args.order,
-            plate=args.plate, exclude=exclude)
+    spec = "kinematic21" if args.mean == "kinematic" else "rigid"
+    r = fit(data, spec, **fit_args_of(args, spec, exclude))
     obs = r.problem.obs
     basis = None
     if args.mean == "kinematic":

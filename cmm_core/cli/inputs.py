@@ -7,9 +7,11 @@ from __future__ import annotations
 import argparse
 import io
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
+from ..analysis import fit_kwargs
 from ..diagnosis import detect_outliers, estimate_sigma
 from ..io import (
     DMIS_SUFFIXES,
@@ -292,6 +294,38 @@ def _sigma_arg(text):
     return value
 
 
+@dataclass(frozen=True)
+class CommandChoices:
+    """The fit choices of a command line (``analysis.FitChoices``): the fitting commands
+    turn them into a fit's keyword arguments by ``analysis.fit_kwargs``, as the analysis
+    record and the app do, so that one translation serves all three."""
+
+    spec: str
+    """The model spec (``--model``, ``--baseline``)."""
+    order: int
+    """The default Chebyshev order (``--order``)."""
+    plate: str
+    """``--plate``, or ``"auto"`` when not given (the fit's default for the data)."""
+    sigma_um: float | str
+    """``--sigma-um``: µm, or ``"auto"``."""
+    exclusions: Sequence[Sequence] = ()
+    """``(position, probe, ball)`` left out (the flagged outliers with
+    ``--exclude-outliers``)."""
+    positions: Sequence[str] | None = None
+    """Every position: the command line has no selection."""
+    probes: Sequence[str] | None = None
+    """Every probe."""
+
+
+def fit_args_of(args: argparse.Namespace, spec: str, exclude: Sequence[Sequence] = (),
+                **more: float) -> dict:
+    """Keyword arguments of ``fit`` / ``diagnose`` from the command line's options
+    (:class:`CommandChoices` through ``analysis.fit_kwargs``); ``more``: ``sigma_um``."""
+    choices = CommandChoices(spec, args.order, args.plate or "auto",
+                             getattr(args, "sigma_um", 0.5), tuple(map(tuple, exclude)))
+    return fit_kwargs(choices, **more)
+
+
 def sigma_of(args: argparse.Namespace, data: Dataset | Observations, exclude: list,
              spec: str) -> tuple[float, dict]:
     """``(σ µm, JSON record)``: the stated value, or the estimate for ``--sigma-um auto``."""
@@ -303,7 +337,7 @@ def sigma_of(args: argparse.Namespace, data: Dataset | Observations, exclude: li
                         "instrument row: each reading has its own u_um).",
                         file="command line")
 
-    est = estimate_sigma(data, spec, order=args.order, plate=args.plate, exclude=exclude)
+    est = estimate_sigma(data, spec, **fit_args_of(args, spec, exclude))
     return est.value_um, {**est.to_dict(), "auto": True}
 
 
