@@ -10,7 +10,7 @@ from cmm_core.diagnosis import diagnose
 from cmm_core.export import compensate, model_from_dict, model_to_dict
 from cmm_core.model import catalogue_entry, fit, simulate
 
-TWIST = {"lin_urad": 8.0, "mid_urad": 4.0}
+TWIST = {"lin_urad": 8.0, "quad_urad": 4.0, "cub_urad": -3.0}
 """Roll at the strokes' corners (µrad): a few µrad, as a bridge of a 1 m CMM rolls when
 its carriage crosses it."""
 
@@ -28,8 +28,8 @@ def test_the_twist_is_recovered_within_3u(layout):
     r = fit(sim.dataset, "kinematic21,bridge_twist")
     lab, v, u = r.block("bridge_twist")
     truth = np.array([sim.truth[k] for k in lab])
-    assert list(lab) == ["bridge_twist.lin", "bridge_twist.mid", "bridge_twist.lin_h",
-                         "bridge_twist.mid_h"]
+    assert list(lab) == ["bridge_twist.lin", "bridge_twist.quad", "bridge_twist.cub",
+                         "bridge_twist.lin_h", "bridge_twist.quad_h", "bridge_twist.cub_h"]
     assert np.all(np.abs(v - truth) < 3 * u), (v, truth, u)
     assert not r.fails_chi2_test
 
@@ -87,10 +87,46 @@ def test_new_points_are_corrected_for_the_twist():
     B = basis(u, m.terms.range_mm, "moving_bridge_fxyz")
     # the roll about x through z = 0, and the height terms' shear e_x × (−1 m e_z) =
     # +1000 mm e_y per rad: 1 µm along y per µrad
-    want = (B @ part.values[:2])[:, None] * direction_um(r_mm, u, "moving_bridge_fxyz") + \
-        (B @ part.values[2:])[:, None] * np.array([0.0, 1.0, 0.0])
+    want = (B @ part.values[:3])[:, None] * direction_um(r_mm, u, "moving_bridge_fxyz") + \
+        (B @ part.values[3:])[:, None] * np.array([0.0, 1.0, 0.0])
     np.testing.assert_allclose(delta, want, atol=1e-9)
     assert np.abs(want).max() > 1.0  # the twist moves points by µm
+
+
+def test_a_model_file_of_the_first_two_shapes_still_corrects_with_them():
+    """Files saved before the cubic family (issue 26) hold 4 twists of the shapes s·v and
+    (1 − s²)² v with their height terms: read with those labels and corrected with those
+    shapes, not the new ones."""
+    from cmm_core.model.blocks.bridge_twist import (
+        OLD_LABELS,
+        BridgeTwist,
+        basis,
+        direction_um,
+    )
+
+    sim = _sim("moving_bridge_fxyz", 6)
+    r = fit(sim.dataset, "kinematic21,bridge_twist")
+    d = model_to_dict(r)
+    n_before = len(d["bridge_twist"]["cov_joint"]) - 6
+    old_t = [5.0, -2.0, 1.0, 0.5]
+    cov = np.asarray(d["bridge_twist"]["cov_joint"])[: n_before + 4, : n_before + 4]
+    part = BridgeTwist.part_from_file({**d, "bridge_twist": {
+        "twist_urad": old_t, "cov_joint": cov.tolist()}}, n_before, "old.json")
+    assert part.labels == OLD_LABELS
+    pts = sim.dataset.meas[["probe", "mx_mm", "my_mm", "mz_mm"]].rename(
+        columns={"mx_mm": "x_mm", "my_mm": "y_mm", "mz_mm": "z_mm"}).iloc[:20]
+    r_mm = pts[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+    u = r_mm - np.array([r.problem.obs.p_mm[0]] * len(pts))
+    B = basis(u, part.context["range_mm"], "moving_bridge_fxyz", old=True)
+    assert B.shape == (20, 2)
+    want = (B @ old_t[:2])[:, None] * direction_um(r_mm, u, "moving_bridge_fxyz") + \
+        (B @ old_t[2:])[:, None] * np.array([0.0, 1.0, 0.0])
+    got = BridgeTwist.correct(part, pts, u, "old.json")
+    np.testing.assert_allclose(got.delta_um, want, atol=1e-9)
+    # the old shapes move the points by tenths of µm here, and not as the new ones would
+    assert np.abs(want).max() > 0.2
+    new = basis(u, part.context["range_mm"], "moving_bridge_fxyz")[:, :2] @ old_t[:2]
+    assert np.abs(new - B @ old_t[:2]).max() > 0.1
 
 
 def test_the_catalogue_says_what_it_is_confused_with():
@@ -109,7 +145,7 @@ def test_a_roll_about_a_raised_line_is_the_twist_with_its_height(layout, name):
     r = fit(sim.dataset, "kinematic21,bridge_twist")
     lab, v, u = r.block("bridge_twist")
     truth = np.array([sim.truth[k] for k in lab])
-    np.testing.assert_allclose(truth[2:], 0.9 * truth[:2])
+    np.testing.assert_allclose(truth[3:], 0.9 * truth[:3])
     assert np.all(np.abs(v - truth) < 3 * u), (v, truth, u)
     assert diagnose(sim.dataset, "kinematic21").verdict == "bridge_twist"
 
@@ -122,7 +158,7 @@ def test_a_roll_about_a_raised_line_is_the_twist_with_its_height(layout, name):
 ])
 def test_a_twist_of_another_shape_is_never_a_high_order_rigid_term(layout, name, shape,
                                                                     height):
-    """Issue 26: a beam twist whose shape along the travel is none of the block's two
+    """Issue 26: a beam twist whose shape along the travel is none of the block's
     (``scenarios.bridge_roll``: s², sin(πs/2), evaluated at the tips, about a raised line)
     is named as the twist, or outside the catalogue; never as a rigid function's higher
     order (``ryy:3`` ...) nor as the plate's sag. 30 µrad at the corners."""

@@ -17,7 +17,7 @@ SAG = {"plate_sag": {"uu": -1.0, "uv": 0.3, "vv": -0.8}}
 CASES = [
     # (machine layout, scenario layout, hidden effect, the effect's token)
     ("moving_bridge_fxyz", "pitch100_4pos", SAG, "plate_sag"),
-    ("gantry_fyxz", "pitch150_5pos", {"bridge_twist": {"lin_urad": 4.0, "mid_urad": 2.0}},
+    ("gantry_fyxz", "pitch150_5pos", {"bridge_twist": {"lin_urad": 4.0, "quad_urad": 2.0}},
      "bridge_twist"),
     ("horizontal_arm_fxzy", "pitch80_3pos", SAG, "plate_sag"),
 ]
