@@ -29,6 +29,7 @@ seeds; 10-20 s a seed on the shared two-core machine; docs/proposals.md has 30).
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -96,10 +97,11 @@ _CARRIED = {"probe_offset": lambda lab: lab.startswith("probe")}
 _REDRAWN = ("drift",)
 
 
-def true_machine(sim) -> dict:
+def true_machine(sim, cand=None) -> dict:
     """Simulator keys that reproduce the simulation's own machine (every kinematic
     coefficient drawn, by label; the styli's offsets) for a measurement appended to its
-    data."""
+    data. A repeat (``cand.repeat``) continues its placements: their own drift, not a
+    new one."""
     km = sim.config["kinematic"]
     effects = {}
     for tok, own in _CARRIED.items():
@@ -109,6 +111,10 @@ def true_machine(sim) -> dict:
     for tok in _REDRAWN:
         if tok in sim.config.get("effects", {}):
             effects[tok] = sim.config["effects"][tok]
+            if cand is not None and cand.repeat:
+                effects[tok] = BY_TOKEN[tok].injection(
+                    {k: v for k, v in sim.truth.items()
+                     if k.partition(".")[0] in cand.repeat and f".{tok}_" in k})
     return {"kinematic": {"spec": km["spec"], "order": km["order"],
                           "coefficients": {k: v for k, v in sim.truth.items()
                                            if "." not in k and not k.startswith("probe")}},
@@ -146,6 +152,29 @@ def nested_rejects(data, rf, truth, rival) -> bool:
     return bool(p < rf.levels[truth])
 
 
+def random_candidate(data, top, others, rng):
+    """A random extra measurement of the top proposal's machine time: another default
+    candidate of the same time, drawn at random; for a repeat at the end of placements
+    (whose time no other candidate shares), the same number of readings at the end of
+    the same placements with a stylus of each drawn at random among those it measured
+    with, on balls drawn at random (``NextMeasurement.repeat``)."""
+    if not top.repeat:
+        same = [p.candidate for p in others if p.candidate.time_min == top.time_min]
+        return same[rng.integers(len(same))]
+    each = {}
+    m = data.meas
+    for p, r in top.repeat.items():
+        at = m["position"] == p
+        styli = list(dict.fromkeys(m.loc[at, "probe"].astype(str)))
+        q = styli[rng.integers(len(styli))]
+        balls = sorted(set(m.loc[at & (m["probe"].astype(str) == q), "ball"].astype(int)))
+        pick = rng.choice(balls, size=len(r["balls"]), replace=False)
+        each[p] = {"probe": q, "balls": [int(b) for b in pick],
+                   "time_min": list(r["time_min"])}
+    return replace(top, name=f"random_{top.name}", description="random repeat",
+                   repeat=each)
+
+
 def _named(d, truth, rival):
     """(strict, by function, decided): the verdict is the truth; is of its function; is
     the truth and the rival is no longer its alias (``Outcome.separated``). The placement
@@ -174,11 +203,24 @@ def run_case(name, seeds):
         pr = propose(data, (rival, truth) if truth == PLACEMENT_SCALE else (truth, rival),
                      baseline=base)
         top = pr.ranked[0]
-        cfg = true_machine(sim)
 
-        def appended(cand, data=data, cfg=cfg, seed=seed):
-            aug = append_measurement(data, cand, config=cfg, seed=5000 + seed)
-            if scale:  # the new placement's own scale, drawn from the same spread
+        def appended(cand, data=data, sim=sim, seed=seed):
+            aug = append_measurement(data, cand, config=true_machine(sim, cand),
+                                     seed=5000 + seed)
+            if scale and cand.repeat:  # the repeated placements' own scales, as drawn
+                drawn = np.random.default_rng(2000 + seed)
+                own = {p: drawn.normal(0, scale[0]) * 1e-6 for p in data.positions}
+                n0 = len(data.meas)
+                xyz = aug.meas[["mx_mm", "my_mm", "mz_mm"]].to_numpy()
+                delta = np.zeros_like(xyz)
+                for p in cand.repeat:
+                    at = (aug.meas["position"] == p).to_numpy()
+                    mean = xyz[:n0][at[:n0], scale[1]].mean()
+                    new = at.copy()
+                    new[:n0] = False
+                    delta[new, scale[1]] = own[p] * (xyz[new, scale[1]] - mean)
+                aug = perturb(aug, delta)
+            elif scale:  # the new placement's own scale, drawn from the same spread
                 new = aug.meas["position"].isin(list(cand.positions)).to_numpy()
                 xyz = aug.meas[["mx_mm", "my_mm", "mz_mm"]].to_numpy()
                 s = np.random.default_rng(7000 + seed).normal(0, scale[0]) * 1e-6
@@ -190,9 +232,8 @@ def run_case(name, seeds):
         aug = appended(top.candidate)
         after = _named(diagnose(aug, base), truth, rival)
         rng = np.random.default_rng(seed)
-        same = [p for p in pr.ranked[1:] if p.candidate.time_min == top.candidate.time_min]
-        other = same[rng.integers(len(same))]
-        aug_r = appended(other.candidate)
+        other = random_candidate(data, top.candidate, pr.ranked[1:], rng)
+        aug_r = appended(other)
         random_ = _named(diagnose(aug_r, base), truth, rival)
         rf = fit_rivals(data, pr.rivals, baseline=base)
         sep = nested_rejects(aug, rf, truth, rival)
@@ -200,7 +241,7 @@ def run_case(name, seeds):
         print(f"  seed {seed}: top {top.candidate.name} (power {top.power[truth]:.2f}), "
               f"named before/after/random: {before[0]}/{after[0]}/{random_[0]}, decided "
               f"{before[2]}/{after[2]}/{random_[2]} "
-              f"({other.candidate.name}), separated {sep}", flush=True)
+              f"({other.name}), separated {sep}", flush=True)
     return rows
 
 

@@ -87,6 +87,14 @@ TARGET_POWER = 0.9
 SHIFT_FRACTION = 0.5
 """Default fraction of the ball pitch by which the plate is shifted."""
 
+REPEAT_BALLS = (4, 12)
+"""Balls a stylus is measured again on at the end of a placement (:func:`repeat_candidates`):
+a few, and more for a small drift."""
+
+NO_POWER = 0.05
+"""A power below this (one chance in twenty) decides nothing: the ranking does not tell
+such powers apart (:func:`_rank_key`)."""
+
 CHUNK = 16
 """Candidates per Dask task of :func:`propose_many`."""
 
@@ -147,6 +155,11 @@ class NextMeasurement:
         For an instrument instead of the plate: ``kind`` (``laser``, ``step_gauge``,
         ``ball_bar``) and the keywords of its simulator (``simulate_laser``, ...) but the
         simulation; empty for a plate placement.
+    repeat : dict
+        For a repeat at the end of placements already measured (:func:`repeat_candidates`):
+        placement -> ``{"probe": stylus, "balls": [...], "time_min": [...]}``, the stylus
+        measured again on those balls at those times (after the placement's last reading,
+        before its plate is moved: the same pose); ``positions`` is then empty.
     """
 
     name: str
@@ -156,6 +169,7 @@ class NextMeasurement:
     probes_of: dict
     time_min: float
     instrument: dict = field(default_factory=dict)
+    repeat: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -213,7 +227,7 @@ class Proposal:
         c = self.candidate
         return {"name": c.name, "description": c.description, "time_min": c.time_min,
                 "positions": c.positions, "probes": c.probes, "probes_of": c.probes_of,
-                "instrument": c.instrument,
+                "instrument": c.instrument, "repeat": c.repeat,
                 "rivals": list(self.rivals), "delta_chi2": self.delta_chi2,
                 "delta_chi2_fitted": self.delta_chi2_fitted, "own_parameters": self.own,
                 "dof": {k: list(v) for k, v in self.dof.items()}, "level": self.level,
@@ -335,7 +349,8 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
                            shift_fraction: float = SHIFT_FRACTION,
                            stylus_offset_mm: float = STYLUS_OFFSET_MM,
                            minutes_per_ball: float | None = None,
-                           minutes_per_placement: float | None = None
+                           minutes_per_placement: float | None = None,
+                           repeat_balls: int | Sequence[int] = REPEAT_BALLS,
                            ) -> list[NextMeasurement]:
     """The default candidate measurements for a data set.
 
@@ -345,7 +360,9 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
     Z stroke; rotated 90° and 180° in its plane about its centre; stood in XZ and in YZ;
     measured again with a stylus offset ``stylus_offset_mm`` along X, along Y, and a
     stylus 100 mm longer; and, with two styli or more, measured again with its styli in
-    reverse order. Each new placement is measured with the reference's styli (the new
+    reverse order; and where styli were measured in blocks, the first stylus measured
+    again at the end of such a placement (:func:`repeat_candidates`, on
+    ``repeat_balls`` balls). Each new placement is measured with the reference's styli (the new
     stylus alone for a stylus candidate). Candidates outside the machine are dropped by
     :func:`propose` (with the reason). Machine time: the plan's time model
     (``Plan.time_min``), minutes per ball and per placement defaulting to
@@ -423,6 +440,71 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
     if len(styli) > 1:
         add("reverse", f"{reference} again with its styli in reverse order "
             f"({', '.join(styli[::-1])})", o, u, v, styli[::-1])
+    return out + repeat_candidates(data, n_balls=repeat_balls, minutes_per_ball=per_ball)
+
+
+def blocked_styli(data: Dataset) -> dict[str, list[str]]:
+    """Placements whose styli were measured in blocks: two styli or more, each stylus's
+    readings one run in time (``time_min``), -> their styli in the order measured. There a
+    placement's drift and its later styli's offsets look alike (``Drift``'s aliases); none
+    without a ``time_min`` column (a repeat's time would be unknown)."""
+    m = data.meas
+    if "time_min" not in m or not m["time_min"].notna().all():
+        return {}
+    out = {}
+    for p in data.setup.raw["positions"]:
+        rows = m.loc[m["position"] == p].sort_values("time_min", kind="stable")
+        seq = rows["probe"].astype(str).tolist()
+        runs = [q for i, q in enumerate(seq) if i == 0 or q != seq[i - 1]]
+        if len(runs) > 1 and len(runs) == len(set(runs)):
+            out[str(p)] = runs
+    return out
+
+
+def repeat_candidates(data: Dataset, *, n_balls: int | Sequence[int] = REPEAT_BALLS,
+                      minutes_per_ball: float | None = None) -> list[NextMeasurement]:
+    """Repeats that tell a placement's drift from its styli's offsets.
+
+    For each placement whose styli were measured in blocks (:func:`blocked_styli`): its
+    first stylus measured again on the first ``n_balls`` balls it measured there (the
+    same balls, the earliest times), right after the placement's last reading, before its
+    plate is moved (``repeat_<placement>_<n>``); and, with two such placements or more,
+    the same at the end of each (``repeat_all_<n>``). A stylus's offset repeats
+    exactly; a drift of ``v`` µm/h moves the repeated readings by ``v`` times the time
+    elapsed since the first ones (``Drift``'s own remedy: "repeating the first ball at
+    the end of each position"). Machine time: balls × minutes per ball (the plan's time
+    model, ``files.MEASUREMENT_DEFAULTS``; no new placement: the plate stays where it
+    is). For a placement no longer on the machine the repeat is a change of plan for the
+    next run of the same placements.
+    """
+    defaults: dict = MEASUREMENT_DEFAULTS
+    per_ball = float(defaults["minutes_per_ball"] if minutes_per_ball is None
+                     else minutes_per_ball)
+    m = data.meas
+    out = []
+    counts = [int(n_balls)] if isinstance(n_balls, int | np.integer) else \
+        [int(n) for n in n_balls]
+    blocked = blocked_styli(data)
+    for n in counts:
+        each = {}
+        for p, styli in blocked.items():
+            rows = m.loc[(m["position"] == p) & (m["probe"].astype(str) == styli[0])]
+            rows = rows.sort_values("time_min", kind="stable")
+            balls = [int(b) for b in dict.fromkeys(rows["ball"])][:max(n, 1)]
+            end = float(m.loc[m["position"] == p, "time_min"].max())
+            each[p] = {"probe": styli[0], "balls": balls,
+                       "time_min": [end + per_ball * (j + 1) for j in range(len(balls))]}
+            out.append(NextMeasurement(
+                f"repeat_{p}_{len(balls)}", f"stylus {styli[0]} measured again on "
+                f"{len(balls)} ball(s) of {p} (balls {', '.join(map(str, balls))}) at the "
+                f"end of {p}, before its plate is moved", {}, {}, {},
+                len(balls) * per_ball, repeat={p: each[p]}))
+        if len(each) > 1:
+            out.append(NextMeasurement(
+                f"repeat_all_{n}", f"the first stylus of each of {', '.join(each)} measured "
+                f"again on {n} of its balls at the end of that placement, before its plate "
+                f"is moved", {}, {}, {},
+                sum(len(r["balls"]) for r in each.values()) * per_ball, repeat=each))
     return out
 
 
@@ -436,7 +518,8 @@ def _tagged(c: NextMeasurement, tag: str) -> NextMeasurement:
         f"{c.name}_{tag}", c.description,
         {ren(p): {**pl, "probe": ren(pl["probe"])} for p, pl in c.positions.items()},
         {ren(q): v for q, v in c.probes.items()},
-        {ren(p): [ren(q) for q in qs] for p, qs in c.probes_of.items()}, c.time_min)
+        {ren(p): [ren(q) for q in qs] for p, qs in c.probes_of.items()}, c.time_min,
+        c.instrument, c.repeat)
 
 
 def wide_candidates(data: Dataset, fractions: Sequence[float] = (0.25, 0.5, 0.75)
@@ -451,7 +534,7 @@ def wide_candidates(data: Dataset, fractions: Sequence[float] = (0.25, 0.5, 0.75
                 if i and not c.name.startswith("shift_"):
                     continue
                 key = json.dumps([list(c.positions.values()), list(c.probes_of.values()),
-                                  c.probes], sort_keys=True)
+                                  c.probes, c.repeat], sort_keys=True)
                 if key in seen:
                     continue
                 seen.add(key)
@@ -467,11 +550,18 @@ def append_measurement(data: Dataset, cand: NextMeasurement, *, config: dict | N
     The simulated readings are moved by the certificate's departure from the nominal
     grid (rotated into the placement), so that the appended balls are the certificate's.
 
+    A repeat (``cand.repeat``) is simulated at its placement's pose in the setup (the
+    truth of a simulated data set) and appended to that placement; its drift continues
+    that of the readings before: ``config``'s ``effects.drift`` must then give each
+    repeated placement's own vector (µm/h), not a spread.
+
     Raises
     ------
     DataError
         When the candidate's plate or styli leave the machine's range.
     """
+    if cand.repeat:
+        return _append_repeat(data, cand, config or {}, seed)
     grid = plate_grid(data)
     raw = copy.deepcopy(data.setup.raw)
     raw["frame"] = "machine"
@@ -506,6 +596,112 @@ def append_measurement(data: Dataset, cand: NextMeasurement, *, config: dict | N
     merged = read_setup(raw, name=f"{data.name} + {cand.name}")
     return Dataset(resolve(both, merged, data.certificate), merged, data.certificate,
                    f"{data.name} + {cand.name}")
+
+
+def _with_rows(data: Dataset, new: pd.DataFrame, name: str) -> Dataset:
+    """The data set with rows ``new`` (the measurement columns, ``source``, ``row``)
+    appended to its placements (the setup unchanged, read in the machine frame as
+    :func:`append_measurement`'s)."""
+    old = data.meas
+    cols = [c for c in _COLUMNS if c in old and c in new]
+    # a ball measured again with the same stylus: the io's ``repeat`` column tells them
+    # apart (0 for the readings before when they have none)
+    again = int(old["repeat"].max()) + 1 if "repeat" in old else 1
+    old = old if "repeat" in old else old.assign(repeat=0)
+    new = new.assign(repeat=again)
+    cols += ["repeat"]
+    both = pd.concat([old[cols + [c for c in ("source", "row") if c in old]],
+                      new[cols + ["source", "row"]]], ignore_index=True)
+    raw = copy.deepcopy(data.setup.raw)
+    raw["frame"] = "machine"
+    merged = read_setup(raw, name=f"{data.name} + {name}")
+    return Dataset(resolve(both, merged, data.certificate), merged, data.certificate,
+                   f"{data.name} + {name}")
+
+
+def _repeat_drift(data: Dataset, cand: NextMeasurement, drift: Mapping) -> dict:
+    """Placement -> drift vector (µm/h) a repeat continues (``effects.drift`` of a
+    simulator configuration: per placement; zero for a placement not given)."""
+    if "sd_um_per_h" in drift:
+        raise ValueError(f"{cand.name} repeats readings of placements already measured: "
+                         "their drift continues; give effects.drift per placement (µm/h), "
+                         "not sd_um_per_h.")
+    return {p: np.asarray(drift.get(p, [0.0, 0.0, 0.0]), float) for p in cand.repeat}
+
+
+def _append_repeat(data: Dataset, cand: NextMeasurement, config: dict, seed: int
+                   ) -> Dataset:
+    """:func:`append_measurement` of a repeat: the repeated stylus simulated at each
+    placement's pose (``config``'s machine, styli and noise), the balls and times of
+    ``cand.repeat`` kept, the placement's drift added as the drift block does
+    (``+ v · hours``, hours from the mean time of the placement's readings before, so
+    that the repeat continues them; ``Drift.reading_stage``, the simulator's targets)."""
+    grid = plate_grid(data)
+    raw = data.setup.raw
+    effects = dict(config.get("effects", {}))
+    drift = _repeat_drift(data, cand, effects.pop("drift", {}) or {})
+    setup = {k: copy.deepcopy(raw[k]) for k in ("units", "machine", "artefact") if k in raw}
+    setup.update({"frame": "machine", "probes": copy.deepcopy(raw["probes"]),
+                  "positions": {p: copy.deepcopy(raw["positions"][p]) for p in cand.repeat}})
+    for pl in setup["positions"].values():
+        for key in ("temp_C", "rh_percent"):
+            pl.pop(key, None)
+    cfg = {**config, "effects": effects, "seed": seed, "setup": setup,
+           "noise_um": config.get("noise_um", 0.0),
+           "kinematic": {**_NO_ERRORS, **config.get("kinematic", {})},
+           "probes_per_position": {p: [r["probe"]] for p, r in cand.repeat.items()},
+           "plate": {"rows": grid.rows, "cols": grid.cols, "pitch_mm": grid.pitch_mm,
+                     "form_um": 0.0, "certificate_u_um": 0.0}}
+    sim = simulate(cfg, name=f"proposal {cand.name!r}")
+    meas = sim.dataset.meas
+    parts = []
+    for p, r in cand.repeat.items():
+        rows = meas.loc[meas["position"] == p].set_index("ball").loc[r["balls"]]
+        rows = rows.reset_index()
+        R = np.asarray(sim.dataset.setup.positions[p].rotation)
+        xyz = rows[["x_mm", "y_mm", "z_mm"]].to_numpy().copy()
+        xyz += grid.offset_mm[rows["ball"].to_numpy() - 1] @ R.T
+        t = np.asarray(r["time_min"], float)
+        t0 = float(data.meas.loc[data.meas["position"] == p, "time_min"].mean())
+        xyz += np.outer((t - t0) / 60.0, drift[p]) * 1e-3
+        parts.append(rows.assign(x_mm=xyz[:, 0], y_mm=xyz[:, 1], z_mm=xyz[:, 2],
+                                 time_min=t))
+    new = pd.concat(parts, ignore_index=True).assign(source=f"proposal {cand.name}")
+    return _with_rows(data, new, cand.name)
+
+
+def repeat_from_fit(data: Dataset, cand: NextMeasurement, fitted: FitResult, *,
+                    noise_um: float = 0.0, seed: int = 0) -> Dataset:
+    """The data set with a repeat appended, simulated from a fit of the data itself (its
+    pose, plate, styli and machine as fitted: what the one-click simulation takes as the
+    truth): each repeated reading is the fitted model's value of the first reading of
+    that stylus and ball (the reading minus its residual), moved by the fitted drift of
+    the placement (``+ v · Δt``, zero without drift) over the time elapsed, plus normal
+    noise ``noise_um``. Other effects of time (temperatures) are taken as at the first
+    reading."""
+    obs = fitted.problem.obs
+    t = obs.table.reset_index(drop=True)
+    res = np.asarray(fitted.residuals_um, float)
+    vals = dict(zip(fitted.labels, fitted.values, strict=True))
+    rng = np.random.default_rng(seed)
+    parts = []
+    for p, r in cand.repeat.items():
+        v = np.array([vals.get(f"{p}.drift_{a}", 0.0) for a in "xyz"])
+        sel = t.loc[(t["position"] == p) & (t["probe"].astype(str) == r["probe"])]
+        sel = sel.sort_values("time_min", kind="stable").drop_duplicates("ball")
+        idx = pd.Series(sel.index.to_numpy(), index=sel["ball"].to_numpy()).loc[
+            r["balls"]].to_numpy()
+        first = t.loc[idx]
+        xyz = first[["x_mm", "y_mm", "z_mm"]].to_numpy(float) - res[idx] * 1e-3
+        tm = np.asarray(r["time_min"], float)
+        xyz += np.outer((tm - first["time_min"].to_numpy(float)) / 60.0, v) * 1e-3
+        xyz += rng.normal(0.0, noise_um, xyz.shape) * 1e-3
+        new = first[["position", "probe", "ball"] + [c for c in ("temp_C",) if c in first]]
+        parts.append(new.assign(time_min=tm, x_mm=xyz[:, 0], y_mm=xyz[:, 1],
+                                z_mm=xyz[:, 2]))
+    new = pd.concat(parts, ignore_index=True)
+    new = new.assign(source=f"proposal {cand.name}", row=np.arange(2, len(new) + 2))
+    return _with_rows(data, new, cand.name)
 
 
 def rival_pairs(candidates: Sequence[Mapping[str, Any]], *, top: int = 3
@@ -1068,14 +1264,39 @@ def _proposals(results, rivals, rf: RivalFits, rank_now: int = 0) -> list:
     return out
 
 
+def _power_max(p: Proposal) -> float:
+    """The larger of the two powers (the effect's alone against :data:`BASELINE`)."""
+    return max(v for t, v in p.power.items() if t != BASELINE)
+
+
+def _delta_chi2_max(p: Proposal) -> float:
+    """The larger expected Δχ² (of the augmented data: the current data's share too)."""
+    return max(v for t, v in p.delta_chi2.items() if t != BASELINE)
+
+
 def _rank_key(target: float):
     """Ranking: proposals reaching ``target`` power first, by machine time; then the
-    others by power; at equal time by power, then by name (the same order however the
-    candidates were split)."""
-    # rounded: the same candidate scored in another chunk differs by rounding (1e-15)
-    return lambda p: (p.power_min < target, p.candidate.time_min if p.power_min >= target
-                      else -round(p.power_min, 9), -round(p.power_min, 9),
-                      -round(p.per_minute, 6), p.candidate.name)
+    others by power; at equal time by power, then by the other direction's power, then
+    by the smaller Δχ² per minute, then by the larger Δχ², then by name (the same order
+    however the candidates were split). Powers are compared in whole percent (as they
+    are shown): a smaller difference is none, and powers below :data:`NO_POWER` are all
+    alike. The other direction decides when one rival cannot be seen whatever is
+    measured (its size fitted to hardly more than noise: its power near the level for
+    every candidate, 0.013 against 0.001 being no difference): the pair is then decided,
+    if at all, by the other rival standing out, and the candidate that shows it best
+    comes first."""
+    def pct(x: float) -> float:
+        # rounded twice: the same candidate scored in another chunk differs by 1e-15;
+        # below NO_POWER nothing is decided: no difference
+        x = round(round(x, 9), 2)
+        return 0.0 if x < NO_POWER else x
+
+    def key(p: Proposal) -> tuple:
+        return (p.power_min < target, p.candidate.time_min if p.power_min >= target
+                else -pct(p.power_min), -pct(p.power_min), -pct(_power_max(p)),
+                -round(p.per_minute, 6), -round(_delta_chi2_max(p), 6), p.candidate.name)
+
+    return key
 
 
 def _score_candidates(now: _Design, obs, ok: list, rf: RivalFits):
@@ -1087,6 +1308,64 @@ def _score_candidates(now: _Design, obs, ok: list, rf: RivalFits):
     for cand in ok:
         keep = obs.pos == obs.positions.index(next(iter(cand.positions)))
         yield cand, _score_on(_stack(now, _rows(extra, keep)), rf)
+
+
+def _union(reps: list) -> NextMeasurement | None:
+    """One repeat holding every candidate's rows, or None when two candidates repeat a
+    ball with the same stylus at different times (they cannot share one design)."""
+    rows: dict = {}
+    for c in reps:
+        for p, r in c.repeat.items():
+            for b, t in zip(r["balls"], r["time_min"], strict=True):
+                if rows.setdefault((p, r["probe"], int(b)), float(t)) != float(t):
+                    return None
+    each: dict = {}
+    for (p, q, b), t in rows.items():
+        if p in each and each[p]["probe"] != q:
+            return None
+        r = each.setdefault(p, {"probe": q, "balls": [], "time_min": []})
+        r["balls"].append(b)
+        r["time_min"].append(t)
+    return NextMeasurement("repeats", "every repeat", {}, {}, {}, 0.0, repeat=each)
+
+
+def _score_repeats(data: Dataset, reps: list, rf: RivalFits):
+    """``(candidate, {rival: (λ, k, ν, power, ...)})`` for each repeat. A repeat adds rows
+    to placements already measured, so its design is that of the whole augmented data
+    set, its hours counted from the mean time of the placement's readings before (moving
+    that centre changes a drift column by a multiple of the placement's translation
+    columns, which every rival holds: the projections and λ do not change; the fit of the
+    augmented data centres anew). One design of all the repeats' rows together serves
+    each: its rows are the current data's and that candidate's."""
+    if not reps:
+        return
+    union = _union(reps)
+    if union is None:
+        for c in reps:
+            yield c, _score_on(_design(select(append_measurement(data, c)), rf), rf)
+        return
+    obs = select(append_measurement(data, union))
+    t = obs.table
+    new = (t["source"] == f"proposal {union.name}").to_numpy()
+    # each placement's hours from the mean time of its readings before (the current
+    # data's own centring): the current rows' design is then the same whichever
+    # repeats the union holds (the same numbers however the candidates are split)
+    tm = t["time_min"].to_numpy(float)
+    hours = obs.hours.copy()
+    for i in range(len(obs.positions)):
+        at = obs.pos == i
+        if (at & new).any():
+            hours[at] = (tm[at] - tm[at & ~new].mean()) / 60.0
+    obs = replace(obs, hours=hours)
+    des = _design(obs, rf)
+    key = list(zip(t["position"].astype(str), t["probe"].astype(str), t["ball"].astype(int),
+                   strict=True))
+    n3 = 3 * len(t)
+    for c in reps:
+        mine = {(p, r["probe"], int(b)) for p, r in c.repeat.items() for b in r["balls"]}
+        keep = np.repeat(~new | np.array([k in mine for k in key]), 3)
+        J = np.vstack([des.J[:n3][keep], des.J[n3:]])
+        yield c, _score_on(_Design(J, des.labels, des.has), rf)
 
 
 @single_blas_thread
@@ -1128,12 +1407,14 @@ def propose(data: Dataset, rivals: Sequence[str] | None = None, *, baseline: str
     current = {t: v[3] for t, v in scores_now.items() if t != BASELINE}
     rank_now = scores_now[rivals[0]][1]
     cands = list(cands if cands is not None else measurement_candidates(data))
-    plates = [c for c in cands if not c.instrument]
+    plates = [c for c in cands if not c.instrument and not c.repeat]
     scored, skipped = [], {}
     for i in range(0, len(plates), CHUNK):  # one simulation and design per chunk
         obs, ok, out = _in_machine(data, plates[i:i + CHUNK])
         skipped.update(out)
         scored += _proposals(_score_candidates(now, obs, ok, rf), rivals, rf, rank_now)
+    scored += _proposals(_score_repeats(data, [c for c in cands if c.repeat], rf), rivals,
+                         rf, rank_now)
     tools = [c for c in cands if c.instrument]
     if tools:
         sim0, obs_now = _error_free(data), select(data)
@@ -1263,9 +1544,14 @@ def simulate_outcomes(data: Dataset, proposal: Proposal, *, baseline: str = "kin
     rf = fit_rivals(data, proposal.rivals, baseline=baseline, order=order, plate=plate,
                     sigma_um=sigma_um)
     out = {}
+    cand = proposal.candidate
     for t, o in ((a, b), (b, a)):
-        cfg = {**truth_config(rf.fits[t], data.setup.raw["positions"]), "noise_um": sigma_um}
-        aug = append_measurement(data, proposal.candidate, config=cfg, seed=seed)
+        if cand.repeat:  # the same placements: their fitted poses, plate and drift
+            aug = repeat_from_fit(data, cand, rf.fits[t], noise_um=sigma_um, seed=seed)
+        else:
+            cfg = {**truth_config(rf.fits[t], data.setup.raw["positions"]),
+                   "noise_um": sigma_um}
+            aug = append_measurement(data, cand, config=cfg, seed=seed)
         d = diagnose(aug, baseline, order=order, plate=plate, sigma_um=sigma_um)
         al = list(d.candidates[0].aliases) if d.candidates else []
         out[t] = Outcome(t, d.verdict, al, bool(d.verdict == t and o not in al), d.message)
@@ -1281,6 +1567,8 @@ def plan_file(data: Dataset, proposal: Proposal, *, baseline: str = "kinematic21
     grid = plate_grid(data)
     raw = copy.deepcopy(data.setup.raw)
     c = proposal.candidate
+    # a repeat keeps the placements and styli: a plan file has no key for some balls
+    # measured again at the end, so its strategy's name states the repeat
     for pl in raw["positions"].values():
         for key in ("temp_C", "rh_percent"):
             pl.pop(key, None)
