@@ -1,13 +1,20 @@
-"""Monte Carlo of the non-rigid block (``python bench/nonrigid.py [--seeds N] [--twist-seeds M]``),
-on scenario layouts (not the thesis):
+"""Monte Carlo of the non-rigid block (``python bench/nonrigid.py [--seeds N] [--twist-seeds M]
+[--rigid-seeds K]``), on scenario layouts (not the thesis):
 
 1. coverage of bridge_twist's fitted parameters (z = (v - truth)/u), the roll about the
    machine's z = 0 and about a line 900 mm up (a gantry's rails);
 2. the clean-data false-alarm rate of naming bridge_twist;
-3. twists whose shape is none of the block's (``scenarios.bridge_roll``: g(s) = s², s³,
-   sin(πs/2) or s at the tips, about z = 0 or 900 mm up, 15 and 30 µrad at the corners):
-   the loop's path (diagnose, add the verdict, again), counting how often a rigid
-   function's higher order (``ryy:3`` ...) or the plate's sag is named before the twist.
+3. twists whose shape is not exactly the block's (``scenarios.bridge_roll``, evaluated at
+   the tips, not the carriage: g(s) = s², s³, sin(πs/2) or s, and here also (1 − s²)², a
+   rail between pillars, and tanh(3s), a stiffness step, which no cubic holds; about
+   z = 0 or 900 mm up, 15 and 30 µrad at the corners) on three scenario layouts and four
+   bridge and gantry layouts: the loop's path (diagnose, add the verdict, again), counting
+   how often a rigid function's higher order (``rxx:3`` ...) or the plate's sag is named
+   before the twist;
+4. the converse: real rigid higher orders of the bridge's and the carriage's rotations
+   (``rxx:3``, ``rzy:3`` ...) at their detection limit on the same layouts, how often the
+   diagnosis names the twist first instead of the rigid term (the cost of the block's
+   cubic shape family), with the rate at which the rigid term is named.
 """
 import argparse
 import sys
@@ -23,10 +30,38 @@ from honesty import loop  # noqa: E402
 
 from cmm_core.diagnosis import diagnose  # noqa: E402
 from cmm_core.model import fit  # noqa: E402
+from cmm_core.model.blocks.bridge_twist import BRIDGES  # noqa: E402
 
 LAYOUTS = (("pitch150_5pos", "gantry_fxyz"), ("pitch100_4pos", "moving_bridge_fxyz"),
            ("pitch100_4pos", "gantry_fyxz"), ("pitch80_3pos", "moving_bridge_fyxz"))
-SHAPES = (("s2", 0.0), ("s3", 0.0), ("sin", 900.0), ("s2", 900.0), ("lin", 900.0))
+SHAPES = (("s2", 0.0), ("s3", 0.0), ("sin", 900.0), ("s2", 900.0), ("lin", 900.0),
+          ("mid", 0.0), ("tanh", 900.0))
+G = {"s2": lambda s: s**2, "s3": lambda s: s**3, "sin": lambda s: np.sin(np.pi * s / 2),
+     "lin": lambda s: s, "mid": lambda s: (1 - s**2) ** 2, "tanh": lambda s: np.tanh(3 * s)}
+
+
+def roll(data, layout, range_mm, amp_urad, shape, axis_height_mm, at_reading=False):
+    """``scenarios.bridge_roll`` with the shapes :data:`G` (the same physics: the tip
+    moves by ``θ e_a × (r − (·, 0, h))``, θ = amp · g(s) · v at the tip's coordinates);
+    ``at_reading``: s and v at the carriage's position (the scale readings, the tip less
+    the probe offset), where the carriage's weight stands: the block's own physics."""
+    if shape in ("s2", "s3", "sin", "lin") and not at_reading:
+        return sc.bridge_roll(data, layout, range_mm, amp_urad, shape, axis_height_mm)
+    chain = BRIDGES[layout]
+    a, b = "xyz".index(chain[1]), "xyz".index(chain[2])
+    xyz = sc.machine_xyz(data)
+    w = xyz
+    if at_reading:
+        probes = data.setup.probes
+        w = xyz - np.array([probes[str(q)] for q in data.meas["probe"].astype(str)], float)
+    rng = np.asarray(range_mm, float)
+    s = 2 * w[:, a] / rng[a] - 1
+    v = 2 * w[:, b] / rng[b] - 1
+    theta = amp_urad * 1e-6 * G[shape](s) * v
+    lever = xyz.copy()
+    lever[:, a] = 0.0
+    lever[:, 2] -= axis_height_mm
+    return sc.perturb(data, theta[:, None] * np.cross(np.eye(3)[a], lever))
 
 
 def coverage(seeds: int) -> None:
@@ -36,13 +71,14 @@ def coverage(seeds: int) -> None:
             for seed in range(seeds):
                 h = 900.0 if seed % 2 else 0.0
                 sim = sc.layout_data(name, layout, 100 + seed, effects={"bridge_twist": {
-                    "lin_urad": 5.0, "mid_urad": 3.0, "axis_height_mm": h}})
+                    "lin_urad": 5.0, "quad_urad": 3.0, "cub_urad": -3.0,
+                    "axis_height_mm": h}})
                 r = fit(sim.dataset, "kinematic21,bridge_twist")
                 lab, v, u = r.block("bridge_twist")
                 z += list((v - np.array([sim.truth[k] for k in lab])) / u)
     za = np.array(z)
     print(f"1. bridge_twist z: n={za.size} rms={np.sqrt(np.mean(za**2)):.3f} "
-          f"|z|<2: {np.mean(np.abs(za) < 2):.3f}")
+          f"|z|<2: {np.mean(np.abs(za) < 2):.3f}", flush=True)
 
 
 def clean(seeds: int) -> None:
@@ -53,10 +89,10 @@ def clean(seeds: int) -> None:
                 d = diagnose(sc.layout_data(name, layout, 500 + seed).dataset, "kinematic21")
                 n += 1
                 named += d.verdict == "bridge_twist"
-    print(f"2. clean data: bridge_twist named {named} of {n}")
+    print(f"2. clean data: bridge_twist named {named} of {n}", flush=True)
 
 
-def other_shapes(seeds: int) -> None:
+def other_shapes(seeds: int, at_reading: bool = False) -> None:
     rigid = sag = twist = total = 0
     for name, layout in LAYOUTS:
         rng = sc.LAYOUTS[name]["range_mm"]
@@ -64,31 +100,81 @@ def other_shapes(seeds: int) -> None:
             for amp in (15.0, 30.0):
                 for seed in range(seeds):
                     sim = sc.layout_data(name, layout, 700 + seed)
-                    data = sc.bridge_roll(sim.dataset, layout, rng, amp, shape, h)
+                    data = roll(sim.dataset, layout, rng, amp, shape, h, at_reading)
                     path, chi2_dof, last = loop(data, "kinematic21", max_steps=3)
                     first = path[0] if path else last
                     before = path[:path.index("bridge_twist")] if "bridge_twist" in path \
                         else path
-                    rigid += any(":" in t for t in before)
+                    bad = any(":" in t for t in before)
+                    rigid += bad
                     sag += "plate_sag" in before
                     twist += "bridge_twist" in path
                     total += 1
-                    print(f"   {layout:19s} {name:14s} g={shape:3s} h={h:4.0f} {amp:4.0f} µrad "
+                    print(f"   {layout:19s} {name:14s} g={shape:4s} h={h:4.0f} {amp:4.0f} µrad "
                           f"seed {seed}: {' -> '.join(path) or '-':36s} ends {last} "
-                          f"χ²/dof {chi2_dof:.2f} (first {first})", flush=True)
-    print(f"3. twists of other shapes: bridge_twist named {twist}/{total}; a rigid "
+                          f"χ²/dof {chi2_dof:.2f} (first {first}){' RIGID' if bad else ''}",
+                          flush=True)
+    print(f"3. twists of other shapes (g at the {'readings' if at_reading else 'tips'}): "
+          f"bridge_twist named {twist}/{total}; a rigid "
           f"function's higher order named before it {rigid}/{total}; plate sag before it "
-          f"{sag}/{total}")
+          f"{sag}/{total}", flush=True)
+
+
+def _rigid_tokens(layout):
+    """Third orders of the rotations of the bridge's travel axis and the carriage's axis
+    (the rigid terms a twist was named as, and their neighbours)."""
+    a, b = BRIDGES[layout][1], BRIDGES[layout][2]
+    return [f"r{c}{a}:3" for c in "xyz"] + [f"r{c}{b}:3" for c in "xyz"] + ["dyz:3"]
+
+
+def rigid_at_limit(seeds: int) -> None:
+    """Real rigid third orders at their detection limit (read from a clean diagnosis of the
+    same layout): named first as themselves (or their next order), as the twist, else."""
+    named = twist = total = 0
+    for name, layout in LAYOUTS:
+        d0 = diagnose(sc.layout_data(name, layout, 999).dataset, "kinematic21")
+        lim = {c.effect: c.detectable for c in d0.candidates}
+        for tok in _rigid_tokens(layout):
+            fn = tok.partition(":")[0]
+            lab = f"{fn}[3]"
+            if tok not in lim or lab not in lim[tok] or not np.isfinite(lim[tok][lab][1]):
+                continue
+            size = lim[tok][lab][1]
+            n_tok = n_tw = 0
+            for seed in range(seeds):
+                sim = sc.layout_data(name, layout, 3000 + seed, kinematic={
+                    "spec": f"kinematic21,{tok}", "coefficients": {lab: size}})
+                v = diagnose(sim.dataset, "kinematic21").verdict
+                n_tok += v is not None and v.partition(":")[0] == fn
+                n_tw += v == "bridge_twist"
+            named, twist, total = named + n_tok, twist + n_tw, total + seeds
+            print(f"   {layout:19s} {name:14s} {tok} at its limit {size:.3g}: named "
+                  f"{n_tok}/{seeds}, bridge_twist first {n_tw}/{seeds}", flush=True)
+    print(f"4. rigid third orders at their detection limit: named {named}/{total} "
+          f"({100 * named / max(total, 1):.1f} %), bridge_twist named first instead "
+          f"{twist}/{total} ({100 * twist / max(total, 1):.2f} %)", flush=True)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=12, help="seeds of items 1 and 2 (12)")
     ap.add_argument("--twist-seeds", type=int, default=2, help="seeds of item 3 (2)")
+    ap.add_argument("--rigid-seeds", type=int, default=10,
+                    help="seeds per rigid term and layout of item 4 (10; 0: skip)")
+    ap.add_argument("--at-reading", action="store_true",
+                    help="item 3: the twist's s and v at the carriage's readings, not the "
+                         "tips (scenarios.bridge_roll evaluates at the tips)")
+    ap.add_argument("--only", choices=("1", "2", "3", "4"), default=None,
+                    help="run one item only")
     args = ap.parse_args(argv)
-    coverage(args.seeds)
-    clean(2 * args.seeds)
-    other_shapes(args.twist_seeds)
+    if args.only in (None, "1"):
+        coverage(args.seeds)
+    if args.only in (None, "2"):
+        clean(2 * args.seeds)
+    if args.only in (None, "3"):
+        other_shapes(args.twist_seeds, args.at_reading)
+    if args.only in (None, "4") and args.rigid_seeds:
+        rigid_at_limit(args.rigid_seeds)
     return 0
 
 
