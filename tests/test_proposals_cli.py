@@ -94,3 +94,31 @@ def test_a_rival_already_in_the_baseline_is_refused_in_one_line(files, capsys):
     assert rc == 2
     assert err.count("\n") == 1 and err.startswith("error: ")
     assert "sxy is already in the baseline kinematic21; give a baseline without it" in err
+
+
+@pytest.fixture(scope="module")
+def drift_files(tmp_path_factory):
+    """Drift hidden with styli in blocks (seed 1003 of bench/proposals.py's drift case)."""
+    out = tmp_path_factory.mktemp("drift")
+    simulated("pitch80_3pos", 1003, noise_um=0.5,
+              effects={"drift": {"sd_um_per_h": 1.0}}).write(out)
+    return out
+
+
+def test_next_proposes_a_repeat_where_styli_are_measured_in_blocks(drift_files, tmp_path):
+    """The repeat at the end of a placement is among the default candidates, in the JSON
+    with its placements, stylus, balls and times; simulated and written as a plan."""
+    plan = tmp_path / "repeat_plan.json"
+    args = _parser().parse_args(
+        ["next", *_inputs(drift_files), "--rivals", "drift,probe_offset", "--top", "30",
+         "--simulate", "--plan-out", str(plan)])
+    out = args.func(args)
+    json.dumps(out)
+    best = out["proposals"][0]
+    assert best["name"].startswith("repeat_") and best["positions"] == {}
+    for p, r in best["repeat"].items():
+        assert p in ("H", "D1", "D2") and r["probe"] in ("1", "2", "3")
+        assert len(r["balls"]) == len(r["time_min"]) > 0
+    assert out["simulated"]["drift"]["verdict"] == "drift"
+    pf = read_plan(plan)
+    assert best["description"] in pf.strategies[1].name
