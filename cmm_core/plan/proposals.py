@@ -1277,8 +1277,9 @@ def _delta_chi2_max(p: Proposal) -> float:
 def _rank_key(target: float):
     """Ranking: proposals reaching ``target`` power first, by machine time; then the
     others by power; at equal time by power, then by the other direction's power, then
-    by the smaller Δχ² per minute, then by the larger Δχ², then by name (the same order
-    however the candidates were split). Powers are compared in whole percent (as they
+    by the smaller Δχ² per minute, then by the larger Δχ² (when the smaller power is
+    below :data:`NO_POWER`: the larger Δχ² first, the smaller being noise), then by
+    name (the same order however the candidates were split). Powers are compared in whole percent (as they
     are shown): a smaller difference is none, and powers below :data:`NO_POWER` are all
     alike. The other direction decides when one rival cannot be seen whatever is
     measured (its size fitted to hardly more than noise: its power near the level for
@@ -1292,9 +1293,13 @@ def _rank_key(target: float):
         return 0.0 if x < NO_POWER else x
 
     def key(p: Proposal) -> tuple:
+        seen = pct(p.power_min) > 0.0
+        # the smaller Δχ² per minute while both rivals can be seen; else the other's Δχ²
+        size = (-round(p.per_minute, 6), -round(_delta_chi2_max(p), 6)) if seen else \
+            (-round(_delta_chi2_max(p), 6), -round(p.per_minute, 6))
         return (p.power_min < target, p.candidate.time_min if p.power_min >= target
-                else -pct(p.power_min), -pct(p.power_min), -pct(_power_max(p)),
-                -round(p.per_minute, 6), -round(_delta_chi2_max(p), 6), p.candidate.name)
+                else -pct(p.power_min), -pct(p.power_min), -pct(_power_max(p)), *size,
+                p.candidate.name)
 
     return key
 
