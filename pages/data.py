@@ -344,9 +344,14 @@ def _show_upload_report():
             for p in report["problems"]))
 
 
-tab_thesis, tab_upload, tab_other, tab_sim, tab_proj = st.tabs(
-    ["Thesis sample", "Upload CSVs", "Other tools (MSL)", "Simulate a virtual CMM",
-     "Project file"])
+# lazy tabs (issue 27): the MSL and simulator tabs' widgets (the simulator's form alone is
+# some thirty) are sent only while their tab is open, so the app's first screen does not
+# draw them; the upload and project tabs stay drawn, their fields keep the files chosen
+# while another tab is looked at
+DATA_TABS = ["Thesis sample", "Upload CSVs", "Other tools (MSL)", "Simulate a virtual CMM",
+             "Project file"]
+tab_thesis, tab_upload, tab_other, tab_sim, tab_proj = st.tabs(DATA_TABS, key="w_data_tab",
+                                                               on_change="rerun")
 
 with tab_thesis:
     st.write("The six ball-plate tables of thesis chapter 6 (tables 6.1-6.6) with the appendix 5 "
@@ -414,99 +419,101 @@ with tab_upload:
     _show_upload_report()
 
 with tab_other:
-    msl_section()
+    if tab_other.open:
+        msl_section()
 
 with tab_sim:
-    st.write("A virtual CMM with known errors measuring the thesis placements: choose the "
-             "noise, the plate form, hidden effects and the measurement order; the truth is "
-             "kept for comparison.")
-    c1, c2, c3, c4 = st.columns(4)
-    seed = c1.number_input("Seed", 0, 10_000, 0, key="sim_seed")
-    noise = c2.number_input("Noise σ (µm)", 0.0, 10.0, 0.5, 0.1, key="sim_noise")
-    rnd_um = c3.number_input("Translational errors (µm, 1σ)", 0.0, 50.0, 1.0, key="sim_rum")
-    rnd_urad = c4.number_input("Rotational errors (µrad, 1σ)", 0.0, 50.0, 1.0, key="sim_rurad")
-    c1, c2, c3, c4 = st.columns(4)
-    form = c1.number_input("Plate form (µm, 1σ)", 0.0, 20.0, 2.0, key="sim_form")
-    order = c2.selectbox("Measurement order", ["row", "serpentine", "random"], key="sim_order")
-    korder = c3.selectbox("Polynomial order of the true errors", [1, 2, 3, 4, 5], index=1,
-                          key="sim_korder")
-    interleave = c4.checkbox("Probes interleaved", key="sim_interleave")
-    c1, c2 = st.columns([2, 2])
-    layout = c1.selectbox("Machine layout", list(LAYOUTS), key="sim_layout",
-                          format_func=lambda k: f"{LAYOUT_NAMES.get(k, k)} ({k})",
-                          help="How the carriages are stacked and which one moves the table "
-                               "(docs/layouts.md). The thesis placements are measured on it.")
-    sim_inst = c2.checkbox("Also simulate a laser run along x and a step gauge",
-                           key="sim_instruments",
-                           help="Measured on the same true machine (laser u 0.2 µm, step "
-                                "gauge u 0.3 µm) and fitted jointly with the plate: the "
-                                "Kinematic model page then shows how much they lower each "
-                                "coefficient's uncertainty.")
-    st.markdown("**Hidden effects**")
-    # one checkbox per effect block of the registry (cmm_core.model.simulator_effects):
-    # a new effect appears here with its block, nothing to add to the page
-    eff = {}
-    cols = st.columns(4)
-    for k, e in enumerate(simulator_effects()):
-        col = cols[k % 4]
-        if col.checkbox(e.label, key=f"sim_{e.token}", help=e.help or None):
-            eff[e.token] = e.config({p.key: col.number_input(
-                p.label, p.low, p.high, p.default, p.step, key=f"sim_{e.token}_{p.key}")
-                for p in e.params})
-    kin_cfg = {"order": int(korder), "random_um": float(rnd_um),
-               "random_urad": float(rnd_urad)}
-    p1, p2, p3, _p4 = st.columns(4)
-    if p1.checkbox("Periodic X scale error", key="sim_periodic",
-                   help="A sine wave along X (lead screw, rack): not in the default model, "
-                        "so the diagnosis has to find it and its period. The 133 mm ball "
-                        "pitch resolves no period under about 330 mm (2.5 pitches)."):
-        per = int(p2.number_input("period (mm)", 20, 1200, 400, key="sim_per_mm"))
-        amp = float(p3.number_input("amplitude (µm)", 0.0, 20.0, 1.0, key="sim_per_um"))
-        kin_cfg.update(spec=f"kinematic21,periodic_x:{per}",
-                       coefficients={f"dxx[sin{per}]": amp, f"dxx[cos{per}]": 0.0})
-    if st.button("Simulate", key="simulate", type="primary"):
-        from cmm_core.model import simulate
+    if tab_sim.open:
+        st.write("A virtual CMM with known errors measuring the thesis placements: choose the "
+                 "noise, the plate form, hidden effects and the measurement order; the truth is "
+                 "kept for comparison.")
+        c1, c2, c3, c4 = st.columns(4)
+        seed = c1.number_input("Seed", 0, 10_000, 0, key="sim_seed")
+        noise = c2.number_input("Noise σ (µm)", 0.0, 10.0, 0.5, 0.1, key="sim_noise")
+        rnd_um = c3.number_input("Translational errors (µm, 1σ)", 0.0, 50.0, 1.0, key="sim_rum")
+        rnd_urad = c4.number_input("Rotational errors (µrad, 1σ)", 0.0, 50.0, 1.0, key="sim_rurad")
+        c1, c2, c3, c4 = st.columns(4)
+        form = c1.number_input("Plate form (µm, 1σ)", 0.0, 20.0, 2.0, key="sim_form")
+        order = c2.selectbox("Measurement order", ["row", "serpentine", "random"], key="sim_order")
+        korder = c3.selectbox("Polynomial order of the true errors", [1, 2, 3, 4, 5], index=1,
+                              key="sim_korder")
+        interleave = c4.checkbox("Probes interleaved", key="sim_interleave")
+        c1, c2 = st.columns([2, 2])
+        layout = c1.selectbox("Machine layout", list(LAYOUTS), key="sim_layout",
+                              format_func=lambda k: f"{LAYOUT_NAMES.get(k, k)} ({k})",
+                              help="How the carriages are stacked and which one moves the table "
+                                   "(docs/layouts.md). The thesis placements are measured on it.")
+        sim_inst = c2.checkbox("Also simulate a laser run along x and a step gauge",
+                               key="sim_instruments",
+                               help="Measured on the same true machine (laser u 0.2 µm, step "
+                                    "gauge u 0.3 µm) and fitted jointly with the plate: the "
+                                    "Kinematic model page then shows how much they lower each "
+                                    "coefficient's uncertainty.")
+        st.markdown("**Hidden effects**")
+        # one checkbox per effect block of the registry (cmm_core.model.simulator_effects):
+        # a new effect appears here with its block, nothing to add to the page
+        eff = {}
+        cols = st.columns(4)
+        for k, e in enumerate(simulator_effects()):
+            col = cols[k % 4]
+            if col.checkbox(e.label, key=f"sim_{e.token}", help=e.help or None):
+                eff[e.token] = e.config({p.key: col.number_input(
+                    p.label, p.low, p.high, p.default, p.step, key=f"sim_{e.token}_{p.key}")
+                    for p in e.params})
+        kin_cfg = {"order": int(korder), "random_um": float(rnd_um),
+                   "random_urad": float(rnd_urad)}
+        p1, p2, p3, _p4 = st.columns(4)
+        if p1.checkbox("Periodic X scale error", key="sim_periodic",
+                       help="A sine wave along X (lead screw, rack): not in the default model, "
+                            "so the diagnosis has to find it and its period. The 133 mm ball "
+                            "pitch resolves no period under about 330 mm (2.5 pitches)."):
+            per = int(p2.number_input("period (mm)", 20, 1200, 400, key="sim_per_mm"))
+            amp = float(p3.number_input("amplitude (µm)", 0.0, 20.0, 1.0, key="sim_per_um"))
+            kin_cfg.update(spec=f"kinematic21,periodic_x:{per}",
+                           coefficients={f"dxx[sin{per}]": amp, f"dxx[cos{per}]": 0.0})
+        if st.button("Simulate", key="simulate", type="primary"):
+            from cmm_core.model import simulate
 
-        cfg = {"seed": int(seed), "noise_um": float(noise), "order": order,
-               "probes_interleaved": bool(interleave),
-               "plate": {"form_um": float(form)},
-               "kinematic": kin_cfg,
-               "effects": eff}
-        if layout != DEFAULT_LAYOUT:
-            from cmm_core.model import thesis_machine_setup
+            cfg = {"seed": int(seed), "noise_um": float(noise), "order": order,
+                   "probes_interleaved": bool(interleave),
+                   "plate": {"form_um": float(form)},
+                   "kinematic": kin_cfg,
+                   "effects": eff}
+            if layout != DEFAULT_LAYOUT:
+                from cmm_core.model import thesis_machine_setup
 
-            setup = thesis_machine_setup()
-            setup["machine"]["layout"] = layout
-            cfg["setup"] = setup
-        sim = calls.safe(simulate, cfg, what="Simulation")
-        inst = [] if sim is None or not sim_inst else calls.safe(
-            _simulated_instruments, sim, int(seed), what="Simulating the instruments")
-        if sim is not None:
-            with tempfile.TemporaryDirectory() as tmp:
-                sim.write(tmp)
-                p = Path(tmp)
-                files = {"name": f"simulated (seed {int(seed)})"
-                         + ("" if layout == DEFAULT_LAYOUT else f", {layout}"),
-                         "kind": "simulated",
-                         "setup_source": "the simulation's setup (thesis placements)",
-                         "certificate_source": "the simulation's certificate",
-                         "measurements": [("measurements.csv",
-                                           (p / "measurements.csv").read_text())],
-                         "setup": (p / "setup.json").read_text(),
-                         "certificate": ("certificate.csv", (p / "certificate.csv").read_text())}
-            ok = None if inst is None else calls.safe(state.set_dataset, files,
-                                                  what="Loading the simulation")
-            if ok is not None:
-                state.set_instruments(inst)
-                if inst:  # the simulation brings its own: "instrument files removed" misleads
-                    st.session_state["reset_note"] = [
-                        n for n in st.session_state.get("reset_note", [])
-                        if "instrument file" not in n]
-                st.session_state["sim_truth"] = {"key": state.files_key(files),
-                                                 "truth": sim.truth, "config": cfg}
-                _loaded("Simulated dataset loaded" + (
-                    " with a laser run and a step gauge fitted jointly" if inst else "")
-                    + ". The true parameters are on the Kinematic model page.")
+                setup = thesis_machine_setup()
+                setup["machine"]["layout"] = layout
+                cfg["setup"] = setup
+            sim = calls.safe(simulate, cfg, what="Simulation")
+            inst = [] if sim is None or not sim_inst else calls.safe(
+                _simulated_instruments, sim, int(seed), what="Simulating the instruments")
+            if sim is not None:
+                with tempfile.TemporaryDirectory() as tmp:
+                    sim.write(tmp)
+                    p = Path(tmp)
+                    files = {"name": f"simulated (seed {int(seed)})"
+                             + ("" if layout == DEFAULT_LAYOUT else f", {layout}"),
+                             "kind": "simulated",
+                             "setup_source": "the simulation's setup (thesis placements)",
+                             "certificate_source": "the simulation's certificate",
+                             "measurements": [("measurements.csv",
+                                               (p / "measurements.csv").read_text())],
+                             "setup": (p / "setup.json").read_text(),
+                             "certificate": ("certificate.csv", (p / "certificate.csv").read_text())}
+                ok = None if inst is None else calls.safe(state.set_dataset, files,
+                                                      what="Loading the simulation")
+                if ok is not None:
+                    state.set_instruments(inst)
+                    if inst:  # the simulation brings its own: "instrument files removed" misleads
+                        st.session_state["reset_note"] = [
+                            n for n in st.session_state.get("reset_note", [])
+                            if "instrument file" not in n]
+                    st.session_state["sim_truth"] = {"key": state.files_key(files),
+                                                     "truth": sim.truth, "config": cfg}
+                    _loaded("Simulated dataset loaded" + (
+                        " with a laser run and a step gauge fitted jointly" if inst else "")
+                        + ". The true parameters are on the Kinematic model page.")
 
 with tab_proj:
     st.write("A project file (JSON, from *Compensate and export*) restores the dataset, model, "
@@ -696,9 +703,12 @@ with calls.guarded("Placement views"):
                    "the working volume. Hover a marker for its placement, stylus and "
                    "ball.")
 
-with st.expander("Measurements (as read, mm)"):
-    frame.dataframe(m, hide_index=True, key="meas_table")
-with st.expander("Setup (JSON)"):
+# lazy expanders: their tables are built and drawn only while open (issue 27)
+with st.expander("Measurements (as read, mm)", key="w_meas_open", on_change="rerun") as box:
+    if box.open:
+        frame.dataframe(m, hide_index=True, key="meas_table")
+with st.expander("Setup (JSON)", key="w_setup_open", on_change="rerun") as box:
     # a JSON tree rather than highlighted code: the highlighter's 1.6 MB of script would
     # load with the app's first screen (issue 27)
-    st.json(ds.setup.raw, expanded=2)
+    if box.open:
+        st.json(ds.setup.raw, expanded=2)

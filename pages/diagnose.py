@@ -199,9 +199,8 @@ t_pat, t_map, t_tab, t_time = st.tabs(["Residual pattern", "Residual map (3D)",
                                       key="w_diag_tab", on_change="rerun")
 with t_pat, calls.guarded("Residual pattern"):
     if t_pat.open:
-        st.plotly_chart(cached.figure("pattern", fkey, A.fig_pattern, r.table,
-                                 r.residuals_um, "Residuals per observation (µm)"),
-                        key="diag_resid")
+        frame.plot("pattern", fkey, A.fig_pattern, r.table, r.residuals_um,
+                   "Residuals per observation (µm)", chart_key="diag_resid")
 with t_map, calls.guarded("Residual map"):
     comp = st.radio("Component", ["norm", "x", "y", "z"], horizontal=True, key="w_map_comp")
     if t_map.open:
@@ -382,23 +381,22 @@ if s["diag_on"]:
                 if st.toggle("Show residuals beside its signature", value=opened,
                              key=f"w_sig_{hash(fkey) & 0xFFFFFFFF:x}_{c_['effect']}"):
                     f1, f2 = st.columns(2)
-                    f1.plotly_chart(cached.figure("pattern_small", fkey, A.fig_pattern,
-                                             base.table, base.residuals_um,
-                                             "Residual pattern (µm)", 300),
-                                    key=f"sig_res_{c_['effect']}")
-                    f2.plotly_chart(cached.figure("signature", (fkey, c_["effect"]),
-                                             A.fig_pattern, base.table, c_["signature_um"],
-                                             f"Signature of {c_['effect']} (µm)", 300),
-                                    key=f"sig_{c_['effect']}")
+                    with f1:
+                        frame.plot("pattern_small", fkey, A.fig_pattern, base.table,
+                                   base.residuals_um, "Residual pattern (µm)", 300,
+                                   chart_key=f"sig_res_{c_['effect']}", width_px=640)
+                    with f2:
+                        frame.plot("signature", (fkey, c_["effect"]), A.fig_pattern,
+                                   base.table, c_["signature_um"],
+                                   f"Signature of {c_['effect']} (µm)", 300,
+                                   chart_key=f"sig_{c_['effect']}", width_px=640)
                     sv, rv = np.ravel(c_["signature_um"]), np.ravel(base.residuals_um)
                     den = float(np.linalg.norm(sv) * np.linalg.norm(rv))
                     corr = float(sv @ rv) / den if den > 0 else 0.0
-                    st.plotly_chart(cached.figure("sig_scatter", (fkey, c_["effect"]),
-                                             A.fig_signature_scatter, base.residuals_um,
-                                             c_["signature_um"],
-                                             "Residual against the signature: along the "
-                                             "dashed line where the effect explains it", 280),
-                                    key=f"sig_sc_{c_['effect']}")
+                    frame.plot("sig_scatter", (fkey, c_["effect"]), A.fig_signature_scatter,
+                               base.residuals_um, c_["signature_um"],
+                               "Residual against the signature: along the dashed line where "
+                               "the effect explains it", 280, chart_key=f"sig_sc_{c_['effect']}")
                     st.caption(f"Correlation of residual and signature r = {corr:.2f}: the "
                                f"effect accounts for {100 * corr**2:.0f} % of the residual "
                                "sum of squares; the rest is what remains after adding it.")
@@ -417,8 +415,8 @@ st.checkbox("Also compute the GP discrepancy amplitude of each step (a GP over t
 with st.spinner("Fitting the GP discrepancy…") if s.get("hist_gp") else nullcontext():
     hist = cached.history_rows()
 with calls.guarded("History chart"):
-    st.plotly_chart(cached.figure("history", tuple(tuple(sorted(h.items())) for h in hist),
-                             A.fig_history, hist), key="diag_history")
+    frame.plot("history", tuple(tuple(sorted(h.items())) for h in hist), A.fig_history, hist,
+               chart_key="diag_history")
 c1, c2 = st.columns([3, 1])
 with c1:
     # the model of each step as written, wrapped at its commas: rows tall enough for

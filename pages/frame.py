@@ -13,7 +13,8 @@ import streamlit as st
 
 from cmm_core import analysis as A
 from cmm_core.model import parse_spec
-from pages.cached import current_fit, pending_outliers
+from pages import svgplot
+from pages.cached import current_fit, figure, pending_outliers
 from pages.calls import describe_error
 from pages.session import autosave, restore_banner, session_start
 from pages.state import (
@@ -114,9 +115,36 @@ def bind(state_key: str, widget_fn, label: str, **kwargs):
     return val
 
 
+INTERACTIVE = "w_interactive_plots"
+"""The sidebar switch: the pages' 2-D figures as Plotly charts instead of static SVG."""
+
+
+def plot(kind: str, key: tuple, builder, *args, chart_key: str, width_px: int = 1100,
+         **kwargs):
+    """A core figure (``builder(*args)``, cached under ``(kind, key)`` as
+    :func:`cached.figure`) drawn as static SVG on the server, or as a Plotly chart when the
+    sidebar's "Interactive plots" is on or the figure is not a 2-D scatter (issue 27: a
+    Plotly chart costs the browser its 4.7 MB of script once and 0.1-1 s of drawing per
+    figure and rerun; the SVG is text the browser lays out at once). ``width_px``: the
+    width the SVG is laid out for (it scales to its column); ``kwargs`` go to
+    ``st.plotly_chart``. The SVG sits in a container keyed ``chart_key`` (and says so in
+    its ``data-figure``), the chart has that key."""
+    fig = figure(kind, key, builder, *args)
+    if st.session_state.get(INTERACTIVE) or not svgplot.supported(fig):
+        st.plotly_chart(fig, key=chart_key, **kwargs)
+        return
+    svg = figure(f"{kind}.svg", (key, width_px), svgplot.figure_svg, fig, width_px)
+    with st.container(key=chart_key):
+        st.html(f'<div data-figure="{chart_key}">{svg}</div>')
+
+
 def sidebar():
     s = st.session_state
     sb = st.sidebar
+    sb.toggle("Interactive plots", key=INTERACTIVE,
+              help="Draw the 2-D figures with Plotly: zoom, pan and hover values, slower to "
+                   "draw. Off: static pictures drawn on the server (hover a marker for its "
+                   "label), the fast default.")
     sb.markdown("### Current analysis")
     try:
         ds = dataset()

@@ -113,9 +113,9 @@ with tabs[0], calls.guarded("Error functions"):
     show = st.multiselect("Show", present, default=present)
     true_now = truth["truth"] if truth and truth.get("key") == s["ds_key"] else None
     if tabs[0].open:
-        st.plotly_chart(cached.figure("errfun", (cached.fit_key(), tuple(show), true_now is not None),
-                                 error_function_grid, r, show, 3, true_now),
-                        key="fig_errfun", width="stretch")
+        frame.plot("errfun", (cached.fit_key(), tuple(show), true_now is not None),
+                   error_function_grid, r, show, 3, true_now, chart_key="fig_errfun",
+                   width="stretch")
     st.caption("Translational errors in µm, rotations in µrad, squareness as an angle in "
                "µrad; grey bands: 95 % (k = 2) from the parameter covariance; the blue tint "
                "spans the measured scale readings (outside it the curve extrapolates)"
@@ -188,9 +188,8 @@ with tabs[2], calls.guarded("Parameter table"):
 
 with tabs[3], calls.guarded("Residuals"):
     if tabs[3].open:
-        st.plotly_chart(cached.figure("pattern", cached.fit_key(), A.fig_pattern, r.table,
-                                 r.residuals_um, "Residuals per observation (µm)"),
-                        key="fig_resid")
+        frame.plot("pattern", cached.fit_key(), A.fig_pattern, r.table, r.residuals_um,
+                   "Residuals per observation (µm)", chart_key="fig_resid")
     frame.dataframe(A.residual_summary(r), hide_index=True, key="resid_summary")
     rf = r.residuals_frame()
     worst = rf.assign(norm_um=np.linalg.norm(r.residuals_um, axis=1)).nlargest(10, "norm_um")

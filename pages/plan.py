@@ -140,10 +140,15 @@ def _comparison(evals: list) -> None:
                      **{f"U{k} {a} (µm)": _fmt((e[f"U{k}_um"] or {}).get(a), 3)
                         .replace("—", "undetermined") for k in (2, 3) for a in "xyz"}})
     st.dataframe(pd.DataFrame(rows), hide_index=True)
-    for e in evals:
+    for i, e in enumerate(evals):
         if e["undetermined"]:
+            # lazy (issue 27): the code block's highlighter (1.6 MB of script, half a second
+            # of the page's first visit) loads only when a user opens one
             with st.expander(f"{e['name']}: {len(e['undetermined'])} undetermined "
-                             "combination(s)"):
+                             "combination(s)", key=f"w_plan_undet_{i}",
+                             on_change="rerun") as box:
+                if not box.open:
+                    continue
                 st.write("Parameters involved: " + ", ".join(e["undetermined_parameters"]))
                 st.code("\n".join(e["undetermined"]), language=None)
                 st.caption("Any basis of these combinations is as valid; the fit names the "

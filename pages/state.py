@@ -122,7 +122,8 @@ KEEP_PREFIXES = ("sim_", "w_gp_")
 
 
 KEEP_KEYS = ("hist_gp", "w_mpe_u", "w_u_npts", "w_u_seed",  # the report reads these
-             "w_kin_tab", "w_diag_tab")  # the open tabs of two pages, as the user left them
+             "w_kin_tab", "w_diag_tab", "w_data_tab",  # the open tabs, as the user left them
+             "w_interactive_plots")  # the sidebar's figure switch
 
 
 def keep_widget_state():

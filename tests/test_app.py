@@ -1,6 +1,7 @@
 """AppTest smoke and interaction tests of the Streamlit app (no browser)."""
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +31,21 @@ TIMEOUT = 60
 
 def _new():
     at = AppTest.from_file(APP, default_timeout=TIMEOUT)
+    at.run()
+    return at
+
+
+def _figures(at) -> list:
+    """The keys of the figures on the page: Plotly charts and the static SVG figures
+    (``frame.plot``: the SVG's ``data-figure``), in page order within each kind."""
+    svgs = [re.search(r'data-figure="([^"]+)"', h.proto.body) for h in at.get("html")]
+    return [c.key for c in at.get("plotly_chart")] + [m.group(1) for m in svgs if m]
+
+
+def _sim_tab(at):
+    """Open the Data page's simulator tab: its widgets are drawn only while it is open
+    (lazy tabs, issue 27)."""
+    at.session_state["w_data_tab"] = "Simulate a virtual CMM"
     at.run()
     return at
 
@@ -74,8 +90,6 @@ def _sidebar_rms(at) -> float:
 
 def _sidebar_birge(at) -> float:
     """The Birge ratio the sidebar's χ² warning states ("too small by ×B")."""
-    import re
-
     w = next(w.value for w in at.sidebar.warning if "χ² test" in w.value)
     return float(re.search(r"×([0-9.]+)", w).group(1).rstrip("."))
 
@@ -109,13 +123,17 @@ def test_kinematic_page_elements_and_order_change():
     at.switch_page("pages/kinematic.py")
     at.run()
     _ok(at)
-    # lazy tabs (issue 27): only the open tab's figure is built and sent
-    assert [c.key for c in at.get("plotly_chart")] == ["fig_errfun"]
+    # lazy tabs (issue 27): only the open tab's figure is built and sent; the 2-D figures
+    # as static SVG (no Plotly in the browser) unless "Interactive plots" is on
+    assert _figures(at) == ["fig_errfun"] and not at.get("plotly_chart")
     for tab, key in (("Deviation plots", "fig_deviation"), ("Residuals", "fig_resid"),
                      ("Error functions", "fig_errfun")):
         at.session_state["w_kin_tab"] = tab
         at.run()
-        assert [c.key for c in at.get("plotly_chart")] == [key], tab
+        assert _figures(at) == [key], tab
+    at.sidebar.toggle(key="w_interactive_plots").set_value(True).run()
+    assert [c.key for c in at.get("plotly_chart")] == ["fig_errfun"]
+    at.sidebar.toggle(key="w_interactive_plots").set_value(False).run()
     pf = _frame(at, "parameter")
     # thesis data scatter ~10 σ (outliers included here): Birge-scaled u shown beside u,
     # scaled by the Birge ratio the χ² test reports (sidebar)
@@ -324,6 +342,7 @@ def test_the_same_file_uploaded_twice_is_one_problem():
 
 def test_simulate_a_virtual_cmm():
     at = _new()
+    _sim_tab(at)
     at.checkbox(key="sim_plate_sag").check()
     at.run()
     at.button(key="simulate").click()
@@ -345,6 +364,7 @@ def test_the_plan_page_keeps_its_plan_after_a_new_dataset():
     _ok(at)
     at.switch_page("pages/data.py")
     at.run()
+    _sim_tab(at)
     at.button(key="simulate").click()
     at.run()
     at.switch_page("pages/plan.py")
@@ -358,6 +378,7 @@ def test_without_a_hidden_effect_the_fit_matches_the_truth_within_its_uncertaint
     is within 4 (about 60 of them: the chance of one beyond 4 is 0.4 %). With a hidden
     effect this column is where the bias shows first."""
     at = _new()
+    _sim_tab(at)
     at.button(key="simulate").click()
     at.run()
     at.switch_page("pages/kinematic.py")
@@ -373,6 +394,7 @@ def test_simulator_settings_survive_a_visit_to_another_page():
     """Acceptance finding: the hidden-effect boxes reset when the user left the Data page,
     so a second simulation silently carried (or lost) effects."""
     at = _new()
+    _sim_tab(at)
     at.selectbox(key="sim_order").set_value("serpentine")
     at.checkbox(key="sim_backlash").check()
     at.run()
@@ -383,6 +405,7 @@ def test_simulator_settings_survive_a_visit_to_another_page():
     at.switch_page("pages/data.py")
     at.run()
     _ok(at)
+    _sim_tab(at)
     assert at.checkbox(key="sim_backlash").value
     assert at.number_input(key="sim_backlash_y_um").value == 2.5
     assert at.selectbox(key="sim_order").value == "serpentine"
@@ -395,6 +418,7 @@ def test_hidden_periodic_error_found_added_and_error_falls():
     order-3 X positioning error follows it as well: the two are shown as an undecided pair
     and the polynomial, with its physical story, is named."""
     at = _new()
+    _sim_tab(at)
     at.checkbox(key="sim_periodic").check()
     at.run()
     at.number_input(key="sim_per_um").set_value(2.0)
@@ -420,6 +444,7 @@ def test_hidden_backlash_seen_by_direction_named_added_and_error_falls():
     """Backlash of 2 µm, serpentine order: the 'by approach direction' table shows the
     reversal, the diagnosis names backlash, adding it brings the RMS to the noise."""
     at = _new()
+    _sim_tab(at)
     at.selectbox(key="sim_order").set_value("serpentine")
     at.checkbox(key="sim_backlash").check()
     at.run()
@@ -821,6 +846,7 @@ def test_kinematic_z_on_clean_simulated_data_has_rms_one():
     (the simulator's noise is the σ the fit uses) is 1 within the χ² tolerance: n z² is
     about χ²_n-distributed, so mean z² is 1 ± 4√(2/n) at more than 4 sd."""
     at = _new()
+    _sim_tab(at)
     at.button(key="simulate").click()
     at.run()
     _ok(at)
@@ -974,6 +1000,7 @@ def test_the_same_instrument_file_twice_is_refused_and_nothing_changes(inst_app)
 
 def test_simulated_moving_table_with_instruments_fits_within_its_noise():
     at = _new()
+    _sim_tab(at)
     at.selectbox(key="sim_layout").set_value("fixed_bridge_xfyz")
     at.checkbox(key="sim_instruments").check()
     at.run()
@@ -1011,7 +1038,6 @@ def test_placement_views_put_every_ball_where_it_is(rng):
     """The SVG's markers sit at the ball's coordinates: in each view, the marker centres
     are an affine image of the two coordinates with one scale on both axes (px per mm),
     and the y axis points up. Checked on a simulated dataset with random placements."""
-    import re
 
     from cmm_core.analysis import placement_views_svg
     from cmm_core.model import simulate
@@ -1042,12 +1068,12 @@ def test_diagnose_page_draws_only_the_open_tabs_figure():
     at.switch_page("pages/diagnose.py")
     at.run()
     _ok(at)
-    keys = [c.key for c in at.get("plotly_chart")]
+    keys = _figures(at)
     assert "diag_resid" in keys and "diag_map" not in keys
     at.session_state["w_diag_tab"] = "Residual map (3D)"
     at.run()
     _ok(at)
-    keys = [c.key for c in at.get("plotly_chart")]
+    keys = _figures(at)
     assert "diag_map" in keys and "diag_resid" not in keys
 
 

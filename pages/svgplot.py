@@ -1,0 +1,451 @@
+"""Plotly figures drawn as static SVG on the server (issue 27).
+
+A Plotly chart costs the browser its 4.7 MB of script on the first chart of a session and
+then some 0.1-0.5 s of drawing per figure (a grid of 21 error functions well over a
+second on a small machine); a rerun that changes the model (Add this effect, Undo) draws
+every figure of the page again. The app's figures that need no zoom are therefore drawn
+here as plain SVG, from the same ``go.Figure`` the core builds (the report keeps Plotly),
+so what is shown stays one definition. Hovering a marker shows its label and value (an
+SVG ``<title>``); the sidebar's "Interactive plots" switch brings Plotly back.
+
+The subset drawn is what ``cmm_core.analysis.figures`` uses for 2-D charts: scatter traces
+(markers, lines, ``fill="toself"`` bands, dashes, the open-circle, x and cross symbols) on
+subplots (``make_subplots``: axis domains, anchors, shared axes), axis titles, tick values
+given as arrays, subplot titles and other annotations, rectangles (``yref`` "y domain"),
+the figure title and the legend. Anything else (bars, heatmaps, 3-D) is not drawn here:
+:func:`supported` says whether a figure is within the subset.
+"""
+
+from __future__ import annotations
+
+import html
+import itertools
+import math
+import re
+
+import numpy as np
+
+COLORWAY = ("#636efa", "#EF553B", "#00cc96", "#ab63fa", "#FFA15A", "#19d3f3", "#FF6692",
+            "#B6E880", "#FF97FF", "#FECB52")
+"""Plotly's default trace colours (template plotly_white), in order."""
+FONT = "font-family=\"'Source Sans Pro', sans-serif\""
+LEGEND_ROW_PX = 22
+_CLIP_IDS = itertools.count()
+"""Clip-path ids unique in the server's life: several figures share one page's DOM."""
+
+
+def supported(fig) -> bool:
+    """Whether every trace of ``fig`` is a 2-D scatter (what :func:`figure_svg` draws)."""
+    return all(t.type == "scatter" for t in fig.data)
+
+
+def _fmt(v: float, step: float) -> str:
+    """A tick label with the decimals the tick step needs (no "0.30000000000000004")."""
+    if v == 0:
+        return "0"
+    if abs(v) >= 1e5 or abs(v) < 1e-4:
+        return f"{v:.3g}"
+    dec = max(0, -int(math.floor(math.log10(step) + 1e-9))) if step > 0 else 0
+    return f"{v:.{dec}f}".replace("-", "−")
+
+
+def nice_ticks(lo: float, hi: float, n: int = 5) -> np.ndarray:
+    """Round tick values (1, 2, 5 × 10^k steps) inside [lo, hi], about ``n`` of them."""
+    if not np.isfinite(lo) or not np.isfinite(hi) or hi <= lo:
+        return np.array([lo]) if np.isfinite(lo) else np.array([])
+    raw = (hi - lo) / max(n, 1)
+    mag = 10 ** math.floor(math.log10(raw))
+    step = min((k * mag for k in (1, 2, 2.5, 5, 10)), key=lambda s: abs(s - raw))
+    first = math.ceil(lo / step - 1e-9) * step
+    return np.arange(first, hi + step * 1e-9, step)
+
+
+_HOVER = re.compile(r"%\{([^}:]+)(?::([^}]*))?\}")
+
+
+def _hover_text(template: str | None, fields: dict, i: int) -> str:
+    """One marker's hover text from a Plotly ``hovertemplate`` (its %{x:.3f}, %{text},
+    %{customdata[0]} ...; ``<extra>`` dropped, ``<br>`` a new line)."""
+    if not template:
+        parts = [str(fields["text"][i])] if fields.get("text") is not None else []
+        return "  ".join(parts + [f"{fields['x'][i]:.4g}, {fields['y'][i]:.4g}"])
+    t = re.sub(r"<extra>.*?</extra>", "", template).replace("<br>", "\n")
+
+    def one(m):
+        name, spec = m.group(1), m.group(2)
+        idx = re.fullmatch(r"(\w+)\[(\d+)\]", name)
+        try:
+            if idx:
+                v = fields[idx.group(1)][i][int(idx.group(2))]
+            else:
+                src = fields.get(name)
+                v = src[i] if src is not None and np.ndim(src) else src
+        except (KeyError, IndexError, TypeError):
+            return ""
+        if spec and isinstance(v, (int, float, np.number)) and np.isfinite(v):
+            try:
+                return format(float(v), spec)
+            except ValueError:
+                return str(v)
+        return "" if v is None else str(v)
+
+    return re.sub(r"<[^>]+>", "", _HOVER.sub(one, t))
+
+
+class _Axis:
+    """One axis: its pixel span and data range."""
+
+    def __init__(self, name: str, spec, x0: float, x1: float, vertical: bool):
+        self.name, self.spec, self.vertical = name, spec, vertical
+        self.p0, self.p1 = x0, x1  # pixel span: left->right, or bottom->top for y
+        self.lo, self.hi = math.inf, -math.inf
+        self.log = spec is not None and spec.type == "log"
+
+    def take(self, values) -> None:
+        v = np.asarray([np.nan if x is None else x for x in np.ravel(values)], float)
+        v = v[np.isfinite(v)]
+        if v.size:
+            self.lo, self.hi = min(self.lo, float(v.min())), max(self.hi, float(v.max()))
+
+    def finish(self, pad: float) -> None:
+        spec_range = None if self.spec is None else self.spec.range
+        if spec_range is not None and None not in spec_range:
+            self.lo, self.hi = float(spec_range[0]), float(spec_range[1])
+            return
+        if not np.isfinite(self.lo):
+            self.lo, self.hi = 0.0, 1.0
+        if self.hi - self.lo < 1e-12 * max(1.0, abs(self.hi)):
+            self.lo, self.hi = self.lo - 1.0, self.hi + 1.0
+        d = (self.hi - self.lo) * pad
+        self.lo, self.hi = self.lo - d, self.hi + d
+
+    def px(self, v):
+        v = np.asarray(v, float)
+        f = (v - self.lo) / (self.hi - self.lo)
+        return self.p0 + f * (self.p1 - self.p0)
+
+
+def _num(values) -> np.ndarray:
+    if values is None:
+        return np.array([], float)
+    return np.asarray([np.nan if x is None else x for x in np.ravel(np.asarray(values,
+                                                                               object))], float)
+
+
+def _path(xs: np.ndarray, ys: np.ndarray, close: bool = False) -> str:
+    """An SVG path through the points, broken at missing values."""
+    out, pen = [], False
+    for x, y in zip(xs, ys, strict=True):
+        if not (np.isfinite(x) and np.isfinite(y)):
+            pen = False
+            continue
+        out.append(f"{'L' if pen else 'M'}{x:.1f} {y:.1f}")
+        pen = True
+    return " ".join(out) + (" Z" if close and out else "")
+
+
+def _marker(symbol: str, x: float, y: float, r: float, colour: str, opacity: float) -> str:
+    op = f' opacity="{opacity:g}"' if opacity < 1 else ""
+    if symbol in ("x", "cross"):
+        d = r * (0.8 if symbol == "x" else 1.0)
+        if symbol == "x":
+            p = (f"M{x - d:.1f} {y - d:.1f}L{x + d:.1f} {y + d:.1f}"
+                 f"M{x - d:.1f} {y + d:.1f}L{x + d:.1f} {y - d:.1f}")
+        else:
+            p = f"M{x - d:.1f} {y:.1f}H{x + d:.1f}M{x:.1f} {y - d:.1f}V{y + d:.1f}"
+        return f'<path d="{p}" stroke="{colour}" stroke-width="2"{op}'
+    if symbol.endswith("-open"):
+        return (f'<circle cx="{x:.1f}" cy="{y:.1f}" r="{r:.1f}" fill="none" '
+                f'stroke="{colour}" stroke-width="1.5"{op}')
+    return f'<circle cx="{x:.1f}" cy="{y:.1f}" r="{r:.1f}" fill="{colour}"{op}'
+
+
+def _dash(dash: str | None) -> str:
+    return {"dash": ' stroke-dasharray="6 4"', "dot": ' stroke-dasharray="2 3"',
+            "dashdot": ' stroke-dasharray="6 3 2 3"'}.get(dash or "", "")
+
+
+class _Chart:
+    """One figure being drawn: its frame (size, margins), axes and the SVG parts so far."""
+
+    def __init__(self, fig, width_px: int):
+        self.fig, lay = fig, fig.layout
+        self.lay = lay
+        self.H = float(lay.height or 450)
+        self.W = float(width_px)
+        m = lay.margin
+        self.ml = 80 if m.l is None else m.l
+        self.mr = 80 if m.r is None else m.r
+        self.mt = 100 if m.t is None else m.t
+        self.mb = 80 if m.b is None else m.b
+        self.pw = self.W - self.ml - self.mr
+        self.ph = self.H - self.mt - self.mb
+        self.axes: dict[str, _Axis] = {}
+        self.clip_ids: dict = {}
+        self.out: list[str] = []
+        self.legend: list = []
+        self.traces = []
+
+    def xpaper(self, f):
+        return self.ml + f * self.pw
+
+    def ypaper(self, f):
+        return self.mt + (1 - f) * self.ph
+
+    def axis(self, ref: str, vertical: bool) -> _Axis:
+        """The axis ``ref`` ("x2", "y"), made on first use with its domain."""
+        name = ("yaxis" if vertical else "xaxis") + ref[1:]
+        if name not in self.axes:
+            spec = self.lay[name] if name in self.lay else None
+            dom = (spec.domain if spec is not None and spec.domain is not None else (0, 1))
+            if vertical:
+                self.axes[name] = _Axis(name, spec, self.ypaper(dom[0]), self.ypaper(dom[1]),
+                                        True)
+            else:
+                self.axes[name] = _Axis(name, spec, self.xpaper(dom[0]), self.xpaper(dom[1]),
+                                        False)
+        return self.axes[name]
+
+    def ranges(self) -> None:
+        """Every axis's range from its traces (and shapes), shared axes one range."""
+        for t in self.fig.data:
+            ax, ay = self.axis(t.xaxis or "x", False), self.axis(t.yaxis or "y", True)
+            x, y = _num(t.x), _num(t.y)
+            if t.error_y is not None and t.error_y.array is not None:
+                e = _num(t.error_y.array)
+                ay.take(y + e)
+                ay.take(y - e)
+            ax.take(x)
+            ay.take(y)
+            self.traces.append((t, ax, ay, x, y))
+        for s in self.lay.shapes or ():  # a data-referenced edge widens the range
+            if s.xref and s.xref.startswith("x") and "domain" not in s.xref:
+                self.axis(s.xref, False).take([s.x0, s.x1])
+        for a in list(self.axes.values()):
+            a.finish(0.06 if a.vertical else 0.03)
+        for a in self.axes.values():
+            match = None if a.spec is None else a.spec.matches
+            other = (self.axes.get(("yaxis" if a.vertical else "xaxis") + match[1:])
+                     if match else None)
+            if other is not None:
+                lo, hi = min(a.lo, other.lo), max(a.hi, other.hi)
+                a.lo = other.lo = lo
+                a.hi = other.hi = hi
+
+    def clips(self) -> None:
+        """A clip rectangle per subplot: lines and bands stay inside their axes."""
+        pairs = {(t.xaxis or "x", t.yaxis or "y") for t, *_ in self.traces}
+        for s in self.lay.shapes or ():
+            if s.xref and s.yref:
+                pairs.add((s.xref.split()[0], s.yref.split()[0]))
+        for xr, yr in sorted(pairs):
+            ax, ay = self.axis(xr, False), self.axis(yr, True)
+            cid = f"cmm-clip-{next(_CLIP_IDS)}"
+            self.clip_ids[(xr, yr)] = cid
+            self.out.append(f'<clipPath id="{cid}"><rect x="{ax.p0:.1f}" y="{ay.p1:.1f}" '
+                            f'width="{ax.p1 - ax.p0:.1f}" height="{ay.p0 - ay.p1:.1f}"/>'
+                            "</clipPath>")
+
+    def ticks(self, a: _Axis) -> tuple[list, list]:
+        spec = a.spec
+        if spec is not None and spec.tickmode == "array" and spec.tickvals is not None:
+            return ([float(v) for v in spec.tickvals],
+                    [str(v) for v in (spec.ticktext or spec.tickvals)])
+        n = max(2, int(abs(a.p1 - a.p0) / (50 if a.vertical else 90)))
+        ticks = list(nice_ticks(a.lo, a.hi, n))
+        step = ticks[1] - ticks[0] if len(ticks) > 1 else 1.0
+        return ticks, [_fmt(v, step) for v in ticks]
+
+    def y_axis(self, a: _Axis) -> None:
+        spec, out = a.spec, self.out
+        anchor = None if spec is None else spec.anchor
+        ox = self.axes.get("xaxis" + anchor[1:]) if anchor else None
+        xs = (ox.p0, ox.p1) if ox is not None else (self.ml, self.W - self.mr)
+        show = spec is None or spec.showticklabels is not False
+        for v, lab in zip(*self.ticks(a), strict=True):
+            yy = float(a.px(v))
+            if not a.p1 - 0.5 <= yy <= a.p0 + 0.5:
+                continue
+            out.append(f'<line x1="{xs[0]:.1f}" x2="{xs[1]:.1f}" y1="{yy:.1f}" '
+                       f'y2="{yy:.1f}" stroke="#ebf0f8"/>')
+            if show:
+                out.append(f'<text x="{xs[0] - 5:.1f}" y="{yy + 4:.1f}" '
+                           f'text-anchor="end" fill="#444">{html.escape(lab)}</text>')
+        tt = spec.title.text if spec is not None and spec.title is not None else None
+        if tt:
+            cx, cy = xs[0] - 45, (a.p0 + a.p1) / 2
+            out.append(f'<text x="{cx:.1f}" y="{cy:.1f}" text-anchor="middle" '
+                       f'transform="rotate(-90 {cx:.1f} {cy:.1f})" fill="#444">'
+                       f"{html.escape(tt)}</text>")
+
+    def x_axis(self, a: _Axis) -> None:
+        spec, out = a.spec, self.out
+        anchor = None if spec is None else spec.anchor
+        oy = self.axes.get("yaxis" + anchor[1:]) if anchor else None
+        ys = (oy.p0, oy.p1) if oy is not None else (self.H - self.mb, self.mt)
+        show = spec is None or spec.showticklabels is not False
+        angle = spec.tickangle if spec is not None and spec.tickangle else 0
+        for v, lab in zip(*self.ticks(a), strict=True):
+            xx = float(a.px(v))
+            if not a.p0 - 0.5 <= xx <= a.p1 + 0.5:
+                continue
+            out.append(f'<line x1="{xx:.1f}" x2="{xx:.1f}" y1="{ys[0]:.1f}" '
+                       f'y2="{ys[1]:.1f}" stroke="#ebf0f8"/>')
+            if not show:
+                continue
+            if angle:
+                out.append(f'<text x="{xx:.1f}" y="{ys[0] + 14:.1f}" text-anchor="end" '
+                           f'fill="#444" transform="rotate({angle} {xx:.1f} '
+                           f'{ys[0] + 14:.1f})">{html.escape(lab)}</text>')
+            else:
+                out.append(f'<text x="{xx:.1f}" y="{ys[0] + 16:.1f}" text-anchor="middle" '
+                           f'fill="#444">{html.escape(lab)}</text>')
+        tt = spec.title.text if spec is not None and spec.title is not None else None
+        if tt:
+            out.append(f'<text x="{(a.p0 + a.p1) / 2:.1f}" y="{ys[0] + 36:.1f}" '
+                       f'text-anchor="middle" fill="#444">{html.escape(tt)}</text>')
+
+    def shapes(self) -> None:
+        """Rectangles below the traces (the measured span of each error function)."""
+        for s in self.lay.shapes or ():
+            if s.type != "rect" or not s.xref or not s.yref:
+                continue
+            ax, ay = self.axis(s.xref.split()[0], False), self.axis(s.yref.split()[0], True)
+            x0, x1 = (ax.px(s.x0), ax.px(s.x1)) if "domain" not in s.xref else (
+                ax.p0 + s.x0 * (ax.p1 - ax.p0), ax.p0 + s.x1 * (ax.p1 - ax.p0))
+            y0, y1 = (ay.p0 + s.y0 * (ay.p1 - ay.p0), ay.p0 + s.y1 * (ay.p1 - ay.p0)) if (
+                "domain" in s.yref) else (ay.px(s.y0), ay.px(s.y1))
+            x0, x1 = sorted((float(x0), float(x1)))
+            y0, y1 = sorted((float(y0), float(y1)))
+            self.out.append(f'<rect x="{x0:.1f}" y="{y0:.1f}" width="{x1 - x0:.1f}" '
+                            f'height="{y1 - y0:.1f}" '
+                            f'fill="{s.fillcolor or "rgba(0,0,0,0.1)"}"/>')
+
+    def markers(self, t, px_, py_, x, y, colour) -> list[str]:
+        mk = t.marker
+        size = mk.size if mk is not None and isinstance(mk.size, (int, float)) else 6
+        sym = mk.symbol if mk is not None and isinstance(mk.symbol, str) else "circle"
+        op = mk.opacity if mk is not None and isinstance(mk.opacity, (int, float)) else 1.0
+        fields = {"x": x, "y": y, "text": None if t.text is None else np.ravel(
+            np.asarray(t.text, object)), "customdata": None if t.customdata is None
+            else np.asarray(t.customdata, object)}
+        err = (_num(t.error_y.array) if t.error_y is not None and t.error_y.array is not None
+               else None)
+        g = []
+        for j in range(len(x)):
+            if not (np.isfinite(px_[j]) and np.isfinite(py_[j])):
+                continue
+            if err is not None and np.isfinite(err[j]):
+                ay = next(a for tt, _ax, a, *_ in self.traces if tt is t)
+                y_a, y_b = ay.px(y[j] + err[j]), ay.px(y[j] - err[j])
+                g.append(f'<line x1="{px_[j]:.1f}" x2="{px_[j]:.1f}" y1="{y_a:.1f}" '
+                         f'y2="{y_b:.1f}" stroke="{colour}"/>')
+            el = _marker(sym, px_[j], py_[j], size / 2, colour, op)
+            if t.hoverinfo != "skip":
+                tip = _hover_text(t.hovertemplate, fields, j)
+                g.append(f"{el}><title>{html.escape(tip)}</title></{el.split()[0][1:]}>")
+            else:
+                g.append(el + "/>")
+        return g
+
+    def trace(self, i: int, t, ax: _Axis, ay: _Axis, x, y) -> None:
+        default = COLORWAY[i % len(COLORWAY)]
+        line_colour = t.line.color if t.line is not None and t.line.color else default
+        mk = t.marker
+        mcol = mk.color if mk is not None and isinstance(mk.color, str) else line_colour
+        mode = t.mode or ("lines+markers" if len(x) < 20 else "lines")
+        clip = self.clip_ids.get((t.xaxis or "x", t.yaxis or "y"))
+        g = [f'<g clip-path="url(#{clip})">' if clip else "<g>"]
+        px_, py_ = ax.px(x), ay.px(y)
+        if t.fill == "toself":
+            g.append(f'<path d="{_path(px_, py_, close=True)}" '
+                     f'fill="{t.fillcolor or "#ccc"}" stroke="none"/>')
+        width = t.line.width if t.line is not None and t.line.width is not None else 2
+        if "lines" in mode and width > 0 and t.fill != "toself":
+            tip = f"<title>{html.escape(str(t.name))}</title>" if t.name else ""
+            g.append(f'<path d="{_path(px_, py_)}" fill="none" stroke="{line_colour}" '
+                     f'stroke-width="{width:g}"{_dash(t.line.dash if t.line else None)}>'
+                     f"{tip}</path>")
+        if "markers" in mode:
+            g.extend(self.markers(t, px_, py_, x, y, mcol))
+        if "text" in mode and t.text is not None:
+            for j, lab in enumerate(np.ravel(np.asarray(t.text, object))):
+                if lab and np.isfinite(px_[j]) and np.isfinite(py_[j]):
+                    g.append(f'<text x="{px_[j] + 6:.1f}" y="{py_[j] + 4:.1f}">'
+                             f"{html.escape(str(lab))}</text>")
+        g.append("</g>")
+        self.out.extend(g)
+        shown = t.showlegend or (t.showlegend is None and len(self.fig.data) > 1
+                                 and t.legendgroup is None)
+        if shown and t.name:
+            self.legend.append((t.name, mcol if "markers" in mode else line_colour,
+                                "band" if t.fill == "toself" else mode, t.fillcolor,
+                                t.line.dash if t.line else None))
+
+    def _ref(self, ref: str, v: float, vertical: bool) -> float:
+        if ref == "paper":
+            return self.ypaper(v) if vertical else self.xpaper(v)
+        a = self.axis(ref.split()[0], vertical)
+        if "domain" in ref:
+            return a.p0 + v * (a.p1 - a.p0)
+        return float(a.px(v))
+
+    def annotations(self) -> None:
+        """Subplot titles (paper) and notes in an axis's domain."""
+        for a in self.lay.annotations or ():
+            if not a.text:
+                continue
+            xx = self._ref(a.xref or "paper", a.x, False)
+            yy = self._ref(a.yref or "paper", a.y, True) - (4 if a.yanchor == "bottom" else 0)
+            anchor = {"left": "start", "right": "end"}.get(a.xanchor or "center", "middle")
+            size = a.font.size if a.font is not None and a.font.size else 14
+            text = re.sub(r"<[^>]+>", "", str(a.text))
+            self.out.append(f'<text x="{xx:.1f}" y="{yy:.1f}" text-anchor="{anchor}" '
+                            f'font-size="{size}">{html.escape(text)}</text>')
+
+    def legend_rows(self) -> float:
+        """The legend as rows under the figure; returns the figure's full height."""
+        if not self.legend:
+            return self.H
+        x0, y0, rows, out = self.ml, self.H + 4, 1, self.out
+        for name, colour, kind, fill, dash in self.legend:
+            wtext = 7 * len(name) + 34
+            if x0 + wtext > self.W - 10:
+                rows += 1
+                x0, y0 = self.ml, y0 + LEGEND_ROW_PX
+            if kind == "band":
+                out.append(f'<rect x="{x0:.0f}" y="{y0 + 4:.0f}" width="20" height="10" '
+                           f'fill="{fill or "#ccc"}"/>')
+            elif "markers" in kind:
+                out.append(_marker("circle", x0 + 10, y0 + 9, 4, colour, 1.0) + "/>")
+            else:
+                out.append(f'<line x1="{x0:.0f}" x2="{x0 + 20:.0f}" y1="{y0 + 9:.0f}" '
+                           f'y2="{y0 + 9:.0f}" stroke="{colour}" stroke-width="2"'
+                           f"{_dash(dash)}/>")
+            out.append(f'<text x="{x0 + 26:.0f}" y="{y0 + 13:.0f}">{html.escape(name)}'
+                       "</text>")
+            x0 += wtext
+        return self.H + 8 + rows * LEGEND_ROW_PX
+
+
+def figure_svg(fig, width_px: int = 1100) -> str:
+    """``fig`` (a Plotly figure of 2-D scatter traces, :func:`supported`) as one SVG
+    element, ``width_px`` wide in its own units and scaled to the width of its container."""
+    c = _Chart(fig, width_px)
+    c.ranges()
+    title = c.lay.title.text if c.lay.title is not None else None
+    if title:
+        c.out.append(f'<text x="{c.ml:.0f}" y="{min(30, c.mt - 12):.0f}" font-size="16">'
+                     f"{html.escape(str(title))}</text>")
+    c.clips()
+    for a in list(c.axes.values()):
+        (c.y_axis if a.vertical else c.x_axis)(a)
+    c.shapes()
+    for i, (t, ax, ay, x, y) in enumerate(c.traces):
+        c.trace(i, t, ax, ay, x, y)
+    c.annotations()
+    height = c.legend_rows()
+    head = (f'<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {c.W:.0f} {height:.0f}" '
+            f'width="100%" style="height:auto" {FONT} font-size="12" '
+            'role="img">')
+    return "\n".join([head, *c.out, "</svg>"])
