@@ -27,7 +27,12 @@ metric) opened the same way, the part of a first load that is Streamlit's own fr
 
 Goals: every action and page visit under 1 s, the first load under 2 s.
 
-    .venv/bin/python bench/browser.py [--runs 3] [--quick]
+``--against DIR`` (another checkout, e.g. ``git worktree add /tmp/old <commit>``) runs its
+app on a second server in the same run, the sessions of the two apps interleaved (first
+loads and whole sessions alternate, the order swapped each repetition), so that a busy
+machine slows both alike: the table then has the other checkout's browser time beside.
+
+    .venv/bin/python bench/browser.py [--runs 3] [--quick] [--against DIR]
 """
 
 from __future__ import annotations
@@ -83,7 +88,7 @@ class Server:
             [sys.executable, "-m", "streamlit", "run", str(script),
              "--server.headless", "true", "--server.port", str(port), "--server.address",
              "127.0.0.1", "--server.fileWatcherType", "none"],
-            cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            cwd=script.parent, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         self.url = f"http://127.0.0.1:{port}"
         deadline = time.time() + 60
         while time.time() < deadline:
@@ -199,25 +204,36 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=3, help="repetitions per action (default 3)")
     ap.add_argument("--quick", action="store_true",
                     help="one cold server start instead of --runs of them")
+    ap.add_argument("--against", type=Path, default=None,
+                    help="another checkout whose app runs interleaved with this one")
     args = ap.parse_args(argv)
     if not Path(CHROMIUM).exists():
         print(f"{CHROMIUM} is not installed: nothing to measure.")
         return 0
     from playwright.sync_api import sync_playwright  # lazy: only this bench needs it
 
-    results: dict[str, list] = {}
+    apps = {"this": ROOT / "app.py"}
+    if args.against is not None:
+        apps["other"] = args.against.resolve() / "app.py"
+    results: dict[str, dict[str, list]] = {k: {} for k in apps}
+    loads = [os.getloadavg()[0]]
     with tempfile.TemporaryDirectory() as tmp, sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True,
                                      args=["--no-sandbox", "--disable-gpu"])
-        for _ in range(1 if args.quick else args.runs):
-            server = Server(Path(tmp))
-            try:
-                ctx, pg = _new_page(browser)
-                results.setdefault("first load, cold server", []).append(
-                    timed(server, pg, _open(server, pg)))
-                ctx.close()
-            finally:
-                server.stop()
+
+        def order(rep):
+            return list(apps.items()) if rep % 2 == 0 else list(reversed(apps.items()))
+
+        for rep in range(1 if args.quick else args.runs):
+            for k, app in order(rep):
+                server = Server(Path(tmp), app)
+                try:
+                    ctx, pg = _new_page(browser)
+                    results[k].setdefault("first load, cold server", []).append(
+                        timed(server, pg, _open(server, pg)))
+                    ctx.close()
+                finally:
+                    server.stop()
         empty = Path(tmp) / "empty_app.py"
         empty.write_text(EMPTY_APP)
         for _ in range(args.runs):
@@ -230,37 +246,49 @@ def main(argv=None) -> int:
                     pg.goto(server.url)
                     pg.get_by_text("Empty").first.wait_for()
                     _idle(pg)
-                    results.setdefault(label, []).append((time.time() - t0 - 0.3, 0.0))
+                    for k in apps:
+                        results[k].setdefault(label, []).append((time.time() - t0 - 0.3, 0.0))
                     ctx.close()
             finally:
                 server.stop()
-        server = Server(Path(tmp))
+        servers = {k: Server(Path(tmp), app) for k, app in apps.items()}
         try:
-            one_session(server, browser, {})  # warm-up: the server's caches, imports
-            for _ in range(args.runs):
-                one_session(server, browser, results)
+            for server in servers.values():
+                one_session(server, browser, {})  # warm-up: the server's caches, imports
+            for rep in range(args.runs):
+                for k, _app in order(rep):
+                    one_session(servers[k], browser, results[k])
+                    loads.append(os.getloadavg()[0])
             # a returning user: the browser has Streamlit's and plotly's scripts in its
             # cache (a new page of a context that opened the app before is a new session)
-            ctx, pg = _new_page(browser)
-            _open(server, pg)()
-            _idle(pg)
-            for _ in range(args.runs):
-                pg.close()
-                pg = ctx.new_page()
-                results.setdefault("first load, new session, browser cache warm", []).append(
-                    timed(server, pg, _open(server, pg)))
-            ctx.close()
+            for k, server in servers.items():
+                ctx, pg = _new_page(browser)
+                _open(server, pg)()
+                _idle(pg)
+                for _ in range(args.runs):
+                    pg.close()
+                    pg = ctx.new_page()
+                    results[k].setdefault("first load, new session, browser cache warm",
+                                          []).append(timed(server, pg, _open(server, pg)))
+                ctx.close()
         finally:
-            server.stop()
+            for server in servers.values():
+                server.stop()
         browser.close()
-    print(f"{'action':46s} {'browser s':>10s} {'server s':>9s} {'browser-only s':>14s}  goal")
-    for name, v in results.items():
+    other = results.get("other", {})
+    print(f"{'action':46s} {'browser s':>10s} {'server s':>9s} {'browser-only s':>14s}  goal"
+          + ("        other checkout browser s" if other else ""))
+    for name, v in results["this"].items():
         b = statistics.median(x[0] for x in v)
         srv = statistics.median(x[1] for x in v)
         goal = FIRST_LOAD_GOAL_S if name.startswith("first load") else GOAL_S
-        print(f"{name:46s} {b:10.2f} {srv:9.2f} {b - srv:14.2f}  "
-              f"{'ok' if b < goal else 'MISSES'} (< {goal:g} s)")
-    print(f"medians of {args.runs} runs; server s: the script runs inside the action's window")
+        line = (f"{name:46s} {b:10.2f} {srv:9.2f} {b - srv:14.2f}  "
+                f"{'ok' if b < goal else 'MISSES'} (< {goal:g} s)")
+        if other and not name.startswith("peer"):
+            line += f"  {statistics.median(x[0] for x in other[name]):10.2f}"
+        print(line)
+    print(f"medians of {args.runs} runs; server s: the script runs inside the action's window; "
+          f"load average {min(loads):.1f}-{max(loads):.1f} (1 min, {os.cpu_count()} CPUs)")
     return 0
 
 

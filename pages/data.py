@@ -350,7 +350,7 @@ def _show_upload_report():
 # while another tab is looked at
 DATA_TABS = ["Thesis sample", "Upload CSVs", "Other tools (MSL)", "Simulate a virtual CMM",
              "Project file"]
-tab_thesis, tab_upload, tab_other, tab_sim, tab_proj = st.tabs(DATA_TABS, key="w_data_tab",
+tab_thesis, tab_upload, tab_other, tab_sim, tab_proj = st.tabs(DATA_TABS, key="data_tab",
                                                                on_change="rerun")
 
 with tab_thesis:

@@ -227,7 +227,7 @@ with t_time, calls.guarded("Residuals against time"):
                          facet_col="component", labels={"time_min": "time (min)",
                                                         "residual_um": "residual (µm)"})
         fig.for_each_annotation(lambda a: a.update(text=a.text.split("=")[-1]))
-        st.plotly_chart(fig, key="diag_time")
+        frame.show(fig, chart_key="diag_time")
     elif not timed:
         st.info("No time_min column: the measurement order is the row order of the files, "
                 "and drift is scored over that order at one minute per row: its µm/h are "

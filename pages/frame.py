@@ -115,7 +115,7 @@ def bind(state_key: str, widget_fn, label: str, **kwargs):
     return val
 
 
-INTERACTIVE = "w_interactive_plots"
+INTERACTIVE = "interactive_plots"
 """The sidebar switch: the pages' 2-D figures as Plotly charts instead of static SVG."""
 
 
@@ -136,6 +136,16 @@ def plot(kind: str, key: tuple, builder, *args, chart_key: str, width_px: int = 
     svg = figure(f"{kind}.svg", (key, width_px), svgplot.figure_svg, fig, width_px)
     with st.container(key=chart_key):
         st.html(f'<div data-figure="{chart_key}">{svg}</div>')
+
+
+def show(fig, *, chart_key: str, width_px: int = 1100, **kwargs):
+    """A figure built on this run (not cached): static SVG, or a Plotly chart as in
+    :func:`plot`."""
+    if st.session_state.get(INTERACTIVE) or not svgplot.supported(fig):
+        st.plotly_chart(fig, key=chart_key, **kwargs)
+        return
+    with st.container(key=chart_key):
+        st.html(f'<div data-figure="{chart_key}">{svgplot.figure_svg(fig, width_px)}</div>')
 
 
 def sidebar():

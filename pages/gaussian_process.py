@@ -146,11 +146,11 @@ pts_plate = plane.balls_plate_mm
 zlim = float(np.nanmax(np.abs(np.concatenate([e_kin_grid[:, a], err[sel, a]])))) or 1.0
 cols = st.columns(3)
 with cols[0], calls.guarded("Kinematic surface"):
-    st.plotly_chart(frame.beside_map(A.fig_surface_grid(uu, vv, e_kin_grid[:, a].reshape(n, n),
-                                           title=f"Kinematic model e{comp} (µm)", unit="µm",
-                                           points=pts_plate, xlabel="plate u (mm)",
-                                           ylabel="plate v (mm)", zrange=(-zlim, zlim))),
-                    key="gp_kin_surface", width="stretch")
+    frame.show(frame.beside_map(A.fig_surface_grid(uu, vv, e_kin_grid[:, a].reshape(n, n),
+                                      title=f"Kinematic model e{comp} (µm)", unit="µm",
+                                      points=pts_plate, xlabel="plate u (mm)",
+                                      ylabel="plate v (mm)", zrange=(-zlim, zlim))),
+               chart_key="gp_kin_surface", width_px=520, width="stretch")
 gp_mean_obs = loo = loo_sd = None
 coverage = {}
 if not s.get("gp_on"):
@@ -201,19 +201,17 @@ if s.get("gp_on"):
             loo = loo + pred_kin
         gp_mean_obs = om
         with cols[1]:
-            st.plotly_chart(frame.beside_map(A.fig_surface_grid(uu, vv, gm[:, a].reshape(n, n),
-                                                   title=f"GP mean e{comp} (µm)", unit="µm",
-                                                   points=pts_plate, xlabel="plate u (mm)",
-                                                   ylabel="plate v (mm)",
-                                                   zrange=(-zlim, zlim))), key="gp_mean_surface",
-                            width="stretch")
+            frame.show(frame.beside_map(A.fig_surface_grid(
+                uu, vv, gm[:, a].reshape(n, n), title=f"GP mean e{comp} (µm)", unit="µm",
+                points=pts_plate, xlabel="plate u (mm)", ylabel="plate v (mm)",
+                zrange=(-zlim, zlim))), chart_key="gp_mean_surface", width_px=520,
+                width="stretch")
         with cols[2]:
-            st.plotly_chart(frame.beside_map(A.fig_surface_grid(uu, vv, gsd[:, a].reshape(n, n),
-                                                   title=f"GP standard deviation e{comp} (µm)",
-                                                   unit="µm", points=pts_plate,
-                                                   colorscale="Viridis", xlabel="plate u (mm)",
-                                                   ylabel="plate v (mm)")), key="gp_sd_surface",
-                            width="stretch")
+            frame.show(frame.beside_map(A.fig_surface_grid(
+                uu, vv, gsd[:, a].reshape(n, n), title=f"GP standard deviation e{comp} (µm)",
+                unit="µm", points=pts_plate, colorscale="Viridis", xlabel="plate u (mm)",
+                ylabel="plate v (mm)")), chart_key="gp_sd_surface", width_px=520,
+                width="stretch")
         coverage = {"xyz"[i]: 100 * c_.results[0].loo_coverage(0.95)
                     for i, c_ in enumerate(comps)}
         probe_names = _probe_names(comps[0], obs)

@@ -128,10 +128,9 @@ with tabs[1], calls.guarded("Deviation plots"):
     frame.bind("magnification", c2.slider, "Magnification", min_value=100.0, max_value=10000.0,
            step=100.0, format="×%.0f")
     if tabs[1].open:
-        st.plotly_chart(cached.figure("deviation", (cached.fit_key(), position,
-                                               float(s["magnification"])),
-                                 A.fig_deviation, r, position, float(s["magnification"])),
-                        key="fig_deviation")
+        frame.plot("deviation", (cached.fit_key(), position, float(s["magnification"])),
+                   A.fig_deviation, r, position, float(s["magnification"]),
+                   chart_key="fig_deviation")
     st.caption("Plate frame, mm: nominal ball centres (certificate or fitted plate), measured "
                "points and the points the model predicts, deviations magnified (thesis "
                "figures 4.8-4.10).")

@@ -159,7 +159,8 @@ def _detection_plot(evals: list) -> None:
     effects = list(dict.fromkeys(k for e in evals for k in e["detection_limits"]))
     physical = [k for k in effects if ":" not in k or k.startswith("periodic")]
     pick = st.multiselect("Effects", effects, default=physical, key="w_plan_effects")
-    st.plotly_chart(A.fig_detection_limits(evals, pick), width="stretch")
+    # grouped bars on log axes: Plotly (frame.show falls back to it for bars)
+    frame.show(A.fig_detection_limits(evals, pick), chart_key="plan_limits", width="stretch")
     rows = [{"strategy": e["name"], "effect": k, "expected": v["expected"],
              "detection limit": _fmt(v["limit"]), "unit": unit_label(v["unit"]),
              "seen": "yes" if v["detectable"] else "no"}
@@ -189,7 +190,7 @@ def _u_map(text: str, evals: list) -> None:
                                colorbar={"title": "u (µm)"}))
     fig.update_layout(height=420, xaxis_title="X (mm)", yaxis_title="Y (mm)",
                       margin={"t": 30})
-    st.plotly_chart(fig, width="stretch")
+    frame.show(fig, chart_key="plan_u_map", width="stretch")
     st.caption("Standard uncertainty (k = 1) of the predicted CMM error with the rigid part "
                "of the plane removed, from the design alone (as U2/U3).")
 

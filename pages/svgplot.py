@@ -35,8 +35,42 @@ _CLIP_IDS = itertools.count()
 
 
 def supported(fig) -> bool:
-    """Whether every trace of ``fig`` is a 2-D scatter (what :func:`figure_svg` draws)."""
-    return all(t.type == "scatter" for t in fig.data)
+    """Whether every trace of ``fig`` is a 2-D scatter or a heatmap (what
+    :func:`figure_svg` draws)."""
+    return all(t.type in ("scatter", "heatmap") for t in fig.data)
+
+
+def _edges(centres) -> np.ndarray:
+    """Cell edges of a heatmap from its cell centres (halfway between, half a step out)."""
+    c = np.asarray(centres, float)
+    if c.size < 2:
+        return np.array([c[0] - 0.5, c[0] + 0.5]) if c.size else np.array([0.0, 1.0])
+    mid = (c[1:] + c[:-1]) / 2
+    return np.r_[c[0] - (mid[0] - c[0]), mid, c[-1] + (c[-1] - mid[-1])]
+
+
+def _z_limits(t, z: np.ndarray) -> tuple[float, float]:
+    fin = z[np.isfinite(z)]
+    lo, hi = (float(fin.min()), float(fin.max())) if fin.size else (0.0, 1.0)
+    if t.zmin is not None and t.zmax is not None:
+        return float(t.zmin), float(t.zmax)
+    if t.zmid is not None:
+        half = max(abs(lo - t.zmid), abs(hi - t.zmid)) or 1.0
+        return t.zmid - half, t.zmid + half
+    return (lo, hi) if hi > lo else (lo - 1.0, hi + 1.0)
+
+
+def _colours(t, frac: np.ndarray) -> list:
+    """Colours of a heatmap's colour scale at fractions ``frac`` (0-1) of its range."""
+    from plotly.colors import get_colorscale, sample_colorscale
+
+    scale = t.colorscale or "Plasma"  # Plotly's default sequential scale
+    if isinstance(scale, str):
+        scale = get_colorscale(scale)
+    scale = [list(x) for x in scale]
+    if t.reversescale:
+        scale = [[1 - f, c] for f, c in reversed(scale)]
+    return sample_colorscale(scale, list(np.clip(frac, 0, 1)))
 
 
 def _fmt(v: float, step: float) -> str:
@@ -99,6 +133,7 @@ class _Axis:
         self.name, self.spec, self.vertical = name, spec, vertical
         self.p0, self.p1 = x0, x1  # pixel span: left->right, or bottom->top for y
         self.lo, self.hi = math.inf, -math.inf
+        self.tight = False  # a heatmap's axis: its range is the cells' edges, no padding
         self.log = spec is not None and spec.type == "log"
 
     def take(self, values) -> None:
@@ -178,6 +213,12 @@ class _Chart:
         self.mr = 80 if m.r is None else m.r
         self.mt = 100 if m.t is None else m.t
         self.mb = 80 if m.b is None else m.b
+        for t in fig.data:  # room for a colour bar right of the plot, as Plotly makes it
+            if t.type == "heatmap":
+                cb = t.colorbar
+                self.mr += ((cb.thickness if cb is not None and cb.thickness else 20)
+                            + (cb.xpad if cb is not None and cb.xpad is not None else 10) + 45)
+                break
         self.pw = self.W - self.ml - self.mr
         self.ph = self.H - self.mt - self.mb
         self.axes: dict[str, _Axis] = {}
@@ -211,6 +252,12 @@ class _Chart:
         for t in self.fig.data:
             ax, ay = self.axis(t.xaxis or "x", False), self.axis(t.yaxis or "y", True)
             x, y = _num(t.x), _num(t.y)
+            if t.type == "heatmap":
+                ax.tight = ay.tight = True
+                ax.take(_edges(x))
+                ay.take(_edges(y))
+                self.traces.append((t, ax, ay, x, y))
+                continue
             if t.error_y is not None and t.error_y.array is not None:
                 e = _num(t.error_y.array)
                 ay.take(y + e)
@@ -222,15 +269,90 @@ class _Chart:
             if s.xref and s.xref.startswith("x") and "domain" not in s.xref:
                 self.axis(s.xref, False).take([s.x0, s.x1])
         for a in list(self.axes.values()):
-            a.finish(0.06 if a.vertical else 0.03)
+            a.finish(0.0 if a.tight else 0.06 if a.vertical else 0.03)
+        self.equal_scales()
+        groups: dict[str, list[_Axis]] = {}
         for a in self.axes.values():
             match = None if a.spec is None else a.spec.matches
-            other = (self.axes.get(("yaxis" if a.vertical else "xaxis") + match[1:])
-                     if match else None)
-            if other is not None:
-                lo, hi = min(a.lo, other.lo), max(a.hi, other.hi)
-                a.lo = other.lo = lo
-                a.hi = other.hi = hi
+            root = ("yaxis" if a.vertical else "xaxis") + match[1:] if match else a.name
+            groups.setdefault(root, []).append(a)
+        for group in groups.values():
+            lo, hi = min(a.lo for a in group), max(a.hi for a in group)
+            for a in group:
+                a.lo, a.hi = lo, hi
+
+    def equal_scales(self) -> None:
+        """``scaleanchor``: one mm the same length on both axes, the plot area shrunk
+        (toward ``constraintoward`` on x, centred on y) rather than the range padded."""
+        for ay in [a for a in self.axes.values() if a.vertical]:
+            if ay.spec is None or not ay.spec.scaleanchor:
+                continue
+            ax = self.axes.get("xaxis" + ay.spec.scaleanchor[1:])
+            if ax is None:
+                continue
+            sx = (ax.p1 - ax.p0) / (ax.hi - ax.lo)
+            sy = (ay.p0 - ay.p1) / (ay.hi - ay.lo) / (ay.spec.scaleratio or 1)
+            k = min(sx, sy)
+            if sx > k:
+                w = k * (ax.hi - ax.lo)
+                if ax.spec is not None and ax.spec.constraintoward == "right":
+                    ax.p0 = ax.p1 - w
+                elif ax.spec is not None and ax.spec.constraintoward == "left":
+                    ax.p1 = ax.p0 + w
+                else:
+                    mid = (ax.p0 + ax.p1) / 2
+                    ax.p0, ax.p1 = mid - w / 2, mid + w / 2
+            if sy > k:
+                h = k * (ay.hi - ay.lo) * (ay.spec.scaleratio or 1)
+                mid = (ay.p0 + ay.p1) / 2
+                ay.p0, ay.p1 = mid + h / 2, mid - h / 2
+
+    def heatmap(self, t, ax: _Axis, ay: _Axis, x, y) -> None:
+        """The cells of a heatmap, a hover title each, and its colour bar right of it."""
+        z = np.asarray(t.z, float)
+        lo, hi = _z_limits(t, z)
+        xe, ye = ax.px(_edges(x)), ay.px(_edges(y))
+        cols = _colours(t, ((z - lo) / (hi - lo)).ravel())
+        clip = self.clip_ids.get((t.xaxis or "x", t.yaxis or "y"))
+        g = [f'<g clip-path="url(#{clip})">' if clip else "<g>"]
+        for i in range(z.shape[0]):
+            for j in range(z.shape[1]):
+                if not np.isfinite(z[i, j]):
+                    continue
+                x0, x1 = sorted((xe[j], xe[j + 1]))
+                y0, y1 = sorted((ye[i], ye[i + 1]))
+                tip = _hover_text(t.hovertemplate, {"x": [x[j]], "y": [y[i]], "z": [z[i, j]]},
+                                  0) if t.hovertemplate else f"{z[i, j]:.3g}"
+                g.append(f'<rect x="{x0:.1f}" y="{y0:.1f}" width="{x1 - x0 + 0.4:.1f}" '
+                         f'height="{y1 - y0 + 0.4:.1f}" fill="{cols[i * z.shape[1] + j]}">'
+                         f"<title>{html.escape(tip)}</title></rect>")
+        g.append("</g>")
+        self.out.extend(g)
+        # the colour bar: beside the map, its length a share of the map's height
+        cb = t.colorbar
+        thick = cb.thickness if cb is not None and cb.thickness else 20
+        pad = cb.xpad if cb is not None and cb.xpad is not None else 10
+        share = cb.len if cb is not None and cb.len else 1.0
+        x0 = ax.p1 + pad
+        top = (ay.p1 + ay.p0) / 2 - share * (ay.p0 - ay.p1) / 2
+        h = share * (ay.p0 - ay.p1)
+        gid = f"cmm-grad-{next(_CLIP_IDS)}"
+        stops = "".join(f'<stop offset="{f:.2f}" stop-color="{c}"/>' for f, c in zip(
+            np.linspace(0, 1, 11), _colours(t, np.linspace(1, 0, 11)), strict=True))
+        self.out.append(f'<defs><linearGradient id="{gid}" x1="0" y1="0" x2="0" y2="1">'
+                        f"{stops}</linearGradient></defs>"
+                        f'<rect x="{x0:.1f}" y="{top:.1f}" width="{thick}" height="{h:.1f}" '
+                        f'fill="url(#{gid})"/>')
+        ticks = nice_ticks(lo, hi, 5)
+        step = ticks[1] - ticks[0] if len(ticks) > 1 else 1.0
+        for v in ticks:
+            yy = top + h * (hi - v) / (hi - lo)
+            self.out.append(f'<text x="{x0 + thick + 4:.1f}" y="{yy + 4:.1f}" fill="#444">'
+                            f"{html.escape(_fmt(float(v), step))}</text>")
+        title = cb.title.text if cb is not None and cb.title is not None else None
+        if title:
+            self.out.append(f'<text x="{x0:.1f}" y="{top - 8:.1f}" fill="#444">'
+                            f"{html.escape(title)}</text>")
 
     def clips(self) -> None:
         """A clip rectangle per subplot: lines and bands stay inside their axes."""
@@ -258,8 +380,8 @@ class _Chart:
 
     def y_axis(self, a: _Axis) -> None:
         spec, out = a.spec, self.out
-        anchor = None if spec is None else spec.anchor
-        ox = self.axes.get("xaxis" + anchor[1:]) if anchor else None
+        anchor = (None if spec is None else spec.anchor) or "x"
+        ox = self.axes.get("xaxis" + anchor[1:])
         xs = (ox.p0, ox.p1) if ox is not None else (self.ml, self.W - self.mr)
         show = spec is None or spec.showticklabels is not False
         for v, lab in zip(*self.ticks(a), strict=True):
@@ -280,8 +402,8 @@ class _Chart:
 
     def x_axis(self, a: _Axis) -> None:
         spec, out = a.spec, self.out
-        anchor = None if spec is None else spec.anchor
-        oy = self.axes.get("yaxis" + anchor[1:]) if anchor else None
+        anchor = (None if spec is None else spec.anchor) or "y"
+        oy = self.axes.get("yaxis" + anchor[1:])
         ys = (oy.p0, oy.p1) if oy is not None else (self.H - self.mb, self.mt)
         show = spec is None or spec.showticklabels is not False
         angle = spec.tickangle if spec is not None and spec.tickangle else 0
@@ -349,6 +471,9 @@ class _Chart:
         return g
 
     def trace(self, i: int, t, ax: _Axis, ay: _Axis, x, y) -> None:
+        if t.type == "heatmap":
+            self.heatmap(t, ax, ay, x, y)
+            return
         default = COLORWAY[i % len(COLORWAY)]
         line_colour = t.line.color if t.line is not None and t.line.color else default
         mk = t.marker
@@ -378,9 +503,10 @@ class _Chart:
         shown = t.showlegend or (t.showlegend is None and len(self.fig.data) > 1
                                  and t.legendgroup is None)
         if shown and t.name:
+            sym = mk.symbol if mk is not None and isinstance(mk.symbol, str) else "circle"
             self.legend.append((t.name, mcol if "markers" in mode else line_colour,
                                 "band" if t.fill == "toself" else mode, t.fillcolor,
-                                t.line.dash if t.line else None))
+                                t.line.dash if t.line else None, sym))
 
     def _ref(self, ref: str, v: float, vertical: bool) -> float:
         if ref == "paper":
@@ -408,7 +534,7 @@ class _Chart:
         if not self.legend:
             return self.H
         x0, y0, rows, out = self.ml, self.H + 4, 1, self.out
-        for name, colour, kind, fill, dash in self.legend:
+        for name, colour, kind, fill, dash, sym in self.legend:
             wtext = 7 * len(name) + 34
             if x0 + wtext > self.W - 10:
                 rows += 1
@@ -417,7 +543,7 @@ class _Chart:
                 out.append(f'<rect x="{x0:.0f}" y="{y0 + 4:.0f}" width="20" height="10" '
                            f'fill="{fill or "#ccc"}"/>')
             elif "markers" in kind:
-                out.append(_marker("circle", x0 + 10, y0 + 9, 4, colour, 1.0) + "/>")
+                out.append(_marker(sym, x0 + 10, y0 + 9, 4, colour, 1.0) + "/>")
             else:
                 out.append(f'<line x1="{x0:.0f}" x2="{x0 + 20:.0f}" y1="{y0 + 9:.0f}" '
                            f'y2="{y0 + 9:.0f}" stroke="{colour}" stroke-width="2"'

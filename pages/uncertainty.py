@@ -96,13 +96,16 @@ with calls.guarded("Uncertainty map"):
         # the error and its uncertainty side by side: together they fill the page width,
         # and each colour bar stays next to its map
         m1, m2 = st.columns(2)
-        m1.plotly_chart(frame.beside_map(A.fig_surface_grid(
-            xs, ys, e[:, a].reshape(n, n), title=f"Error e{comp} (µm), probe {probe}",
-            unit="µm", points=x_meas[near], colorscale="RdBu_r")), key="u_error_map",
-            width="stretch")
-        m2.plotly_chart(frame.beside_map(A.fig_surface_grid(
-            xs, ys, vals.reshape(n, n), title=f"{title} (µm)", unit="µm",
-            points=x_meas[near], colorscale="Viridis")), key="u_map", width="stretch")
+        with m1:
+            frame.show(frame.beside_map(A.fig_surface_grid(
+                xs, ys, e[:, a].reshape(n, n), title=f"Error e{comp} (µm), probe {probe}",
+                unit="µm", points=x_meas[near], colorscale="RdBu_r")), chart_key="u_error_map",
+                width_px=640, width="stretch")
+        with m2:
+            frame.show(frame.beside_map(A.fig_surface_grid(
+                xs, ys, vals.reshape(n, n), title=f"{title} (µm)", unit="µm",
+                points=x_meas[near], colorscale="Viridis")), chart_key="u_map", width_px=640,
+                width="stretch")
         st.caption(f"XY plane at Z = {zval:g} mm; scale readings in mm; × marks measured "
                    "points within 60 mm of the plane. The error is zero at the axis origins "
                    "by convention.")
@@ -233,7 +236,7 @@ with calls.guarded("Budget"):
         fig.update_layout(xaxis_title="L (mm)", yaxis_title="U (µm, k from ν_eff)",
                           template="plotly_white", height=360,
                           legend={"orientation": "h", "y": -0.25})
-        st.plotly_chart(fig, key="budget_UL")
+        frame.show(fig, chart_key="budget_UL")
         st.caption(f"Least-squares fit U(L)² ≈ a² + (b·L)²: a = {ld.fit_a_um:.3f} µm, "
                    f"b = {ld.fit_b_per_mm * 1e3:.3f} µm/m.")
 with st.expander("Refractive index of air (modified Edlén, Birch and Downs 1994)"):
@@ -256,8 +259,7 @@ def show_mpe(out, skipped, u_src, sig):
         for c_, (k_, v) in zip(m, cnt.items(), strict=False):
             c_.metric(k_, v)
         m[-1].metric("max |E| (µm)", f"{out.max_abs_error_um():.2f}")
-        st.plotly_chart(cached.figure("mpe", (args, u_src, sig), A.fig_mpe, out),
-                        key="fig_mpe")
+        frame.plot("mpe", (args, u_src, sig), A.fig_mpe, out, chart_key="fig_mpe")
         frame.dataframe(pd.DataFrame(out.rows()), hide_index=True, key="mpe_table",
                      column_config={"length_mm": st.column_config.NumberColumn(format="%.3f"),
                                     "error_um": st.column_config.NumberColumn(format="%.2f"),

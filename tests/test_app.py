@@ -45,7 +45,7 @@ def _figures(at) -> list:
 def _sim_tab(at):
     """Open the Data page's simulator tab: its widgets are drawn only while it is open
     (lazy tabs, issue 27)."""
-    at.session_state["w_data_tab"] = "Simulate a virtual CMM"
+    at.session_state["data_tab"] = "Simulate a virtual CMM"
     at.run()
     return at
 
@@ -131,9 +131,9 @@ def test_kinematic_page_elements_and_order_change():
         at.session_state["w_kin_tab"] = tab
         at.run()
         assert _figures(at) == [key], tab
-    at.sidebar.toggle(key="w_interactive_plots").set_value(True).run()
+    at.sidebar.toggle(key="interactive_plots").set_value(True).run()
     assert [c.key for c in at.get("plotly_chart")] == ["fig_errfun"]
-    at.sidebar.toggle(key="w_interactive_plots").set_value(False).run()
+    at.sidebar.toggle(key="interactive_plots").set_value(False).run()
     pf = _frame(at, "parameter")
     # thesis data scatter ~10 σ (outliers included here): Birge-scaled u shown beside u,
     # scaled by the Birge ratio the χ² test reports (sidebar)
@@ -687,7 +687,7 @@ def test_uncertainty_monte_carlo_budget_and_mpe():
 
     np.testing.assert_allclose(table["U_um"], conformity_uncertainty_um(table["length_mm"], 0.5))
     assert any("plate certificate" in c.value for c in at.caption)
-    assert any(p.key == "fig_mpe" for p in at.get("plotly_chart"))
+    assert "fig_mpe" in _figures(at)
     at.radio(key="w_mpe_u").set_value("cmm_spec")
     at.run()
     table = _frame(at, "decision")

@@ -70,7 +70,7 @@ def test_msl_snapshots_load_on_their_tab_and_fit(tmp_path):
     pairs = msl_files_of(sim, tmp_path, "simulated", "fixed_bridge_xfyz")
     at = _new()
     at.switch_page("pages/data.py")
-    at.session_state["w_data_tab"] = "Other tools (MSL)"  # drawn only while open (issue 27)
+    at.session_state["data_tab"] = "Other tools (MSL)"  # drawn only while open (issue 27)
     at.run()
     at.file_uploader(key="msl_snapshots").set_value(_files([s for s, _m in pairs]))
     at.file_uploader(key="msl_metadata").set_value(_files([m for _s, m in pairs]))
