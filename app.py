@@ -30,9 +30,10 @@ import streamlit as st
 from pages import session, state
 
 ROOT = Path(__file__).resolve().parent
+# When set, a file each script run appends its page and wall time to (bench/browser.py
+# reads it: the server's share of what a person waits for). A comment, not a string under
+# the name: Streamlit's "magic" writes a bare string of a script onto every page.
 RUN_LOG = os.environ.get("CMM_LAB_RUN_LOG")
-"""When set, a file each script run appends its page and wall time to (bench/browser.py
-reads it: the server's share of what a person waits for)."""
 _t0 = time.perf_counter()
 
 # the favicon is a local file, served by Streamlit itself: nothing is fetched from the

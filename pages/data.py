@@ -158,9 +158,10 @@ def _dataset_name(label, meas):
     return f"{', '.join(name for name, _ in meas)[:60]} (upload {n})"
 
 
+# how the upload states the certificate's uncertainty (issue 24: never assumed); comments,
+# not strings under the names: Streamlit's "magic" writes a page script's bare strings
 CERT_U_CHOICES = ("As the certificate's u columns or the setup state it",
                   "U(k) = a ⊕ b·L, entered here", "Exact (a noise-free simulation)")
-"""How the upload states the certificate's uncertainty (issue 24: never assumed)."""
 CERT_U_SOURCE = "entered on the Data page"
 
 
@@ -698,7 +699,8 @@ with calls.guarded("Placement views"):
         st.plotly_chart(cached.figure("placements", (s["ds_key"],), A.fig_placements, ds),
                         key="fig_placements")
     else:
-        st.html(cached.figure("placement_views", (s["ds_key"],), A.placement_views_svg, ds))
+        frame.svg_figure(cached.figure("placement_views", (s["ds_key"],),
+                                       A.placement_views_svg, ds), "placement_views")
         st.caption("Probed ball centres (tip centres, machine frame, mm); the dashed box is "
                    "the working volume. Hover a marker for its placement, stylus and "
                    "ball.")

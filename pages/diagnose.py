@@ -14,8 +14,9 @@ from cmm_core.diagnosis import BLUNDERS
 from cmm_core.model import PERIODIC, catalogue_entry, parse_spec
 from pages import cached, calls, frame, state
 
+# proposals shown with their buttons (the rest in the table below them); a comment: a
+# page script's bare string is written onto the page (Streamlit's "magic")
 NEXT_TOP = 3
-"""Proposals shown with their buttons (the rest in the table below them)."""
 
 
 # --- measure next: thin cached wrappers into cmm_core.plan.proposals (issue 29) ---------

@@ -133,9 +133,8 @@ def plot(kind: str, key: tuple, builder, *args, chart_key: str, width_px: int = 
     if st.session_state.get(INTERACTIVE) or not svgplot.supported(fig):
         st.plotly_chart(fig, key=chart_key, **kwargs)
         return
-    svg = figure(f"{kind}.svg", (key, width_px), svgplot.figure_svg, fig, width_px)
-    with st.container(key=chart_key):
-        st.html(f'<div data-figure="{chart_key}">{svg}</div>')
+    svg_figure(figure(f"{kind}.svg", (key, width_px), svgplot.figure_svg, fig, width_px),
+               chart_key)
 
 
 def show(fig, *, chart_key: str, width_px: int = 1100, **kwargs):
@@ -144,8 +143,15 @@ def show(fig, *, chart_key: str, width_px: int = 1100, **kwargs):
     if st.session_state.get(INTERACTIVE) or not svgplot.supported(fig):
         st.plotly_chart(fig, key=chart_key, **kwargs)
         return
-    with st.container(key=chart_key):
-        st.html(f'<div data-figure="{chart_key}">{svgplot.figure_svg(fig, width_px)}</div>')
+    svg_figure(svgplot.figure_svg(fig, width_px), chart_key)
+
+
+def svg_figure(svg: str, key: str) -> None:
+    """An SVG picture on the page, in a container keyed ``key`` and a ``div`` whose
+    ``data-figure`` is ``key``. Through ``st.markdown``'s HTML: ``st.html`` sanitises SVG
+    away (Streamlit 1.67 draws an empty element)."""
+    with st.container(key=key):
+        st.markdown(f'<div data-figure="{key}">{svg}</div>', unsafe_allow_html=True)
 
 
 def sidebar():

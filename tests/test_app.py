@@ -37,8 +37,9 @@ def _new():
 
 def _figures(at) -> list:
     """The keys of the figures on the page: Plotly charts and the static SVG figures
-    (``frame.plot``: the SVG's ``data-figure``), in page order within each kind."""
-    svgs = [re.search(r'data-figure="([^"]+)"', h.proto.body) for h in at.get("html")]
+    (``frame.svg_figure``: the ``data-figure`` of the SVG's div), in page order within each
+    kind."""
+    svgs = [re.match(r'<div data-figure="([^"]+)">', m.value) for m in at.markdown]
     return [c.key for c in at.get("plotly_chart")] + [m.group(1) for m in svgs if m]
 
 
@@ -1026,7 +1027,7 @@ def test_placements_drawn_as_three_views_and_in_3d_on_request():
     at.run()
     _ok(at)
     assert not at.get("plotly_chart")
-    (svg,) = [h.proto.body for h in at.get("html") if "<svg" in h.proto.body]
+    (svg,) = [m.value for m in at.markdown if "<svg" in m.value]
     assert svg.count("<title>BP111, probe") == 3 * 25  # every ball of a placement, 3 views
     at.toggle(key="w_place_3d").set_value(True)
     at.run()
