@@ -38,6 +38,10 @@ bench/proposals.py); the size itself is kept as ``delta_chi2_fitted``. A candida
 decides the pair with power ``min(power_A, power_B)``. Proposals are
 ranked: those reaching ``target`` power first, by machine time; then the others by power.
 
+A repeat (:func:`repeat_candidates`: a stylus measured again at the end of a placement
+already measured) adds rows to that placement, not a new one: it is scored on the design
+of the whole augmented data set (:func:`_score_repeats`).
+
 The candidate's observations are simulated on the virtual CMM (``simulate``) in the data's
 machine frame, with the data's plate (rows, columns and pitch read from the certificate, a
 regular grid) and the plan module's time model (``files.MEASUREMENT_DEFAULTS``: minutes per
