@@ -35,9 +35,9 @@ _CLIP_IDS = itertools.count()
 
 
 def supported(fig) -> bool:
-    """Whether every trace of ``fig`` is a 2-D scatter or a heatmap (what
+    """Whether every trace of ``fig`` is a 2-D scatter, a heatmap or bars (what
     :func:`figure_svg` draws)."""
-    return all(t.type in ("scatter", "heatmap") for t in fig.data)
+    return all(t.type in ("scatter", "heatmap", "bar") for t in fig.data)
 
 
 def _edges(centres) -> np.ndarray:
@@ -135,14 +135,31 @@ class _Axis:
         self.lo, self.hi = math.inf, -math.inf
         self.tight = False  # a heatmap's axis: its range is the cells' edges, no padding
         self.log = spec is not None and spec.type == "log"
+        self.categories: list | None = None  # a bar chart's category axis, in order
+
+    def category_positions(self, values) -> np.ndarray:
+        """Positions 0, 1 ... of category labels on this axis (new ones appended)."""
+        if self.categories is None:
+            self.categories = []
+        out = []
+        for v in np.ravel(np.asarray(values, object)):
+            if v not in self.categories:
+                self.categories.append(v)
+            out.append(self.categories.index(v))
+        return np.asarray(out, float)
 
     def take(self, values) -> None:
         v = np.asarray([np.nan if x is None else x for x in np.ravel(values)], float)
+        if self.log:
+            v = np.log10(np.where(v > 0, v, np.nan))
         v = v[np.isfinite(v)]
         if v.size:
             self.lo, self.hi = min(self.lo, float(v.min())), max(self.hi, float(v.max()))
 
     def finish(self, pad: float) -> None:
+        if self.categories is not None:
+            self.lo, self.hi = -0.5, len(self.categories) - 0.5
+            return
         spec_range = None if self.spec is None else self.spec.range
         if spec_range is not None and None not in spec_range:
             self.lo, self.hi = float(spec_range[0]), float(spec_range[1])
@@ -156,6 +173,8 @@ class _Axis:
 
     def px(self, v):
         v = np.asarray(v, float)
+        if self.log:  # the range of a log axis is in decades, as Plotly's
+            v = np.log10(np.where(v > 0, v, np.nan))
         f = (v - self.lo) / (self.hi - self.lo)
         return self.p0 + f * (self.p1 - self.p0)
 
@@ -226,6 +245,7 @@ class _Chart:
         self.out: list[str] = []
         self.legend: list = []
         self.traces = []
+        self.bars: dict[str, list] = {}  # the bar traces of each x axis: grouped side by side
 
     def xpaper(self, f):
         return self.ml + f * self.pw
@@ -251,6 +271,14 @@ class _Chart:
         """Every axis's range from its traces (and shapes), shared axes one range."""
         for t in self.fig.data:
             ax, ay = self.axis(t.xaxis or "x", False), self.axis(t.yaxis or "y", True)
+            if t.type == "bar":
+                x, y = ax.category_positions(t.x), _num(t.y)
+                if not ay.log:
+                    ay.take([0.0])
+                ay.take(y)
+                self.bars.setdefault(t.xaxis or "x", []).append(t)
+                self.traces.append((t, ax, ay, x, y))
+                continue
             x, y = _num(t.x), _num(t.y)
             if t.type == "heatmap":
                 ax.tight = ay.tight = True
@@ -370,6 +398,11 @@ class _Chart:
 
     def ticks(self, a: _Axis) -> tuple[list, list]:
         spec = a.spec
+        if a.categories is not None:
+            return list(range(len(a.categories))), [str(c) for c in a.categories]
+        if a.log:
+            ks = range(math.ceil(a.lo - 1e-9), math.floor(a.hi + 1e-9) + 1)
+            return [10.0 ** k for k in ks], [f"{10.0 ** k:g}" for k in ks]
         if spec is not None and spec.tickmode == "array" and spec.tickvals is not None:
             return ([float(v) for v in spec.tickvals],
                     [str(v) for v in (spec.ticktext or spec.tickvals)])
@@ -470,9 +503,39 @@ class _Chart:
                 g.append(el + "/>")
         return g
 
+    def bar(self, i: int, t, ax: _Axis, ay: _Axis, x, y) -> None:
+        """Grouped bars: the bars of an x axis side by side in 80 % of each category."""
+        group = self.bars[t.xaxis or "x"]
+        k, n = group.index(t), len(group)
+        colour = (t.marker.color if t.marker is not None and isinstance(t.marker.color, str)
+                  else COLORWAY[i % len(COLORWAY)])
+        w = 0.8 / n
+        base = ay.p0 if ay.log else float(ay.px(0.0))
+        texts = None if t.text is None else list(np.ravel(np.asarray(t.text, object)))
+        g = []
+        for j in range(len(x)):
+            if not np.isfinite(y[j]) or (ay.log and y[j] <= 0):
+                continue
+            left, right = ax.px(x[j] - 0.4 + k * w), ax.px(x[j] - 0.4 + (k + 1) * w)
+            top = float(ay.px(y[j]))
+            y0, y1 = sorted((top, base))
+            g.append(f'<rect x="{left:.1f}" y="{y0:.1f}" width="{right - left:.1f}" '
+                     f'height="{y1 - y0:.1f}" fill="{colour}"><title>'
+                     f"{html.escape(f'{t.name}: {y[j]:.3g}')}</title></rect>")
+            if texts is not None and texts[j]:
+                g.append(f'<text x="{(left + right) / 2:.1f}" y="{y0 - 3:.1f}" '
+                         f'text-anchor="middle" font-size="10">{html.escape(str(texts[j]))}'
+                         "</text>")
+        self.out.extend(g)
+        if t.showlegend is not False and t.name:
+            self.legend.append((t.name, colour, "band", colour, None, "circle"))
+
     def trace(self, i: int, t, ax: _Axis, ay: _Axis, x, y) -> None:
         if t.type == "heatmap":
             self.heatmap(t, ax, ay, x, y)
+            return
+        if t.type == "bar":
+            self.bar(i, t, ax, ay, x, y)
             return
         default = COLORWAY[i % len(COLORWAY)]
         line_colour = t.line.color if t.line is not None and t.line.color else default

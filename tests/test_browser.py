@@ -202,6 +202,12 @@ def test_first_load_shows_the_thesis_model(page, server):
     _idle(page)
     expect(page.locator('[data-testid="stSidebar"]').get_by_text("RMS (µm)")).to_be_visible()
     expect(page.get_by_text("thesis tables 6.1-6.6").first).to_be_visible()
+    # the placements' three views are in the page (st.html had sanitised the SVG away: an
+    # empty element where AppTest saw the picture), a hover title on every ball
+    views = page.locator("[data-figure='placement_views'] > svg")
+    expect(views).to_be_visible()
+    assert views.bounding_box()["height"] > 200
+    assert views.locator("title").count() >= 3 * 150
     _no_exception(page)
     page.screenshot(path=str(ART / "01_data_thesis.png"), full_page=True)
 
@@ -466,12 +472,12 @@ def test_error_function_grid_has_no_blank_band_below(page, server):
     expect(grid).to_be_visible()
     box = grid.bounding_box()
     assert box["width"] >= 0.9 * _main_width(page)
-    texts = grid.locator("text")
-    boxes = [texts.nth(i).bounding_box() for i in range(texts.count())]
-    assert sum(1 for i in range(texts.count()) if texts.nth(i).inner_text().endswith("(mm)")) >= 3
-    lowest = max(b["y"] + b["height"] for b in boxes)
+    texts = grid.evaluate("s => [...s.querySelectorAll('text')].map(t => "
+                          "[t.textContent, t.getBoundingClientRect().bottom])")
+    assert sum(1 for t, _ in texts if t.endswith("(mm)")) >= 3  # the x axes' titles
+    lowest = max(b for _, b in texts)
     assert box["y"] + box["height"] - lowest < 60, (box, lowest)
-    assert grid.get_by_text("95 % band (k = 2)").count() == 1  # the legend
+    assert [t for t, _ in texts].count("95 % band (k = 2)") == 1  # the legend
     _no_exception(page)
 
 
