@@ -215,20 +215,53 @@ def _encompassing(base: FitResult, cands, level, refits, alpha=0.01, max_rivals=
         # ... among those with a physical story when there are any (a periodic error
         # yields to them, :func:`_physical_before_periodic`)
         story = [c for c in group if not c.effect.startswith("periodic")] or group
-        best = min(story, key=lambda c: c.p_value / c.level)
+        log_p = _log_p(group, base)
+        best = min(story, key=lambda c: log_p[c.effect] - np.log(c.level))
         tied = [c.effect for c in group if c is not best]
         if best is not a:
             out.remove(best)
             out = [best, *out]
             why = ("as the better supported at its level" if best is min(
-                group, key=lambda c: c.p_value / c.level) else
+                group, key=lambda c: log_p[c.effect] - np.log(c.level)) else
                 "as the one with a physical story (a periodic error yields to it)")
             note += (f" {best.effect} is named ahead of {a.effect}, which neither adds "
                      f"anything to nor needs once the other is in the model, {why} "
-                     f"(p = {best.p_value:.2g} against {best.level:.2g}; {a.effect}: "
-                     f"p = {a.p_value:.2g} against {a.level:.2g}).")
+                     f"(p = {_p_text(log_p[best.effect])} against {best.level:.2g}; "
+                     f"{a.effect}: p = {_p_text(log_p[a.effect])} against {a.level:.2g}).")
         out[0] = replace(best, aliases=list(dict.fromkeys([*best.aliases, *tied])))
     return out, note
+
+
+_P_FLOOR = 1e-12
+"""Below this a candidate's p-value is not compared with another's as it stands: the exact
+tail with a fixed certificate's noise (``certnoise``, Imhof's integral) is accurate to
+about 1e-15 absolute and returns 0 beneath, so two aliases both far beyond their levels
+(a squareness and a fourth-order yaw, p = 3e-21 against "0") would be ordered by the
+integral's rounding. :func:`_log_p` then compares the F-test's log-tail of each."""
+
+
+def _log_p(group, base: FitResult) -> dict:
+    """``{effect: ln p}`` for the alias tie-break of :func:`_encompassing` (the order of a
+    weighted Holm procedure, p against each level). The candidates' own p-values when all
+    are above :data:`_P_FLOOR`; else, for all of them alike, the log-tail of the plain
+    F-test of their Δχ² against the scatter they leave (``stats.f.logsf``, no underflow;
+    the certificate's share of the noise is the same order for rivals on the same data)."""
+    if all(c.p_value >= _P_FLOOR for c in group):
+        return {c.effect: float(np.log(c.p_value)) for c in group}
+    out = {}
+    for c in group:
+        k = max(int(c.n_params), 1)
+        nu = max(base.dof - k, 1)
+        F = (max(c.delta_chi2, 0.0) / k) / max(c.chi2_dof, 1e-300)
+        out[c.effect] = float(stats.f.logsf(F, k, nu))
+    return out
+
+
+def _p_text(log_p: float) -> str:
+    """``2.7e-21``; below the double range ``1e-350`` style from the log."""
+    if log_p > -700:
+        return f"{np.exp(log_p):.2g}"
+    return f"1e{log_p / np.log(10):.0f}"
 
 
 def _with_aliases(cands, threshold, extra=None):
