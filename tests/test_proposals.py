@@ -118,7 +118,7 @@ def test_proposals_rank_by_decision_then_time(clean80):
     times = [p.candidate.time_min for p in decided]
     assert times == sorted(times)
     # compared in whole percent, all below NO_POWER alike
-    rest = [round(p, 2) if p >= P.NO_POWER else 0.0 for p in powers[len(decided):]]
+    rest = [r if r >= P.NO_POWER else 0.0 for r in (round(p, 2) for p in powers[len(decided):])]
     assert rest == sorted(rest, reverse=True)
     top = pr.ranked[0]
     assert top.outcome.startswith(f"with {top.candidate.description}, sxy and rxz:4 differ")
