@@ -323,7 +323,7 @@ def fit_args_of(args: argparse.Namespace, spec: str, exclude: Sequence[Sequence]
     (:class:`CommandChoices` through ``analysis.fit_kwargs``); ``more``: ``sigma_um``."""
     choices = CommandChoices(spec, args.order, args.plate or "auto",
                              getattr(args, "sigma_um", 0.5), tuple(map(tuple, exclude)))
-    return fit_kwargs(choices, **more)
+    return fit_kwargs(choices, None, **more)
 
 
 def sigma_of(args: argparse.Namespace, data: Dataset | Observations, exclude: list,
