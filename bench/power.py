@@ -84,6 +84,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=25, help="seeds per effect and layout")
     ap.add_argument("--scale", type=float, default=1.0, help="size in detection limits")
+    ap.add_argument("--first-seed", type=int, default=0,
+                    help="first seed (offset from 3000; a run split in parts adds up)")
     ap.add_argument("--pairs", action="store_true",
                     help="two effects hidden together (the loop against the ideal tests)")
     args = ap.parse_args(argv)
@@ -95,7 +97,7 @@ def main(argv=None) -> int:
         for name, base, cfg in hidden_configs(layout, limits(layout)):
             cfg = _scaled(cfg, args.scale / 2)
             named = ideal = 0
-            for seed in range(args.seeds):
+            for seed in range(args.first_seed, args.first_seed + args.seeds):
                 data = sc.simulated(layout, 3000 + seed, order="serpentine", **cfg).dataset
                 named += diagnose(data, base).verdict == name
                 ideal += ideal_detects(data, base, name)
