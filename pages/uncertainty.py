@@ -222,23 +222,26 @@ with calls.guarded("Budget"):
         mc2.success(f"Monte Carlo ({res.trials} trials, {res.status}): u = {res.u:.4f} µm, "
                     f"shortest {100 * p_cov:g} % interval [{lo:.4f}, {hi:.4f}] µm "
                     f"(half-width {(hi - lo) / 2:.4f} µm vs GUM U = {g.U:.4f} µm).")
-    with st.expander("U(L) over the plate's lengths"):
-        import plotly.graph_objects as go
+    # lazy (issue 27): the budget over every length is computed and drawn only while open
+    with st.expander("U(L) over the plate's lengths", key="w_u_ul_open",
+                     on_change="rerun") as ul_box:
+        if ul_box.open:
+            import plotly.graph_objects as go
 
-        ld = budget.budget_vs_length(inp, coverage_probability=float(p_cov))
-        fig = go.Figure()
-        fig.add_scatter(x=ld.length_mm, y=ld.U_um, mode="markers+lines",
-                        name="budget U(L)")
-        fig.add_scatter(x=ld.length_mm, y=ld.cmm_spec_U_um, mode="lines",
-                        name="CMM specification √(0.52² + (1.4e-3 L)²)")
-        fig.add_scatter(x=ld.length_mm, y=ld.plate_spec_U_um, mode="lines",
-                        name="plate certificate √(0.26² + (1.9e-3 L)²)")
-        fig.update_layout(xaxis_title="L (mm)", yaxis_title="U (µm, k from ν_eff)",
-                          template="plotly_white", height=360,
-                          legend={"orientation": "h", "y": -0.25})
-        frame.show(fig, chart_key="budget_UL")
-        st.caption(f"Least-squares fit U(L)² ≈ a² + (b·L)²: a = {ld.fit_a_um:.3f} µm, "
-                   f"b = {ld.fit_b_per_mm * 1e3:.3f} µm/m.")
+            ld = budget.budget_vs_length(inp, coverage_probability=float(p_cov))
+            fig = go.Figure()
+            fig.add_scatter(x=ld.length_mm, y=ld.U_um, mode="markers+lines",
+                            name="budget U(L)")
+            fig.add_scatter(x=ld.length_mm, y=ld.cmm_spec_U_um, mode="lines",
+                            name="CMM specification √(0.52² + (1.4e-3 L)²)")
+            fig.add_scatter(x=ld.length_mm, y=ld.plate_spec_U_um, mode="lines",
+                            name="plate certificate √(0.26² + (1.9e-3 L)²)")
+            fig.update_layout(xaxis_title="L (mm)", yaxis_title="U (µm, k from ν_eff)",
+                              template="plotly_white", height=360,
+                              legend={"orientation": "h", "y": -0.25})
+            frame.show(fig, chart_key="budget_UL")
+            st.caption(f"Least-squares fit U(L)² ≈ a² + (b·L)²: a = {ld.fit_a_um:.3f} µm, "
+                       f"b = {ld.fit_b_per_mm * 1e3:.3f} µm/m.")
 with st.expander("Refractive index of air (modified Edlén, Birch and Downs 1994)"):
     c = st.columns(4)
     tC = c[0].number_input("T (°C)", 0.0, 40.0, 20.0, key="w_air_t")
