@@ -119,7 +119,7 @@ def layout_data(name: str, layout: str, seed: int, **extra):
 
 
 def bridge_roll(data: Dataset, layout: str, range_mm, amp_urad: float, shape: str = "s2",
-                axis_height_mm: float = 0.0) -> Dataset:
+                axis_height_mm: float = 0.0, at_reading: bool = False) -> Dataset:
     """Outside the block's exact shapes: the bridge (or gantry beam) of a ``layout`` with
     x and y bridge axes rolls about its travel axis a by ``θ = amp · g(s) · v`` (the
     carriage's load share ``v`` across the bridge times how the supports' compliance
@@ -127,14 +127,22 @@ def bridge_roll(data: Dataset, layout: str, range_mm, amp_urad: float, shape: st
     height ``axis_height_mm`` (a gantry's rails stand above the table). Shapes g:
     ``"s2"`` (s², a rail stiffer at its middle), ``"s3"`` (s³), ``"sin"`` (sin(π s/2)
     ... an asymmetric support), ``"lin"`` (s, the block's own first shape). Evaluated at
-    the tips' machine coordinates; the tip moves by ``θ e_a × (r − (·, 0, h))``."""
+    the tips' machine coordinates (a stylus offset then shifts s and v: a per-stylus
+    roll no carriage makes, named drift on ``(1 − s²)²``-like shapes), or with
+    ``at_reading`` at the carriage's position, the tip less the probe offset, where the
+    carriage's weight stands (the block's physics); the tip moves by
+    ``θ e_a × (r − (·, 0, h))``."""
     chain = {"moving_bridge_fxyz": "xy", "gantry_fxyz": "xy",
              "moving_bridge_fyxz": "yx", "gantry_fyxz": "yx"}[layout]
     a, b = "xyz".index(chain[0]), "xyz".index(chain[1])
     xyz = machine_xyz(data)
+    w = xyz
+    if at_reading:
+        probes = data.setup.probes
+        w = xyz - np.array([probes[str(q)] for q in data.meas["probe"].astype(str)], float)
     rng = np.asarray(range_mm, float)
-    s = 2 * xyz[:, a] / rng[a] - 1
-    v = 2 * xyz[:, b] / rng[b] - 1
+    s = 2 * w[:, a] / rng[a] - 1
+    v = 2 * w[:, b] / rng[b] - 1
     g = {"s2": s**2, "s3": s**3, "sin": np.sin(np.pi * s / 2), "lin": s}[shape]
     theta = amp_urad * 1e-6 * g * v
     lever = xyz.copy()
