@@ -36,32 +36,6 @@ LAYOUTS = (("pitch150_5pos", "gantry_fxyz"), ("pitch100_4pos", "moving_bridge_fx
            ("pitch100_4pos", "gantry_fyxz"), ("pitch80_3pos", "moving_bridge_fyxz"))
 SHAPES = (("s2", 0.0), ("s3", 0.0), ("sin", 900.0), ("s2", 900.0), ("lin", 900.0),
           ("mid", 0.0), ("tanh", 900.0))
-G = {"s2": lambda s: s**2, "s3": lambda s: s**3, "sin": lambda s: np.sin(np.pi * s / 2),
-     "lin": lambda s: s, "mid": lambda s: (1 - s**2) ** 2, "tanh": lambda s: np.tanh(3 * s)}
-
-
-def roll(data, layout, range_mm, amp_urad, shape, axis_height_mm, at_reading=False):
-    """``scenarios.bridge_roll`` with the shapes :data:`G` (the same physics: the tip
-    moves by ``θ e_a × (r − (·, 0, h))``, θ = amp · g(s) · v at the tip's coordinates);
-    ``at_reading``: s and v at the carriage's position (the scale readings, the tip less
-    the probe offset), where the carriage's weight stands: the block's own physics."""
-    if shape in ("s2", "s3", "sin", "lin") and not at_reading:
-        return sc.bridge_roll(data, layout, range_mm, amp_urad, shape, axis_height_mm)
-    chain = BRIDGES[layout]
-    a, b = "xyz".index(chain[1]), "xyz".index(chain[2])
-    xyz = sc.machine_xyz(data)
-    w = xyz
-    if at_reading:
-        probes = data.setup.probes
-        w = xyz - np.array([probes[str(q)] for q in data.meas["probe"].astype(str)], float)
-    rng = np.asarray(range_mm, float)
-    s = 2 * w[:, a] / rng[a] - 1
-    v = 2 * w[:, b] / rng[b] - 1
-    theta = amp_urad * 1e-6 * G[shape](s) * v
-    lever = xyz.copy()
-    lever[:, a] = 0.0
-    lever[:, 2] -= axis_height_mm
-    return sc.perturb(data, theta[:, None] * np.cross(np.eye(3)[a], lever))
 
 
 def coverage(seeds: int) -> None:
@@ -100,7 +74,7 @@ def other_shapes(seeds: int, at_reading: bool = False) -> None:
             for amp in (15.0, 30.0):
                 for seed in range(seeds):
                     sim = sc.layout_data(name, layout, 700 + seed)
-                    data = roll(sim.dataset, layout, rng, amp, shape, h, at_reading)
+                    data = sc.bridge_roll(sim.dataset, layout, rng, amp, shape, h, at_reading)
                     path, chi2_dof, last = loop(data, "kinematic21", max_steps=3)
                     first = path[0] if path else last
                     before = path[:path.index("bridge_twist")] if "bridge_twist" in path \

@@ -118,6 +118,12 @@ def layout_data(name: str, layout: str, seed: int, **extra):
     return simulate(cfg)
 
 
+TWIST_SHAPES = {"s2": lambda s: s**2, "s3": lambda s: s**3,
+                "sin": lambda s: np.sin(np.pi * s / 2), "lin": lambda s: s,
+                "mid": lambda s: (1 - s**2) ** 2, "tanh": lambda s: np.tanh(3 * s)}
+"""Shapes g(s) of :func:`bridge_roll` along the travel (s in [-1, 1])."""
+
+
 def bridge_roll(data: Dataset, layout: str, range_mm, amp_urad: float, shape: str = "s2",
                 axis_height_mm: float = 0.0, at_reading: bool = False) -> Dataset:
     """Outside the block's exact shapes: the bridge (or gantry beam) of a ``layout`` with
@@ -126,7 +132,8 @@ def bridge_roll(data: Dataset, layout: str, range_mm, amp_urad: float, shape: st
     changes along the travel, ``s``; ``blocks.bridge_twist``), about a roll axis at
     height ``axis_height_mm`` (a gantry's rails stand above the table). Shapes g:
     ``"s2"`` (s², a rail stiffer at its middle), ``"s3"`` (s³), ``"sin"`` (sin(π s/2)
-    ... an asymmetric support), ``"lin"`` (s, the block's own first shape). Evaluated at
+    ... an asymmetric support), ``"lin"`` (s, the block's own first shape), ``"mid"``
+    ((1 − s²)², a soft middle), ``"tanh"`` (tanh 3s, a step in stiffness). Evaluated at
     the tips' machine coordinates (a stylus offset then shifts s and v: a per-stylus
     roll no carriage makes, named drift on ``(1 − s²)²``-like shapes), or with
     ``at_reading`` at the carriage's position, the tip less the probe offset, where the
@@ -143,8 +150,7 @@ def bridge_roll(data: Dataset, layout: str, range_mm, amp_urad: float, shape: st
     rng = np.asarray(range_mm, float)
     s = 2 * w[:, a] / rng[a] - 1
     v = 2 * w[:, b] / rng[b] - 1
-    g = {"s2": s**2, "s3": s**3, "sin": np.sin(np.pi * s / 2), "lin": s}[shape]
-    theta = amp_urad * 1e-6 * g * v
+    theta = amp_urad * 1e-6 * TWIST_SHAPES[shape](s) * v
     lever = xyz.copy()
     lever[:, a] = 0.0
     lever[:, 2] -= axis_height_mm
