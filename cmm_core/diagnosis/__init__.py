@@ -30,6 +30,7 @@ from .certnoise import (
 from .crossval import (
     MATERIAL,
     MIN_PLACEMENTS,
+    SCALE_ALONE_ALPHA,
     SCALE_ALPHA,
     HoldoutCheck,
     check,
@@ -37,6 +38,7 @@ from .crossval import (
     placement_scale_test,
     plate_columns,
     scale_columns,
+    scales_alone_p,
 )
 from .discrepancy import Discrepancy, discrepancy_gp, kinematic_basis
 from .outliers import OutlierReport, detect_outliers
@@ -74,7 +76,7 @@ __all__ = [
     "Diagnosis", "Discrepancy", "discrepancy_gp", "estimate", "estimate_sigma", "evidence", "fitted_text", "FAMILY_ALPHA",
     "family_levels", "flexible_spec", "from_repeats", "from_residuals", "HoldoutCheck",
     "kinematic_basis", "MATERIAL", "MIN_PLACEMENTS", "misfit_location", "needs_met",
-    "OutlierReport", "OUTSIDE", "PHYSICAL_SHARE", "placement_scale_columns", "scale_columns", "placement_scale_test", "plate_columns", "SCALE_ALPHA", "released", "scan_period", "score",
+    "OutlierReport", "OUTSIDE", "PHYSICAL_SHARE", "placement_scale_columns", "scale_columns", "placement_scale_test", "plate_columns", "SCALE_ALONE_ALPHA", "SCALE_ALPHA", "scales_alone_p", "released", "scan_period", "score",
     "ScoreCache", "SigmaEstimate", "stylus_offsets", "UNIFORM_ALPHA", "Uniformity", "uniformity",
     "candidate_noise", "certificate_noise", "CertNoise", "cert_columns", "cert_noise",
     "cert_scales", "critical_ratio", "MIN_FORM_DOF", "null_p_value", "quadratic_form_sf",

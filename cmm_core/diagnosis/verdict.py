@@ -70,6 +70,14 @@ def _checked_verdict(base: FitResult, cands, max_checks: int = 3, cache=None):
     significant ones all fail and None when none is significant."""
     sig = [c for c in cands if c.significant][:max_checks]
     if not sig:
+        # nothing of the catalogue, yet each placement may read with its own scale (a
+        # placement's thermal state): the placement-scale test on the baseline alone
+        p = holdout.scales_alone_p(base)
+        if np.isfinite(p) and p < holdout.SCALE_ALONE_ALPHA:
+            return OUTSIDE, [], cands, (
+                f" Each placement's own scale is needed on its own (p = {p:.2g} < "
+                f"{holdout.SCALE_ALONE_ALPHA:g}; clean data fail this at that rate): the "
+                "placements read lengths with different scales.")
         return None, [], cands, ""
     checks: list = []
     failed: list = []
