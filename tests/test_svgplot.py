@@ -1,0 +1,98 @@
+"""The app's static SVG figures (pages/svgplot.py, issue 27): every marker, cell and bar
+where its data put it, on the scale its axes state. Checked on the SVG's own coordinates
+(0.1 px rounding), with random data from a seeded generator."""
+
+import re
+
+import numpy as np
+import plotly.graph_objects as go
+import pytest
+from plotly.subplots import make_subplots
+
+from pages.svgplot import figure_svg, nice_ticks, supported
+
+CIRCLE = re.compile(r'<circle cx="(-?[\d.]+)" cy="(-?[\d.]+)" r="[\d.]+" fill="[^"]+"[^>]*>'
+                    r"<title>([^<]*)</title>")
+
+
+def _affine(u, p):
+    """Least-squares line p = a u + b and its largest residual (px)."""
+    a, b = np.polyfit(u, p, 1)
+    return a, np.abs(np.polyval([a, b], u) - p).max()
+
+
+def test_markers_sit_at_their_data_on_one_scale_per_axis_y_up(rng):
+    x, y = rng.uniform(-50, 200, 40), rng.normal(0, 3, 40)
+    fig = go.Figure(go.Scatter(x=x, y=y, mode="markers", text=[f"p{i}" for i in range(40)],
+                               hovertemplate="%{text}: %{y:.3f} µm<extra></extra>"))
+    svg = figure_svg(fig, 800)
+    got = CIRCLE.findall(svg)
+    assert len(got) == 40
+    cx, cy = (np.array([float(g[k]) for g in got]) for k in (0, 1))
+    ax, rx = _affine(x, cx)
+    ay, ry = _affine(y, cy)
+    assert ax > 0 and ay < 0  # right and up
+    assert rx < 0.1 and ry < 0.1  # the coordinates are written to 0.1 px
+    # the hover title is the trace's hovertemplate, filled in per marker
+    assert [g[2] for g in got] == [f"p{i}: {v:.3f} µm" for i, v in enumerate(y)]
+
+
+def test_shared_y_axes_put_one_value_at_one_height(rng):
+    fig = make_subplots(rows=1, cols=2, shared_yaxes=True)
+    fig.add_trace(go.Scatter(x=[0, 1, 2], y=[0.0, 5.0, 10.0], mode="markers"), row=1, col=1)
+    fig.add_trace(go.Scatter(x=[0, 1], y=[-20.0, 5.0], mode="markers"), row=1, col=2)
+    got = CIRCLE.findall(figure_svg(fig, 900))
+    heights = {float(g[1]) for g in got if g[2].endswith(", 5")}
+    assert len(heights) == 1  # y = 5 at the same height in both panels
+    left = [float(g[0]) for g in got[:3]]
+    right = [float(g[0]) for g in got[3:]]
+    assert max(left) < min(right)  # each panel in its own domain
+
+
+def test_bars_on_a_log_axis_reach_the_log_of_their_value():
+    vals = [0.02, 0.5, 3.0, 40.0]
+    fig = go.Figure(go.Bar(x=list("abcd"), y=vals, name="limits"))
+    fig.update_yaxes(type="log", range=[np.log10(0.01), np.log10(100)])
+    svg = figure_svg(fig, 600)
+    bars = re.findall(r'<rect x="(-?[\d.]+)" y="(-?[\d.]+)" width="([\d.]+)" '
+                      r'height="([\d.]+)" fill="[^"]+"><title>limits', svg)
+    assert len(bars) == 4
+    tops = np.array([float(b[1]) for b in bars])
+    bottoms = tops + np.array([float(b[3]) for b in bars])
+    a, res = _affine(np.log10(vals), tops)
+    assert a < 0 and res < 0.2  # top edge linear in log10(value)
+    assert np.ptp(bottoms) < 0.2  # all from the axis floor
+    # the category labels and the decades as ticks
+    for t in ("a", "b", "c", "d", "0.01", "0.1", "1", "10", "100"):
+        assert f">{t}</text>" in svg
+
+
+def test_heatmap_cells_take_their_colour_from_the_scale_and_carry_their_value():
+    z = np.array([[-1.0, 0.0], [0.5, 1.0]])
+    fig = go.Figure(go.Heatmap(x=[0, 10], y=[0, 20], z=z, colorscale="RdBu_r", zmid=0.0,
+                               hovertemplate="%{x:.0f}, %{y:.0f}: %{z:.2f}<extra></extra>"))
+    svg = figure_svg(fig, 500)
+    cells = re.findall(r'fill="(rgb\([^)]+\))"><title>([^<]*)</title>', svg)
+    assert [c[1] for c in cells] == ["0, 0: -1.00", "10, 0: 0.00", "0, 20: 0.50",
+                                     "10, 20: 1.00"]
+    colour = dict((c[1], c[0]) for c in cells)
+    assert colour["0, 0: -1.00"] == "rgb(5, 48, 97)"  # RdBu_r's ends and middle
+    assert colour["10, 20: 1.00"] == "rgb(103, 0, 31)"
+    assert colour["10, 0: 0.00"] == "rgb(247, 247, 247)"
+    assert 'fill="url(#cmm-grad-' in svg  # the colour bar
+
+
+def test_only_2d_scatter_heatmap_and_bars_are_drawn():
+    assert supported(go.Figure([go.Scatter(x=[1], y=[1]), go.Bar(x=["a"], y=[1])]))
+    assert not supported(go.Figure(go.Scatter3d(x=[1], y=[1], z=[1])))
+
+
+@pytest.mark.parametrize(("lo", "hi"), [(0.0, 1.0), (-47.3, 52.1), (1e-3, 4e-3), (0, 1200)])
+def test_ticks_are_round_and_inside(lo, hi):
+    t = nice_ticks(lo, hi, 5)
+    assert 3 <= len(t) <= 11
+    assert t.min() >= lo - 1e-12 and t.max() <= hi + 1e-12
+    step = np.diff(t)
+    assert np.allclose(step, step[0])
+    mant = step[0] / 10 ** np.floor(np.log10(step[0]))
+    assert any(np.isclose(mant, m) for m in (1, 2, 2.5, 5))
