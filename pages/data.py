@@ -352,7 +352,8 @@ def _show_upload_report():
 DATA_TABS = ["Thesis sample", "Upload CSVs", "Other tools (MSL)", "Simulate a virtual CMM",
              "Project file"]
 tab_thesis, tab_upload, tab_other, tab_sim, tab_proj = st.tabs(DATA_TABS, key="data_tab",
-                                                               on_change="rerun")
+                                                               on_change="rerun",
+                                                               bind="query-params")
 
 with tab_thesis:
     st.write("The six ball-plate tables of thesis chapter 6 (tables 6.1-6.6) with the appendix 5 "

@@ -197,7 +197,8 @@ st.subheader("Where the model fails")
 # nor drawn, so the page and every rerun of it (Add, Undo) draw one figure here (issue 27)
 t_pat, t_map, t_tab, t_time = st.tabs(["Residual pattern", "Residual map (3D)",
                                        "Per position and probe", "Against time and direction"],
-                                      key="w_diag_tab", on_change="rerun")
+                                      key="w_diag_tab", on_change="rerun",
+                                      bind="query-params")
 with t_pat, calls.guarded("Residual pattern"):
     if t_pat.open:
         frame.plot("pattern", fkey, A.fig_pattern, r.table, r.residuals_um,

@@ -113,23 +113,24 @@ u_res = kinematic_residual_u(args, r)
 pred_kin = err + r.residuals_um
 
 c1, c2, c3, c4, c5 = st.columns([3, 2, 2, 2, 1])
+# the choices are in the URL (bind): a reload keeps them (issue 27)
 MEANS = {"zero": "zero", "thesis_quadratic": "quadratic (eq. 5.11)",
          "kinematic": "kinematic model"}
-mean_choice = c1.radio("GP mean", list(MEANS), horizontal=True, key="w_gp_mean",
+mean_choice = c1.radio("GP mean", list(MEANS), horizontal=True, key="w_gp_mean", bind="query-params",
                        format_func=MEANS.get)
-kernel = c2.radio("Kernel", ["se_iso", "se_ard"], horizontal=True, key="w_gp_kernel",
+kernel = c2.radio("Kernel", ["se_iso", "se_ard"], horizontal=True, key="w_gp_kernel", bind="query-params",
                   format_func={"se_iso": "SE isotropic", "se_ard": "SE ARD"}.get)
 position = c3.selectbox("Plate position (surface plane)", r.problem.obs.positions,
-                        key="w_gp_position")
-comp = c4.radio("Component", ["x", "y", "z"], horizontal=True, key="w_gp_comp")
-restarts = int(c5.number_input("Restarts", 0, 10, 1, key="w_gp_restarts",
+                        key="w_gp_position", bind="query-params")
+comp = c4.radio("Component", ["x", "y", "z"], horizontal=True, key="w_gp_comp", bind="query-params")
+restarts = int(c5.number_input("Restarts", 0, 10, 1, key="w_gp_restarts", bind="query-params",
                                help="Random restarts of the hyperparameter optimisation per "
                                     "component (more: slower, less risk of a local optimum)."))
 a = "xyz".index(comp)
 several_probes = len(np.unique(r.problem.obs.p_mm, axis=0)) > 1
 probe_input = st.checkbox(
     "Probe offset as input (ram position and stylus offset, one noise level per stylus)",
-    value=several_probes, key="w_gp_probe", disabled=not several_probes,
+    value=several_probes, key="w_gp_probe", bind="query-params", disabled=not several_probes,
     help="With several styli, a stylus-dependent error (an angular error seen through the "
          "offset, a probe offset error) is part of the GP rather than of its noise, and each "
          "stylus gets its own repeatability. Off: the inputs are the tip coordinates only."
@@ -307,7 +308,7 @@ st.caption(f"All positions, component {comp}:")
 mc = st.columns(len(ch7.summary))
 for c_, f in zip(mc, ch7.summary, strict=True):
     c_.metric(f.label, f"{f.value:.3f}", help=f.meaning)
-only = st.checkbox("Table: only the chosen position", value=True, key="w_gp_only_pos")
+only = st.checkbox("Table: only the chosen position", value=True, key="w_gp_only_pos", bind="query-params")
 frame.dataframe(rows[rows["position"] == position] if only else rows, hide_index=True,
              key="ch7_table",
              column_config={c_: st.column_config.NumberColumn(format="%.3f")

@@ -105,9 +105,11 @@ def error_function_grid(r, show, cols, truth):
 frame.misfit_banner(r)
 truth = s.get("sim_truth")
 # lazy tabs: a hidden tab's figure is neither built nor sent, so the page opens with the
-# one figure in view (a browser drew all four, about a second of Plotly, issue 27)
+# one figure in view (a browser drew all four, about a second of Plotly, issue 27); the
+# open tab is in the URL (bind), so a reload opens it again
 tabs = st.tabs(["Error functions", "Deviation plots", "Parameters", "Residuals"],
-               key="w_kin_tab", on_change="rerun")
+               key="w_kin_tab", on_change="rerun",
+               bind="query-params")
 with tabs[0], calls.guarded("Error functions"):
     present = [n for n, _ in r.terms.functions]
     show = st.multiselect("Show", present, default=present)

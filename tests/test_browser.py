@@ -7,6 +7,7 @@ report content is verified through the same core function the button calls.
 """
 
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -478,6 +479,28 @@ def test_error_function_grid_has_no_blank_band_below(page, server):
     lowest = max(b for _, b in texts)
     assert box["y"] + box["height"] - lowest < 60, (box, lowest)
     assert [t for t, _ in texts].count("95 % band (k = 2)") == 1  # the legend
+    _no_exception(page)
+
+
+def test_a_reload_keeps_the_open_tab_and_the_gp_choices(page):
+    """Issue 27: F5 restored the analysis but opened every page on its first tab with the
+    GP page's defaults. The open tab and the GP page's choices are in the URL now."""
+    _goto(page, "Kinematic model")
+    page.get_by_role("tab", name="Residuals").click()
+    _idle(page)
+    expect(page).to_have_url(re.compile(r"w_kin_tab=Residuals"))
+    page.reload()
+    expect(page.locator("h1", has_text="Kinematic model").first).to_be_visible(timeout=90_000)
+    _idle(page)
+    expect(page.get_by_role("tab", name="Residuals")).to_have_attribute("aria-selected", "true")
+    _goto(page, "Gaussian process")
+    page.get_by_text("SE ARD", exact=True).click()
+    _idle(page)
+    page.reload()
+    expect(page.locator("h1", has_text="Gaussian process").first).to_be_visible(
+        timeout=90_000)
+    _idle(page)
+    expect(page.get_by_role("radio", name="SE ARD")).to_be_checked()
     _no_exception(page)
 
 
