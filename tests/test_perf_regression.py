@@ -22,7 +22,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from cmm_core.model import Plate, Problem, fit, parse_spec, select, simulate
+from cmm_core.model import Normal, Plate, Problem, fit, parse_spec, select, simulate
 from cmm_core.model import normal as normal_module
 from cmm_core.model.certificate_prior import certificate_terms
 
@@ -219,6 +219,12 @@ def test_a_last_step_taken_for_its_cost_alone_leaves_the_uncertainties():
     fresh = certificate_terms(prob, state, r.design_null, r.sigma_um, r.rank_rtol,
                               r.covariance_noise, normal=(ne.cost, ne.N, ne.g, ne.rows))
     assert r.chi2 == pytest.approx(ne.cost, rel=1e-12)
+    # the σ-only covariance itself against the one of a fresh linearisation at the
+    # solution (1.8e-11 relative measured)
+    C = np.vstack([prob.constraints(), r.design_null])
+    cov_fresh = Normal(None, None, C, r.rank_rtol, normal=(ne.N, ne.g)).cov()
+    np.testing.assert_allclose(r.covariance_noise, cov_fresh, rtol=1e-9,
+                               atol=1e-9 * np.abs(cov_fresh).max())
     assert r.chi2_test == pytest.approx(fresh[0], rel=1e-9)
     np.testing.assert_allclose(r.covariance, fresh[2], rtol=1e-9,
                                atol=1e-9 * np.abs(fresh[2]).max())

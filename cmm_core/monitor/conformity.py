@@ -130,9 +130,9 @@ def conformity(model: Model, check: InterimCheck, dataset: Dataset, *, mpe_a_um:
                 # a ball the check's fit left out (an exclusion) gives no length either
                 used = np.isin(cert.balls, at.loc[at.probe == prb, "ball"].to_numpy())
                 measured = np.isfinite(tab).all(axis=1)
-                left_out += int(np.sum(measured & ~used))
                 tab[~used] = np.nan
-                if measured.all():
+                if measured.all():  # a table with an unmeasured ball gives no length
+                    left_out += int(np.sum(~used))
                     tables[f"{pos}/{prb}"] = tab
         if tables:
             sig = check.sigma_um
