@@ -102,7 +102,9 @@ def test_a_placement_scale_with_nothing_else_significant_is_outside_the_catalogu
     d = diagnose(data, "kinematic21")
     assert d.verdict == OUTSIDE, d.message
     assert not any(c.significant for c in d.candidates)
-    assert "Each placement's own scale is needed on its own" in d.message
+    assert "Each placement's own scale added to the baseline alone: p = " in d.message
+    assert "significant with no effect added" in d.message
+    assert "concentrated" not in d.message and "blunder" not in d.message
     assert holdout.scales_alone_p(d.baseline) < holdout.SCALE_ALONE_ALPHA
     clean = diagnose(sim.dataset, "kinematic21")
     assert clean.verdict is None, clean.message

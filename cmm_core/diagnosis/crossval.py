@@ -238,18 +238,24 @@ def _rss(r, A, norms):
     return float(e @ e), Q.shape[1]
 
 
-def scales_alone_p(base: FitResult) -> float:
+def scales_alone_p(base: FitResult, cache: ScoreCache | None = None) -> float:
     """p-value of each placement's own scale added to the baseline alone: the nested
     F-test of :func:`placement_scale_test` without an effect (the baseline's columns and
     a free plate's projected out, Frisch-Waugh-Lovell; Scheffé 1959, §2.3). NaN when no
     placement spans an axis (one placement, a hole plate). Under no placement scale its
     p-value is uniform (an exact F-test when the noise is normal: the plate is free, so
-    the certificate's errors are projected out with it)."""
-    _, r, J = weighted_residual(base.problem, base.state, base.sigma_um, True)
+    the certificate's errors are projected out with it). ``cache``: the diagnosis's
+    ``scoring.ScoreCache``, whose dense Jacobian holds the baseline's columns already."""
+    idx = None if cache is None else cache.columns(base.problem)
+    if cache is not None and idx is not None:
+        r, J = cache.r, cache.J[:, idx]
+    else:
+        _, r, Js = weighted_residual(base.problem, base.state, base.sigma_um, True)
+        J = Js.toarray()
     S, _ = placement_scale_columns(base, r.size)
     if not S.shape[1]:
         return float("nan")
-    B = np.hstack([J.toarray(), plate_columns(base, r.size)])
+    B = np.hstack([J, plate_columns(base, r.size)])
     Q = _basis(B, np.linalg.norm(B, axis=0))
     ns = np.linalg.norm(S, axis=0)
     r, S = (A - Q @ (Q.T @ A) for A in (r, S))

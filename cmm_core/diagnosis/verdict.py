@@ -72,12 +72,11 @@ def _checked_verdict(base: FitResult, cands, max_checks: int = 3, cache=None):
     if not sig:
         # nothing of the catalogue, yet each placement may read with its own scale (a
         # placement's thermal state): the placement-scale test on the baseline alone
-        p = holdout.scales_alone_p(base)
+        p = holdout.scales_alone_p(base, cache)
         if np.isfinite(p) and p < holdout.SCALE_ALONE_ALPHA:
             return OUTSIDE, [], cands, (
-                f" Each placement's own scale is needed on its own (p = {p:.2g} < "
-                f"{holdout.SCALE_ALONE_ALPHA:g}; clean data fail this at that rate): the "
-                "placements read lengths with different scales.")
+                f" Each placement's own scale added to the baseline alone: p = {p:.2g} < "
+                f"{holdout.SCALE_ALONE_ALPHA:g} (clean data fail this at that rate).")
         return None, [], cands, ""
     checks: list = []
     failed: list = []
@@ -250,12 +249,14 @@ integral's rounding. :func:`_log_p` then compares the F-test's log-tail of each.
 
 def _log_p(group, base: FitResult) -> dict:
     """``{effect: ln p}`` for the alias tie-break of :func:`_encompassing` (the order of a
-    weighted Holm procedure, p against each level). The candidates' own p-values when all
-    are above :data:`_P_FLOOR`; else, for all of them alike, the log-tail of the plain
+    weighted Holm procedure, p against each level). The candidates' own p-values unless
+    all are below :data:`_P_FLOOR`; then, for all of them alike, the log-tail of the plain
     F-test of their Δχ² against the scatter they leave (``stats.f.logsf``, no underflow;
     the certificate's share of the noise is the same order for rivals on the same data)."""
-    if all(c.p_value >= _P_FLOOR for c in group):
-        return {c.effect: float(np.log(c.p_value)) for c in group}
+    if not all(c.p_value < _P_FLOOR for c in group):
+        # one of them resolved: the others' p, resolved or below it, order as they stand
+        return {c.effect: float(np.log(c.p_value)) if c.p_value > 0 else -np.inf
+                for c in group}
     out = {}
     for c in group:
         k = max(int(c.n_params), 1)
@@ -267,6 +268,8 @@ def _log_p(group, base: FitResult) -> dict:
 
 def _p_text(log_p: float) -> str:
     """``2.7e-21``; below the double range ``1e-350`` style from the log."""
+    if not np.isfinite(log_p):
+        return "< 1e-308"
     if log_p > -700:
         return f"{np.exp(log_p):.2g}"
     return f"1e{log_p / np.log(10):.0f}"
@@ -432,6 +435,17 @@ def _conclusion(base, cands, verdict, sigma=None, uniform=None, where=None):
                      " fail the leave-one-placement-out check: fitted on the other placements "
                      "they do not predict the held-out one, so they follow what differs "
                      "between placements (an alias), not a property of the machine or plate.")
+        elif not base.fails_chi2_test:
+            # the only way here: each placement's own scale, tested on the baseline alone
+            # (_checked_verdict), while the χ² test passes and no candidate is significant
+            text += (" Nothing in the catalogue is significant and the χ² test passes, but "
+                     "each placement's own scale is significant with no effect added (the "
+                     "test below): the placements read lengths with different scales.")
+            text += _evidence_text(evidence(base))
+            return head + text + (" Look at the table of each placement's own scale: a "
+                                  "placement's own temperature or scale is outside the "
+                                  "catalogue; correct the data for it or measure the "
+                                  "placements at one thermal state." + sig_text)
         else:
             text += " Nothing in the catalogue is significant, yet the misfit is concentrated"
             if uniform is not None:
