@@ -18,7 +18,8 @@ Prints, in one run:
    rival no longer among its aliases). The placement scales are named by the
    outside-catalogue verdict with them as its evidence;
 3. the predicted power of the top proposal (mean over seeds of its power with the truth
-   as the truth at its fitted size) against the Monte Carlo separation rate: the share of
+   as the truth: the expected power over the uncertainty of the size fitted on that
+   seed's data, ``proposals._expected_power``) against the Monte Carlo separation rate: the share of
    seeds where the nested F-test "the truth is still needed once the rival is in" rejects
    at the diagnosis's level on the augmented noisy data. The issue asks for agreement
    within ±8 points.
