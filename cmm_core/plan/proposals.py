@@ -120,14 +120,14 @@ NO_POWER = 0.05
 """A power below this (one chance in twenty) decides nothing: the ranking does not tell
 such powers apart (:func:`_rank_key`)."""
 
-ASSURANCE_DRAWS = 256
+_ASSURANCE_DRAWS = 256
 """Points of the quasi-Monte Carlo of the expected power (:func:`_expected_power`), each
 taken with its mirror image: scrambled Sobol' normals (a power of two, as Sobol' points
 balance best). On the tests' tiny case the expectation is within 0.2 points of a
 400 000-draw reference (0.19 and 0.08); 200 pseudo-random mirrored pairs missed it by up
 to 2.4 points."""
 
-ASSURANCE_SEED = 2001
+_ASSURANCE_SEED = 2001
 """Seed of the Sobol' scrambling (fixed: the same design gives the same score)."""
 
 CHUNK = 16
@@ -987,7 +987,7 @@ def _separation(des: _Design, truth: str, other: str, theta: dict, *, rank_rtol:
 
 
 def _expected_power(G: np.ndarray, theta: np.ndarray, cov: np.ndarray, k: int, nu: int,
-                   level: float, draws: int = ASSURANCE_DRAWS) -> float:
+                   level: float, draws: int = _ASSURANCE_DRAWS) -> float:
     """Expected power ``E[P(F(k, ν, λ(θ)) > F⁻¹(1 − α))]`` over ``θ ~ N(θ̂, C)``, with
     ``λ(θ) = θᵀ G θ`` (``G = MᵀM``, module docstring): the assurance of the nested test
     (O'Hagan & Stevens 2001, "Bayesian assessment of sample size for clinical trials of
@@ -1060,10 +1060,10 @@ def _power(lam: float, k: int, nu: int, level: float) -> float:
 
 @lru_cache(maxsize=64)
 def _normal_points(dim: int, n: int) -> np.ndarray:
-    """``(dim, n)`` standard normal points: scrambled Sobol' (``ASSURANCE_SEED``) through
+    """``(dim, n)`` standard normal points: scrambled Sobol' (``_ASSURANCE_SEED``) through
     the normal quantile; cached (read-only), as every candidate of a rival asks for the
     same."""
-    u = qmc.Sobol(dim, scramble=True, seed=ASSURANCE_SEED).random(n)
+    u = qmc.Sobol(dim, scramble=True, seed=_ASSURANCE_SEED).random(n)
     z = stats.norm.ppf(np.clip(u, 1e-12, 1.0 - 1e-12)).T
     z.flags.writeable = False
     return z
