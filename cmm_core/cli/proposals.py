@@ -87,8 +87,9 @@ def _add_arguments(p) -> None:
     p.add_argument("--seed", type=int, default=0,
                    help="seed of the noise of --simulate (default: %(default)s)")
     p.add_argument("--plan-out", metavar="PLAN.json", default=None,
-                   help="write the top plate proposal as a plan file for 'plan' "
-                        "(docs/planning.md; default: not written)")
+                   help="write the top placement or stylus proposal as a plan file for "
+                        "'plan' (docs/planning.md; a repeat or an instrument run cannot be "
+                        "a plan: the next one down is written; default: not written)")
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -122,10 +123,14 @@ def run(args: argparse.Namespace) -> dict:
         out["simulated"] = {t: {"verdict": o.verdict, "aliases": o.aliases,
                                 "separated": o.separated, "message": o.message}
                             for t, o in outs.items()}
-    if plates and args.plan_out:
+    planned = [p for p in plates if not p.candidate.repeat]  # a plan cannot hold repeats
+    if planned and args.plan_out:
         # checked against the inputs before any work (cli.commands), written atomically
         atomic_write_text(args.plan_out, json.dumps(
-            plan_file(data, plates[0], baseline=args.baseline, order=args.order,
+            plan_file(data, planned[0], baseline=args.baseline, order=args.order,
                       noise_um=sigma), indent=1))
-        out["plan_file"] = str(args.plan_out)
+        out["plan_file"] = {"path": str(args.plan_out), "proposal": planned[0].candidate.name}
+    elif args.plan_out:
+        out["plan_file"] = {"skipped": "no placement or stylus proposal to write: a plan "
+                                       "file cannot hold instruments or repeats"}
     return out

@@ -528,25 +528,35 @@ def repeat_candidates(data: Dataset, *, n_balls: int | Sequence[int] = REPEAT_BA
     counts = [int(n_balls)] if isinstance(n_balls, int | np.integer) else \
         [int(n) for n in n_balls]
     blocked = blocked_styli(data)
+    named: set = set()  # a count above a stylus's balls gives the same repeat again
+    position = m["position"].astype(str)
     for n in counts:
         each = {}
         for p, styli in blocked.items():
-            rows = m.loc[(m["position"] == p) & (m["probe"].astype(str) == styli[0])]
+            rows = m.loc[(position == str(p)) & (m["probe"].astype(str) == styli[0])]
             rows = rows.sort_values("time_min", kind="stable")
             balls = [int(b) for b in dict.fromkeys(rows["ball"])][:max(n, 1)]
-            end = float(m.loc[m["position"] == p, "time_min"].max())
+            end = float(m.loc[position == str(p), "time_min"].max())
             each[p] = {"probe": styli[0], "balls": balls,
                        "time_min": [end + per_ball * (j + 1) for j in range(len(balls))]}
+            name = f"repeat_{p}_{len(balls)}"
+            if name in named:
+                continue
+            named.add(name)
             out.append(NextMeasurement(
-                f"repeat_{p}_{len(balls)}", f"stylus {styli[0]} measured again on "
+                name, f"stylus {styli[0]} measured again on "
                 f"{len(balls)} ball(s) of {p} (balls {', '.join(map(str, balls))}) at the "
                 f"end of {p}, before its plate is moved", {}, {}, {},
                 len(balls) * per_ball, repeat={p: each[p]}))
-        if len(each) > 1:
+        # named by the balls each placement repeats (fewer than n where a stylus has less)
+        sizes = sorted({len(r["balls"]) for r in each.values()})
+        label = "-".join(map(str, sizes))
+        if len(each) > 1 and f"repeat_all_{label}" not in named:
+            named.add(f"repeat_all_{label}")
             out.append(NextMeasurement(
-                f"repeat_all_{n}", f"the first stylus of each of {', '.join(each)} measured "
-                f"again on {n} of its balls at the end of that placement, before its plate "
-                f"is moved", {}, {}, {},
+                f"repeat_all_{label}", f"the first stylus of each of {', '.join(each)} "
+                f"measured again on {label} of its balls at the end of that placement, "
+                f"before its plate is moved", {}, {}, {},
                 sum(len(r["balls"]) for r in each.values()) * per_ball, repeat=each))
     return out
 
@@ -1717,13 +1727,19 @@ def plan_file(data: Dataset, proposal: Proposal, *, baseline: str = "kinematic21
               order: int = 2, noise_um: float = 0.5) -> dict:
     """The proposal as a ``plan`` JSON document (docs/planning.md, "The plan file"): the
     data set's setup with the proposal's placement and styli added, its plate, and two
-    strategies: the current placements alone and with the proposal."""
+    strategies: the current placements alone and with the proposal. A repeat (balls
+    measured again) is refused: a plan has no key for it."""
     _plate_only(proposal)
+    c = proposal.candidate
+    if c.repeat:
+        # a plan's strategies are placements and styli: with the same ones, the repeat's
+        # plan would evaluate exactly as the current data (no key for balls measured again)
+        raise ValueError(f"{c.name} measures balls again at the end of a placement, which "
+                         "a plan file cannot express; measure it as proposed (its balls "
+                         "and times are in the proposal), or write a placement or stylus "
+                         "proposal as the plan.")
     grid = plate_grid(data)
     raw = copy.deepcopy(data.setup.raw)
-    c = proposal.candidate
-    # a repeat keeps the placements and styli: a plan file has no key for some balls
-    # measured again at the end, so its strategy's name states the repeat
     for pl in raw["positions"].values():
         for key in ("temp_C", "rh_percent"):
             pl.pop(key, None)
