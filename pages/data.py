@@ -634,7 +634,8 @@ span = m.groupby("position", sort=False)[["mx_mm", "my_mm", "mz_mm"]].agg(
     lambda v: v.max() - v.min())
 counts = counts.merge(span.rename(columns=lambda c: f"span_{c[1]}_mm").reset_index(),
                       on="position")
-frame.dataframe(counts, hide_index=True, key="validation_counts")
+# a static table: the data grid's scripts would load with the app's first screen (issue 27)
+frame.static_table(counts, key="validation_counts")
 problems = []
 for pos, probe, miss in cio.missing_balls(m, ds.certificate):
     problems.append(f"{pos}/{probe}: missing ball(s) {', '.join(map(str, miss))}")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import html
 import inspect
+import re
 import sys
 from pathlib import Path
 
@@ -227,6 +228,41 @@ def beside_map(fig):
 
 
 _DF_PLACEHOLDER = "placeholder" in inspect.signature(st.dataframe).parameters
+
+_MD_SPECIAL = re.compile(r"([\\`*_\[\]{}<>#|~$:])")
+
+
+def _table_cell(value, float_format: str) -> str:
+    """One cell of :func:`static_table`: "—" for a missing value, floats formatted,
+    markdown's special characters escaped (a position named ``*A|B`` stays that text)."""
+    if value is None or (isinstance(value, float) and value != value):
+        return "—"
+    if isinstance(value, float):
+        return format(value, float_format)
+    return _MD_SPECIAL.sub(r"\\\1", str(value)).replace("\n", " ")
+
+
+def static_table_markdown(data, float_format: str = ".1f") -> str:
+    """The markdown of :func:`static_table`: a header row, the alignment row (numbers
+    right-aligned) and one row per row of ``data``."""
+    cols = list(data.columns)
+    numeric = [data[c].dtype.kind in "iuf" for c in cols]
+    lines = ["| " + " | ".join(_table_cell(str(c), float_format) for c in cols) + " |",
+             "|" + "|".join("---:" if n else ":---" for n in numeric) + "|"]
+    lines += ["| " + " | ".join(_table_cell(v.item() if hasattr(v, "item") else v,
+                                            float_format) for v in row) + " |"
+              for row in data.itertuples(index=False, name=None)]
+    return "\n".join(lines)
+
+
+def static_table(data, key: str, float_format: str = ".1f") -> None:
+    """A small table as markdown in a container keyed ``key``: for a table on a page's
+    first screen that nobody sorts or filters. ``st.dataframe`` and ``st.table`` both
+    make the browser load the data grid's and Arrow's scripts (some 1.3 MB) before the
+    page is drawn, which a first load pays (issue 27); markdown is drawn by the script
+    every page already has. Missing values read "—", floats ``float_format``."""
+    with st.container(key=key):
+        st.markdown(static_table_markdown(data, float_format))
 
 
 def dataframe(data, **kwargs):

@@ -110,6 +110,37 @@ def test_first_run_shows_the_thesis_data_and_a_fitted_model(app):
     assert any("BP112 probe 2 ball 7" in lab for lab in labels)
 
 
+def test_data_page_first_screen_has_no_data_grid_and_a_static_validation_table(app):
+    """Issue 27: a table on the Data page's first screen made the browser load the data
+    grid's and Arrow's scripts (some 1.3 MB) before the page was drawn; the validation table
+    is markdown now, one row per position and probe of the thesis data (6 positions, one
+    stylus each, 25 balls: thesis chapter 6), and no st.dataframe is on the first screen."""
+    _ok(app)
+    assert len(app.dataframe) == 0
+    table = next(m.value for m in app.markdown if m.value.startswith("| position"))
+    rows = table.splitlines()[2:]
+    assert len(rows) == 6
+    assert all(r.split("|")[3].strip() == "25" for r in rows)  # balls per position
+    assert {r.split("|")[1].strip() for r in rows} == {
+        "BP111", "BP112", "BP211", "BP212", "BP311", "BP312"}
+
+
+def test_static_table_escapes_markdown_and_marks_missing_values():
+    """A position or file name is shown as written (markdown's special characters escaped),
+    a missing value as "—", floats to one decimal, numbers right-aligned."""
+    import pandas as pd
+
+    from pages.frame import static_table_markdown
+
+    df = pd.DataFrame({"position": ["A*|b$", None], "balls": [25, 24],
+                       "span_x_mm": [1023.456, float("nan")]})
+    assert static_table_markdown(df).splitlines() == [
+        "| position | balls | span\\_x\\_mm |",
+        "|:---|---:|---:|",
+        "| A\\*\\|b\\$ | 25 | 1023.5 |",
+        "| — | 24 | — |"]
+
+
 @pytest.mark.parametrize("page", list(PAGES))
 def test_every_page_renders_without_error(app, page):
     app.switch_page(page)
