@@ -99,7 +99,7 @@ def test_planner_and_tables_read_the_registry():
     assert {"plate_sag", "plate_thermal", "probe_offset", "drift", "backlash",
             "bridge_twist"} <= set(PHYSICAL_CHECKS)
     assert comp_tables._EXTRA_UNITS == {"backlash": "um", "machine_thermal": "1e-6/K",
-                                        "bridge_twist": "urad"}
+                                        "bridge_twist": "urad", "column_bend": "um"}
     spec = parse_spec("kinematic21")
     for b in PHYSICAL_BLOCKS:
         labels = [f"{b.token}.a", f"{b.token}.b"]

@@ -14,6 +14,7 @@ from . import periodic
 from .backlash import Backlash
 from .base import Block, Eval
 from .bridge_twist import BridgeTwist
+from .column_bend import ColumnBend
 from .drift import Drift
 from .kinematic import Kinematic
 from .machine_thermal import MachineThermal
@@ -29,7 +30,7 @@ if TYPE_CHECKING:
 __all__ = ["REGISTRY", "BY_TOKEN", "Block", "Eval", "needs"]
 
 REGISTRY = (Plate, Placement, Kinematic, PlateThermal, PlateSag, ProbeOffset, Drift,
-            Backlash, MachineThermal, BridgeTwist)
+            Backlash, MachineThermal, BridgeTwist, ColumnBend)
 """Blocks in parameter-layout order, which is also the catalogue's order of physical
 effects (``effects.PHYSICAL``, model specs written out) and the order in which the stages
 run (thermal expansion before sag)."""
