@@ -569,7 +569,14 @@ class Block:
             return None
         idx = np.r_[before, np.arange(s.start, s.stop)]
         return ModelPart(tuple(result.labels[s]), result.values[s].copy(),
-                         result.covariance[np.ix_(idx, idx)].copy())
+                         result.covariance[np.ix_(idx, idx)].copy(),
+                         cls.part_context(result))
+
+    @classmethod
+    def part_context(cls, result: FitLike) -> dict:
+        """What the part's correction needs of the fit besides its values (the
+        :attr:`ModelPart.context`; default nothing)."""
+        return {}
 
     @classmethod
     def part_to_file(cls, part: ModelPart) -> dict:

@@ -223,17 +223,10 @@ class ColumnBend(Block):
     model_keys_optional = True
 
     @classmethod
-    def compensation(cls, result: FitLike, before: np.ndarray) -> ModelPart | None:
-        """The fitted bending with the strokes and layout it is normalised to (None on a
-        layout without an arm: no parameter)."""
+    def part_context(cls, result: FitLike) -> dict:
+        """The strokes and layout the fitted bending is normalised to."""
         obs = result.problem.obs
-        ctx = {"range_mm": tuple(map(float, obs.range_mm)), "layout": obs.layout}
-        s = result.problem.layout.blocks.get(cls.token)
-        if s is None:
-            return None
-        idx = np.r_[before, np.arange(s.start, s.stop)]
-        return ModelPart(tuple(result.labels[s]), result.values[s].copy(),
-                         result.covariance[np.ix_(idx, idx)].copy(), ctx)
+        return {"range_mm": tuple(map(float, obs.range_mm)), "layout": obs.layout}
 
     @classmethod
     def part_to_file(cls, part: ModelPart) -> dict:
