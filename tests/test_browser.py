@@ -213,29 +213,6 @@ def test_first_load_shows_the_thesis_model(page, server):
     page.screenshot(path=str(ART / "01_data_thesis.png"), full_page=True)
 
 
-def test_first_load_fetches_no_data_grid_script(page, server):
-    """Issue 27: the first screen draws its validation table as a static table, so a first
-    visit (a browser context with an empty cache) fetches none of the data grid's scripts
-    (``DataFrame.*.js``, 0.5 MB, and Arrow's with it); the table is there, one row per
-    placement of the thesis data (6)."""
-    ctx = page.context.browser.new_context(viewport={"width": 1500, "height": 1800})
-    try:
-        pg = ctx.new_page()
-        fetched = []
-        pg.on("response", lambda r: fetched.append(r.url.rsplit("/", 1)[-1]))
-        pg.goto(server)
-        expect(pg.get_by_text("Current analysis")).to_be_visible(timeout=90_000)
-        _idle(pg)
-        table = pg.locator(".st-key-validation_counts table")
-        expect(table).to_be_visible()
-        assert table.locator("tbody tr").count() == 6
-        assert any(f.endswith(".js") for f in fetched)  # the watch saw the scripts
-        assert not [f for f in fetched if f.startswith("DataFrame.")], fetched
-        _no_exception(pg)
-    finally:
-        ctx.close()
-
-
 def test_upload_csvs_then_fit(page, server):
     page.get_by_role("tab", name="Upload CSVs").click()
     uploader = page.locator('[data-testid="stFileUploader"]').filter(
@@ -540,3 +517,27 @@ def test_plan_page_compares_the_sample_strategies(page, server):
     expect(page.get_by_text("location 0: 14 undetermined combination(s)")).to_be_visible()
     _no_exception(page)
     page.screenshot(path=str(ART / "12_plan.png"), full_page=True)
+
+
+def test_first_load_fetches_no_data_grid_script(page, server):
+    """Issue 27: the first screen draws its validation table as a static table, so a first
+    visit (a browser context with an empty cache) fetches none of the data grid's scripts
+    (``DataFrame.*.js``, 0.5 MB, and Arrow's with it); the table is there, one row per
+    placement of the thesis data (6). Last in this module: it opens a second session on
+    the module's server, which the walk of the tests above does not expect."""
+    ctx = page.context.browser.new_context(viewport={"width": 1500, "height": 1800})
+    try:
+        pg = ctx.new_page()
+        fetched = []
+        pg.on("response", lambda r: fetched.append(r.url.rsplit("/", 1)[-1]))
+        pg.goto(server)
+        expect(pg.get_by_text("Current analysis")).to_be_visible(timeout=90_000)
+        _idle(pg)
+        table = pg.locator(".st-key-validation_counts table")
+        expect(table).to_be_visible()
+        assert table.locator("tbody tr").count() == 6
+        assert any(f.endswith(".js") for f in fetched)  # the watch saw the scripts
+        assert not [f for f in fetched if f.startswith("DataFrame.")], fetched
+        _no_exception(pg)
+    finally:
+        ctx.close()
