@@ -170,7 +170,7 @@ def _upload(pg):
     up.locator('input[type="file"]').set_input_files(
         [str(THESIS / f"{p}.csv") for p in ("BP111", "BP112", "BP211", "BP212", "BP311",
                                              "BP312")])
-    pg.get_by_text("BP312.csv").first.wait_for()
+    up.get_by_text("BP312.csv").first.wait_for()  # the validation table names it too
 
 
 def one_session(server, browser, results):
