@@ -524,8 +524,8 @@ def test_first_load_fetches_no_data_grid_script(page, server):
     """Issue 27: the first screen draws its validation table as a static table, so a first
     visit (a browser context with an empty cache) fetches none of the data grid's scripts
     (``DataFrame.*.js``, 0.5 MB, and Arrow's with it); the table is there, one row per
-    placement of the thesis data (6). Last in this module: it opens a second session on
-    the module's server, which the walk of the tests above does not expect."""
+    placement of the thesis data (6). Last in this module, in a browser context of its
+    own."""
     ctx = page.context.browser.new_context(viewport={"width": 1500, "height": 1800})
     try:
         pg = ctx.new_page()
