@@ -572,11 +572,19 @@ class Block:
                          result.covariance[np.ix_(idx, idx)].copy(),
                          cls.part_context(result))
 
+    part_in_machine_frame: bool = False
+    """True: the block's terms are normalised to the machine's strokes and depend on its
+    layout, so its model part keeps both (:meth:`part_context`)."""
+
     @classmethod
     def part_context(cls, result: FitLike) -> dict:
         """What the part's correction needs of the fit besides its values (the
-        :attr:`ModelPart.context`; default nothing)."""
-        return {}
+        :attr:`ModelPart.context`): the strokes and layout for a block
+        :attr:`part_in_machine_frame`, else nothing."""
+        if not cls.part_in_machine_frame:
+            return {}
+        obs = result.problem.obs
+        return {"range_mm": tuple(map(float, obs.range_mm)), "layout": obs.layout}
 
     @classmethod
     def part_to_file(cls, part: ModelPart) -> dict:

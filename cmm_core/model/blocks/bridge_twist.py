@@ -119,7 +119,6 @@ from .base import (
     Correction,
     Effect,
     Eval,
-    FitLike,
     Jacobian,
     ModelPart,
     Shape,
@@ -320,12 +319,7 @@ class BridgeTwist(Block):
     # a layout without a bridge fits no twist (the spec may still name it): its file has
     # no section, which part_from_file refuses on a bridge
     model_keys_optional = True
-
-    @classmethod
-    def part_context(cls, result: FitLike) -> dict:
-        """The strokes and layout the fitted twist is normalised to."""
-        obs = result.problem.obs
-        return {"range_mm": tuple(map(float, obs.range_mm)), "layout": obs.layout}
+    part_in_machine_frame = True  # normalised to the strokes; depends on the layout
 
     @classmethod
     def part_to_file(cls, part: ModelPart) -> dict:

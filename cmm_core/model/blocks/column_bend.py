@@ -82,7 +82,6 @@ from .base import (
     Correction,
     Effect,
     Eval,
-    FitLike,
     Jacobian,
     ModelPart,
     SimCheck,
@@ -221,12 +220,7 @@ class ColumnBend(Block):
     model_what = "column bending"
     comp_units = "um"
     model_keys_optional = True
-
-    @classmethod
-    def part_context(cls, result: FitLike) -> dict:
-        """The strokes and layout the fitted bending is normalised to."""
-        obs = result.problem.obs
-        return {"range_mm": tuple(map(float, obs.range_mm)), "layout": obs.layout}
+    part_in_machine_frame = True  # normalised to the strokes; depends on the layout
 
     @classmethod
     def part_to_file(cls, part: ModelPart) -> dict:
