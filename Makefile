@@ -21,7 +21,7 @@ $(VENV)/.test: requirements.txt requirements-test.txt pyproject.toml | $(BIN)/py
 	touch $@
 
 run: $(VENV)/.runtime
-	$(BIN)/streamlit run app.py --server.port $(PORT) --server.headless true
+	$(BIN)/python serve.py --server.port $(PORT) --server.headless true
 
 test: $(VENV)/.test
 	$(BIN)/ruff check .

@@ -12,8 +12,9 @@ Prints, in one run:
    seeds, the share of seeds where the diagnosis names the true effect (a) on the data
    alone, (b) with the top proposal measured (simulated from the true machine, with noise)
    and appended, (c) with a random other candidate of the same machine time appended
-   instead; each with its binomial standard error. "Names" is counted strictly (the
-   verdict is the true token), by function (``rxz:3`` for a true ``rxz:4``: the Occam rule
+   instead (for a repeat, which no other candidate is as short as: a random other plate
+   candidate cut to the repeat's machine time, ``random_candidate``); each with its
+   binomial standard error. "Names" is counted strictly (the verdict is the true token), by function (``rxz:3`` for a true ``rxz:4``: the Occam rule
    names the lower order when the higher does not beat it), and "decided" (named, the
    rival no longer among its aliases). The placement scales are named by the
    outside-catalogue verdict with them as its evidence;
@@ -47,6 +48,7 @@ from scenarios import perturb, placement_scale, simulated  # noqa: E402
 from cmm_core.diagnosis import OUTSIDE, diagnose  # noqa: E402
 from cmm_core.model import BY_TOKEN, fit, weighted_residual  # noqa: E402
 from cmm_core.plan import (  # noqa: E402
+    MEASUREMENT_DEFAULTS,
     PLACEMENT_SCALE,
     append_measurement,
     fit_rivals,
@@ -154,26 +156,35 @@ def nested_rejects(data, rf, truth, rival) -> bool:
 
 
 def random_candidate(data, top, others, rng):
-    """A random extra measurement of the top proposal's machine time: another default
-    candidate of the same time, drawn at random; for a repeat at the end of placements
-    (whose time no other candidate shares), the same number of readings at the end of
-    the same placements with a stylus of each drawn at random among those it measured
-    with, on balls drawn at random (``NextMeasurement.repeat``)."""
+    """A random extra measurement of the top proposal's machine time, and the number of
+    its readings that fit in that time (None: all of them).
+
+    Another default candidate of the same time, drawn at random, whole. A repeat at the
+    end of placements (2-18 min) shares its time with no placement or stylus candidate
+    (28-46 min): the random measurement is then any other plate candidate of at least
+    that time, drawn at random, cut to the same machine time (its first readings, after
+    its set-up: a new placement's 10 min, none for a repeat), as a metrologist who spends
+    the same minutes on the machine without the proposer would."""
     if not top.repeat:
         same = [p.candidate for p in others if p.candidate.time_min == top.time_min]
-        return same[rng.integers(len(same))]
-    each = {}
-    m = data.meas
-    for p, r in top.repeat.items():
-        at = m["position"] == p
-        styli = list(dict.fromkeys(m.loc[at, "probe"].astype(str)))
-        q = styli[rng.integers(len(styli))]
-        balls = sorted(set(m.loc[at & (m["probe"].astype(str) == q), "ball"].astype(int)))
-        pick = rng.choice(balls, size=len(r["balls"]), replace=False)
-        each[p] = {"probe": q, "balls": [int(b) for b in pick],
-                   "time_min": list(r["time_min"])}
-    return replace(top, name=f"random_{top.name}", description="random repeat",
-                   repeat=each)
+        return same[rng.integers(len(same))], None
+    pool = [p.candidate for p in others
+            if not p.candidate.instrument and p.candidate.time_min >= top.time_min]
+    cand = pool[rng.integers(len(pool))]
+    setup = 0.0 if cand.repeat else MEASUREMENT_DEFAULTS["minutes_per_placement"]
+    keep = int(np.floor((top.time_min - setup) / MEASUREMENT_DEFAULTS["minutes_per_ball"]
+                        + 1e-9))
+    return cand, max(keep, 0)
+
+
+def first_readings(aug, n_before: int, keep: int | None):
+    """``aug`` with only the first ``keep`` of the readings appended after row
+    ``n_before`` (in time order); ``keep`` None: unchanged."""
+    if keep is None:
+        return aug
+    new = aug.meas.iloc[n_before:].sort_values("time_min", kind="stable")
+    rows = np.r_[np.arange(n_before), new.index[:keep].to_numpy()]
+    return replace(aug, meas=aug.meas.loc[np.sort(rows)].reset_index(drop=True))
 
 
 def _named(d, truth, rival):
@@ -233,8 +244,8 @@ def run_case(name, seeds):
         aug = appended(top.candidate)
         after = _named(diagnose(aug, base), truth, rival)
         rng = np.random.default_rng(seed)
-        other = random_candidate(data, top.candidate, pr.ranked[1:], rng)
-        aug_r = appended(other)
+        other, keep = random_candidate(data, top.candidate, pr.ranked[1:], rng)
+        aug_r = first_readings(appended(other), len(data.meas), keep)
         random_ = _named(diagnose(aug_r, base), truth, rival)
         rf = fit_rivals(data, pr.rivals, baseline=base)
         sep = nested_rejects(aug, rf, truth, rival)
@@ -242,7 +253,8 @@ def run_case(name, seeds):
         print(f"  seed {seed}: top {top.candidate.name} (power {top.power[truth]:.2f}), "
               f"named before/after/random: {before[0]}/{after[0]}/{random_[0]}, decided "
               f"{before[2]}/{after[2]}/{random_[2]} "
-              f"({other.name}), separated {sep}", flush=True)
+              f"({other.name}{'' if keep is None else f', first {keep} readings'}), "
+              f"separated {sep}", flush=True)
     return rows
 
 

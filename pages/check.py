@@ -8,6 +8,7 @@ import pandas as pd
 import plotly.express as px
 import streamlit as st
 
+from cmm_core import analysis as A
 from cmm_core import export as ex
 from cmm_core import io as cio
 from cmm_core import monitor as mon
@@ -63,172 +64,172 @@ def _read(path: Path) -> tuple:
     return path.name, path.read_bytes()
 
 
-t_check, t_hist = st.tabs(["Interim check", "History"])
+# lazy tabs (issue 27): each tab's widgets, tables and figures are drawn only while it is
+# open, so the page's first visit draws the check alone
+t_check, t_hist = st.tabs(["Interim check", "History"], key="chk_tab", on_change="rerun",
+                          bind="query-params")
 
 with t_check:
-    src = st.radio("Data", ["Sample history", "Upload files"], horizontal=True,
-                   key="chk_src")
-    files = None
-    if src == "Sample history":
-        which = st.selectbox("Sample check", list(SAMPLE_CHECKS), key="chk_sample")
-        folder = HISTORY / SAMPLE_CHECKS[which]
-        st.caption(f"Stored calibration: {SAMPLE_MODEL}.")
-        files = ((SAMPLE_MODEL, (HISTORY / SAMPLE_MODEL).read_text()),
-                 _read(folder / "measurements.csv"), _read(folder / "setup.json"),
-                 _read(folder / "certificate.csv"), ())
-    else:
-        up_model = st.file_uploader("Stored model (fit --save JSON)", type=["json"],
-                                    key="chk_model")
-        up_meas = st.file_uploader("New measurements (CSV)", type=["csv", "txt"],
-                                   key="chk_meas")
-        up_setup = st.file_uploader("Setup (JSON)", type=["json"], key="chk_setup")
-        up_cert = st.file_uploader("Certificate (CSV)", type=["csv", "txt"], key="chk_cert")
-        kind = st.selectbox("Instrument files are", list(INSTRUMENT_KINDS), key="chk_kind",
-                            help="laser runs, step gauges or ball bars of the check "
-                                 "(docs/instruments.md): alone, or beside the plate")
-        up_inst = st.file_uploader("Instrument files (CSV, optional)", type=["csv", "txt"],
-                                   accept_multiple_files=True, key="chk_inst")
-        plate = all(u is not None for u in (up_meas, up_setup, up_cert))
-        if up_model is not None and (plate or up_inst):
-            files = ((up_model.name, up_model.getvalue().decode("utf-8", "replace")),
-                     (up_meas.name, up_meas.getvalue()) if plate else None,
-                     (up_setup.name, up_setup.getvalue()) if plate else None,
-                     (up_cert.name, up_cert.getvalue()) if plate else None,
-                     tuple((kind, u.name, u.getvalue()) for u in up_inst or ()))
+    if t_check.open:
+        src = st.radio("Data", ["Sample history", "Upload files"], horizontal=True,
+                       key="chk_src")
+        files = None
+        if src == "Sample history":
+            which = st.selectbox("Sample check", list(SAMPLE_CHECKS), key="chk_sample")
+            folder = HISTORY / SAMPLE_CHECKS[which]
+            st.caption(f"Stored calibration: {SAMPLE_MODEL}.")
+            files = ((SAMPLE_MODEL, (HISTORY / SAMPLE_MODEL).read_text()),
+                     _read(folder / "measurements.csv"), _read(folder / "setup.json"),
+                     _read(folder / "certificate.csv"), ())
         else:
-            st.info("Upload the stored model and the new data: the measurements with "
-                    "their setup and the plate's certificate, or instrument files, or "
-                    "both.")
-    c1, c2, c3 = st.columns(3)
-    alpha = c1.number_input("χ² test level", 0.001, 0.2, 0.05, 0.01, key="chk_alpha",
-                            help="fraction of checks of an unchanged machine that fail")
-    family = c2.number_input("Family-wise level of the changes", 0.001, 0.2, 0.05, 0.01,
-                             key="chk_family", help="Holm over the parameters tested")
-    mpe_text = c3.text_input("MPE 'A,D' (A µm + L/D)", "0.6,600", key="chk_mpe",
-                             help="empty: no conformity statement")
-    mpe = None
-    if mpe_text.strip():
-        try:
-            mpe = mon.parse_mpe(mpe_text)  # the CLI's --mpe rule
-        except ValueError as e:
-            st.error(f"MPE: {e}.")
-    if files is not None:
-        out = calls.safe(run_check, files[0][0], files[0][1], files[1], files[2], files[3],
-                         float(alpha), float(family), mpe, files[4], what="Interim check")
-        if out is not None:
-            res, table, chg_table, results, readings = out
-            chk, chg, eff, conf = (res["check"], res["changes"], res["new_effects"],
-                                   res["conformity"])
-            m1, m2, m3 = st.columns(3)
-            m1.metric("χ² / dof", f"{chk['chi2']:.1f} / {chk['dof']}")
-            m2.metric("p-value", f"{chk['p_value']:.3g}")
-            m3.metric("Within 95 % intervals", f"{100 * chk['coverage_95']:.1f} %")
-            # a changed machine is a result, not a failure of the page: a warning; a
-            # partial check says what it could not see
-            show = {"no change seen": st.success, "changed": st.warning}.get(
-                res["verdict"], st.info)
-            show(f"**Verdict: {res['verdict']}.** {res['message']}")
-            st.caption(chk["message"])
-            if len(table):
-                with calls.guarded("E_n map"):
-                    fig = px.scatter(table, x="x_mm", y="y_mm", color="En", symbol="position",
-                                     hover_data=["probe", "ball", "En_x", "En_y", "En_z"],
-                                     color_continuous_scale="Reds", range_color=(0, 4),
-                                     labels={"x_mm": "x (mm)", "y_mm": "y (mm)",
-                                             "En": "largest |E_n|"},
-                                     title="Normalised errors of the new observations "
-                                           "(scale readings)")
-                    st.plotly_chart(fig, key="chk_map")
-            if chk.get("instruments"):
-                frame.dataframe(pd.DataFrame(chk["instruments"]), hide_index=True,
-                                key="chk_instruments")
-                with st.expander("E_n of each instrument reading (file row)"):
-                    frame.dataframe(readings, hide_index=True, key="chk_readings")
-            if eff is not None:
-                st.subheader("New effect")
-                st.write(eff["message"])
-                if eff["named"]:
-                    frame.dataframe(pd.DataFrame([
-                        {"effect": e["effect"], "title": e["title"],
-                         "size": "; ".join(f"{k} {v['value']:+.3g} ± {v['u']:.2g} "
-                                           f"{v['unit']}" for k, v in e["fitted"].items()),
-                         "p-value": e["p_value"], "confirmed": e["confirmed"]}
-                        for e in eff["named"]]), hide_index=True, key="chk_effects")
-            st.subheader("What changed")
-            st.write(chg["message"])
-            shown = chg_table[chg_table["tested"]].copy()
-            frame.dataframe(shown[["label", "unit", "change", "u_updated", "u_null", "En",
-                                   "significant",
-                                   "change_alone", "u_change_alone", "En_alone",
-                                   "significant_alone", "resolved"]],
-                            hide_index=True, key="chk_changes")
-            if chg["unseen"]:
-                with st.expander(f"{len(chg['unseen'])} combination(s) the new data cannot "
-                                 "see"):
-                    st.write("\n".join(f"- {u}" for u in chg["unseen"]))
-            st.subheader("Conformity")
-            if conf is None:
-                st.caption("Give the machine's MPE for a conformity statement.")
+            up_model = st.file_uploader("Stored model (fit --save JSON)", type=["json"],
+                                        key="chk_model")
+            up_meas = st.file_uploader("New measurements (CSV)", type=["csv", "txt"],
+                                       key="chk_meas")
+            up_setup = st.file_uploader("Setup (JSON)", type=["json"], key="chk_setup")
+            up_cert = st.file_uploader("Certificate (CSV)", type=["csv", "txt"], key="chk_cert")
+            kind = st.selectbox("Instrument files are", list(INSTRUMENT_KINDS), key="chk_kind",
+                                help="laser runs, step gauges or ball bars of the check "
+                                     "(docs/instruments.md): alone, or beside the plate")
+            up_inst = st.file_uploader("Instrument files (CSV, optional)", type=["csv", "txt"],
+                                       accept_multiple_files=True, key="chk_inst")
+            plate = all(u is not None for u in (up_meas, up_setup, up_cert))
+            if up_model is not None and (plate or up_inst):
+                files = ((up_model.name, up_model.getvalue().decode("utf-8", "replace")),
+                         (up_meas.name, up_meas.getvalue()) if plate else None,
+                         (up_setup.name, up_setup.getvalue()) if plate else None,
+                         (up_cert.name, up_cert.getvalue()) if plate else None,
+                         tuple((kind, u.name, u.getvalue()) for u in up_inst or ()))
             else:
-                # a machine out of its specification is a result, not a failure of the
-                # page: a warning (st.error is for what went wrong)
-                (st.success if conf["statement"] == "conforms" else
-                 st.warning if conf["statement"] == "does not conform" else st.info)(
-                    f"**{conf['statement']}**: {conf['message']}")
-            st.download_button(
-                "Download the results (JSON)", results, file_name="interim_check_results.json",
-                mime="application/json", key="chk_results",
-                help="the stored model's parameters and the section interim_check: the "
-                     "test, each parameter's change with its uncertainty, the new effect, "
-                     "conformity, each with its decision rule (docs/monitoring.md)")
+                st.info("Upload the stored model and the new data: the measurements with "
+                        "their setup and the plate's certificate, or instrument files, or "
+                        "both.")
+        c1, c2, c3 = st.columns(3)
+        alpha = c1.number_input("χ² test level", 0.001, 0.2, 0.05, 0.01, key="chk_alpha",
+                                help="fraction of checks of an unchanged machine that fail")
+        family = c2.number_input("Family-wise level of the changes", 0.001, 0.2, 0.05, 0.01,
+                                 key="chk_family", help="Holm over the parameters tested")
+        mpe_text = c3.text_input("MPE 'A,D' (A µm + L/D)", "0.6,600", key="chk_mpe",
+                                 help="empty: no conformity statement")
+        mpe = None
+        if mpe_text.strip():
+            try:
+                mpe = mon.parse_mpe(mpe_text)  # the CLI's --mpe rule
+            except ValueError as e:
+                st.error(f"MPE: {e}.")
+        if files is not None:
+            out = calls.safe(run_check, files[0][0], files[0][1], files[1], files[2], files[3],
+                             float(alpha), float(family), mpe, files[4], what="Interim check")
+            if out is not None:
+                res, table, chg_table, results, readings = out
+                chk, chg, eff, conf = (res["check"], res["changes"], res["new_effects"],
+                                       res["conformity"])
+                m1, m2, m3 = st.columns(3)
+                m1.metric("χ² / dof", f"{chk['chi2']:.1f} / {chk['dof']}")
+                m2.metric("p-value", f"{chk['p_value']:.3g}")
+                m3.metric("Within 95 % intervals", f"{100 * chk['coverage_95']:.1f} %")
+                # a changed machine is a result, not a failure of the page: a warning; a
+                # partial check says what it could not see
+                show = {"no change seen": st.success, "changed": st.warning}.get(
+                    res["verdict"], st.info)
+                show(f"**Verdict: {res['verdict']}.** {res['message']}")
+                st.caption(chk["message"])
+                if len(table):
+                    with calls.guarded("E_n map"):
+                        frame.show(A.fig_en_map(table, "Normalised errors of the new "
+                                                "observations (largest of x, y, z)"),
+                                   chart_key="chk_map")
+                if chk.get("instruments"):
+                    frame.dataframe(pd.DataFrame(chk["instruments"]), hide_index=True,
+                                    key="chk_instruments")
+                    with st.expander("E_n of each instrument reading (file row)"):
+                        frame.dataframe(readings, hide_index=True, key="chk_readings")
+                if eff is not None:
+                    st.subheader("New effect")
+                    st.write(eff["message"])
+                    if eff["named"]:
+                        frame.dataframe(pd.DataFrame([
+                            {"effect": e["effect"], "title": e["title"],
+                             "size": "; ".join(f"{k} {v['value']:+.3g} ± {v['u']:.2g} "
+                                               f"{v['unit']}" for k, v in e["fitted"].items()),
+                             "p-value": e["p_value"], "confirmed": e["confirmed"]}
+                            for e in eff["named"]]), hide_index=True, key="chk_effects")
+                st.subheader("What changed")
+                st.write(chg["message"])
+                shown = chg_table[chg_table["tested"]].copy()
+                frame.dataframe(shown[["label", "unit", "change", "u_updated", "u_null", "En",
+                                       "significant",
+                                       "change_alone", "u_change_alone", "En_alone",
+                                       "significant_alone", "resolved"]],
+                                hide_index=True, key="chk_changes")
+                if chg["unseen"]:
+                    with st.expander(f"{len(chg['unseen'])} combination(s) the new data cannot "
+                                     "see"):
+                        st.write("\n".join(f"- {u}" for u in chg["unseen"]))
+                st.subheader("Conformity")
+                if conf is None:
+                    st.caption("Give the machine's MPE for a conformity statement.")
+                else:
+                    # a machine out of its specification is a result, not a failure of the
+                    # page: a warning (st.error is for what went wrong)
+                    (st.success if conf["statement"] == "conforms" else
+                     st.warning if conf["statement"] == "does not conform" else st.info)(
+                        f"**{conf['statement']}**: {conf['message']}")
+                st.download_button(
+                    "Download the results (JSON)", results, file_name="interim_check_results.json",
+                    mime="application/json", key="chk_results",
+                    help="the stored model's parameters and the section interim_check: the "
+                         "test, each parameter's change with its uncertainty, the new effect, "
+                         "conformity, each with its decision rule (docs/monitoring.md)")
 
 with t_hist:
-    hsrc = st.radio("Calibrations", ["Sample history", "Upload model files"],
-                    horizontal=True, key="hist_src")
-    named, dates = None, None
-    if hsrc == "Sample history":
-        dmap = json.loads((HISTORY / "dates.json").read_text())
-        named = tuple((n, (HISTORY / n).read_text()) for n in dmap)
-        dates = tuple(dmap.values())
-        st.caption(", ".join(f"{n} ({d})" for n, d in dmap.items()))
-    else:
-        ups = st.file_uploader("Model files (fit --save JSON)", type=["json"],
-                               accept_multiple_files=True, key="hist_models")
-        if ups:
-            table = st.data_editor(pd.DataFrame({"model": [u.name for u in ups],
-                                                 "date": [""] * len(ups)}),
-                                   disabled=["model"], hide_index=True, key="hist_dates")
-            if table["date"].str.strip().all():
-                named = tuple((u.name, u.getvalue().decode("utf-8", "replace")) for u in ups)
-                dates = tuple(table["date"].str.strip())
-            else:
-                st.info("Give each model its calibration date (YYYY-MM-DD).")
-    hfam = st.number_input("Family-wise level", 0.001, 0.2, 0.05, 0.01, key="hist_family",
-                           help="Holm over every pair of consecutive calibrations and "
-                                "shared parameter")
-    if named is not None:
-        hout = calls.safe(run_history, named, dates, float(hfam), what="Calibration history")
-        if hout is not None:
-            summary, changes, trend, grid = hout
-            st.write(summary["message"])
-            frame.dataframe(changes, hide_index=True, key="hist_changes")
-            with calls.guarded("Trend"):
-                labels = list(dict.fromkeys(trend["label"]))
-                default = summary["significant"][0]["label"] if summary["significant"] \
-                    else labels[0]
-                lab = st.selectbox("Parameter", labels, index=labels.index(default),
-                                   key="hist_label")
-                tr = trend[trend["label"] == lab]
-                fig = px.scatter(tr, x="date", y="value", error_y="u",
-                                 labels={"value": f"{lab} ({tr['unit'].iloc[0]})"},
-                                 title=f"{lab} over the calibrations (± u)")
-                st.plotly_chart(fig, key="hist_trend")
-            with calls.guarded("Error map change"):
-                comp = st.selectbox("Component", ["x", "y", "z"], key="hist_comp")
-                fig = px.scatter(grid, x="x_mm", y="y_mm", color=f"de{comp}_um",
-                                 facet_col="z_mm", facet_col_wrap=3,
-                                 hover_data=[f"u_de{comp}_um"],
-                                 labels={f"de{comp}_um": f"change of e{comp} (µm)"},
-                                 title="Error map change, first to last calibration "
-                                       "(ram reference point)")
-                st.plotly_chart(fig, key="hist_map")
+    if t_hist.open:
+        hsrc = st.radio("Calibrations", ["Sample history", "Upload model files"],
+                        horizontal=True, key="hist_src")
+        named, dates = None, None
+        if hsrc == "Sample history":
+            dmap = json.loads((HISTORY / "dates.json").read_text())
+            named = tuple((n, (HISTORY / n).read_text()) for n in dmap)
+            dates = tuple(dmap.values())
+            st.caption(", ".join(f"{n} ({d})" for n, d in dmap.items()))
+        else:
+            ups = st.file_uploader("Model files (fit --save JSON)", type=["json"],
+                                   accept_multiple_files=True, key="hist_models")
+            if ups:
+                table = st.data_editor(pd.DataFrame({"model": [u.name for u in ups],
+                                                     "date": [""] * len(ups)}),
+                                       disabled=["model"], hide_index=True, key="hist_dates")
+                if table["date"].str.strip().all():
+                    named = tuple((u.name, u.getvalue().decode("utf-8", "replace")) for u in ups)
+                    dates = tuple(table["date"].str.strip())
+                else:
+                    st.info("Give each model its calibration date (YYYY-MM-DD).")
+        hfam = st.number_input("Family-wise level", 0.001, 0.2, 0.05, 0.01, key="hist_family",
+                               help="Holm over every pair of consecutive calibrations and "
+                                    "shared parameter")
+        if named is not None:
+            hout = calls.safe(run_history, named, dates, float(hfam), what="Calibration history")
+            if hout is not None:
+                summary, changes, trend, grid = hout
+                st.write(summary["message"])
+                frame.dataframe(changes, hide_index=True, key="hist_changes")
+                with calls.guarded("Trend"):
+                    labels = list(dict.fromkeys(trend["label"]))
+                    default = summary["significant"][0]["label"] if summary["significant"] \
+                        else labels[0]
+                    lab = st.selectbox("Parameter", labels, index=labels.index(default),
+                                       key="hist_label")
+                    tr = trend[trend["label"] == lab]
+                    fig = px.scatter(tr, x="date", y="value", error_y="u",
+                                     labels={"value": f"{lab} ({tr['unit'].iloc[0]})"},
+                                     title=f"{lab} over the calibrations (± u)")
+                    st.plotly_chart(fig, key="hist_trend")
+                with calls.guarded("Error map change"):
+                    comp = st.selectbox("Component", ["x", "y", "z"], key="hist_comp")
+                    fig = px.scatter(grid, x="x_mm", y="y_mm", color=f"de{comp}_um",
+                                     facet_col="z_mm", facet_col_wrap=3,
+                                     hover_data=[f"u_de{comp}_um"],
+                                     labels={f"de{comp}_um": f"change of e{comp} (µm)"},
+                                     title="Error map change, first to last calibration "
+                                           "(ram reference point)")
+                    st.plotly_chart(fig, key="hist_map")

@@ -345,24 +345,24 @@ def _show_upload_report():
             for p in report["problems"]))
 
 
-# lazy tabs (issue 27): the MSL and simulator tabs' widgets (the simulator's form alone is
-# some thirty) are sent only while their tab is open, so the app's first screen does not
-# draw them; the upload and project tabs stay drawn, their fields keep the files chosen
-# while another tab is looked at
-DATA_TABS = ["Thesis sample", "Upload CSVs", "Other tools (MSL)", "Simulate a virtual CMM",
-             "Project file"]
-tab_thesis, tab_upload, tab_other, tab_sim, tab_proj = st.tabs(DATA_TABS, key="data_tab",
-                                                               on_change="rerun",
-                                                               bind="query-params")
+def _held(*prefixes: str, text: tuple[str, ...] = ()) -> bool:
+    """Whether a field of a tab drawn only while open holds something: a file, a mapped
+    table or a report under one of ``prefixes``, a text typed under one of ``text``. The
+    tab is then drawn while another is looked at, so that nothing chosen is lost; a
+    session's first screen draws none of them (issue 27). A radio or number left as it
+    was does not count."""
+    s = st.session_state
 
-with tab_thesis:
-    st.write("The six ball-plate tables of thesis chapter 6 (tables 6.1-6.6) with the appendix 5 "
-             "certificate, exactly as printed (including the values that look wrong).")
-    if st.button("Load thesis tables", key="load_thesis"):
-        state.set_dataset(state.thesis_files())
-        _loaded("Loaded the thesis tables.")
+    def chosen(v) -> bool:
+        return len(v) > 0 if isinstance(v, (list, tuple, dict)) else hasattr(v, "getvalue")
 
-with tab_upload:
+    return (any(chosen(v) for k, v in s.items() if str(k).startswith(prefixes))
+            or any(isinstance(v, str) and v.strip() != "" for k, v in s.items()
+                   if str(k).startswith(text)))
+
+
+def upload_section():
+    """The upload tab: measurement, setup and certificate files, checked and loaded."""
     st.write("Long form: `position,probe,ball,x_mm,y_mm,z_mm[,time_min,temp_C,repeat]` in one "
              "file, or thesis form `ball,x_mm,y_mm,z_mm`, one file per position (named by the "
              "position). Plus the setup JSON and, optionally, the certificate.")
@@ -419,6 +419,45 @@ with tab_upload:
                              + ["The upload fields are cleared: the next upload replaces "
                                 "these files."]))
     _show_upload_report()
+
+
+def project_section():
+    """The project tab: a project file restores a whole analysis."""
+    st.write("A project file (JSON, from *Compensate and export*) restores the dataset, model, "
+             "exclusions and diagnosis history.")
+    up_proj = st.file_uploader("Project file (JSON)", type=["json"], key="up_project")
+    if st.button("Restore project", key="restore_project", disabled=up_proj is None):
+        # the core reads the whole file (analysis.record_from_project: every part's shape
+        # and value, one line naming the key) before anything of the session changes
+        try:
+            note = session.restore_project(up_proj.getvalue(), up_proj.name)
+        except Exception as exc:  # noqa: BLE001 - a message, never a traceback
+            st.error(f"The project does not restore: {calls.describe_error(exc)}")
+        else:
+            _loaded(f"Restored project '{st.session_state['ds_files']['name']}'.{note}")
+
+
+# lazy tabs (issue 27): a tab's widgets (the simulator's form alone is some thirty, the
+# upload tab's file fields each load their script and layout) are sent only while the tab
+# is open, so the app's first screen does not draw them; the upload and project tabs stay
+# drawn while their fields hold something (_held)
+DATA_TABS = ["Thesis sample", "Upload CSVs", "Other tools (MSL)", "Simulate a virtual CMM",
+             "Project file"]
+tab_thesis, tab_upload, tab_other, tab_sim, tab_proj = st.tabs(DATA_TABS, key="data_tab",
+                                                               on_change="rerun",
+                                                               bind="query-params")
+
+with tab_thesis:
+    st.write("The six ball-plate tables of thesis chapter 6 (tables 6.1-6.6) with the appendix 5 "
+             "certificate, exactly as printed (including the values that look wrong).")
+    if st.button("Load thesis tables", key="load_thesis"):
+        state.set_dataset(state.thesis_files())
+        _loaded("Loaded the thesis tables.")
+
+with tab_upload:
+    if tab_upload.open or _held("up_meas", "up_setup", "up_cert", "map", "upload_report",
+                                text=("up_label",)):
+        upload_section()
 
 with tab_other:
     if tab_other.open:
@@ -518,18 +557,8 @@ with tab_sim:
                         + ". The true parameters are on the Kinematic model page.")
 
 with tab_proj:
-    st.write("A project file (JSON, from *Compensate and export*) restores the dataset, model, "
-             "exclusions and diagnosis history.")
-    up_proj = st.file_uploader("Project file (JSON)", type=["json"], key="up_project")
-    if st.button("Restore project", key="restore_project", disabled=up_proj is None):
-        # the core reads the whole file (analysis.record_from_project: every part's shape
-        # and value, one line naming the key) before anything of the session changes
-        try:
-            note = session.restore_project(up_proj.getvalue(), up_proj.name)
-        except Exception as exc:  # noqa: BLE001 - a message, never a traceback
-            st.error(f"The project does not restore: {calls.describe_error(exc)}")
-        else:
-            _loaded(f"Restored project '{st.session_state['ds_files']['name']}'.{note}")
+    if tab_proj.open or _held("up_project"):
+        project_section()
 
 # ---------------------------------------------------------------------------------------
 # Instruments: laser runs and step gauges fitted jointly with the plate
@@ -565,8 +594,22 @@ def _read_instrument_uploads(uploads, have):
 
 
 def instruments_section():
+    """Instrument files fitted jointly with the plate, in an expander drawn only while open
+    (its three file fields are the first screen's heaviest widgets, issue 27); it opens by
+    itself when instruments are added or refused; closed, its label counts them."""
     s = st.session_state
-    st.subheader("Instruments (fitted jointly with the plate)")
+    items = s.get("instruments") or []
+    label = ("Instruments fitted jointly with the plate: "
+             + (f"{len(items)} file(s)" if items else "none (laser, step gauge, ball bar)"))
+    if s.get("instrument_errors") or (items and s.get("instruments_shown") != len(items)):
+        s["w_instruments_open"] = True  # new instruments or a refusal: show them
+    s["instruments_shown"] = len(items)
+    with st.expander(label, key="w_instruments_open", on_change="rerun") as box:
+        if box.open:
+            _instruments_body(s)
+
+
+def _instruments_body(s):
     kinds = list(A.instrument_kinds())
     st.write(f"Instrument files ({', '.join(state.INSTRUMENT_NAMES.get(k, k) for k in kinds)}) "
              "observe the machine's errors directly; their readings become rows of every "

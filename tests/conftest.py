@@ -33,3 +33,27 @@ def thesis_clean(thesis):
     from cmm_core.diagnosis import detect_outliers
 
     return thesis, detect_outliers(thesis).exclusions
+
+
+def open_data_tab(at, tab: str, *, instruments: bool = False):
+    """Open the Data page's tab ``tab`` (and the instruments expander) in the AppTest ``at``
+    and run it: their widgets are drawn only while open (issue 27)."""
+    at.session_state["data_tab"] = tab
+    if instruments:
+        at.session_state["w_instruments_open"] = True
+    at.run()
+    return at
+
+
+def uploader(at, label: str):
+    """The Data page's file field whose label starts with ``label``, its tab (or the
+    instruments expander) opened first when it is not drawn: the upload fields' keys change
+    after every load, and a closed tab draws none (issue 27)."""
+    def find():
+        return [u for u in at.file_uploader if u.label.startswith(label)]
+
+    if not find():
+        instruments = not label.startswith(("Measurement", "Setup", "Certificate", "Project"))
+        open_data_tab(at, "Project file" if label.startswith("Project") else "Upload CSVs",
+                      instruments=instruments)
+    return find()[0]

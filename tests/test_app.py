@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip("streamlit")
+from conftest import uploader as _uploader  # noqa: E402
 from streamlit.testing.v1 import AppTest  # noqa: E402
 
 from cmm_core.export import downloads as export
@@ -64,17 +65,13 @@ def _frame(at, column):
     raise KeyError(column)
 
 
-def _uploader(at, label):
-    """The file uploader whose label starts with ``label`` (its key changes after every
-    successful load, so that the next upload replaces the files)."""
-    return next(u for u in at.file_uploader if u.label.startswith(label))
 
 
 def _restore(at, content) -> None:
     """Upload ``content`` (text or bytes) as a project file on the Data page and press
     Restore project."""
     data = content.encode() if isinstance(content, str) else content
-    at.file_uploader(key="up_project").set_value(("p.json", data, "application/json"))
+    _uploader(at, "Project file").set_value(("p.json", data, "application/json"))
     at.run()
     at.button(key="restore_project").click()
     at.run()
@@ -310,7 +307,7 @@ def test_upload_long_form_csv_and_a_malformed_one():
     for pos, q in probes.items():
         for line in (THESIS / f"{pos}.csv").read_text().splitlines()[1:]:
             rows.append(f"{pos},{q},{line}")
-    at.file_uploader(key="up_meas").set_value(
+    _uploader(at, "Measurement CSV").set_value(
         [("long.csv", "\n".join(rows).encode(), "text/csv")])
     at.button(key="load_upload").click()
     at.run()
@@ -348,9 +345,9 @@ def test_upload_with_its_own_setup_never_borrows_the_thesis_certificate(tmp_path
 
     simulate({"seed": 5}).write(tmp_path)
     at = _new()
-    at.file_uploader(key="up_meas").set_value(
+    _uploader(at, "Measurement CSV").set_value(
         [("measurements.csv", (tmp_path / "measurements.csv").read_bytes(), "text/csv")])
-    at.file_uploader(key="up_setup").set_value(
+    _uploader(at, "Setup").set_value(
         [("setup.json", (tmp_path / "setup.json").read_bytes(), "application/json")])
     at.button(key="load_upload").click()
     at.run()
@@ -363,7 +360,7 @@ def test_upload_with_its_own_setup_never_borrows_the_thesis_certificate(tmp_path
 def test_the_same_file_uploaded_twice_is_one_problem():
     at = _new()
     data = (THESIS / "BP111.csv").read_bytes()
-    at.file_uploader(key="up_meas").set_value([("BP111.csv", data, "text/csv"),
+    _uploader(at, "Measurement CSV").set_value([("BP111.csv", data, "text/csv"),
                                                ("BP111 (1).csv", data, "text/csv")])
     at.button(key="load_upload").click()
     at.run()
@@ -1005,6 +1002,11 @@ def test_a_laser_upload_shows_its_residuals_and_the_uncertainty_gain(inst_app):
                                                "sigma_um", "instruments")}
     text = A.record_to_project_json(session_record(state))
     at.switch_page("pages/data.py")
+    at.run()
+    # back on the Data page the expander is closed, its label counts the file
+    assert any("Instruments fitted jointly with the plate: 1 file" in e.label
+               for e in at.expander)
+    at.session_state["w_instruments_open"] = True
     at.run()
     at.button(key="rm_instrument_0").click()
     at.run()

@@ -46,11 +46,15 @@ def _free_port() -> int:
 
 
 def _start_server(script: Path = ROOT / "app.py"):
-    """``streamlit run SCRIPT`` (the app) on a free port: (process, url) once it answers."""
+    """The app as ``make run`` starts it (``serve.py``), or ``streamlit run SCRIPT``, on a
+    free port: (process, url) once it answers."""
     port = _free_port()
     env = {**os.environ, "STREAMLIT_BROWSER_GATHER_USAGE_STATS": "false"}
+    # the app as ``make run`` starts it (serve.py), any other script by streamlit run
+    start = ([str(ROOT / "serve.py")] if script == ROOT / "app.py"
+             else ["-m", "streamlit", "run", str(script)])
     proc = subprocess.Popen(
-        [sys.executable, "-m", "streamlit", "run", str(script), "--server.headless",
+        [sys.executable, *start, "--server.headless",
          "true", "--server.port", str(port), "--server.address", "127.0.0.1",
          "--server.fileWatcherType", "none"],
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)

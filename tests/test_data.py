@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from conftest import ROOT, THESIS
+from conftest import uploader as _uploader
 
 from cmm_core.diagnosis import detect_outliers
 from cmm_core.io import (
@@ -267,7 +268,7 @@ def _sfx(at) -> str:
 
 
 def _upload(at, files):
-    at.file_uploader(key=f"up_meas{_sfx(at)}").set_value(
+    _uploader(at, "Measurement CSV").set_value(
         [(n, t.encode(), "text/csv") for n, t in files])
     at.button(key="load_upload").click()
     at.run()
@@ -361,9 +362,9 @@ def test_the_data_page_takes_a_certificate_statement_for_a_certificate_without_u
     def load(choice, a=0.0, b=0.0):
         """Upload the three kinds of file (widget keys of the current upload generation)."""
         sfx = _sfx(at)
-        at.file_uploader(key=f"up_meas{sfx}").set_value(meas)
-        at.file_uploader(key=f"up_setup{sfx}").set_value(setup)
-        at.file_uploader(key=f"up_cert{sfx}").set_value(cert)
+        _uploader(at, "Measurement CSV").set_value(meas)
+        _uploader(at, "Setup").set_value(setup)
+        _uploader(at, "Certificate").set_value(cert)
         radio = at.radio(key=f"up_cert_u{sfx}")
         radio.set_value(radio.options[choice]).run()
         if choice == 1:
@@ -405,7 +406,7 @@ def test_a_project_file_of_the_wrong_shape_restores_nothing_and_says_why(part, v
     at = _upload_app()
     at.switch_page("pages/data.py")
     at.run()
-    at.file_uploader(key="up_project").set_value(
+    _uploader(at, "Project file").set_value(
         ("p.json", json.dumps(doc).encode(), "application/json"))
     at.run()
     at.button(key="restore_project").click()

@@ -5,13 +5,12 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("streamlit")
+from conftest import uploader as _uploader  # noqa: E402
 from streamlit.testing.v1 import AppTest  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _uploader(at, label):
-    return next(u for u in at.file_uploader if u.label.startswith(label))
 
 
 def test_export_page_corrects_its_example_points_with_a_machine_thermal_model(tmp_path):

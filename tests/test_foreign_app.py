@@ -8,6 +8,8 @@ import json
 from pathlib import Path
 
 import numpy as np
+from conftest import open_data_tab
+from conftest import uploader as _uploader
 from streamlit.testing.v1 import AppTest
 from test_foreign_tables import PATTERN, _dmo, _vendor_feature_csv
 from test_msl import msl_files_of, simulated_machine
@@ -47,7 +49,7 @@ def _load_mapped(at, name, content, mime, pattern, sim):
     """On the Data page: a foreign file through the mapped import with ``pattern``, then
     the simulation's setup and certificate uploaded and everything loaded."""
     at.switch_page("pages/data.py")
-    at.run()
+    open_data_tab(at, "Upload CSVs")
     at.file_uploader(key="map_file").set_value((name, content, mime))
     at.run()
     next(t for t in at.text_input if t.key.endswith("_pattern")).set_value(pattern)
@@ -57,8 +59,8 @@ def _load_mapped(at, name, content, mime, pattern, sim):
     at.run()
     _ok(at)
     setup = json.dumps(sim.dataset.setup.raw).encode()
-    at.file_uploader(key="up_setup").set_value(("setup.json", setup, "application/json"))
-    at.file_uploader(key="up_cert").set_value(
+    _uploader(at, "Setup").set_value(("setup.json", setup, "application/json"))
+    _uploader(at, "Certificate").set_value(
         ("cert.csv", _cert_csv(sim.dataset.certificate).encode(), "text/csv"))
     at.button(key="load_upload").click()
     at.run()
@@ -110,7 +112,7 @@ def test_an_msl_file_given_to_the_plain_uploader_is_named(tmp_path):
     at = _new()
     at.switch_page("pages/data.py")
     at.run()
-    at.file_uploader(key="up_meas").set_value(_files([snapshot]))
+    _uploader(at, "Measurement CSV").set_value(_files([snapshot]))
     at.button(key="load_upload").click()
     at.run()
     assert not at.exception
@@ -160,7 +162,7 @@ def test_restored_mapped_project_keeps_the_mapping():
     at.run()
     at.switch_page("pages/data.py")
     at.run()
-    at.file_uploader(key="up_project").set_value(("p.json", text.encode(), "application/json"))
+    _uploader(at, "Project file").set_value(("p.json", text.encode(), "application/json"))
     at.run()
     at.button(key="restore_project").click()
     at.run()

@@ -2,6 +2,7 @@
 render without an error, and the crash is reported."""
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -38,8 +39,18 @@ def test_crash_sample_fails_names_sxy_and_history_shows_it():
     assert any("sxy" in m.value for m in at.markdown)
     # the diagnosis against the stored model names the crash's squareness
     assert any("names squareness XY (sxy" in m.value for m in at.markdown)
-    # the history tab: the squareness's change between the last two calibrations
+    # the E_n map: every ball of the check in one of the three |E_n| classes, the crash's
+    # balls beyond 3
+    svg = next(m.value for m in at.markdown if 'data-figure="chk_map"' in m.value)
+    counts = [int(n) for n in re.findall(r"\|E_n\|[^<]*?: (\d+)<", svg)]
+    assert len(counts) == 3 and counts[2] > 0
+    # the history tab, drawn only while open: the squareness's change between the last two
+    # calibrations, its trend and the error map's change
+    at.session_state["chk_tab"] = "History"
+    at.run()
+    _ok(at)
     assert any("sxy" in m.value and "significant" in m.value for m in at.markdown)
+    assert {c.key for c in at.get("plotly_chart")} >= {"hist_trend", "hist_map"}
 
 
 def test_quiet_sample_passes_and_bad_mpe_is_one_message():

@@ -22,11 +22,13 @@ from .comparison import (
 )
 from .figures import (
     AXIS_COLOURS,
+    EN_CLASSES,
     FUNCTION_UNITS,
     deviations_plate_frame,
     error_function_curves,
     fig_detection_limits,
     fig_deviation,
+    fig_en_map,
     fig_error_functions,
     fig_history,
     fig_mpe,
@@ -121,7 +123,7 @@ __all__ = [
     "approach_split", "AXIS_COLOURS", "breakdown", "build_report", "chi2_html",
     "chi2_test_numbers", "CheckChoices", "compare_models", "ComparisonFigure", "coverage_reasons", "DataFile", "DataSources", "default_session_folder", "DEFAULT_EXCLUDE_OUTLIERS",
     "deviations_plate_frame", "diagnosis_conclusion", "diagnosis_rows", "ERROR_CONVENTION",
-    "error_function_curves", "fig_deviation", "fig_detection_limits", "fig_error_functions", "fig_history", "fig_mpe",
+    "EN_CLASSES", "error_function_curves", "fig_deviation", "fig_en_map", "fig_detection_limits", "fig_error_functions", "fig_history", "fig_mpe",
     "fig_pattern", "fig_placements", "fig_residual_map", "fig_signature_scatter",
     "fig_surface_grid", "figure_html", "FORMAT", "FUNCTION_UNITS", "GP_KERNELS", "GP_MEANS",
     "HistoryChoices", "load_stored_model", "results_document",

@@ -312,6 +312,37 @@ def fig_signature_scatter(residuals_um: ArrayLike, signature_um: ArrayLike, titl
     return _layout(fig, title, height=height)
 
 
+# |E_n| classes of an interim check's map: (upper limit, label, colour). E_n is a residual
+# over its standard uncertainty, so |E_n| <= 2 is within the 95 % interval.
+EN_CLASSES = ((2.0, "|E_n| ≤ 2 (within 95 %)", "#2ca02c"),
+              (3.0, "2 < |E_n| ≤ 3", "#ff7f0e"),
+              (np.inf, "|E_n| > 3", "#d62728"))
+
+
+def fig_en_map(table: pd.DataFrame, title: str, height: int = 420) -> go.Figure:
+    """The normalised errors of an interim check's new observations over the plate (x, y
+    in mm): one colour per :data:`EN_CLASSES` class of the largest ``|E_n|`` of each ball
+    (``monitor`` ``CheckResult.table``: columns ``x_mm, y_mm, position, probe, ball,
+    En_x, En_y, En_z, En``); a hover title gives the three components."""
+    en = np.abs(table["En"].to_numpy(float))
+    lower = -np.inf
+    fig = go.Figure()
+    for upper, name, colour in EN_CLASSES:
+        sub = table[(en > lower) & (en <= upper)]
+        lower = upper
+        fig.add_trace(go.Scatter(
+            x=sub["x_mm"], y=sub["y_mm"], mode="markers", name=f"{name}: {len(sub)}",
+            marker={"color": colour, "size": 9},
+            customdata=sub[["position", "probe", "ball", "En_x", "En_y", "En_z"]].to_numpy(
+                object),
+            hovertemplate="%{customdata[0]} stylus %{customdata[1]} ball %{customdata[2]}: "
+                          "E_n x %{customdata[3]:+.2f}, y %{customdata[4]:+.2f}, "
+                          "z %{customdata[5]:+.2f}<extra></extra>"))
+    fig.update_xaxes(title_text="x (mm)")
+    fig.update_yaxes(title_text="y (mm)", scaleanchor="x")
+    return _layout(fig, title, height=height)
+
+
 def fig_mpe(result: MpeResult,
             title: str = "Length errors against the MPE (0.6 µm + L/600, L in mm)"
             ) -> go.Figure:
