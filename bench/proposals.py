@@ -177,6 +177,24 @@ def random_candidate(data, top, others, rng):
     return cand, max(keep, 0)
 
 
+def random_repeat(data, top, rng):
+    """For a repeat top: a repeat of the same readings at the end of the same placements,
+    with a stylus of each drawn at random among those it measured with, on balls drawn at
+    random: does the proposer's choice among repeats matter, or only that it is one?"""
+    each = {}
+    m = data.meas
+    for p, r in top.repeat.items():
+        at = m["position"] == p
+        styli = list(dict.fromkeys(m.loc[at, "probe"].astype(str)))
+        q = styli[rng.integers(len(styli))]
+        balls = sorted(set(m.loc[at & (m["probe"].astype(str) == q), "ball"].astype(int)))
+        pick = rng.choice(balls, size=len(r["balls"]), replace=False)
+        each[p] = {"probe": q, "balls": [int(b) for b in pick],
+                   "time_min": list(r["time_min"])}
+    return replace(top, name=f"random_{top.name}", description="random repeat",
+                   repeat=each)
+
+
 def first_readings(aug, n_before: int, keep: int | None):
     """``aug`` with only the first ``keep`` of the readings appended after row
     ``n_before`` (in time order); ``keep`` None: unchanged."""
@@ -247,9 +265,11 @@ def run_case(name, seeds):
         other, keep = random_candidate(data, top.candidate, pr.ranked[1:], rng)
         aug_r = first_readings(appended(other), len(data.meas), keep)
         random_ = _named(diagnose(aug_r, base), truth, rival)
+        rep = (_named(diagnose(appended(random_repeat(data, top.candidate, rng)), base),
+                      truth, rival) if top.candidate.repeat else None)
         rf = fit_rivals(data, pr.rivals, baseline=base)
         sep = nested_rejects(aug, rf, truth, rival)
-        rows.append((before, after, random_, top.power[truth], sep, top.candidate.name))
+        rows.append((before, after, random_, top.power[truth], sep, top.candidate.name, rep))
         print(f"  seed {seed}: top {top.candidate.name} (power {top.power[truth]:.2f}), "
               f"named before/after/random: {before[0]}/{after[0]}/{random_[0]}, decided "
               f"{before[2]}/{after[2]}/{random_[2]} "
@@ -293,6 +313,11 @@ def main():
             print(f"  {label:30s} names the truth: strict {_share([r[i][0] for r in rows])},"
                   f" by function {_share([r[i][1] for r in rows])}, decided "
                   f"{_share([r[i][2] for r in rows])}")
+        reps = [r[6] for r in rows if r[6] is not None]
+        if reps:
+            print(f"  {'random repeat, same time':30s} names the truth: strict "
+                  f"{_share([r[0] for r in reps])}, decided {_share([r[2] for r in reps])} "
+                  f"(the {len(reps)} seeds whose top proposal is a repeat)")
         pred = float(np.mean([r[3] for r in rows]))
         print(f"  predicted power {100 * pred:.1f} %, Monte Carlo separation "
               f"{_share([r[4] for r in rows])}, difference "

@@ -51,17 +51,23 @@ def _no_exception(pg):
 
 
 
+def _markers(chart) -> int:
+    """The E_n map's ball markers: those whose hover title gives the three E_n."""
+    return sum("E_n x" in t for t in chart.locator("title").all_text_contents())
+
+
 def test_sample_check_after_a_crash_shows_verdict_map_and_effect(page):
     # the sample history is the page's default data: the check after the crash runs
     expect(page.get_by_text("Stored calibration: calibration_2024-03-04.json")).to_be_visible()
     expect(page.get_by_text("Verdict: changed").first).to_be_visible()
-    # the E_n map: a plotly chart with its title, one marker per ball centre
-    chart = page.locator(".st-key-chk_map [data-testid='stPlotlyChart']")
-    # a rerun keeps the stale chart beside the new one for a moment: wait for one
+    # the E_n map: a picture drawn on the server with its title, one marker per ball
+    # centre, each with its hover title
+    chart = page.locator("[data-figure='chk_map'] > svg")
+    # a rerun keeps the stale picture beside the new one for a moment: wait for one
     expect(chart).to_have_count(1)
     expect(chart).to_be_visible()
     expect(chart.get_by_text("Normalised errors of the new observations")).to_be_visible()
-    assert chart.locator("path.point").count() == 200  # 4 placements × 25 balls × 2 styli
+    assert _markers(chart) == 200  # 4 placements × 25 balls × 2 styli
     # what changed, named as the diagnosis names effects
     expect(page.get_by_text("names squareness XY (sxy").first).to_be_visible()
     expect(page.get_by_role("heading", name="Conformity")).to_be_visible()
@@ -73,11 +79,11 @@ def test_quiet_one_placement_check_is_partial(page):
     _choose(page, "Sample check", "quiet (2024-06-17, one placement)")
     expect(page.get_by_text("Verdict: partial").first).to_be_visible()
     expect(page.get_by_text("cannot see 19 combination(s)").first).to_be_visible()
-    chart = page.locator(".st-key-chk_map [data-testid='stPlotlyChart']")
-    # a rerun keeps the stale chart beside the new one for a moment: wait for one
+    chart = page.locator("[data-figure='chk_map'] > svg")
+    # a rerun keeps the stale picture beside the new one for a moment: wait for one
     expect(chart).to_have_count(1)
     expect(chart).to_be_visible()
-    assert chart.locator("path.point").count() == 50  # one placement, two styli
+    assert _markers(chart) == 50  # one placement, two styli
     _no_exception(page)
     page.screenshot(path=str(ART / "check_02_quiet.png"), full_page=True)
 
