@@ -38,11 +38,15 @@ def _settings(key: cached.FitKey) -> dict:
 
 
 @st.cache_data(show_spinner="Scoring candidate measurements…", max_entries=16)
-def cached_proposals(key: cached.FitKey, rivals: tuple, _ds):
-    """``plan.propose`` of the default candidate set for the two rivals (``Proposals``)."""
-    from cmm_core.plan import propose
+def cached_proposals(key: cached.FitKey, rivals: tuple, _ds, instruments: bool = False):
+    """``plan.propose`` of the default candidate set for the two rivals (``Proposals``);
+    ``instruments``: the instrument runs too (``plan.instrument_candidates``)."""
+    from cmm_core.plan import instrument_candidates, measurement_candidates, propose
 
-    return propose(_selected(key, _ds), rivals, **_settings(key))
+    data = _selected(key, _ds)
+    cands = measurement_candidates(data) + (instrument_candidates(data) if instruments
+                                            else [])
+    return propose(data, rivals, cands=cands, **_settings(key))
 
 
 @st.cache_data(show_spinner="Simulating the proposal with each rival as the truth…",
@@ -109,7 +113,11 @@ def measure_next(ds, fkey: cached.FitKey, cands: list, holdout: list | None = No
     pair = st.selectbox("Rivals to tell apart", pairs, key="w_next_pair",
                         format_func=lambda p: f"{p[0]} against {p[1]}")
     pair = tuple(pair)
-    pr = calls.safe(cached_proposals, fkey, pair, ds, what="Measure next")
+    tools = st.checkbox("Also instrument runs (laser along X, Y, Z; step gauge along X, Y; "
+                        "ball bar in XY)", key="w_next_instruments",
+                        help="Scored and simulated as the plate's candidates; a plan file "
+                             "cannot hold them (docs/proposals.md).")
+    pr = calls.safe(cached_proposals, fkey, pair, ds, bool(tools), what="Measure next")
     if pr is None:
         return
     now = min(pr.current.values())
@@ -126,7 +134,7 @@ def measure_next(ds, fkey: cached.FitKey, cands: list, holdout: list | None = No
             plate = not p.candidate.instrument
             # a placement's own scale is outside the catalogue (the virtual CMM cannot
             # measure it as the truth); against the baseline the power is the outcome
-            can_sim = plate and not set(pair) & PSEUDO
+            can_sim = not set(pair) & PSEUDO
             if b1.button("Simulate it", key=f"next_sim_{name}", disabled=not can_sim,
                          help="Simulate this measurement with each rival in turn as the "
                               "truth (its fit on these data, noise σ), append it to the data "

@@ -144,3 +144,28 @@ def test_a_proposal_handed_to_the_plan_page_is_the_plan(alias_files):
     at.run()
     _ok(at)
     assert json.loads(at.session_state["w_plan_text"])["name"] != doc["name"]
+
+
+def test_instrument_runs_are_proposed_and_simulated_on_request(alias_files):
+    """With "Also instrument runs" the instrument candidates are scored beside the plate's:
+    on this case a step gauge or laser run along X (offset in Y: its Abbe arm sees rxz)
+    decides the pair in less machine time than a new placement, so it is among the top
+    proposals; its "Simulate it" runs the instrument on each rival's machine and it
+    separates them, its "Use as the plan" is off (a plan file holds no instrument)."""
+    at = _diagnosed(alias_files)
+    before = {b.key for b in at.button if b.key and b.key.startswith("next_sim_")}
+    assert not any(k.startswith(("next_sim_laser", "next_sim_step_gauge")) for k in before)
+    at.checkbox(key="w_next_instruments").check()
+    at.run()
+    _ok(at)
+    tools = [b.key[len("next_sim_"):] for b in at.button
+             if b.key and b.key.startswith(("next_sim_laser_x", "next_sim_step_gauge_x"))]
+    assert tools, [b.key for b in at.button if b.key]
+    name = tools[0]
+    assert at.button(key=f"next_plan_{name}").disabled
+    assert not at.button(key=f"next_sim_{name}").disabled
+    at.button(key=f"next_sim_{name}").click()
+    at.run()
+    _ok(at)
+    said = next(m.value for m in at.markdown if m.value.startswith("Simulated (seed 0):"))
+    assert said.count("**separated**") == 2, said

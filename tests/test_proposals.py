@@ -161,6 +161,26 @@ def test_one_click_separates_the_rivals_on_simulated_alias_data():
     assert all(o.separated for o in out.values())
 
 
+def test_an_instrument_proposal_simulated_separates_as_often_as_its_power_says():
+    """The same alias pair with the instrument candidates alone: a step gauge along X
+    (offset in Y, so it sees rxz through its Abbe arm) is predicted to decide it (power
+    ≥ 0.98 each way), a ball bar in XY not (≤ 0.11). Simulated in one click on the machine
+    of each rival's fit, with the instrument's own noise, over 8 noise seeds: the step
+    gauge separates the rivals in at least 14 of the 16 outcomes (at power 0.98,
+    P(≤ 13) ≈ 0.004), the ball bar in at most 6 (at power 0.11, P(≥ 7) < 0.001)."""
+    data = simulated("pitch80_3pos", 1001, noise_um=0.5,
+                     kinematic={"spec": "kinematic21,rxz:4",
+                                "coefficients": {"rxz[4]": 3.0}}).dataset
+    pr = propose(data, ("rxz:4", "sxy"), baseline=BASE, cands=instrument_candidates(data))
+    by = {p.candidate.name: p for p in pr.ranked}
+    gauge, bar = by["step_gauge_x"], by["ball_bar_xy"]
+    assert gauge.power_min >= 0.98 and max(bar.power.values()) <= 0.11
+    for prop, lo, hi in ((gauge, 14, 16), (bar, 0, 6)):
+        hits = sum(o.separated for seed in range(8) for o in simulate_outcomes(
+            data, prop, baseline=BASE, seed=seed).values())
+        assert lo <= hits <= hi, (prop.candidate.name, hits)
+
+
 def test_a_large_candidate_set_on_dask_ranks_as_the_serial_loop(clean80):
     """``propose_many`` (chunks on a Dask client; threads here to keep the test light)
     gives the serial ranking, and its numbers to rounding: each chunk's design holds other

@@ -79,11 +79,11 @@ def _add_arguments(p) -> None:
     p.add_argument("--instruments", action="store_true",
                    help="also score instrument candidates: laser positioning runs along X, "
                         "Y, Z, step gauges along X and Y, a ball bar in XY (default: plate "
-                        "placements and styli only; --simulate and --plan-out take plate "
-                        "proposals only)")
+                        "placements and styli only; --plan-out takes plate proposals only)")
     p.add_argument("--simulate", action="store_true",
-                   help="also simulate the top plate proposal with each rival as the truth, "
-                        "append it to the data and run the diagnosis (adds a few seconds)")
+                   help="also simulate the top proposal (a placement, stylus, repeat or "
+                        "instrument run) with each rival as the truth, append it to the data "
+                        "and run the diagnosis (adds a few seconds)")
     p.add_argument("--seed", type=int, default=0,
                    help="seed of the noise of --simulate (default: %(default)s)")
     p.add_argument("--plan-out", metavar="PLAN.json", default=None,
@@ -116,10 +116,10 @@ def run(args: argparse.Namespace) -> dict:
     out = pr.to_dict()
     out["proposals"] = out["proposals"][:args.top]
     out["sigma"] = sigma_rec
-    if plates and args.simulate and set(pr.rivals) & PSEUDO:
+    if pr.ranked and args.simulate and set(pr.rivals) & PSEUDO:
         out["simulated"] = {"skipped": f"{pr.rivals[1]} cannot be simulated as the truth"}
-    elif plates and args.simulate:
-        outs = simulate_outcomes(data, plates[0], seed=args.seed, **settings)
+    elif pr.ranked and args.simulate:  # the top proposal, a placement, repeat or instrument
+        outs = simulate_outcomes(data, pr.ranked[0], seed=args.seed, **settings)
         out["simulated"] = {t: {"verdict": o.verdict, "aliases": o.aliases,
                                 "separated": o.separated, "message": o.message}
                             for t, o in outs.items()}

@@ -1347,9 +1347,10 @@ def instrument_candidates(data: Dataset, *, reference: str | None = None,
     return out
 
 
-def _error_free(data: Dataset):
+def _error_free(data: Dataset, kinematic: dict | None = None):
     """The data's machine without errors (the simulator's ``Simulation`` the instrument
-    simulators read their truth from), measuring the first placement."""
+    simulators read their truth from), measuring the first placement; with
+    ``kinematic`` (simulator keys, :func:`truth_config`), the machine with those errors."""
     grid = plate_grid(data)
     raw = data.setup.raw
     p = next(iter(raw["positions"]))
@@ -1358,7 +1359,8 @@ def _error_free(data: Dataset):
                   "positions": {p: copy.deepcopy(raw["positions"][p])}})
     for key in ("temp_C", "rh_percent"):
         setup["positions"][p].pop(key, None)
-    return simulate({"seed": 0, "setup": setup, "noise_um": 0.0, "kinematic": dict(_NO_ERRORS),
+    return simulate({"seed": 0, "setup": setup, "noise_um": 0.0,
+                     "kinematic": {**_NO_ERRORS, **(kinematic or {})},
                      "plate": {"rows": grid.rows, "cols": grid.cols,
                                "pitch_mm": grid.pitch_mm, "form_um": 0.0,
                                "certificate_u_um": 0.0}}, name="proposals")
@@ -1661,8 +1663,9 @@ def truth_config(fitted: FitResult, exclude_positions: Iterable[str] = ()) -> di
 
 def _plate_only(proposal: Proposal) -> None:
     if proposal.candidate.instrument:
-        raise ValueError(f"{proposal.candidate.name} is an instrument: only plate placements "
-                         "can be simulated into the data set or written as a plan file.")
+        raise ValueError(f"{proposal.candidate.name} is an instrument: a plan file holds plate "
+                         "placements and styli only; measure the instrument as proposed "
+                         "(its kind, path and offset are in the proposal).")
 
 
 @dataclass(frozen=True)
@@ -1697,8 +1700,12 @@ def simulate_outcomes(data: Dataset, proposal: Proposal, *, baseline: str = "kin
                       seed: int = 0) -> dict:
     """One click, simulated: for each rival as the truth (its fit on the current data),
     simulate the proposal with noise σ, append it to the data and run the diagnosis.
-    Returns ``{rival: Outcome}``."""
-    _plate_only(proposal)
+    Returns ``{rival: Outcome}``.
+
+    An instrument candidate is measured on the machine of each rival's fitted kinematic
+    errors (its effects belong to the plate's placements and styli, which an instrument
+    does not see), with the instrument simulator's own noise, and fitted jointly with the
+    data as every instrument file is."""
     if PLACEMENT_SCALE in proposal.rivals:
         raise ValueError(f"{PLACEMENT_SCALE} is outside the catalogue: the virtual CMM "
                          "cannot simulate it as the truth (score the proposal instead).")
@@ -1713,6 +1720,11 @@ def simulate_outcomes(data: Dataset, proposal: Proposal, *, baseline: str = "kin
     for t, o in ((a, b), (b, a)):
         if cand.repeat:  # the same placements: their fitted poses, plate and drift
             aug = repeat_from_fit(data, cand, rf.fits[t], noise_um=sigma_um, seed=seed)
+        elif cand.instrument:
+            machine = _error_free(data, truth_config(rf.fits[t])["kinematic"])
+            obs = select(data)
+            aug = replace(obs, instruments=(*obs.instruments,
+                                            instrument_of(cand, machine, seed=seed)))
         else:
             cfg = {**truth_config(rf.fits[t], data.setup.raw["positions"]),
                    "noise_um": sigma_um}
