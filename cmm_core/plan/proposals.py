@@ -1717,6 +1717,7 @@ def simulate_outcomes(data: Dataset, proposal: Proposal, *, baseline: str = "kin
                     sigma_um=sigma_um)
     out = {}
     cand = proposal.candidate
+    aug: Dataset | Observations
     for t, o in ((a, b), (b, a)):
         if cand.repeat:  # the same placements: their fitted poses, plate and drift
             aug = repeat_from_fit(data, cand, rf.fits[t], noise_um=sigma_um, seed=seed)

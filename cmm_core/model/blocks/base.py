@@ -31,7 +31,7 @@ import pandas as pd
 from ...io import DataError
 from ...io.errors import cut_repr
 from ...io.setup import check_celsius
-from ...machine import KinematicTerms
+from ...machine import DEFAULT_LAYOUT, KinematicTerms
 from ..observations import Observations
 from ..state import State
 
@@ -590,6 +590,45 @@ class Block:
     def part_to_file(cls, part: ModelPart) -> dict:
         """The model-file keys (:attr:`model_keys`) holding ``part``."""
         return {}
+
+    @classmethod
+    def layout_section(cls, d: dict, name: str, *, layouts: Collection[str],
+                       keys: tuple[str, str], lacks: str
+                       ) -> tuple[np.ndarray, np.ndarray, tuple, str] | None:
+        """The model file's section (``model_keys[0]``) of a block that only some
+        machine layouts have (bridge twist, column bending), checked as far as the two
+        share it: ``(values, cov_joint, range_mm, layout)`` as arrays, their shapes the
+        caller's to check; None when the file holds no section, which is refused when the
+        layout has the block and the spec names it. ``keys``: the section's keys, its
+        values' and ``cov_joint``; ``lacks``: what a layout without the block lacks
+        ("bridge twist", "horizontal arm")."""
+        col = cls.model_keys[0]
+        sec = d.get(col)
+        layout = d.get("layout", DEFAULT_LAYOUT)
+        refit = "refit and save the model again (fit --save)"
+        if sec is None:
+            spec = d.get("spec")
+            if layout in layouts and isinstance(spec, str) and col in spec:
+                raise DataError(f"the model's spec has {col} but the file holds no "
+                                f"{cls.model_what}.", file=name, hint=f"{refit}; do not "
+                                "edit it.")
+            return None
+        if not isinstance(sec, dict) or set(map(str, sec)) != set(keys):
+            raise DataError(f"expected an object with the keys {', '.join(keys)}, "
+                            f"found {cut_repr(sec)}.", file=name, column=col,
+                            hint=f"{refit}; do not edit it.")
+        if layout not in layouts:
+            raise DataError(f"the {cut_repr(layout)} layout has no {lacks}; the file "
+                            f"holds a {cls.model_what}.", file=name, column=col,
+                            hint=f"{refit}.")
+        try:
+            values = np.asarray(sec[keys[0]], float)
+            cov = np.asarray(sec[keys[1]], float)
+            rng = tuple(float(x) for x in d["range_mm"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"expected numbers ({cut_repr(str(exc), 80)}).", file=name,
+                            column=col) from None
+        return values, cov, rng, layout
 
     @classmethod
     def part_from_file(cls, d: dict, n_before: int, name: str) -> ModelPart | None:

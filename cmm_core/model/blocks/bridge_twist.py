@@ -110,7 +110,7 @@ import pandas as pd
 
 from ...io import DataError
 from ...io.errors import cut_repr
-from ...machine import DEFAULT_LAYOUT, LAYOUTS
+from ...machine import LAYOUTS
 from ...units import UM, URAD
 from ..observations import Observations
 from .base import (
@@ -328,36 +328,17 @@ class BridgeTwist(Block):
 
     @classmethod
     def part_from_file(cls, d: dict, n_before: int, name: str) -> ModelPart | None:
-        sec = d.get("bridge_twist")
-        layout = d.get("layout", DEFAULT_LAYOUT)
-        if sec is None:
-            spec = d.get("spec")
-            if layout in BRIDGES and isinstance(spec, str) and "bridge_twist" in spec:
-                raise DataError("the model's spec has bridge_twist but the file holds no "
-                                "bridge twist.", file=name, hint="refit and save the model "
-                                "again (fit --save); do not edit it.")
+        got = cls.layout_section(d, name, layouts=BRIDGES, keys=SECTION_KEYS,
+                                 lacks="bridge twist")
+        if got is None:
             return None
+        t, cov, rng, layout = got
         col = "bridge_twist"
-        if not isinstance(sec, dict) or set(map(str, sec)) != set(SECTION_KEYS):
-            raise DataError(f"expected an object with the keys {', '.join(SECTION_KEYS)}, "
-                            f"found {cut_repr(sec)}.", file=name, column=col,
-                            hint="refit and save the model again (fit --save); do not edit it.")
-        if layout not in BRIDGES:
-            raise DataError(f"the {cut_repr(layout)} layout has no bridge twist; the file "
-                            "holds one.", file=name, column=col,
-                            hint="refit and save the model again (fit --save).")
-        try:
-            t = np.asarray(sec["twist_urad"], float)
-            cov = np.asarray(sec["cov_joint"], float)
-            rng = tuple(float(x) for x in d["range_mm"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise DataError(f"expected numbers ({cut_repr(str(exc), 80)}).", file=name,
-                            column=col) from None
         # 6 terms; 2 or 4 in a file of the first version (shapes s·v, (1 − s²)² v)
         k = t.shape[0] if t.ndim == 1 and t.shape[0] in (2, 4, len(LABELS)) else len(LABELS)
         if t.shape != (k,) or not np.isfinite(t).all():
             raise DataError(f"expected {len(LABELS)} finite twists (µrad), "
-                            f"found {cut_repr(sec['twist_urad'])}.", file=name,
+                            f"found {cut_repr(d[col]['twist_urad'])}.", file=name,
                             column=f"{col}.twist_urad")
         checked_cov(cov, n_before + k, name, f"{col}.cov_joint")
         labels = LABELS if k == len(LABELS) else OLD_LABELS[:k]

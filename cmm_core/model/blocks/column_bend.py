@@ -74,7 +74,7 @@ import pandas as pd
 
 from ...io import DataError
 from ...io.errors import cut_repr
-from ...machine import DEFAULT_LAYOUT, LAYOUTS
+from ...machine import LAYOUTS
 from ..observations import Observations
 from .base import (
     Block,
@@ -229,34 +229,15 @@ class ColumnBend(Block):
 
     @classmethod
     def part_from_file(cls, d: dict, n_before: int, name: str) -> ModelPart | None:
-        sec = d.get("column_bend")
-        layout = d.get("layout", DEFAULT_LAYOUT)
-        col = "column_bend"
-        if sec is None:
-            spec = d.get("spec")
-            if layout in ARMS and isinstance(spec, str) and col in spec:
-                raise DataError("the model's spec has column_bend but the file holds no "
-                                "column bending.", file=name, hint="refit and save the model "
-                                "again (fit --save); do not edit it.")
+        got = cls.layout_section(d, name, layouts=ARMS, keys=SECTION_KEYS,
+                                 lacks="horizontal arm")
+        if got is None:
             return None
-        if not isinstance(sec, dict) or set(map(str, sec)) != set(SECTION_KEYS):
-            raise DataError(f"expected an object with the keys {', '.join(SECTION_KEYS)}, "
-                            f"found {cut_repr(sec)}.", file=name, column=col,
-                            hint="refit and save the model again (fit --save); do not edit it.")
-        if layout not in ARMS:
-            raise DataError(f"the {cut_repr(layout)} layout has no horizontal arm; the file "
-                            "holds a column bending.", file=name, column=col,
-                            hint="refit and save the model again (fit --save).")
-        try:
-            t = np.asarray(sec["bend_um"], float)
-            cov = np.asarray(sec["cov_joint"], float)
-            rng = tuple(float(x) for x in d["range_mm"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise DataError(f"expected numbers ({cut_repr(str(exc), 80)}).", file=name,
-                            column=col) from None
+        t, cov, rng, layout = got
+        col = "column_bend"
         if t.shape != (len(LABELS),) or not np.isfinite(t).all():
             raise DataError(f"expected {len(LABELS)} finite bendings (µm), "
-                            f"found {cut_repr(sec['bend_um'])}.", file=name,
+                            f"found {cut_repr(d[col]['bend_um'])}.", file=name,
                             column=f"{col}.bend_um")
         checked_cov(cov, n_before + len(LABELS), name, f"{col}.cov_joint")
         return ModelPart(LABELS, t, cov, {"range_mm": rng, "layout": layout})
