@@ -1,5 +1,6 @@
-"""Monte Carlo of the non-rigid block (``python bench/nonrigid.py [--seeds N] [--twist-seeds M]
-[--rigid-seeds K]``), on scenario layouts (not the thesis):
+"""Monte Carlo of the non-rigid blocks (``python bench/nonrigid.py [--seeds N] [--twist-seeds M]
+[--rigid-seeds K] [--arm-seeds A] [--arm-limit-seeds B]``), on scenario layouts (not the
+thesis). Items 1-4 are ``bridge_twist`` on bridges and gantries:
 
 1. coverage of bridge_twist's fitted parameters (z = (v - truth)/u), the roll about the
    machine's z = 0 and about a line 900 mm up (a gantry's rails);
@@ -15,6 +16,22 @@
    (``rxx:3``, ``rzy:3`` ...) at their detection limit on the same layouts, how often the
    diagnosis names the twist first instead of the rigid term (the cost of the block's
    cubic shape family), with the rate at which the rigid term is named.
+
+Items 5-8 are ``column_bend`` on the horizontal-arm layouts (``horizontal_arm_fxzy``,
+``horizontal_arm_fyzx``), each with the 100, 150 and 80 mm plate scenarios:
+
+5. coverage of column_bend's three fitted parameters (z = (v - truth)/u; expect RMS ~1
+   and ~95 % within ±2);
+6. the clean-data false-alarm rate of naming column_bend (and any verdict, against the
+   diagnosis's family-wise level);
+7. detection: each of the three shapes alone injected at its detection limit (the
+   ``detectable`` of the column_bend candidate of a clean diagnosis of the same layout:
+   the size found with 80 % probability) and at twice it, the share of seeds where the
+   diagnosis names column_bend (with its binomial standard error);
+8. the converse: real rigid third orders of the arm's and the vertical carriage's
+   functions (the rigid neighbours of the block's shapes: the carriage's rotation about
+   the column's travel axis on the arm's lever, the arm's straightness in z and its
+   scale ...) at their detection limit, how often column_bend is named first instead.
 """
 import argparse
 import sys
@@ -31,6 +48,8 @@ from honesty import loop  # noqa: E402
 from cmm_core.diagnosis import diagnose  # noqa: E402
 from cmm_core.model import fit  # noqa: E402
 from cmm_core.model.blocks.bridge_twist import BRIDGES  # noqa: E402
+from cmm_core.model.blocks.column_bend import ARMS  # noqa: E402
+from cmm_core.model.blocks.column_bend import SHAPES as BEND_SHAPES  # noqa: E402
 
 LAYOUTS = (("pitch150_5pos", "gantry_fxyz"), ("pitch100_4pos", "moving_bridge_fxyz"),
            ("pitch100_4pos", "gantry_fyxz"), ("pitch80_3pos", "moving_bridge_fyxz"))
@@ -128,6 +147,123 @@ def rigid_at_limit(seeds: int) -> None:
           f"({100 * named / max(total, 1):.1f} %), bridge_twist named first instead "
           f"{twist}/{total} ({100 * twist / max(total, 1):.2f} %)", flush=True)
 
+ARM_CASES = tuple((name, layout) for layout in ARMS
+                  for name in ("pitch100_4pos", "pitch150_5pos", "pitch80_3pos"))
+"""Every horizontal-arm layout with three plate scenarios."""
+BEND = {"drop_um": 4.0, "shear_um": -3.0, "bend_um": 2.5}
+"""Item 5's bending (µm at the strokes' corners; tests/test_column_bend.py's)."""
+
+
+def _rate(k: int, n: int) -> str:
+    """``k/n (p ± se %)``: a share with its binomial standard error."""
+    p = k / max(n, 1)
+    return f"{k}/{n} ({100 * p:.1f} ± {100 * np.sqrt(p * (1 - p) / max(n, 1)):.1f} %)"
+
+
+def _bend_limits(name: str, layout: str) -> dict:
+    """``{label: size}`` of column_bend's parameters: the candidate's ``detectable`` in a
+    clean diagnosis of the layout (seed 999, as item 4 reads the rigid limits)."""
+    d0 = diagnose(sc.layout_data(name, layout, 999).dataset, "kinematic21")
+    c = next((c for c in d0.candidates if c.effect == "column_bend"), None)
+    return {} if c is None else {lab: size for lab, (_, size) in c.detectable.items()
+                                 if np.isfinite(size)}
+
+
+def arm_coverage(seeds: int) -> None:
+    z = []
+    for name, layout in ARM_CASES:
+        for seed in range(seeds):
+            sim = sc.layout_data(name, layout, 1100 + seed, effects={"column_bend": BEND})
+            lab, v, u = fit(sim.dataset, "kinematic21,column_bend").block("column_bend")
+            z += list((v - np.array([sim.truth[k] for k in lab])) / u)
+    za = np.array(z)
+    print(f"5. column_bend z (seeds 1100-{1099 + seeds}, {len(ARM_CASES)} arm cases, "
+          f"{len(BEND_SHAPES)} per fit): n={za.size} rms={np.sqrt(np.mean(za**2)):.3f} "
+          f"|z|<2: {np.mean(np.abs(za) < 2):.3f}", flush=True)
+
+
+def arm_clean(seeds: int) -> None:
+    named = n = 0
+    other: dict = {}
+    for name, layout in ARM_CASES:
+        for seed in range(seeds):
+            v = diagnose(sc.layout_data(name, layout, 1500 + seed).dataset,
+                         "kinematic21").verdict
+            n += 1
+            named += v == "column_bend"
+            if v is not None and v != "column_bend":
+                other[v] = other.get(v, 0) + 1
+                print(f"   {layout:19s} {name:14s} seed {1500 + seed}: {v}", flush=True)
+    alarms = named + sum(other.values())
+    print(f"6. clean arm data (seeds 1500-{1499 + seeds}): column_bend named {_rate(named, n)}; "
+          f"any verdict {_rate(alarms, n)} {other or ''}", flush=True)
+
+
+def arm_detection(seeds: int) -> None:
+    """Each shape alone at its limit and twice it: the share of seeds naming column_bend
+    (verdict), and what else is named."""
+    for scale in (1.0, 2.0):
+        hit = total = 0
+        other: dict = {}
+        for name, layout in ARM_CASES:
+            lim = _bend_limits(name, layout)
+            for lab, size in lim.items():
+                key = f"{lab.partition('.')[2]}_um"
+                n_hit = 0
+                for seed in range(seeds):
+                    sim = sc.layout_data(name, layout, 2000 + seed,
+                                         effects={"column_bend": {key: scale * size}})
+                    v = diagnose(sim.dataset, "kinematic21").verdict
+                    n_hit += v == "column_bend"
+                    if v != "column_bend":
+                        other[v] = other.get(v, 0) + 1
+                hit, total = hit + n_hit, total + seeds
+                print(f"   {layout:19s} {name:14s} {lab:18s} {scale:g}x limit "
+                      f"{scale * size:.3g} µm: named {n_hit}/{seeds}", flush=True)
+        print(f"7. column_bend at {scale:g}x its limit (seeds 2000-{1999 + seeds}): named "
+              f"{_rate(hit, total)}; otherwise {other}", flush=True)
+
+
+def _arm_tokens(layout: str) -> list[str]:
+    """Third orders of the rigid neighbours of column_bend's shapes (module docstring of
+    ``blocks.column_bend``): the rotations of the arm (axis a) and of the vertical
+    carriage on the column (z; ``rz`` about the column's travel axis c acts on the arm's
+    lever: the vertical ``f(h)·u``), the arm's scale and straightness in z, and the
+    carriage's straightness along the arm."""
+    a = ARMS[layout][3]
+    return ([f"r{a}{k}:3" for k in "xyz"] + [f"rz{k}:3" for k in "xyz"]
+            + [f"d{a}{a}:3", f"d{a}z:3", f"dz{a}:3"])
+
+
+def arm_rigid(seeds: int) -> None:
+    """Real rigid third orders at their detection limit on the arm layouts: named first as
+    themselves (or their next order), as column_bend, else."""
+    named = bend = total = 0
+    for name, layout in ARM_CASES:
+        d0 = diagnose(sc.layout_data(name, layout, 999).dataset, "kinematic21")
+        lim = {c.effect: c.detectable for c in d0.candidates}
+        for tok in _arm_tokens(layout):
+            fn = tok.partition(":")[0]
+            lab = f"{fn}[3]"
+            if tok not in lim or lab not in lim[tok] or not np.isfinite(lim[tok][lab][1]):
+                print(f"   {layout:19s} {name:14s} {tok}: no limit (not a candidate or "
+                      "undetermined), skipped", flush=True)
+                continue
+            size = lim[tok][lab][1]
+            n_tok = n_bend = 0
+            for seed in range(seeds):
+                sim = sc.layout_data(name, layout, 4000 + seed, kinematic={
+                    "spec": f"kinematic21,{tok}", "coefficients": {lab: size}})
+                v = diagnose(sim.dataset, "kinematic21").verdict
+                n_tok += v is not None and v.partition(":")[0] == fn
+                n_bend += v == "column_bend"
+            named, bend, total = named + n_tok, bend + n_bend, total + seeds
+            print(f"   {layout:19s} {name:14s} {tok} at its limit {size:.3g}: named "
+                  f"{n_tok}/{seeds}, column_bend first {n_bend}/{seeds}", flush=True)
+    print(f"8. rigid third orders on the arm layouts at their detection limit (seeds "
+          f"4000-{3999 + seeds}): named {_rate(named, total)}, column_bend named first "
+          f"instead {_rate(bend, total)}", flush=True)
+
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -138,7 +274,12 @@ def main(argv=None) -> int:
     ap.add_argument("--at-reading", action="store_true",
                     help="item 3: the twist's s and v at the carriage's readings, not the "
                          "tips (scenarios.bridge_roll evaluates at the tips)")
-    ap.add_argument("--only", choices=("1", "2", "3", "4"), default=None,
+    ap.add_argument("--arm-seeds", type=int, default=6,
+                    help="seeds per arm layout and plate of items 5 and 6 (6; item 6 runs "
+                         "4x as many; 0: skip)")
+    ap.add_argument("--arm-limit-seeds", type=int, default=4,
+                    help="seeds per case of items 7 and 8 (4; 0: skip)")
+    ap.add_argument("--only", choices=tuple("12345678"), default=None,
                     help="run one item only")
     args = ap.parse_args(argv)
     if args.only in (None, "1"):
@@ -149,6 +290,14 @@ def main(argv=None) -> int:
         other_shapes(args.twist_seeds, args.at_reading)
     if args.only in (None, "4") and args.rigid_seeds:
         rigid_at_limit(args.rigid_seeds)
+    if args.only in (None, "5") and args.arm_seeds:
+        arm_coverage(args.arm_seeds)
+    if args.only in (None, "6") and args.arm_seeds:
+        arm_clean(4 * args.arm_seeds)
+    if args.only in (None, "7") and args.arm_limit_seeds:
+        arm_detection(args.arm_limit_seeds)
+    if args.only in (None, "8") and args.arm_limit_seeds:
+        arm_rigid(args.arm_limit_seeds)
     return 0
 
 
