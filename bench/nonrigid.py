@@ -38,6 +38,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "bench")]
@@ -161,12 +162,27 @@ def _rate(k: int, n: int) -> str:
 
 
 def _bend_limits(name: str, layout: str) -> dict:
-    """``{label: size}`` of column_bend's parameters: the candidate's ``detectable`` in a
-    clean diagnosis of the layout (seed 999, as item 4 reads the rigid limits)."""
-    d0 = diagnose(sc.layout_data(name, layout, 999).dataset, "kinematic21")
+    """``{label: (size, power)}`` of column_bend's parameters: ``size`` the candidate's
+    ``detectable`` in a clean diagnosis of the layout (seed 999, as item 4 reads the rigid
+    limits), ``power`` what the candidate's own test (χ² with its ``n_params`` degrees of
+    freedom at its level) finds at that size of this one parameter alone: noncentrality
+    ``k² u_j² (Σ⁻¹)_jj`` (``k = z_{1-level/2} + z_{0.8}``, the limit's factor; Σ the
+    block's covariance in the augmented fit, u_j² its diagonal), the 80 % only for an
+    uncorrelated one-parameter test."""
+    data = sc.layout_data(name, layout, 999).dataset
+    d0 = diagnose(data, "kinematic21")
     c = next((c for c in d0.candidates if c.effect == "column_bend"), None)
-    return {} if c is None else {lab: size for lab, (_, size) in c.detectable.items()
-                                 if np.isfinite(size)}
+    if c is None:
+        return {}
+    r = fit(data, "kinematic21,column_bend")
+    sl = r.problem.layout.blocks["column_bend"]
+    cov = r.covariance[sl, sl]
+    gain = np.diag(cov) * np.diag(np.linalg.inv(cov))  # 1/(1 - R_j²) >= 1
+    k = stats.norm.isf(c.level / 2) + stats.norm.isf(0.2)
+    crit = stats.chi2.isf(c.level, c.n_params)
+    return {lab: (size, float(stats.ncx2.sf(crit, c.n_params, k**2 * g)))
+            for g, (lab, (_, size)) in zip(gain, c.detectable.items(), strict=True)
+            if np.isfinite(size)}
 
 
 def arm_coverage(seeds: int) -> None:
@@ -201,13 +217,16 @@ def arm_clean(seeds: int) -> None:
 
 def arm_detection(seeds: int) -> None:
     """Each shape alone at its limit and twice it: the share of seeds naming column_bend
-    (verdict), and what else is named."""
+    (verdict), per shape and in all, against the power its test predicts (``_bend_limits``)
+    and what else is named."""
+    limits = {case: _bend_limits(*case) for case in ARM_CASES}
     for scale in (1.0, 2.0):
         hit = total = 0
+        pred = 0.0
+        by_shape: dict = {}
         other: dict = {}
-        for name, layout in ARM_CASES:
-            lim = _bend_limits(name, layout)
-            for lab, size in lim.items():
+        for (name, layout), lim in limits.items():
+            for lab, (size, power) in lim.items():
                 key = f"{lab.partition('.')[2]}_um"
                 n_hit = 0
                 for seed in range(seeds):
@@ -218,10 +237,20 @@ def arm_detection(seeds: int) -> None:
                     if v != "column_bend":
                         other[v] = other.get(v, 0) + 1
                 hit, total = hit + n_hit, total + seeds
+                h0, t0, p0 = by_shape.get(lab, (0, 0, 0.0))
+                by_shape[lab] = (h0 + n_hit, t0 + seeds, p0 + seeds * power)
+                pred += seeds * power
                 print(f"   {layout:19s} {name:14s} {lab:18s} {scale:g}x limit "
-                      f"{scale * size:.3g} µm: named {n_hit}/{seeds}", flush=True)
+                      f"{scale * size:.3g} µm: named {n_hit}/{seeds}"
+                      + (f" (its test at 1x: {100 * power:.0f} %)" if scale == 1 else ""),
+                      flush=True)
+        for lab, (h0, t0, p0) in by_shape.items():
+            print(f"   {lab:18s} at {scale:g}x: named {_rate(h0, t0)}"
+                  + (f", predicted {100 * p0 / t0:.0f} %" if scale == 1 else ""), flush=True)
         print(f"7. column_bend at {scale:g}x its limit (seeds 2000-{1999 + seeds}): named "
-              f"{_rate(hit, total)}; otherwise {other}", flush=True)
+              f"{_rate(hit, total)}"
+              + (f" (its 3-parameter test predicts {100 * pred / total:.0f} %)"
+                 if scale == 1 else "") + f"; otherwise {other}", flush=True)
 
 
 def _arm_tokens(layout: str) -> list[str]:
