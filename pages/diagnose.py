@@ -143,12 +143,11 @@ def measure_next(ds, fkey: cached.FitKey, cands: list, holdout: list | None = No
                               "the virtual CMM cannot simulate it) nor against the baseline "
                               "(the power above is the outcome).")):
                 s["next_sim"] = (fkey, pair, name)
-            plannable = plate and not p.candidate.repeat
-            if b2.button("Use as the plan", key=f"next_plan_{name}", disabled=not plannable,
+            if b2.button("Use as the plan", key=f"next_plan_{name}", disabled=not plate,
                          help="Open this measurement on the Plan page as a plan file: "
-                              "the current placements, and with it." + ("" if plannable
-                              else " Not for an instrument run or a repeat (balls measured "
-                              "again), which a plan file cannot hold.")):
+                              "the current placements, and with it (a repeat: its balls "
+                              "measured again at the end)." + ("" if plate else " Not for "
+                              "an instrument run, which a plan file cannot hold.")):
                 text = calls.safe(cached_plan_text, fkey, pair, name, ds, p,
                                   what="Plan file")
                 if text is not None:

@@ -187,6 +187,18 @@ def test_plan_json_and_cli(tmp_path, capsys):
     ({"strategies": [{"placements": {"BP111": ["9"]}}]}, "strategies[0].placements.BP111"),
     ({"model": {"spec": "kinematic21,wobble"}}, "model.spec"),
     ({"colour": 1}, "colour"),
+    # balls measured again at the end of a placement: one the strategy measures, with one
+    # of its styli, balls on the 25-ball plate, each once
+    ({"strategies": [{"placements": ["BP111"], "repeat_at_end": {"BP112": {
+        "probe": "2", "balls": [1]}}}]}, "strategies[0].repeat_at_end.BP112"),
+    ({"strategies": [{"placements": ["BP111"], "repeat_at_end": {"BP111": {
+        "probe": "2", "balls": [1]}}}]}, "strategies[0].repeat_at_end.BP111.probe"),
+    ({"strategies": [{"placements": ["BP111"], "repeat_at_end": {"BP111": {
+        "probe": "1", "balls": [26]}}}]}, "strategies[0].repeat_at_end.BP111.balls"),
+    ({"strategies": [{"placements": ["BP111"], "repeat_at_end": {"BP111": {
+        "probe": "1", "balls": [3, 3]}}}]}, "strategies[0].repeat_at_end.BP111.balls"),
+    ({"strategies": [{"placements": ["BP111"], "repeat_at_end": {"BP111": [1, 2]}}]},
+     "strategies[0].repeat_at_end.BP111"),
 ])
 def test_bad_plans_refused_naming_the_field(tmp_path, edit, field, capsys):
     from cmm_core.cli import main
@@ -363,3 +375,45 @@ def test_a_misspelt_expected_effect_is_refused():
     raw.setdefault("model", {})["expected"] = {"plate_sagg": 2}
     with pytest.raises(DataError, match="model.expected.plate_sagg"):
         read_plan(raw, base_dir=PLAN.parent)
+
+
+def test_balls_repeated_at_the_end_continue_the_placement_s_drift():
+    """The virtual CMM's ``repeat_at_end``: the balls are measured once more with the
+    stylus after the placement's last reading (times continue at minutes_per_ball, the
+    plate not moved, ``repeat`` 1); without noise or other errors each repeated reading
+    is the first one moved by the placement's drift over the time between them
+    (v · Δt: 6 µm/h over 25 min is 2.5 µm), the other placement's unchanged."""
+    from cmm_core.model import simulate
+
+    cfg = {"seed": 1, "noise_um": 0.0, "kinematic": {"random_um": 0.0, "random_urad": 0.0},
+           "plate": {"form_um": 0.0, "certificate_u_um": 0.0},
+           "effects": {"drift": {"BP111": [6.0, 0.0, -3.0]}},
+           "repeat_at_end": {"BP111": {"probe": "1", "balls": [1, 13, 25]}}}
+    m = simulate(cfg).dataset.meas
+    p = m[m["position"] == "BP111"]
+    again = p[p["repeat"] == 1]
+    assert list(again["ball"]) == [1, 13, 25] and set(again["probe"]) == {"1"}
+    assert list(again["time_min"]) == [25.0, 25.5, 26.0]  # after 50 readings at 0.5 min
+    first = p[(p["repeat"] == 0) & (p["probe"] == "1")].set_index("ball").loc[[1, 13, 25]]
+    dt_h = (again["time_min"].to_numpy() - first["time_min"].to_numpy()) / 60.0
+    moved = again[["x_mm", "y_mm", "z_mm"]].to_numpy() - first[["x_mm", "y_mm",
+                                                                   "z_mm"]].to_numpy()
+    np.testing.assert_allclose(moved * 1e3, np.outer(dt_h, [6.0, 0.0, -3.0]), atol=1e-6)
+    assert (m.loc[m["position"] != "BP111", "repeat"] == 0).all()
+
+
+@pytest.mark.parametrize("edit, field", [
+    ({"BP999": {"probe": "1", "balls": [1]}}, "repeat_at_end.BP999"),
+    ({"BP111": {"probe": "3", "balls": [1]}}, "repeat_at_end.BP111.probe"),
+    ({"BP111": {"probe": "1", "balls": [0]}}, "repeat_at_end.BP111.balls"),
+    ({"BP111": {"probe": "1", "balls": [26]}}, "repeat_at_end.BP111.balls"),
+    ({"BP111": {"probe": "1", "balls": [2, 2]}}, "repeat_at_end.BP111.balls"),
+    ({"BP111": {"probe": "1"}}, "repeat_at_end.BP111"),
+    ([1], "repeat_at_end"),
+])
+def test_a_bad_repeat_at_end_is_refused_naming_the_key(edit, field):
+    from cmm_core.model import simulate
+
+    with pytest.raises(DataError, match=field.replace(".", r"\.")) as e:
+        simulate({"repeat_at_end": edit})
+    assert "\n" not in str(e.value)

@@ -32,6 +32,7 @@ from cmm_core.plan import (  # noqa: E402
     append_measurement,
     candidate_tokens,
     dask_client,
+    evaluate_file,
     fit_rivals,
     instrument_candidates,
     instrument_of,
@@ -666,9 +667,7 @@ def test_a_repeat_from_the_fit_is_the_repeat_on_the_true_machine(drift80):
 
 def test_a_repeat_decides_drift_from_a_probe_offset_in_one_click(drifting):
     """The top proposal on the drifting data is a repeat; simulated from each rival's fit
-    and appended, the diagnosis names that rival with the other no longer its alias. A
-    plan file cannot hold it (its strategies would equal the current data's): refused in
-    one line."""
+    and appended, the diagnosis names that rival with the other no longer its alias."""
     data = drifting
     pr = propose(data, ("drift", "probe_offset"))
     top = pr.ranked[0]
@@ -676,8 +675,32 @@ def test_a_repeat_decides_drift_from_a_probe_offset_in_one_click(drifting):
     out = simulate_outcomes(data, top, seed=1)
     assert out["drift"].verdict == "drift" and out["drift"].separated
     assert out["probe_offset"].verdict == "probe_offset"
-    with pytest.raises(ValueError, match="which a plan file cannot express"):
-        to_plan(data, top)
+
+
+def test_a_repeat_as_a_plan_file_determines_what_the_current_plan_cannot(drifting):
+    """The repeat written as a plan (its strategy's ``repeat_at_end``) and evaluated by the
+    planner from the design alone: the readings and machine time it adds are the
+    proposal's; with drift and the probe offsets in the model the current plan leaves
+    combinations of drift, offsets and poses undetermined (styli measured in blocks) and
+    the repeat none; with the kinematic model alone the repeat lowers the detection limit
+    of drift by more than half (the design's λ, ``plan_detect``)."""
+    top = next(p for p in propose(drifting, ("drift", "probe_offset")).ranked
+               if p.candidate.name == "repeat_all_12")
+    n_again = sum(len(r["balls"]) for r in top.candidate.repeat.values())
+    limits = {}
+    for spec in ("kinematic21,drift,probe_offset", "kinematic21"):
+        pf = read_plan(to_plan(drifting, top, baseline=spec), name="proposal")
+        now, more = pf.strategies
+        assert more.repeat_at_end == {p: {"probe": r["probe"], "balls": r["balls"]}
+                                      for p, r in top.candidate.repeat.items()}
+        assert more.n_probings - now.n_probings == n_again == 36
+        assert more.time_min - now.time_min == pytest.approx(top.candidate.time_min)
+        ev = evaluate_file(pf)["strategies"]
+        if spec != "kinematic21":
+            assert len(ev[0]["undetermined"]) > 0 and ev[1]["undetermined"] == []
+        else:
+            limits = {r["name"]: r["detection_limits"]["drift"]["size"] for r in ev}
+    assert limits[more.name] < 0.5 * limits[now.name]
 
 
 def test_rank_ties_at_the_level_go_to_the_other_directions_power(clean80):

@@ -107,9 +107,9 @@ def drift_files(tmp_path_factory):
 
 def test_next_proposes_a_repeat_where_styli_are_measured_in_blocks(drift_files, tmp_path):
     """The repeat at the end of a placement is among the default candidates, in the JSON
-    with its placements, stylus, balls and times, and simulated; the plan file, which
-    cannot hold a repeat, is the best placement or stylus proposal's (its second strategy
-    adds what the current data lack)."""
+    with its placements, stylus, balls and times, and simulated; the plan file is the
+    repeat's: the same placements and styli, its balls measured again at their end
+    (``repeat_at_end``)."""
     plan = tmp_path / "repeat_plan.json"
     args = _parser().parse_args(
         ["next", *_inputs(drift_files), "--rivals", "drift,probe_offset", "--top", "30",
@@ -122,9 +122,8 @@ def test_next_proposes_a_repeat_where_styli_are_measured_in_blocks(drift_files, 
         assert p in ("H", "D1", "D2") and r["probe"] in ("1", "2", "3")
         assert len(r["balls"]) == len(r["time_min"]) > 0
     assert out["simulated"]["drift"]["verdict"] == "drift"
-    written = out["plan_file"]["proposal"]
-    assert not written.startswith("repeat_")
-    assert written == next(p["name"] for p in out["proposals"]
-                           if not p["name"].startswith("repeat_") and not p["instrument"])
-    pf = read_plan(plan)
-    assert pf.strategies[0].probes_of != pf.strategies[1].probes_of
+    assert out["plan_file"]["proposal"] == best["name"]
+    now, more = read_plan(plan).strategies
+    assert now.probes_of == more.probes_of and now.repeat_at_end == {}
+    assert more.repeat_at_end == {p: {"probe": r["probe"], "balls": r["balls"]}
+                                  for p, r in best["repeat"].items()}

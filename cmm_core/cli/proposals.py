@@ -87,9 +87,10 @@ def _add_arguments(p) -> None:
     p.add_argument("--seed", type=int, default=0,
                    help="seed of the noise of --simulate (default: %(default)s)")
     p.add_argument("--plan-out", metavar="PLAN.json", default=None,
-                   help="write the top placement or stylus proposal as a plan file for "
-                        "'plan' (docs/planning.md; a repeat or an instrument run cannot be "
-                        "a plan: the next one down is written; default: not written)")
+                   help="write the top placement, stylus or repeat proposal as a plan file "
+                        "for 'plan' (docs/planning.md: a repeat is the strategy's "
+                        "repeat_at_end; an instrument run cannot be a plan: the next one "
+                        "down is written; default: not written)")
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -123,7 +124,7 @@ def run(args: argparse.Namespace) -> dict:
         out["simulated"] = {t: {"verdict": o.verdict, "aliases": o.aliases,
                                 "separated": o.separated, "message": o.message}
                             for t, o in outs.items()}
-    planned = [p for p in plates if not p.candidate.repeat]  # a plan cannot hold repeats
+    planned = plates  # a plan holds placements, styli and repeats, not instruments
     if planned and args.plan_out:
         # checked against the inputs before any work (cli.commands), written atomically
         atomic_write_text(args.plan_out, json.dumps(
@@ -131,6 +132,6 @@ def run(args: argparse.Namespace) -> dict:
                       noise_um=sigma), indent=1))
         out["plan_file"] = {"path": str(args.plan_out), "proposal": planned[0].candidate.name}
     elif args.plan_out:
-        out["plan_file"] = {"skipped": "no placement or stylus proposal to write: a plan "
-                                       "file cannot hold instruments or repeats"}
+        out["plan_file"] = {"skipped": "no placement, stylus or repeat proposal to write: "
+                                       "a plan file cannot hold instruments"}
     return out

@@ -35,6 +35,7 @@ DEFAULT_CONFIG = {
     "probes_interleaved": False,
     "minutes_per_ball": 0.5,
     "repeats": 1,
+    "repeat_at_end": {},
     "artefact": None,
 }
 """``artefact`` None: the setup's (``io_setup.ARTEFACTS``; a ball plate unless the setup
@@ -133,6 +134,26 @@ def _check_run(cfg, bad, number):
                 isinstance(q, str | int) and not isinstance(q, bool) for q in qs):
             raise bad(f"probes_per_position.{pos}", f"expected a non-empty list of probe "
                       f"names, found {cut_repr(qs)}.")
+    rae = top["repeat_at_end"]
+    if not isinstance(rae, dict):
+        raise bad("repeat_at_end", f"expected an object position: {{\"probe\": name, "
+                  f"\"balls\": [numbers]}}, found {cut_repr(rae)}.")
+    for pos, body in rae.items():
+        where = f"repeat_at_end.{pos}"
+        if not isinstance(body, dict) or set(map(str, body)) != {"probe", "balls"}:
+            raise bad(where, f"expected an object with the keys probe and balls, found "
+                      f"{cut_repr(body)}.")
+        q, balls = body["probe"], body["balls"]
+        if not isinstance(q, str | int) or isinstance(q, bool):
+            raise bad(f"{where}.probe", f"expected a probe name, found {cut_repr(q)}.")
+        if not isinstance(balls, list) or not balls:
+            raise bad(f"{where}.balls", f"expected a non-empty list of ball numbers, found "
+                      f"{cut_repr(balls)}.")
+        for b in balls:
+            number(f"{where}.balls", b, 1, 10_000, integer=True)
+        if len(set(balls)) != len(balls):
+            raise bad(f"{where}.balls", f"a ball is repeated once at the end: expected "
+                      f"distinct numbers, found {cut_repr(balls)}.")
     if top["artefact"] is not None and top["artefact"] not in ARTEFACTS:
         raise bad("artefact", f"unknown artefact {cut_repr(top['artefact'])}; expected one of "
                   f"{', '.join(ARTEFACTS)} (or null for the setup's).")
@@ -192,6 +213,21 @@ def _check_against_setup(cfg, setup, terms, name, own_ppp):
                       f"names, found {cut_repr(qs)}.")
         for q in qs:
             known(f"probes_per_position.{pos}", q, probes, "probe")
+    n_balls = int(cfg["plate"]["rows"]) * int(cfg["plate"]["cols"])
+    for pos, body in cfg["repeat_at_end"].items():
+        known(f"repeat_at_end.{pos}", pos, positions, "position")
+        # the styli the simulator measures the position with (virtual_cmm.simulate)
+        own = [str(q) for q in (cfg["probes_per_position"] or {}).get(pos, [])] or [
+            str(setup.positions[pos].probe or probes[0])]
+        if str(body["probe"]) not in own:
+            raise bad(f"repeat_at_end.{pos}.probe", f"stylus {cut_repr(body['probe'])} is "
+                      f"not among the styli {pos} is measured with ({', '.join(own)}).",
+                      hint="repeat a ball with a stylus the position uses "
+                           "(probes_per_position).")
+        far = [b for b in body["balls"] if b > n_balls]
+        if far:
+            raise bad(f"repeat_at_end.{pos}.balls", f"ball {far[0]} is not on the plate "
+                      f"of {n_balls} balls.")
     labels = terms.labels
     for lab in cfg["kinematic"]["coefficients"]:
         if lab not in labels:

@@ -17,7 +17,10 @@ dict in the SPEC format, frame ``machine``; default the thesis placements),
 ``temp_C`` per position [start, finish]; ``plate_sag``: ``uu, uv, vv`` µm;
 ``probe_offset``: per-probe vectors in µm or ``sd_um``; ``drift``: per-position vectors in
 µm/h or ``sd_um_per_h``; ``backlash``: reversal span ``x_um, y_um, z_um``), ``order`` (``row``, ``serpentine``, ``random``),
-``probes_interleaved``, ``minutes_per_ball``, ``repeats``, ``artefact`` (``"hole_plate"``:
+``probes_interleaved``, ``minutes_per_ball``, ``repeats``, ``repeat_at_end`` (position ->
+``{"probe": stylus, "balls": [numbers]}``: those balls measured once more with that stylus
+after the position's last reading, before the plate is moved; their ``repeat`` is
+``repeats``), ``artefact`` (``"hole_plate"``:
 the plate's features are holes, of which the fit uses the in-plane coordinates only;
 default the setup's, a ball plate).
 """
@@ -218,6 +221,11 @@ def simulate(config: dict | None = None, *, name: str = "simulation config") -> 
         seq = [(b, q) for b in visit for q in probes_of[p]] if cfg["probes_interleaved"] \
             else [(b, q) for q in probes_of[p] for b in visit]
         seq = seq * int(cfg["repeats"])
+        n_seq = len(seq)
+        # balls measured once more at the end of the placement, the plate not moved
+        again = cfg["repeat_at_end"].get(p)
+        if again:
+            seq = seq + [(int(b) - 1, str(again["probe"])) for b in again["balls"]]
         t_start = clock
         times = t_start + np.arange(len(seq)) * cfg["minutes_per_ball"]
         clock = times[-1] + 10.0  # re-fixturing the plate takes time
@@ -225,7 +233,8 @@ def simulate(config: dict | None = None, *, name: str = "simulation config") -> 
         frac = (times - times[0]) / max(times[-1] - times[0], 1e-9)
         for j, (b, q) in enumerate(seq):
             records.append((p, q, int(b) + 1, times[j], t0 + (t1 - t0) * frac[j],
-                            j // (len(visit) * len(probes_of[p]))))
+                            j // (len(visit) * len(probes_of[p])) if j < n_seq
+                            else int(cfg["repeats"])))
     df = pd.DataFrame(records, columns=["position", "probe", "ball", "time_min", "temp_C",
                                         "repeat"])
     for col, by_pos in sim.columns.items():
@@ -252,7 +261,7 @@ def simulate(config: dict | None = None, *, name: str = "simulation config") -> 
     pnom = prob.obs.p_mm
     r = x + pnom + rng.normal(0, cfg["noise_um"], x.shape) * 1e-3
     df["x_mm"], df["y_mm"], df["z_mm"] = r.T
-    if cfg["repeats"] <= 1:
+    if cfg["repeats"] <= 1 and not cfg["repeat_at_end"]:
         df = df.drop(columns="repeat")
     df["source"] = "measurements.csv"
     df["row"] = np.arange(2, len(df) + 2)

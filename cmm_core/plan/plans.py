@@ -27,7 +27,7 @@ The plan file format (``plan_file``) is described in ``docs/planning.md``.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal, overload
 
 import numpy as np
@@ -68,6 +68,11 @@ class Plan:
         ``minutes_per_ball`` and ``minutes_per_placement`` (minutes).
     seed : int
         Seed of the random measurement order (order ``random``) and of U2/U3's points.
+    repeat_at_end : dict
+        Placement -> ``{"probe": stylus, "balls": [numbers]}``: balls measured once more
+        with one of the placement's styli after its last reading, before the plate is
+        moved (a repeat tells a placement's drift from a stylus's offset,
+        docs/proposals.md); empty: none.
     """
 
     name: str
@@ -78,13 +83,15 @@ class Plan:
     noise_um: float
     measurement: dict
     seed: int = 0
+    repeat_at_end: dict = field(default_factory=dict)
 
     @property
     def n_probings(self) -> int:
         """Probed ball centres the plan measures."""
         balls = self.plate["rows"] * self.plate["cols"]
         return balls * sum(len(q) for q in self.probes_of.values()) * int(
-            self.measurement["repeats"])
+            self.measurement["repeats"]) + sum(len(r["balls"])
+                                               for r in self.repeat_at_end.values())
 
     @property
     def time_min(self) -> float:
@@ -99,12 +106,17 @@ class Plan:
         return _build(self, probes_of, name or self.name)
 
 
-def _build(plan: Plan, probes_of: dict, name: str) -> Plan:
+def _build(plan: Plan, probes_of: dict, name: str, repeat_at_end: dict | None = None
+           ) -> Plan:
+    """The plan measuring ``probes_of``; its repeats at the end are ``repeat_at_end``
+    (default: the plan's own, those of placements and styli still measured)."""
     setup = copy.deepcopy(plan.setup)
     setup["positions"] = {p: {**setup["positions"][p], "probe": probes_of[p][0]}
                           for p in probes_of}
+    again = plan.repeat_at_end if repeat_at_end is None else repeat_at_end
+    again = {p: r for p, r in again.items() if r["probe"] in probes_of.get(p, ())}
     return Plan(name, setup, dict(probes_of), plan.plate, plan.model, plan.noise_um,
-                plan.measurement, plan.seed)
+                plan.measurement, plan.seed, again)
 
 
 def simulation_config(plan: Plan, *, seed: int = 0, noise_um: float = 0.0,
@@ -136,7 +148,9 @@ def simulation_config(plan: Plan, *, seed: int = 0, noise_um: float = 0.0,
                           "random_urad": plan.model["prior_urad"] if prior else 0.0},
             "noise_um": float(noise_um), "effects": eff, "order": m["order"],
             "probes_interleaved": m["probes_interleaved"],
-            "minutes_per_ball": m["minutes_per_ball"], "repeats": m["repeats"]}
+            "minutes_per_ball": m["minutes_per_ball"], "repeats": m["repeats"],
+            "repeat_at_end": {p: {"probe": r["probe"], "balls": list(r["balls"])}
+                              for p, r in plan.repeat_at_end.items()}}
 
 
 @overload

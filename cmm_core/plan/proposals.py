@@ -1740,17 +1740,10 @@ def plan_file(data: Dataset, proposal: Proposal, *, baseline: str = "kinematic21
               order: int = 2, noise_um: float = 0.5) -> dict:
     """The proposal as a ``plan`` JSON document (docs/planning.md, "The plan file"): the
     data set's setup with the proposal's placement and styli added, its plate, and two
-    strategies: the current placements alone and with the proposal. A repeat (balls
-    measured again) is refused: a plan has no key for it."""
+    strategies: the current placements alone and with the proposal (a repeat: the same
+    placements with its balls measured again at their end, ``repeat_at_end``)."""
     _plate_only(proposal)
     c = proposal.candidate
-    if c.repeat:
-        # a plan's strategies are placements and styli: with the same ones, the repeat's
-        # plan would evaluate exactly as the current data (no key for balls measured again)
-        raise ValueError(f"{c.name} measures balls again at the end of a placement, which "
-                         "a plan file cannot express; measure it as proposed (its balls "
-                         "and times are in the proposal), or write a placement or stylus "
-                         "proposal as the plan.")
     grid = plate_grid(data)
     raw = copy.deepcopy(data.setup.raw)
     for pl in raw["positions"].values():
@@ -1766,4 +1759,8 @@ def plan_file(data: Dataset, proposal: Proposal, *, baseline: str = "kinematic21
             "model": {"spec": baseline, "order": order}, "noise_um": noise_um,
             "strategies": [{"name": "current data", "placements": now},
                            {"name": f"with {c.description}",
-                            "placements": {**now, **c.probes_of}}]}
+                            "placements": {**now, **c.probes_of}}
+                           | ({"repeat_at_end": {p: {"probe": r["probe"],
+                                                     "balls": list(r["balls"])}
+                                                 for p, r in c.repeat.items()}}
+                              if c.repeat else {})]}
