@@ -174,9 +174,9 @@ def _bend_limits(name: str, layout: str) -> dict:
     ``detectable`` in a clean diagnosis of the layout (seed 999, as item 4 reads the rigid
     limits), ``power`` what the candidate's own test (χ² with its ``n_params`` degrees of
     freedom at its level) finds at that size of this one parameter alone: noncentrality
-    ``k² u_j² (Σ⁻¹)_jj`` (``k = z_{1-level/2} + z_{0.8}``, the limit's factor; Σ the
-    block's covariance in the augmented fit, u_j² its diagonal), the 80 % only for an
-    uncorrelated one-parameter test."""
+    ``(size/u_j)² · u_j² (Σ⁻¹)_jj`` (Σ the block's covariance in the augmented fit, u_j²
+    its diagonal: a parameter correlated with the others is seen better alone than its
+    u_j says); 80 % only for an uncorrelated one-parameter test."""
     data = sc.layout_data(name, layout, 999).dataset
     d0 = diagnose(data, "kinematic21")
     c = next((c for c in d0.candidates if c.effect == "column_bend"), None)
@@ -186,10 +186,10 @@ def _bend_limits(name: str, layout: str) -> dict:
     sl = r.problem.layout.blocks["column_bend"]
     cov = r.covariance[sl, sl]
     gain = np.diag(cov) * np.diag(np.linalg.inv(cov))  # 1/(1 - R_j²) >= 1
-    k = stats.norm.isf(c.level / 2) + stats.norm.isf(0.2)
     crit = stats.chi2.isf(c.level, c.n_params)
-    return {lab: (size, float(stats.ncx2.sf(crit, c.n_params, k**2 * g)))
-            for g, (lab, (_, size)) in zip(gain, c.detectable.items(), strict=True)
+    return {lab: (size, float(stats.ncx2.sf(crit, c.n_params, (size / u) ** 2 * g)))
+            for g, u, (lab, (_, size)) in zip(gain, np.sqrt(np.diag(cov)),
+                                               c.detectable.items(), strict=True)
             if np.isfinite(size)}
 
 
