@@ -169,3 +169,48 @@ def test_instrument_runs_are_proposed_and_simulated_on_request(alias_files):
     _ok(at)
     said = next(m.value for m in at.markdown if m.value.startswith("Simulated (seed 0):"))
     assert said.count("**separated**") == 2, said
+
+
+def test_a_repeat_proposal_handed_to_the_plan_page_is_a_plan_with_the_repeat():
+    """Drift hidden with styli in blocks (seed 1000 of the bench's drift case: the
+    diagnosis names drift with the probe offset as its alias): the pair's top proposal is
+    a stylus repeated at the end of its placement; "Use as the plan" opens the Plan page on a plan whose second strategy holds
+    the repeat (``repeat_at_end``) and is evaluated beside the current data, with more
+    probings and minutes."""
+    sim = simulated("pitch80_3pos", 1000, noise_um=0.5,
+                    effects={"drift": {"sd_um_per_h": 1.0}})
+    with tempfile.TemporaryDirectory() as tmp:
+        sim.write(tmp)
+        p = Path(tmp)
+        files = {"name": "simulated drift case", "kind": "simulated",
+                 "setup_source": "the simulation's setup",
+                 "certificate_source": "the simulation's certificate",
+                 "measurements": [("measurements.csv", (p / "measurements.csv").read_text())],
+                 "setup": (p / "setup.json").read_text(),
+                 "certificate": ("certificate.csv", (p / "certificate.csv").read_text())}
+    at = AppTest.from_file(APP, default_timeout=TIMEOUT)
+    at.session_state["ds_files"] = files
+    at.session_state["ds_key"] = files_key(files)
+    at.run()
+    at.switch_page("pages/diagnose.py")
+    at.run()
+    at.button(key="run_diagnosis").click()
+    at.run()
+    _ok(at)
+    at.session_state["w_diag_next"] = True
+    at.run()
+    _ok(at)
+    assert tuple(at.selectbox(key="w_next_pair").value) == ("drift", "probe_offset")
+    name = _top_name(at)
+    assert name.startswith("repeat_"), name
+    at.button(key=f"next_plan_{name}").click()
+    at.run()
+    _ok(at)
+    doc = json.loads(at.session_state["w_plan_text"])
+    now, more = read_plan(doc, name="proposal").strategies
+    assert now.repeat_at_end == {} and more.repeat_at_end
+    assert now.probes_of == more.probes_of
+    table = next(d.value for d in at.dataframe if "strategy" in d.value.columns)
+    assert list(table["strategy"]) == [now.name, more.name]
+    assert table["probings"].iloc[1] > table["probings"].iloc[0]
+    assert table["time (min)"].iloc[1] > table["time (min)"].iloc[0]
