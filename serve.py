@@ -41,7 +41,9 @@ def app_imports() -> list[str]:
 def preload() -> list[str]:
     """Import :func:`app_imports`; return those that are modules. A name that is not a
     module (``from cmm_core.analysis import fit_kwargs`` also names
-    ``cmm_core.analysis.fit_kwargs``) is skipped."""
+    ``cmm_core.analysis.fit_kwargs``) is skipped; a module that fails to import is said in
+    one line and left to the session, where the page shows the error as ``streamlit run``
+    would (the server starts all the same)."""
     # the app's caches are created when first called, inside the server's runtime; the
     # decorators only check their parameters here and would warn that no runtime exists
     importlib.import_module("streamlit.runtime.caching")  # its loggers, levels of their own
@@ -56,7 +58,13 @@ def preload() -> list[str]:
         for name in app_imports():
             try:
                 importlib.import_module(name)
-            except ModuleNotFoundError:
+            except ModuleNotFoundError as exc:
+                if exc.name is not None and not name.startswith(exc.name):
+                    print(f"serve.py: {name} not imported in advance: {exc}", file=sys.stderr)
+                continue
+            except Exception as exc:  # noqa: BLE001 - the page will show it
+                print(f"serve.py: {name} not imported in advance: {type(exc).__name__}: "
+                      f"{exc}", file=sys.stderr)
                 continue
             done.append(name)
     finally:

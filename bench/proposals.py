@@ -13,8 +13,10 @@ Prints, in one run:
    alone, (b) with the top proposal measured (simulated from the true machine, with noise)
    and appended, (c) with a random other candidate of the same machine time appended
    instead (for a repeat, which no other candidate is as short as: a random other plate
-   candidate cut to the repeat's machine time, ``random_candidate``); each with its
-   binomial standard error. "Names" is counted strictly (the verdict is the true token), by function (``rxz:3`` for a true ``rxz:4``: the Occam rule
+   candidate cut to the repeat's machine time, ``random_candidate``: under 10 min, the
+   set-up of a new placement or stylus, that is nothing measured; and, on the seeds whose
+   top proposal is a repeat, a random repeat of the same readings, ``random_repeat``);
+   each with its binomial standard error. "Names" is counted strictly (the verdict is the true token), by function (``rxz:3`` for a true ``rxz:4``: the Occam rule
    names the lower order when the higher does not beat it), and "decided" (named, the
    rival no longer among its aliases). The placement scales are named by the
    outside-catalogue verdict with them as its evidence;
@@ -273,8 +275,9 @@ def run_case(name, seeds):
         print(f"  seed {seed}: top {top.candidate.name} (power {top.power[truth]:.2f}), "
               f"named before/after/random: {before[0]}/{after[0]}/{random_[0]}, decided "
               f"{before[2]}/{after[2]}/{random_[2]} "
-              f"({other.name}{'' if keep is None else f', first {keep} readings'}), "
-              f"separated {sep}", flush=True)
+              f"({other.name}{'' if keep is None else f', first {keep} readings'})"
+              + ("" if rep is None else f", random repeat named/decided {rep[0]}/{rep[2]}")
+              + f", separated {sep}", flush=True)
     return rows
 
 
@@ -313,11 +316,13 @@ def main():
             print(f"  {label:30s} names the truth: strict {_share([r[i][0] for r in rows])},"
                   f" by function {_share([r[i][1] for r in rows])}, decided "
                   f"{_share([r[i][2] for r in rows])}")
-        reps = [r[6] for r in rows if r[6] is not None]
-        if reps:
-            print(f"  {'random repeat, same time':30s} names the truth: strict "
-                  f"{_share([r[0] for r in reps])}, decided {_share([r[2] for r in reps])} "
-                  f"(the {len(reps)} seeds whose top proposal is a repeat)")
+        reps = [r for r in rows if r[6] is not None]
+        if reps:  # on the same seeds: those whose top proposal is a repeat
+            print(f"  on the {len(reps)} seeds whose top proposal is a repeat: top proposal "
+                  f"names {_share([r[1][0] for r in reps])}, decides "
+                  f"{_share([r[1][2] for r in reps])}; a random repeat of the same "
+                  f"readings names {_share([r[6][0] for r in reps])}, decides "
+                  f"{_share([r[6][2] for r in reps])}")
         pred = float(np.mean([r[3] for r in rows]))
         print(f"  predicted power {100 * pred:.1f} %, Monte Carlo separation "
               f"{_share([r[4] for r in rows])}, difference "

@@ -70,7 +70,10 @@ t_check, t_hist = st.tabs(["Interim check", "History"], key="chk_tab", on_change
                           bind="query-params")
 
 with t_check:
-    if t_check.open:
+    # drawn while open, or while its fields hold the user's files or choices (so that
+    # looking at the history loses nothing)
+    if t_check.open or frame.held("chk_model", "chk_meas", "chk_setup", "chk_cert",
+                                  "chk_inst", changed={"chk_src": "Sample history"}):
         src = st.radio("Data", ["Sample history", "Upload files"], horizontal=True,
                        key="chk_src")
         files = None
@@ -183,7 +186,7 @@ with t_check:
                          "conformity, each with its decision rule (docs/monitoring.md)")
 
 with t_hist:
-    if t_hist.open:
+    if t_hist.open or frame.held("hist_models", changed={"hist_src": "Sample history"}):
         hsrc = st.radio("Calibrations", ["Sample history", "Upload model files"],
                         horizontal=True, key="hist_src")
         named, dates = None, None

@@ -345,22 +345,6 @@ def _show_upload_report():
             for p in report["problems"]))
 
 
-def _held(*prefixes: str, text: tuple[str, ...] = ()) -> bool:
-    """Whether a field of a tab drawn only while open holds something: a file, a mapped
-    table or a report under one of ``prefixes``, a text typed under one of ``text``. The
-    tab is then drawn while another is looked at, so that nothing chosen is lost; a
-    session's first screen draws none of them (issue 27). A radio or number left as it
-    was does not count."""
-    s = st.session_state
-
-    def chosen(v) -> bool:
-        return len(v) > 0 if isinstance(v, (list, tuple, dict)) else hasattr(v, "getvalue")
-
-    return (any(chosen(v) for k, v in s.items() if str(k).startswith(prefixes))
-            or any(isinstance(v, str) and v.strip() != "" for k, v in s.items()
-                   if str(k).startswith(text)))
-
-
 def upload_section():
     """The upload tab: measurement, setup and certificate files, checked and loaded."""
     st.write("Long form: `position,probe,ball,x_mm,y_mm,z_mm[,time_min,temp_C,repeat]` in one "
@@ -440,7 +424,7 @@ def project_section():
 # lazy tabs (issue 27): a tab's widgets (the simulator's form alone is some thirty, the
 # upload tab's file fields each load their script and layout) are sent only while the tab
 # is open, so the app's first screen does not draw them; the upload and project tabs stay
-# drawn while their fields hold something (_held)
+# drawn while their fields hold something the user put there (frame.held)
 DATA_TABS = ["Thesis sample", "Upload CSVs", "Other tools (MSL)", "Simulate a virtual CMM",
              "Project file"]
 tab_thesis, tab_upload, tab_other, tab_sim, tab_proj = st.tabs(DATA_TABS, key="data_tab",
@@ -455,8 +439,10 @@ with tab_thesis:
         _loaded("Loaded the thesis tables.")
 
 with tab_upload:
-    if tab_upload.open or _held("up_meas", "up_setup", "up_cert", "map", "upload_report",
-                                text=("up_label",)):
+    if tab_upload.open or frame.held("up_meas", "up_setup", "up_cert", "map",
+                                     "upload_report", text=("up_label",),
+                                     changed={"up_cert_u": CERT_U_CHOICES[0],
+                                              "use_thesis_setup": True}):
         upload_section()
 
 with tab_other:
@@ -557,7 +543,7 @@ with tab_sim:
                         + ". The true parameters are on the Kinematic model page.")
 
 with tab_proj:
-    if tab_proj.open or _held("up_project"):
+    if tab_proj.open or frame.held("up_project"):
         project_section()
 
 # ---------------------------------------------------------------------------------------
@@ -596,17 +582,22 @@ def _read_instrument_uploads(uploads, have):
 def instruments_section():
     """Instrument files fitted jointly with the plate, in an expander drawn only while open
     (its three file fields are the first screen's heaviest widgets, issue 27); it opens by
-    itself when instruments are added or refused; closed, its label counts them."""
+    itself when instruments are added, removed or refused."""
     s = st.session_state
     items = s.get("instruments") or []
-    label = ("Instruments fitted jointly with the plate: "
-             + (f"{len(items)} file(s)" if items else "none (laser, step gauge, ball bar)"))
-    if s.get("instrument_errors") or (items and s.get("instruments_shown") != len(items)):
-        s["w_instruments_open"] = True  # new instruments or a refusal: show them
-    s["instruments_shown"] = len(items)
-    with st.expander(label, key="w_instruments_open", on_change="rerun") as box:
+    # opened once by new instruments or a new refusal, then as the user leaves it; the
+    # label stays the same (a new label is a new expander, closed)
+    now = (len(items), tuple(s.get("instrument_errors") or ()))
+    if now != s.get("instruments_shown", (0, ())):
+        s["w_instruments_open"] = True
+    s["instruments_shown"] = now
+    with st.expander("Instruments fitted jointly with the plate (laser, step gauge, ball bar)",
+                     key="w_instruments_open", on_change="rerun") as box:
         if box.open:
             _instruments_body(s)
+    if items and not box.open:
+        st.caption(f"{len(items)} instrument file(s) in every fit: "
+                   + ", ".join(n for _, n, _ in items) + ".")
 
 
 def _instruments_body(s):

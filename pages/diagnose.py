@@ -137,8 +137,8 @@ def measure_next(ds, fkey: cached.FitKey, cands: list, holdout: list | None = No
             can_sim = not set(pair) & PSEUDO
             if b1.button("Simulate it", key=f"next_sim_{name}", disabled=not can_sim,
                          help="Simulate this measurement with each rival in turn as the "
-                              "truth (its fit on these data, noise σ), append it to the data "
-                              "and run the diagnosis." + ("" if can_sim else
+                              "truth (its fit on these data; noise σ, an instrument its own "
+                              "uncertainty), append it to the data and run the diagnosis." + ("" if can_sim else
                               " Not for a placement's own scale (outside the catalogue, "
                               "the virtual CMM cannot simulate it) nor against the baseline "
                               "(the power above is the outcome).")):

@@ -147,6 +147,25 @@ def show(fig, *, chart_key: str, width_px: int = 1100, **kwargs):
     svg_figure(svgplot.figure_svg(fig, width_px), chart_key)
 
 
+def held(*prefixes: str, text: tuple[str, ...] = (), changed: dict | None = None) -> bool:
+    """Whether the fields of a tab drawn only while open hold something the user put
+    there (issue 27): a file, list, dict or report under one of ``prefixes``, a text
+    typed under one of ``text``, a value under a key starting with one of ``changed``'s
+    keys that differs from its default there. Streamlit forgets a widget's value when the
+    widget is not drawn, so such a tab stays drawn while another is looked at."""
+    s = st.session_state
+
+    def chosen(v) -> bool:
+        return len(v) > 0 if isinstance(v, (list, tuple, dict)) else hasattr(v, "getvalue")
+
+    items = [(str(k), v) for k, v in s.items()]
+    return (any(chosen(v) for k, v in items if k.startswith(prefixes))
+            or any(isinstance(v, str) and v.strip() != "" for k, v in items
+                   if k.startswith(text))
+            or any(v is not None and v != default for k, v in items
+                   for key, default in (changed or {}).items() if k.startswith(key)))
+
+
 def svg_figure(svg: str, key: str) -> None:
     """An SVG picture on the page, in a container keyed ``key`` and a ``div`` whose
     ``data-figure`` is ``key``. Through ``st.markdown``'s HTML: ``st.html`` sanitises SVG

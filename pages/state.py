@@ -122,7 +122,7 @@ KEEP_PREFIXES = ("sim_", "w_gp_")
 
 
 KEEP_KEYS = ("hist_gp", "w_mpe_u", "w_u_npts", "w_u_seed",  # the report reads these
-             "w_kin_tab", "w_diag_tab", "data_tab",  # the open tabs, as the user left them
+             "w_kin_tab", "w_diag_tab", "data_tab", "chk_tab",  # the open tabs, as left
              # the sidebar's figure switch; it and the Data page's tab are no w_ keys, so a
              # new dataset (reset_widgets) leaves them as they are
              "interactive_plots")

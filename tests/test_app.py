@@ -65,8 +65,6 @@ def _frame(at, column):
     raise KeyError(column)
 
 
-
-
 def _restore(at, content) -> None:
     """Upload ``content`` (text or bytes) as a project file on the Data page and press
     Restore project."""
@@ -1003,9 +1001,9 @@ def test_a_laser_upload_shows_its_residuals_and_the_uncertainty_gain(inst_app):
     text = A.record_to_project_json(session_record(state))
     at.switch_page("pages/data.py")
     at.run()
-    # back on the Data page the expander is closed, its label counts the file
-    assert any("Instruments fitted jointly with the plate: 1 file" in e.label
-               for e in at.expander)
+    # back on the Data page the expander is closed, a line under it names the file
+    assert any(c.value == "1 instrument file(s) in every fit: laser_x.csv."
+               for c in at.caption)
     at.session_state["w_instruments_open"] = True
     at.run()
     at.button(key="rm_instrument_0").click()

@@ -419,3 +419,25 @@ def test_a_project_file_of_the_wrong_shape_restores_nothing_and_says_why(part, v
     assert "\n" not in err
     assert len(at.session_state["ds_files"]["measurements"]) == len(
         thesis_dataset().positions)  # the thesis data still loaded
+
+
+def test_the_upload_tab_keeps_what_the_user_chose_while_another_tab_is_open():
+    """The upload tab is drawn only while open or while its fields hold the user's choices
+    (issue 27): a certificate statement entered and the thesis setup switched off, then
+    the Thesis sample tab looked at, are still there on return, where Streamlit would
+    have forgotten the widgets of a tab not drawn. A session that chose nothing does not
+    draw the tab."""
+    from conftest import open_data_tab
+
+    at = _upload_app()
+    assert not [r for r in at.radio if r.key == "up_cert_u"]  # not drawn on the first screen
+    open_data_tab(at, "Upload CSVs")
+    at.radio(key="up_cert_u").set_value("U(k) = a ⊕ b·L, entered here").run()
+    at.number_input(key="up_cert_a").set_value(0.3).run()
+    at.checkbox(key="use_thesis_setup").uncheck().run()
+    open_data_tab(at, "Thesis sample")
+    open_data_tab(at, "Upload CSVs")
+    assert not at.exception
+    assert at.radio(key="up_cert_u").value == "U(k) = a ⊕ b·L, entered here"
+    assert at.number_input(key="up_cert_a").value == pytest.approx(0.3)
+    assert at.checkbox(key="use_thesis_setup").value is False

@@ -11,8 +11,6 @@ from streamlit.testing.v1 import AppTest  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 
 
-
-
 def test_export_page_corrects_its_example_points_with_a_machine_thermal_model(tmp_path):
     """A fit with machine_thermal: the example points (the fit's own rows) carry their
     scale temperatures, so the page corrects them as it opens (it failed: "needs

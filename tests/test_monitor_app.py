@@ -43,7 +43,7 @@ def test_crash_sample_fails_names_sxy_and_history_shows_it():
     # balls beyond 3
     svg = next(m.value for m in at.markdown if 'data-figure="chk_map"' in m.value)
     counts = [int(n) for n in re.findall(r"\|E_n\|[^<]*?: (\d+)<", svg)]
-    assert len(counts) == 3 and counts[2] > 0
+    assert len(counts) == 3 and counts[2] > 0 and sum(counts) == 200  # 4 × 25 balls × 2
     # the history tab, drawn only while open: the squareness's change between the last two
     # calibrations, its trend and the error map's change
     at.session_state["chk_tab"] = "History"
@@ -122,3 +122,22 @@ def test_an_uploaded_bad_model_is_one_message_naming_the_file():
     errors = [e.value for e in at.error]
     assert len(errors) == 1 and "stored.json" in errors[0], errors
     assert "\n" not in errors[0].strip()
+
+
+def test_the_check_tab_keeps_its_choices_while_the_history_is_open():
+    """Both tabs are drawn only while open or while they hold the user's choices: the
+    check's "Upload files" source and a stored model chosen survive a look at the
+    History tab."""
+    at = _page()
+    at.radio(key="chk_src").set_value("Upload files").run()
+    stored = (SAMPLES / "history" / "calibration_2024-03-04.json").read_bytes()
+    at.file_uploader(key="chk_model").set_value(("stored.json", stored, "application/json"))
+    at.run()
+    at.session_state["chk_tab"] = "History"
+    at.run()
+    _ok(at)
+    at.session_state["chk_tab"] = "Interim check"
+    at.run()
+    _ok(at)
+    assert at.radio(key="chk_src").value == "Upload files"
+    assert at.file_uploader(key="chk_model").value.name == "stored.json"

@@ -5,7 +5,8 @@ import sys
 
 from conftest import ROOT
 
-sys.path.insert(0, str(ROOT))
+if str(ROOT) not in sys.path:  # pytest's rootdir insertion already has it
+    sys.path.insert(0, str(ROOT))
 import serve  # noqa: E402
 
 
@@ -18,8 +19,9 @@ def test_app_imports_are_the_scripts_top_level_imports():
 
 
 def test_preload_imports_every_module_and_nothing_runs_streamlit():
-    """In a fresh interpreter: the app's helpers and the core are imported, no page script
-    is executed (none is imported), and no warning about a missing runtime is printed."""
+    """In a fresh interpreter: the app's helpers and the core are imported, no page's
+    body runs (a Streamlit call outside a session would warn of a missing
+    ScriptRunContext), and no warning about a missing runtime is printed."""
     code = ("import sys, serve; done = serve.preload(); "
             "print(all(m in sys.modules for m in done), len(done), "
             "'pages.data' in sys.modules, 'cmm_core' in sys.modules)")
@@ -29,3 +31,21 @@ def test_preload_imports_every_module_and_nothing_runs_streamlit():
     ok, n, page_run, core = out.stdout.split()
     assert ok == "True" and int(n) >= 10 and page_run == "False" and core == "True"
     assert "No runtime found" not in out.stderr
+    assert "ScriptRunContext" not in out.stderr and "not imported in advance" not in out.stderr
+
+
+def test_a_module_that_fails_to_import_is_one_line_and_the_rest_is_imported(tmp_path):
+    """A module the scripts import that raises on import does not stop the server: one
+    line names it, the other modules are imported (the page shows the error later, as
+    ``streamlit run`` would)."""
+    bad = tmp_path / "broken_helper.py"
+    bad.write_text("raise RuntimeError('a helper that cannot start')\n")
+    code = ("import sys, serve; sys.path.insert(0, sys.argv[1]); "
+            "serve.app_imports = lambda: ['broken_helper', 'numpy']; "
+            "print(serve.preload())")
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path)], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "['numpy']"
+    (line,) = [x for x in out.stderr.splitlines() if "broken_helper" in x]
+    assert "RuntimeError: a helper that cannot start" in line

@@ -11,6 +11,7 @@ import pandas as pd
 import plotly.graph_objects as go
 from numpy.typing import ArrayLike
 from plotly.subplots import make_subplots
+from scipy import stats
 
 from ..gum import MpeResult
 from ..io import Dataset
@@ -313,22 +314,29 @@ def fig_signature_scatter(residuals_um: ArrayLike, signature_um: ArrayLike, titl
 
 
 # |E_n| classes of an interim check's map: (upper limit, label, colour). E_n is a residual
-# over its standard uncertainty, so |E_n| <= 2 is within the 95 % interval.
-EN_CLASSES = ((2.0, "|E_n| ≤ 2 (within 95 %)", "#2ca02c"),
-              (3.0, "2 < |E_n| ≤ 3", "#ff7f0e"),
+# over its standard uncertainty and the class takes the largest of a ball's x, y, z, so
+# the first class is "each component within its 95 % interval" (the check's coverage_95,
+# |E_n| <= 1.96; on an unchanged machine some 0.95³ = 86 % of balls are in it).
+EN_CLASSES = ((float(stats.norm.ppf(0.975)), "x, y, z each within 95 % (|E_n| ≤ 1.96)",
+               "#2ca02c"),
+              (3.0, "1.96 < |E_n| ≤ 3", "#ff7f0e"),
               (np.inf, "|E_n| > 3", "#d62728"))
 
 
 def fig_en_map(table: pd.DataFrame, title: str, height: int = 420) -> go.Figure:
     """The normalised errors of an interim check's new observations over the plate (x, y
     in mm): one colour per :data:`EN_CLASSES` class of the largest ``|E_n|`` of each ball
+    (grey where E_n could not be computed)
     (``monitor`` ``CheckResult.table``: columns ``x_mm, y_mm, position, probe, ball,
     En_x, En_y, En_z, En``); a hover title gives the three components."""
     en = np.abs(table["En"].to_numpy(float))
     lower = -np.inf
     fig = go.Figure()
-    for upper, name, colour in EN_CLASSES:
-        sub = table[(en > lower) & (en <= upper)]
+    classes = [*EN_CLASSES, (np.nan, "E_n not computed", "#999999")]
+    for upper, name, colour in classes:
+        sub = table[np.isnan(en)] if np.isnan(upper) else table[(en > lower) & (en <= upper)]
+        if np.isnan(upper) and not len(sub):
+            continue  # no ball without E_n: no legend entry for it
         lower = upper
         fig.add_trace(go.Scatter(
             x=sub["x_mm"], y=sub["y_mm"], mode="markers", name=f"{name}: {len(sub)}",
