@@ -217,9 +217,10 @@ def arm_clean(seeds: int) -> None:
             v = diagnose(sc.layout_data(name, layout, sd).dataset, "kinematic21").verdict
             n += 1
             named += v == "column_bend"
+            if v is not None:
+                print(f"   {layout:19s} {name:14s} seed {sd}: {v}", flush=True)
             if v is not None and v != "column_bend":
                 other[v] = other.get(v, 0) + 1
-                print(f"   {layout:19s} {name:14s} seed {sd}: {v}", flush=True)
     alarms = named + sum(other.values())
     print(f"6. clean arm data (seeds 1500-{1499 + seeds} + {CASE_STRIDE}·case): column_bend "
           f"named {_rate(named, n)}; "
