@@ -45,6 +45,7 @@ from .files import (
     evaluate_file,
     read_design,
     read_plan,
+    repeats_of,
     units_of,
 )
 from .plans import STROKE_POINTS, Plan, design_fit, fit_plan_data, simulate_plan, simulation_config
@@ -121,7 +122,7 @@ __all__ = [
     "PLATE_DEFAULTS", "PoolModel", "POWER", "random_plans", "read_design", "read_plan",
     "read_task", "run_serial", "run_task", "run_tasks", "simulate_plan", "simulation_config",
     "STRATEGY_KEYS", "STROKE_POINTS", "StudyResult", "StudyTask", "summarise", "Task",
-    "TASK_KEYS", "task_uncertainty", "TaskResult", "TASKS", "tasks_for", "TOP_KEYS", "units_of",
+    "TASK_KEYS", "task_uncertainty", "TaskResult", "TASKS", "tasks_for", "TOP_KEYS", "units_of", "repeats_of",
     "WEAK_PRIOR",
     # measure next (proposals.py)
     "TARGET_POWER", "SHIFT_FRACTION", "STYLUS_OFFSET_MM", "NextMeasurement", "Outcome",
