@@ -26,8 +26,10 @@ Items 5-8 are ``column_bend`` on the horizontal-arm layouts (``horizontal_arm_fx
    diagnosis's family-wise level);
 7. detection: each of the three shapes alone injected at its detection limit (the
    ``detectable`` of the column_bend candidate of a clean diagnosis of the same layout:
-   the size found with 80 % probability) and at twice it, the share of seeds where the
-   diagnosis names column_bend (with its binomial standard error);
+   the size found with 80 % probability by a one-parameter test) and at twice it, the
+   share of seeds where the diagnosis names column_bend (with its binomial standard
+   error), beside the power the block's three-parameter test has at that size alone
+   (below 80 % for a shape uncorrelated with the others, above for correlated ones);
 8. the converse: real rigid third orders of the arm's and the vertical carriage's
    functions (the rigid neighbours of the block's shapes: the carriage's rotation about
    the column's travel axis on the arm's lever, the arm's straightness in z and its
