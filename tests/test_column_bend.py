@@ -170,4 +170,4 @@ def test_a_model_file_round_trip_and_its_refusals():
 
 def test_the_catalogue_says_what_it_is_confused_with():
     e = catalogue_entry("column_bend")
-    assert "non-rigid" in e.title and "dzy" in e.confused_with and "height" in e.separate_by
+    assert "non-rigid" in e.title and "dyz" in e.confused_with and "height" in e.separate_by

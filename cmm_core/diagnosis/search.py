@@ -45,7 +45,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy import optimize, stats
 
 from .._blas import single_blas_thread
 from ..io import Dataset
@@ -120,7 +120,9 @@ class Candidate:
         ``{label: (unit, size)}``: the size of each added parameter (µm, µrad, ...) above
         which this data set finds it with 80 % probability at the test's level, from its
         standard uncertainty in the augmented fit scaled by the residual scatter left
-        (``inf``: not determined). Tells what the
+        and the power of the candidate's test of all its ``n_params`` parameters (a
+        parameter correlated with the candidate's others is found alone at that size more
+        often: at least 80 %) (``inf``: not determined). Tells what the
         design can and cannot see, e.g. rotations of the ram with short styli.
     level : float
         The significance level this candidate was tested at (its share of the family-wise
@@ -329,13 +331,16 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
     out, k_of_level = [], {}
     for sc in scored:
         dbic, p, dof_new = stats_of(sc)
-        # Size at which a parameter alone is found with 80 % probability at its level:
-        # |θ| = u s (z_{1-level/2} + z_{0.8}), s² = χ²/ν left (normal approximation of the
-        # F-test, which measures the reduction against the residual scatter left)
+        # Size at which a parameter alone is found with 80 % probability at its level by
+        # the candidate's test of its n_params = k parameters: |θ| = u s √λ_k, λ_k the
+        # non-central χ²_k's parameter of that power, s² = χ²/ν left (the χ² approximation
+        # of the F-test, which measures the reduction against the residual scatter left;
+        # k = 1: √λ = z_{1-level/2} + z_{0.8}). Conservative for a parameter correlated
+        # with the candidate's others: alone it is seen better than its u says.
         lv = levels[sc.family]
-        if lv not in k_of_level:  # two levels in all (weighted Bonferroni)
-            k_of_level[lv] = float(stats.norm.isf(lv / 2) + stats.norm.isf(0.2))
-        k_detect = k_of_level[lv]
+        if (lv, sc.dk) not in k_of_level:  # two levels in all (weighted Bonferroni)
+            k_of_level[lv, sc.dk] = _k_detect(lv, int(sc.dk))
+        k_detect = k_of_level[lv, sc.dk]
         scale = float(np.sqrt(sc.chi2_new / dof_new))
         # with a fixed certificate its errors add to each parameter's own direction (c1)
         # and to the residual scatter (c2): the test counts both (certnoise), so does the
@@ -397,6 +402,21 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
     return Diagnosis(baseline=base, candidates=out, verdict=verdict, skipped=skipped,
                      message=msg, holdout=checks, sigma=sigma, uniformity=uniform,
                      where=where, certificate=cert, blunders=blunders, unseen=unseen)
+
+
+def _k_detect(level: float, k: int, power: float = 0.8) -> float:
+    """``√λ`` of the non-central χ² with ``k`` degrees of freedom that exceeds the central
+    one's ``1 − level`` quantile with probability ``power`` (the power of a k-parameter
+    test against a shift of ``√λ`` standard uncertainties; Johnson, Kotz & Balakrishnan,
+    *Continuous Univariate Distributions* vol. 2, ch. 29). ``k <= 1``: the normal
+    approximation ``z_{1-level/2} + z_{power}`` (the two-sided test's far tail dropped)."""
+    z = float(stats.norm.isf(level / 2) + stats.norm.isf(1 - power))
+    if k <= 1:
+        return z
+    crit = stats.chi2.isf(level, k)
+    lam = optimize.brentq(lambda x: stats.ncx2.sf(crit, k, x) - power, z * z,
+                          z * z + 20.0 * k + 50.0)
+    return float(np.sqrt(lam))
 
 
 def _inflation(noise, labels) -> dict:

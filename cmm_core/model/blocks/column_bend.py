@@ -28,8 +28,9 @@ Expanded in the readings (``L = L₀ + u``, ``h₀ + h``), each of these is a po
 u and h; a term of u alone or h alone is rigid (the arm's own straightness, the
 carriage's straightness and rotations along z), and so is a vertical displacement
 ``f(h) · u``: it is the carriage's rotation about the column's travel axis as a
-function of h (``rxz``/``ryz`` at order 1, 2 ...) acting on the arm's lever ``u``, which
-the kinematic model holds. What no rigid model holds are the cross terms left:
+function of h (``rzx`` on Fxzy, ``rzy`` on Fyzx, at order 1, 2 ...) acting on the arm's
+lever ``u``, which the kinematic model holds. What no rigid model holds are the cross
+terms left:
 
 - vertically, ``u² h`` (the tilt ``θ ∝ u h`` times the lever ``u``): a vertical bow of
   the arm whose size grows with the height;
@@ -142,7 +143,7 @@ class ColumnBend(Block):
         "placements spread along both the arm's stroke and the z stroke (vertical "
         "placements in the plane of the arm and z, or horizontal ones at several "
         "heights), on a horizontal-arm machine.",
-        "higher orders of the arm's straightness in z (dzy ...) and of the carriage's "
+        "higher orders of the arm's straightness in z (dyz, dxz ...) and of the carriage's "
         "rotation about the column's travel axis when few heights are measured, the arm's "
         "scale (positioning error) when one height dominates, and plate sag on "
         "horizontal placements alone.",
