@@ -25,6 +25,11 @@ HISTORY = Path(__file__).resolve().parents[1] / "sample_data" / "history"
 SAMPLE_CHECKS = {"after a crash (2025-02-10, four placements)": "check_2025-02-10_after_crash",
                  "quiet (2024-06-17, one placement)": "check_2024-06-17"}
 SAMPLE_MODEL = "calibration_2024-03-04.json"
+# the check tab's choices as a session starts: a value changed from these keeps the tab
+# drawn while the History is looked at (frame.held)
+CHECK_DEFAULTS = {"chk_src": "Sample history", "chk_sample": next(iter(SAMPLE_CHECKS)),
+                  "chk_alpha": 0.05, "chk_family": 0.05, "chk_mpe": "0.6,600",
+                  "chk_kind": next(iter(INSTRUMENT_KINDS))}
 
 
 def _model(name: str, text: str):
@@ -73,7 +78,7 @@ with t_check:
     # drawn while open, or while its fields hold the user's files or choices (so that
     # looking at the history loses nothing)
     if t_check.open or frame.held("chk_model", "chk_meas", "chk_setup", "chk_cert",
-                                  "chk_inst", changed={"chk_src": "Sample history"}):
+                                  "chk_inst", changed=CHECK_DEFAULTS):
         src = st.radio("Data", ["Sample history", "Upload files"], horizontal=True,
                        key="chk_src")
         files = None
@@ -186,7 +191,8 @@ with t_check:
                          "conformity, each with its decision rule (docs/monitoring.md)")
 
 with t_hist:
-    if t_hist.open or frame.held("hist_models", changed={"hist_src": "Sample history"}):
+    if t_hist.open or frame.held("hist_models", changed={"hist_src": "Sample history",
+                                                         "hist_family": 0.05}):
         hsrc = st.radio("Calibrations", ["Sample history", "Upload model files"],
                         horizontal=True, key="hist_src")
         named, dates = None, None

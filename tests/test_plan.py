@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from scipy import stats
 from scipy.linalg import subspace_angles
@@ -417,3 +418,32 @@ def test_a_bad_repeat_at_end_is_refused_naming_the_key(edit, field):
     with pytest.raises(DataError, match=field.replace(".", r"\.")) as e:
         simulate({"repeat_at_end": edit})
     assert "\n" not in str(e.value)
+
+
+def test_balls_repeated_at_the_end_leave_the_placement_s_own_readings_as_they_were():
+    """The setup's plate temperatures [start, finish] are those of the position's own
+    readings: with balls repeated at its end, every earlier reading (coordinates, time,
+    temperature) is what it is without them, and the repeats are read at the finish
+    temperature."""
+    from cmm_core.model import simulate
+
+    cfg = {"seed": 3, "noise_um": 0.0, "repeats": 2,
+           "effects": {"plate_thermal": {"cte_per_K": 11.5e-6,
+                                         "temp_C": {"BP111": [20.0, 21.0]}}}}
+    plain = simulate(cfg).dataset.meas
+    more = simulate({**cfg, "repeat_at_end": {"BP111": {"probe": "2", "balls": [4, 9]}}}
+                    ).dataset.meas
+    cols = ["position", "probe", "ball", "time_min", "temp_C", "repeat", "x_mm", "y_mm",
+            "z_mm"]
+    own = more[~((more["position"] == "BP111") & (more["repeat"] == 2))].reset_index(
+        drop=True)
+    plain = plain.reset_index(drop=True)
+    first = (plain["position"] == "BP111").to_numpy()
+    pd.testing.assert_frame_equal(own.loc[first, cols], plain.loc[first, cols])
+    # the later positions are the same readings, 2 × 0.5 min later (the repeats' time)
+    rest = [c for c in cols if c != "time_min"]
+    pd.testing.assert_frame_equal(own.loc[~first, rest], plain.loc[~first, rest])
+    np.testing.assert_allclose(own.loc[~first, "time_min"] - plain.loc[~first, "time_min"],
+                               1.0)
+    again = more[(more["position"] == "BP111") & (more["repeat"] == 2)]
+    assert list(again["ball"]) == [4, 9] and (again["temp_C"] == 21.0).all()

@@ -337,8 +337,11 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
         # of the F-test, which measures the reduction against the residual scatter left;
         # k = 1: √λ = z_{1-level/2} + z_{0.8}). Conservative for a parameter correlated
         # with the candidate's others: alone it is seen better than its u says.
-        lv = levels[sc.family]
-        if (lv, sc.dk) not in k_of_level:  # two levels in all (weighted Bonferroni)
+        # the test's own level: the family's share, divided by the periods a scanned
+        # candidate was chosen among (its p carries that Bonferroni factor, as
+        # plan.detect's limits do)
+        lv = levels[sc.family] / max(int(sc.n_scan), 1)
+        if (lv, sc.dk) not in k_of_level:
             k_of_level[lv, sc.dk] = _k_detect(lv, int(sc.dk))
         k_detect = k_of_level[lv, sc.dk]
         scale = float(np.sqrt(sc.chi2_new / dof_new))
@@ -408,8 +411,9 @@ def _k_detect(level: float, k: int, power: float = 0.8) -> float:
     """``√λ`` of the non-central χ² with ``k`` degrees of freedom that exceeds the central
     one's ``1 − level`` quantile with probability ``power`` (the power of a k-parameter
     test against a shift of ``√λ`` standard uncertainties; Johnson, Kotz & Balakrishnan,
-    *Continuous Univariate Distributions* vol. 2, ch. 29). ``k <= 1``: the normal
-    approximation ``z_{1-level/2} + z_{power}`` (the two-sided test's far tail dropped)."""
+    *Continuous Univariate Distributions* vol. 2, ch. 29; the large-ν limit of the
+    F-test, which plan.detect evaluates exactly). ``k <= 1``: the normal approximation
+    ``z_{1-level/2} + z_{power}`` (the two-sided test's far tail dropped)."""
     z = float(stats.norm.isf(level / 2) + stats.norm.isf(1 - power))
     if k <= 1:
         return z

@@ -230,20 +230,26 @@ def simulate(config: dict | None = None, *, name: str = "simulation config") -> 
         times = t_start + np.arange(len(seq)) * cfg["minutes_per_ball"]
         clock = times[-1] + 10.0  # re-fixturing the plate takes time
         t0, t1 = temps[p]
-        frac = (times - times[0]) / max(times[-1] - times[0], 1e-9)
+        # start to finish over the position's own readings; balls repeated at its end
+        # are read at the finish temperature (the setup's [start, finish] are those of
+        # the readings, so a repeat does not change theirs)
+        frac = np.minimum((times - times[0]) / max(times[n_seq - 1] - times[0], 1e-9), 1.0)
         for j, (b, q) in enumerate(seq):
             records.append((p, q, int(b) + 1, times[j], t0 + (t1 - t0) * frac[j],
                             j // (len(visit) * len(probes_of[p])) if j < n_seq
-                            else int(cfg["repeats"])))
+                            else int(cfg["repeats"]), j >= n_seq))
     df = pd.DataFrame(records, columns=["position", "probe", "ball", "time_min", "temp_C",
-                                        "repeat"])
+                                        "repeat", "at_end"])
     for col, by_pos in sim.columns.items():
-        # recorded like temp_C: start to finish over each position's measuring time
+        # recorded like temp_C: start to finish over each position's own readings
         df[col] = np.nan
         for p, (t0, t1) in by_pos.items():
             sel = (df["position"] == p).to_numpy()
             tm = df.loc[sel, "time_min"].to_numpy()
-            df.loc[sel, col] = t0 + (t1 - t0) * (tm - tm[0]) / max(np.ptp(tm), 1e-9)
+            own = tm[~df.loc[sel, "at_end"].to_numpy()]
+            df.loc[sel, col] = t0 + (t1 - t0) * np.minimum(
+                (tm - own[0]) / max(np.ptp(own), 1e-9), 1.0)
+    df = df.drop(columns="at_end")
     # the fit's own model at the truth, inverted (see the module docstring)
     model = parse_spec(",".join([km["spec"], *(t for t in BY_TOKEN if t in eff)]),
                        default_order=int(km["order"]))

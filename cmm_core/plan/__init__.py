@@ -119,10 +119,10 @@ __all__ = [
     "failing", "feature", "figures", "fit_plan_data", "function_uncertainty", "injection",
     "MEASUREMENT_DEFAULTS", "meets", "MIN_LENGTH_MM", "MODEL_DEFAULTS",
     "noncentrality_for_power", "PHYSICAL_CHECKS", "Plan", "PlanEvaluation", "PlanFile",
-    "PLATE_DEFAULTS", "PoolModel", "POWER", "random_plans", "read_design", "read_plan",
+    "PLATE_DEFAULTS", "PoolModel", "POWER", "random_plans", "read_design", "read_plan", "repeats_of",
     "read_task", "run_serial", "run_task", "run_tasks", "simulate_plan", "simulation_config",
     "STRATEGY_KEYS", "STROKE_POINTS", "StudyResult", "StudyTask", "summarise", "Task",
-    "TASK_KEYS", "task_uncertainty", "TaskResult", "TASKS", "tasks_for", "TOP_KEYS", "units_of", "repeats_of",
+    "TASK_KEYS", "task_uncertainty", "TaskResult", "TASKS", "tasks_for", "TOP_KEYS", "units_of",
     "WEAK_PRIOR",
     # measure next (proposals.py)
     "TARGET_POWER", "SHIFT_FRACTION", "STYLUS_OFFSET_MM", "NextMeasurement", "Outcome",
