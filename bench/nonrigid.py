@@ -123,19 +123,28 @@ def _rigid_tokens(layout):
     return [f"r{c}{a}:3" for c in "xyz"] + [f"r{c}{b}:3" for c in "xyz"] + ["dyz:3"]
 
 
+def _third_orders_at_limit(name: str, layout: str, tokens: list[str]):
+    """``(token, function, label, size)`` of each third order among ``tokens`` that a
+    clean diagnosis of the layout (seed 999) states a finite detection limit for, at that
+    limit; the others are said in a line and skipped."""
+    d0 = diagnose(sc.layout_data(name, layout, 999).dataset, "kinematic21")
+    lim = {c.effect: c.detectable for c in d0.candidates}
+    for tok in tokens:
+        fn = tok.partition(":")[0]
+        lab = f"{fn}[3]"
+        if tok not in lim or lab not in lim[tok] or not np.isfinite(lim[tok][lab][1]):
+            print(f"   {layout:19s} {name:14s} {tok}: no limit (not a candidate or "
+                  "undetermined), skipped", flush=True)
+            continue
+        yield tok, fn, lab, lim[tok][lab][1]
+
+
 def rigid_at_limit(seeds: int) -> None:
     """Real rigid third orders at their detection limit (read from a clean diagnosis of the
     same layout): named first as themselves (or their next order), as the twist, else."""
     named = twist = total = 0
     for name, layout in LAYOUTS:
-        d0 = diagnose(sc.layout_data(name, layout, 999).dataset, "kinematic21")
-        lim = {c.effect: c.detectable for c in d0.candidates}
-        for tok in _rigid_tokens(layout):
-            fn = tok.partition(":")[0]
-            lab = f"{fn}[3]"
-            if tok not in lim or lab not in lim[tok] or not np.isfinite(lim[tok][lab][1]):
-                continue
-            size = lim[tok][lab][1]
+        for tok, fn, lab, size in _third_orders_at_limit(name, layout, _rigid_tokens(layout)):
             n_tok = n_tw = 0
             for seed in range(seeds):
                 sim = sc.layout_data(name, layout, 3000 + seed, kinematic={
@@ -287,16 +296,7 @@ def arm_rigid(seeds: int) -> None:
     named = alias = sig = bend = total = 0
     other: dict = {}
     for name, layout in ARM_CASES:
-        d0 = diagnose(sc.layout_data(name, layout, 999).dataset, "kinematic21")
-        lim = {c.effect: c.detectable for c in d0.candidates}
-        for tok in _arm_tokens(layout):
-            fn = tok.partition(":")[0]
-            lab = f"{fn}[3]"
-            if tok not in lim or lab not in lim[tok] or not np.isfinite(lim[tok][lab][1]):
-                print(f"   {layout:19s} {name:14s} {tok}: no limit (not a candidate or "
-                      "undetermined), skipped", flush=True)
-                continue
-            size = lim[tok][lab][1]
+        for tok, fn, lab, size in _third_orders_at_limit(name, layout, _arm_tokens(layout)):
             n_tok = n_alias = n_sig = n_bend = 0
             for seed in range(seeds):
                 sim = sc.layout_data(name, layout, _seed(4000, (name, layout), seed),
