@@ -592,45 +592,6 @@ class Block:
         return {}
 
     @classmethod
-    def layout_section(cls, d: dict, name: str, *, layouts: Collection[str],
-                       keys: tuple[str, str], lacks: str
-                       ) -> tuple[np.ndarray, np.ndarray, tuple, str] | None:
-        """The model file's section (``model_keys[0]``) of a block that only some
-        machine layouts have (bridge twist, column bending), checked as far as the two
-        share it: ``(values, cov_joint, range_mm, layout)`` as arrays, their shapes the
-        caller's to check; None when the file holds no section, which is refused when the
-        layout has the block and the spec names it. ``keys``: the section's keys, its
-        values' and ``cov_joint``; ``lacks``: what a layout without the block lacks
-        ("bridge twist", "horizontal arm")."""
-        col = cls.model_keys[0]
-        sec = d.get(col)
-        layout = d.get("layout", DEFAULT_LAYOUT)
-        refit = "refit and save the model again (fit --save)"
-        if sec is None:
-            spec = d.get("spec")
-            if layout in layouts and isinstance(spec, str) and col in spec:
-                raise DataError(f"the model's spec has {col} but the file holds no "
-                                f"{cls.model_what}.", file=name, hint=f"{refit}; do not "
-                                "edit it.")
-            return None
-        if not isinstance(sec, dict) or set(map(str, sec)) != set(keys):
-            raise DataError(f"expected an object with the keys {', '.join(keys)}, "
-                            f"found {cut_repr(sec)}.", file=name, column=col,
-                            hint=f"{refit}; do not edit it.")
-        if layout not in layouts:
-            raise DataError(f"the {cut_repr(layout)} layout has no {lacks}; the file "
-                            f"holds a {cls.model_what}.", file=name, column=col,
-                            hint=f"{refit}.")
-        try:
-            values = np.asarray(sec[keys[0]], float)
-            cov = np.asarray(sec[keys[1]], float)
-            rng = tuple(float(x) for x in d["range_mm"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise DataError(f"expected numbers ({cut_repr(str(exc), 80)}).", file=name,
-                            column=col) from None
-        return values, cov, rng, layout
-
-    @classmethod
     def part_from_file(cls, d: dict, n_before: int, name: str) -> ModelPart | None:
         """The part a model file ``d`` holds (None: none), every field checked; a
         ``DataError`` naming the file ``name`` and the key otherwise. ``n_before``: the
@@ -657,6 +618,93 @@ MAX_MODEL_U = 1e6
 """Largest standard uncertainty (µm, µrad) a model file's covariance may give a
 parameter: a metre or a radian is no CMM's error, and larger variances overflow the
 propagation (a grid's J V Jᵀ)."""
+
+
+class LayoutBlock(Block):
+    """A block that only some machine layouts have (bridge twist, column bending): its
+    parameters move the tip by ``motion(ev) @ x`` at the readings, terms normalised to
+    the strokes (:attr:`part_in_machine_frame`); on any other layout it fits nothing and
+    its model file has no section, which is refused on a layout that has it when the
+    spec names it.
+
+    A subclass sets :attr:`layouts`, :attr:`labels`, :attr:`lacks` (what a layout without
+    the block lacks: "bridge twist", "horizontal arm"), :attr:`section_keys` (its values'
+    key and ``cov_joint``), :attr:`values_what` ("finite twists (µrad)") and
+    :meth:`motion`; :meth:`labels_in_file` for files of an earlier version."""
+
+    layouts: Collection[str] = ()
+    labels: tuple[str, ...] = ()
+    lacks: str = ""
+    section_keys: tuple[str, str] = ("values", "cov_joint")
+    values_what: str = "finite values"
+    model_keys_optional = True
+    part_in_machine_frame = True
+
+    def motion(self, ev: Eval) -> np.ndarray:
+        """Each parameter's motion of the tip at the observations' readings (n, 3, k)."""
+        raise NotImplementedError
+
+    def columns(self, obs: Observations) -> list[Column]:
+        return ([(str(self.token), list(self.labels), self.comp_units)]
+                if obs.layout in self.layouts else [])
+
+    def reading_stage(self, ev: Eval, d: np.ndarray) -> np.ndarray:
+        if ev.obs.layout not in self.layouts:
+            return d
+        return d + self.motion(ev) @ ev.x(str(self.token))
+
+    def jacobian(self, ev: Eval) -> Jacobian:
+        if ev.obs.layout not in self.layouts:
+            return []
+        cols = self.motion(ev)
+        return [(shared_cols(ev.start(str(self.token)), len(self.labels), len(cols)), cols)]
+
+    @classmethod
+    def part_to_file(cls, part: ModelPart) -> dict:
+        return {cls.model_keys[0]: {cls.section_keys[0]: part.values.tolist(),
+                                    cls.section_keys[1]: part.cov.tolist()}}
+
+    @classmethod
+    def labels_in_file(cls, k: int) -> tuple[str, ...] | None:
+        """The labels of a file holding ``k`` values (None: no version holds ``k``)."""
+        return cls.labels if k == len(cls.labels) else None
+
+    @classmethod
+    def part_from_file(cls, d: dict, n_before: int, name: str) -> ModelPart | None:
+        col = cls.model_keys[0]
+        sec = d.get(col)
+        layout = d.get("layout", DEFAULT_LAYOUT)
+        refit = "refit and save the model again (fit --save)"
+        if sec is None:
+            spec = d.get("spec")
+            if layout in cls.layouts and isinstance(spec, str) and col in spec:
+                raise DataError(f"the model's spec has {col} but the file holds no "
+                                f"{cls.model_what}.", file=name, hint=f"{refit}; do not "
+                                "edit it.")
+            return None
+        keys = cls.section_keys
+        if not isinstance(sec, dict) or set(map(str, sec)) != set(keys):
+            raise DataError(f"expected an object with the keys {', '.join(keys)}, "
+                            f"found {cut_repr(sec)}.", file=name, column=col,
+                            hint=f"{refit}; do not edit it.")
+        if layout not in cls.layouts:
+            raise DataError(f"the {cut_repr(layout)} layout has no {cls.lacks}; the file "
+                            f"holds a {cls.model_what}.", file=name, column=col,
+                            hint=f"{refit}.")
+        try:
+            values = np.asarray(sec[keys[0]], float)
+            cov = np.asarray(sec[keys[1]], float)
+            rng = tuple(float(x) for x in d["range_mm"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"expected numbers ({cut_repr(str(exc), 80)}).", file=name,
+                            column=col) from None
+        labels = cls.labels_in_file(values.shape[0]) if values.ndim == 1 else None
+        if labels is None or not np.isfinite(values).all():
+            raise DataError(f"expected {len(cls.labels)} {cls.values_what}, found "
+                            f"{cut_repr(sec[keys[0]])}.", file=name,
+                            column=f"{col}.{keys[0]}")
+        checked_cov(cov, n_before + len(labels), name, f"{col}.{keys[1]}")
+        return ModelPart(labels, values, cov, {"range_mm": rng, "layout": layout})
 
 
 def checked_cov(cov: np.ndarray, n: int, name: str | None, column: str) -> None:

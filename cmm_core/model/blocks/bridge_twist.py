@@ -108,25 +108,19 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from ...io import DataError
-from ...io.errors import cut_repr
 from ...machine import LAYOUTS
 from ...units import UM, URAD
 from ..observations import Observations
 from .base import (
-    Block,
-    Column,
     Correction,
     Effect,
     Eval,
-    Jacobian,
+    LayoutBlock,
     ModelPart,
     Shape,
     SimCheck,
     SimContext,
     SimParam,
-    checked_cov,
-    shared_cols,
 )
 
 SHAPES = ("lin", "quad", "cub")
@@ -164,7 +158,7 @@ def power_basis(u_mm: np.ndarray, range_mm: Sequence[float] | np.ndarray, layout
     return np.column_stack([s**k * v for k in powers])
 
 
-def basis(u_mm: np.ndarray, range_mm: Sequence[float], layout: str,
+def basis(u_mm: np.ndarray, range_mm: Sequence[float] | np.ndarray, layout: str,
           old: bool = False) -> np.ndarray:
     """The twist shapes at scale readings ``u_mm`` (n, 3): (n, 3), ``s·v``, ``s²·v``,
     ``s³·v`` (module docstring); ``old``: (n, 2), the first version's ``s·v`` and
@@ -209,7 +203,7 @@ def twist_columns(B: np.ndarray, r_mm: np.ndarray, u_mm: np.ndarray, layout: str
     return np.concatenate(cols, axis=2)
 
 
-class BridgeTwist(Block):
+class BridgeTwist(LayoutBlock):
     """Roll of the bridge about its travel axis that grows with the carriage's load share
     (µrad at the corners of the strokes), with the height of the line it rolls about."""
 
@@ -288,61 +282,27 @@ class BridgeTwist(Block):
                     "stroke, where the twist is a rigid roll")
         return None
 
-    def columns(self, obs: Observations) -> list[Column]:
-        return [("bridge_twist", list(LABELS), "urad")] if obs.layout in BRIDGES else []
+    layouts = BRIDGES
+    labels = LABELS
+    lacks = "bridge twist"
+    section_keys = SECTION_KEYS
+    values_what = "finite twists (µrad)"
 
-    def _terms(self, ev):
-        """``(basis (n, 3), columns (n, 3, 6))`` at the observations' readings: each
-        parameter's motion of the tip (:func:`twist_columns`)."""
+    def motion(self, ev: Eval) -> np.ndarray:
+        """Each parameter's motion of the tip (:func:`twist_columns`) at the readings."""
         o = ev.obs
         u = o.r_mm - o.p_mm
-        B = basis(u, o.range_mm, o.layout)
-        return B, twist_columns(B, o.r_mm, u, o.layout)
-
-    def reading_stage(self, ev: Eval, d: np.ndarray) -> np.ndarray:
-        if ev.obs.layout not in BRIDGES:
-            return d
-        _, cols = self._terms(ev)
-        return d + cols @ ev.x("bridge_twist")
-
-    def jacobian(self, ev: Eval) -> Jacobian:
-        if ev.obs.layout not in BRIDGES:
-            return []
-        B, cols = self._terms(ev)
-        return [(shared_cols(ev.start("bridge_twist"), len(LABELS), len(B)), cols)]
+        return twist_columns(basis(u, o.range_mm, o.layout), o.r_mm, u, o.layout)
 
     # --- compensation of new points -----------------------------------------------------
     model_keys = ("bridge_twist",)
     model_what = "bridge twist"
     comp_units = "urad"
 
-    # a layout without a bridge fits no twist (the spec may still name it): its file has
-    # no section, which part_from_file refuses on a bridge
-    model_keys_optional = True
-    part_in_machine_frame = True  # normalised to the strokes; depends on the layout
-
     @classmethod
-    def part_to_file(cls, part: ModelPart) -> dict:
-        return {"bridge_twist": {"twist_urad": part.values.tolist(),
-                                 "cov_joint": part.cov.tolist()}}
-
-    @classmethod
-    def part_from_file(cls, d: dict, n_before: int, name: str) -> ModelPart | None:
-        got = cls.layout_section(d, name, layouts=BRIDGES, keys=SECTION_KEYS,
-                                 lacks="bridge twist")
-        if got is None:
-            return None
-        t, cov, rng, layout = got
-        col = "bridge_twist"
+    def labels_in_file(cls, k: int) -> tuple[str, ...] | None:
         # 6 terms; 2 or 4 in a file of the first version (shapes s·v, (1 − s²)² v)
-        k = t.shape[0] if t.ndim == 1 and t.shape[0] in (2, 4, len(LABELS)) else len(LABELS)
-        if t.shape != (k,) or not np.isfinite(t).all():
-            raise DataError(f"expected {len(LABELS)} finite twists (µrad), "
-                            f"found {cut_repr(d[col]['twist_urad'])}.", file=name,
-                            column=f"{col}.twist_urad")
-        checked_cov(cov, n_before + k, name, f"{col}.cov_joint")
-        labels = LABELS if k == len(LABELS) else OLD_LABELS[:k]
-        return ModelPart(labels, t, cov, {"range_mm": rng, "layout": layout})
+        return LABELS if k == len(LABELS) else OLD_LABELS[:k] if k in (2, 4) else None
 
     @classmethod
     def correct(cls, part: ModelPart, points: pd.DataFrame, x_mm: np.ndarray,

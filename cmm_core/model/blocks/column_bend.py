@@ -73,23 +73,17 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from ...io import DataError
-from ...io.errors import cut_repr
 from ...machine import LAYOUTS
 from ..observations import Observations
 from .base import (
-    Block,
-    Column,
     Correction,
     Effect,
     Eval,
-    Jacobian,
+    LayoutBlock,
     ModelPart,
     SimCheck,
     SimContext,
     SimParam,
-    checked_cov,
-    shared_cols,
 )
 
 SHAPES = ("drop", "shear", "bend")
@@ -128,7 +122,7 @@ def bend_columns(B: np.ndarray, layout: str) -> np.ndarray:
     return cols
 
 
-class ColumnBend(Block):
+class ColumnBend(LayoutBlock):
     """Bending of a horizontal-arm machine's column under the arm's moment (µm at the
     corners of the arm's and z strokes)."""
 
@@ -197,51 +191,20 @@ class ColumnBend(Block):
                     "stroke, where the column's bending is a rigid error")
         return None
 
-    def columns(self, obs: Observations) -> list[Column]:
-        return [("column_bend", list(LABELS), "um")] if obs.layout in ARMS else []
+    layouts = ARMS
+    labels = LABELS
+    lacks = "horizontal arm"
+    section_keys = SECTION_KEYS
+    values_what = "finite bendings (µm)"
 
-    def _cols(self, ev: Eval) -> np.ndarray:
-        """Each parameter's motion of the tip at the observations' readings (n, 3, 3)."""
+    def motion(self, ev: Eval) -> np.ndarray:
         o = ev.obs
         return bend_columns(basis(o.r_mm - o.p_mm, o.range_mm, o.layout), o.layout)
-
-    def reading_stage(self, ev: Eval, d: np.ndarray) -> np.ndarray:
-        if ev.obs.layout not in ARMS:
-            return d
-        return d + self._cols(ev) @ ev.x("column_bend")
-
-    def jacobian(self, ev: Eval) -> Jacobian:
-        if ev.obs.layout not in ARMS:
-            return []
-        cols = self._cols(ev)
-        return [(shared_cols(ev.start("column_bend"), len(LABELS), len(cols)), cols)]
 
     # --- compensation of new points -----------------------------------------------------
     model_keys = ("column_bend",)
     model_what = "column bending"
     comp_units = "um"
-    model_keys_optional = True
-    part_in_machine_frame = True  # normalised to the strokes; depends on the layout
-
-    @classmethod
-    def part_to_file(cls, part: ModelPart) -> dict:
-        return {"column_bend": {"bend_um": part.values.tolist(),
-                                "cov_joint": part.cov.tolist()}}
-
-    @classmethod
-    def part_from_file(cls, d: dict, n_before: int, name: str) -> ModelPart | None:
-        got = cls.layout_section(d, name, layouts=ARMS, keys=SECTION_KEYS,
-                                 lacks="horizontal arm")
-        if got is None:
-            return None
-        t, cov, rng, layout = got
-        col = "column_bend"
-        if t.shape != (len(LABELS),) or not np.isfinite(t).all():
-            raise DataError(f"expected {len(LABELS)} finite bendings (µm), "
-                            f"found {cut_repr(d[col]['bend_um'])}.", file=name,
-                            column=f"{col}.bend_um")
-        checked_cov(cov, n_before + len(LABELS), name, f"{col}.cov_joint")
-        return ModelPart(LABELS, t, cov, {"range_mm": rng, "layout": layout})
 
     @classmethod
     def correct(cls, part: ModelPart, points: pd.DataFrame, x_mm: np.ndarray,
