@@ -57,3 +57,25 @@ def uploader(at, label: str):
         open_data_tab(at, "Project file" if label.startswith("Project") else "Upload CSVs",
                       instruments=instruments)
     return find()[0]
+
+
+def part_correction(dataset, token: str):
+    """A fit of ``dataset`` with ``token`` added to kinematic21, its model saved and read
+    back, and the measured points compensated with and without the token's part:
+    ``(fit, model, delta_um (n, 3), r_mm (n, 3) readings, p_mm (n, 3) probe offsets)``,
+    ``delta_um`` the part's share of the correction (the part: ``model.parts[token]``)."""
+    from dataclasses import replace
+
+    from cmm_core.export import compensate, model_from_dict, model_to_dict
+    from cmm_core.model import fit
+
+    r = fit(dataset, f"kinematic21,{token}")
+    m = model_from_dict(model_to_dict(r))
+    pts = dataset.meas[["probe", "mx_mm", "my_mm", "mz_mm"]].rename(
+        columns={"mx_mm": "x_mm", "my_mm": "y_mm", "mz_mm": "z_mm"})
+    cols = ["ex_um", "ey_um", "ez_um"]
+    delta = (compensate(m, pts)[cols].to_numpy()
+             - compensate(replace(m, parts={}, cov=m.cov), pts)[cols].to_numpy())
+    r_mm = pts[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+    p_mm = np.array([m.probes_mm[q] for q in pts["probe"].astype(str)])
+    return r, m, delta, r_mm, p_mm

@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import scenarios as sc
+from conftest import part_correction
 
 from cmm_core.diagnosis import diagnose
 from cmm_core.export import compensate, model_from_dict, model_to_dict
@@ -113,19 +114,10 @@ def test_new_points_are_corrected_for_the_bending():
     stated uncertainty of the truth (the bending alone is several µm there)."""
     layout = "horizontal_arm_fxzy"
     sim = _sim(layout, 6)
-    r = fit(sim.dataset, "kinematic21,column_bend")
-    m = model_from_dict(model_to_dict(r))
+    r, m, delta, r_mm, p = part_correction(sim.dataset, "column_bend")
     part = m.parts["column_bend"]
     assert part.context["layout"] == layout
     np.testing.assert_allclose(part.values, r.block("column_bend")[1])
-    pts = sim.dataset.meas[["probe", "mx_mm", "my_mm", "mz_mm"]].rename(
-        columns={"mx_mm": "x_mm", "my_mm": "y_mm", "mz_mm": "z_mm"})
-    with_bend = compensate(m, pts)
-    plain = compensate(replace(m, parts={}, cov=m.cov), pts)
-    delta = (with_bend[["ex_um", "ey_um", "ez_um"]].to_numpy()
-             - plain[["ex_um", "ey_um", "ez_um"]].to_numpy())
-    r_mm = pts[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
-    p = np.array([m.probes_mm[q] for q in pts["probe"].astype(str)])
     want = bend_columns(basis(r_mm - p, m.terms.range_mm, layout), layout) @ part.values
     np.testing.assert_allclose(delta, want, atol=1e-9)
     assert np.abs(want).max() > 1.0

@@ -5,9 +5,10 @@ compensated on the layouts with a moving bridge."""
 import numpy as np
 import pytest
 import scenarios as sc
+from conftest import part_correction
 
 from cmm_core.diagnosis import diagnose
-from cmm_core.export import compensate, model_from_dict, model_to_dict
+from cmm_core.export import model_from_dict, model_to_dict
 from cmm_core.model import catalogue_entry, fit, simulate
 
 TWIST = {"lin_urad": 8.0, "quad_urad": 4.0, "cub_urad": -3.0}
@@ -67,22 +68,11 @@ def test_new_points_are_corrected_for_the_twist():
     """Compensated points: the correction's twist part is the fitted term at the points'
     readings, through the saved model file."""
     sim = _sim("moving_bridge_fxyz", 6)
-    r = fit(sim.dataset, "kinematic21,bridge_twist")
-    m = model_from_dict(model_to_dict(r))
+    r, m, delta, r_mm, p = part_correction(sim.dataset, "bridge_twist")
     part = m.parts["bridge_twist"]
     assert part.context["layout"] == "moving_bridge_fxyz"
     np.testing.assert_allclose(part.values, r.block("bridge_twist")[1])
-    pts = sim.dataset.meas[["probe", "mx_mm", "my_mm", "mz_mm"]].rename(
-        columns={"mx_mm": "x_mm", "my_mm": "y_mm", "mz_mm": "z_mm"})
-    with_twist = compensate(m, pts)
-    # the same model without the twist's part corrects by the kinematic map alone
-    from dataclasses import replace
-    plain = compensate(replace(m, parts={}, cov=m.cov), pts)
-    delta = (with_twist[["ex_um", "ey_um", "ez_um"]].to_numpy()
-             - plain[["ex_um", "ey_um", "ez_um"]].to_numpy())
     from cmm_core.model.blocks.bridge_twist import basis, direction_um
-    r_mm = pts[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
-    p = np.array([m.probes_mm[q] for q in pts["probe"].astype(str)])
     u = r_mm - p
     B = basis(u, m.terms.range_mm, "moving_bridge_fxyz")
     # the roll about x through z = 0, and the height terms' shear e_x × (−1 m e_z) =
