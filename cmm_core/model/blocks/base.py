@@ -628,13 +628,17 @@ class LayoutBlock(Block):
     spec names it.
 
     A subclass sets :attr:`layouts`, :attr:`labels`, :attr:`lacks` (what a layout without
-    the block lacks: "bridge twist", "horizontal arm"), :attr:`section_keys` (its values'
-    key and ``cov_joint``), :attr:`values_what` ("finite twists (µrad)") and
-    :meth:`motion`; :meth:`labels_in_file` for files of an earlier version."""
+    the block lacks: "horizontal arm on a column"), :attr:`layouts_what` ("a horizontal-arm
+    layout"), :attr:`section_keys` (its values' key and ``cov_joint``),
+    :attr:`values_what` ("finite twists (µrad)") and :meth:`motion`;
+    :meth:`labels_in_file` for files of an earlier version, :attr:`sim_shape_keys` for
+    simulator keys that are not sizes."""
 
     layouts: Collection[str] = ()
     labels: tuple[str, ...] = ()
     lacks: str = ""
+    layouts_what: str = ""
+    sim_shape_keys: frozenset = frozenset()
     section_keys: tuple[str, str] = ("values", "cov_joint")
     values_what: str = "finite values"
     model_keys_optional = True
@@ -643,6 +647,18 @@ class LayoutBlock(Block):
     def motion(self, ev: Eval) -> np.ndarray:
         """Each parameter's motion of the tip at the observations' readings (n, 3, k)."""
         raise NotImplementedError
+
+    @classmethod
+    def check_sim(cls, cfg: dict, where: str, check: SimCheck) -> None:
+        """A size asked of a layout without the block would be dropped without a word:
+        refused."""
+        sizes = (cls.sim_keys or frozenset()) - cls.sim_shape_keys
+        if check.layout and check.layout not in cls.layouts and any(
+                float(cfg.get(k, 0.0)) != 0.0 for k in sizes):
+            raise check.bad(where, f"the {check.layout} layout has no {cls.lacks}, so it has "
+                            f"no {cls.model_what} to simulate.",
+                            hint=f"remove effects.{cls.token}, or simulate "
+                                 f"{cls.layouts_what} (machine.layout).")
 
     def columns(self, obs: Observations) -> list[Column]:
         return ([(str(self.token), list(self.labels), self.comp_units)]

@@ -118,7 +118,6 @@ from .base import (
     LayoutBlock,
     ModelPart,
     Shape,
-    SimCheck,
     SimContext,
     SimParam,
 )
@@ -258,17 +257,6 @@ class BridgeTwist(LayoutBlock):
     def injection(cls, values: dict[str, float]) -> dict | None:
         return {f"{lab.split('.')[1]}_urad": v for lab, v in values.items()}
 
-    @classmethod
-    def check_sim(cls, cfg: dict, where: str, check: SimCheck) -> None:
-        """A twist asked of a layout without a moving bridge would be dropped without a
-        word: refused."""
-        if check.layout and check.layout not in BRIDGES and any(
-                float(cfg.get(k, 0.0)) != 0.0 for k in cls.sim_keys if k != "axis_height_mm"):
-            raise check.bad(where, f"the {check.layout} layout has no moving bridge carrying "
-                            "a carriage, so it has no bridge twist to simulate.",
-                            hint="remove effects.bridge_twist, or simulate a moving bridge "
-                                 "or gantry layout (machine.layout).")
-
     @staticmethod
     def needs(obs: Observations) -> str | None:
         if obs.layout not in BRIDGES:
@@ -284,7 +272,9 @@ class BridgeTwist(LayoutBlock):
 
     layouts = BRIDGES
     labels = LABELS
-    lacks = "bridge twist"
+    lacks = "moving bridge carrying a carriage"
+    layouts_what = "a moving bridge or gantry layout"
+    sim_shape_keys = frozenset({"axis_height_mm"})  # where the roll's axis is, not a size
     section_keys = SECTION_KEYS
     values_what = "finite twists (µrad)"
 

@@ -81,7 +81,6 @@ from .base import (
     Eval,
     LayoutBlock,
     ModelPart,
-    SimCheck,
     SimContext,
     SimParam,
 )
@@ -166,17 +165,6 @@ class ColumnBend(LayoutBlock):
     def injection(cls, values: dict[str, float]) -> dict | None:
         return {f"{lab.split('.')[1]}_um": v for lab, v in values.items()}
 
-    @classmethod
-    def check_sim(cls, cfg: dict, where: str, check: SimCheck) -> None:
-        """A bending asked of a layout without a horizontal arm would be dropped without a
-        word: refused."""
-        if check.layout and check.layout not in ARMS and any(
-                float(cfg.get(k, 0.0)) != 0.0 for k in cls.sim_keys):
-            raise check.bad(where, f"the {check.layout} layout has no horizontal arm on a "
-                            "column, so it has no column bending to simulate.",
-                            hint="remove effects.column_bend, or simulate a horizontal-arm "
-                                 "layout (machine.layout).")
-
     @staticmethod
     def needs(obs: Observations) -> str | None:
         if obs.layout not in ARMS:
@@ -193,7 +181,8 @@ class ColumnBend(LayoutBlock):
 
     layouts = ARMS
     labels = LABELS
-    lacks = "horizontal arm"
+    lacks = "horizontal arm on a column"
+    layouts_what = "a horizontal-arm layout"
     section_keys = SECTION_KEYS
     values_what = "finite bendings (µm)"
 
