@@ -124,13 +124,12 @@ def run(args: argparse.Namespace) -> dict:
         out["simulated"] = {t: {"verdict": o.verdict, "aliases": o.aliases,
                                 "separated": o.separated, "message": o.message}
                             for t, o in outs.items()}
-    planned = plates  # a plan holds placements, styli and repeats, not instruments
-    if planned and args.plan_out:
+    if plates and args.plan_out:  # a plan holds placements, styli and repeats
         # checked against the inputs before any work (cli.commands), written atomically
         atomic_write_text(args.plan_out, json.dumps(
-            plan_file(data, planned[0], baseline=args.baseline, order=args.order,
+            plan_file(data, plates[0], baseline=args.baseline, order=args.order,
                       noise_um=sigma), indent=1))
-        out["plan_file"] = {"path": str(args.plan_out), "proposal": planned[0].candidate.name}
+        out["plan_file"] = {"path": str(args.plan_out), "proposal": plates[0].candidate.name}
     elif args.plan_out:
         out["plan_file"] = {"skipped": "no placement, stylus or repeat proposal to write: "
                                        "a plan file cannot hold instruments"}

@@ -90,7 +90,7 @@ from .observations import (
 )
 from .problem import Problem, augmented_state, held_constraints, weighted_residual
 from .result import CHI2_ALPHA, IMPLAUSIBLE, FitResult
-from .simulation_config import DEFAULT_CONFIG, simulator_effects
+from .simulation_config import DEFAULT_CONFIG, check_repeat_at_end, simulator_effects
 from .solver import Normal, describe_null, normal_equations, signed_sum, solve, surely_determined
 from .state import State
 from .uncertainty import (
@@ -112,7 +112,7 @@ __all__ = [
     "accumulate", "aligned_error_u", "approach_directions", "augmented_state",
     "BALL_BAR_COLUMNS", "BALL_BAR_OPTIONAL", "BallBar", "Block", "BY_TOKEN", "catalogue_entry",
     "certificate_terms", "check_selection", "checked_cov", "CHI2_ALPHA", "correction_columns",
-    "cost_of", "DEFAULT_CONFIG", "describe_null", "error_at", "error_covariance",
+    "check_repeat_at_end", "cost_of", "DEFAULT_CONFIG", "describe_null", "error_at", "error_covariance",
     "Eval", "evaluate", "fit", "FitResult", "GROUPS", "has_plate", "held_constraints", "held_prior_rows",
     "IMPLAUSIBLE", "in_plane", "initial_state", "instrument_observations", "INSTRUMENT_KINDS", "Instruments",
     "is_hole_plate", "LASER_COLUMNS", "LASER_OPTIONAL", "LaserRun", "length_change",

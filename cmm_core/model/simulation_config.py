@@ -134,26 +134,6 @@ def _check_run(cfg, bad, number):
                 isinstance(q, str | int) and not isinstance(q, bool) for q in qs):
             raise bad(f"probes_per_position.{pos}", f"expected a non-empty list of probe "
                       f"names, found {cut_repr(qs)}.")
-    rae = top["repeat_at_end"]
-    if not isinstance(rae, dict):
-        raise bad("repeat_at_end", f"expected an object position: {{\"probe\": name, "
-                  f"\"balls\": [numbers]}}, found {cut_repr(rae)}.")
-    for pos, body in rae.items():
-        where = f"repeat_at_end.{pos}"
-        if not isinstance(body, dict) or set(map(str, body)) != {"probe", "balls"}:
-            raise bad(where, f"expected an object with the keys probe and balls, found "
-                      f"{cut_repr(body)}.")
-        q, balls = body["probe"], body["balls"]
-        if not isinstance(q, str | int) or isinstance(q, bool):
-            raise bad(f"{where}.probe", f"expected a probe name, found {cut_repr(q)}.")
-        if not isinstance(balls, list) or not balls:
-            raise bad(f"{where}.balls", f"expected a non-empty list of ball numbers, found "
-                      f"{cut_repr(balls)}.")
-        for b in balls:
-            number(f"{where}.balls", b, 1, 10_000, integer=True)
-        if len(set(balls)) != len(balls):
-            raise bad(f"{where}.balls", f"a ball is repeated once at the end: expected "
-                      f"distinct numbers, found {cut_repr(balls)}.")
     if top["artefact"] is not None and top["artefact"] not in ARTEFACTS:
         raise bad("artefact", f"unknown artefact {cut_repr(top['artefact'])}; expected one of "
                   f"{', '.join(ARTEFACTS)} (or null for the setup's).")
@@ -213,21 +193,11 @@ def _check_against_setup(cfg, setup, terms, name, own_ppp):
                       f"names, found {cut_repr(qs)}.")
         for q in qs:
             known(f"probes_per_position.{pos}", q, probes, "probe")
-    n_balls = int(cfg["plate"]["rows"]) * int(cfg["plate"]["cols"])
-    for pos, body in cfg["repeat_at_end"].items():
-        known(f"repeat_at_end.{pos}", pos, positions, "position")
-        # the styli the simulator measures the position with (virtual_cmm.simulate)
-        own = [str(q) for q in (cfg["probes_per_position"] or {}).get(pos, [])] or [
-            str(setup.positions[pos].probe or probes[0])]
-        if str(body["probe"]) not in own:
-            raise bad(f"repeat_at_end.{pos}.probe", f"stylus {cut_repr(body['probe'])} is "
-                      f"not among the styli {pos} is measured with ({', '.join(own)}).",
-                      hint="repeat a ball with a stylus the position uses "
-                           "(probes_per_position).")
-        far = [b for b in body["balls"] if b > n_balls]
-        if far:
-            raise bad(f"repeat_at_end.{pos}.balls", f"ball {far[0]} is not on the plate "
-                      f"of {n_balls} balls.")
+    # the styli the simulator measures each position with (virtual_cmm.simulate)
+    ppp_all = cfg["probes_per_position"] or {}
+    check_repeat_at_end(cfg["repeat_at_end"], "repeat_at_end", bad, styli={
+        p: [str(q) for q in ppp_all.get(p, [])] or [str(setup.positions[p].probe or probes[0])]
+        for p in positions}, n_balls=int(cfg["plate"]["rows"]) * int(cfg["plate"]["cols"]))
     labels = terms.labels
     for lab in cfg["kinematic"]["coefficients"]:
         if lab not in labels:
@@ -242,6 +212,41 @@ def _check_against_setup(cfg, setup, terms, name, own_ppp):
     # each effect checks the names and values its block reads (Block.check_sim)
     for token, body in cfg["effects"].items():
         BY_TOKEN[token].check_sim(body, f"effects.{token}", check)
+
+
+def check_repeat_at_end(spec, column: str, bad, *, styli: dict, n_balls: int) -> dict:
+    """Balls measured once more at the end of a placement (a simulation config's or a plan
+    strategy's ``repeat_at_end``): placement -> ``{"probe": stylus, "balls": [numbers]}``,
+    each placement one of ``styli`` (placement -> the styli it is measured with), the
+    stylus one of its, each ball on the plate of ``n_balls`` and named once. Returns it
+    with the stylus as text; ``bad(column, message, hint=None)`` makes the refusal."""
+    if not isinstance(spec, dict):
+        raise bad(column, f"expected an object placement: {{\"probe\": stylus, "
+                  f"\"balls\": [numbers]}}, found {cut_repr(spec)}.")
+    out = {}
+    for pos, body in spec.items():
+        where = f"{column}.{pos}"
+        if pos not in styli:
+            raise bad(where, f"placement {cut_repr(pos)} is not among those measured "
+                      f"({', '.join(styli)}).")
+        if not isinstance(body, dict) or set(map(str, body)) != {"probe", "balls"}:
+            raise bad(where, f"expected an object with the keys probe and balls, found "
+                      f"{cut_repr(body)}.")
+        q, balls = body["probe"], body["balls"]
+        if isinstance(q, bool) or not isinstance(q, str | int) or str(q) not in styli[pos]:
+            raise bad(f"{where}.probe", f"stylus {cut_repr(q)} is not among the styli "
+                      f"{pos} is measured with ({', '.join(styli[pos])}).",
+                      hint="repeat a ball with a stylus the placement is measured with.")
+        if not isinstance(balls, list) or not balls or not all(
+                isinstance(b, int) and not isinstance(b, bool) and 1 <= b <= n_balls
+                for b in balls):
+            raise bad(f"{where}.balls", f"expected a non-empty list of ball numbers from 1 "
+                      f"to {n_balls}, found {cut_repr(balls)}.")
+        if len(set(balls)) != len(balls):
+            raise bad(f"{where}.balls", f"expected distinct ball numbers (each repeated "
+                      f"once at the end), found {cut_repr(balls)}.")
+        out[str(pos)] = {"probe": str(q), "balls": list(balls)}
+    return out
 
 
 def _check_plate_in_machine(setup, nominal, name, probes_per_position=None):

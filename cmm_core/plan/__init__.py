@@ -45,7 +45,6 @@ from .files import (
     evaluate_file,
     read_design,
     read_plan,
-    repeats_of,
     units_of,
 )
 from .plans import STROKE_POINTS, Plan, design_fit, fit_plan_data, simulate_plan, simulation_config
@@ -119,7 +118,7 @@ __all__ = [
     "failing", "feature", "figures", "fit_plan_data", "function_uncertainty", "injection",
     "MEASUREMENT_DEFAULTS", "meets", "MIN_LENGTH_MM", "MODEL_DEFAULTS",
     "noncentrality_for_power", "PHYSICAL_CHECKS", "Plan", "PlanEvaluation", "PlanFile",
-    "PLATE_DEFAULTS", "PoolModel", "POWER", "random_plans", "read_design", "read_plan", "repeats_of",
+    "PLATE_DEFAULTS", "PoolModel", "POWER", "random_plans", "read_design", "read_plan",
     "read_task", "run_serial", "run_task", "run_tasks", "simulate_plan", "simulation_config",
     "STRATEGY_KEYS", "STROKE_POINTS", "StudyResult", "StudyTask", "summarise", "Task",
     "TASK_KEYS", "task_uncertainty", "TaskResult", "TASKS", "tasks_for", "TOP_KEYS", "units_of",

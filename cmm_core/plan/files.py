@@ -17,7 +17,7 @@ import numpy as np
 from ..diagnosis import FAMILY_ALPHA
 from ..io import DataError, Setup, read_json, read_setup, refuse_unknown_keys
 from ..io.errors import cut_repr
-from ..model import MAX_ORDER, PLATE_MODES, parse_spec
+from ..model import MAX_ORDER, PLATE_MODES, check_repeat_at_end, parse_spec
 from .designer import DesignResult, design
 from .evaluation import evaluate
 from .plans import Plan, _build
@@ -216,8 +216,11 @@ def read_plan(source: str | Path | bytes | dict, *, name: str | None = None,
                          name, f"{where}.placements")
         m = _check_measurement(_section(st, "measurement", meas, name, f"{where}."), name,
                                f"{where}.measurement")
-        again = repeats_of(st.get("repeat_at_end", {}), units, plate, name,
-                           f"{where}.repeat_at_end")
+        again = check_repeat_at_end(
+            st.get("repeat_at_end", {}), f"{where}.repeat_at_end",
+            lambda col, msg, hint=None: _bad(name, col, msg, hint),
+            styli={p: list(q) for p, q in units.items()},
+            n_balls=int(plate["rows"]) * int(plate["cols"]))
         p = Plan(str(st.get("name", f"strategy {i + 1}")), setup_raw, units, plate, model,
                  _number(name, f"{where}.noise_um", st.get("noise_um", noise), 1e-4, 1000),
                  m, seed)
@@ -260,40 +263,6 @@ def units_of(spec: list | dict, setup: Setup, defaults: dict, name: str,
                 raise _bad(name, f"{column}.{pos}", f"stylus {cut_repr(q)} is not among the "
                            f"setup's probes {sorted(setup.probes)}.")
         out[str(pos)] = tuple(dict.fromkeys(str(q) for q in qs))
-    return out
-
-
-def repeats_of(spec: dict, units: dict, plate: dict, name: str, column: str) -> dict:
-    """A strategy's ``repeat_at_end``: placement -> ``{"probe": stylus, "balls":
-    [numbers]}``, each placement and stylus one the strategy measures, each ball on the
-    plate and named once."""
-    if not isinstance(spec, dict):
-        raise _bad(name, column, f"expected an object placement: {{\"probe\": stylus, "
-                   f"\"balls\": [numbers]}}, found {cut_repr(spec)}.")
-    n_balls = int(plate["rows"]) * int(plate["cols"])
-    out = {}
-    for pos, body in spec.items():
-        where = f"{column}.{pos}"
-        if pos not in units:
-            raise _bad(name, where, f"placement {cut_repr(pos)} is not measured by the "
-                       f"strategy (it measures {', '.join(units)}).")
-        if not isinstance(body, dict) or set(map(str, body)) != {"probe", "balls"}:
-            raise _bad(name, where, f"expected an object with the keys probe and balls, "
-                       f"found {cut_repr(body)}.")
-        q = str(body["probe"])
-        if q not in units[pos]:
-            raise _bad(name, f"{where}.probe", f"stylus {cut_repr(body['probe'])} is not "
-                       f"among the styli the strategy measures {pos} with "
-                       f"{list(units[pos])}.")
-        balls = body["balls"]
-        if not isinstance(balls, list) or not balls:
-            raise _bad(name, f"{where}.balls", f"expected a non-empty list of ball numbers, "
-                       f"found {cut_repr(balls)}.")
-        nums = [_number(name, f"{where}.balls", b, 1, n_balls, integer=True) for b in balls]
-        if len(set(nums)) != len(nums):
-            raise _bad(name, f"{where}.balls", f"expected distinct ball numbers, found "
-                       f"{cut_repr(balls)}.")
-        out[str(pos)] = {"probe": q, "balls": nums}
     return out
 
 
