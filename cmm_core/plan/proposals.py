@@ -1057,15 +1057,8 @@ def _expected_power(G: np.ndarray, theta: np.ndarray, cov: np.ndarray, k: int, n
 
 
 def _power(lam: float, k: int, nu: int, level: float) -> float:
-    """P(F(k, ν, λ) > F⁻¹(1 − level; k, ν)): the level itself at λ = 0 (scipy's ``ncf``
-    returns nonsense there, e.g. -0.99), the χ² limit (ν → ∞) if ``ncf`` fails."""
-    if lam <= 0.0:
-        return float(level)
-    crit = stats.f.isf(level, k, nu)
-    p = float(stats.ncf.sf(crit, k, nu, lam))
-    if not 0.0 <= p <= 1.0:
-        p = float(stats.ncx2.sf(k * crit, k, lam))
-    return min(max(p, float(level)), 1.0)
+    """P(F(k, ν, λ) > F⁻¹(1 − level; k, ν)) at one λ (:func:`_powers`)."""
+    return float(_powers(np.array([lam], float), k, nu, level)[0])
 
 
 @lru_cache(maxsize=64)
@@ -1080,11 +1073,13 @@ def _normal_points(dim: int, n: int) -> np.ndarray:
 
 
 def _powers(lam: np.ndarray, k: int, nu: int, level: float) -> np.ndarray:
-    """:func:`_power` of each λ at once (the expected power's draws)."""
+    """P(F(k, ν, λ) > F⁻¹(1 − level; k, ν)) for each λ: the level itself at λ = 0
+    (scipy's ``ncf`` returns nonsense there, e.g. -0.99), the χ² limit (ν → ∞) where
+    ``ncf`` fails."""
     lam = np.asarray(lam, float)
     crit = stats.f.isf(level, k, nu)
     with np.errstate(all="ignore"):
-        p = np.asarray(stats.ncf.sf(crit, k, nu, lam), float)
+        p = np.array(np.broadcast_to(stats.ncf.sf(crit, k, nu, lam), lam.shape), float)
     bad = ~((p >= 0.0) & (p <= 1.0))
     if bad.any():
         p[bad] = stats.ncx2.sf(k * crit, k, lam[bad])
