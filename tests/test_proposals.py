@@ -239,7 +239,7 @@ def test_instrument_candidates_predict_the_misfit_of_a_joint_fit(clean80):
     assert tools["laser_x"].time_min == pytest.approx(21 * 0.5 + 10)  # plan time model
     pr = propose(clean80, ("sxy", "rxz:4"), baseline=BASE, cands=list(tools.values()))
     rf = fit_rivals(clean80, ("sxy", "rxz:4"), baseline=BASE)
-    zero = P._error_free(clean80)
+    zero = P._machine(clean80)
     checked = 0
     for p in pr.ranked:
         if p.delta_chi2_fitted["sxy"] < 10:  # below that the comparison is of near-zero numbers

@@ -1342,7 +1342,7 @@ def instrument_candidates(data: Dataset, *, reference: str | None = None,
     return out
 
 
-def _error_free(data: Dataset, kinematic: dict | None = None):
+def _machine(data: Dataset, kinematic: dict | None = None):
     """The data's machine without errors (the simulator's ``Simulation`` the instrument
     simulators read their truth from), measuring the first placement; with
     ``kinematic`` (simulator keys, :func:`truth_config`), the machine with those errors."""
@@ -1579,7 +1579,7 @@ def propose(data: Dataset, rivals: Sequence[str] | None = None, *, baseline: str
                          rf, rank_now)
     tools = [c for c in cands if c.instrument]
     if tools:
-        sim0, obs_now = _error_free(data), select(data)
+        sim0, obs_now = _machine(data), select(data)
         scored += _proposals(((c, _score_on(_stack(now, _instrument_design(
             obs_now, now, rf, instrument_of(c, sim0))), rf)) for c in tools), rivals, rf,
             rank_now)
@@ -1656,13 +1656,6 @@ def truth_config(fitted: FitResult, exclude_positions: Iterable[str] = ()) -> di
             "effects": effects}
 
 
-def _plate_only(proposal: Proposal) -> None:
-    if proposal.candidate.instrument:
-        raise ValueError(f"{proposal.candidate.name} is an instrument: a plan file holds plate "
-                         "placements and styli only; measure the instrument as proposed "
-                         "(its kind, path and offset are in the proposal).")
-
-
 @dataclass(frozen=True)
 class Outcome:
     """The diagnosis of the data with a proposal appended, simulated with one rival as
@@ -1717,7 +1710,7 @@ def simulate_outcomes(data: Dataset, proposal: Proposal, *, baseline: str = "kin
         if cand.repeat:  # the same placements: their fitted poses, plate and drift
             aug = repeat_from_fit(data, cand, rf.fits[t], noise_um=sigma_um, seed=seed)
         elif cand.instrument:
-            machine = _error_free(data, truth_config(rf.fits[t])["kinematic"])
+            machine = _machine(data, truth_config(rf.fits[t])["kinematic"])
             obs = select(data)
             aug = replace(obs, instruments=(*obs.instruments,
                                             instrument_of(cand, machine, seed=seed)))
@@ -1737,8 +1730,11 @@ def plan_file(data: Dataset, proposal: Proposal, *, baseline: str = "kinematic21
     data set's setup with the proposal's placement and styli added, its plate, and two
     strategies: the current placements alone and with the proposal (a repeat: the same
     placements with its balls measured again at their end, ``repeat_at_end``)."""
-    _plate_only(proposal)
     c = proposal.candidate
+    if c.instrument:
+        raise ValueError(f"{c.name} is an instrument: a plan file holds plate placements, "
+                         "styli and repeats only; measure the instrument as proposed (its "
+                         "kind, path and offset are in the proposal).")
     grid = plate_grid(data)
     raw = copy.deepcopy(data.setup.raw)
     for pl in raw["positions"].values():
