@@ -95,11 +95,7 @@ def test_a_bridge_has_no_column_bending_and_says_why(layout):
     sim = _sim(layout, 3, effects={})
     why = BY_TOKEN["column_bend"].needs(fit(sim.dataset, "kinematic21").problem.obs)
     assert why is not None and layout in why and "horizontal arm" in why
-    r = fit(sim.dataset, "kinematic21,column_bend")
-    assert "column_bend" not in r.problem.layout.blocks
-    assert "column_bend adds nothing determinable" in r.message
-    m = model_from_dict(model_to_dict(r))  # no part, saved and read back
-    assert "column_bend" not in m.parts
+    # fitted as nothing, saved without a part: test_nonrigid's layout-block test
 
 
 def test_a_bending_asked_of_a_bridge_is_refused():

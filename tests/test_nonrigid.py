@@ -49,11 +49,22 @@ def test_a_fixed_bridge_has_no_twist_and_says_why():
     sim = _sim("fixed_bridge_xfyz", 3, effects={})
     d = diagnose(sim.dataset, "kinematic21")
     assert "fixed_bridge_xfyz" in d.skipped["bridge_twist"]
-    r = fit(sim.dataset, "kinematic21,bridge_twist")
-    assert "bridge_twist" not in r.problem.layout.blocks
-    assert "bridge_twist adds nothing determinable" in r.message
-    m = model_from_dict(model_to_dict(r))  # no part, saved and read back
-    assert "bridge_twist" not in m.parts
+
+
+@pytest.mark.parametrize("token, layout", [
+    ("bridge_twist", "fixed_bridge_xfyz"), ("column_bend", "moving_bridge_fxyz"),
+    ("column_bend", "gantry_fxyz"), ("column_bend", "fixed_bridge_xfyz")])
+def test_a_layout_block_on_a_layout_without_it_fits_nothing_and_saves_no_part(token,
+                                                                                layout):
+    """``blocks.LayoutBlock``: the spec may name the block on any layout; where the machine
+    has none it adds no column, says so in the fit's message, and the saved model has no
+    part (read back as such)."""
+    sim = _sim(layout, 3, effects={})
+    r = fit(sim.dataset, f"kinematic21,{token}")
+    assert token not in r.problem.layout.blocks
+    assert f"{token} adds nothing determinable" in r.message
+    m = model_from_dict(model_to_dict(r))
+    assert token not in m.parts
 
 
 def test_the_twist_needs_both_strokes_covered():
