@@ -1,17 +1,23 @@
-"""CMM error lab: the Streamlit app (``make run``). Seven pages over ``cmm_core``.
+"""CMM error lab: the Streamlit app's frame (``cmm-error-lab app``, ``make run``).
+
+This script is the frame every page sits in, run on every rerun before the page: the page
+config, the session (``pages.ui.session``), the state (``pages.ui.state``), the sidebar,
+the navigation and the autosave. The page scripts in ``pages/`` draw their page only; the
+UI they share is the package ``pages/ui/`` (with its panels), which Streamlit does not scan
+for pages.
 
 The thesis ball-plate data are loaded and fitted on first run, so a first-time user sees a
-model and plots without touching anything. The sidebar states the dataset, the model and
-the fit quality on every page.
+model and plots without touching anything.
 
-Navigation. The pages live in ``pages/`` (the design requires that folder), which Streamlit
-also reads as a legacy page list: on a fresh server its first run shows that raw list of
-files in the sidebar until ``st.navigation`` replaces it. ``client.showSidebarNavigation =
-false`` (.streamlit/config.toml) hides every automatic navigation menu, the legacy one
-included, so the app draws its own with ``st.page_link``. Every page has its own URL
-(``/data``, ``/kinematic`` ...): Streamlit serves its default page at ``/`` only, not at
-its ``url_path``, so the default page is a small redirect to the Data page rather than the
-Data page itself (``/data`` then opens it directly instead of "page not found").
+Navigation. Every page has its own URL (``/data``, ``/kinematic`` ...): Streamlit serves
+its default page at ``/`` only, not at its ``url_path``, so the default page is a small
+redirect to the Data page rather than the Data page itself (``/data`` then opens it
+directly instead of "page not found"). Streamlit runs the scripts of ``pages/*.py`` as
+pages of their own (its legacy multipage list) until the first ``st.navigation`` of the
+server: the server's start (``serve.py``) turns that list off before any session opens,
+so a deep link on a fresh server runs this frame too. ``client.showSidebarNavigation =
+false`` (.streamlit/config.toml) hides the automatic menu; the app draws its own with
+``st.page_link``.
 
 A session survives a reload: the URL carries the analysis's id (``?session=...``), every
 link between pages keeps it, and the analysis is saved as a project file in a per-user
@@ -27,7 +33,7 @@ from pathlib import Path
 
 import streamlit as st
 
-from pages import session, state
+from pages.ui import session, sidebar, state
 
 ROOT = Path(__file__).resolve().parent
 # When set, a file each script run appends its page and wall time to (bench/browser.py
@@ -68,18 +74,19 @@ def _home():
 HOME = st.Page(_home, title="CMM error lab", url_path="home", default=True,
                visibility="hidden")
 page = st.navigation([HOME, *PAGES], position="hidden")
-st.session_state["_via_app"] = True  # pages check it (frame.page_start)
-deep_link = st.session_state.pop("_deep_link", None)
-if deep_link and (ROOT / "pages" / deep_link).is_file():
-    # a deep link opened on a fresh server, before this script ever ran (see
-    # frame.page_start): open the page asked for, now inside the app
-    st.switch_page(f"pages/{deep_link}", query_params=session.session_query())
 st.sidebar.title("CMM error lab")
 with st.sidebar.container(key="app_nav"):
     for p in PAGES:
         st.page_link(p, label=p.title, icon=p.icon, width="stretch",
                      query_params=session.session_query())
 st.sidebar.divider()
+# the frame's state for the page about to run: widget values kept across pages and copied
+# into the canonical state, the analysis saved, the sidebar drawn, a restore's note shown
+state.keep_widget_state()
+state.sync_from_widgets()
+session.autosave()
+sidebar.sidebar()
+session.restore_banner()
 try:
     page.run()
     # what the page changed without a rerun (a button's direct effect) is saved now

@@ -74,10 +74,22 @@ def preload() -> list[str]:
     return done
 
 
+def legacy_pages_off() -> None:
+    """Turn off Streamlit's legacy multipage list before the server answers. Until the first
+    ``st.navigation`` of a server, Streamlit runs a URL such as ``/kinematic`` as the script
+    ``pages/kinematic.py`` alone, without ``app.py`` (its frame: state, sidebar,
+    navigation); ``st.navigation`` turns the list off for the server's life, and so does
+    this, so every first request runs ``app.py`` and its navigation opens the page."""
+    from streamlit.runtime.pages_manager import PagesManager
+
+    PagesManager.uses_pages_directory = False
+
+
 def main(argv: list[str] | None = None) -> None:
     from streamlit.web.cli import main as streamlit_main
 
     preload()
+    legacy_pages_off()
     sys.argv = ["streamlit", "run", str(APP), *(sys.argv[1:] if argv is None else argv)]
     streamlit_main(prog_name="streamlit")
 

@@ -5,7 +5,6 @@ import json
 from pathlib import Path
 
 import pandas as pd
-import plotly.express as px
 import streamlit as st
 
 from cmm_core import analysis as A
@@ -13,9 +12,8 @@ from cmm_core import export as ex
 from cmm_core import io as cio
 from cmm_core import monitor as mon
 from cmm_core.model import INSTRUMENT_KINDS, read_instrument
-from pages import calls, frame
+from pages.ui import calls, widgets
 
-frame.page_start()
 st.title("Interim check")
 st.write("Between calibrations: does the machine still behave as its stored calibration "
          "says, and if not, what changed (docs/monitoring.md)? And how has it changed over "
@@ -26,7 +24,7 @@ SAMPLE_CHECKS = {"after a crash (2025-02-10, four placements)": "check_2025-02-1
                  "quiet (2024-06-17, one placement)": "check_2024-06-17"}
 SAMPLE_MODEL = "calibration_2024-03-04.json"
 # the check tab's choices as a session starts: a value changed from these keeps the tab
-# drawn while the History is looked at (frame.held)
+# drawn while the History is looked at (widgets.held)
 CHECK_DEFAULTS = {"chk_src": "Sample history", "chk_sample": next(iter(SAMPLE_CHECKS)),
                   "chk_alpha": 0.05, "chk_family": 0.05, "chk_mpe": "0.6,600",
                   "chk_kind": next(iter(INSTRUMENT_KINDS))}
@@ -77,7 +75,7 @@ t_check, t_hist = st.tabs(["Interim check", "History"], key="chk_tab", on_change
 with t_check:
     # drawn while open, or while its fields hold the user's files or choices (so that
     # looking at the history loses nothing)
-    if t_check.open or frame.held("chk_model", "chk_meas", "chk_setup", "chk_cert",
+    if t_check.open or widgets.held("chk_model", "chk_meas", "chk_setup", "chk_cert",
                                   "chk_inst", changed=CHECK_DEFAULTS):
         src = st.radio("Data", ["Sample history", "Upload files"], horizontal=True,
                        key="chk_src")
@@ -144,19 +142,19 @@ with t_check:
                 st.caption(chk["message"])
                 if len(table):
                     with calls.guarded("E_n map"):
-                        frame.show(A.fig_en_map(table, "Normalised errors of the new "
+                        widgets.show(A.fig_en_map(table, "Normalised errors of the new "
                                                 "observations (largest of x, y, z)"),
                                    chart_key="chk_map")
                 if chk.get("instruments"):
-                    frame.dataframe(pd.DataFrame(chk["instruments"]), hide_index=True,
+                    widgets.dataframe(pd.DataFrame(chk["instruments"]), hide_index=True,
                                     key="chk_instruments")
                     with st.expander("E_n of each instrument reading (file row)"):
-                        frame.dataframe(readings, hide_index=True, key="chk_readings")
+                        widgets.dataframe(readings, hide_index=True, key="chk_readings")
                 if eff is not None:
                     st.subheader("New effect")
                     st.write(eff["message"])
                     if eff["named"]:
-                        frame.dataframe(pd.DataFrame([
+                        widgets.dataframe(pd.DataFrame([
                             {"effect": e["effect"], "title": e["title"],
                              "size": "; ".join(f"{k} {v['value']:+.3g} ± {v['u']:.2g} "
                                                f"{v['unit']}" for k, v in e["fitted"].items()),
@@ -165,7 +163,7 @@ with t_check:
                 st.subheader("What changed")
                 st.write(chg["message"])
                 shown = chg_table[chg_table["tested"]].copy()
-                frame.dataframe(shown[["label", "unit", "change", "u_updated", "u_null", "En",
+                widgets.dataframe(shown[["label", "unit", "change", "u_updated", "u_null", "En",
                                        "significant",
                                        "change_alone", "u_change_alone", "En_alone",
                                        "significant_alone", "resolved"]],
@@ -191,7 +189,7 @@ with t_check:
                          "conformity, each with its decision rule (docs/monitoring.md)")
 
 with t_hist:
-    if t_hist.open or frame.held("hist_models", changed={"hist_src": "Sample history",
+    if t_hist.open or widgets.held("hist_models", changed={"hist_src": "Sample history",
                                                          "hist_family": 0.05}):
         hsrc = st.radio("Calibrations", ["Sample history", "Upload model files"],
                         horizontal=True, key="hist_src")
@@ -221,7 +219,7 @@ with t_hist:
             if hout is not None:
                 summary, changes, trend, grid = hout
                 st.write(summary["message"])
-                frame.dataframe(changes, hide_index=True, key="hist_changes")
+                widgets.dataframe(changes, hide_index=True, key="hist_changes")
                 with calls.guarded("Trend"):
                     labels = list(dict.fromkeys(trend["label"]))
                     default = summary["significant"][0]["label"] if summary["significant"] \
@@ -229,16 +227,7 @@ with t_hist:
                     lab = st.selectbox("Parameter", labels, index=labels.index(default),
                                        key="hist_label")
                     tr = trend[trend["label"] == lab]
-                    fig = px.scatter(tr, x="date", y="value", error_y="u",
-                                     labels={"value": f"{lab} ({tr['unit'].iloc[0]})"},
-                                     title=f"{lab} over the calibrations (± u)")
-                    st.plotly_chart(fig, key="hist_trend")
+                    st.plotly_chart(A.fig_parameter_trend(trend, lab), key="hist_trend")
                 with calls.guarded("Error map change"):
                     comp = st.selectbox("Component", ["x", "y", "z"], key="hist_comp")
-                    fig = px.scatter(grid, x="x_mm", y="y_mm", color=f"de{comp}_um",
-                                     facet_col="z_mm", facet_col_wrap=3,
-                                     hover_data=[f"u_de{comp}_um"],
-                                     labels={f"de{comp}_um": f"change of e{comp} (µm)"},
-                                     title="Error map change, first to last calibration "
-                                           "(ram reference point)")
-                    st.plotly_chart(fig, key="hist_map")
+                    st.plotly_chart(A.fig_error_map_change(grid, comp), key="hist_map")

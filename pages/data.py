@@ -12,18 +12,26 @@ import streamlit as st
 
 from cmm_core import analysis as A
 from cmm_core import io as cio
+from cmm_core import model as M
 from cmm_core.io import THESIS_POSITIONS
 from cmm_core.machine import DEFAULT_LAYOUT, LAYOUTS
-from cmm_core.model import simulator_effects
-from pages import cached, calls, frame, session, state
-from pages.mapping_panel import mapping_panel
-from pages.msl_panel import msl_section
+from cmm_core.model import (
+    simulate,
+    simulate_laser,
+    simulate_step_gauge,
+    simulator_effects,
+    thesis_machine_setup,
+    write_laser,
+    write_step_gauge,
+)
+from pages.ui import cached, calls, session, state, widgets
+from pages.ui.panels.mapping import mapping_panel
+from pages.ui.panels.msl import msl_section
 
-frame.page_start()
 st.title("Data")
 st.caption("Ball-plate measurements, setup and certificate. Files are in mm; the screen "
            "shows µm.")
-frame.flash()
+widgets.flash()
 
 
 MAX_SHOWN = cio.MAX_PROBLEMS  # rows of the upload problem table
@@ -41,10 +49,9 @@ LAYOUT_NAMES = {  # docs/layouts.md, in words
 
 def _instrument_columns(kind: str) -> str | None:
     """The columns of an instrument file of ``kind`` (``io_instruments``), for the help."""
-    from cmm_core.model import instrument_files as ioi
 
-    need = getattr(ioi, f"{kind.upper()}_COLUMNS", None)
-    opt = getattr(ioi, f"{kind.upper()}_OPTIONAL", ())
+    need = getattr(M, f"{kind.upper()}_COLUMNS", None)
+    opt = getattr(M, f"{kind.upper()}_OPTIONAL", ())
     if not need:
         return None
     return (f"Columns {', '.join(need)}" + (f"; optional {', '.join(opt)}" if opt else "")
@@ -292,16 +299,14 @@ def _validate_upload(meas_files, setup_file, cert_file, use_thesis, label="", ma
 def _simulated_instruments(sim, seed: int) -> list:
     """A laser positioning run along x and a step gauge along a diagonal of the volume,
     measured on the simulation's true machine, as (kind, file name, text) triples."""
-    from cmm_core.model import instruments as ins
-    from cmm_core.model import write_laser, write_step_gauge
 
     rng = np.asarray(sim.dataset.setup.range_mm, float)
-    laser = ins.simulate_laser(sim, "x", [0.0, 0.1 * rng[1], 0.1 * rng[2]],
+    laser = simulate_laser(sim, "x", [0.0, 0.1 * rng[1], 0.1 * rng[2]],
                                np.linspace(0.0, rng[0], 25), u_um=0.2, seed=seed + 1,
                                run="x_positioning", source="simulated_laser_x.csv")
     start, end = 0.1 * rng, np.array([0.9, 0.85, 0.6]) * rng
     n = int(np.linalg.norm(end - start) // 100)
-    sg = ins.simulate_step_gauge(sim, start, end, np.arange(1, n + 1) * 100.0, u_um=0.3,
+    sg = simulate_step_gauge(sim, start, end, np.arange(1, n + 1) * 100.0, u_um=0.3,
                                  seed=seed + 2, source="simulated_step_gauge.csv")
     out = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -333,7 +338,7 @@ def _show_upload_report():
                 "them)." if report.get("cleared") else ""))
     table = pd.DataFrame(report["problems"]).drop(columns="_more")
     table["row"] = table["row"].astype("Int64")  # whole row numbers, blank when none
-    frame.dataframe(table, hide_index=True, key="upload_problems")
+    widgets.dataframe(table, hide_index=True, key="upload_problems")
     # a table cell cuts long text ("did you mea…"): every problem and hint in full below
     with st.expander("Each problem in full"):
         st.markdown("\n".join(
@@ -424,7 +429,7 @@ def project_section():
 # lazy tabs (issue 27): a tab's widgets (the simulator's form alone is some thirty, the
 # upload tab's file fields each load their script and layout) are sent only while the tab
 # is open, so the app's first screen does not draw them; the upload and project tabs stay
-# drawn while their fields hold something the user put there (frame.held)
+# drawn while their fields hold something the user put there (widgets.held)
 DATA_TABS = ["Thesis sample", "Upload CSVs", "Other tools (MSL)", "Simulate a virtual CMM",
              "Project file"]
 tab_thesis, tab_upload, tab_other, tab_sim, tab_proj = st.tabs(DATA_TABS, key="data_tab",
@@ -439,7 +444,7 @@ with tab_thesis:
         _loaded("Loaded the thesis tables.")
 
 with tab_upload:
-    if tab_upload.open or frame.held("up_meas", "up_setup", "up_cert", "map",
+    if tab_upload.open or widgets.held("up_meas", "up_setup", "up_cert", "map",
                                      "upload_report", text=("up_label",),
                                      changed={"up_cert_u": CERT_U_CHOICES[0],
                                               "use_thesis_setup": True}):
@@ -499,7 +504,6 @@ with tab_sim:
             kin_cfg.update(spec=f"kinematic21,periodic_x:{per}",
                            coefficients={f"dxx[sin{per}]": amp, f"dxx[cos{per}]": 0.0})
         if st.button("Simulate", key="simulate", type="primary"):
-            from cmm_core.model import simulate
 
             cfg = {"seed": int(seed), "noise_um": float(noise), "order": order,
                    "probes_interleaved": bool(interleave),
@@ -507,7 +511,6 @@ with tab_sim:
                    "kinematic": kin_cfg,
                    "effects": eff}
             if layout != DEFAULT_LAYOUT:
-                from cmm_core.model import thesis_machine_setup
 
                 setup = thesis_machine_setup()
                 setup["machine"]["layout"] = layout
@@ -543,7 +546,7 @@ with tab_sim:
                         + ". The true parameters are on the Kinematic model page.")
 
 with tab_proj:
-    if tab_proj.open or frame.held("up_project"):
+    if tab_proj.open or widgets.held("up_project"):
         project_section()
 
 # ---------------------------------------------------------------------------------------
@@ -669,7 +672,7 @@ span = m.groupby("position", sort=False)[["mx_mm", "my_mm", "mz_mm"]].agg(
 counts = counts.merge(span.rename(columns=lambda c: f"span_{c[1]}_mm").reset_index(),
                       on="position")
 # a static table: the data grid's scripts would load with the app's first screen (issue 27)
-frame.static_table(counts, key="validation_counts")
+widgets.static_table(counts, key="validation_counts")
 problems = []
 for pos, probe, miss in cio.missing_balls(m, ds.certificate):
     problems.append(f"{pos}/{probe}: missing ball(s) {', '.join(map(str, miss))}")
@@ -735,7 +738,7 @@ with calls.guarded("Placement views"):
         st.plotly_chart(cached.figure("placements", (s["ds_key"],), A.fig_placements, ds),
                         key="fig_placements")
     else:
-        frame.svg_figure(cached.figure("placement_views", (s["ds_key"],),
+        widgets.svg_figure(cached.figure("placement_views", (s["ds_key"],),
                                        A.placement_views_svg, ds), "placement_views")
         st.caption("Probed ball centres (tip centres, machine frame, mm); the dashed box is "
                    "the working volume. Hover a marker for its placement, stylus and "
@@ -744,7 +747,7 @@ with calls.guarded("Placement views"):
 # lazy expanders: their tables are built and drawn only while open (issue 27)
 with st.expander("Measurements (as read, mm)", key="w_meas_open", on_change="rerun") as box:
     if box.open:
-        frame.dataframe(m, hide_index=True, key="meas_table")
+        widgets.dataframe(m, hide_index=True, key="meas_table")
 with st.expander("Setup (JSON)", key="w_setup_open", on_change="rerun") as box:
     # a JSON tree rather than highlighted code: the highlighter's 1.6 MB of script would
     # load with the app's first screen (issue 27)

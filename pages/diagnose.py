@@ -5,14 +5,22 @@ from contextlib import nullcontext
 
 import numpy as np
 import pandas as pd
-import plotly.express as px
 import streamlit as st
 
 from cmm_core import analysis as A
-from cmm_core.analysis import residuals as res_mod
 from cmm_core.diagnosis import BLUNDERS
 from cmm_core.model import PERIODIC, catalogue_entry, parse_spec
-from pages import cached, calls, frame, state
+from cmm_core.plan import (
+    PSEUDO,
+    instrument_candidates,
+    measurement_candidates,
+    open_pairs,
+    plan_file,
+    propose,
+    restrict,
+    simulate_outcomes,
+)
+from pages.ui import cached, calls, state, widgets
 
 # proposals shown with their buttons (the rest in the table below them); a comment: a
 # page script's bare string is written onto the page (Streamlit's "magic")
@@ -25,7 +33,6 @@ NEXT_TOP = 3
 
 def _selected(key: cached.FitKey, ds):
     """The data set as the fit selects it (positions, probes, exclusions)."""
-    from cmm_core.plan import restrict
 
     kw = key.fit_kwargs()
     return restrict(ds, positions=kw["positions"], probes=kw["probes"], exclude=kw["exclude"])
@@ -41,7 +48,6 @@ def _settings(key: cached.FitKey) -> dict:
 def cached_proposals(key: cached.FitKey, rivals: tuple, _ds, instruments: bool = False):
     """``plan.propose`` of the default candidate set for the two rivals (``Proposals``);
     ``instruments``: the instrument runs too (``plan.instrument_candidates``)."""
-    from cmm_core.plan import instrument_candidates, measurement_candidates, propose
 
     data = _selected(key, _ds)
     cands = measurement_candidates(data) + (instrument_candidates(data) if instruments
@@ -55,7 +61,6 @@ def cached_outcomes(key: cached.FitKey, rivals: tuple, name: str, seed: int, _ds
                     _proposal) -> dict:
     """``plan.simulate_outcomes`` of proposal ``name`` (the rivals' proposal of ``key``):
     ``{truth: {verdict, aliases, separated, message}}``."""
-    from cmm_core.plan import simulate_outcomes
 
     outs = simulate_outcomes(_selected(key, _ds), _proposal, seed=seed, **_settings(key))
     return {t: {"verdict": o.verdict, "aliases": list(o.aliases), "separated": o.separated,
@@ -65,7 +70,6 @@ def cached_outcomes(key: cached.FitKey, rivals: tuple, name: str, seed: int, _ds
 @st.cache_data(show_spinner=False, max_entries=16)
 def cached_plan_text(key: cached.FitKey, rivals: tuple, name: str, _ds, _proposal) -> str:
     """The proposal as a ``plan`` JSON document (``plan.plan_file``)."""
-    from cmm_core.plan import plan_file
 
     return json.dumps(plan_file(_selected(key, _ds), _proposal, baseline=key.spec,
                                 order=key.order, noise_um=key.sigma_um), indent=1)
@@ -76,7 +80,6 @@ def _pairs(cands: list, holdout: list | None) -> list:
     as the ``next`` command's default): the page's rows (``Candidate.to_dict`` with the
     aliases joined into one string) and the diagnosis's leave-one-placement-out checks
     (``Diagnosis.to_dict``'s ``holdout``; none: no placement-scale pair)."""
-    from cmm_core.plan import open_pairs
 
     return open_pairs({"candidates": [
         {**c, "aliases": [a for a in str(c["aliases"] or "").split(", ") if a]}
@@ -96,7 +99,6 @@ def measure_next(ds, fkey: cached.FitKey, cands: list, holdout: list | None = No
     """The proposals beside the rivals of the current verdict: the top ones in words,
     each with "Simulate it" and "Use as the plan"; the others in a table. ``holdout``:
     the diagnosis's leave-one-placement-out checks (``Diagnosis.to_dict``)."""
-    from cmm_core.plan import PSEUDO
 
     s = st.session_state
     pairs = _pairs(cands, holdout)
@@ -166,7 +168,7 @@ def measure_next(ds, fkey: cached.FitKey, cands: list, holdout: list | None = No
                     else:
                         st.warning("The rivals do not both separate in this simulation "
                                    "(one seed; the power above is the rate over many).")
-    frame.dataframe(pd.DataFrame([{
+    widgets.dataframe(pd.DataFrame([{
         "measurement": p.candidate.description, "time (min)": p.candidate.time_min,
         "Δχ² (min)": p.per_minute * p.candidate.time_min, "power": p.power_min}
         for p in pr.ranked]), hide_index=True, key="next_table",
@@ -175,21 +177,18 @@ def measure_next(ds, fkey: cached.FitKey, cands: list, holdout: list | None = No
                        "time (min)": st.column_config.NumberColumn(format="%.0f")})
     if pr.skipped:
         st.caption("Not scored: " + "; ".join(f"{k}: {v}" for k, v in pr.skipped.items()))
-
-
-frame.page_start()
 st.title("Compare and diagnose")
 st.caption("The model against the measurements: where it fails, which physical effect the "
            "residuals point to, and what adding it does to RMS, χ²/dof, BIC and the GP "
            "discrepancy.")
-frame.flash()
+widgets.flash()
 ds, r = cached.require_fit()
 s = st.session_state
 fkey = cached.fit_key()  # what decides the fit: the key of its cached figures
 
 c = st.columns(4)
 # the model as the user wrote it, wrapped at its commas (a metric would cut it)
-c[0].markdown(f"Model  \n{frame.spec_markup(s['spec'])}", unsafe_allow_html=True)
+c[0].markdown(f"Model  \n{widgets.spec_markup(s['spec'])}", unsafe_allow_html=True)
 c[1].metric("RMS residual", f"{r.rms_um:.3f} µm")
 # one χ²/dof is the headline: the one the χ² test decides on (with a fixed certificate
 # it counts the certificate's uncertainty; the fit's own value is named in the help)
@@ -200,7 +199,7 @@ c[2].metric("χ²/dof (tested)", f"{r.chi2_test_dof:.2f}",
                 if r.test_counts_certificate else "")))
 c[3].metric("BIC", f"{r.bic:.1f}")
 # reversal and certificate uncertainties below are σ-based
-frame.misfit_banner(r)
+widgets.misfit_banner(r)
 
 st.subheader("Where the model fails")
 # lazy tabs: a hidden tab's figure (the 3-D map's WebGL scene above all) is neither built
@@ -211,7 +210,7 @@ t_pat, t_map, t_tab, t_time = st.tabs(["Residual pattern", "Residual map (3D)",
                                       bind="query-params")
 with t_pat, calls.guarded("Residual pattern"):
     if t_pat.open:
-        frame.plot("pattern", fkey, A.fig_pattern, r.table, r.residuals_um,
+        widgets.plot("pattern", fkey, A.fig_pattern, r.table, r.residuals_um,
                    "Residuals per observation (µm)", chart_key="diag_resid")
 with t_map, calls.guarded("Residual map"):
     comp = st.radio("Component", ["norm", "x", "y", "z"], horizontal=True, key="w_map_comp")
@@ -221,25 +220,18 @@ with t_map, calls.guarded("Residual map"):
 with t_tab, calls.guarded("Residual table"):
     by = st.radio("Group by", ["position", "probe", "ball"], horizontal=True,
                   key="w_breakdown_by")
-    frame.dataframe(res_mod.breakdown(r, by), hide_index=True, key="diag_breakdown")
+    widgets.dataframe(A.breakdown(r, by), hide_index=True, key="diag_breakdown")
     st.caption("RMS per axis in µm; χ² against σ and its share of the total.")
     if ds.certificate is not None:
         st.markdown("**Each position against the certificate** (own scale and "
                     "out-of-plane bowl)")
-        frame.dataframe(res_mod.position_trends(ds, exclude=fkey.exclusions),
+        widgets.dataframe(A.position_trends(ds, exclude=fkey.exclusions),
                      hide_index=True, key="diag_trends")
 with t_time, calls.guarded("Residuals against time"):
     rf = r.residuals_frame()
     timed = "time_min" in rf and rf["time_min"].notna().all()
     if timed and t_time.open:
-        long = rf.rename(columns={"rx_um": "x", "ry_um": "y", "rz_um": "z"}).melt(
-            id_vars=["position", "probe", "ball", "time_min"], value_vars=["x", "y", "z"],
-            var_name="component", value_name="residual_um")
-        fig = px.scatter(long, x="time_min", y="residual_um", color="position",
-                         facet_col="component", labels={"time_min": "time (min)",
-                                                        "residual_um": "residual (µm)"})
-        fig.for_each_annotation(lambda a: a.update(text=a.text.split("=")[-1]))
-        frame.show(fig, chart_key="diag_time")
+        widgets.show(A.fig_residuals_time(rf), chart_key="diag_time")
     elif not timed:
         st.info("No time_min column: the measurement order is the row order of the files, "
                 "and drift is scored over that order at one minute per row: its µm/h are "
@@ -247,7 +239,7 @@ with t_time, calls.guarded("Residuals against time"):
     st.markdown("**By approach direction**: mean residual of each axis over the balls "
                 "reached moving + and moving − along it (a difference is a reversal error, "
                 "the `backlash` effect)")
-    frame.dataframe(res_mod.approach_split(r), hide_index=True, key="diag_approach",
+    widgets.dataframe(A.approach_split(r), hide_index=True, key="diag_approach",
                 column_config={c_: st.column_config.NumberColumn(format="%.3f") for c_ in
                                ("mean_plus_um", "mean_minus_um", "reversal_um",
                                 "u_reversal_um")})
@@ -276,7 +268,7 @@ if s["diag_on"]:
         with st.container(border=True):
             st.warning(cert["message"])
             if cert["entries"]:
-                frame.dataframe(pd.DataFrame(cert["entries"]), hide_index=True, key="cert_entries",
+                widgets.dataframe(pd.DataFrame(cert["entries"]), hide_index=True, key="cert_entries",
                             column_config={"deviation_um": st.column_config.NumberColumn(
                                 "self-calibrated − certificate (µm)", format="%.2f"),
                                 "u_um": st.column_config.NumberColumn("u (µm)", format="%.2f"),
@@ -285,7 +277,7 @@ if s["diag_on"]:
                                    "RMS (µm)": v["rms_um"],
                                    "χ² test": "fails" if v["fails_chi2_test"] else "passes"}
                                   for k, v in cert["fixes"].items()])
-            frame.dataframe(fixes, hide_index=True, key="cert_fixes",
+            widgets.dataframe(fixes, hide_index=True, key="cert_fixes",
                         column_config={"χ²/dof": st.column_config.NumberColumn(format="%.2f"),
                                        "RMS (µm)": st.column_config.NumberColumn(format="%.3f")})
             b1, b2 = st.columns(2)
@@ -333,7 +325,7 @@ if s["diag_on"]:
         cols_shown = ["effect", "title", "rms_um", "chi2_dof", "delta_chi2", "n_params",
                       "delta_bic", "p_value", "significant", "confirmed", "aliases"]
         table = pd.DataFrame([{k: c_.get(k) for k in cols_shown} for c_ in cands])
-        frame.dataframe(table, hide_index=True, key="diag_table",
+        widgets.dataframe(table, hide_index=True, key="diag_table",
                      column_config={"effect": "Effect", "title": "What it is",
                                     "n_params": st.column_config.NumberColumn("Parameters"),
                                     "significant": "Significant", "confirmed": st.column_config
@@ -394,18 +386,18 @@ if s["diag_on"]:
                              key=f"w_sig_{hash(fkey) & 0xFFFFFFFF:x}_{c_['effect']}"):
                     f1, f2 = st.columns(2)
                     with f1:
-                        frame.plot("pattern_small", fkey, A.fig_pattern, base.table,
+                        widgets.plot("pattern_small", fkey, A.fig_pattern, base.table,
                                    base.residuals_um, "Residual pattern (µm)", 300,
                                    chart_key=f"sig_res_{c_['effect']}", width_px=640)
                     with f2:
-                        frame.plot("signature", (fkey, c_["effect"]), A.fig_pattern,
+                        widgets.plot("signature", (fkey, c_["effect"]), A.fig_pattern,
                                    base.table, c_["signature_um"],
                                    f"Signature of {c_['effect']} (µm)", 300,
                                    chart_key=f"sig_{c_['effect']}", width_px=640)
                     sv, rv = np.ravel(c_["signature_um"]), np.ravel(base.residuals_um)
                     den = float(np.linalg.norm(sv) * np.linalg.norm(rv))
                     corr = float(sv @ rv) / den if den > 0 else 0.0
-                    frame.plot("sig_scatter", (fkey, c_["effect"]), A.fig_signature_scatter,
+                    widgets.plot("sig_scatter", (fkey, c_["effect"]), A.fig_signature_scatter,
                                base.residuals_um, c_["signature_um"],
                                "Residual against the signature: along the dashed line where "
                                "the effect explains it", 280, chart_key=f"sig_sc_{c_['effect']}")
@@ -427,14 +419,14 @@ st.checkbox("Also compute the GP discrepancy amplitude of each step (a GP over t
 with st.spinner("Fitting the GP discrepancy…") if s.get("hist_gp") else nullcontext():
     hist = cached.history_rows()
 with calls.guarded("History chart"):
-    frame.plot("history", tuple(tuple(sorted(h.items())) for h in hist), A.fig_history, hist,
+    widgets.plot("history", tuple(tuple(sorted(h.items())) for h in hist), A.fig_history, hist,
                chart_key="diag_history")
 c1, c2 = st.columns([3, 1])
 with c1:
     # the model of each step as written, wrapped at its commas: rows tall enough for
     # Streamlit to wrap text (row_height above 4 rem) when a model is long
     long_spec = max(len(h["spec"]) for h in hist) > 40
-    frame.dataframe(pd.DataFrame(hist).assign(spec=[frame.spec_text(h["spec"]) for h in hist]),
+    widgets.dataframe(pd.DataFrame(hist).assign(spec=[widgets.spec_text(h["spec"]) for h in hist]),
                 hide_index=True, key="history_table",
                 row_height=72 if long_spec else None,
                 column_config={"spec": st.column_config.TextColumn(
@@ -473,4 +465,4 @@ with c2:
 with st.expander("Residual vectors at the worst observations"):
     rf = r.residuals_frame()
     rf["norm_um"] = np.linalg.norm(r.residuals_um, axis=1)
-    frame.dataframe(rf.nlargest(15, "norm_um"), hide_index=True, key="diag_worst")
+    widgets.dataframe(rf.nlargest(15, "norm_um"), hide_index=True, key="diag_worst")

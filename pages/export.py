@@ -9,10 +9,9 @@ import streamlit as st
 from cmm_core import analysis as A
 from cmm_core import export as ex
 from cmm_core.model import correction_columns
-from pages import cached, calls, frame, session
-from pages.plan import task_section
+from pages.ui import cached, calls, session, widgets
+from pages.ui.panels.task import task_section
 
-frame.page_start()
 st.title("Compensate and export")
 ds, r = cached.require_fit()
 s = st.session_state
@@ -81,11 +80,11 @@ corr = None
 if points is not None:
     corr = calls.safe(corrected, args, ckey, points, r, what="Compensation")
 if corr is not None:
-    frame.misfit_banner(r)  # the corrections' uncertainties never hide a failed χ² test
+    widgets.misfit_banner(r)  # the corrections' uncertainties never hide a failed χ² test
     view = corr.copy()
     for a in "xyz":
         view[f"e{a}_um"] = A.measured_error_um(view[f"{a}_mm"], view[f"{a}c_mm"])
-    frame.dataframe(view, hide_index=True, key="corrected_table",
+    widgets.dataframe(view, hide_index=True, key="corrected_table",
                  column_config={c: st.column_config.NumberColumn(format="%.5f")
                                 for c in view.columns if c.endswith("_mm")}
                  | {c: st.column_config.NumberColumn(format="%.3f")

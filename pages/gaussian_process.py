@@ -16,9 +16,8 @@ from cmm_core.analysis import (
 )
 from cmm_core.gp import gp_components, predict_grid
 from cmm_core.model import residual_u
-from pages import cached, calls, frame
+from pages.ui import cached, calls, widgets
 
-frame.page_start()
 st.title("Gaussian process")
 st.caption("A GP over the measured errors at the ball centres (thesis chapter 5): zero mean, "
            "quadratic mean (eq. 5.11) or the kinematic model as mean; squared-exponential "
@@ -147,7 +146,7 @@ pts_plate = plane.balls_plate_mm
 zlim = float(np.nanmax(np.abs(np.concatenate([e_kin_grid[:, a], err[sel, a]])))) or 1.0
 cols = st.columns(3)
 with cols[0], calls.guarded("Kinematic surface"):
-    frame.show(frame.beside_map(A.fig_surface_grid(uu, vv, e_kin_grid[:, a].reshape(n, n),
+    widgets.show(widgets.beside_map(A.fig_surface_grid(uu, vv, e_kin_grid[:, a].reshape(n, n),
                                       title=f"Kinematic model e{comp} (µm)", unit="µm",
                                       points=pts_plate, xlabel="plate u (mm)",
                                       ylabel="plate v (mm)", zrange=(-zlim, zlim))),
@@ -202,13 +201,13 @@ if s.get("gp_on"):
             loo = loo + pred_kin
         gp_mean_obs = om
         with cols[1]:
-            frame.show(frame.beside_map(A.fig_surface_grid(
+            widgets.show(widgets.beside_map(A.fig_surface_grid(
                 uu, vv, gm[:, a].reshape(n, n), title=f"GP mean e{comp} (µm)", unit="µm",
                 points=pts_plate, xlabel="plate u (mm)", ylabel="plate v (mm)",
                 zrange=(-zlim, zlim))), chart_key="gp_mean_surface", width_px=520,
                 width="stretch")
         with cols[2]:
-            frame.show(frame.beside_map(A.fig_surface_grid(
+            widgets.show(widgets.beside_map(A.fig_surface_grid(
                 uu, vv, gsd[:, a].reshape(n, n), title=f"GP standard deviation e{comp} (µm)",
                 unit="µm", points=pts_plate, colorscale="Viridis", xlabel="plate u (mm)",
                 ylabel="plate v (mm)")), chart_key="gp_sd_surface", width_px=520,
@@ -234,7 +233,7 @@ if s.get("gp_on"):
                     + ("ram position (one length scale, or one per axis for ARD) and stylus "
                        "offset (one length scale)" if probe_input else
                        "tip coordinates") + ")")
-        frame.dataframe(hyp, hide_index=True, key="gp_hyper", column_config={
+        widgets.dataframe(hyp, hide_index=True, key="gp_hyper", column_config={
             c_: st.column_config.NumberColumn(format="%.3f") for c_ in
             ("signal sd (µm)", "noise sd (µm)", "log marginal likelihood", "LOO RMS (µm)")}
             | {"LOO 95 % coverage (%)": st.column_config.NumberColumn(format="%.1f")})
@@ -299,7 +298,7 @@ st.caption("Plate plane of the chosen position (plate u and v in mm); × marks t
 
 st.subheader("Kinematic vs GP vs measurement (thesis chapter 7)")
 # the kinematic z-scores are σ-based: say whether σ describes the scatter
-frame.misfit_banner(r)
+widgets.misfit_banner(r)
 ch7 = compare_models(r, err, pred_kin, u_res, comp, points_mm=pts, meta=meta,
                      gp_mean_um=gp_mean_obs, gp_loo_mean_um=loo, gp_loo_sd_um=loo_sd)
 rows = ch7.table
@@ -309,7 +308,7 @@ mc = st.columns(len(ch7.summary))
 for c_, f in zip(mc, ch7.summary, strict=True):
     c_.metric(f.label, f"{f.value:.3f}", help=f.meaning)
 only = st.checkbox("Table: only the chosen position", value=True, key="w_gp_only_pos", bind="query-params")
-frame.dataframe(rows[rows["position"] == position] if only else rows, hide_index=True,
+widgets.dataframe(rows[rows["position"] == position] if only else rows, hide_index=True,
              key="ch7_table",
              column_config={c_: st.column_config.NumberColumn(format="%.3f")
                             for c_ in rows.columns if c_.endswith(("_um", "_z"))} | {

@@ -7,12 +7,13 @@ import streamlit as st
 from cmm_core import analysis as A
 from cmm_core.machine import ERROR_NAMES
 from cmm_core.model import GROUPS, PHYSICAL, parse_spec, setup_layout
+from cmm_core.model import residuals_frame as instrument_residuals
+from cmm_core.model import summary as instrument_summary
 from cmm_core.units import label as unit_label
-from pages import cached, calls, frame, state
+from pages.ui import cached, calls, state, widgets
 
-frame.page_start()
 st.title("Kinematic model")
-frame.flash()
+widgets.flash()
 ds = cached.require_dataset()
 s = st.session_state
 st.caption("The 21-error local kinematic model of the machine's layout, here "
@@ -36,23 +37,23 @@ with st.container(border=True):
     sel_prb = c2.multiselect("Probes", prb_all, key="w_probes")
     s["positions"] = None if set(sel_pos) == set(pos_all) else list(sel_pos)
     s["probes"] = None if set(sel_prb) == set(prb_all) else list(sel_prb)
-    frame.bind("order", c3.selectbox, "Polynomial order", options=[1, 2, 3, 4, 5],
+    widgets.bind("order", c3.selectbox, "Polynomial order", options=[1, 2, 3, 4, 5],
            help="Default Chebyshev order of every error function (straightness has no linear "
                 "term, so order 2 is quadratic).")
     c1, c2, c3 = st.columns([4, 3, 1])
-    spec_txt = frame.bind("spec", c1.text_input, "Model (effect list)",
+    spec_txt = widgets.bind("spec", c1.text_input, "Model (effect list)",
                       help="Comma-separated, applied left to right: the 21 names (dxx … syz), "
                            "groups " + ", ".join(GROUPS) + ", name:order, -name to remove, "
                            "physical effects " + ", ".join(PHYSICAL) + ". Examples: "
                            "`kinematic21,-sxy`, `translational,squareness`, "
                            "`kinematic21,plate_sag`.")
-    frame.bind("plate", c2.selectbox, "Plate geometry", options=list(state.PLATE_CHOICES),
+    widgets.bind("plate", c2.selectbox, "Plate geometry", options=list(state.PLATE_CHOICES),
            format_func=state.PLATE_CHOICES.get)
-    frame.bind("sigma_um", c3.number_input, "σ (µm)", min_value=0.01, max_value=100.0,
+    widgets.bind("sigma_um", c3.number_input, "σ (µm)", min_value=0.01, max_value=100.0,
            step=0.1, help="Measurement repeatability: weights, χ² and uncertainties.")
     try:
         model = parse_spec(spec_txt, default_order=int(s["order"]))
-        full = frame.spec_expansion(spec_txt)
+        full = widgets.spec_expansion(spec_txt)
         st.caption(f"{len(model.active)} error functions; effects: "
                    f"{', '.join(model.effects) or 'none'}"
                    + ("; hover the ? for the explicit form" if full else ""),
@@ -83,7 +84,7 @@ st.subheader("Identifiability")
 if r.unidentifiable:
     st.warning(f"The data cannot determine {len(r.null_combinations)} parameter "
                "combination(s). They are reported, not silently zeroed:")
-    frame.dataframe(pd.DataFrame({"undetermined combination": r.null_combinations}),
+    widgets.dataframe(pd.DataFrame({"undetermined combination": r.null_combinations}),
                  hide_index=True, key="null_combos")
     st.caption("Parameters involved: " + ", ".join(r.unidentifiable))
 else:
@@ -102,7 +103,7 @@ def error_function_grid(r, show, cols, truth):
 
 
 # the bands, the parameter u and the maps below are σ-based: say whether to trust them
-frame.misfit_banner(r)
+widgets.misfit_banner(r)
 truth = s.get("sim_truth")
 # lazy tabs: a hidden tab's figure is neither built nor sent, so the page opens with the
 # one figure in view (a browser drew all four, about a second of Plotly, issue 27); the
@@ -115,7 +116,7 @@ with tabs[0], calls.guarded("Error functions"):
     show = st.multiselect("Show", present, default=present)
     true_now = truth["truth"] if truth and truth.get("key") == s["ds_key"] else None
     if tabs[0].open:
-        frame.plot("errfun", (cached.fit_key(), tuple(show), true_now is not None),
+        widgets.plot("errfun", (cached.fit_key(), tuple(show), true_now is not None),
                    error_function_grid, r, show, 3, true_now, chart_key="fig_errfun",
                    width="stretch")
     st.caption("Translational errors in µm, rotations in µrad, squareness as an angle in "
@@ -127,10 +128,10 @@ with tabs[1], calls.guarded("Deviation plots"):
     c1, c2 = st.columns([1, 3])
     pos_fit = r.problem.obs.positions
     position = c1.selectbox("Position", pos_fit, key="w_dev_position")
-    frame.bind("magnification", c2.slider, "Magnification", min_value=100.0, max_value=10000.0,
+    widgets.bind("magnification", c2.slider, "Magnification", min_value=100.0, max_value=10000.0,
            step=100.0, format="×%.0f")
     if tabs[1].open:
-        frame.plot("deviation", (cached.fit_key(), position, float(s["magnification"])),
+        widgets.plot("deviation", (cached.fit_key(), position, float(s["magnification"])),
                    A.fig_deviation, r, position, float(s["magnification"]),
                    chart_key="fig_deviation")
     st.caption("Plate frame, mm: nominal ball centres (certificate or fitted plate), measured "
@@ -171,7 +172,7 @@ with tabs[2], calls.guarded("Parameter table"):
                             )
     view = pf[pf["block"].isin(blocks)].assign(unit=lambda d: d["unit"].map(
         unit_label))
-    frame.dataframe(view, hide_index=True, key="param_table",
+    widgets.dataframe(view, hide_index=True, key="param_table",
                  column_config={"value": st.column_config.NumberColumn(format="%.4f"),
                                 "u": st.column_config.NumberColumn("u (k=1)", format="%.4f"),
                                 "U (k=2)": st.column_config.NumberColumn(format="%.4f"),
@@ -189,21 +190,20 @@ with tabs[2], calls.guarded("Parameter table"):
 
 with tabs[3], calls.guarded("Residuals"):
     if tabs[3].open:
-        frame.plot("pattern", cached.fit_key(), A.fig_pattern, r.table, r.residuals_um,
+        widgets.plot("pattern", cached.fit_key(), A.fig_pattern, r.table, r.residuals_um,
                    "Residuals per observation (µm)", chart_key="fig_resid")
-    frame.dataframe(A.residual_summary(r), hide_index=True, key="resid_summary")
+    widgets.dataframe(A.residual_summary(r), hide_index=True, key="resid_summary")
     rf = r.residuals_frame()
     worst = rf.assign(norm_um=np.linalg.norm(r.residuals_um, axis=1)).nlargest(10, "norm_um")
     st.caption("Largest residuals (µm), with the file and row each came from:")
-    frame.dataframe(worst, hide_index=True, key="resid_worst")
+    widgets.dataframe(worst, hide_index=True, key="resid_worst")
 
 def instruments_section(r):
     """The instruments fitted with the plate: their residuals and the uncertainty gain."""
-    from cmm_core.model import instruments as ins
 
     st.subheader("Instruments fitted with the plate")
-    table, readings = A.instrument_tables(ins.summary(r), ins.residuals_frame(r))
-    frame.dataframe(table, hide_index=True, key="instrument_summary",
+    table, readings = A.instrument_tables(instrument_summary(r), instrument_residuals(r))
+    widgets.dataframe(table, hide_index=True, key="instrument_summary",
                 column_config={"chi2": st.column_config.NumberColumn("χ²", format="%.1f"),
                                "RMS residual/u": st.column_config.NumberColumn(format="%.2f"),
                                "RMS residual (µm)": st.column_config.NumberColumn(
@@ -211,7 +211,7 @@ def instruments_section(r):
     st.caption("Residual: the model's prediction minus the reading (µm), each laser run's "
                "zero (and a straightness run's slope) removed; RMS residual/u near 1 when "
                "the model explains the instrument as its u says.")
-    frame.dataframe(readings, hide_index=True, key="instrument_residuals",
+    widgets.dataframe(readings, hide_index=True, key="instrument_residuals",
                 column_config={c_: st.column_config.NumberColumn(format="%.3f")
                                for c_ in ("residual (µm)", "u (µm)", "residual/u")})
     alone = cached.current_fit(instruments=False, show_error=False)
@@ -224,7 +224,7 @@ def instruments_section(r):
                "alone and with the instruments in the same fit (same model, σ and "
                "selection); the gain is their ratio, how many times smaller the "
                "instruments make it, largest first.")
-    frame.dataframe(gain, hide_index=True, key="instrument_gain",
+    widgets.dataframe(gain, hide_index=True, key="instrument_gain",
                 column_config={"u plate only": st.column_config.NumberColumn(format="%.4f"),
                                "u with instruments": st.column_config.NumberColumn(
                                    format="%.4f"),

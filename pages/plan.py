@@ -1,35 +1,31 @@
-"""Plan page: evaluate, compare and design measurement plans before measuring, and (as
-``task_section()``, called from the Compensate page) task-specific uncertainty.
+"""Plan page: evaluate, compare and design measurement plans before measuring.
 
-Thin over ``cmm_core.plan*`` and ``cmm_core.task``: the page gathers the plan file (the
-sample, an upload or an edit), calls the core through cached wrappers and draws."""
+Thin over ``cmm_core.plan``: the page gathers the plan file (the sample, an upload or an
+edit), calls the core through cached wrappers and draws."""
 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import plotly.graph_objects as go
 import streamlit as st
 
 from cmm_core import analysis as A
+from cmm_core.model import rigid_removed_error_u
+from cmm_core.plan import check_plans, design_fit, design_from_file, evaluate, read_plan
 from cmm_core.units import label as unit_label
-from pages import cached, calls, frame
+from pages.ui import calls, widgets
+from pages.ui.panels.task import PLANS_DIR
 
-PLANS_DIR = Path(__file__).resolve().parents[1] / "sample_data" / "plans"
 SAMPLES = {"thesis layout: location 0 and all six": "thesis_plan.json",
            "thesis pool with a design target": "thesis_design.json"}
-TASKS = {"distance": "task_distance.json", "circle": "task_circle.json",
-         "plane": "task_plane.json"}
 
 
 # --- cached thin wrappers (inputs: the plan text; outputs: plain records) --------------
 
 @st.cache_data(show_spinner=False, max_entries=16)
 def _plan_file(text: str):
-    from cmm_core.plan import read_plan
 
     return read_plan(json.loads(text), name="plan", base_dir=PLANS_DIR)
 
@@ -37,7 +33,6 @@ def _plan_file(text: str):
 @st.cache_data(show_spinner="Evaluating the plans from their design…", max_entries=16)
 def evaluate_plans(text: str) -> list:
     """Every strategy of the plan, evaluated (JSON records)."""
-    from cmm_core.plan import evaluate
 
     return [evaluate(p).to_dict() for p in _plan_file(text).strategies]
 
@@ -45,7 +40,6 @@ def evaluate_plans(text: str) -> list:
 @st.cache_data(show_spinner="Designing…", max_entries=8)
 def design_plan(text: str) -> dict:
     """The design section's result (JSON record)."""
-    from cmm_core.plan import design_from_file
 
     return design_from_file(_plan_file(text)).to_dict()
 
@@ -53,8 +47,6 @@ def design_plan(text: str) -> dict:
 @st.cache_data(show_spinner="Computing the uncertainty map…", max_entries=32)
 def u_map(text: str, name: str, z_mm: float, n: int = 25):
     """U (k = 1, rigid part removed) of the error over an XY grid at height ``z_mm``."""
-    from cmm_core.model import rigid_removed_error_u
-    from cmm_core.plan import design_fit
 
     plan = next(p for p in _plan_file(text).strategies if p.name == name)
     r = design_fit(plan)
@@ -159,8 +151,8 @@ def _detection_plot(evals: list) -> None:
     effects = list(dict.fromkeys(k for e in evals for k in e["detection_limits"]))
     physical = [k for k in effects if ":" not in k or k.startswith("periodic")]
     pick = st.multiselect("Effects", effects, default=physical, key="w_plan_effects")
-    # grouped bars on log axes: Plotly (frame.show falls back to it for bars)
-    frame.show(A.fig_detection_limits(evals, pick), chart_key="plan_limits", width="stretch")
+    # grouped bars on log axes: Plotly (widgets.show falls back to it for bars)
+    widgets.show(A.fig_detection_limits(evals, pick), chart_key="plan_limits", width="stretch")
     rows = [{"strategy": e["name"], "effect": k, "expected": v["expected"],
              "detection limit": _fmt(v["limit"]), "unit": unit_label(v["unit"]),
              "seen": "yes" if v["detectable"] else "no"}
@@ -186,18 +178,15 @@ def _u_map(text: str, evals: list) -> None:
     if res is None:
         return
     gx, gy, u = res
-    fig = go.Figure(go.Heatmap(x=gx, y=gy, z=u[:, :, "xyz".index(comp)],
-                               colorbar={"title": "u (µm)"}))
-    fig.update_layout(height=420, xaxis_title="X (mm)", yaxis_title="Y (mm)",
-                      margin={"t": 30})
-    frame.show(fig, chart_key="plan_u_map", width="stretch")
+    fig = A.fig_surface_grid(gx, gy, u[:, :, "xyz".index(comp)], colorscale="Viridis",
+                             title=f"u of e{comp} at Z = {z:g} mm ({name})", unit="µm")
+    widgets.show(fig, chart_key="plan_u_map", width="stretch")
     st.caption("Standard uncertainty (k = 1) of the predicted CMM error with the rigid part "
                "of the plane removed, from the design alone (as U2/U3).")
 
 
 def plan_page() -> None:
     """The Plan page."""
-    frame.page_start()
     st.title("Plan")
     st.caption("Before measuring: what a ball-plate plan will determine, how well, what it "
                "can detect and how long it takes, from the design alone (noise-free virtual "
@@ -243,7 +232,6 @@ def _check_section(text: str, evals: list) -> None:
                             key="w_plan_scheduler")
     if not st.button("Run the check", key="w_plan_check"):
         return
-    from cmm_core.plan import check_plans, evaluate
 
     bar = st.progress(0.0, "starting the Dask cluster…")
     with calls.guarded("Monte Carlo check"):
@@ -262,66 +250,6 @@ def _check_section(text: str, evals: list) -> None:
                                             "detected": v["rate"], "±SE": v["se"]}
                                            for k, v in p["detection"].items()]),
                              hide_index=True)
-
-
-# --- task-specific uncertainty (called from the Compensate page) -----------------------
-
-@st.cache_data(show_spinner="Monte Carlo of the task…", max_entries=16)
-def task_result(model_json: str, task_text: str, trials: int) -> dict:
-    """The task's result and uncertainty (JSON record)."""
-    from cmm_core.export import model_from_dict
-    from cmm_core.plan import read_task, task_uncertainty
-
-    model = model_from_dict(json.loads(model_json), name="model")
-    return task_uncertainty(model, read_task(json.loads(task_text), name="task"),
-                            trials=trials).to_dict()
-
-
-def task_section() -> None:
-    """Task-specific uncertainty of a distance, circle or plane measured with the current
-    fit (or an uploaded saved model): Monte Carlo beside the law of propagation."""
-    from cmm_core.export import model_to_dict
-
-    st.subheader("Task-specific uncertainty")
-    st.caption("Points as the CMM reports them (tip centres, machine frame, mm) with their "
-               "stylus; corrected with the model, reported at 20 °C. Influences: the model's "
-               "covariance, probing noise, optional discrepancy, temperature and scale "
-               "(docs/planning.md).")
-    up = st.file_uploader("Saved model (fit --save); default: the current fit", type="json",
-                          key="w_task_model")
-    if up is not None:
-        model_json = up.getvalue().decode("utf-8-sig")
-    else:
-        r = cached.current_fit()
-        if r is None:
-            return
-        if not r.identifiable:
-            st.info("The task's uncertainty needs a model the data determine: this one "
-                    "leaves parameter combinations undetermined (see the sidebar).")
-            return
-        model_json = json.dumps(model_to_dict(r), default=float)
-    kind = st.radio("Task", list(TASKS), horizontal=True, key="w_task_kind")
-    text = st.text_area("TASK.json", (PLANS_DIR / TASKS[kind]).read_text(), height=220,
-                        key=f"w_task_text_{kind}")
-    trials = st.number_input("Monte Carlo trials", 1000, 200000, 20000, step=1000,
-                             key="w_task_trials")
-    res = calls.safe(task_result, model_json, text, int(trials), what="Task")
-    if res is None:
-        return
-    # a flatness's interval is the spread of a repeat measurement, not a coverage interval
-    # for the true flatness (the task's message says why)
-    p_cov = f"{100 * res['coverage_probability']:g} %"
-    rows = [{"quantity": q, "value": v["value"], "unit": unit_label(v["unit"]),
-             "U = 2u, Monte Carlo (µm)": 2 * v["u_mc_um"],
-             "U = 2u, law of propagation (µm)": 2 * v["u_lpu_um"],
-             "Monte Carlo interval": ("spread of a repeat: " if "flatness" in q else
-                                      f"{p_cov}: ") + "[{0:.{2}f}, {1:.{2}f}] {3}".format(
-                 *v["interval"], 5 if v["unit"] == "mm" else 3,
-                 unit_label(v["unit"])),
-             **{f"u {k} (µm)": c for k, c in v["contributions_um"].items()}}
-            for q, v in res["results"].items()]
-    st.dataframe(pd.DataFrame(rows), hide_index=True)
-    st.caption(res["message"])
 
 
 if __name__ == "__main__":  # run as a page (st.Page executes it as __main__), not on import

@@ -1,28 +1,27 @@
 """Uncertainty page: U1/U2/U3, uncertainty maps, Monte Carlo check, budget and MPE."""
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 import streamlit as st
 
 from cmm_core import analysis as A
-from cmm_core.gum import air
-from cmm_core.gum import ballplate as budget
-from cmm_core.gum import evaluate as gum
-from cmm_core.gum import mpe as mpe_mod
-from pages import cached, calls, frame
+from cmm_core import gum
+from cmm_core.model import error_at, monte_carlo_error, rigid_removed_error_u
+from pages.ui import cached, calls, widgets
 
-frame.page_start()
 st.title("Uncertainty")
 st.caption("Standard uncertainties (k = 1) unless marked U (k = 2). U1-U3 remove the "
            "rigid-body freedoms, as the thesis does (a rigid motion of the workpiece is not a "
            "CMM error); the map below does not: it is the uncertainty of the error at each "
            "point as a correction would use it, which includes the poorly fixed origin and "
-           "orientation of the machine frame.")
+           "orientation of the machine widgets.")
 ds, r = cached.require_fit()
 s = st.session_state
 args = cached.fit_key()
 
-frame.misfit_banner(r)
+widgets.misfit_banner(r)
 st.subheader("U1, U2, U3 (thesis tables 4.1-4.3)")
 c1, c2 = st.columns(2)
 n_random = c1.number_input("Random points", 20, 2000, 200, step=20, key="w_u_npts")
@@ -41,7 +40,7 @@ if summary is not None:
                 vi = summary.inflated[lab]
                 rows[-1].update({f"u_{a} × Birge (µm)": vi[a] for a in "xyz"})
     if rows:
-        frame.dataframe(pd.DataFrame(rows), hide_index=True, key="u_table",
+        widgets.dataframe(pd.DataFrame(rows), hide_index=True, key="u_table",
                      column_config={c_: st.column_config.NumberColumn(format="%.4f")
                                     for c_ in rows[0] if c_ != "quantity"})
     else:
@@ -67,13 +66,11 @@ show = c4.radio("Uncertainty U (k = 2)", list(SHOW), format_func=SHOW.get, key="
 
 @st.cache_data(show_spinner=False, max_entries=64)
 def error_grid(args, z, probe, n, _r):
-    from cmm_core.model import error_at
 
     xs = np.linspace(0, _r.problem.obs.range_mm[0], n)
     ys = np.linspace(0, _r.problem.obs.range_mm[1], n)
     X, Y = np.meshgrid(xs, ys)
     pts = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, z)])
-    from cmm_core.model import rigid_removed_error_u
 
     e, u = error_at(_r, pts, probe)
     return xs, ys, e, u, rigid_removed_error_u(_r, pts, probe)
@@ -97,12 +94,12 @@ with calls.guarded("Uncertainty map"):
         # and each colour bar stays next to its map
         m1, m2 = st.columns(2)
         with m1:
-            frame.show(frame.beside_map(A.fig_surface_grid(
+            widgets.show(widgets.beside_map(A.fig_surface_grid(
                 xs, ys, e[:, a].reshape(n, n), title=f"Error e{comp} (µm), probe {probe}",
                 unit="µm", points=x_meas[near], colorscale="RdBu_r")), chart_key="u_error_map",
                 width_px=640, width="stretch")
         with m2:
-            frame.show(frame.beside_map(A.fig_surface_grid(
+            widgets.show(widgets.beside_map(A.fig_surface_grid(
                 xs, ys, vals.reshape(n, n), title=f"{title} (µm)", unit="µm",
                 points=x_meas[near], colorscale="Viridis")), chart_key="u_map", width_px=640,
                 width="stretch")
@@ -122,7 +119,6 @@ if run_mc:
         rs = np.random.default_rng(1)
         pts = np.column_stack([rs.uniform(0, rng[0], 40), rs.uniform(0, rng[1], 40),
                                rs.uniform(0, rng[2], 40)])
-        from cmm_core.model import monte_carlo_error
 
         bar = st.progress(0.0, text="Monte Carlo…")
         _, u_mc, u_lin = monte_carlo_error(r, pts, probe, trials=int(trials),
@@ -152,13 +148,13 @@ st.caption("The budget of calibrating a ball plate by the thesis's procedure, a 
            "6.1-6.6, "
            "not at the dataset loaded; set them for your calibration.")
 with calls.guarded("Budget"):
-    recs = {r.position: r for r in (*budget.THESIS_ENVIRONMENT,
-                                    budget.average_environment())}
+    recs = {r.position: r for r in (*gum.THESIS_ENVIRONMENT,
+                                    gum.average_environment())}
     c = st.columns(5)
     rec = c[0].selectbox("Environment record", list(recs), index=len(recs) - 1,
                          key="w_b_record", help="Temperatures and humidities written "
                          "above thesis tables 6.1-6.6, or their average.")
-    base = budget.inputs_from_record(recs[rec])
+    base = gum.inputs_from_record(recs[rec])
     length = c[1].number_input("Length L (mm)", 1.0, 2000.0, float(base.length_mm),
                                key="w_b_length")
     s_lx = c[2].number_input("Repeatability s (µm)", 0.0, 50.0, float(base.s_lx_um),
@@ -174,12 +170,11 @@ with calls.guarded("Budget"):
                             key="w_b_cte")
     air_on = c[3].checkbox("Include air refractive index terms", value=base.include_air,
                            key="w_b_air")
-    from dataclasses import replace
 
     inp = replace(base, length_mm=float(length), s_lx_um=float(s_lx),
                   n_repeats=int(n_rep), p_Pa=float(p_pa), alignment_mm=align * 1e-3,
                   cte_per_K=cte * 1e-6, include_air=bool(air_on))
-    b = budget.ballplate_budget(inp, coverage_probability=float(p_cov))
+    b = gum.ballplate_budget(inp, coverage_probability=float(p_cov))
     g = b.gum
     m = st.columns(4)
     m[0].metric("u_c (µm)", f"{g.u_c:.4f}")
@@ -192,7 +187,7 @@ with calls.guarded("Budget"):
         # infinite degrees of freedom (Type B): the symbol, not "Infinity"
         btab["dof"] = [("∞" if not np.isfinite(v) else f"{v:g}") if isinstance(v, (int, float))
                        else v for v in btab["dof"]]
-    frame.dataframe(btab, hide_index=True, key="budget_table",
+    widgets.dataframe(btab, hide_index=True, key="budget_table",
                 column_config={"share": st.column_config.ProgressColumn(
                     "variance share", min_value=0.0, max_value=1.0, format="%.3f")})
     st.caption("u in the unit of each input, c in µm per unit, u_y = |c|·u in µm. Values "
@@ -226,20 +221,8 @@ with calls.guarded("Budget"):
     with st.expander("U(L) over the plate's lengths", key="w_u_ul_open",
                      on_change="rerun") as ul_box:
         if ul_box.open:
-            import plotly.graph_objects as go
-
-            ld = budget.budget_vs_length(inp, coverage_probability=float(p_cov))
-            fig = go.Figure()
-            fig.add_scatter(x=ld.length_mm, y=ld.U_um, mode="markers+lines",
-                            name="budget U(L)")
-            fig.add_scatter(x=ld.length_mm, y=ld.cmm_spec_U_um, mode="lines",
-                            name="CMM specification √(0.52² + (1.4e-3 L)²)")
-            fig.add_scatter(x=ld.length_mm, y=ld.plate_spec_U_um, mode="lines",
-                            name="plate certificate √(0.26² + (1.9e-3 L)²)")
-            fig.update_layout(xaxis_title="L (mm)", yaxis_title="U (µm, k from ν_eff)",
-                              template="plotly_white", height=360,
-                              legend={"orientation": "h", "y": -0.25})
-            frame.show(fig, chart_key="budget_UL")
+            ld = gum.budget_vs_length(inp, coverage_probability=float(p_cov))
+            widgets.show(A.fig_budget_vs_length(ld), chart_key="budget_UL")
             st.caption(f"Least-squares fit U(L)² ≈ a² + (b·L)²: a = {ld.fit_a_um:.3f} µm, "
                        f"b = {ld.fit_b_per_mm * 1e3:.3f} µm/m.")
 with st.expander("Refractive index of air (modified Edlén, Birch and Downs 1994)"):
@@ -249,7 +232,7 @@ with st.expander("Refractive index of air (modified Edlén, Birch and Downs 1994
     rh = c[2].number_input("RH (%)", 0.0, 100.0, 50.0, key="w_air_rh")
     lam = c[3].number_input("λ (nm)", 350.0, 1100.0, 632.99, key="w_air_l",
                             help="Vacuum wavelength; the Edlén equation holds 350-1100 nm.")
-    n_air = calls.safe(air.refractive_index_edlen, tC, pPa, rh, lam, what="Edlén")
+    n_air = calls.safe(gum.refractive_index_edlen, tC, pPa, rh, lam, what="Edlén")
     if n_air is not None:
         st.metric("n − 1", f"{float(n_air) - 1:.6e}")
 
@@ -262,8 +245,8 @@ def show_mpe(out, skipped, u_src, sig):
         for c_, (k_, v) in zip(m, cnt.items(), strict=False):
             c_.metric(k_, v)
         m[-1].metric("max |E| (µm)", f"{out.max_abs_error_um():.2f}")
-        frame.plot("mpe", (args, u_src, sig), A.fig_mpe, out, chart_key="fig_mpe")
-        frame.dataframe(pd.DataFrame(out.rows()), hide_index=True, key="mpe_table",
+        widgets.plot("mpe", (args, u_src, sig), A.fig_mpe, out, chart_key="fig_mpe")
+        widgets.dataframe(pd.DataFrame(out.rows()), hide_index=True, key="mpe_table",
                      column_config={"length_mm": st.column_config.NumberColumn(format="%.3f"),
                                     "error_um": st.column_config.NumberColumn(format="%.2f"),
                                     "U_um": st.column_config.NumberColumn(format="%.2f"),
@@ -272,7 +255,7 @@ def show_mpe(out, skipped, u_src, sig):
                    "row, column or diagonal, per position and probe (outliers included: they "
                    "are real readings). ISO 14253-1: conforms when |E| + U ≤ MPE, does not "
                    "conform when |E| − U > MPE, otherwise inconclusive. U (k = 2) is from "
-                   + mpe_mod.U_SOURCES[u_src]
+                   + gum.U_SOURCES[u_src]
                    + (f" (σ = {sig:g} µm)." if u_src == "test" else ".")
                    + (f" Skipped (missing balls): {', '.join(skipped)}." if skipped else ""))
         # ISO 14253-1 needs |E| + U <= MPE: where U alone reaches the MPE nothing can conform
@@ -291,7 +274,7 @@ if ds.certificate is None or len(ds.certificate.balls) != 25:
 else:
     out, skipped = None, []
     with calls.guarded("MPE check"):
-        U_SOURCES = mpe_mod.U_SOURCES
+        U_SOURCES = gum.U_SOURCES
         u_src = st.radio("Uncertainty U of each length error", list(U_SOURCES),
                          format_func=U_SOURCES.get, horizontal=True, key="w_mpe_u",
                          help="ISO 14253-1 decides with the uncertainty of the test: the "
@@ -300,7 +283,7 @@ else:
                               "centres. The thesis's CMM specification is offered for "
                               "comparison.")
         sig = float(s["sigma_um"])
-        out, skipped = mpe_mod.check_dataset(ds, u_source=u_src, sigma_um=sig)
+        out, skipped = gum.check_dataset(ds, u_source=u_src, sigma_um=sig)
     if out is None:
         st.info("No position has every ball measured: nothing to check.")
     else:

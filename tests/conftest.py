@@ -15,6 +15,29 @@ ROOT = Path(__file__).resolve().parents[1]
 THESIS = ROOT / "sample_data" / "thesis"
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _apptest_runs_the_frame():
+    """AppTest runs the app as the server does (serve.py's ``legacy_pages_off``): every run
+    goes through ``app.py``, the frame, and its ``st.navigation``. Each AppTest run resets
+    Streamlit's legacy-pages flag, and with a ``pages/`` folder beside ``app.py`` it would
+    then run a switched-to page's script alone, without the frame."""
+    try:
+        from streamlit.runtime.pages_manager import PagesManager
+        from streamlit.testing.v1 import app_test
+    except ImportError:  # the core's tests run without streamlit too
+        yield
+        return
+
+    class FramePagesManager(PagesManager):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            PagesManager.uses_pages_directory = False
+
+    app_test.PagesManager = FramePagesManager
+    yield
+    app_test.PagesManager = PagesManager
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(20261123)

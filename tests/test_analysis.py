@@ -16,14 +16,14 @@ from scenarios import perturb, simulated
 from cmm_core import analysis as A
 from cmm_core.io import DataError
 from cmm_core.model import fit
-from pages.session import session_record
+from pages.ui.session import session_record
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_data" / "analysis" / "thesis.json"
 
 
 def _session(**state):
-    from pages import state as C
+    from pages.ui import state as C
 
     return {**{k: list(v) if isinstance(v, list) else v for k, v in C.DEFAULTS.items()},
             "ds_files": C.thesis_files(), **state}
@@ -202,7 +202,7 @@ def test_the_app_fits_and_diagnoses_through_the_records_own_steps():
     """The app's cache key of a fit (pages.cached.FitKey) is fitted and diagnosed by the
     same core steps as an analysis record in analysis.run (the CLI, the report): the same
     numbers to the last digit, with instruments and exclusions (issue 23)."""
-    from pages.cached import FitKey
+    from pages.ui.cached import FitKey
 
     rec = _with_instruments(A.read_record(SAMPLE), ("laser", INSTRUMENTS / "laser_x.csv"))
     rec = dataclasses.replace(rec, diagnose=True, spec="kinematic21", history=(
@@ -234,7 +234,7 @@ def _mapped_session():
     (Feature;X;Y;Z in µm, decimal commas) of the thesis files' coordinates, converted as
     the Data page does it (``mapping_panel`` -> ``ForeignTable``)."""
     from cmm_core.io import TableMapping, apply_mapping
-    from pages import state as C
+    from pages.ui import state as C
 
     thesis = C.thesis_files()
     ds = A.load_data(session_record(_session()))

@@ -12,7 +12,7 @@ from conftest import uploader as _uploader  # noqa: E402
 from streamlit.testing.v1 import AppTest  # noqa: E402
 
 from cmm_core.export import downloads as export
-from pages.session import session_record
+from pages.ui.session import session_record
 
 ROOT = Path(__file__).resolve().parents[1]
 APP = str(ROOT / "app.py")
@@ -125,7 +125,7 @@ def test_static_table_escapes_markdown_and_marks_missing_values():
     a missing value as "—", floats to one decimal, numbers right-aligned."""
     import pandas as pd
 
-    from pages.frame import static_table_markdown
+    from pages.ui.widgets import static_table_markdown
 
     df = pd.DataFrame({"position": ["A*|b$", None], "balls": [25, 24],
                        "span_x_mm": [1023.456, float("nan")]})
@@ -859,7 +859,7 @@ def test_model_spec_is_shown_as_written_and_wraps_at_commas():
     assert list(hist["spec"]) == ["translational, squareness",
                                   "translational, squareness, -sxy"]
     # undoing a step through its opposite token removes it rather than growing the text
-    from pages.state import compose_spec
+    from pages.ui.state import compose_spec
 
     assert compose_spec("translational,squareness,-sxy", "sxy", 2) == \
         "translational,squareness"

@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from scenarios import simulated  # noqa: E402
 
 from cmm_core.plan import read_plan  # noqa: E402
-from pages.state import files_key  # noqa: E402
+from pages.ui.state import files_key  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 APP = str(ROOT / "app.py")

@@ -1,5 +1,5 @@
 """The foreign-file panel in a real browser: streamlit run of tests/apps/mapping_app.py
-(a page that only draws ``pages.mapping_panel.mapping_panel``) and headless Debian
+(a page that only draws ``pages.ui.panels.mapping.mapping_panel``) and headless Debian
 chromium through Playwright, as tests/test_browser.py drives the app.
 
 Uploads a vendor CSV with decimal commas in µm, picks the columns, sees the preview of the

@@ -17,7 +17,7 @@ from test_msl import msl_files_of, simulated_machine
 from cmm_core import analysis as A
 from cmm_core.io import TableMapping, apply_mapping
 from cmm_core.model import simulate
-from pages.session import session_record
+from pages.ui.session import session_record
 
 ROOT = Path(__file__).resolve().parents[1]
 APP = str(ROOT / "app.py")

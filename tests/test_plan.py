@@ -317,7 +317,6 @@ def test_plan_page_and_task_section_run():
     from streamlit.testing.v1 import AppTest
 
     at = AppTest.from_file(str(ROOT / "pages" / "plan.py"), default_timeout=120)
-    at.session_state["_via_app"] = True
     at.run()
     assert not at.exception and not at.error
     table = at.dataframe[0].value
@@ -325,12 +324,10 @@ def test_plan_page_and_task_section_run():
     assert list(table["undetermined"]) == [14, 0]
 
     def section():
-        import streamlit as st
 
-        from pages import state
-        from pages.plan import task_section
+        from pages.ui import state
+        from pages.ui.panels.task import task_section
 
-        st.session_state["_via_app"] = True
         state.init_state()
         task_section()
 

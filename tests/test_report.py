@@ -15,7 +15,7 @@ from scenarios import simulated
 from cmm_core import analysis as A
 from cmm_core.analysis import report as rep
 from cmm_core.cli import main
-from pages.session import session_record
+from pages.ui.session import session_record
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_data" / "analysis" / "thesis.json"
@@ -24,7 +24,7 @@ FLAGGED = [("BP112", "2", 7), ("BP112", "2", 10), ("BP312", "6", 16)]
 
 def _session(**state):
     """Session state as the app holds it (pages/state.py DEFAULTS, the thesis files)."""
-    from pages import state as C
+    from pages.ui import state as C
 
     return {**{k: list(v) if isinstance(v, list) else v for k, v in C.DEFAULTS.items()},
             "ds_files": C.thesis_files(), **state}

@@ -13,7 +13,7 @@ import serve  # noqa: E402
 def test_app_imports_are_the_scripts_top_level_imports():
     names = serve.app_imports()
     # app.py's own, a page's helper, a core wing a page imports, a third-party module
-    for name in ("streamlit", "pages.session", "pages.frame", "cmm_core.analysis", "numpy"):
+    for name in ("streamlit", "pages.ui.session", "pages.ui.widgets", "cmm_core.analysis", "numpy"):
         assert name in names
     assert names == sorted(set(names))
 

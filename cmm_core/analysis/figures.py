@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+import plotly.express as px
 import plotly.graph_objects as go
 from numpy.typing import ArrayLike
 from plotly.subplots import make_subplots
 from scipy import stats
 
-from ..gum import MpeResult
+from ..gum import LengthDependence, MpeResult
 from ..io import Dataset
 from ..machine import SQUARENESS, STRAIGHTNESS, axis_of, basis, periodic_basis, rigid_fit
 from ..model import FitResult
@@ -349,6 +350,57 @@ def fig_en_map(table: pd.DataFrame, title: str, height: int = 420) -> go.Figure:
     fig.update_xaxes(title_text="x (mm)")
     fig.update_yaxes(title_text="y (mm)", scaleanchor="x")
     return _layout(fig, title, height=height)
+
+
+def fig_budget_vs_length(ld: LengthDependence, title: str | None = None) -> go.Figure:
+    """The ball-plate budget's expanded uncertainty U(L) (µm, k from ν_eff) over the
+    plate's lengths (``gum.budget_vs_length``), beside the CMM's and the plate
+    certificate's specifications (thesis section 6.3)."""
+    fig = go.Figure()
+    fig.add_scatter(x=ld.length_mm, y=ld.U_um, mode="markers+lines", name="budget U(L)")
+    fig.add_scatter(x=ld.length_mm, y=ld.cmm_spec_U_um, mode="lines",
+                    name="CMM specification √(0.52² + (1.4e-3 L)²)")
+    fig.add_scatter(x=ld.length_mm, y=ld.plate_spec_U_um, mode="lines",
+                    name="plate certificate √(0.26² + (1.9e-3 L)²)")
+    fig.update_layout(xaxis_title="L (mm)", yaxis_title="U (µm, k from ν_eff)",
+                      legend={"orientation": "h", "y": -0.25})
+    return _layout(fig, title, height=360)
+
+
+def fig_residuals_time(residuals: pd.DataFrame) -> go.Figure:
+    """Residuals (µm) against the measurement time (min), one panel per component and one
+    colour per placement: drift shows as a trend within a placement
+    (``FitResult.residuals_frame``: columns ``position, probe, ball, time_min, rx_um,
+    ry_um, rz_um``)."""
+    long = residuals.rename(columns={"rx_um": "x", "ry_um": "y", "rz_um": "z"}).melt(
+        id_vars=["position", "probe", "ball", "time_min"], value_vars=["x", "y", "z"],
+        var_name="component", value_name="residual_um")
+    fig = px.scatter(long, x="time_min", y="residual_um", color="position",
+                     facet_col="component", labels={"time_min": "time (min)",
+                                                    "residual_um": "residual (µm)"})
+    fig.for_each_annotation(lambda a: a.update(text=a.text.split("=")[-1]))
+    return fig
+
+
+def fig_parameter_trend(trend: pd.DataFrame, label: str) -> go.Figure:
+    """One parameter over a machine's calibrations with its ± u bars (a history's trend
+    table: columns ``label, date, value, u, unit``)."""
+    tr = trend[trend["label"] == label]
+    return px.scatter(tr, x="date", y="value", error_y="u",
+                      labels={"value": f"{label} ({unit_label(tr['unit'].iloc[0])})"},
+                      title=f"{label} over the calibrations (± u)")
+
+
+def fig_error_map_change(grid: pd.DataFrame, component: str) -> go.Figure:
+    """The change of the error map's ``component`` (µm) from the first calibration of a
+    history to the last, at the ram reference point, one panel per height (a history's
+    grid table: columns ``x_mm, y_mm, z_mm, de<c>_um, u_de<c>_um``)."""
+    c = component
+    return px.scatter(grid, x="x_mm", y="y_mm", color=f"de{c}_um", facet_col="z_mm",
+                      facet_col_wrap=3, hover_data=[f"u_de{c}_um"],
+                      labels={f"de{c}_um": f"change of e{c} (µm)"},
+                      title="Error map change, first to last calibration "
+                            "(ram reference point)")
 
 
 def fig_mpe(result: MpeResult,

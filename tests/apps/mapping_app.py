@@ -9,7 +9,7 @@ if str(ROOT) not in sys.path:
 
 import streamlit as st  # noqa: E402
 
-from pages.mapping_panel import mapping_panel  # noqa: E402
+from pages.ui.panels.mapping import mapping_panel  # noqa: E402
 
 st.title("Mapping panel")
 table = mapping_panel("map")

@@ -1,50 +1,19 @@
-"""The frame every page sits in: ``page_start`` (state, session, the sidebar), the
-sidebar with the dataset, model and fit quality, and the display helpers pages share
-(the χ² banner, the model spec in words, widgets bound to the state, tables, maps)."""
+"""The display helpers the pages share: the χ² banner, the model spec in words, widgets
+bound to the state, figures (static SVG or Plotly), tables and maps."""
 
 from __future__ import annotations
 
 import html
 import inspect
 import re
-import sys
-from pathlib import Path
 
 import streamlit as st
 
 from cmm_core import analysis as A
 from cmm_core.model import parse_spec
-from pages import svgplot
-from pages.cached import current_fit, figure, pending_outliers
-from pages.calls import describe_error
-from pages.session import autosave, restore_banner, session_start
-from pages.state import (
-    INSTRUMENT_NAMES,
-    dataset,
-    init_state,
-    keep_widget_state,
-    spec_tokens,
-    sync_from_widgets,
-)
-
-
-def page_start():
-    """Every page calls this first: state defaults, widget sync, the sidebar."""
-    if not st.session_state.get("_via_app"):
-        # Opened by a deep link before app.py ever ran on this server, Streamlit runs the
-        # page from its automatic pages/ list, without app.py's navigation and layout
-        # (that list stays hidden: client.showSidebarNavigation = false): go through
-        # app.py, which installs them and then opens the page asked for.
-        st.session_state["_deep_link"] = Path(sys._getframe(1).f_globals.get(
-            "__file__", "data.py")).name
-        st.switch_page("app.py", query_params=st.query_params.to_dict())
-    session_start()
-    init_state()
-    keep_widget_state()
-    sync_from_widgets()
-    autosave()
-    sidebar()
-    restore_banner()
+from pages.ui import svgplot
+from pages.ui.cached import figure
+from pages.ui.state import spec_tokens
 
 
 def misfit_banner(r) -> None:
@@ -172,67 +141,6 @@ def svg_figure(svg: str, key: str) -> None:
     away (Streamlit 1.67 draws an empty element)."""
     with st.container(key=key):
         st.markdown(f'<div data-figure="{key}">{svg}</div>', unsafe_allow_html=True)
-
-
-def sidebar():
-    s = st.session_state
-    sb = st.sidebar
-    sb.toggle("Interactive plots", key=INTERACTIVE,
-              help="Draw the 2-D figures with Plotly: zoom, pan and hover values, slower to "
-                   "draw. Off: static pictures drawn on the server (hover a marker for its "
-                   "label), the fast default.")
-    sb.markdown("### Current analysis")
-    try:
-        ds = dataset()
-    except Exception as exc:  # noqa: BLE001
-        sb.error(describe_error(exc))
-        return
-    n_ex = len(s["exclusions"])
-    sb.markdown(f"**Dataset:** {ds.name}  \n{len(ds.meas)} probed ball centres"
-                + (f" ({n_ex} excluded)" if n_ex else "")
-                + f", {len(ds.positions)} positions, {len(ds.probes)} probes")
-    files = s.get("ds_files", {})
-    sb.caption(f"Setup: {files.get('setup_source', 'setup of the dataset')}.  \n"
-               f"Certificate: {files.get('certificate_source') or _cert_words(ds)}."
-               + (f"  \nCertificate uncertainty: {ds.certificate.u_source}."
-                  if ds.certificate is not None else "")
-               + ("  \nInstruments fitted with the plate: " + ", ".join(
-                   f"{n} ({INSTRUMENT_NAMES.get(k, k)})" for k, n, _ in s["instruments"])
-                  + "." if s.get("instruments") else ""))
-    if s.get("reset_note"):
-        sb.caption("New dataset, settings reset to its defaults: "
-                   + "; ".join(s["reset_note"]) + ".")
-    sb.markdown(f"**Model:** {spec_markup(s['spec'])}  \norder {s['order']}, plate "
-                f"{s['plate']}, σ = {s['sigma_um']:g} µm", unsafe_allow_html=True)
-    r = current_fit(show_error=False)
-    if r is None:
-        sb.warning("No fit for these settings.")
-    else:
-        c1, c2 = sb.columns(2)
-        c1.metric("RMS (µm)", f"{r.rms_um:.3f}")
-        c2.metric("χ²/dof", f"{r.chi2_dof:.2f}")
-        if r.fails_chi2_test:
-            sb.warning(f"Fails the χ² test (p = {r.chi2_p_value:.2g}, "
-                       f"{A.chi2_test_numbers(r)[1]} dof): "
-                       f"uncertainties from σ are too small by ×{r.birge_ratio:.2f}.")
-        status = {"converged": "converged", "max_iterations": "NOT converged",
-                  "failed": "fit failed"}.get(r.status, r.status)
-        sb.caption(f"{status}; {r.n_obs} observations in the fit; rank {r.rank}"
-                   + (f"; {len(r.null_combinations)} undetermined combination(s) of "
-                      f"{len(r.unidentifiable)} parameters" if r.unidentifiable else ""))
-    if n_ex:
-        sb.caption(f"{n_ex} observation(s) excluded as outliers.")
-    pending = pending_outliers(ds)
-    if pending:
-        sb.warning(f"{len(pending)} flagged outlier(s) still in the fit (see Data).")
-    if s.get("save_error"):
-        sb.caption(f"Not kept for a reload: {s['save_error']} (the last good state is).")
-
-
-def _cert_words(ds) -> str:
-    if ds.certificate is None:
-        return "none (plate geometry self-calibrated)"
-    return "given with the dataset"
 
 
 def beside_map(fig):

@@ -9,8 +9,8 @@ import hashlib
 import streamlit as st
 
 from cmm_core import analysis as A
-from pages.calls import describe_error, safe
-from pages.state import (
+from pages.ui.calls import describe_error, safe
+from pages.ui.state import (
     check_instruments,
     files_key,
     init_state,
@@ -204,7 +204,6 @@ def start_afresh():
     for k in list(s.keys()):
         del s[k]
     s["session_id"] = A.new_session_id()
-    s["_via_app"] = True
 
 
 def restore_banner():

@@ -13,8 +13,8 @@ import streamlit as st
 from cmm_core import analysis as A
 from cmm_core.diagnosis import detect_outliers, discrepancy_gp
 from cmm_core.model import evaluate, read_instrument
-from pages.calls import describe_error, safe
-from pages.state import dataset, instruments_key
+from pages.ui.calls import describe_error, safe
+from pages.ui.state import dataset, instruments_key
 
 
 @st.cache_resource(show_spinner=False, max_entries=16)

@@ -12,7 +12,7 @@ import json
 import streamlit as st
 
 from cmm_core import io as cio
-from pages import calls, state
+from pages.ui import calls, state
 
 KINDS = {"simulated": "Simulated (nominal + deviation; the certificate is exact)",
          "measured": "Measured (the coordinates as the CMM reported them)"}

@@ -11,17 +11,18 @@ import hashlib
 
 import streamlit as st
 
-from cmm_core.io.dmis import DMIS_SUFFIXES, read_dmis
-from cmm_core.io.errors import DataError
-from cmm_core.io.table_mapping import (
+from cmm_core.io import (
     DECIMALS,
+    DMIS_SUFFIXES,
     LENGTH_UNITS_MM,
     TIME_UNITS_MIN,
+    DataError,
     ForeignTable,
     TableMapping,
     apply_mapping,
     inspect_table,
     preview,
+    read_dmis,
 )
 
 NONE = "(none)"
