@@ -1,4 +1,4 @@
-"""The app's static SVG figures (pages/ui/svgplot.py, issue 27): every marker, cell and bar
+"""The app's static SVG figures (cmm_core.analysis.svg, issue 27): every marker, cell and bar
 where its data put it, on the scale its axes state. Checked on the SVG's own coordinates
 (0.1 px rounding), with random data from a seeded generator."""
 
@@ -9,7 +9,8 @@ import plotly.graph_objects as go
 import pytest
 from plotly.subplots import make_subplots
 
-from pages.ui.svgplot import figure_svg, nice_ticks, supported
+from cmm_core.analysis import figure_svg, nice_ticks
+from cmm_core.analysis import svg_supported as supported
 
 CIRCLE = re.compile(r'<circle cx="(-?[\d.]+)" cy="(-?[\d.]+)" r="[\d.]+" fill="[^"]+"[^>]*>'
                     r"<title>([^<]*)</title>")

@@ -187,3 +187,107 @@ def test_no_module_imports_itself_round_a_circle():
     for m in sorted(graph):
         if m not in state:
             visit(m, [m])
+
+
+# --- the app's wing (issue 36): app.py the frame, pages/ the page scripts, pages/ui the
+# UI they share (Streamlit scans pages/*.py only, never the package below it)
+
+PAGES_DIR = ROOT / "pages"
+UI = PAGES_DIR / "ui"
+FACES = {f"cmm_core.{w}" for w in WINGS} | {"cmm_core", "cmm_core.units"}
+PAGE_SCRIPTS = sorted(PAGES_DIR.glob("*.py"))
+UI_MODULES = sorted(UI.rglob("*.py"))
+APP_FILES = [ROOT / "app.py", *PAGE_SCRIPTS, *UI_MODULES]
+
+
+def _app_imports(path):
+    """(imported module, its names, node, inside a function) for every import of an app
+    file (the app imports absolutely)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    in_functions = {id(n) for f in ast.walk(tree)
+                    if isinstance(f, ast.FunctionDef | ast.AsyncFunctionDef)
+                    for n in ast.walk(f)}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                yield a.name, [], node, id(node) in in_functions
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            yield node.module, [a.name for a in node.names], node, id(node) in in_functions
+
+
+def _project_targets(module, names):
+    """The project modules an import names: ``from cmm_core import model`` names the face
+    ``cmm_core.model``, ``from pages.ui import state`` the module ``pages.ui.state``."""
+    if not module.startswith(("cmm_core", "pages")):
+        return []
+    subs = [f"{module}.{n}" for n in names
+            if (ROOT / Path(*f"{module}.{n}".split("."))).with_suffix(".py").is_file()
+            or (ROOT / Path(*f"{module}.{n}".split(".")) / "__init__.py").is_file()]
+    return subs or [module]
+
+
+@pytest.mark.parametrize("path", APP_FILES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_the_app_imports_wing_faces_and_its_ui_only(path):
+    """app.py and every page or UI module take the core through its wings' faces only, and
+    the app's own code through ``pages.ui``: no page imports a page, no UI module a page,
+    the frame no page script (it names them to ``st.Page`` as files)."""
+    wrong = []
+    for module, names, node, _lazy in _app_imports(path):
+        for target in _project_targets(module, names):
+            where = f"{path.relative_to(ROOT)}:{node.lineno} imports {target}"
+            if target.startswith("cmm_core") and target not in FACES:
+                wrong.append(where + " (not a wing's face)")
+            elif target.startswith("pages") and not target.startswith("pages.ui"):
+                wrong.append(where + " (a page script, or pages itself)")
+    assert not wrong, wrong
+
+
+def test_the_ui_package_imports_run_downhill():
+    """Within ``pages.ui``: the panels use the shared modules, never the other way round,
+    and the modules form no circle."""
+    graph = {}
+    for path in UI_MODULES:
+        parts = path.relative_to(ROOT).with_suffix("").parts
+        me = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        graph[me] = {t for m, names, _n, _l in _app_imports(path)
+                     for t in _project_targets(m, names) if t.startswith("pages.ui") and t != me}
+    up = [f"{m} imports {t}" for m, ts in graph.items() for t in ts
+          if ".panels" in t and ".panels" not in m]
+    assert not up, up
+    done: list[str] = []
+    left = dict(graph)
+    while left:
+        ready = [m for m, ts in left.items() if ts <= set(done) | {"pages.ui"}]
+        assert ready, f"circle among {sorted(left)}"
+        done += ready
+        for m in ready:
+            del left[m]
+
+
+@pytest.mark.parametrize("path", APP_FILES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_an_app_import_inside_a_function_states_its_reason(path):
+    lines = path.read_text(encoding="utf-8").splitlines()
+    unjustified = [f"{path.relative_to(ROOT)}:{node.lineno}"
+                   for _m, _names, node, inside in _app_imports(path)
+                   if inside and "lazy" not in lines[node.lineno - 2] + lines[node.lineno - 1]]
+    assert not unjustified, unjustified
+
+
+def test_the_core_never_imports_the_app_or_streamlit():
+    wrong = []
+    for path, _parts in _modules():
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            mods = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                    [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            wrong += [f"{path.relative_to(ROOT)}:{node.lineno} {m}" for m in mods
+                      if m.split(".")[0] in ("streamlit", "pages", "app", "serve")]
+    assert not wrong, wrong
+
+
+def test_pages_holds_page_scripts_and_the_ui_package_only():
+    """Every ``pages/*.py`` is a page the frame navigates to (Streamlit would otherwise run
+    a helper module as a page of its own); everything else under ``pages/`` is ``ui``."""
+    frame = (ROOT / "app.py").read_text(encoding="utf-8")
+    assert [p.name for p in PAGE_SCRIPTS if f'"pages/{p.name}"' not in frame] == []
+    assert sorted(p.name for p in PAGES_DIR.iterdir()
+                  if p.name != "__pycache__" and p.suffix != ".py") == ["ui"]

@@ -22,8 +22,10 @@ from .comparison import (
 )
 from .figures import (
     AXIS_COLOURS,
+    COLORWAY,
     EN_CLASSES,
     FUNCTION_UNITS,
+    PLACEMENT_SYMBOLS,
     deviations_plate_frame,
     error_function_curves,
     fig_budget_vs_length,
@@ -36,6 +38,7 @@ from .figures import (
     fig_mpe,
     fig_parameter_trend,
     fig_pattern,
+    fig_placement_views,
     fig_placements,
     fig_residual_map,
     fig_residuals_time,
@@ -119,10 +122,10 @@ from .sessions import (
     new_session_id,
     valid_session_id,
 )
-from .svg import placement_views_svg
+from .svg import figure_svg, nice_ticks, placement_views_svg, svg_supported
 
 __all__ = [
-    "placement_views_svg", "record_exclusions", "resolve_sigma", "diagnose_record", "FitChoices", "fit_kwargs", "fit_record",
+    "placement_views_svg", "figure_svg", "nice_ticks", "svg_supported", "COLORWAY", "PLACEMENT_SYMBOLS", "fig_placement_views", "record_exclusions", "resolve_sigma", "diagnose_record", "FitChoices", "fit_kwargs", "fit_record",
     "against_coordinates", "analysis_report", "AnalysisRecord", "AnalysisResult",
     "approach_split", "AXIS_COLOURS", "breakdown", "build_report", "chi2_html",
     "chi2_test_numbers", "CheckChoices", "compare_models", "ComparisonFigure", "coverage_reasons", "DataFile", "DataSources", "default_session_folder", "DEFAULT_EXCLUDE_OUTLIERS",

@@ -503,6 +503,51 @@ def fig_detection_limits(evals: list, effects: list, height: int = 380) -> go.Fi
     return _layout(fig, "", height=height)
 
 
+COLORWAY = ("#636efa", "#EF553B", "#00cc96", "#ab63fa", "#FFA15A", "#19d3f3", "#FF6692",
+            "#B6E880", "#FF97FF", "#FECB52")
+"""Plotly's default trace colours (template plotly_white), in order."""
+PLACEMENT_SYMBOLS = ("circle-open", "square-open", "diamond-open", "triangle-up-open", "x",
+                     "cross", "circle-open-dot", "square-open-dot")
+"""One marker per placement in the 2-D placement views, in the placements' order."""
+
+
+def fig_placement_views(dataset: Dataset) -> go.Figure:
+    """The plate placements in three orthographic views of the machine volume (top XY,
+    front XZ, side YZ; mm): the working volume's outline, every probed ball centre (the
+    tip centre in the machine frame) with one colour and symbol per placement, one scale
+    on both axes of a view. The hover text names placement, stylus, ball and the two
+    coordinates."""
+    rng = np.asarray(dataset.setup.range_mm, float)
+    m = dataset.meas
+    views = (("XY (top)", 0, 1), ("XZ (front)", 0, 2), ("YZ (side)", 1, 2))
+    # each view as wide as its first axis's span, so one mm is one length in all three
+    widths = [float(rng[i]) for _t, i, _j in views]
+    fig = make_subplots(rows=1, cols=3, subplot_titles=[v[0] for v in views],
+                        column_widths=widths, horizontal_spacing=0.06)
+    shapes = []
+    for c, (_title, i, j) in enumerate(views, start=1):
+        n = "" if c == 1 else str(c)
+        ax, bx = "XYZ"[i], "XYZ"[j]
+        shapes.append({"type": "rect", "xref": f"x{n}", "yref": f"y{n}", "x0": 0.0,
+                       "x1": float(rng[i]), "y0": 0.0, "y1": float(rng[j]),
+                       "line": {"color": "grey", "dash": "dash", "width": 1},
+                       "name": f"working volume {rng[i]:g} × {rng[j]:g} mm"})
+        for k, (pos, g) in enumerate(m.groupby("position", sort=False)):
+            fig.add_trace(go.Scatter(
+                x=g[f"m{ax.lower()}_mm"], y=g[f"m{bx.lower()}_mm"], mode="markers",
+                name=str(pos), legendgroup=str(pos), showlegend=c == 1,
+                marker={"symbol": PLACEMENT_SYMBOLS[k % len(PLACEMENT_SYMBOLS)], "size": 7,
+                        "color": COLORWAY[k % len(COLORWAY)]},
+                customdata=np.column_stack([g["probe"].astype(str), g["ball"].astype(str)]),
+                hovertemplate=f"{pos}, probe %{{customdata[0]}}, ball %{{customdata[1]}}: "
+                              f"{ax} %{{x:.1f}}, {bx} %{{y:.1f}} mm<extra></extra>"),
+                row=1, col=c)
+        fig.update_xaxes(title_text=f"{ax} (mm)", row=1, col=c)
+        fig.update_yaxes(title_text=f"{bx} (mm)", scaleanchor=f"x{n}", row=1, col=c)
+    fig.update_layout(shapes=shapes)
+    return _layout(fig, None, height=360)
+
+
 def fig_placements(dataset: Dataset, certificate_xyz: ArrayLike | None = None) -> go.Figure:
     """3D view of the plate placements (measured ball centres) in the machine volume."""
     rng = np.asarray(dataset.setup.range_mm, float)

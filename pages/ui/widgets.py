@@ -10,8 +10,8 @@ import re
 import streamlit as st
 
 from cmm_core import analysis as A
+from cmm_core.analysis import figure_svg, svg_supported
 from cmm_core.model import parse_spec
-from pages.ui import svgplot
 from pages.ui.cached import figure
 from pages.ui.state import spec_tokens
 
@@ -100,20 +100,20 @@ def plot(kind: str, key: tuple, builder, *args, chart_key: str, width_px: int = 
     ``st.plotly_chart``. The SVG sits in a container keyed ``chart_key`` (and says so in
     its ``data-figure``), the chart has that key."""
     fig = figure(kind, key, builder, *args)
-    if st.session_state.get(INTERACTIVE) or not svgplot.supported(fig):
+    if st.session_state.get(INTERACTIVE) or not svg_supported(fig):
         st.plotly_chart(fig, key=chart_key, **kwargs)
         return
-    svg_figure(figure(f"{kind}.svg", (key, width_px), svgplot.figure_svg, fig, width_px),
+    svg_figure(figure(f"{kind}.svg", (key, width_px), figure_svg, fig, width_px),
                chart_key)
 
 
 def show(fig, *, chart_key: str, width_px: int = 1100, **kwargs):
     """A figure built on this run (not cached): static SVG, or a Plotly chart as in
     :func:`plot`."""
-    if st.session_state.get(INTERACTIVE) or not svgplot.supported(fig):
+    if st.session_state.get(INTERACTIVE) or not svg_supported(fig):
         st.plotly_chart(fig, key=chart_key, **kwargs)
         return
-    svg_figure(svgplot.figure_svg(fig, width_px), chart_key)
+    svg_figure(figure_svg(fig, width_px), chart_key)
 
 
 def held(*prefixes: str, text: tuple[str, ...] = (), changed: dict | None = None) -> bool:
