@@ -30,6 +30,8 @@ from pathlib import Path
 import streamlit as st
 from streamlit.testing.v1 import AppTest
 
+from cmm_core import analysis as A
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 TARGET_S = 0.5
@@ -83,12 +85,13 @@ def bench(runs: int = 5) -> list:
     return rows
 
 
-def _simulated_files() -> dict:
+def _simulated_files() -> A.DataSources:
     d = ROOT / "sample_data" / "simulated"
-    return {"name": "simulated sample", "kind": "upload",
-            "measurements": [("measurements.csv", (d / "measurements.csv").read_text())],
-            "setup": (d / "setup.json").read_text(),
-            "certificate": ("certificate.csv", (d / "certificate.csv").read_text())}
+    return A.DataSources(
+        "simulated sample",
+        (A.DataFile("measurements.csv", content=(d / "measurements.csv").read_text()),),
+        A.DataFile("setup.json", content=(d / "setup.json").read_text()),
+        A.DataFile("certificate.csv", content=(d / "certificate.csv").read_text()))
 
 
 def _diagnose_page(case: str):
@@ -96,12 +99,12 @@ def _diagnose_page(case: str):
     ``(AppTest, the pages.state and pages.cached modules it runs)``."""
     at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=300)
     at.run()
-    common = sys.modules["pages.state"]
-    cached = sys.modules["pages.cached"]
+    common = sys.modules["pages.ui.state"]
+    cached = sys.modules["pages.ui.cached"]
     if case != "thesis":
         files = _simulated_files()
-        at.session_state["ds_files"] = files
-        at.session_state["ds_key"] = common.files_key(files)
+        at.session_state["sources"] = files
+        at.session_state["ds_key"] = A.sources_key(files)
     at.switch_page("pages/diagnose.py")
     at.run()
     return at, common, cached
@@ -126,7 +129,7 @@ def bench_diagnosis(runs: int = 5) -> list:
                 raise RuntimeError(f"{case}: {at.exception[0].message}")
             at.button(key="hide_diagnosis").click()
             at.run()
-        ds = common.load_files(at.session_state["ds_key"], at.session_state["ds_files"])
+        ds = common.load_sources(at.session_state["ds_key"], at.session_state["sources"])
         key, spec, order, plate, sigma, pos, prb, excl = _fit_args(at)
         core = []
         for _ in range(runs):
@@ -168,7 +171,7 @@ def bench_add_effect(runs: int = 3) -> list:
                 raise RuntimeError(f"{case}: {at.exception[0].message}")
             at.button(key="undo_step").click()
             at.run()
-        ds = common.load_files(at.session_state["ds_key"], at.session_state["ds_files"])
+        ds = common.load_sources(at.session_state["ds_key"], at.session_state["sources"])
         _, spec, order, plate, sigma, _, _, excl = _fit_args(at)
         new = f"{spec},{key[4:]}"
         core = []

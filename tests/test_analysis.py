@@ -26,7 +26,7 @@ def _session(**state):
     from pages.ui import state as C
 
     return {**{k: list(v) if isinstance(v, list) else v for k, v in C.DEFAULTS.items()},
-            "ds_files": C.thesis_files(), **state}
+            "sources": A.thesis_sources(), **state}
 
 
 def test_sample_record_reads_and_round_trips():
@@ -234,9 +234,8 @@ def _mapped_session():
     (Feature;X;Y;Z in µm, decimal commas) of the thesis files' coordinates, converted as
     the Data page does it (``mapping_panel`` -> ``ForeignTable``)."""
     from cmm_core.io import TableMapping, apply_mapping
-    from pages.ui import state as C
 
-    thesis = C.thesis_files()
+    thesis = A.thesis_sources()
     ds = A.load_data(session_record(_session()))
     lines = ["Feature;X;Y;Z"] + [
         f"{r.position}_P{r.probe}_B{r.ball};" + ";".join(
@@ -246,9 +245,9 @@ def _mapped_session():
     mapping = TableMapping(x="X", y="Y", z="Z", label="Feature", pattern=_VENDOR_PATTERN,
                            unit="um", decimal=",", delimiter=";")
     t = apply_mapping(table_text.encode(), mapping, name="vendor.csv")
-    files = {**thesis, "measurements": [(t.csv_name, t.csv_text)],
-             "mapped": {t.csv_name: (t.name, t.source_text, t.mapping)}}
-    return _session(ds_files=files), ds, table_text, mapping
+    files = dataclasses.replace(thesis, measurements=(
+        A.DataFile(t.name, content=t.source_text, mapping=t.mapping),))
+    return _session(sources=files), ds, table_text, mapping
 
 
 def test_a_mapped_table_round_trips_with_its_mapping_and_reloads():

@@ -996,7 +996,7 @@ def test_a_laser_upload_shows_its_residuals_and_the_uncertainty_gain(inst_app):
     # the project file carries the instrument file; restoring it brings it back
     from cmm_core import analysis as A
 
-    state = {k: at.session_state[k] for k in ("ds_files", "spec", "order", "plate",
+    state = {k: at.session_state[k] for k in ("sources", "spec", "order", "plate",
                                                "sigma_um", "instruments")}
     text = A.record_to_project_json(session_record(state))
     at.switch_page("pages/data.py")

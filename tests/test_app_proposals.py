@@ -12,7 +12,6 @@ last digits of the files (ΔBIC -114 against -112), so either is accepted.
 
 import json
 import sys
-import tempfile
 from pathlib import Path
 
 import pytest
@@ -23,8 +22,8 @@ from streamlit.testing.v1 import AppTest  # noqa: E402
 sys.path.insert(0, str(Path(__file__).parent))
 from scenarios import simulated  # noqa: E402
 
+from cmm_core import analysis as A  # noqa: E402
 from cmm_core.plan import read_plan  # noqa: E402
-from pages.ui.state import files_key  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 APP = str(ROOT / "app.py")
@@ -39,26 +38,18 @@ def _ok(at):
 
 
 @pytest.fixture(scope="module")
-def alias_files() -> dict:
+def alias_files() -> A.DataSources:
     """The alias case as the Data page's simulator loads a simulation (its three files)."""
     sim = simulated("pitch80_3pos", 7, noise_um=0.5,
                     kinematic={"spec": "kinematic21,rxz:4", "coefficients": {"rxz[4]": 3.0}})
-    with tempfile.TemporaryDirectory() as tmp:
-        sim.write(tmp)
-        p = Path(tmp)
-        return {"name": "simulated alias case (rxz:4 hidden, 80 mm plate)", "kind": "simulated",
-                "setup_source": "the simulation's setup", "certificate_source":
-                "the simulation's certificate",
-                "measurements": [("measurements.csv", (p / "measurements.csv").read_text())],
-                "setup": (p / "setup.json").read_text(),
-                "certificate": ("certificate.csv", (p / "certificate.csv").read_text())}
+    return A.simulated_sources(sim.dataset, "simulated alias case (rxz:4 hidden, 80 mm plate)")
 
 
-def _diagnosed(files: dict) -> AppTest:
+def _diagnosed(files: A.DataSources) -> AppTest:
     """The app on the alias case, the Diagnose page's diagnosis run, "Measure next" open."""
     at = AppTest.from_file(APP, default_timeout=TIMEOUT)
-    at.session_state["ds_files"] = files
-    at.session_state["ds_key"] = files_key(files)
+    at.session_state["sources"] = files
+    at.session_state["ds_key"] = A.sources_key(files)
     at.session_state["spec"] = BASE
     at.run()
     at.switch_page("pages/diagnose.py")
@@ -179,18 +170,10 @@ def test_a_repeat_proposal_handed_to_the_plan_page_is_a_plan_with_the_repeat():
     probings and minutes."""
     sim = simulated("pitch80_3pos", 1000, noise_um=0.5,
                     effects={"drift": {"sd_um_per_h": 1.0}})
-    with tempfile.TemporaryDirectory() as tmp:
-        sim.write(tmp)
-        p = Path(tmp)
-        files = {"name": "simulated drift case", "kind": "simulated",
-                 "setup_source": "the simulation's setup",
-                 "certificate_source": "the simulation's certificate",
-                 "measurements": [("measurements.csv", (p / "measurements.csv").read_text())],
-                 "setup": (p / "setup.json").read_text(),
-                 "certificate": ("certificate.csv", (p / "certificate.csv").read_text())}
+    files = A.simulated_sources(sim.dataset, "simulated drift case")
     at = AppTest.from_file(APP, default_timeout=TIMEOUT)
-    at.session_state["ds_files"] = files
-    at.session_state["ds_key"] = files_key(files)
+    at.session_state["sources"] = files
+    at.session_state["ds_key"] = A.sources_key(files)
     at.run()
     at.switch_page("pages/diagnose.py")
     at.run()

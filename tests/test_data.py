@@ -378,13 +378,12 @@ def test_the_data_page_takes_a_certificate_statement_for_a_certificate_without_u
     assert "gives no uncertainty" in " ".join(_problem_table(at)["problem"])
     load(2)  # exact (the refusal above emptied the fields: new keys)
     assert _problem_table(at) is None and not at.error
-    assert json.loads(at.session_state["ds_files"]["setup"])["certificate"]["exact"] is True
+    assert json.loads(at.session_state["sources"].setup.text())["certificate"]["exact"] is True
     load(1, 0.26, 0.0019)  # the fields of the next upload generation
     assert _problem_table(at) is None and not at.error
-    files = at.session_state["ds_files"]
-    ds = load_dataset([(io.StringIO(t), n) for n, t in files["measurements"]],
-                      io.StringIO(files["setup"]), (io.StringIO(files["certificate"][1]),
-                                                    files["certificate"][0]))
+    from cmm_core import analysis as A
+
+    ds = A.load_sources(at.session_state["sources"])
     c = ds.certificate
     L = np.linalg.norm(c.xyz_mm - c.xyz_mm[0], axis=1)
     np.testing.assert_allclose(c.u_um[:, 0], np.hypot(0.26, 1.9e-3 * L) / 2, rtol=1e-12)
@@ -417,7 +416,7 @@ def test_a_project_file_of_the_wrong_shape_restores_nothing_and_says_why(part, v
     assert f"p.json, column '{where}'" in err or f"p.json, column {where}" in err, err
     assert not any(e in err for e in ("TypeError", "AttributeError", "KeyError"))
     assert "\n" not in err
-    assert len(at.session_state["ds_files"]["measurements"]) == len(
+    assert len(at.session_state["sources"].measurements) == len(
         thesis_dataset().positions)  # the thesis data still loaded
 
 

@@ -84,7 +84,7 @@ def test_msl_snapshots_load_on_their_tab_and_fit(tmp_path):
     at.button(key="load_msl").click()
     at.run()
     _ok(at)
-    assert at.session_state["ds_files"]["name"].startswith("MSL simulated")
+    assert at.session_state["sources"].name.startswith("MSL simulated")
     at.run()  # the sidebar is drawn before the page: the next run shows the new dataset
     assert any("exact" in c.value for c in at.sidebar.caption)  # where u came from
     at.switch_page("pages/kinematic.py")
@@ -98,7 +98,7 @@ def test_a_dmis_file_loads_through_the_mapped_import_and_fits():
     at = _new()
     _load_mapped(at, "run.dmo", _dmo(meas), "text/plain",
                  r"(?P<position>BP\d+)_P(?P<probe>\w+)_B(?P<ball>\d+)", sim)
-    assert "run.dmo" in at.session_state["ds_files"]["name"]
+    assert "run.dmo" in at.session_state["sources"].name
     at.switch_page("pages/kinematic.py")
     at.run()
     _ok(at)
@@ -133,11 +133,12 @@ def test_a_mapped_vendor_table_keeps_its_mapping_in_the_record():
     table = _vendor_feature_csv(meas)
     at = _new()
     _load_mapped(at, "vendor.csv", table, "text/csv", PATTERN, sim)
-    files = at.session_state["ds_files"]
-    ((source, source_text, mapping),) = files["mapped"].values()
+    files = at.session_state["sources"]
+    (f,) = files.measurements
+    source, source_text, mapping = f.name, f.source_text(), f.mapping
     assert source == "vendor.csv" and source_text == table.decode()
     assert mapping["label"] == "Feature" and mapping["pattern"] == PATTERN
-    rec = session_record({"ds_files": files})
+    rec = session_record({"sources": files})
     assert rec.data.measurements[0].mapping == mapping
     back = A.load_data(A.record_from_project(A.record_to_project_json(rec)))
     np.testing.assert_allclose(back.meas[["x_mm", "y_mm", "z_mm"]].to_numpy(),
@@ -153,10 +154,10 @@ def test_restored_mapped_project_keeps_the_mapping():
     m = TableMapping(x="X", y="Y", z="Z", label="Feature", pattern=PATTERN)
     t = apply_mapping(_vendor_feature_csv(meas), m, name="vendor.csv")
     ctext = _cert_csv(sim.dataset.certificate)
-    files = {"name": "v", "measurements": [(t.csv_name, t.csv_text)],
-             "setup": json.dumps(sim.dataset.setup.raw), "certificate": ("c.csv", ctext),
-             "mapped": {t.csv_name: (t.name, t.source_text, t.mapping)}}
-    rec = session_record({"ds_files": files})
+    files = A.DataSources("v", (A.DataFile(t.name, content=t.source_text, mapping=t.mapping),),
+                          A.DataFile("setup.json", content=json.dumps(sim.dataset.setup.raw)),
+                          A.DataFile("c.csv", content=ctext))
+    rec = session_record({"sources": files})
     text = A.record_to_project_json(rec)
     at = AppTest.from_file(APP, default_timeout=90)
     at.run()
@@ -167,5 +168,5 @@ def test_restored_mapped_project_keeps_the_mapping():
     at.button(key="restore_project").click()
     at.run()
     assert not at.exception and not at.error, [e.value for e in at.error]
-    again = session_record({"ds_files": at.session_state["ds_files"]})
+    again = session_record({"sources": at.session_state["sources"]})
     assert again.data.measurements[0].mapping == m.to_dict()

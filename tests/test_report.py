@@ -27,7 +27,7 @@ def _session(**state):
     from pages.ui import state as C
 
     return {**{k: list(v) if isinstance(v, list) else v for k, v in C.DEFAULTS.items()},
-            "ds_files": C.thesis_files(), **state}
+            "sources": A.thesis_sources(), **state}
 
 
 def _cli(record_path, out, capsys):
@@ -101,11 +101,7 @@ def test_report_size_and_plotly_once(thesis_app):
 def _sim_session(tmp_path, sim, **state):
     d = tmp_path / "data"
     sim.write(d)
-    files = {"name": "simulated", "kind": "upload",
-             "measurements": [("measurements.csv", (d / "measurements.csv").read_text())],
-             "setup": (d / "setup.json").read_text(),
-             "certificate": ("certificate.csv", (d / "certificate.csv").read_text())}
-    return d, _session(ds_files=files, **state)
+    return d, _session(sources=A.simulated_sources(sim.dataset, "simulated"), **state)
 
 
 def test_simulated_hidden_effect_app_and_cli_byte_identical(tmp_path, capsys):
@@ -175,12 +171,13 @@ def test_report_with_an_instrument_app_and_cli_byte_identical(tmp_path, capsys):
     """A laser run fitted with the plate: the session record (file text) and a record
     naming the files by path give the same bytes, with the instruments section."""
     sim, ins = ROOT / "sample_data" / "simulated", ROOT / "sample_data" / "instruments"
-    files = {"name": "simulated sample", "kind": "upload",
-             "measurements": [("measurements.csv", (sim / "measurements.csv").read_text())],
-             "setup": (sim / "setup.json").read_text(),
-             "certificate": ("certificate.csv", (sim / "certificate.csv").read_text())}
+    files = A.DataSources(
+        "simulated sample",
+        (A.DataFile("measurements.csv", content=(sim / "measurements.csv").read_text()),),
+        A.DataFile("setup.json", content=(sim / "setup.json").read_text()),
+        A.DataFile("certificate.csv", content=(sim / "certificate.csv").read_text()))
     record = session_record(_session(
-        ds_files=files, instruments=[("laser", "laser_x.csv", (ins / "laser_x.csv").read_text())]))
+        sources=files, instruments=[("laser", "laser_x.csv", (ins / "laser_x.csv").read_text())]))
     app_html = rep.analysis_report(record)
     by_path = dataclasses.replace(record, data=A.DataSources(
         "simulated sample", (A.DataFile("measurements.csv", str(sim / "measurements.csv")),),

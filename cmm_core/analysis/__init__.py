@@ -122,9 +122,26 @@ from .sessions import (
     new_session_id,
     valid_session_id,
 )
+from .sources import (
+    FOREIGN_HINT,
+    THESIS_ORIGIN,
+    Assembly,
+    SourceProblem,
+    assemble_upload,
+    inline_sources,
+    load_sources,
+    problems_of,
+    record_from_sources,
+    simulated_sources,
+    sources_key,
+    thesis_sources,
+)
 from .svg import figure_svg, nice_ticks, placement_views_svg, svg_supported
 
 __all__ = [
+    "THESIS_ORIGIN", "FOREIGN_HINT", "Assembly", "SourceProblem", "assemble_upload", "inline_sources",
+    "load_sources", "problems_of", "record_from_sources", "simulated_sources", "sources_key",
+    "thesis_sources",
     "placement_views_svg", "figure_svg", "nice_ticks", "svg_supported", "COLORWAY", "PLACEMENT_SYMBOLS", "fig_placement_views", "record_exclusions", "resolve_sigma", "diagnose_record", "FitChoices", "fit_kwargs", "fit_record",
     "against_coordinates", "analysis_report", "AnalysisRecord", "AnalysisResult",
     "approach_split", "AXIS_COLOURS", "breakdown", "build_report", "chi2_html",

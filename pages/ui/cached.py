@@ -42,7 +42,7 @@ class FitKey:
     diagnoses it as it does a record (``analysis.fit_record``, ``diagnose_record``)."""
 
     data: str
-    """Key of the dataset files (:func:`files_key`)."""
+    """Key of the dataset's sources (``analysis.sources_key``)."""
     spec: str
     """Model spec."""
     order: int

@@ -12,9 +12,8 @@ from cmm_core import analysis as A
 from pages.ui.calls import describe_error, safe
 from pages.ui.state import (
     check_instruments,
-    files_key,
     init_state,
-    load_files,
+    load_sources,
     reset_widgets,
     set_dataset,
     set_instruments,
@@ -35,8 +34,8 @@ def session_record(state) -> A.AnalysisRecord:
     keys): the Export page's downloads, the report and the session kept for a reload."""
     choices = {field: state.get(key) for field, key in SESSION_CHOICES.items()}
     choices["gp_mean"] = state.get("w_gp_mean") if state.get("w_report_gp") else None
-    return A.record_from_inline(state["ds_files"], state.get("instruments") or (),
-                                **choices)
+    return A.record_from_sources(state["sources"], state.get("instruments") or (),
+                                 **choices)
 
 
 def restore_record(record, source: str) -> str:
@@ -47,18 +46,13 @@ def restore_record(record, source: str) -> str:
     does not fit the machine. Returns a note for the user ("" when there is nothing to
     add); ``source`` says where it came from ("the project file x.json")."""
     d = record.data
-    files = {"name": d.name, "kind": "project",
-             "measurements": [(f.name, f.text()) for f in d.measurements],
-             "setup": d.setup.text(),
-             "certificate": None if d.certificate is None else (d.certificate.name,
-                                                                d.certificate.text()),
-             "setup_source": f"from {source}",
-             "certificate_source": f"from {source}" if d.certificate is not None else None}
-    mapped = {f.name: (f.name, f.source_text(), f.mapping) for f in d.measurements
-              if f.mapping is not None}
-    if mapped:  # tables from other software keep their source and mapping (next save)
-        files["mapped"] = mapped
-    new_ds = load_files(files_key(files), files)
+    # the files' text is read once, here, and travels with the session (no file is read
+    # again later); tables from other software keep their source and mapping; the
+    # instruments are the session's own list, checked below against the new data
+    sources = A.inline_sources(d)
+    origin = {"kind": "project", "setup_source": f"from {source}",
+              "certificate_source": f"from {source}" if d.certificate is not None else None}
+    new_ds = load_sources(A.sources_key(sources), sources)
     have = set(zip(new_ds.meas["position"].astype(str), new_ds.meas["probe"].astype(str),
                    new_ds.meas["ball"].astype(int), strict=True))
     unknown = [e for e in record.exclusions if tuple(e) not in have]
@@ -74,7 +68,7 @@ def restore_record(record, source: str) -> str:
     sigma = (safe(A.resolve_sigma, record, new_ds, A.load_instruments(record), excl,
                   what="Estimating σ") if record.sigma_um == "auto"
              else A.resolve_sigma(record, new_ds))
-    set_dataset(files)
+    set_dataset(sources, origin)
     s = st.session_state
     for k in ("spec", "order", "plate", "magnification", "exclude_outliers"):
         s[k] = getattr(record, k)
@@ -186,7 +180,7 @@ def autosave():
     """Write the analysis to its session file when it changed since the last write."""
     s = st.session_state
     fp = session_fingerprint()
-    if s.get("saved_fingerprint") == fp or "ds_files" not in s:
+    if s.get("saved_fingerprint") == fp or "sources" not in s:
         return
     try:
         text = A.record_to_project_json(session_record(s))

@@ -30,7 +30,7 @@ def sidebar():
     sb.markdown(f"**Dataset:** {ds.name}  \n{len(ds.meas)} probed ball centres"
                 + (f" ({n_ex} excluded)" if n_ex else "")
                 + f", {len(ds.positions)} positions, {len(ds.probes)} probes")
-    files = s.get("ds_files", {})
+    files = s.get("ds_origin", {})
     sb.caption(f"Setup: {files.get('setup_source', 'setup of the dataset')}.  \n"
                f"Certificate: {files.get('certificate_source') or _cert_words(ds)}."
                + (f"  \nCertificate uncertainty: {ds.certificate.u_source}."

@@ -1,5 +1,6 @@
 """The app's session state: the canonical keys (``spec``, ``order`` ...) and everything
-that changes them: the dataset and its files, the instrument files, exclusions, σ, the
+that changes them: the dataset (the core's ``DataSources`` under ``sources``, where they
+came from under ``ds_origin``), the instrument files, exclusions, σ, the
 plate mode and the model spec with its history. Widgets use keys prefixed ``w_`` and are
 re-initialised from the canonical state whenever a page renders them, so values survive
 page switches."""
@@ -11,7 +12,7 @@ import io
 
 import streamlit as st
 
-from cmm_core.io import THESIS_DIR, THESIS_POSITIONS, load_dataset
+from cmm_core import analysis as A
 from cmm_core.model import fit as core_fit
 from cmm_core.model import parse_spec, read_instrument
 
@@ -40,15 +41,6 @@ PLATE_CHOICES = {"auto": "default (certificate fixed if given, else self-calibra
                  "free": "self-calibrated (free)"}
 
 
-def thesis_files() -> dict:
-    meas = [(f"{p}.csv", (THESIS_DIR / f"{p}.csv").read_text()) for p in THESIS_POSITIONS]
-    return {"name": "thesis tables 6.1-6.6", "kind": "thesis", "measurements": meas,
-            "setup": (THESIS_DIR / "setup.json").read_text(),
-            "certificate": ("certificate.csv", (THESIS_DIR / "certificate.csv").read_text()),
-            "setup_source": "thesis setup (sample_data/thesis/setup.json)",
-            "certificate_source": "thesis certificate (appendix 5)"}
-
-
 # settings a new dataset starts from (the model list, selections and exclusions too)
 RESET_ON_NEW_DATASET = ("spec", "order", "plate", "sigma_um")
 
@@ -57,31 +49,22 @@ _SETTING_NAMES = {"spec": "model", "order": "order", "plate": "plate geometry",
                   "sigma_um": "σ (µm)"}
 
 
-def files_key(files: dict) -> str:
-    h = hashlib.sha1()
-    h.update(files["name"].encode())
-    for n, c in files["measurements"]:
-        h.update(n.encode() + b"\0" + c.encode() + b"\0")
-    h.update(files["setup"].encode())
-    if files.get("certificate"):
-        h.update(b"cert" + files["certificate"][1].encode())
-    return h.hexdigest()[:16]
-
-
 @st.cache_data(show_spinner=False, max_entries=8)
-def load_files(key: str, _files: dict):
-    f = _files
-    meas = [(io.BytesIO(c.encode()), n) for n, c in f["measurements"]]
-    cert = f.get("certificate")
-    cert = (io.BytesIO(cert[1].encode()), cert[0]) if cert else None
-    return load_dataset(meas, io.BytesIO(f["setup"].encode()), cert, name=f["name"])
+def load_sources(key: str, _sources: A.DataSources):
+    """The dataset of ``_sources`` (``A.load_sources``), cached under their ``key``
+    (``A.sources_key``)."""
+    return A.load_sources(_sources)
 
 
-def set_dataset(files: dict, *, reset_model: bool = True):
-    """Make ``files`` the current dataset (raises DataError when it does not load)."""
-    key = files_key(files)
-    load_files(key, files)  # validate first: a bad upload keeps the old dataset
-    st.session_state["ds_files"] = files
+def set_dataset(sources: A.DataSources, origin: dict | None = None, *,
+                reset_model: bool = True):
+    """Make ``sources`` the current dataset (raises DataError when it does not load, and
+    nothing changes). ``origin``: ``{"kind", "setup_source", "certificate_source"}``, how
+    the sidebar states where the files came from."""
+    key = A.sources_key(sources)
+    load_sources(key, sources)  # validate first: a bad upload keeps the old dataset
+    st.session_state["sources"] = sources
+    st.session_state["ds_origin"] = dict(origin or {})
     st.session_state["ds_key"] = key
     if reset_model:
         s = st.session_state
@@ -103,6 +86,15 @@ def set_dataset(files: dict, *, reset_model: bool = True):
     return key
 
 
+def loaded(message: str) -> None:
+    """After any successful load: the old upload report no longer applies; the message is
+    shown at the top of the page after the rerun this starts."""
+    st.session_state.pop("upload_report", None)
+    st.session_state.pop("instrument_errors", None)
+    st.session_state["flash"] = ("success", message)
+    st.rerun()
+
+
 def reset_widgets():
     for k in list(st.session_state.keys()):
         if str(k).startswith("w_"):
@@ -114,8 +106,8 @@ def init_state():
     for k, v in DEFAULTS.items():
         if k not in st.session_state:
             st.session_state[k] = list(v) if isinstance(v, list) else v
-    if "ds_files" not in st.session_state:
-        set_dataset(thesis_files())
+    if "sources" not in st.session_state:
+        set_dataset(A.thesis_sources(), A.THESIS_ORIGIN)
 
 
 KEEP_PREFIXES = ("sim_", "w_gp_")
@@ -178,7 +170,7 @@ def set_exclusions(trips, on: bool):
 
 def dataset():
     s = st.session_state
-    return load_files(s["ds_key"], s["ds_files"])
+    return load_sources(s["ds_key"], s["sources"])
 
 
 def instruments_key(items) -> str:

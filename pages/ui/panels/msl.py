@@ -11,6 +11,7 @@ import json
 
 import streamlit as st
 
+from cmm_core import analysis as A
 from cmm_core import io as cio
 from pages.ui import calls, state
 
@@ -69,16 +70,18 @@ def msl_section() -> None:
         return
     try:
         fd = _read(snaps, metas, kind, cu)
-        files = {"name": f"MSL {kind}: {fd.name}", "kind": "upload",
-                 "measurements": [(f"{fd.name} (as measurements.csv)", fd.measurements_csv)],
-                 "setup": json.dumps(fd.setup), "certificate": ("certificate.csv",
-                                                                fd.certificate_csv),
-                 "setup_source": f"from the MSL files ({fd.name})",
-                 "certificate_source": "MSL's nominal plate"}
-        state.set_dataset(files)
+        sources = A.DataSources(
+            name=f"MSL {kind}: {fd.name}",
+            measurements=(A.DataFile(f"{fd.name} (as measurements.csv)",
+                                     content=fd.measurements_csv),),
+            setup=A.DataFile("setup.json", content=json.dumps(fd.setup)),
+            certificate=A.DataFile("certificate.csv", content=fd.certificate_csv))
+        state.set_dataset(sources, {"kind": "upload",
+                                    "setup_source": f"from the MSL files ({fd.name})",
+                                    "certificate_source": "MSL's nominal plate"})
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback
         st.error(calls.describe_error(exc))
         return
-    st.success(f"Loaded the MSL files as '{files['name']}'.")
+    st.success(f"Loaded the MSL files as '{sources.name}'.")
     for note in fd.notes:
         st.caption(note)
