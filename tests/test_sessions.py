@@ -109,9 +109,24 @@ def test_a_damaged_saved_file_is_said_and_kept_and_a_new_analysis_starts():
     path = _store().save(sid, '{"format": "not a project"')
     at = _app(sid)
     msg = " ".join(e.value for e in at.error)
-    assert "could not be restored" in msg and str(path) in msg
+    assert "could not be restored" in msg and sid in msg
+    assert str(path.parent) not in msg  # no server path on screen (issue 38)
     assert at.session_state["session_id"] != sid and path.exists()
     assert at.session_state["spec"] == "kinematic21"
+
+
+def test_an_unknown_id_in_a_link_is_never_adopted_and_the_user_is_told():
+    """Session fixation (issue 38): a well-formed id with nothing saved under it starts a
+    new analysis with the server's own id, so whoever sent the link cannot later open the
+    analysis its user makes; the page says a new analysis was started."""
+    planted = new_session_id()
+    at = _app(planted)
+    sid = at.session_state["session_id"]
+    assert sid != planted and valid_session_id(sid) and at.query_params["session"] == sid
+    assert any("new analysis was started" in i.value for i in at.info)
+    at.switch_page("pages/kinematic.py").run()
+    at.text_input(key="w_spec").set_value("kinematic21,plate_sag").run()
+    assert _store().load(planted) is None and _store().load(sid) is not None
 
 
 def test_a_link_with_a_malformed_id_never_reads_a_file_and_gets_a_new_id():

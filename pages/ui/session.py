@@ -123,10 +123,12 @@ def session_start():
     """First thing of every run (``app.py``): give this browser session its analysis.
 
     A new browser session whose URL names a saved analysis (a reload, or the URL opened in
-    a new tab) restores it and says so; any other new session starts a new analysis (with
-    the URL's id when it has a well-formed one, else a new id), saved once it differs from
-    the defaults. The id is put back into the URL on every run, because moving between pages
-    clears query parameters."""
+    a new tab) restores it and says so; any other new session starts a new analysis with a
+    new id from the server, saved once it differs from the defaults. An id the server has
+    not saved is never adopted (session fixation: whoever sent a link with an id of their
+    choosing could later open the analysis of whoever used it), and the note says a new
+    analysis was started. No server path is shown. The id is put back into the URL on
+    every run, because moving between pages clears query parameters."""
     s = st.session_state
     if "session_id" not in s:
         asked = st.query_params.get(SESSION_PARAM)
@@ -140,16 +142,19 @@ def session_start():
                                       f"the saved session {saved.path.name}")
             except Exception as exc:  # noqa: BLE001 - the new analysis goes on regardless
                 s["session_id"] = A.new_session_id()
-                s["restore_note"] = ("error", f"The analysis saved at {saved.path} could not "
-                                     f"be restored ({describe_error(exc)}); a new analysis "
-                                     "was started on the thesis data. The file is kept.")
+                s["restore_note"] = ("error", f"The saved analysis {saved.session_id} could "
+                                     f"not be restored ({describe_error(exc)}); a new "
+                                     "analysis was started on the thesis data. Its file is "
+                                     "kept on the server.")
             else:
-                s["restore_note"] = ("info", f"Restored from {saved.path} (saved "
-                                     f"{saved.saved_text}).{note}")
+                s["restore_note"] = ("info", f"Restored from the saved analysis "
+                                     f"{saved.session_id} (saved {saved.saved_text}).{note}")
                 s["saved_fingerprint"] = session_fingerprint()
         else:
-            if A.valid_session_id(asked):
-                s["session_id"] = asked  # nothing saved under it yet: the link stays
+            if asked:
+                s["restore_note"] = ("info", "The link names no analysis saved on this "
+                                     "server: a new analysis was started on the thesis "
+                                     "data, with an id of its own (see the address bar).")
             # a new analysis is saved only once it differs from the defaults
             init_state()
             s["saved_fingerprint"] = session_fingerprint()
