@@ -134,3 +134,41 @@ def test_a_link_with_a_malformed_id_never_reads_a_file_and_gets_a_new_id():
     sid = at.session_state["session_id"]
     assert valid_session_id(sid) and at.query_params["session"] == sid
     assert not at.error
+
+
+@pytest.mark.parametrize("where", ["instrument", "measurement", "interim_check"])
+def test_an_uploaded_project_naming_a_server_path_is_refused_in_one_line(tmp_path, where):
+    """Issue 38: a project file uploaded to the app may not name its files by path (an
+    absolute path or ``../``): the restore is refused in one line naming the field, the
+    server's file is never read (its text appears nowhere), the session keeps its data."""
+    import json
+
+    from conftest import uploader
+
+    from cmm_core import analysis as A
+
+    secret = tmp_path / "secret.csv"
+    secret.write_text("TOP SECRET first line\n1,2,3\n")
+    doc = json.loads(A.record_to_project_json(A.read_record(
+        ROOT / "sample_data" / "analysis" / "thesis.json")))
+    rest = doc["extra"]["analysis"]
+    if where == "instrument":
+        rest["instruments"] = [{"kind": "laser", "name": "x.csv", "path": str(secret)}]
+    elif where == "measurement":
+        rest["mappings"] = [{"index": 0, "name": "v.csv", "path": "../" * 8 + str(secret),
+                             "mapping": {"x": "X", "y": "Y", "z": "Z", "label": "L"}}]
+    else:
+        rest["interim_check"] = {"model": {"name": "m.json", "path": str(secret)}}
+    at = _app()
+    at.switch_page("pages/data.py").run()
+    uploader(at, "Project file").set_value(
+        ("p.json", json.dumps(doc).encode(), "application/json"))
+    at.run()
+    at.button(key="restore_project").click().run()
+    assert not at.exception
+    shown = " ".join([e.value for e in at.error] + [i.value for i in at.info]
+                     + [m.value for m in at.markdown])
+    assert "TOP SECRET" not in shown
+    (err,) = [e.value for e in at.error]
+    assert "\n" not in err and ("by a path" in err or "p.json" in err), err
+    assert at.session_state["sources"].name == "thesis tables 6.1-6.6"

@@ -129,6 +129,7 @@ from .sources import (
     SourceProblem,
     assemble_upload,
     inline_sources,
+    refuse_paths,
     load_sources,
     problems_of,
     record_from_sources,
@@ -139,7 +140,7 @@ from .sources import (
 from .svg import figure_svg, nice_ticks, placement_views_svg, svg_supported
 
 __all__ = [
-    "THESIS_ORIGIN", "FOREIGN_HINT", "Assembly", "SourceProblem", "assemble_upload", "inline_sources",
+    "THESIS_ORIGIN", "FOREIGN_HINT", "Assembly", "SourceProblem", "assemble_upload", "inline_sources", "refuse_paths",
     "load_sources", "problems_of", "record_from_sources", "simulated_sources", "sources_key",
     "thesis_sources",
     "placement_views_svg", "figure_svg", "nice_ticks", "svg_supported", "COLORWAY", "PLACEMENT_SYMBOLS", "fig_placement_views", "record_exclusions", "resolve_sigma", "diagnose_record", "FitChoices", "fit_kwargs", "fit_record",

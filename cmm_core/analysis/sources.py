@@ -9,6 +9,7 @@ same assembly, so an upload is judged the same way everywhere.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import io
 import json
@@ -34,7 +35,7 @@ from .record import AnalysisRecord, DataFile, DataSources
 from .record_io import record_from_inline
 
 __all__ = ["SourceProblem", "Assembly", "problems_of", "thesis_sources", "assemble_upload",
-           "simulated_sources", "inline_sources", "load_sources", "sources_key", "record_from_sources",
+           "simulated_sources", "inline_sources", "refuse_paths", "load_sources", "sources_key", "record_from_sources",
            "THESIS_ORIGIN", "FOREIGN_HINT"]
 
 @dataclass(frozen=True)
@@ -360,6 +361,34 @@ def inline_sources(sources: DataSources) -> DataSources:
                        setup=inline(sources.setup),
                        certificate=None if sources.certificate is None
                        else inline(sources.certificate))
+
+
+def _data_files(value: Any, where: str):
+    """Every :class:`DataFile` inside ``value`` (dataclasses, tuples and lists walked),
+    with the field path it sits at ("data.measurements[0]")."""
+    if isinstance(value, DataFile):
+        yield where, value
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        for f in dataclasses.fields(value):
+            yield from _data_files(getattr(value, f.name), f"{where}.{f.name}" if where
+                                   else f.name)
+    elif isinstance(value, (tuple, list)):
+        for k, v in enumerate(value):
+            yield from _data_files(v, f"{where}[{k}]")
+
+
+def refuse_paths(record: AnalysisRecord, source: str) -> None:
+    """Raise :class:`~cmm_core.io.DataError` when any file of ``record`` (its data,
+    instruments, an interim check's stored model, a history's models) is named by a path
+    rather than carried inline: a file uploaded to a server must never make the server
+    read a path of its own (issue 38). The message names the first such field."""
+    for where, f in _data_files(record, ""):
+        if f.path is not None:
+            raise DataError(f"names the file {f.name!r} by a path ({where}); a file uploaded "
+                            "to the app must carry its files' content.", file=source,
+                            hint="save the project from the app's Compensate and export "
+                                 "page (it carries every file), or load the files "
+                                 "themselves on the Data page.")
 
 
 def load_sources(sources: DataSources) -> Dataset:

@@ -45,6 +45,7 @@ def restore_record(record, source: str) -> str:
     do not load, its exclusions name observations the data lack, or an instrument file
     does not fit the machine. Returns a note for the user ("" when there is nothing to
     add); ``source`` says where it came from ("the project file x.json")."""
+    A.refuse_paths(record, source)  # an upload never makes the server read a path
     d = record.data
     # the files' text is read once, here, and travels with the session (no file is read
     # again later); tables from other software keep their source and mapping; the
