@@ -55,9 +55,11 @@ def _kinematic_effect(name: str) -> Effect:
                       f"rotation errors of the {ax} axis seen through a probe offset, or "
                       "plate form.",
                       "the same balls with two probe offsets.")
-    rot = {"x": "roll", "y": "pitch", "z": "yaw"}
-    kind = {("x", "x"): "roll", ("y", "y"): "roll", ("z", "z"): "roll"}.get(
-        (name[1], name[2]), rot[name[2]])
+    # ISO 230-1's words for a carriage's rotations: roll about its own axis; a horizontal
+    # carriage's yaw is about the vertical (z), its pitch about the other horizontal axis;
+    # the vertical ram has no pitch or yaw, it tilts about x or y (EAZ, EBZ)
+    kind = ("roll" if name[1] == name[2] else "tilt" if name[1] == "z"
+            else "yaw" if name[2] == "z" else "pitch")
     return Effect(name, f"{ax} carriage {kind} (about {d})",
                   f"the {ax} carriage tilts about {d} as it moves: points away from the "
                   f"axis line (Abbe offset) shift in proportion to their lever arm.",
