@@ -73,3 +73,36 @@ def test_download_name_defaults_to_today():
     today = datetime.now().strftime("%Y-%m-%d")
     assert download_name("run", "a.csv") in (f"run_{today}_a.csv",
                                              f"run_{datetime.now():%Y-%m-%d}_a.csv")
+
+
+def test_the_task_section_opens_on_the_loaded_datas_own_styli():
+    """Issue 41: with an uploaded dataset whose styli are not the thesis's "1".."6", the
+    Compensate page's task section opened on a red error ("stylus '1' is not in the
+    model"): its sample task now takes the model's own styli, and the Monte Carlo runs."""
+    import json
+
+    from cmm_core.io import THESIS_DIR
+
+    setup = json.loads((THESIS_DIR / "setup.json").read_text())
+    setup["probes"] = {f"T{k}": v for k, v in setup["probes"].items()}
+    for pos in setup["positions"].values():
+        pos["probe"] = f"T{pos['probe']}"
+    at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=60)
+    at.run()
+    at.switch_page("pages/data.py")
+    at.run()
+    _uploader(at, "Measurement CSV").set_value(
+        [(f"{p}.csv", (THESIS_DIR / f"{p}.csv").read_bytes(), "text/csv")
+         for p in setup["positions"]])
+    _uploader(at, "Setup").set_value(
+        [("setup.json", json.dumps(setup).encode(), "application/json")])
+    at.button(key="load_upload").click()
+    at.run()
+    assert sorted(at.session_state["sources"].name.split(", ")[:1]) == ["BP111.csv"]
+    at.switch_page("pages/export.py")
+    at.run()
+    assert not at.exception, [e.message for e in at.exception]
+    assert not at.error, [e.value for e in at.error]
+    task = json.loads(next(t.value for t in at.text_area if t.label == "TASK.json"))
+    assert {p["probe"] for p in task["points"]} == {"T1"}
+    assert any("U = 2u, Monte Carlo (µm)" in d.value.columns for d in at.dataframe)

@@ -30,6 +30,18 @@ def task_result(model_json: str, task_text: str, trials: int) -> dict:
                             trials=trials).to_dict()
 
 
+def sample_task(kind: str, styli: list[str]) -> str:
+    """The sample task of ``kind`` with its points on the model's own styli: a point's
+    stylus the model does not know becomes the model's first (the sample's stylus "1" is
+    the thesis's; another dataset names its own)."""
+    doc = json.loads((PLANS_DIR / TASKS[kind]).read_text())
+    if styli:
+        for p in doc.get("points", []):
+            if str(p.get("probe")) not in styli:
+                p["probe"] = styli[0]
+    return json.dumps(doc, indent=1)
+
+
 def task_section() -> None:
     """Task-specific uncertainty of a distance, circle or plane measured with the current
     fit (or an uploaded saved model): Monte Carlo beside the law of propagation."""
@@ -38,8 +50,8 @@ def task_section() -> None:
                "stylus; corrected with the model, reported at 20 °C. Influences: the model's "
                "covariance, probing noise, optional discrepancy, temperature and scale "
                "(docs/planning.md).")
-    up = st.file_uploader("Saved model (fit --save); default: the current fit", type="json",
-                          key="w_task_model")
+    up = st.file_uploader("A stored calibration (model file, from this page's downloads); "
+                          "default: the current fit", type="json", key="w_task_model")
     if up is not None:
         model_json = up.getvalue().decode("utf-8-sig")
     else:
@@ -52,8 +64,13 @@ def task_section() -> None:
             return
         model_json = json.dumps(model_to_dict(r), default=float)
     kind = st.radio("Task", list(TASKS), horizontal=True, key="w_task_kind")
-    text = st.text_area("TASK.json", (PLANS_DIR / TASKS[kind]).read_text(), height=220,
-                        key=f"w_task_text_{kind}")
+    try:
+        styli = [str(k) for k in json.loads(model_json).get("probes_mm") or {}]
+    except (ValueError, AttributeError):  # the model's own reader says what is wrong
+        styli = []
+    first = styli[0] if styli else ""
+    text = st.text_area("TASK.json", sample_task(kind, styli), height=220,
+                        key=f"w_task_text_{kind}_{first}")
     trials = st.number_input("Monte Carlo trials", 1000, 200000, 20000, step=1000,
                              key="w_task_trials")
     res = calls.safe(task_result, model_json, text, int(trials), what="Task")
