@@ -101,20 +101,31 @@ REFERENCE = {
 }
 
 
+TOL = 1e-9
+"""The fit's stop (``fit(tol=...)``'s default): it ends when the predicted decrease of χ²
+is below ``TOL·χ²``."""
+
+
 def _check(r, ref):
+    """The fit against the values before the speed-ups, to what the solver's stop leaves
+    open. Two correct implementations (or one on two CPUs: other BLAS kernels, other
+    summation orders) agree on χ² to the stop, ``TOL·χ²``; the whitened residual vector of
+    their minima to ``√(TOL·χ²)`` (the distance the stop leaves to the minimum), so every
+    residual to ``σ·√(TOL·χ²)`` µm, every determined parameter to ``√(TOL·χ²)`` of its u
+    and u itself relatively (N is linearised that close); an undetermined parameter
+    (u = NaN, the minimum-norm solution's component) relative to itself."""
     assert r.rank == ref["rank"] and r.iterations == ref["iterations"]
     np.testing.assert_allclose([r.chi2, r.chi2_test], [ref["chi2"], ref["chi2_test"]],
-                               rtol=1e-9)
-    np.testing.assert_allclose(r.residuals_um[[0, 100, -1]], ref["residuals_um"], rtol=1e-7,
-                               atol=1e-7)
+                               rtol=TOL)
+    s = np.sqrt(TOL * max(ref["chi2"], 1.0))
+    np.testing.assert_allclose(r.residuals_um[[0, 100, -1]], ref["residuals_um"], rtol=0,
+                               atol=r.sigma_um * s)
     value, u = np.array(list(ref["values"].values())).T
     got = np.array([(r.values[r.labels.index(lab)], r.u[r.labels.index(lab)])
                     for lab in ref["values"]])
-    # a parameter the design cannot determine has u = NaN, before and after: its value
-    # (the minimum-norm solution's) is pinned relative to itself
     scale = np.where(np.isnan(u), np.abs(value), u)
-    assert np.all(np.abs(got[:, 0] - value) <= 1e-6 * scale), (got[:, 0] - value) / scale
-    np.testing.assert_allclose(got[:, 1], u, rtol=1e-7, equal_nan=True)
+    assert np.all(np.abs(got[:, 0] - value) <= s * scale), (got[:, 0] - value) / scale
+    np.testing.assert_allclose(got[:, 1], u, rtol=s, equal_nan=True)
 
 
 @pytest.mark.parametrize("tag", list(SPECS))
@@ -181,8 +192,11 @@ def test_certificate_terms_from_the_fit_equal_a_second_accumulation(thesis_clean
     data, exclusions = thesis_clean
     r = fit(data, "kinematic21", exclude=exclusions)
     prob, state = r.problem, r.state
-    assert normal_module._plate_cross(prob, state) is not None
+    # whether the fit's own last accumulation was at its final state depends on its path
+    # (a last step within the stop is evaluated for its cost alone, and other BLAS kernels
+    # can put a step on either side of the stop): accumulating there keeps the columns
     ne = prob.normal_equations(state, r.sigma_um)
+    assert normal_module._plate_cross(prob, state) is not None
     held = r.design_null
     fast = certificate_terms(prob, state, held, r.sigma_um, r.rank_rtol, r.covariance_noise,
                              normal=(ne.cost, ne.N, ne.g, ne.rows))

@@ -292,8 +292,11 @@ def test_dask_study_on_two_local_workers_equals_the_serial_loop(six):
                 same(x[k], y[k], f"{key}.{k}")
         elif np.asarray(x).dtype.kind in "fc":
             # the same seeds and fits; two worker threads share one process-wide BLAS
-            # thread limit, so summation order (not results) may differ: 1e-9 relative
-            np.testing.assert_allclose(x, y, rtol=1e-9, atol=0, err_msg=key)
+            # thread limit (and another CPU has other kernels), so summation orders differ:
+            # a χ² moves by ~cond·eps·χ² (cond ≤ 1/rank_rtol² = 1e8: 2e-8 χ²), and a tail
+            # p-value relatively by about half that change, ≤ 1e-6 for χ² ≤ 100; the
+            # U's and z's (linear algebra of the same design) far less
+            np.testing.assert_allclose(x, y, rtol=1e-6, atol=0, err_msg=key)
         else:
             assert np.all(np.asarray(x, dtype=object) == np.asarray(y, dtype=object)), key
 
