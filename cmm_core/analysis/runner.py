@@ -186,16 +186,19 @@ def fit_record(record: FitChoices, ds: Dataset, instruments: Sequence = (), *,
 def diagnose_record(record: FitChoices, ds: Dataset, instruments: Sequence = (), *,
                     spec: str | None = None, exclusions: Iterable[Sequence] | None = None,
                     sigma_um: float | None = None,
-                    progress: Callable[[float, str], None] | None = None) -> Diagnosis:
+                    progress: Callable[[float, str], None] | None = None,
+                    baseline_fit: FitResult | None = None) -> Diagnosis:
     """The diagnosis of a record's fit (:func:`fit_record`'s arguments): every candidate
     scored and refitted with the record's instruments, ``spec`` (default the record's
-    model) as the baseline."""
+    model) as the baseline. ``baseline_fit``: :func:`fit_record` of the same arguments
+    when the caller holds it (the diagnosis then does not fit the baseline again;
+    ``diagnosis.diagnose`` refuses a fit of other choices)."""
     sig = record.sigma_um if sigma_um is None else sigma_um
     if sig == "auto":
         raise ValueError("σ is 'auto' in the record: estimate it first and pass sigma_um.")
     kw = fit_kwargs(record, exclusions, sigma_um=float(sig))
     return diagnose(_record_data(ds, instruments, kw), baseline=spec or record.spec,
-                    progress=progress, **kw)
+                    progress=progress, baseline_fit=baseline_fit, **kw)
 
 
 def record_exclusions(record: AnalysisRecord, ds: Dataset) -> tuple[tuple, tuple]:
@@ -247,7 +250,9 @@ def run(record: AnalysisRecord) -> AnalysisResult:
         unc = evaluate(r, n_random=record.uncertainty_points, seed=record.uncertainty_seed)
     except (ValueError, np.linalg.LinAlgError):
         unc = None
-    diag = diagnose_record(record, ds, inst, **steps) if record.diagnose else None
+    # the record's fit is the diagnosis's baseline: not fitted twice
+    diag = (diagnose_record(record, ds, inst, baseline_fit=r, **steps) if record.diagnose
+            else None)
     mpe, _ = check_dataset(ds, u_source=record.mpe_u_source, sigma_um=r.sigma_um)
     gp = None
     if record.gp_mean is not None:

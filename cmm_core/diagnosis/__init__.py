@@ -66,11 +66,11 @@ from .scoring import (
     scan_period,
     score,
 )
-from .search import Candidate, Diagnosis, diagnose, estimate_sigma
+from .search import BASE_MAX_ITER, Candidate, Diagnosis, diagnose, estimate_sigma
 from .verdict import OUTSIDE, evidence, fitted_text, misfit_location, stylus_offsets
 
 __all__ = [
-    "ACTION", "ALPHA", "axis_weights", "blunder_check", "BlunderCheck", "BLUNDERS",
+    "ACTION", "ALPHA", "axis_weights", "BASE_MAX_ITER", "blunder_check", "BlunderCheck", "BLUNDERS",
     "DOMINANT_SHARE", "baseline_basis", "Candidate", "candidate_stats",
     "CertificateCheck", "check", "check_certificate", "detect_outliers", "diagnose",
     "Diagnosis", "Discrepancy", "discrepancy_gp", "estimate", "estimate_sigma", "evidence", "fitted_text", "FAMILY_ALPHA",

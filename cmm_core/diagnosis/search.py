@@ -42,9 +42,10 @@ be credited to every candidate.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, is_dataclass
 
 import numpy as np
+import pandas as pd
 from scipy import optimize, stats
 
 from .._blas import single_blas_thread
@@ -55,6 +56,9 @@ from ..model import (
     Observations,
     catalogue_entry,
     fit,
+    has_plate,
+    parse_spec,
+    select,
 )
 from ..units import label as unit_label
 from . import replicates as repeatability
@@ -86,7 +90,12 @@ from .verdict import (
     misfit_location,
 )
 
-__all__ = ["Candidate", "Diagnosis", "diagnose", "estimate_sigma"]
+__all__ = ["BASE_MAX_ITER", "Candidate", "Diagnosis", "diagnose", "estimate_sigma"]
+
+BASE_MAX_ITER = 2000
+"""Gauss-Newton budget of the diagnosis's baseline fit (``model.fit``'s default is 500):
+weakly determined directions (one placement, high orders) can need many steps. A given
+fit that stopped at a smaller budget without converging is refitted with this one."""
 
 
 @dataclass(frozen=True)
@@ -259,7 +268,8 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
          exclude: Iterable[tuple[str, str, int]] = (), positions: Sequence[str] | None = None,
          probes: Sequence[str] | None = None, candidates: Sequence[str] | None = None,
          alpha: float = FAMILY_ALPHA, confirm: int = 3, alias_corr: float = 0.9,
-         progress: Callable[[float, str], object] | None = None) -> Diagnosis:
+         progress: Callable[[float, str], object] | None = None,
+         baseline_fit: FitResult | None = None) -> Diagnosis:
     """Rank the catalogue effects missing from ``baseline`` (see module docstring).
 
     Parameters
@@ -267,6 +277,8 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
     data : Dataset
     baseline : str
         Model spec of the baseline.
+    order, plate, sigma_um, exclude, positions, probes
+        The baseline fit's settings (``model.fit``'s).
     candidates : list of str, optional
         Tokens to try (default: every catalogue token not in the baseline).
     alpha : float
@@ -279,6 +291,17 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
     progress : callable, optional
         ``progress(fraction, text)`` is called as candidates are scored and confirmed
         (for a progress bar); exceptions it raises propagate.
+    baseline_fit : FitResult, optional
+        The baseline fit the caller already holds (``model.fit`` of ``data`` with
+        ``baseline`` and the settings above): used as it is, so a diagnosis fits the
+        baseline once. Refitted only when it stopped at its iteration budget below the
+        diagnosis's own (a converged fit is the same at any budget). Default: fitted here.
+
+    Raises
+    ------
+    ValueError
+        ``baseline_fit`` is not of ``data`` as selected, ``baseline`` or these settings (the
+        message names what differs, expected against given).
     """
     def report(frac, text):
         if progress is not None:
@@ -287,8 +310,15 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
     # weakly determined directions (one placement, high orders) can need many steps: the
     # baseline gets a large budget (a converged fit stops early), and the candidates'
     # refits the same one when the baseline needed more than fit's default
-    base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um, exclude=exclude,
-               positions=positions, probes=probes, max_iter=2000)
+    if baseline_fit is not None:
+        _check_given_fit(baseline_fit, data, baseline, order=order, plate=plate,
+                         sigma_um=sigma_um, exclude=exclude, positions=positions,
+                         probes=probes)
+    base = baseline_fit
+    if base is None or (base.status == "max_iterations" and base.iterations < BASE_MAX_ITER):
+        base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um,
+                   exclude=exclude, positions=positions, probes=probes,
+                   max_iter=BASE_MAX_ITER)
     max_iter = 500 if base.iterations <= 500 else 2000
     tokens = candidates if candidates is not None else base.problem.spec.candidates()
     n_steps = len(tokens) + confirm
@@ -405,6 +435,51 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
     return Diagnosis(baseline=base, candidates=out, verdict=verdict, skipped=skipped,
                      message=msg, holdout=checks, sigma=sigma, uniformity=uniform,
                      where=where, certificate=cert, blunders=blunders, unseen=unseen)
+
+
+def _same(a, b) -> bool:
+    """Equal values, arrays, frames and (nested) dataclasses, NaN equal to NaN: whether a
+    given fit's observations are the ones the diagnosis would select."""
+    if a is b:
+        return True
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, np.ndarray):
+        return a.shape == b.shape and bool(np.array_equal(
+            a, b, equal_nan=a.dtype.kind in "fc"))
+    if isinstance(a, pd.DataFrame):
+        return a.equals(b)
+    if is_dataclass(a):
+        return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
+    if isinstance(a, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    return bool(a == b)
+
+
+def _check_given_fit(given: FitResult, data, baseline, *, order, plate, sigma_um,
+                     exclude, positions, probes) -> None:
+    """Refuse a baseline fit that is not the one :func:`diagnose` would make: another
+    model, plate mode, σ or selection of the data (``ValueError``, expected against
+    given)."""
+    spec = parse_spec(baseline, default_order=order).to_string(explicit=True)
+    obs = data if isinstance(data, Observations) else select(
+        data, positions=positions, probes=probes, exclude=exclude)
+    mode = plate if plate is not None else (
+        "none" if not has_plate(obs) else "fixed" if obs.has_certificate else "free")
+    for what, expected, actual in (("model", spec, given.spec), ("plate mode", mode, given.plate),
+                                   ("sigma_um", float(sigma_um), float(given.sigma_um))):
+        if expected != actual:
+            raise ValueError(f"the given baseline fit is of another {what}: the diagnosis "
+                             f"expects {expected!r}, the fit has {actual!r}.")
+    if not _same(obs, given.problem.obs):
+        raise ValueError("the given baseline fit is of other observations: the diagnosis "
+                         f"expects {len(obs.table)} observation(s) of positions "
+                         f"{list(obs.positions)} and probes {list(obs.probes)} (after the "
+                         f"exclusions), the fit has {len(given.problem.obs.table)} of "
+                         f"{list(given.problem.obs.positions)} and "
+                         f"{list(given.problem.obs.probes)}, or other values.")
 
 
 def _k_detect(level: float, k: int, power: float = 0.8) -> float:

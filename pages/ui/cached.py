@@ -159,11 +159,14 @@ def run_diagnosis(show_progress: bool = False):
         return None, None, "", {}
     key = fit_key()
     return (base, *cached_diagnosis(key, dataset(), instrument_data(key),
-                                          show_progress))
+                                    show_progress, base))
 
 
 @st.cache_data(show_spinner="Running the diagnosis…", max_entries=32)
-def cached_diagnosis(key: FitKey, _ds, _instruments=(), _show_progress=False):
+def cached_diagnosis(key: FitKey, _ds, _instruments=(), _show_progress=False, _fit=None):
+    """The diagnosis of ``key`` (:func:`run_diagnosis`'s rows, conclusion and info);
+    ``_fit``: the cached fit of ``key`` (:func:`cached_fit`), its baseline, so the
+    diagnosis does not fit it again."""
     # created inside the cached function so that a cache replay can recreate it
     bar = st.progress(0.0, text="Scoring candidate effects…") if _show_progress else None
 
@@ -173,7 +176,7 @@ def cached_diagnosis(key: FitKey, _ds, _instruments=(), _show_progress=False):
 
     # the record's diagnosis (analysis.diagnose_record, as analysis.run): with
     # instruments, every model it scores or refits carries their rows
-    d = A.diagnose_record(key, _ds, _instruments, progress=report)
+    d = A.diagnose_record(key, _ds, _instruments, progress=report, baseline_fit=_fit)
     # the core's own row of each candidate (the CLI's JSON), plus what only the page draws
     rows = [{**c.to_dict(), "aliases": ", ".join(c.aliases),
              "significant": bool(c.significant), "confirmed": bool(c.confirmed),
