@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from scenarios import layout_data, simulated
 
 from cmm_core import analysis as A
 from cmm_core.diagnosis import certificate_check, diagnose, replicates, search, verdict
@@ -21,6 +22,12 @@ def _case(name):
         return simulate({"seed": 3, "effects": SAG}).dataset, "kinematic21", {}
     if name == "clean":  # nothing hidden: no effect named
         return simulate({"seed": 201}).dataset, "kinematic21", {}
+    if name == "pitch100_sag":  # another plate, pitch, placements and styli
+        return simulated("pitch100_4pos", 11, effects=SAG).dataset, "kinematic21", {}
+    if name == "gantry_drift":  # another machine layout, a drift hidden
+        return (layout_data("pitch150_5pos", "gantry_fxyz", 12,
+                            effects={"drift": {"sd_um_per_h": 1.0}}).dataset,
+                "kinematic21", {})
     # σ stated too small (0.3 µm for 0.5 µm noise): the σ check and uniformity run
     return simulate({"seed": 5}).dataset, "kinematic21", {"sigma_um": 0.3}
 
@@ -31,7 +38,7 @@ def _doc(d) -> str:
     return json.dumps(d.to_dict(), sort_keys=True, default=float)
 
 
-@pytest.mark.parametrize("name", ["sag", "clean", "sigma"])
+@pytest.mark.parametrize("name", ["sag", "clean", "sigma", "pitch100_sag", "gantry_drift"])
 def test_given_fit_gives_the_same_diagnosis(name):
     data, spec, kw = _case(name)
     alone = diagnose(data, spec, **kw)
