@@ -13,7 +13,6 @@ measured error (:data:`ERROR_CONVENTION`) and the outlier default
 
 from __future__ import annotations
 
-import io
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, Protocol
@@ -25,7 +24,7 @@ from ..diagnosis import Diagnosis, detect_outliers, diagnose, estimate_sigma
 from ..export import Model, model_from_dict, model_from_result, results_dict
 from ..gp import GPComponents, gp_components
 from ..gum import MpeResult, check_dataset
-from ..io import Dataset, load_dataset, read_json
+from ..io import Dataset, read_json
 from ..model import (
     FitResult,
     Observations,
@@ -45,6 +44,7 @@ from .record import (
     HistoryChoices,
     measured_error_from_residuals_um,
 )
+from .sources import load_sources
 
 __all__ = ["load_data", "load_instruments", "with_instruments", "AnalysisResult", "run",
            "FitChoices", "fit_kwargs", "fit_record", "diagnose_record", "record_exclusions",
@@ -53,14 +53,9 @@ __all__ = ["load_data", "load_instruments", "with_instruments", "AnalysisResult"
 
 
 def load_data(record: AnalysisRecord) -> Dataset:
-    """The :class:`~cmm_core.dataset.Dataset` the record names."""
-
-    def src(f: DataFile) -> tuple[io.BytesIO, str]:
-        return io.BytesIO(f.text().encode()), f.name
-
-    d = record.data
-    return load_dataset([src(f) for f in d.measurements], src(d.setup)[0],
-                        None if d.certificate is None else src(d.certificate), name=d.name)
+    """The :class:`~cmm_core.io.Dataset` the record names (:func:`load_sources` of its
+    data)."""
+    return load_sources(record.data)
 
 
 def load_instruments(record: AnalysisRecord) -> tuple:

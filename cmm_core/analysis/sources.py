@@ -13,7 +13,7 @@ import dataclasses
 import hashlib
 import io
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -23,6 +23,7 @@ from ..io import (
     THESIS_POSITIONS,
     DataError,
     Dataset,
+    describe_error,
     load_dataset,
     read_certificate,
     read_measurements,
@@ -95,9 +96,7 @@ def problems_of(exc: Exception, file: str = "") -> list[SourceProblem]:
     :class:`~cmm_core.io.DataError` lists all problems of its file (capped by the core),
     and a last row says how many it found but does not list."""
     if not isinstance(exc, DataError):
-        text = str(exc).strip("'\"") if isinstance(exc, (ValueError, KeyError)) else \
-            f"{type(exc).__name__}: {exc}"
-        return [SourceProblem(file, text)]
+        return [SourceProblem(file, describe_error(exc))]
     rows = [SourceProblem(p.file or "", p.detail, p.hint or "", p.row, p.column or "")
             for p in exc.problems]
     hidden = exc.n_problems - len(exc.problems)
@@ -264,7 +263,8 @@ def assemble_upload(measurements: Sequence[tuple[str, bytes]],
                     use_thesis: bool = False, name: str = "",
                     mapped: tuple | None = None,
                     certificate_statement: dict | None = None,
-                    foreign_hint: str = FOREIGN_HINT) -> Assembly:
+                    foreign_hint: str = FOREIGN_HINT,
+                    load: Callable[[DataSources], Dataset] | None = None) -> Assembly:
     """Check every uploaded file on its own, then together, and assemble the sources.
 
     Parameters
@@ -288,6 +288,10 @@ def assemble_upload(measurements: Sequence[tuple[str, bytes]],
         ``{"U_um": [a, b], "k", "combine"}``): it replaces the setup's own statement.
     foreign_hint : str
         The hint beside a measurement file another tool wrote (what takes it instead).
+    load : callable, optional
+        How the assembled sources are loaded to check them together (default
+        :func:`load_sources`): a caller that keeps loaded datasets (the app's cache) passes
+        its own, so the upload is read once.
 
     Returns
     -------
@@ -327,7 +331,7 @@ def assemble_upload(measurements: Sequence[tuple[str, bytes]],
         setup=DataFile("setup.json", content=setup_text),
         certificate=None if cert is None else DataFile(cert[0], content=cert[1]))
     try:
-        load_sources(sources)
+        (load or load_sources)(sources)
     except Exception as exc:  # noqa: BLE001 - every problem becomes a row
         return Assembly(None, _capped(problems_of(exc)), tuple(notes), setup_source,
                         cert_source, origin)

@@ -42,6 +42,7 @@ from .errors import (
     DataError,
     Problems,
     cut_repr,
+    describe_error,
     likely_typo,
     refuse_unknown_keys,
 )
@@ -119,7 +120,7 @@ __all__ = [
     "apply_mapping", "ARTEFACTS", "atomic_write_all", "atomic_write_bytes", "atomic_write_text", "atomic_writer",
     "AXIS_TOLERANCE_DEG", "Certificate", "CertificateUncertainty", "check_celsius",
     "check_outputs", "COLUMN_ALIASES", "COMBINE", "combine_plates", "CTE_RANGE_PER_K",
-    "cut_repr", "DataError", "Dataset", "DECIMALS", "DELIMITERS", "DMIS_SUFFIXES",
+    "cut_repr", "describe_error", "DataError", "Dataset", "DECIMALS", "DELIMITERS", "DMIS_SUFFIXES",
     "DMIS_UNITS_MM", "file_rows", "FileSource", "ForeignDataset", "ForeignStepGauge",
     "ForeignTable", "inspect_table", "LABEL_GROUPS", "LAYOUTS", "LENGTH_UNITS_MM",
     "likely_typo", "load_dataset", "read_machine", "LONG_COLUMNS", "MAX_BYTES", "MAX_PROBE_MM", "MAX_PROBLEMS",

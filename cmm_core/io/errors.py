@@ -187,3 +187,15 @@ def _check_keys(obj: dict, known, name, where: str):
             raise DataError(f"unknown key {cut_repr(k)}; did you mean {guess!r}? (A misspelt key "
                             "would silently leave its default.)", file=name,
                             column=f"{where}.{k}" if where else str(k))
+
+
+def describe_error(exc: Exception) -> str:
+    """The one line a user reads for ``exc``: a :class:`DataError` as it is (file, row,
+    column, what was expected), a ``ValueError``/``KeyError`` its message without the
+    quotes ``KeyError`` adds, any other exception its type and message (never a
+    traceback)."""
+    if isinstance(exc, DataError):
+        return str(exc)
+    if isinstance(exc, (ValueError, KeyError)):
+        return str(exc).strip("'\"")
+    return f"{type(exc).__name__}: {exc}"

@@ -7,15 +7,9 @@ from contextlib import contextmanager
 
 import streamlit as st
 
-from cmm_core.io import DataError
+from cmm_core.io import describe_error
 
-
-def describe_error(exc: Exception) -> str:
-    if isinstance(exc, DataError):
-        return str(exc)
-    if isinstance(exc, (ValueError, KeyError)):
-        return str(exc).strip("'\"")
-    return f"{type(exc).__name__}: {exc}"
+__all__ = ["describe_error", "guarded", "safe"]
 
 
 def safe(fn, *args, what: str = "", **kwargs):

@@ -127,7 +127,8 @@ def upload_section():
                                                       st.session_state.get("mapped_meas")),
             mapped=st.session_state.get("mapped_meas"),
             certificate_statement=cert_statement,
-            foreign_hint="use the 'Other tools' tab or the mapped import below.")
+            foreign_hint="use the 'Other tools' tab or the mapped import below.",
+            load=lambda src: state.load_sources(A.sources_key(src), src))
         if not got.ok:
             # the fields are cleared after a refusal too: a corrected file must not be
             # judged together with the refused one it replaces (issue 27)
