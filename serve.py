@@ -7,9 +7,15 @@ app's scripts import at their top is imported before the server starts, so the s
 prints its URL that much later and the first page is as quick as any later one (the
 server-start preload of gunicorn's ``--preload``, for the same reason).
 
-Arguments after the script are those of ``streamlit run``::
+It also carries the app's settings: Streamlit reads ``.streamlit/config.toml`` from the
+folder it is started in, which is the checkout for ``make run`` but anywhere for an
+installed ``cmm-error-lab app``; here the file beside this script is passed as command-line
+flags, so the app looks and behaves the same wherever it was started. The server listens on
+127.0.0.1 unless an address is given.
 
-    python serve.py --server.port 8501 --server.headless true
+Arguments after the script are those of ``streamlit run`` (they win over the file)::
+
+    python serve.py --server.port 8501 --server.address 127.0.0.1
 """
 
 from __future__ import annotations
@@ -18,10 +24,52 @@ import ast
 import importlib
 import logging
 import sys
+import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
 APP = ROOT / "app.py"
+CONFIG = ROOT / ".streamlit" / "config.toml"
+LOOPBACK = "127.0.0.1"
+"""The default address: this computer only. Another address is a stated choice."""
+OPEN_WARNING = ("serving {address}: anyone who can reach this computer on port {port} and "
+                "has (or guesses) a session's URL reaches that analysis.")
+
+
+def config_flags(path: Path = CONFIG) -> list[str]:
+    """The settings of ``path`` (Streamlit's ``config.toml``) as ``streamlit run`` flags,
+    ``--section.option value``; booleans as ``true``/``false``."""
+    flags: list[str] = []
+    with open(path, "rb") as f:
+        for section, options in tomllib.load(f).items():
+            for name, value in options.items():
+                text = str(value).lower() if isinstance(value, bool) else str(value)
+                flags += [f"--{section}.{name}", text]
+    return flags
+
+
+def server_args(args: list[str], config: Path = CONFIG) -> list[str]:
+    """``args`` (``streamlit run`` options) completed by :func:`config_flags` for every
+    option they do not set, and by ``--server.address 127.0.0.1`` when they set none."""
+    given = {a.split("=", 1)[0] for a in args if a.startswith("--")}
+    defaults = config_flags(config) if config.is_file() else []
+    if "--server.address" not in given:
+        defaults += ["--server.address", LOOPBACK]
+    kept = [x for flag, value in zip(defaults[::2], defaults[1::2], strict=True)
+            if flag not in given for x in (flag, value)]
+    return [*kept, *args]
+
+
+def option(args: list[str], name: str, default: str) -> str:
+    """The value of ``--name`` in ``args`` (``--name value`` or ``--name=value``); the
+    last one counts, as in ``streamlit run``."""
+    value = default
+    for i, a in enumerate(args):
+        if a == name and i + 1 < len(args):
+            value = args[i + 1]
+        elif a.startswith(name + "="):
+            value = a.split("=", 1)[1]
+    return value
 
 
 def app_imports() -> list[str]:
@@ -88,9 +136,14 @@ def legacy_pages_off() -> None:
 def main(argv: list[str] | None = None) -> None:
     from streamlit.web.cli import main as streamlit_main
 
+    args = server_args(sys.argv[1:] if argv is None else argv)
+    address = option(args, "--server.address", LOOPBACK)
+    if address not in (LOOPBACK, "localhost", "::1"):
+        print("cmm-error-lab: " + OPEN_WARNING.format(
+            address=address, port=option(args, "--server.port", "8501")), file=sys.stderr)
     preload()
     legacy_pages_off()
-    sys.argv = ["streamlit", "run", str(APP), *(sys.argv[1:] if argv is None else argv)]
+    sys.argv = ["streamlit", "run", str(APP), *args]
     streamlit_main(prog_name="streamlit")
 
 

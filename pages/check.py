@@ -11,6 +11,7 @@ from cmm_core import analysis as A
 from cmm_core import export as ex
 from cmm_core import io as cio
 from cmm_core import monitor as mon
+from cmm_core.io import SAMPLE_DIR
 from cmm_core.model import INSTRUMENT_KINDS, read_instrument
 from pages.ui import calls, widgets
 
@@ -19,7 +20,7 @@ st.write("Between calibrations: does the machine still behave as its stored cali
          "says, and if not, what changed (docs/monitoring.md)? And how has it changed over "
          "its calibrations?")
 
-HISTORY = Path(__file__).resolve().parents[1] / "sample_data" / "history"
+HISTORY = SAMPLE_DIR / "history"
 SAMPLE_CHECKS = {"after a crash (2025-02-10, four placements)": "check_2025-02-10_after_crash",
                  "quiet (2024-06-17, one placement)": "check_2024-06-17"}
 SAMPLE_MODEL = "calibration_2024-03-04.json"

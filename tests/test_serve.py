@@ -2,6 +2,7 @@
 
 import subprocess
 import sys
+import tomllib
 
 from conftest import ROOT
 
@@ -49,3 +50,26 @@ def test_a_module_that_fails_to_import_is_one_line_and_the_rest_is_imported(tmp_
     assert out.stdout.strip() == "['numpy']"
     (line,) = [x for x in out.stderr.splitlines() if "broken_helper" in x]
     assert "RuntimeError: a helper that cannot start" in line
+
+
+def test_the_config_file_becomes_flags_and_the_server_listens_on_this_computer_only():
+    """Started outside the checkout, Streamlit would not find ``.streamlit/config.toml``:
+    every setting of it is passed as a flag, and the address is 127.0.0.1 unless given."""
+    with open(serve.CONFIG, "rb") as f:
+        settings = tomllib.load(f)
+    args = serve.server_args([])
+    pairs = dict(zip(args[::2], args[1::2], strict=True))
+    for section, options in settings.items():
+        for name, value in options.items():
+            expected = str(value).lower() if isinstance(value, bool) else str(value)
+            assert pairs[f"--{section}.{name}"] == expected
+    assert pairs["--server.address"] == "127.0.0.1"
+
+
+def test_given_options_win_over_the_file_and_the_default_address():
+    args = serve.server_args(["--server.port", "8765", "--server.address=0.0.0.0",
+                              "--theme.base", "dark"])
+    assert args.count("--theme.base") == 1 and "--server.address" not in args
+    assert serve.option(args, "--server.address", "x") == "0.0.0.0"
+    assert serve.option(args, "--server.port", "8501") == "8765"
+    assert serve.option(args, "--theme.base", "light") == "dark"

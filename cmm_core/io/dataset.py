@@ -16,7 +16,16 @@ from .matching import resolve
 from .measurements import read_measurement_files
 from .setup import LAYOUTS, SETUP_KEYS, Setup, _json_object, _machine_range, read_setup
 
-SAMPLE_DIR = Path(__file__).resolve().parents[2] / "sample_data"
+
+def _sample_dir() -> Path:
+    """The sample data: installed as ``cmm_core/sample_data`` by a wheel, or the
+    checkout's ``sample_data/`` folder (a checkout run in place, an editable install)."""
+    installed = Path(__file__).resolve().parents[1] / "sample_data"
+    return installed if installed.is_dir() else Path(__file__).resolve().parents[2] / "sample_data"
+
+
+SAMPLE_DIR = _sample_dir()
+"""The folder of sample data (thesis tables, simulated runs, plans, histories)."""
 THESIS_DIR = SAMPLE_DIR / "thesis"
 THESIS_POSITIONS = ("BP111", "BP112", "BP211", "BP212", "BP311", "BP312")
 

@@ -5,17 +5,17 @@ propagation (``cmm_core.plan.task_uncertainty``)."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pandas as pd
 import streamlit as st
 
 from cmm_core.export import model_from_dict, model_to_dict
+from cmm_core.io import SAMPLE_DIR
 from cmm_core.plan import read_task, task_uncertainty
 from cmm_core.units import label as unit_label
 from pages.ui import cached, calls
 
-PLANS_DIR = Path(__file__).resolve().parents[3] / "sample_data" / "plans"
+PLANS_DIR = SAMPLE_DIR / "plans"
 """The sample plans and tasks shipped with the app."""
 TASKS = {"distance": "task_distance.json", "circle": "task_circle.json",
          "plane": "task_plane.json"}
