@@ -3,13 +3,19 @@
 F5 and second tab are in tests/test_browser.py)."""
 
 import os
+import stat
 import time
 from pathlib import Path
 
 import pytest
 from streamlit.testing.v1 import AppTest
 
-from cmm_core.analysis import SessionStore, new_session_id, valid_session_id
+from cmm_core.analysis import (
+    SessionStore,
+    default_session_folder,
+    new_session_id,
+    valid_session_id,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 APP = str(ROOT / "app.py")
@@ -172,3 +178,29 @@ def test_an_uploaded_project_naming_a_server_path_is_refused_in_one_line(tmp_pat
     (err,) = [e.value for e in at.error]
     assert "\n" not in err and ("by a path" in err or "p.json" in err), err
     assert at.session_state["sources"].name == "thesis tables 6.1-6.6"
+
+
+@pytest.mark.parametrize(("platform", "environ", "expected"), [
+    ("win32", {"LOCALAPPDATA": r"C:\Users\ana\AppData\Local"},
+     Path(r"C:\Users\ana\AppData\Local") / "cmm-error-lab" / "sessions"),
+    ("win32", {}, Path("/home/ana") / "AppData" / "Local" / "cmm-error-lab" / "sessions"),
+    ("darwin", {}, Path("/home/ana") / "Library" / "Application Support" / "cmm-error-lab"
+     / "sessions"),
+    ("linux", {"XDG_STATE_HOME": "/srv/state"}, Path("/srv/state/cmm-error-lab/sessions")),
+    ("linux", {}, Path("/home/ana/.local/state/cmm-error-lab/sessions")),
+    ("darwin", {"CMM_LAB_SESSIONS": "/data/s"}, Path("/data/s")),
+])
+def test_the_sessions_folder_is_where_each_system_keeps_a_users_state(platform, environ,
+                                                                      expected):
+    assert default_session_folder(platform, environ, Path("/home/ana")) == expected
+
+
+@pytest.mark.skipif(os.name != "posix", reason="file modes are POSIX")
+def test_saved_analyses_are_readable_by_their_owner_only(tmp_path):
+    folder = tmp_path / "sessions"
+    folder.mkdir(mode=0o755)
+    os.chmod(folder, 0o755)  # made before the rule, or under a wide umask
+    store = SessionStore(folder)
+    p = store.save(new_session_id(), "{}")
+    assert stat.S_IMODE(folder.stat().st_mode) == 0o700
+    assert stat.S_IMODE(p.stat().st_mode) == 0o600

@@ -9,8 +9,12 @@ opens the app without one starts a new analysis. The files are written atomicall
 (:func:`cmm_core.io.atomic_write_text`), so a reload during a save finds the previous
 state, never half a file.
 
-Folder: ``$CMM_LAB_SESSIONS`` when set, else ``$XDG_STATE_HOME/cmm-error-lab/sessions``,
-else ``~/.local/state/cmm-error-lab/sessions``. Files not written for
+Folder (:func:`default_session_folder`): ``$CMM_LAB_SESSIONS`` when set, else the place
+each operating system keeps a program's per-user state: ``cmm-error-lab/sessions`` in
+``%LOCALAPPDATA%`` on Windows, ``~/Library/Application Support/cmm-error-lab/sessions`` on macOS,
+``$XDG_STATE_HOME/cmm-error-lab/sessions`` (``~/.local/state/...``) elsewhere. On POSIX
+systems the folder is readable by its owner only (0700) and so is each file (0600): on a
+shared computer another account cannot list or read the analyses. Files not written for
 :data:`KEEP_DAYS` days are removed when a new analysis starts.
 """
 
@@ -19,6 +23,7 @@ from __future__ import annotations
 import os
 import re
 import secrets
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,13 +50,35 @@ def valid_session_id(sid: object) -> bool:
     return isinstance(sid, str) and _ID.fullmatch(sid) is not None
 
 
-def default_session_folder() -> Path:
-    """The per-user folder of saved analyses (see the module docstring)."""
-    env = os.environ.get("CMM_LAB_SESSIONS")
-    if env:
-        return Path(env)
-    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-    return Path(state) / "cmm-error-lab" / "sessions"
+PRIVATE_FOLDER = 0o700
+"""Mode of the sessions folder on POSIX systems: its owner only."""
+PRIVATE_FILE = 0o600
+"""Mode of each saved analysis on POSIX systems."""
+
+
+def default_session_folder(platform: str | None = None,
+                           environ: dict[str, str] | None = None,
+                           home: Path | None = None) -> Path:
+    """The per-user folder of saved analyses (see the module docstring).
+
+    Parameters
+    ----------
+    platform, environ, home : optional
+        ``sys.platform``, ``os.environ`` and the home folder, by default this computer's
+        (given to show where another system keeps them).
+    """
+    platform = sys.platform if platform is None else platform
+    env = os.environ if environ is None else environ
+    home = Path.home() if home is None else home
+    if env.get("CMM_LAB_SESSIONS"):
+        return Path(env["CMM_LAB_SESSIONS"])
+    if platform.startswith("win"):
+        base = Path(env.get("LOCALAPPDATA") or home / "AppData" / "Local")
+    elif platform == "darwin":
+        base = home / "Library" / "Application Support"
+    else:
+        base = Path(env.get("XDG_STATE_HOME") or home / ".local" / "state")
+    return base / "cmm-error-lab" / "sessions"
 
 
 @dataclass(frozen=True)
@@ -89,8 +116,12 @@ class SessionStore:
     def save(self, sid: str, text: str) -> Path:
         """Write the analysis of ``sid`` (atomically) and return its path."""
         p = self.path(sid)
-        p.parent.mkdir(parents=True, exist_ok=True)
+        p.parent.mkdir(parents=True, exist_ok=True, mode=PRIVATE_FOLDER)
+        if os.name == "posix":  # a folder made before this rule, or by a wider umask
+            os.chmod(p.parent, PRIVATE_FOLDER)
         atomic_write_text(p, text)
+        if os.name == "posix":
+            os.chmod(p, PRIVATE_FILE)
         return p
 
     def load(self, sid: str) -> SavedSession | None:
