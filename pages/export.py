@@ -16,6 +16,8 @@ st.title("Compensate and export")
 ds, r = cached.require_fit()
 s = st.session_state
 args = cached.fit_key()
+# every file below names this software, the data's files by their SHA-256 and the machine
+prov = s["sources"].provenance()
 obs = r.problem.obs
 
 
@@ -122,11 +124,11 @@ with st.container(border=True):
     gprobe = g2.selectbox("Probe", obs.probes, key="w_grid_probe")
 
     @st.cache_data(show_spinner="Computing the grid…", max_entries=16)
-    def grid_csv(args, step, probe, _r):
+    def grid_csv(args, step, probe, _r, _prov):
         g = ex.error_map_grid(_r, step_mm=step, probe=probe)
-        return ex.error_map_csv(_r, g, probe), len(g)
+        return ex.error_map_csv(_r, g, probe, _prov), len(g)
 
-    out = calls.safe(grid_csv, args, float(step), gprobe, r, what="Error map")
+    out = calls.safe(grid_csv, args, float(step), gprobe, r, prov, what="Error map")
     if out is not None:
         text, n_nodes = out
         st.caption(f"{n_nodes} grid nodes over the working volume "
@@ -153,23 +155,24 @@ with st.container(border=True):
     kfac = k3.number_input("Coverage factor k", 1.0, 10.0, 2.0, step=0.5, key="w_comp_k")
 
     @st.cache_data(show_spinner="Computing the compensation tables…", max_entries=16)
-    def comp_tables(args, step, probe, _r):
+    def comp_tables(args, step, probe, _r, _prov):
         if ex.as_model(_r).undetermined:
             return None
         g = ex.compensation_grid(_r, step, probe=probe)
         src = MODEL_FILE
-        return ex.grid_csv(_r, g, probe, src), ex.axis_tables_zip(_r, step, src), len(g)
+        return (ex.grid_csv(_r, g, probe, src, _prov),
+                ex.axis_tables_zip(_r, step, src, provenance=_prov), len(g))
 
     @st.cache_data(show_spinner=False, max_entries=16)
-    def results_files(args, k, _r):
+    def results_files(args, k, _r, _prov):
         # of the model, named as its download: what the command line writes from that file
         m = ex.as_model(_r)
-        return (ex.results_json(m, coverage_factor=k, source=MODEL_FILE),
-                ex.results_xml(m, coverage_factor=k, source=MODEL_FILE))
+        return (ex.results_json(m, coverage_factor=k, source=MODEL_FILE, provenance=_prov),
+                ex.results_xml(m, coverage_factor=k, source=MODEL_FILE, provenance=_prov))
 
     tables = calls.safe(comp_tables, args, float(cstep), None if cprobe == origin else cprobe,
-                    r, what="Compensation tables")
-    files = calls.safe(results_files, args, float(kfac), r, what="Results files")
+                    r, prov, what="Compensation tables")
+    files = calls.safe(results_files, args, float(kfac), r, prov, what="Results files")
     t1, t2, t3, t4 = st.columns(4)
     if tables is not None:
         t1.download_button("Grid compensation table (CSV)", tables[0], fname("compensation_grid.csv"),
@@ -230,7 +233,7 @@ if record is not None:
                        help="Restores the dataset, model, exclusions and history on the "
                             "Data page.")
 c3.download_button("Fitted model (JSON, for `cmm_core compensate`)",
-                   lambda: json.dumps(ex.model_to_dict(r), indent=1), MODEL_FILE,
+                   lambda: json.dumps(ex.model_to_dict(r, prov), indent=1), MODEL_FILE,
                    "application/json", key="dl_model", on_click="ignore")
 c2.caption(f"Model `{r.spec}`, RMS {r.rms_um:.3f} µm, {r.n_obs} observations, "
            f"{len(s['exclusions'])} excluded. CSV files are safe to open in a spreadsheet "

@@ -5,6 +5,7 @@ sign of the measured error, the outlier default)."""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import re
 from pathlib import Path
@@ -37,7 +38,12 @@ def test_sample_record_reads_and_round_trips():
     assert A.record_from_dict(A.record_to_dict(rec)) == rec
     # written relative to its folder, the paths are the sample's own
     again = json.loads(A.record_to_json(rec, relative_to=SAMPLE.parent))
+    prov = again.pop("provenance")  # what wrote it: the rest is the sample's own
     assert again == json.loads(SAMPLE.read_text())
+    # each input named with the SHA-256 of its bytes on disk
+    assert [(i["name"], i["sha256"]) for i in prov["inputs"]] == [
+        (f.name, hashlib.sha256(Path(f.path).read_bytes()).hexdigest())
+        for f in rec.data.files]
 
 
 def test_session_record_round_trips_through_json_and_the_project_file():

@@ -6,6 +6,7 @@ The per-axis tables are checked against the grid through an implementation of eq
 """
 
 import argparse
+import hashlib
 import io
 import json
 import math
@@ -428,13 +429,27 @@ def test_results_of_the_app_equal_those_of_the_cli_from_the_saved_model(tmp_path
     r = fit(sim.dataset, "kinematic21,backlash")
     kw = {"coverage_factor": 2.0, "source": "cmm_model.json", "created": "2026-11-24T00:00:00"}
     app = rx.results_dict(ct.as_model(r), **kw)
-    save_model(r, tmp_path / "cmm_model.json")
+    save_model(r, tmp_path / "cmm_model.json", sim.dataset.provenance())
     cli = rx.results_dict(load_model(tmp_path / "cmm_model.json"), **kw)
+    # the same results; what made each differs: the CLI's names the model file it read
+    made = cli.pop("provenance")
+    assert app.pop("provenance")["inputs"] == []
     assert app == cli
+    raw = (tmp_path / "cmm_model.json").read_bytes()
+    assert made["inputs"][0] == {"name": "cmm_model.json", "bytes": len(raw),
+                                 "sha256": hashlib.sha256(raw).hexdigest()}
+    assert made["created"] == kw["created"] and made["model_made_by"].startswith("cmm-error-lab")
     assert cli["chi2_test"]["dof"] == r.dof_test and cli["chi2_test"]["p_value"] == r.chi2_p_value
     assert cli["artefact"]["placements"] == list(r.problem.obs.positions)
-    assert rx.results_xml(ct.as_model(r), **kw) == rx.results_xml(
-        load_model(tmp_path / "cmm_model.json"), **kw)
+
+    def without_provenance(xml):
+        root = ET.fromstring(xml.encode())
+        head = root.find("Header")
+        head.remove(head.find("Provenance"))
+        return ET.tostring(root)
+
+    assert without_provenance(rx.results_xml(ct.as_model(r), **kw)) == without_provenance(
+        rx.results_xml(load_model(tmp_path / "cmm_model.json"), **kw))
 
 
 def test_a_legacy_model_file_still_exports_its_results():

@@ -5,6 +5,7 @@ once for the app, the command line and the report."""
 from __future__ import annotations
 
 import io
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -12,7 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..io import DataError, apply_mapping
+from ..io import DataError, InputFile, Provenance, apply_mapping, input_file, provenance
 from ..model import INSTRUMENT_KINDS, read_instrument
 
 __all__ = ["FORMAT", "VERSION", "DEFAULT_EXCLUDE_OUTLIERS", "ERROR_CONVENTION",
@@ -72,6 +73,16 @@ class DataFile:
             return raw
         return apply_mapping(raw.encode(), self.mapping, name=self.name).csv_text
 
+    def digest(self) -> InputFile | None:
+        """The file with its SHA-256: of the bytes on disk for a path, of the UTF-8 text
+        for content the record carries; None when the path cannot be read."""
+        if self.content is not None:
+            return input_file(self.name, self.content)
+        try:
+            return input_file(self.name, Path(str(self.path)).read_bytes())
+        except OSError:
+            return None
+
     def source_text(self) -> str:
         """The file's own text (read from ``path`` when the record does not carry it)."""
         if self.content is not None:
@@ -119,6 +130,30 @@ class DataSources:
     """The plate certificate CSV; None: the plate is self-calibrated."""
     instruments: tuple = ()
     """:class:`InstrumentFile` per laser run or step-gauge file, fitted with the plate."""
+
+    @property
+    def files(self) -> tuple[DataFile, ...]:
+        """Every file: measurements, setup, certificate, instruments."""
+        return (*self.measurements, self.setup,
+                *(() if self.certificate is None else (self.certificate,)),
+                *(i.file for i in self.instruments))
+
+    def provenance(self, **extra: Any) -> Provenance:
+        """The provenance of a record made now from these data: each file's SHA-256 and
+        the machine and calibration date the setup names (none when it cannot be read:
+        the record's own check reports that)."""
+        digests = [f.digest() for f in self.files]
+        try:
+            setup = json.loads(self.setup.source_text())
+        except (DataError, ValueError):
+            setup = None
+        machine = setup.get("machine") if isinstance(setup, dict) else None
+        mid = machine.get("id") if isinstance(machine, dict) else None
+        day = setup.get("calibration_date") if isinstance(setup, dict) else None
+        return provenance([d for d in digests if d is not None],
+                          machine=mid if isinstance(mid, str) else None,
+                          calibration_date=day if isinstance(day, str) else None,
+                          extra=extra)
 
 
 @dataclass(frozen=True)

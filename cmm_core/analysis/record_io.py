@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from ..export import PROJECT_FORMAT, project_from_json, project_to_json
-from ..io import DataError, TableMapping, read_json, refuse_unknown_keys
+from ..io import DataError, TableMapping, provenance_from_dict, read_json, refuse_unknown_keys
 from ..io.delimited import FileSource
 from ..io.errors import cut_repr
 from ..model import MAX_ORDER, parse_spec
@@ -153,7 +153,9 @@ def record_from_dict(doc: Any, name: str = "ANALYSIS.json", base: Path | None = 
     was found; an unknown key is refused with the known key it most likely misspells.
     """
     _check(isinstance(doc, dict), name, "(document)", "a JSON object", type(doc).__name__)
-    refuse_unknown_keys(doc, ["format", "version", *KEYS], name)
+    refuse_unknown_keys(doc, ["format", "version", "provenance", *KEYS], name)
+    if "provenance" in doc:  # what made the record: checked, not used to rerun it
+        provenance_from_dict(doc["provenance"], name)
     if doc.get("format") != FORMAT:
         raise DataError(f"is not an analysis record (expected \"format\": \"{FORMAT}\", "
                         f"found {cut_repr(doc.get('format'))!r}).", file=name, column="format")
@@ -291,6 +293,7 @@ def record_to_dict(record: AnalysisRecord, relative_to: str | Path | None = None
 
     d = record.data
     out: dict[str, Any] = {"format": FORMAT, "version": VERSION,
+           "provenance": record.data.provenance().to_dict(),
            "data": {"name": d.name, "measurements": [file(f) for f in d.measurements],
                     "setup": file(d.setup),
                     "certificate": None if d.certificate is None else file(d.certificate)}}
@@ -379,7 +382,7 @@ def record_to_project_json(record: AnalysisRecord) -> str:
     model = {k: full.pop(k) for k in ("spec", "order", "plate", "sigma_um", "positions",
                                       "probes")}
     rest = {k: v for k, v in full.items() if k not in ("data", "format", "version",
-                                                       "exclusions", "history")}
+                                                       "exclusions", "history", "provenance")}
     for k in ("interim_check", "calibration_history"):  # the project carries the files
         if getattr(record, k) is not None:
             rest[k] = _monitor_block(getattr(record, k), lambda f: {
@@ -396,7 +399,8 @@ def record_to_project_json(record: AnalysisRecord) -> str:
                            setup=d.setup.text(), certificate=None if d.certificate is None else (
                                d.certificate.name, d.certificate.text()),
                            model=model, exclusions=record.exclusions,
-                           history=full["history"], extra={"analysis": rest})
+                           history=full["history"], extra={"analysis": rest},
+                           provenance=d.provenance())
 
 
 def record_from_project(text: str | bytes, name: str = "project.json") -> AnalysisRecord:

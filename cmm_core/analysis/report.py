@@ -10,7 +10,6 @@ The figure builders live in :mod:`cmm_core.report_figures` and are re-exported h
 from __future__ import annotations
 
 import functools
-import hashlib
 import html
 import json
 import re
@@ -174,15 +173,27 @@ def _record_sections(res) -> list:
     files = [("measurements", f) for f in d.measurements] + [("setup", d.setup)] + (
         [("certificate", d.certificate)] if d.certificate else []) + [
         (i.kind, i.file) for i in d.instruments]
-    src = pd.DataFrame([{"role": role, "file": f.name,
-                         "SHA-256 (first 12)": hashlib.sha256(f.text().encode()).hexdigest()[:12]}
-                        for role, f in files])
-    settings = {k: v for k, v in record_to_dict(rec).items() if k not in ("data", "history")}
+    prov = d.provenance()
+    digests = [(role, f.digest()) for role, f in files]
+    src = pd.DataFrame([{"role": role, "file": f.name, "SHA-256": g.sha256 if g else
+                         "(not readable)", "bytes": g.n_bytes if g else None}
+                        for (role, f), (_, g) in zip(files, digests, strict=True)])
+    settings = {k: v for k, v in record_to_dict(rec).items()
+                if k not in ("data", "history", "provenance")}
     rows = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(json.dumps(v))}</td></tr>"
                    for k, v in settings.items())
-    out = [("Analysis record", "<p class='note'>The same record (ANALYSIS.json, "
-            "<code>python -m cmm_core report</code>) gives the same numbers and this same "
-            f"report.</p><table class='kv'>{rows}</table>" + _table_html(src))]
+    made = [("Software", prov.code), ("Python and system", f"{prov.python}, {prov.system}"),
+            ("Machine", prov.machine or "not named (setup key machine.id)"),
+            ("Calibration date", prov.calibration_date or "not stated (setup key "
+             "calibration_date)")]
+    made_rows = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>"
+                        for k, v in made)
+    out = [("Provenance", "<p class='note'>What made this report, from which files (each "
+            "identified by the SHA-256 of its content) and for which machine.</p>"
+            f"<table class='kv' id='provenance'>{made_rows}</table>" + _table_html(src)),
+           ("Analysis record", "<p class='note'>The same record (ANALYSIS.json, "
+            "<code>cmm-error-lab report</code>) gives the same numbers and this same "
+            f"report.</p><table class='kv'>{rows}</table>")]
     t = r.table
     err = pd.DataFrame(np.column_stack([res.measured_error_um, r.residuals_um]),
                        columns=[f"{k} {a} (µm)" for k in ("error", "residual") for a in "xyz"])

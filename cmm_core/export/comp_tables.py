@@ -23,14 +23,12 @@ from __future__ import annotations
 import io
 import math
 import zipfile
-from datetime import UTC, datetime
 
 import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike
 
-from .. import __version__
-from ..io import DataError
+from ..io import DataError, Provenance
 from ..machine import AXES, split_chain
 from ..model import BY_TOKEN, CHI2_ALPHA, FitResult, covariance_factor
 from .correction import (
@@ -266,13 +264,15 @@ def axis_roles(m: Model) -> dict:
             for a in AXES}
 
 
-def model_lines(obj: Model | FitResult, source: str | None = None) -> list[str]:
-    """Header lines naming the model, its provenance and the outcome of its χ² test."""
+def model_lines(obj: Model | FitResult, source: str | None = None,
+                provenance: Provenance | None = None) -> list[str]:
+    """Header lines naming the table's provenance (``provenance``, default
+    :meth:`Model.derived_provenance`: software, time, machine, input digests), the model
+    and the outcome of its χ² test."""
     m = as_model(obj)
     s = m.summary if isinstance(m.summary, dict) else {}
     t = chi2_status(obj)
-    when = datetime.now(UTC).isoformat(timespec="seconds")
-    head = [f"software: cmm_core {__version__}; exported {when}",
+    head = [*(provenance or m.derived_provenance()).lines(),
             f"model: {source or m.name}; spec {m.spec}; fitted "
             f"{s.get('created', 'on a date the model file does not record')}; "
             f"sigma {s.get('sigma_um', 'unknown')} um; RMS {_g(s.get('rms_um'))} um; "
@@ -322,8 +322,9 @@ def _not_in_table(m: Model) -> str:
 
 
 def grid_csv(obj: Model | FitResult, grid: pd.DataFrame, probe: str | None = None,
-             source: str | None = None) -> str:
-    """The grid of :func:`compensation_grid` as CSV with its documented header block."""
+             source: str | None = None, provenance: Provenance | None = None) -> str:
+    """The grid of :func:`compensation_grid` as CSV with its documented header block
+    (``provenance``: :func:`model_lines`)."""
     m = as_model(obj)
     p = probe_offset(m, probe)
     axes = []
@@ -331,7 +332,7 @@ def grid_csv(obj: Model | FitResult, grid: pd.DataFrame, probe: str | None = Non
         v = np.unique(grid[f"{c}_mm"].to_numpy())
         axes.append(f"{c} {v[0]:g} to {v[-1]:g} mm, {len(v)} nodes"
                     + (f", step {v[1] - v[0]:g}" if len(v) > 1 else ""))
-    head = [f"format: {GRID_FORMAT}", *model_lines(obj, source),
+    head = [f"format: {GRID_FORMAT}", *model_lines(obj, source, provenance),
             f"probe: {probe or 'none, the ram reference point'}; offset "
             f"{' '.join(f'{v:g}' for v in p)} mm (tip = node + offset)",
             "units: coordinates mm; corrections and their uncertainties um (micrometres); "
@@ -357,13 +358,15 @@ def axis_tables(obj: Model | FitResult, step_mm: float, *,
 
 
 def axis_tables_csv(obj: Model | FitResult, step_mm: float, source: str | None = None, *,
-                    allow_undetermined: bool = False) -> dict[str, str]:
+                    allow_undetermined: bool = False,
+                    provenance: Provenance | None = None) -> dict[str, str]:
     """File name -> CSV text of the per-axis tables (``axis_x.csv`` ...,
-    ``squareness.csv``), each with a header stating units and sign convention."""
+    ``squareness.csv``), each with a header stating units, sign convention and
+    provenance (:func:`model_lines`)."""
     m = as_model(obj)
     tables = axis_tables(m, step_mm, allow_undetermined=allow_undetermined)
     roles = axis_roles(m)
-    common = model_lines(obj, source)
+    common = model_lines(obj, source, provenance)
     out = {}
     for a in AXES:
         role, sign = roles[a]
@@ -393,10 +396,12 @@ def axis_tables_csv(obj: Model | FitResult, step_mm: float, source: str | None =
     return out
 
 
-def axis_tables_zip(obj: Model | FitResult, step_mm: float, source: str | None = None) -> bytes:
+def axis_tables_zip(obj: Model | FitResult, step_mm: float, source: str | None = None, *,
+                    provenance: Provenance | None = None) -> bytes:
     """The per-axis tables of :func:`axis_tables_csv` in one zip archive (in memory)."""
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as z:
-        for name, text in axis_tables_csv(obj, step_mm, source).items():
+        for name, text in axis_tables_csv(obj, step_mm, source,
+                                          provenance=provenance).items():
             z.writestr(name, text)
     return buf.getvalue()

@@ -19,10 +19,10 @@ import io
 import json
 import os
 import re
-from collections.abc import Iterator
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import overload
+from typing import Any, overload
 
 import numpy as np
 import pandas as pd
@@ -41,11 +41,14 @@ from ..io.delimited import (
     FileSource,
     file_rows,
     numeric_column,
+    read_bytes,
     read_csv_text,
     require_columns,
     require_rows,
 )
 from ..io.errors import cut_repr
+from ..io.provenance import InputFile, Provenance, input_file, provenance_from_dict
+from ..io.provenance import provenance as make_provenance
 from ..machine import DEFAULT_LAYOUT, LAYOUTS, KinematicTerms
 from ..machine import kinematics as kin
 from ..model import (
@@ -89,6 +92,13 @@ class Model:
         order; each holds the joint covariance up to its own parameters.
     name : str
         File the model was read from (for messages).
+    provenance : Provenance or None
+        What made it (software, inputs with their SHA-256, machine, calibration date), as
+        its file records it; None for a model not yet written or a file written before
+        files carried it (0.7 and earlier).
+    source : InputFile or None
+        The model file itself with its SHA-256, when read from one: the input of every
+        record made from this model.
     """
 
     spec: str
@@ -100,6 +110,22 @@ class Model:
     summary: dict
     parts: dict = field(default_factory=dict)
     name: str = "model"
+    provenance: Provenance | None = None
+    source: InputFile | None = None
+
+    def derived_provenance(self, inputs: Iterable[InputFile] = (),
+                           **extra: Any) -> Provenance:
+        """The provenance of a record made now from this model (results, a check, a
+        compensation table): its inputs are the model file and ``inputs``; the machine
+        and calibration date are those the model's file names, and ``model_made_by`` /
+        ``model_made`` say which software made the model and when."""
+        p = self.provenance
+        files = [*([self.source] if self.source is not None else []), *inputs]
+        if p is None:
+            return make_provenance(files, extra=extra)
+        return make_provenance(files, machine=p.machine, calibration_date=p.calibration_date,
+                               extra={"model_made_by": p.code, "model_made": p.created,
+                                      **extra})
 
     @property
     def joint_cov(self) -> np.ndarray:
@@ -157,9 +183,15 @@ def _region_mm(obs) -> list:
     return [np.min(xyz, axis=0).tolist(), np.max(xyz, axis=0).tolist()]
 
 
-def model_to_dict(model: Model | FitResult) -> dict:
-    """JSON-ready dict of a model (or of a fit result's model)."""
+def model_to_dict(model: Model | FitResult, provenance: Provenance | None = None) -> dict:
+    """JSON-ready dict of a model (or of a fit result's model).
+
+    ``provenance`` (:meth:`cmm_core.io.Dataset.provenance` of the fitted data) is written
+    as the file's ``provenance``; without it, a model read from a file keeps the one it
+    has, and any other gets this software's identity and the time alone.
+    """
     m = model_from_result(model) if isinstance(model, FitResult) else model
+    prov = provenance or m.provenance or make_provenance()
     return {"format": "cmm-error-lab model 1", "spec": m.spec,
             "orders": [list(o) for o in m.terms.orders], "range_mm": list(m.terms.range_mm),
             "periods": [list(o) for o in m.terms.periods],
@@ -172,13 +204,14 @@ def model_to_dict(model: Model | FitResult) -> dict:
             # each block's own keys; none for a model without such blocks (the format of
             # releases before them)
             **{k: v for b in COMPENSATING if b.token in m.parts
-               for k, v in b.part_to_file(m.parts[b.token]).items()}}
+               for k, v in b.part_to_file(m.parts[b.token]).items()},
+            "provenance": prov.to_dict()}
 
 
 MODEL_FORMAT = "cmm-error-lab model 1"
 _MODEL_REQUIRED = ("format", "spec", "orders", "range_mm", "periods", "labels", "coef",
                    "cov", "probes_mm", "undetermined", "summary")
-_MODEL_OPTIONAL = ("layout", *(k for b in COMPENSATING for k in b.model_keys))
+_MODEL_OPTIONAL = ("layout", "provenance", *(k for b in COMPENSATING for k in b.model_keys))
 
 
 _checked_cov = checked_cov  # the name this module used before the blocks shared it
@@ -209,8 +242,9 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
     if not isinstance(d.get("undetermined", False), bool):
         raise DataError("undetermined must be true or false.", file=name,
                         column="undetermined")
+    prov = provenance_from_dict(d["provenance"], name) if "provenance" in d else None
     return Model(spec, terms, coef, cov, probes, bool(d.get("undetermined")), summary,
-                 parts, name)
+                 parts, name, prov)
 
 
 def _model_parts(d, spec, n_kin, name):
@@ -450,17 +484,20 @@ def extrapolation_note(m: Model, x_mm: np.ndarray) -> np.ndarray:
     return note
 
 
-def save_model(model: Model | FitResult, path: str | os.PathLike) -> None:
+def save_model(model: Model | FitResult, path: str | os.PathLike,
+               provenance: Provenance | None = None) -> None:
     """Write a model JSON file (atomically: a reader never sees half of it, a failed
-    write leaves an existing file as it was)."""
-    atomic_write_text(path, json.dumps(model_to_dict(model), indent=1))
+    write leaves an existing file as it was), with ``provenance`` (:func:`model_to_dict`)."""
+    atomic_write_text(path, json.dumps(model_to_dict(model, provenance), indent=1))
 
 
-def load_model(path: FileSource) -> Model:
+def load_model(path: FileSource, name: str | None = None) -> Model:
     """Read a model JSON file (a path, or bytes / file-like as uploaded), every field
-    checked (:func:`model_from_dict`)."""
-    d, name = read_json(Path(path) if isinstance(path, str) else path)
-    return model_from_dict(d, name=name)
+    checked (:func:`model_from_dict`); the model keeps the file's SHA-256
+    (:attr:`Model.source`)."""
+    raw, name = read_bytes(Path(path) if isinstance(path, str) else path, name)
+    d, name = read_json(raw, name)
+    return replace(model_from_dict(d, name=name), source=input_file(name, raw))
 
 
 def read_points(source: FileSource, *, name: str | None = None) -> pd.DataFrame:

@@ -24,7 +24,7 @@ import json
 import math
 import re
 from collections.abc import Iterable
-from datetime import UTC, datetime
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -32,7 +32,8 @@ import pandas as pd
 from numpy.typing import ArrayLike
 
 from .. import __version__
-from ..io import DataError, read_json, read_measurement_files, read_setup
+from ..io import DataError, Provenance, read_json, read_measurement_files, read_setup
+from ..io import provenance as make_provenance
 from ..model import MAX_ORDER, PLATE_MODES, FitResult, parse_spec
 from .comp_tables import as_model, compensation_grid
 from .correction import Model, compensate
@@ -110,10 +111,13 @@ def error_map_grid(result: Model | FitResult, *,
     return g[["x_mm", "y_mm", "z_mm", *names, "extrapolated"]].rename(columns=names)
 
 
-def error_map_csv(result: FitResult, grid: pd.DataFrame, probe: str | None = None) -> str:
-    """The error-map grid as CSV with a comment header stating model, probe and units."""
+def error_map_csv(result: FitResult, grid: pd.DataFrame, probe: str | None = None,
+                  provenance: Provenance | None = None) -> str:
+    """The error-map grid as CSV with a comment header stating its provenance (the
+    fitted data's, :meth:`cmm_core.io.Dataset.provenance`), model, probe and units."""
     obs = result.problem.obs
-    head = ["CMM error map (ISG-style compensation table), cmm_core " + __version__,
+    head = ["CMM error map (ISG-style compensation table)",
+            *(provenance or make_provenance()).lines(),
             f"model {result.spec}; plate {result.plate}; RMS {result.rms_um:.4f} um",
             f"probe {probe or obs.probes[0]}; grid: scale readings in mm, x fastest",
             "ex,ey,ez: error in um (true minus reported; add to correct); u_*: standard "
@@ -167,7 +171,7 @@ def _clean(obj):
 def project_to_json(*, dataset_name: str, measurements: list, setup: str,
                 certificate: tuple[str, str] | None = None, model: dict,
                 exclusions: Iterable[tuple[str, str, int]] = (), history: Iterable[dict] = (),
-                extra: dict | None = None) -> str:
+                extra: dict | None = None, provenance: Provenance | None = None) -> str:
     """Serialise a session to a project file (JSON text).
 
     Parameters
@@ -182,10 +186,14 @@ def project_to_json(*, dataset_name: str, measurements: list, setup: str,
     exclusions : iterable of (position, probe, ball)
     history : iterable of dict
         Diagnosis history rows.
+    provenance : Provenance, optional
+        What made it (:meth:`cmm_core.analysis.DataSources.provenance`); default this
+        software's identity and the time, without inputs.
     """
+    prov = provenance or make_provenance()
     doc = {"format": PROJECT_FORMAT, "version": PROJECT_VERSION,
-           "created": datetime.now(UTC).isoformat(timespec="seconds"),
-           "cmm_core": __version__,
+           "created": prov.created,
+           "cmm_core": __version__, "provenance": prov.to_dict(),
            "dataset": {"name": dataset_name,
                        "measurements": [{"name": n, "content": c} for n, c in measurements],
                        "setup": setup,

@@ -27,13 +27,12 @@ from __future__ import annotations
 import json
 import math
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
-from datetime import UTC, datetime
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
-from .. import __version__
+from ..io import Provenance
 from ..model import FitResult
 from .comp_tables import as_model, chi2_status, model_extras
 from .correction import Model
@@ -113,8 +112,13 @@ def _num(v):
 
 def results_dict(obj: Model | FitResult, *, coverage_factor: float = DEFAULT_COVERAGE_FACTOR,
                  source: str | None = None, created: str | None = None,
-                 interim_check: dict | None = None, history: dict | None = None) -> dict:
+                 interim_check: dict | None = None, history: dict | None = None,
+                 provenance: Provenance | None = None) -> dict:
     """The results document (JSON-ready; schema in docs/compensation.md).
+
+    ``provenance``: what made it (a fit result's :meth:`cmm_core.io.Dataset.provenance`);
+    default, for a model, :meth:`Model.derived_provenance` (the model file and the machine
+    it names). Its ``created`` is the document's.
 
     ``interim_check`` and ``history``: the sections of an interim check against a stored
     calibration and of the machine's calibration history (``monitor``'s
@@ -123,6 +127,9 @@ def results_dict(obj: Model | FitResult, *, coverage_factor: float = DEFAULT_COV
     if not (math.isfinite(coverage_factor) and 1.0 <= coverage_factor <= 10.0):
         raise ValueError(f"the coverage factor must be from 1 to 10, found {coverage_factor!r}.")
     m = as_model(obj)
+    prov = provenance or m.derived_provenance()
+    if created is not None:
+        prov = replace(prov, created=created)
     s = m.summary if isinstance(m.summary, dict) else {}
     t = chi2_status(obj)
     region = s.get("region_mm")
@@ -141,8 +148,9 @@ def results_dict(obj: Model | FitResult, *, coverage_factor: float = DEFAULT_COV
               "determined": c.determined}
              for c in characteristics(obj)]
     return {"format": RESULTS_FORMAT, "version": RESULTS_VERSION,
-            "created": created or datetime.now(UTC).isoformat(timespec="seconds"),
-            "software": {"name": "cmm_core", "version": __version__},
+            "created": prov.created,
+            "software": {"name": prov.software, "version": prov.version},
+            "provenance": prov.to_dict(),
             "machine": {"layout": m.terms.layout, "chain": m.terms.chain,
                         "range_mm": [float(v) for v in m.terms.range_mm],
                         "probes_mm": {k: [float(x) for x in v] for k, v in m.probes_mm.items()}},
@@ -178,6 +186,23 @@ def _text(parent, tag, value, **attrib):
     return el
 
 
+def _provenance_xml(parent, p: dict) -> None:
+    """``<Provenance>``: the software with its commit, the machine, and each input file
+    with its SHA-256."""
+    el = ET.SubElement(parent, "Provenance")
+    _text(el, "Software", p["software"], version=p["version"], python=p["python"],
+          system=p["system"])
+    if p["commit"] is not None:
+        _text(el, "Commit", p["commit"], dirty="true" if p["dirty"] else "false")
+    _text(el, "Created", p["created"])
+    if p["machine"] is not None:
+        _text(el, "Machine", p["machine"])
+    if p["calibration_date"] is not None:
+        _text(el, "CalibrationDate", p["calibration_date"])
+    for f in p["inputs"]:
+        _text(el, "Input", f["name"], sha256=f["sha256"], bytes=f["bytes"])
+
+
 def results_xml(obj: Model | FitResult, **kw: Any) -> str:
     """The results document as QIF-like XML (UTF-8, ``MeasurementResults`` root).
 
@@ -192,6 +217,7 @@ def results_xml(obj: Model | FitResult, **kw: Any) -> str:
     head = ET.SubElement(root, "Header")
     _text(head, "Created", d["created"])
     _text(head, "Software", d["software"]["name"], version=d["software"]["version"])
+    _provenance_xml(head, d["provenance"])
     mac = ET.SubElement(root, "MeasurementDevice", {"type": "CMM"})
     _text(mac, "Layout", d["machine"]["layout"], chain=d["machine"]["chain"])
     rng = ET.SubElement(mac, "Range", {"unit": "mm"})

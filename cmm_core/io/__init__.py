@@ -9,7 +9,8 @@ every cell-level problem in ``DataError.problems`` while ``str(exc)`` stays one 
 Owns: :mod:`.errors` (DataError, problem collector, name checks), :mod:`.delimited` (bytes,
 CSV cells, numbers, JSON), :mod:`.setup`, :mod:`.measurements`, :mod:`.certificate`,
 :mod:`.matching` (measurements against setup and certificate), :mod:`.dataset` (one call
-from files to a :class:`Dataset`). May import: ``machine`` (layout names).
+from files to a :class:`Dataset`), :mod:`.provenance` (what every record says of its
+software, inputs and machine). May import: ``machine`` (layout names).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from .delimited import (
     FileSource,
     file_rows,
     numeric_column,
+    read_bytes,
     read_csv_text,
     read_json,
     require_columns,
@@ -79,6 +81,14 @@ from .output import (
     atomic_write_text,
     atomic_writer,
     check_outputs,
+)
+from .provenance import (
+    InputFile,
+    Provenance,
+    input_file,
+    provenance,
+    provenance_from_dict,
+    software_identity,
 )
 from .setup import (
     ARTEFACTS,
@@ -134,5 +144,6 @@ __all__ = [
     "require_rows", "resolve", "SAMPLE_DIR", "SCALE_TEMP_COLUMNS", "Setup", "SETUP_KEYS",
     "sniff", "stated_certificate", "suggest_mapping", "TableInfo", "TableMapping",
     "TEMP_RANGE_C", "THESIS_COLUMNS", "thesis_dataset", "THESIS_DIR", "THESIS_POSITIONS",
-    "TIME_UNITS_MIN", "write_certificate", "write_long_csv"
+    "TIME_UNITS_MIN", "write_certificate", "write_long_csv", "InputFile", "Provenance",
+    "input_file", "provenance", "provenance_from_dict", "software_identity", "read_bytes",
 ]

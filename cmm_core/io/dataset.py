@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from .certificate import Certificate, read_certificate
-from .delimited import FileSource, read_json
+from .delimited import FileSource, read_bytes, read_json
 from .errors import DataError, _check_keys
 from .matching import resolve
-from .measurements import read_measurement_files
+from .measurements import _named, read_measurement_files
+from .provenance import InputFile, Provenance, input_file, provenance
 from .setup import LAYOUTS, SETUP_KEYS, Setup, _json_object, _machine_range, read_setup
 
 
@@ -44,12 +46,22 @@ class Dataset:
     certificate : Certificate or None
     name : str
         Label shown in the app and reports.
+    inputs : tuple of InputFile
+        The files it was read from, each with its SHA-256 (measurements, then the setup
+        and the certificate when they were files); empty for data built in memory.
     """
 
     meas: pd.DataFrame
     setup: Setup
     certificate: Certificate | None
     name: str = "dataset"
+    inputs: tuple[InputFile, ...] = field(default=(), compare=False)
+
+    def provenance(self, inputs: Iterable[InputFile] = (), **extra: Any) -> Provenance:
+        """The provenance of a record made now from this dataset (and ``inputs`` more):
+        its files' digests, the setup's machine and calibration date."""
+        return provenance((*self.inputs, *inputs), machine=self.setup.machine_id,
+                          calibration_date=self.setup.calibration_date, extra=extra)
 
     @property
     def positions(self) -> list:
@@ -91,16 +103,27 @@ def load_dataset(meas_sources: Iterable[FileSource | tuple[FileSource, str | Non
     ``meas_sources`` is a list of paths or ``(file-like, name)`` pairs (one long-form file or
     thesis-form files, one per position).
     """
-    meas = read_measurement_files(meas_sources)
-    setup = read_setup(setup_source)
+    # each file read once, as bytes: what is parsed is what is hashed
+    files = [read_bytes(s, n) for s, n in _named(meas_sources)]
+    meas = read_measurement_files(files)
+    setup_file = None
+    if isinstance(setup_source, dict) or (isinstance(setup_source, str)
+                                         and setup_source.lstrip()[:1] == "{"):
+        setup = read_setup(setup_source)  # a document in memory, not a file
+    else:
+        setup_file = read_bytes(setup_source, None if isinstance(setup_source, (str, Path))
+                                else "setup.json")
+        setup = read_setup(setup_file[0], name=setup_file[1])
     cert = certificate_source
-    if isinstance(cert, tuple):
-        cert = read_certificate(cert[0], name=cert[1])
-    elif cert is not None and not isinstance(cert, Certificate):
-        cert = read_certificate(cert)
+    cert_file = None
+    if cert is not None and not isinstance(cert, Certificate):
+        cert_file = read_bytes(*(cert if isinstance(cert, tuple) else (cert, None)))
+        cert = read_certificate(cert_file[0], name=cert_file[1])
     resolved = resolve(meas, setup, cert)  # the data's own problems are reported first
     cert = stated_certificate(cert, setup)
-    return Dataset(resolved, setup, cert, name or "dataset")
+    inputs = tuple(input_file(n, b) for b, n in
+                   [*files, *(f for f in (setup_file, cert_file) if f is not None)])
+    return Dataset(resolved, setup, cert, name or "dataset", inputs)
 
 
 def stated_certificate(cert: Certificate | None, setup: Setup) -> Certificate | None:

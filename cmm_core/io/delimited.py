@@ -1,6 +1,6 @@
 """Reading raw files: CSV tables as text cells, numbers out of them, and JSON documents.
 
-Holds the layer under every reader: :func:`_read_bytes` (path, bytes or file-like, size
+Holds the layer under every reader: :func:`read_bytes` (path, bytes or file-like, size
 cap :data:`MAX_BYTES`), :func:`read_csv_text` (separator from the header, decimal commas,
 blank lines and trailing separators tolerated, file rows kept for messages),
 :func:`numeric_column` and :func:`_names` (cells checked one by one), :func:`require_columns` and
@@ -42,7 +42,7 @@ _COLUMNS_HINT = ("Columns: position,probe,ball,x_mm,y_mm,z_mm (long form) or "
                  "repeat, temp_x_C, temp_y_C, temp_z_C (scale temperatures); lengths in mm, time in minutes, temperature in °C.")
 
 
-def _read_bytes(source: FileSource, name: str | None) -> tuple[bytes, str]:
+def read_bytes(source: FileSource, name: str | None) -> tuple[bytes, str]:
     """The raw bytes of a path, bytes or file-like object, refusing oversized files.
 
     At most :data:`MAX_BYTES` + 1 bytes are ever read: a device or pipe (``/dev/zero``),
@@ -131,7 +131,7 @@ def read_csv_text(source: FileSource, name: str | None, *,
         rewritten) and ``rows`` (the file row of each data row; see :func:`file_rows`).
     name : str
     """
-    data, name = _read_bytes(source, name)
+    data, name = read_bytes(source, name)
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -312,11 +312,11 @@ def read_json(source: FileSource, name: str | None = None) -> tuple[Any, str]:
     """
     if isinstance(source, (str, Path)) and not (isinstance(source, str)
                                                 and source.lstrip()[:1] in ("{", "[")):
-        data, name = _read_bytes(source, name)
+        data, name = read_bytes(source, name)
     elif isinstance(source, str):
         data = source.encode()
     else:
-        data, name = _read_bytes(source, name)
+        data, name = read_bytes(source, name)
     name = name or "uploaded file"
     try:
         text = data.decode("utf-8-sig")

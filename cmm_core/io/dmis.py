@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .delimited import FileSource, _read_bytes
+from .delimited import FileSource, read_bytes
 from .errors import DataError, Problems, cut_repr
 from .table_mapping import (
     ForeignTable,
@@ -290,7 +290,7 @@ def read_dmis(source: FileSource, *, name: str | None = None, pattern: str,
         pattern; and a bad pattern (naming it).
     """
     rx = _label_regex(pattern, "label pattern", "pattern", position=default_position is None)
-    data, name = _read_bytes(source, name)
+    data, name = read_bytes(source, name)
     text, note = _decode(data, name)
     text = text.replace("\r\n", "\n").replace("\r", "\n")
     rd = _read_statements(text, name)

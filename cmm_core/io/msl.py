@@ -36,7 +36,7 @@ from numpy.typing import ArrayLike
 
 from ..machine import LAYOUTS, split_chain
 from .dataset import Dataset, load_dataset
-from .delimited import FileSource, _read_bytes
+from .delimited import FileSource, read_bytes
 from .errors import DataError, cut_repr, likely_typo
 
 __all__ = ["ForeignDataset", "ForeignStepGauge", "read_msl_plate", "read_msl_bar",
@@ -266,7 +266,7 @@ class _Header:
 
 
 def _lines(source, name, what):
-    data, name = _read_bytes(source, name)
+    data, name = read_bytes(source, name)
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError:
@@ -800,7 +800,7 @@ def sniff(source: FileSource) -> str | None:
     None: for the plain readers, whose column checks would only say that columns are
     missing. Never raises for unreadable input."""
     try:
-        data, _ = _read_bytes(source, None)
+        data, _ = read_bytes(source, None)
         text = data[:8192].decode("utf-8-sig", errors="replace")
     except (DataError, OSError, AttributeError, TypeError):
         return None

@@ -10,6 +10,7 @@ the measurement reader, the simulator config and :func:`~cmm_core.io_resolve.res
 
 from __future__ import annotations
 
+import datetime as _dt
 import difflib
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -45,9 +46,9 @@ the two in-plane coordinates (the coordinate along the hole axis is the probing 
 
 SETUP_KEYS = {
     "": ("units", "frame", "machine", "positions", "probes", "plate", "artefact",
-         "certificate"),
+         "certificate", "calibration_date"),
     "certificate": ("exact", "U_um", "k", "combine", "length_from", "source"),
-    "machine": ("layout", "range_mm"),
+    "machine": ("layout", "range_mm", "id"),
     "plate": ("cte_per_K", "balls", "pitch_mm"),
     "position": ("origin_mm", "u_axis", "v_axis", "probe", "temp_C", "rh_percent"),
 }
@@ -126,6 +127,22 @@ class Setup:
     artefact: str = ARTEFACTS[0]
     certificate_u: CertificateUncertainty | None = None
 
+    @property
+    def machine_id(self) -> str | None:
+        """The machine's identity (``machine.id``: its name and serial), None when the
+        setup names none; written into every record made from this setup."""
+        m = self.raw.get("machine")
+        return m.get("id") if isinstance(m, dict) else None
+
+    @property
+    def calibration_date(self) -> str | None:
+        """The day the measurements were made (``calibration_date``, ISO 8601), None
+        when not stated."""
+        return self.raw.get("calibration_date")
+
+
+MAX_MACHINE_ID = 200
+"""Characters of ``machine.id`` at most: a name and a serial, not a document."""
 
 _FREE_KEYS = ("source", "name", "note", "notes", "description")
 """Keys free at any level (a note): never taken for a key of another section."""
@@ -194,6 +211,7 @@ def read_setup(source: FileSource | dict, *, name: str | None = "setup.json") ->
                         column="frame")
     # the sections in file order, so the first problem reported stays the same
     rng = _machine_range(_json_object(raw, "machine", name), name)
+    _identity(raw, name)
     probes = _probes(_json_object(raw, "probes", name), name)
     positions = {str(pos): _placement(spec, f"positions.{pos}", rng, probes, name)
                  for pos, spec in _json_object(raw, "positions", name).items()}
@@ -320,6 +338,28 @@ def _artefact(raw: dict, name) -> str:
         raise DataError(f"unknown artefact {cut_repr(artefact)}; {hint}expected one of "
                         f"{', '.join(ARTEFACTS)}.", file=name, column="artefact")
     return artefact
+
+
+def _identity(raw: dict, name) -> None:
+    """``machine.id`` a short text and ``calibration_date`` an ISO 8601 date, when given."""
+    machine = raw.get("machine")
+    mid = machine.get("id") if isinstance(machine, dict) else None
+    if mid is not None and not (isinstance(mid, str) and mid.strip()
+                                and len(mid) <= MAX_MACHINE_ID):
+        raise DataError(f"machine.id must be the machine's name and serial (text of 1 to "
+                        f"{MAX_MACHINE_ID} characters), found {cut_repr(mid)}.", file=name,
+                        column="machine.id", hint='e.g. "Leitz PMM-C 12.10.6, s/n 0815".')
+    day = raw.get("calibration_date")
+    if day is None:
+        return
+    try:
+        ok = isinstance(day, str) and _dt.date.fromisoformat(day).isoformat() == day
+    except ValueError:
+        ok = False
+    if not ok:
+        raise DataError(f"calibration_date must be a date YYYY-MM-DD, found {cut_repr(day)}.",
+                        file=name, column="calibration_date",
+                        hint='the day the plate was measured, e.g. "2024-03-04".')
 
 
 def _machine_range(machine: dict, name) -> np.ndarray:

@@ -35,9 +35,9 @@ from .delimited import (
     _DECIMAL_COMMA,
     _DELIM_NAMES,
     FileSource,
-    _read_bytes,
     file_rows,
     numeric_column,
+    read_bytes,
     read_csv_text,
     read_json,
 )
@@ -746,7 +746,7 @@ def apply_mapping(source: FileSource, mapping: TableMapping | dict, *,
         units that look wrong.
     """
     m = _as_mapping(mapping)
-    raw, name = _read_bytes(source, name)
+    raw, name = read_bytes(source, name)
     df, name = read_csv_text(raw, name)
     if len(df) == 0:
         raise DataError("has no data rows; expected a header followed by one row per "

@@ -27,6 +27,10 @@ def sidebar():
         sb.error(describe_error(exc))
         return
     n_ex = len(s["exclusions"])
+    setup = ds.setup
+    sb.markdown(f"**Machine:** {setup.machine_id or 'not named (setup key machine.id)'}  \n"
+                + (f"calibrated {setup.calibration_date}" if setup.calibration_date
+                   else "calibration date not stated (setup key calibration_date)"))
     sb.markdown(f"**Dataset:** {ds.name}  \n{len(ds.meas)} probed ball centres"
                 + (f" ({n_ex} excluded)" if n_ex else "")
                 + f", {len(ds.positions)} positions, {len(ds.probes)} probes")

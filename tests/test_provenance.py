@@ -1,0 +1,144 @@
+"""Every record names what made it: the software's version and commit, the time, each input
+file's SHA-256 and the machine (ISO/IEC 17025 7.5, 7.11). Each kind of output is written
+from the thesis data, read back, and its provenance compared with the files themselves
+(hashlib over their bytes) and with the setup's machine."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import io
+import json
+import re
+import subprocess
+import xml.etree.ElementTree as ET
+import zipfile
+from pathlib import Path
+
+import pytest
+
+import cmm_core
+from cmm_core import analysis as A
+from cmm_core import export as ex
+from cmm_core.io import (
+    THESIS_DIR,
+    THESIS_POSITIONS,
+    DataError,
+    load_dataset,
+    provenance_from_dict,
+    software_identity,
+)
+from cmm_core.model import fit
+
+ROOT = Path(__file__).resolve().parents[1]
+MACHINE = "Brown & Sharpe (Leitz) PMM-C700P, S/N 161"
+"""The thesis setup's machine.id (thesis appendix 5, the CMM's plate)."""
+FILES = [THESIS_DIR / f"{p}.csv" for p in THESIS_POSITIONS]
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.fixture(scope="module")
+def thesis():
+    ds = load_dataset(FILES, THESIS_DIR / "setup.json", THESIS_DIR / "certificate.csv",
+                      name="thesis")
+    return ds, fit(ds)
+
+
+def _expected_inputs():
+    paths = [*FILES, THESIS_DIR / "setup.json", THESIS_DIR / "certificate.csv"]
+    return [(p.name, _sha(p)) for p in paths]
+
+
+def _check(prov: dict, inputs=None):
+    """The standard part of any record's provenance."""
+    ident = software_identity()
+    assert prov["software"] == "cmm-error-lab" and prov["version"] == cmm_core.__version__
+    assert prov["commit"] == ident["commit"] and prov["dirty"] == ident["dirty"]
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\+00:00", prov["created"])
+    assert prov["machine"] == MACHINE
+    if inputs is not None:
+        assert [(f["name"], f["sha256"]) for f in prov["inputs"]] == inputs
+    provenance_from_dict(prov)  # it reads back
+
+
+def test_the_commit_is_the_checkouts_own():
+    if not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True,
+                          text=True, check=True).stdout.strip()
+    assert software_identity()["commit"] == head
+
+
+def test_a_dataset_knows_the_digest_of_every_file_it_was_read_from(thesis):
+    ds, _ = thesis
+    assert [(f.name, f.sha256) for f in ds.inputs] == _expected_inputs()
+    assert ds.setup.machine_id == MACHINE
+
+
+def test_the_model_file_carries_it_and_reads_it_back(thesis, tmp_path):
+    ds, r = thesis
+    ex.save_model(r, tmp_path / "model.json", ds.provenance())
+    _check(json.loads((tmp_path / "model.json").read_text())["provenance"], _expected_inputs())
+    m = ex.load_model(tmp_path / "model.json")
+    assert m.provenance.machine == MACHINE and len(m.provenance.inputs) == 8
+    assert m.source.sha256 == _sha(tmp_path / "model.json")
+
+
+def test_results_json_and_xml_of_a_model_file_name_the_file_and_the_machine(thesis, tmp_path):
+    ds, r = thesis
+    ex.save_model(r, tmp_path / "model.json", ds.provenance())
+    m = ex.load_model(tmp_path / "model.json")
+    doc = json.loads(ex.results_json(m))
+    _check(doc["provenance"], [("model.json", _sha(tmp_path / "model.json"))])
+    head = ET.fromstring(ex.results_xml(m).encode()).find("Header/Provenance")
+    assert head.find("Machine").text == MACHINE
+    assert head.find("Software").get("version") == cmm_core.__version__
+    (inp,) = head.findall("Input")
+    assert inp.text == "model.json" and inp.get("sha256") == _sha(tmp_path / "model.json")
+
+
+def test_compensation_tables_and_the_error_map_say_it_in_their_headers(thesis, tmp_path):
+    ds, r = thesis
+    prov = ds.provenance()
+    g = ex.compensation_grid(r, 200.0)
+    texts = [ex.grid_csv(r, g, None, "model.json", prov),
+             ex.error_map_csv(r, ex.error_map_grid(r, step_mm=200.0), None, prov)]
+    with zipfile.ZipFile(io.BytesIO(ex.axis_tables_zip(r, 100.0, "m.json",
+                                                       provenance=prov))) as z:
+        texts += [z.read(n).decode() for n in z.namelist()]
+    for text in texts:
+        head = "\n".join(line for line in text.splitlines() if line.startswith("#"))
+        assert f"cmm-error-lab {cmm_core.__version__}" in head and MACHINE in head
+        for name, sha in _expected_inputs():
+            assert f"input: {name} sha256:{sha}" in head
+
+
+def test_the_analysis_record_the_project_file_and_the_report(thesis, tmp_path):
+    record = A.read_record(ROOT / "sample_data" / "analysis" / "thesis.json")
+    inputs = [(f.name, hashlib.sha256(Path(f.path).read_bytes()).hexdigest())
+              for f in record.data.files]
+    _check(json.loads(A.record_to_json(record))["provenance"], inputs)
+    project = json.loads(A.record_to_project_json(record))
+    _check(project["provenance"], inputs)
+    A.record_from_project(json.dumps(project))  # a project with provenance loads
+    html = A.analysis_report(dataclasses.replace(record, diagnose=False))
+    section = html[html.index("id='provenance'"):]
+    assert MACHINE.replace("&", "&amp;") in section and cmm_core.__version__ in section
+    for _, sha in inputs:
+        assert sha in section
+
+
+@pytest.mark.parametrize(("key", "value", "needle"), [
+    ("version", 7, "provenance.version"),
+    ("dirty", "yes", "provenance.dirty"),
+    ("inputs", [{"name": "a.csv", "sha256": "abc", "bytes": 3}], "provenance.inputs[0]"),
+    ("machine", ["x"], "provenance.machine"),
+])
+def test_an_edited_provenance_is_refused_naming_the_key(thesis, key, value, needle):
+    ds, _ = thesis
+    d = {**ds.provenance().to_dict(), key: value}
+    with pytest.raises(DataError, match=re.escape(needle)):
+        provenance_from_dict(d, "model.json")
