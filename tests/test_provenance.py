@@ -20,6 +20,7 @@ import pytest
 import cmm_core
 from cmm_core import analysis as A
 from cmm_core import export as ex
+from cmm_core import monitor as mon
 from cmm_core.io import (
     THESIS_DIR,
     THESIS_POSITIONS,
@@ -142,3 +143,38 @@ def test_an_edited_provenance_is_refused_naming_the_key(thesis, key, value, need
     d = {**ds.provenance().to_dict(), key: value}
     with pytest.raises(DataError, match=re.escape(needle)):
         provenance_from_dict(d, "model.json")
+
+
+def _setup_of(machine: str) -> dict:
+    raw = json.loads((THESIS_DIR / "setup.json").read_text())
+    raw["machine"]["id"] = machine
+    return raw
+
+
+def test_a_check_of_another_machines_data_is_refused_in_one_line(thesis, tmp_path):
+    ds, r = thesis
+    ex.save_model(r, tmp_path / "model.json", ds.provenance())
+    m = ex.load_model(tmp_path / "model.json")
+    other = load_dataset(FILES[:1], _setup_of("Zeiss Prismo, S/N 7"),
+                         THESIS_DIR / "certificate.csv", name="other.csv")
+    with pytest.raises(DataError, match="machine.id") as exc:
+        mon.interim_check(m, other)
+    assert "\n" not in str(exc.value) and "Zeiss Prismo" in str(exc.value)
+    same = load_dataset(FILES[:1], _setup_of(MACHINE), THESIS_DIR / "certificate.csv")
+    assert mon.interim_check(m, same).dof > 0  # its own machine is checked
+
+
+def test_a_history_of_two_machines_is_refused_and_an_older_model_is_noted(thesis, tmp_path):
+    ds, r = thesis
+    ex.save_model(r, tmp_path / "model.json", ds.provenance())
+    m = ex.load_model(tmp_path / "model.json")
+    other = dataclasses.replace(m, name="other.json", provenance=dataclasses.replace(
+        m.provenance, machine="Zeiss Prismo, S/N 7"))
+    with pytest.raises(DataError, match="different machines"):
+        mon.compare_calibrations([(m, "2024-03-04"), (other, "2025-03-04")])
+    old = dataclasses.replace(m, name="old.json", provenance=dataclasses.replace(
+        m.provenance, version="0.7.0"))
+    legacy = dataclasses.replace(m, name="legacy.json", provenance=None)
+    notes = mon.version_notes([m, old, legacy])
+    assert len(notes) == 2 and "old.json was made by cmm-error-lab 0.7.0" in notes[0]
+    assert "legacy.json" in notes[1] and "before 0.8.0" in notes[1]

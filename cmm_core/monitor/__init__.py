@@ -4,6 +4,7 @@ its calibration history (issue 28, ``docs/monitoring.md``).
 Owns: :mod:`.check` (:func:`interim_check`: the χ² test of new measurements against a
 stored model, poses fitted as nuisances, E_n per observation), :mod:`.changes`
 (:func:`what_changed`: the stored model refitted on the new data as its own prior),
+:mod:`.identity` (which machine a model is of, which version made it),
 :mod:`.conformity` (the ISO 14253-1 statement against the MPE), :mod:`.history`
 (:func:`compare_calibrations`: a machine's calibrations compared), :mod:`.outcome`
 (:func:`run_check`: the check, what changed, the new effect named by the diagnosis, the
@@ -29,6 +30,7 @@ from .check import (
 )
 from .conformity import RULE, STATEMENTS, Conformity, conformity, parse_mpe
 from .history import HISTORY_RULE, MAX_MAP_NODES_PER_AXIS, History, compare_calibrations
+from .identity import machine_of, refuse_mixed_machines, refuse_other_machine, version_notes
 from .numbers import json_num
 from .outcome import (
     CHANGE_RULE,
@@ -46,4 +48,5 @@ __all__ = ["CheckSystem", "check_sigma_um", "check_system", "GlsFit", "gls_fit",
            "Conformity", "conformity", "parse_mpe", "RULE", "STATEMENTS", "holm", "History",
            "compare_calibrations", "MAX_MAP_NODES_PER_AXIS", "CheckOutcome", "NewEffects",
            "name_new_effects", "run_check", "VERDICTS", "TEST_RULE", "CHANGE_RULE",
-           "HISTORY_RULE", "json_num"]
+           "HISTORY_RULE", "json_num", "machine_of", "refuse_mixed_machines",
+           "refuse_other_machine", "version_notes"]

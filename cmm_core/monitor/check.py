@@ -51,6 +51,7 @@ from ..model import (
     select,
 )
 from ..units import UM
+from .identity import refuse_other_machine
 from .numbers import json_num
 
 MAX_OBSERVATIONS = 1500
@@ -415,6 +416,7 @@ def check_system(model: Model, dataset: Dataset | None, *, sigma_um: float | Non
         name = items[0].source
         _refuse_model(model)
     else:
+        refuse_other_machine(model, dataset.setup.machine_id, dataset.name)
         obs = select(dataset, positions=positions, probes=probes,
                      exclude=[(str(a), str(b), int(c)) for a, b, c in exclude])
         name = dataset.name

@@ -27,6 +27,7 @@ from ..io import DataError
 from ..machine import kinematics as kin
 from ..units import UM
 from .changes import holm
+from .identity import refuse_mixed_machines
 from .numbers import json_num
 
 HISTORY_RULE = ("a parameter changed between two consecutive calibrations when E_n = "
@@ -233,6 +234,7 @@ def _checked(models_with_dates) -> list:
                             column="undetermined")
         out.append((m, date))
     out.sort(key=lambda md: md[1])
+    refuse_mixed_machines(m for m, _ in out)
     first = out[0][0]
     for m, _ in out[1:]:
         if m.terms.layout != first.terms.layout:
