@@ -51,8 +51,9 @@ def run_check(model_name, model_text, meas, setup, cert, alpha, family_alpha, mp
     inst = [read_instrument(io.BytesIO(b), kind, name=n) for kind, n, b in instruments]
     out = mon.run_check(model, data, instruments=inst, alpha=alpha,
                         family_alpha=family_alpha, mpe=mpe)
-    return out.to_dict(), out.check.table, out.changes.table, ex.results_json(
-        model, source=model_name, interim_check=out.results_section()), out.check.readings
+    return (out.to_dict(), out.check.table, out.changes.table, ex.results_json(
+        model, source=model_name, interim_check=out.results_section()), out.check.readings,
+        mon.version_notes([model]))
 
 
 @st.cache_data(show_spinner=False, max_entries=8)
@@ -61,7 +62,7 @@ def run_history(named_texts, dates, family_alpha):
     models = [_model(n, t) for n, t in named_texts]
     h = mon.compare_calibrations(list(zip(models, dates, strict=True)),
                                  family_alpha=family_alpha)
-    return h.to_dict(), h.changes, h.trend, h.map_change
+    return h.to_dict(), h.changes, h.trend, h.map_change, mon.version_notes(models)
 
 
 def _read(path: Path) -> tuple:
@@ -128,7 +129,7 @@ with t_check:
             out = calls.safe(run_check, files[0][0], files[0][1], files[1], files[2], files[3],
                              float(alpha), float(family), mpe, files[4], what="Interim check")
             if out is not None:
-                res, table, chg_table, results, readings = out
+                res, table, chg_table, results, readings, notes = out
                 chk, chg, eff, conf = (res["check"], res["changes"], res["new_effects"],
                                        res["conformity"])
                 m1, m2, m3 = st.columns(3)
@@ -140,7 +141,7 @@ with t_check:
                 show = {"no change seen": st.success, "changed": st.warning}.get(
                     res["verdict"], st.info)
                 show(f"**Verdict: {res['verdict']}.** {res['message']}")
-                st.caption(chk["message"])
+                st.caption(chk["message"] + "".join(f"  \n{n}" for n in notes))
                 if len(table):
                     with calls.guarded("E_n map"):
                         widgets.show(A.fig_en_map(table, "Normalised errors of the new "
@@ -218,8 +219,10 @@ with t_hist:
         if named is not None:
             hout = calls.safe(run_history, named, dates, float(hfam), what="Calibration history")
             if hout is not None:
-                summary, changes, trend, grid = hout
+                summary, changes, trend, grid, notes = hout
                 st.write(summary["message"])
+                if notes:
+                    st.caption("  \n".join(notes))
                 widgets.dataframe(changes, hide_index=True, key="hist_changes")
                 with calls.guarded("Trend"):
                     labels = list(dict.fromkeys(trend["label"]))
