@@ -14,6 +14,7 @@ from cmm_core.analysis import (
     SessionStore,
     default_session_folder,
     new_session_id,
+    sessions,
     valid_session_id,
 )
 
@@ -204,3 +205,22 @@ def test_saved_analyses_are_readable_by_their_owner_only(tmp_path):
     p = store.save(new_session_id(), "{}")
     assert stat.S_IMODE(folder.stat().st_mode) == 0o700
     assert stat.S_IMODE(p.stat().st_mode) == 0o600
+
+
+@pytest.mark.skipif(os.name != "posix", reason="links and FIFOs as POSIX makes them")
+def test_a_link_a_fifo_or_an_oversized_file_named_like_a_session_is_not_read(store, tmp_path,
+                                                                          monkeypatch):
+    secret = tmp_path / "secret.json"
+    secret.write_text('{"not": "yours"}')
+    store.folder.mkdir(mode=0o700)
+    linked, fifo, big = new_session_id(), new_session_id(), new_session_id()
+    (store.folder / f"{linked}.json").symlink_to(secret)
+    os.mkfifo(store.folder / f"{fifo}.json")  # a read would block the reload
+    (store.folder / f"{big}.json").write_text("{}" + " " * 100)
+    monkeypatch.setattr(sessions, "MAX_SESSION_BYTES", 50)
+    assert store.load(linked) is None and store.load(fifo) is None and store.load(big) is None
+    # a save replaces the planted link, it never writes through it
+    store.save(linked, '{"mine": 1}')
+    assert secret.read_text() == '{"not": "yours"}'
+    assert not (store.folder / f"{linked}.json").is_symlink()
+    assert store.load(linked).text == '{"mine": 1}'

@@ -23,6 +23,7 @@ from __future__ import annotations
 import os
 import re
 import secrets
+import stat
 import sys
 import time
 from dataclasses import dataclass
@@ -30,7 +31,7 @@ from pathlib import Path
 
 from ..io import atomic_write_text
 
-__all__ = ["KEEP_DAYS", "SavedSession", "SessionStore", "default_session_folder",
+__all__ = ["KEEP_DAYS", "MAX_SESSION_BYTES", "SavedSession", "SessionStore", "default_session_folder",
            "new_session_id", "valid_session_id"]
 
 KEEP_DAYS = 30
@@ -50,6 +51,9 @@ def valid_session_id(sid: object) -> bool:
     return isinstance(sid, str) and _ID.fullmatch(sid) is not None
 
 
+MAX_SESSION_BYTES = 100_000_000
+"""Largest saved analysis a reload reads (bytes): twice the largest upload, since a session
+carries its files' text; a bigger file named like a session is not read."""
 PRIVATE_FOLDER = 0o700
 """Mode of the sessions folder on POSIX systems: its owner only."""
 PRIVATE_FILE = 0o600
@@ -116,6 +120,8 @@ class SessionStore:
     def save(self, sid: str, text: str) -> Path:
         """Write the analysis of ``sid`` (atomically) and return its path."""
         p = self.path(sid)
+        if p.is_symlink():  # planted in the folder: the save would write where it points
+            p.unlink()
         p.parent.mkdir(parents=True, exist_ok=True, mode=PRIVATE_FOLDER)
         if os.name == "posix":  # a folder made before this rule, or by a wider umask
             os.chmod(p.parent, PRIVATE_FOLDER)
@@ -126,12 +132,25 @@ class SessionStore:
 
     def load(self, sid: str) -> SavedSession | None:
         """The analysis saved under ``sid``, or None when there is none (or the id is
-        malformed: a URL edited by hand starts a new analysis, it never reads a file)."""
+        malformed: a URL edited by hand starts a new analysis, it never reads a file).
+
+        Only a regular file of at most :data:`MAX_SESSION_BYTES` is read, never through a
+        symbolic link: a link, a FIFO (which would block the reload) or a device named like
+        a session is not an analysis."""
         if not valid_session_id(sid):
             return None
         p = self.path(sid)
         try:
-            return SavedSession(sid, p, p.read_text(encoding="utf-8"), p.stat().st_mtime)
+            info = os.lstat(p)
+            if not stat.S_ISREG(info.st_mode) or info.st_size > MAX_SESSION_BYTES:
+                return None
+            fd = os.open(p, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0)
+                         | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
+            with open(fd, "rb") as f:
+                raw = f.read(MAX_SESSION_BYTES + 1)
+            if len(raw) > MAX_SESSION_BYTES:
+                return None
+            return SavedSession(sid, p, raw.decode("utf-8"), info.st_mtime)
         except (OSError, UnicodeDecodeError):
             return None
 
