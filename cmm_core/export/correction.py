@@ -84,7 +84,7 @@ class Model:
     summary : dict
         RMS, χ²/dof and provenance for the record.
     parts : dict
-        Block token -> :class:`blocks.base.ModelPart` of each block that acts on new
+        Block token -> :class:`blocks.compensation.ModelPart` of each block that acts on new
         points (backlash spans, scale expansion coefficients), in :data:`COMPENSATING`
         order; each holds the joint covariance up to its own parameters.
     name : str

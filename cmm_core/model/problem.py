@@ -17,7 +17,8 @@ from ..units import UM
 from . import hole_plate
 from . import normal as _normal
 from .blocks import REGISTRY
-from .blocks.base import Block, Eval
+from .blocks.base import Block
+from .blocks.context import Eval
 from .blocks.kinematic import Kinematic
 from .blocks.plate import Plate
 from .effects import ModelSpec

@@ -48,7 +48,7 @@ from ..io import (
 from ..machine import KinematicTerms
 from ..machine import kinematics as kin
 from .blocks import BY_TOKEN
-from .blocks.base import SimContext
+from .blocks.simulation import SimContext
 from .effects import parse_spec
 from .observations import Observations, approach_directions, setup_layout
 from .problem import Problem
