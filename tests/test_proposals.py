@@ -691,7 +691,7 @@ def test_a_repeat_as_a_plan_file_determines_what_the_current_plan_cannot(driftin
     proposal's; with drift and the probe offsets in the model the current plan leaves
     combinations of drift, offsets and poses undetermined (styli measured in blocks) and
     the repeat none; with the kinematic model alone the repeat lowers the detection limit
-    of drift by more than half (the design's λ, ``plan_detect``)."""
+    of drift by more than half (the design's λ, ``plan.detect``)."""
     top = next(p for p in propose(drifting, ("drift", "probe_offset")).ranked
                if p.candidate.name == "repeat_all_12")
     n_again = sum(len(r["balls"]) for r in top.candidate.repeat.values())

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import ast
 import importlib
+import io
+import re
+import tokenize
 from pathlib import Path
 
 import pytest
@@ -321,3 +324,59 @@ def test_pages_holds_page_scripts_and_the_ui_package_only():
     assert [p.name for p in PAGE_SCRIPTS if f'"pages/{p.name}"' not in frame] == []
     assert sorted(p.name for p in PAGES_DIR.iterdir()
                   if p.name != "__pycache__" and p.suffix != ".py") == ["ui"]
+
+
+# --- names in prose: docstrings and comments went on naming modules after they moved into
+# the wings (``cmm_core.gp_optimise`` for ``cmm_core.gp.optimise``, ``cmm_core.blocks``)
+
+DOTTED = re.compile(r"cmm_core(?:\.\w+)+")
+PROSE_FILES = sorted([*CORE.rglob("*.py"), *PAGES_DIR.rglob("*.py"),
+                      *(ROOT / "bench").rglob("*.py"), ROOT / "app.py", ROOT / "serve.py"])
+
+
+def _prose(path):
+    """(line, text) of every comment and docstring of a file (string statements: module,
+    class, function and attribute docstrings)."""
+    src = path.read_text(encoding="utf-8")
+    for tok in tokenize.generate_tokens(io.StringIO(src).readline):
+        if tok.type == tokenize.COMMENT:
+            yield tok.start[0], tok.string
+    for node in ast.walk(ast.parse(src)):
+        if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant) \
+                and isinstance(node.value.value, str):
+            yield node.lineno, node.value.value
+
+
+def _resolves(dotted: str) -> bool:
+    """Whether ``cmm_core.a.b.c`` is a module, or attributes of the longest module prefix."""
+    parts = dotted.split(".")
+    for k in range(len(parts), 0, -1):
+        try:
+            obj = importlib.import_module(".".join(parts[:k]))
+        except ImportError:
+            continue
+        for name in parts[k:]:
+            if not hasattr(obj, name):
+                return False
+            obj = getattr(obj, name)
+        return True
+    return False
+
+
+def test_every_dotted_name_in_prose_resolves():
+    """Every ``cmm_core.xxx[.yyy]`` a docstring or comment of the core, the app or the
+    benches names is an importable module or an attribute of one: a module that moves
+    takes its references with it."""
+    stale = [f"{path.relative_to(ROOT)}:{line} {ref}"
+             for path in PROSE_FILES for line, text in _prose(path)
+             for ref in sorted(set(DOTTED.findall(text))) if not _resolves(ref)]
+    assert not stale, stale
+
+
+def test_the_prose_check_finds_a_stale_name():
+    text = "see :func:`~cmm_core.gp_optimise.run`."
+    assert DOTTED.findall(text) == ["cmm_core.gp_optimise.run"]
+    assert not _resolves("cmm_core.gp_optimise")
+    assert not _resolves("cmm_core.io.no_such_name")
+    assert _resolves("cmm_core.gp.optimise") and _resolves("cmm_core.io.DataError")
+    assert _resolves("cmm_core.model.blocks.base.Block.correct")

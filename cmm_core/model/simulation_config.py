@@ -38,7 +38,7 @@ DEFAULT_CONFIG = {
     "repeat_at_end": {},
     "artefact": None,
 }
-"""``artefact`` None: the setup's (``io_setup.ARTEFACTS``; a ball plate unless the setup
+"""``artefact`` None: the setup's (``io.setup.ARTEFACTS``; a ball plate unless the setup
 says otherwise); ``"hole_plate"`` simulates the plate's features as holes."""
 
 

@@ -2,7 +2,7 @@
 (:class:`Effect`), and the kind of block only some machine layouts have
 (:class:`LayoutBlock`).
 
-The residual of an observation (µm) is built in stages (``fit`` module docstring)::
+The residual of an observation (µm) is built in stages (``problem`` module docstring)::
 
     p' = probe stage(p)                    probe_offset
     x* = kinematic model(r - p, p')        kinematic (thesis eq. 4.13)

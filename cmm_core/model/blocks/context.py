@@ -117,9 +117,9 @@ class Eval:
 
     Attributes
     ----------
-    problem : fit.Problem
+    problem : problem.Problem
         The problem being evaluated (observations, layout, blocks).
-    state : fit_state.State
+    state : state.State
         Plate coordinates, placements and the parameter vector.
     want_jac : bool
         Whether the Jacobian is wanted.
