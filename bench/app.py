@@ -9,7 +9,7 @@ recomputed) and the warm/cold ratio. Target: < 0.5 s per change.
 ``--diagnosis`` times the "Run the diagnosis" button instead (issue 18, target < 1 s): on
 the thesis data and on the simulated sample (``sample_data/simulated``), the page's run
 after the click with the fit cached and the diagnosis's own cache cleared before every
-click, beside the peer in the same run: ``cmm_core.diagnose.diagnose`` called directly
+click, beside the peer in the same run: ``cmm_core.diagnosis.diagnose`` called directly
 with the page's arguments (the app's overhead is the ratio). Then the core diagnosis alone
 on simulated cases of the honesty bench's kind (``tests/scenarios.py``).
 

@@ -4,7 +4,7 @@ Prints, in one run:
 
 1. the median wall time of ``plan.evaluate`` for the thesis layout (six placements,
    detection limits of every catalogue effect included) and, as its peer, of one fit of
-   simulated data of the same plan (``fit.fit``), with their ratio;
+   simulated data of the same plan (``model.fit``), with their ratio;
 2. the throughput (simulated data sets fitted per second) of a planning study run on a
    ``dask.distributed`` LocalCluster (2 worker processes) against the same tasks in a
    serial loop, with their ratio;

@@ -22,10 +22,10 @@ Prints, in one run:
    outside-catalogue verdict with them as its evidence;
 3. the predicted power of the top proposal (mean over seeds of its power with the truth
    as the truth: the expected power over the uncertainty of the size fitted on that
-   seed's data, ``proposals._expected_power``) against the Monte Carlo separation rate: the share of
-   seeds where the nested F-test "the truth is still needed once the rival is in" rejects
-   at the diagnosis's level on the augmented noisy data. The issue asks for agreement
-   within ±8 points.
+   seed's data, ``proposals.separation._expected_power``) against the Monte Carlo
+   separation rate: the share of seeds where the nested F-test "the truth is still needed
+   once the rival is in" rejects at the diagnosis's level on the augmented noisy data. The
+   issue asks for agreement within ±8 points.
 
 Run: ``.venv/bin/python bench/proposals.py [--seeds N] [--cases WORDS]`` (default 50
 seeds; 10-20 s a seed on the shared two-core machine; docs/proposals.md has 30).

@@ -1,4 +1,4 @@
-"""Ball bars (cmm_core.instruments_ballbar) and hole plates (cmm_core.hole_plate).
+"""Ball bars (cmm_core.model.ballbar) and hole plates (cmm_core.model.hole_plate).
 
 Tolerances. Finite differences: central differences with a step of 1e-3 coefficient units,
 as in tests/test_instruments.py (truncation below 1e-12 µm, rounding about 1e-7 µm per

@@ -2,7 +2,7 @@
 
 The per-axis tables are checked against the grid through an implementation of eq.
 (L1)-(L2) of docs/layouts.md written here with scipy's rotations (no code shared with
-``cmm_core.kinematics``), on every distinct kinematic chain.
+``cmm_core.machine.kinematics``), on every distinct kinematic chain.
 """
 
 import argparse

@@ -291,7 +291,7 @@ def test_a_project_naming_a_position_its_data_lack_is_refused():
 
 
 def test_error_map_is_the_compensation_grid(result):
-    """One grid: the error map is comp_table.compensation_grid for the fit's first probe
+    """One grid: the error map is comp_tables.compensation_grid for the fit's first probe
     (same nodes, each axis ending at its stroke even when the step does not divide it;
     same numbers; the region test of compensate), under its own column names. Before,
     its x axis stopped at 1050 of 1200 mm for a 350 mm step and it had no

@@ -391,7 +391,7 @@ def test_rigid_removed_map_u_equals_the_projected_covariance():
 def test_with_the_certificate_fixed_its_uncertainty_is_in_every_parameter_u():
     """A certificate good to 0.3 µm (σ = 0.5 µm) fixed in 40 simulated data sets (thesis
     placements): the z-scores of the 33 kinematic coefficients against the truth have RMS
-    1 when the certificate's uncertainty is propagated (fit_certificate's sandwich; observed
+    1 when the certificate's uncertainty is propagated (certificate_prior's sandwich; observed
     0.99), and are too large with σ alone (1.37). Tolerance: the RMS of 40 data sets of
     correlated coefficients has a standard error of at most 1/sqrt(80) = 0.11 (coefficients
     fully correlated within a set), so ±0.2 is about 2 standard errors."""

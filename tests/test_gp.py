@@ -1,4 +1,4 @@
-"""Gaussian-process error model (cmm_core.gp, cmm_core.gp_cmm): thesis chapter 5, appendix 3.
+"""Gaussian-process error model (cmm_core.gp, cmm_core.gp.cmm): thesis chapter 5, appendix 3.
 
 References: Rasmussen & Williams (2006), *Gaussian Processes for Machine Learning* (R&W),
 §2.2 (eq. 2.23-2.30), §2.7 (eq. 2.41-2.45), §5.4 (eq. 5.9, 5.12); scikit-learn's

@@ -225,7 +225,7 @@ def test_chi2_test_counts_the_certificate_uncertainty_with_the_certificate_fixed
     se = np.sqrt(2 * r.dof_test / 24)
     assert abs(np.mean(excess_test)) < 3 * se, (np.mean(excess_test), se)
     assert np.mean(excess_sigma) > 6 * se, (np.mean(excess_sigma), se)
-    # the certificate's uncertainty is in u (fit_certificate): the Birge ratio is that of
+    # the certificate's uncertainty is in u (model.certificate_prior): the Birge ratio is that of
     # the tested statistic, which counts it, and scales the noise part only
     assert r.birge_ratio == pytest.approx(np.sqrt(r.chi2_test_dof))
     assert r.covariance_noise is not None

@@ -1,4 +1,5 @@
-"""Laser interferometer runs and step gauges fitted with the ball plate (cmm_core.instruments).
+"""Laser interferometer runs and step gauges fitted with the ball plate
+(cmm_core.model.instruments).
 
 Tolerances. Finite differences: central differences with a step of 1e-3 coefficient units;
 the model's second derivatives are of order arm × 1e-12 mm per µrad² (rotations of µrad),
@@ -84,7 +85,7 @@ def plate_and_joint_with_predicted_u(sim, item):
     """Fits of the plate alone and with ``item``, and the joint u the information matrix
     predicts: (N_plate + Jᵀ J of the item's rows)⁻¹ under the joint fit's constraints. The
     information of the noise alone: the certificate's own uncertainty, which a fit with
-    the certificate fixed adds (fit_certificate), is left out on both sides."""
+    the certificate fixed adds (model.certificate_prior), is left out on both sides."""
     plate = fit(sim.dataset, "kinematic21", certificate_test=False)
     joint = fit(sim.dataset, "kinematic21", instruments=[item], certificate_test=False)
     prob0 = Problem(plate.problem.obs, joint.problem.spec, "fixed")
@@ -167,7 +168,7 @@ def test_sign_convention_a_machine_that_runs_long():
 
 def test_blocked_normal_equations_include_the_instrument_rows():
     """normal.accumulate (blocks of 40 observations, plate prior) equals JᵀJ, Jᵀr of the
-    weighted residual that fit.weighted_residual builds with the instrument rows."""
+    weighted residual that model.weighted_residual builds with the instrument rows."""
     sim = _sim()
     prob = _problem(sim, _kit(sim), spec="kinematic21,probe_offset", plate="prior")
     st = prob.initial_state()

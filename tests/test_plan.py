@@ -254,7 +254,7 @@ def test_designer_meets_the_target_cheaper_than_random_plans(designed):
 
 def test_fast_figures_are_the_exact_evaluation(plans):
     """The designer's figures from summed unit Gram matrices equal the exact evaluation
-    (noise-free fit, uncertainty.evaluate, plan_detect) to rounding."""
+    (noise-free fit, uncertainty.evaluate, plan.detect) to rounding."""
     from cmm_core.plan import PoolModel, figures
     from cmm_core.plan.designer import _as_plan
 

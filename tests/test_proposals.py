@@ -28,8 +28,10 @@ from cmm_core.io import Certificate, DataError, Dataset  # noqa: E402
 from cmm_core.model import fit, select  # noqa: E402
 from cmm_core.plan import (  # noqa: E402
     BASELINE,
+    NO_POWER,
     PLACEMENT_SCALE,
     append_measurement,
+    blocked_styli,
     candidate_tokens,
     dask_client,
     evaluate_file,
@@ -42,6 +44,8 @@ from cmm_core.plan import (  # noqa: E402
     propose,
     propose_many,
     read_plan,
+    repeat_candidates,
+    repeat_from_fit,
     restrict,
     rival_pairs,
     rivals_of,
@@ -50,7 +54,7 @@ from cmm_core.plan import (  # noqa: E402
     wide_candidates,
 )
 from cmm_core.plan import plan_file as to_plan  # noqa: E402
-from cmm_core.plan import proposals as P  # noqa: E402
+from cmm_core.plan.proposals import append, ranking, separation  # noqa: E402
 
 # squareness hidden from a baseline without it, on the 80 mm plate: a high-order
 # rotation of the X carriage about Z (rxz:4) is its alias there (bench/proposals.py)
@@ -121,7 +125,7 @@ def test_proposals_rank_by_decision_then_time(clean80):
     times = [p.candidate.time_min for p in decided]
     assert times == sorted(times)
     # compared in whole percent, all below NO_POWER alike
-    rest = [r if r >= P.NO_POWER else 0.0 for r in (round(p, 2) for p in powers[len(decided):])]
+    rest = [r if r >= NO_POWER else 0.0 for r in (round(p, 2) for p in powers[len(decided):])]
     assert rest == sorted(rest, reverse=True)
     top = pr.ranked[0]
     assert top.outcome.startswith(f"with {top.candidate.description}, sxy and rxz:4 differ")
@@ -239,7 +243,7 @@ def test_instrument_candidates_predict_the_misfit_of_a_joint_fit(clean80):
     assert tools["laser_x"].time_min == pytest.approx(21 * 0.5 + 10)  # plan time model
     pr = propose(clean80, ("sxy", "rxz:4"), baseline=BASE, cands=list(tools.values()))
     rf = fit_rivals(clean80, ("sxy", "rxz:4"), baseline=BASE)
-    zero = P._machine(clean80)
+    zero = append._machine(clean80)
     checked = 0
     for p in pr.ranked:
         if p.delta_chi2_fitted["sxy"] < 10:  # below that the comparison is of near-zero numbers
@@ -396,7 +400,7 @@ def test_the_expected_power_is_the_rejection_rate_over_the_sizes_the_data_allow(
     point power at θ̂ (0.15, 0.58) and from the level at the noise-corrected size."""
     G, theta, C, k, nu, level = TINY
     G = scale * G
-    got = P._expected_power(G, theta, C, k, nu, level)
+    got = separation._expected_power(G, theta, C, k, nu, level)
     rng = np.random.default_rng(29)
     n = 200_000
     th = theta + rng.standard_normal((n, 2)) @ np.linalg.cholesky(C).T
@@ -406,7 +410,7 @@ def test_the_expected_power_is_the_rejection_rate_over_the_sizes_the_data_allow(
     rate = float(np.mean(F > stats.f.isf(level, k, nu)))
     se = np.sqrt(rate * (1 - rate) / n)
     assert got == pytest.approx(rate, abs=4 * se + 0.003)
-    point = P._power(float(theta @ G @ theta), k, nu, level)
+    point = separation._power(float(theta @ G @ theta), k, nu, level)
     assert got - point > 0.05  # the spread matters here: the test can fail
 
 
@@ -414,16 +418,16 @@ def test_the_expected_power_without_spread_is_the_point_power():
     """u → 0: C = 0 gives the power at λ(θ̂) exactly; C = 1e-10·C gives it to 1e-6
     (λ moves by O(u), the power's slope is below 0.1 per unit λ)."""
     G, theta, C, k, nu, level = TINY
-    point = P._power(float(theta @ G @ theta), k, nu, level)
-    assert P._expected_power(G, theta, np.zeros((2, 2)), k, nu, level) == point
-    assert P._expected_power(G, theta, 1e-10 * C, k, nu, level) == \
+    point = separation._power(float(theta @ G @ theta), k, nu, level)
+    assert separation._expected_power(G, theta, np.zeros((2, 2)), k, nu, level) == point
+    assert separation._expected_power(G, theta, 1e-10 * C, k, nu, level) == \
         pytest.approx(point, abs=1e-6)
 
 
 def test_power_at_no_separation_is_the_level():
     """λ = 0: the test rejects at its level (scipy's ncf gives -0.999 there)."""
     for k, nu, level in ((1, 10, 0.05), (3, 500, 1e-3), (12, 10**6, 1.7e-4)):
-        assert P._power(0.0, k, nu, level) == level
+        assert separation._power(0.0, k, nu, level) == level
 
 
 def test_power_of_one_parameter_is_the_two_sided_t_tests():
@@ -434,13 +438,13 @@ def test_power_of_one_parameter_is_the_two_sided_t_tests():
         tc = np.sqrt(stats.f.isf(level, 1, nu))
         d = np.sqrt(lam)
         ref = stats.nct.sf(tc, nu, d) + stats.nct.cdf(-tc, nu, d)
-        assert P._power(lam, 1, nu, level) == pytest.approx(ref, rel=1e-6)
+        assert separation._power(lam, 1, nu, level) == pytest.approx(ref, rel=1e-6)
 
 
 def test_power_increases_with_the_separation():
     """Monotone in λ from the level at 0 to 1 (k = 3, ν = 500, level 1e-3)."""
     lam = np.linspace(0.0, 200.0, 81)
-    p = np.array([P._power(x, 3, 500, 1e-3) for x in lam])
+    p = np.array([separation._power(x, 3, 500, 1e-3) for x in lam])
     assert np.all(np.diff(p) >= 0.0) and np.all(np.diff(p[:40]) > 0.0)
     assert p[0] == 1e-3 and p[-1] > 0.999
 
@@ -453,10 +457,10 @@ def test_power_at_large_dof_is_the_chi2_limit(monkeypatch):
     k, nu, level = 3, 10**7, 1e-4
     for lam in (1.0, 10.0, 40.0):
         ref = stats.ncx2.sf(k * stats.f.isf(level, k, nu), k, lam)
-        assert P._power(lam, k, nu, level) == pytest.approx(ref, rel=1e-4)
-    monkeypatch.setattr(P.stats.ncf, "sf", lambda *a: float("nan"))
+        assert separation._power(lam, k, nu, level) == pytest.approx(ref, rel=1e-4)
+    monkeypatch.setattr(stats.ncf, "sf", lambda *a: float("nan"))
     ref = stats.ncx2.sf(k * stats.f.isf(level, k, nu), k, 10.0)
-    assert P._power(10.0, k, nu, level) == pytest.approx(ref, rel=1e-12)
+    assert separation._power(10.0, k, nu, level) == pytest.approx(ref, rel=1e-12)
 
 
 def _cand(effect, aliases=(), significant=True, level=1e-3, undetermined=()):
@@ -568,7 +572,7 @@ def drift80():
 def test_repeats_are_offered_where_styli_are_measured_in_blocks(drift80):
     """Each placement's first stylus again on its first balls, right after the
     placement's last reading: time balls × 0.5 min (plan time model, no new placement)."""
-    assert P.blocked_styli(drift80) == {"H": ["1", "4"], "D1": ["2", "4"], "D2": ["3", "4"]}
+    assert blocked_styli(drift80) == {"H": ["1", "4"], "D1": ["2", "4"], "D2": ["3", "4"]}
     cands = {c.name: c for c in measurement_candidates(drift80) if c.repeat}
     assert set(cands) == {f"repeat_{p}_{n}" for p in ("H", "D1", "D2", "all")
                           for n in (4, 12)}
@@ -584,13 +588,13 @@ def test_repeats_are_offered_where_styli_are_measured_in_blocks(drift80):
     k = {p: m[(m["position"] == p) & (m["probe"] == q)]["ball"].nunique()
          for p, q in (("H", "1"), ("D1", "2"), ("D2", "3"))}
     assert min(k.values()) < 40
-    many = [c.name for c in P.repeat_candidates(drift80, n_balls=(4, 40, 60))]
+    many = [c.name for c in repeat_candidates(drift80, n_balls=(4, 40, 60))]
     assert len(many) == len(set(many))
     assert set(many) == ({f"repeat_{p}_4" for p in k} | {"repeat_all_4"}
                          | {f"repeat_{p}_{n}" for p, n in k.items()}
                          | {"repeat_all_" + "-".join(map(str, sorted(set(k.values()))))})
     inter = simulated("pitch80_3pos", 4, probes_interleaved=True).dataset
-    assert P.blocked_styli(inter) == {}
+    assert blocked_styli(inter) == {}
     assert not [c for c in measurement_candidates(inter) if c.repeat]
 
 
@@ -655,7 +659,7 @@ def test_a_repeat_from_the_fit_is_the_repeat_on_the_true_machine(drift80):
     cand = next(c for c in measurement_candidates(drift80) if c.name == "repeat_all_4")
     cfg = {**truth_config(rf.fits["drift"]), "noise_um": 0.0}
     a = append_measurement(drift80, cand, config=cfg).meas
-    b = P.repeat_from_fit(drift80, cand, rf.fits["drift"]).meas
+    b = repeat_from_fit(drift80, cand, rf.fits["drift"]).meas
     n = len(drift80.meas)
     assert len(a) == len(b) == n + 12
     cols = ["position", "probe", "ball", "time_min"]
@@ -687,7 +691,7 @@ def test_a_repeat_as_a_plan_file_determines_what_the_current_plan_cannot(driftin
     proposal's; with drift and the probe offsets in the model the current plan leaves
     combinations of drift, offsets and poses undetermined (styli measured in blocks) and
     the repeat none; with the kinematic model alone the repeat lowers the detection limit
-    of drift by more than half (the design's λ, ``plan_detect``)."""
+    of drift by more than half (the design's λ, ``plan.detect``)."""
     top = next(p for p in propose(drifting, ("drift", "probe_offset")).ranked
                if p.candidate.name == "repeat_all_12")
     n_again = sum(len(r["balls"]) for r in top.candidate.repeat.values())
@@ -719,5 +723,5 @@ def test_rank_ties_at_the_level_go_to_the_other_directions_power(clean80):
     hi = replace(b, power=strong, power_at_size=strong, power_min=1e-4, per_minute=0.0,
                  candidate=replace(b.candidate, name="z_strong"))
     lo = replace(lo, per_minute=0.0)
-    ranked = sorted([lo, hi], key=P._rank_key(0.9))
+    ranked = sorted([lo, hi], key=ranking._rank_key(0.9))
     assert [p.candidate.name for p in ranked] == ["z_strong", "b_weak"]

@@ -72,6 +72,16 @@ def test_simulator_effects_are_the_blocks_with_a_panel_entry():
         simulate({"seed": 0, "effects": {e.token: e.config()}})  # accepted as drawn
 
 
+@pytest.mark.parametrize("cls", REGISTRY, ids=lambda c: c.__name__)
+def test_a_blocks_class_constants_are_read_only(cls):
+    """A class constant is one object for the class and every subclass that does not set
+    its own (RUF012): the simulator's ranges and fixed keys cannot be changed through one
+    block."""
+    for name in ("sim_ranges", "sim_fixed"):
+        with pytest.raises(TypeError):
+            getattr(cls, name)["new key"] = 0.0
+
+
 def test_correction_columns_come_from_the_blocks():
     assert correction_columns("kinematic21") == ()
     assert correction_columns("kinematic21,backlash") == ("time_min",)

@@ -1,7 +1,7 @@
 """Figures (Plotly) shared by the app and the HTML report, so both show the same thing.
 
-Micrometres on screen, units on every axis. The report itself (``cmm_core.report``)
-re-exports every builder here, so ``report.fig_pattern`` and the rest keep working.
+Micrometres on screen, units on every axis. The report itself
+(``cmm_core.analysis.report``) draws with these builders.
 """
 
 from __future__ import annotations

@@ -97,7 +97,7 @@ class DataFile:
 
 
 def instrument_kinds() -> tuple:
-    """The instrument kinds a record may name (``io_instruments.INSTRUMENT_KINDS``)."""
+    """The instrument kinds a record may name (``model.instrument_files.INSTRUMENT_KINDS``)."""
     return tuple(INSTRUMENT_KINDS)
 
 
@@ -111,7 +111,7 @@ class InstrumentFile:
     """The file, by path or by content."""
 
     def read(self) -> Any:
-        """The instrument's readings (``io_instruments``); DataError when bad."""
+        """The instrument's readings (``model.instrument_files``); DataError when bad."""
         return read_instrument(io.StringIO(self.file.text()), self.kind, name=self.file.name)
 
 

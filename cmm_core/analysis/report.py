@@ -4,7 +4,7 @@
 ``python -m cmm_core report`` both call, so the same record gives the same bytes (the
 generation time aside). plotly.js is embedded once, deflate-compressed and decoded in the
 browser (no network needed to open the report); each figure is a div with its data.
-The figure builders live in :mod:`cmm_core.report_figures` and are re-exported here.
+The figure builders live in :mod:`cmm_core.analysis.figures`.
 """
 
 from __future__ import annotations
@@ -430,7 +430,7 @@ def build_report(dataset: Dataset, result: FitResult, *, exclusions: Iterable = 
     diagnosis_conclusion : str
         The diagnosis's plain-language verdict, printed above its table.
     mpe : MpeResult, optional
-        The MPE check (``cmm_core.mpe.mpe_check``): plot, counts and the rule used.
+        The MPE check (``cmm_core.gum.mpe.mpe_check``): plot, counts and the rule used.
     generated : str, optional
         Generation time printed (default: now, UTC, to the minute).
     sigma : dict, optional

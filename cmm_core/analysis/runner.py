@@ -85,9 +85,9 @@ class AnalysisResult:
     record: AnalysisRecord
     """The record these numbers come from."""
     dataset: Dataset
-    """The loaded :class:`~cmm_core.dataset.Dataset`."""
+    """The loaded :class:`~cmm_core.io.dataset.Dataset`."""
     fit: FitResult
-    """The :class:`~cmm_core.fit.FitResult` of the record's model."""
+    """The :class:`~cmm_core.model.result.FitResult` of the record's model."""
     exclusions: tuple
     """Observations left out: the record's and, with ``exclude_outliers``, the flagged."""
     flagged: tuple
@@ -95,17 +95,17 @@ class AnalysisResult:
     sigma: dict
     """σ used: ``{"value_um", "auto"}`` plus the estimate's fields when auto."""
     uncertainty: UncertaintySummary | None
-    """:class:`~cmm_core.uncertainty.UncertaintySummary`, or None when it failed."""
+    """:class:`~cmm_core.model.uncertainty.UncertaintySummary`, or None when it failed."""
     history: tuple
     """History rows: spec, change, rms_um, chi2_dof, bic, n_params."""
     measured_error_um: np.ndarray
     """(n, 3) measured error at the fitted observations (µm, :data:`ERROR_CONVENTION`)."""
     diagnosis: Diagnosis | None = None
-    """:class:`~cmm_core.diagnose.Diagnosis` when the record asks for it."""
+    """:class:`~cmm_core.diagnosis.Diagnosis` when the record asks for it."""
     mpe: MpeResult | None = None
-    """:class:`~cmm_core.mpe.MpeResult`, None without a 25-ball certificate."""
+    """:class:`~cmm_core.gum.mpe.MpeResult`, None without a 25-ball certificate."""
     gp: GPComponents | None = None
-    """:class:`~cmm_core.gp_cmm.GPComponents` when the record names a GP mean."""
+    """:class:`~cmm_core.gp.cmm.GPComponents` when the record names a GP mean."""
     instruments: tuple = ()
     """Per instrument file, its record of ``instruments.summary`` (kind, file, readings,
     rows, χ², rms_um, max_abs_z ...); empty without instruments."""

@@ -54,7 +54,7 @@ def quadratic_form_sf(weights: np.ndarray, dofs: np.ndarray, noncentralities: np
     (at least 801 points) up to where ``ρ`` exceeds e^40. Meant for forms holding a
     residual χ² of many dof (at least :data:`MIN_FORM_DOF` in all), whose ρ grows fast,
     so that the integral is short: against scipy's non-central F the error is below 1e-13
-    (``tests/test_plan_detect.py``). Fewer dof are refused (the grid would not reach the
+    (``tests/test_detect_certnoise.py``). Fewer dof are refused (the grid would not reach the
     slowly decaying tail).
     """
     w = np.asarray(weights, float)

@@ -12,7 +12,7 @@ baseline's columns projected out, the in-sample gain of adding the effect is
 other placements' rows only, and its held-out gain is how much that prediction lowers
 ``p``'s residual: ``|r_p|² - |r_p - X_p β_(-p)|²``. The baseline itself is common to both
 sides of the comparison and stays fitted to all data; what is cross-validated is the
-effect. Linearised at the baseline's solution, as ``diagnose.score``.
+effect. Linearised at the baseline's solution, as ``scoring.score``.
 
 **The decision is a test with a stated error rate.** Under the hypothesis that the effect
 is real, ``r = X β + ε`` with ``ε ~ N(0, s² M)`` (``M = I - H`` the baseline's

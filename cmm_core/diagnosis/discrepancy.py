@@ -54,7 +54,7 @@ class Discrepancy:
         sqrt(mean over components of ``structure_um`` squared): the one number of the
         add-and-watch history; it falls towards zero when the missing effect is added.
     components : object
-        The fitted ``gp_cmm.GPComponents`` (for surfaces).
+        The fitted ``gp.cmm.GPComponents`` (for surfaces).
     """
 
     amplitude_um: dict

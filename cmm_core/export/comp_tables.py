@@ -7,7 +7,7 @@ layouts, ``docs/layouts.md``):
   (scale readings of the ram reference point) the correction of the indicated tip centre
   ``tip = node + probe offset`` in x, y, z (µm) and its standard uncertainty (k = 1). The
   correction is ``e = x* - (x + p)``, true minus indicated, *added* to the reading: it is
-  what :func:`cmm_core.compensate.compensate` adds to that tip reading.
+  what :func:`cmm_core.export.correction.compensate` adds to that tip reading.
 - :func:`axis_tables`: what a controller that evaluates the kinematic model itself needs:
   for each axis its six error functions (positioning, two straightness, three rotations)
   tabulated along the axis, and the three squareness angles, each with its standard

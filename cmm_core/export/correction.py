@@ -87,7 +87,7 @@ class Model:
     summary : dict
         RMS, χ²/dof and provenance for the record.
     parts : dict
-        Block token -> :class:`blocks.base.ModelPart` of each block that acts on new
+        Block token -> :class:`blocks.compensation.ModelPart` of each block that acts on new
         points (backlash spans, scale expansion coefficients), in :data:`COMPENSATING`
         order; each holds the joint covariance up to its own parameters.
     name : str
@@ -162,7 +162,7 @@ def model_from_result(result: FitResult) -> Model:
                   "fails_chi2_test": bool(result.fails_chi2_test),
                   "birge_ratio": float(result.birge_ratio),
                   # the χ² test's statistic, so that results exported from the model file
-                  # state the test as those of the fit (results_export); absent in files
+                  # state the test as those of the fit (export.results); absent in files
                   # written before them, which then report these as unknown
                   "chi2_test_dof": float(result.chi2_test_dof),
                   "dof_test": int(result.test_statistic[1]),

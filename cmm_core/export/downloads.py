@@ -8,9 +8,9 @@ and uncertainties are µm.
   leading apostrophe (CSV formula injection).
 - :func:`error_map_grid` tabulates the fitted error and its standard uncertainty on a
   regular grid of machine coordinates, the layout of an ISG-style compensation table
-  (``comp_table.compensation_grid``, the one grid, under this table's column names).
-- :func:`compensate_points` corrects reported tip centres (uses ``cmm_core.compensate``
-  when it is available; otherwise a thin adapter over ``uncertainty.error_at``).
+  (``comp_tables.compensation_grid``, the one grid, under this table's column names).
+- :func:`compensate_points` corrects reported tip centres
+  (``cmm_core.export.correction.compensate``).
 - :func:`project_to_json` / :func:`project_from_json` save and restore a session: the
   dataset files' content, setup, certificate, model, exclusions and history.
 - :func:`download_name` prefixes a download's file name with its dataset's name, so the
@@ -80,14 +80,14 @@ def error_map_grid(result: Model | FitResult, *,
                probe: str | None = None) -> pd.DataFrame:
     """Error map on a regular grid of scale readings: an ISG-style compensation table.
 
-    :func:`comp_table.compensation_grid` (the one grid: same nodes, each axis ending at
+    :func:`comp_tables.compensation_grid` (the one grid: same nodes, each axis ending at
     its stroke or ``upper_mm``, same region test) under this table's column names, for a
     probe tip, and for a model whose data leave combinations undetermined too (its
     uncertainties are then NaN).
 
     Parameters
     ----------
-    result : FitResult or compensate.Model
+    result : FitResult or correction.Model
     step_mm : float or 3 floats
         Grid spacing per axis (mm).
     lower_mm, upper_mm : 3 floats, optional
@@ -139,12 +139,12 @@ def error_map_csv(result: FitResult, grid: pd.DataFrame, probe: str | None = Non
 
 
 # ---------------------------------------------------------------------------------------
-# Compensation (adapter until / unless cmm_core.compensate provides it)
+# Compensation (cmm_core.export.correction.compensate)
 # ---------------------------------------------------------------------------------------
 
 def compensate_points(result: Model | FitResult, points: pd.DataFrame) -> pd.DataFrame:
     """Corrected tip centres ``xc_mm, yc_mm, zc_mm``, errors and ``u_x_um, u_y_um,
-    u_z_um`` (``compensate.compensate``), with an ``extrapolated`` note per point."""
+    u_z_um`` (``correction.compensate``), with an ``extrapolated`` note per point."""
 
     return compensate(result, points)
 

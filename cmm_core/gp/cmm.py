@@ -148,7 +148,7 @@ def gp_components(points_mm: ArrayLike, errors_um: ArrayLike, *, mean: str = "ze
     kernel : {"se_iso", "se_ard"}
     basis : array_like (n, m), callable, or list of k of these, optional
         Explicit basis (e.g. the kinematic model's per-component design matrix from
-        ``cmm_core.diagnose.kinematic_basis``), marginalised analytically (R&W §2.7). Use
+        ``cmm_core.diagnosis.kinematic_basis``), marginalised analytically (R&W §2.7). Use
         either this or a non-zero ``mean``.
     restarts : int
         Random restarts of the hyperparameter optimisation per component.

@@ -8,12 +8,12 @@ hyperparameters (R&W eq. 5.9 with the projected matrix ``P`` of §2.7). The cova
 the squared exponential of thesis eq. 5.1 (R&W eq. 2.31), isotropic or with one length
 scale per group of inputs (ARD, R&W eq. 5.1), plus Gaussian noise, one level per noise
 group. :func:`_kinv_lower` gives ``K⁻¹`` for the gradient's traces and the closed-form
-leave-one-out predictions (R&W eq. 5.12, in ``cmm_core.gp_result``).
+leave-one-out predictions (R&W eq. 5.12, in ``cmm_core.gp.result``).
 
 See Also
 --------
-cmm_core.gp_prepare : builds the problem from the data (standardisation, basis QR).
-cmm_core.gp_optimise : maximises the likelihood over the hyperparameters.
+cmm_core.gp.prepare : builds the problem from the data (standardisation, basis QR).
+cmm_core.gp.optimise : maximises the likelihood over the hyperparameters.
 """
 
 from __future__ import annotations

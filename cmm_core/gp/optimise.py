@@ -1,7 +1,7 @@
 """Maximisation of the GP's log marginal likelihood over its hyperparameters.
 
 L-BFGS-B in log hyperparameters with the analytic gradient of
-:meth:`~cmm_core.gp_likelihood._Problem.objective` (Rasmussen & Williams 2006, *Gaussian
+:meth:`~cmm_core.gp.likelihood._Problem.objective` (Rasmussen & Williams 2006, *Gaussian
 Processes for Machine Learning*, §5.4.1, eq. 5.9), one run per start. For large ``n``
 (:func:`_optimise` with a subset problem) every start runs first on a subset of the
 points and each distinct optimum found there is polished on all of them: BFGS from the

@@ -5,7 +5,7 @@ groups and the mean's basis, reduces the basis to the columns the data determine
 QR; R&W §2.7 needs ``H`` of full column rank), and standardises for conditioning: inputs
 centred and scaled by one common factor (their extent), outputs by their RMS after the
 least-squares basis fit. The :class:`_Context` it returns carries the standardised
-:class:`~cmm_core.gp_likelihood._Problem` and the offset that turns its log marginal
+:class:`~cmm_core.gp.likelihood._Problem` and the offset that turns its log marginal
 likelihood back into data units. :func:`_theta_from` converts readable hyperparameters
 (mm, µm) into the standardised log hyperparameters the optimiser works in.
 

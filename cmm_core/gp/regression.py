@@ -30,15 +30,15 @@ Only numpy and scipy are used.
 The code is split by concept; this module holds the two entry points, :func:`fit_gp` and
 :func:`log_marginal_likelihood`, and re-exports the public names of the others:
 
-- ``cmm_core.gp_basis``: inputs and the mean's basis functions (``polynomial_basis``,
+- ``cmm_core.gp.basis``: inputs and the mean's basis functions (``polynomial_basis``,
   ``MEANS``; thesis eq. 5.11, R&W §2.7);
-- ``cmm_core.gp_likelihood``: covariance, log marginal likelihood and gradient (``KERNELS``;
+- ``cmm_core.gp.likelihood``: covariance, log marginal likelihood and gradient (``KERNELS``;
   thesis eq. 5.1, R&W eq. 2.30, 2.45, 5.9);
-- ``cmm_core.gp_prepare``: checks, standardisation, basis reduction, hyperparameters in
+- ``cmm_core.gp.prepare``: checks, standardisation, basis reduction, hyperparameters in
   standardised units;
-- ``cmm_core.gp_optimise``: L-BFGS-B over the starts, subset prefit and polish;
-- ``cmm_core.gp_degeneracy``: collapsed or bounded optima (see :func:`fit_gp`, Notes);
-- ``cmm_core.gp_result``: ``GPResult``, prediction (R&W eq. 2.41-2.42) and closed-form
+- ``cmm_core.gp.optimise``: L-BFGS-B over the starts, subset prefit and polish;
+- ``cmm_core.gp.degeneracy``: collapsed or bounded optima (see :func:`fit_gp`, Notes);
+- ``cmm_core.gp.result``: ``GPResult``, prediction (R&W eq. 2.41-2.42) and closed-form
   leave-one-out (R&W eq. 5.12).
 """
 
@@ -59,7 +59,7 @@ from .result import GPResult, _result
 __all__ = ["fit_gp", "log_marginal_likelihood"]
 
 _ALT_MAX_LENGTH = 10.0  # next-best optimum: length scales up to this times the extent
-# fit_gp draws the subset (with the starts' generator); gp_optimise only runs on it
+# fit_gp draws the subset (with the starts' generator); gp.optimise only runs on it
 _PREFIT_POINTS = 300  # subset the restarts run on first when n > 2 × this (``_optimise``)
 
 

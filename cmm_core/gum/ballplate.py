@@ -30,7 +30,7 @@ Two readings of the thesis are made explicit:
   uncertainty of the expansion coefficient times the temperature offset; the template uses
   ``u = l_0 · a(δα)/√3 · Δt`` with Δt the largest |t - 20 °C| of the record.
 
-The air terms (eq. 3.19-3.25) use the modified Edlén equation (:mod:`cmm_core.air`); the
+The air terms (eq. 3.19-3.25) use the modified Edlén equation (:mod:`cmm_core.gum.air`); the
 sensitivity coefficients a_1..a_5 are ``l_0 ∂n/∂q``. For a CMM with glass scales the
 refractive index does not enter the length (``include_air=False`` drops these terms); they
 are negligible here anyway (about 0.01 µm at 752 mm).

@@ -20,12 +20,12 @@ The code is split by concept; this module holds the ``budget`` command's contrac
 (:func:`contribution_from_dict`, :func:`budget_from_dict`) and re-exports the public names
 of the others, so that ``from cmm_core.gum import ...`` finds them all:
 
-- ``cmm_core.gum_inputs``: :class:`Contribution`, ``DISTRIBUTIONS``,
+- ``cmm_core.gum.inputs``: :class:`Contribution`, ``DISTRIBUTIONS``,
   :func:`half_width_divisor` (JCGM 100 4.1.5, 4.3.7-4.3.9);
-- ``cmm_core.gum_framework``: :func:`gum_combine`, :class:`GumResult`,
+- ``cmm_core.gum.framework``: :func:`gum_combine`, :class:`GumResult`,
   :func:`coverage_factor`, :func:`welch_satterthwaite`, :func:`sensitivity_coefficients`
   (JCGM 100 clauses 5-6, annex G);
-- ``cmm_core.gum_mc``: :func:`monte_carlo`, :class:`MonteCarloResult`,
+- ``cmm_core.gum.mc``: :func:`monte_carlo`, :class:`MonteCarloResult`,
   :func:`coverage_intervals` (JCGM 101 clause 7).
 """
 

@@ -10,7 +10,7 @@ t distribution (:func:`coverage_factor`, JCGM 100 G.3, G.4, table G.2). The resu
 
 See Also
 --------
-cmm_core.gum_mc : the Monte Carlo method of GUM Supplement 1 on the same inputs.
+cmm_core.gum.mc : the Monte Carlo method of GUM Supplement 1 on the same inputs.
 cmm_core.gum : re-exports these names.
 """
 

@@ -7,7 +7,7 @@ sensitivity coefficient (JCGM 100 5.1.3) and degrees of freedom (JCGM 100 G.3, G
 A contribution may be given by a half-width instead of ``u``
 (:meth:`Contribution.from_half_width`, :func:`half_width_divisor`). The distributions
 of half-width 1 in ``_SHAPES`` are shared with the Monte Carlo sampler
-(``cmm_core.gum_mc``).
+(``cmm_core.gum.mc``).
 
 See Also
 --------

@@ -9,7 +9,7 @@ The result is a :class:`MonteCarloResult`.
 
 See Also
 --------
-cmm_core.gum_framework : the GUM framework (JCGM 100) on the same inputs.
+cmm_core.gum.framework : the GUM framework (JCGM 100) on the same inputs.
 cmm_core.gum : re-exports these names.
 """
 

@@ -6,7 +6,7 @@ blank lines and trailing separators tolerated, file rows kept for messages),
 :func:`numeric_column` and :func:`_names` (cells checked one by one), :func:`require_columns` and
 :func:`require_rows` (the columns and rows a file must have) and :func:`read_json`.
 Nothing here knows what a measurement, setup or certificate is; the points readers of
-:mod:`cmm_core.compensate` and :mod:`cmm_core.export` use it too.
+:mod:`cmm_core.export.correction` and :mod:`cmm_core.export` use it too.
 """
 
 from __future__ import annotations

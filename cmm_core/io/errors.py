@@ -6,7 +6,7 @@ a file at once, capped at :data:`MAX_PROBLEMS`), :func:`cut_repr` (values shorte
 messages) and the misspelt-name checks (:data:`COLUMN_ALIASES`, :func:`likely_typo`,
 :func:`_check_keys`) used by the CSV and JSON readers alike.
 
-This is the bottom of the ``cmm_core.io_*`` modules: it imports none of them. Import from
+This is the bottom of the ``cmm_core.io`` modules: it imports none of them. Import from
 :mod:`cmm_core.io`, which re-exports everything here.
 """
 

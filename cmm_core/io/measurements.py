@@ -2,7 +2,7 @@
 
 Holds the column sets (:data:`LONG_COLUMNS`, :data:`OPTIONAL_COLUMNS`, ...),
 :func:`read_measurements`, :func:`read_measurement_files`, :func:`write_long_csv`, and the
-row checks the certificate reader and :func:`~cmm_core.io_resolve.resolve` share with it
+row checks the certificate reader and :func:`~cmm_core.io.matching.resolve` share with it
 (:func:`_ball_numbers`, :func:`_check_duplicates`, :func:`_check_units`).
 """
 

@@ -5,7 +5,7 @@ of the file (machine, probes, positions, plate), the plausibility limits it chec
 (:data:`LAYOUTS`, strokes, probe lengths, axis orthogonality, CTE, temperatures) and the
 small JSON value checks (:func:`_vector`, :func:`_record`, :func:`_json_object`).
 :func:`check_celsius`, :data:`TEMP_RANGE_C` and :func:`range_tolerance` are shared with
-the measurement reader, the simulator config and :func:`~cmm_core.io_resolve.resolve`.
+the measurement reader, the simulator config and :func:`~cmm_core.io.matching.resolve`.
 """
 
 from __future__ import annotations

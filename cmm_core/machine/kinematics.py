@@ -17,7 +17,7 @@ functions carry no linear term (thesis appendix 2 constraints made explicit).
 
 Other machine layouts (:data:`LAYOUTS`, ``KinematicTerms.layout``) stack the same three
 carriages in another order, and a carriage that moves the table (the workpiece) enters
-inverted: see ``kinematics_layouts`` and ``docs/layouts.md``. The moving bridge FXYZ above
+inverted: see ``layouts`` and ``docs/layouts.md``. The moving bridge FXYZ above
 is the default and is evaluated by the code below unchanged.
 """
 from __future__ import annotations
@@ -192,7 +192,7 @@ def jacobian(terms: KinematicTerms, coef: ArrayLike, x_mm: ArrayLike, p_mm: Arra
 
 def probe_jacobian(terms: KinematicTerms, coef: ArrayLike, x_mm: ArrayLike) -> np.ndarray:
     """``d x* / d p`` at the scale readings, shape (n, 3, 3): Rx Ry Rz on the moving
-    bridge FXYZ, the chain's rotations for other layouts (``kinematics_layouts``)."""
+    bridge FXYZ, the chain's rotations for other layouts (``layouts``)."""
     ev = _Evaluation(terms, np.asarray(coef, float), np.asarray(x_mm, float),
                      rotations_only=True)
     if terms.chain != "Fxyz":

@@ -1,6 +1,6 @@
 """The kinematic model's vocabulary: error names, machine layouts, Chebyshev error terms
 and their evaluation at points (thesis eq. 4.1-4.9; ``kinematics`` composes them into the
-forward model, ``kinematics_layouts`` into the other layouts' chains).
+forward model, ``layouts`` into the other layouts' chains).
 
 Units: coordinates in mm; translational coefficients in µm; rotational and squareness
 coefficients in µrad.

@@ -16,9 +16,10 @@ from __future__ import annotations
 from . import blocks
 from .ballbar import BallBar, simulate_ball_bar
 from .blocks import BY_TOKEN, REGISTRY, Block, Eval, needs
-from .blocks.base import MAX_MODEL_U, SimParam, SimulatorEffect, checked_cov
+from .blocks.compensation import MAX_MODEL_U, checked_cov
 from .blocks.periodic import PERIOD_SCAN, PERIODIC, shortest_resolvable_period
 from .blocks.plate import Plate
+from .blocks.simulation import SimParam, SimulatorEffect
 from .certificate_prior import certificate_terms, held_prior_rows, residual_u_um
 from .effects import (
     GROUPS,

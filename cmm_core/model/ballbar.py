@@ -36,7 +36,7 @@ __all__ = ["BallBar", "simulate_ball_bar"]
 
 @dataclass(frozen=True, eq=False)
 class BallBar:
-    """Lengths of a ball bar between two probed ball centres (``io_instruments.read_ball_bar``).
+    """Lengths of a ball bar between two probed ball centres (``instrument_files.read_ball_bar``).
 
     Attributes
     ----------
@@ -109,7 +109,7 @@ def simulate_ball_bar(sim: Any, start_mm: ArrayLike, end_mm: ArrayLike, *,
 
     Parameters
     ----------
-    sim : simulate.Simulation
+    sim : virtual_cmm.Simulation
     start_mm, end_mm : array (m, 3) or (3,)
         True ball centres, mm machine axes.
     offset_mm : (3,) array

@@ -53,7 +53,7 @@ def certificate_terms(prob: Problem, state: State, design_null: np.ndarray, sigm
 
     Parameters
     ----------
-    prob : fit.Problem
+    prob : problem.Problem
         The fixed-plate problem, ``state`` its solution, ``design_null`` the combinations
         its design left undetermined (held), ``cov`` its σ-only covariance.
     normal : tuple, optional

@@ -196,7 +196,7 @@ class ModelSpec:
             elif n not in SQUARENESS:
                 out += [f"{n}:{k}" for k in range(o + 1, min(o + 2, MAX_ORDER) + 1)]
         out += [e for e in PHYSICAL if e not in self.effects]
-        # without a period: diagnose scans the period (``diagnose.PERIOD_SCAN``)
+        # without a period: diagnose scans the period (``blocks.periodic.PERIOD_SCAN``)
         have = {n for n, _ in self.periods}
         out += [t for t, n in PERIODIC.items() if n not in have]
         return out

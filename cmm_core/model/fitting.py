@@ -75,7 +75,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
         Singular values of the column-scaled reduced Jacobian below ``rank_rtol`` times the
         largest count as zero: those directions are reported as undetermined.
     certificate_test : bool
-        With the certificate fixed, count its uncertainty (``fit_certificate``): in the χ²
+        With the certificate fixed, count its uncertainty (``certificate_prior``): in the χ²
         test and, propagated, in every parameter's covariance (one more evaluation);
         False leaves ``chi2_test`` = χ² and the covariance of σ alone (the diagnosis's
         refits compare χ² only).

@@ -3,7 +3,7 @@
 These instruments observe the machine's kinematic errors directly, with no plate and no
 placement in between: their weighted rows depend on the kinematic coefficients only and
 join the fit's least squares beside the ball plate's rows (``normal.accumulate``,
-``fit.weighted_residual``), as the certificate prior's rows do. Formats, sign conventions
+``problem.weighted_residual``), as the certificate prior's rows do. Formats, sign conventions
 and what each instrument separates: ``docs/instruments.md``.
 
 Sign convention. The kinematic model (``kinematics``) gives the true point ``x*(x, p)``
@@ -33,7 +33,7 @@ Step gauge or gauge block (one length per row, probed points ``r1``, ``r2``)::
 the measured length corrected by the model's change of the distance between the two
 points; the row is ``pred / u``. It is sensitive to the scale of the machine, which a
 self-calibrated plate cannot give (``Instruments.plate_gauge``). Ball bars (lengths between
-two probed ball centres, eq. 3) are in :mod:`cmm_core.instruments_ballbar`.
+two probed ball centres, eq. 3) are in :mod:`cmm_core.model.ballbar`.
 """
 
 from __future__ import annotations
@@ -184,7 +184,7 @@ def _stacked(parts, m):
 
 @dataclass(frozen=True, eq=False)
 class LaserRun:
-    """Readings of a laser interferometer file (``io_instruments.read_laser``).
+    """Readings of a laser interferometer file (``instrument_files.read_laser``).
 
     Attributes
     ----------
@@ -265,7 +265,7 @@ class LaserRun:
 
 @dataclass(frozen=True, eq=False)
 class StepGauge:
-    """Lengths measured on a step gauge or gauge blocks (``io_instruments.read_step_gauge``).
+    """Lengths measured on a step gauge or gauge blocks (``instrument_files.read_step_gauge``).
 
     Attributes
     ----------
@@ -334,11 +334,11 @@ def length_change(terms: KinematicTerms, coef: np.ndarray, r1_mm: np.ndarray,
 
 
 class Instruments:
-    """The instrument rows of one :class:`fit.Problem` (``Problem.instruments``).
+    """The instrument rows of one :class:`problem.Problem` (``Problem.instruments``).
 
     Parameters
     ----------
-    problem : fit.Problem
+    problem : problem.Problem
         Its observations carry the instrument data (``Observations.instruments``); its
         kinematic terms and layout fix the model and the columns.
     """
@@ -394,7 +394,7 @@ class Instruments:
         return r, (np.vstack([p[2] for p in parts]) if parts else np.zeros((0, k)))
 
     def append(self, r: np.ndarray, J: Any, state: State, n_params: int) -> tuple[np.ndarray, Any]:
-        """``r`` and the sparse ``J`` of ``fit.weighted_residual`` with the instrument rows
+        """``r`` and the sparse ``J`` of ``problem.weighted_residual`` with the instrument rows
         appended (J in CSR over all ``n_params`` columns, or None)."""
         if not self.items:
             return r, J
@@ -519,7 +519,7 @@ def residuals_frame(result: Any) -> pd.DataFrame:
 # --- simulation from a Simulation's truth ------------------------------------------------
 
 def truth_of(sim: Any) -> tuple[KinematicTerms, np.ndarray]:
-    """``(KinematicTerms, coefficients)`` of a ``simulate.Simulation``'s true machine: its
+    """``(KinematicTerms, coefficients)`` of a ``virtual_cmm.Simulation``'s true machine: its
     kinematic spec, order, strokes and layout, the coefficients from ``sim.truth``."""
 
     km, setup = sim.config["kinematic"], sim.dataset.setup
@@ -538,7 +538,7 @@ def simulate_laser(sim: Any, axis: str, line_mm: ArrayLike,
 
     Parameters
     ----------
-    sim : simulate.Simulation
+    sim : virtual_cmm.Simulation
     axis : {"x", "y", "z"}
         Moving axis.
     line_mm : (3,) array

@@ -3,7 +3,7 @@
 A fit needs ``JᵀJ`` and ``Jᵀr`` of its weighted Jacobian, never ``J`` itself. Building
 the sparse ``J`` of 10^5 observations (a dense kinematic block in every row) and then
 multiplying it out held several copies of it at once (~450 MB). Here each block of
-``rows`` observations is evaluated on its own (a :class:`fit.Problem` over those rows,
+``rows`` observations is evaluated on its own (a :class:`problem.Problem` over those rows,
 with the same layout and state) and its products are added in: the memory is one block's
 rows (a few MB) whatever the number of observations.
 
@@ -327,10 +327,10 @@ def _plate_cross(prob: Any, state: State) -> tuple | None:
 
 def accumulate(prob: Any, state: State, sigma_um: float, rows: int = ROWS,
                plate_cross: bool = True) -> NormalEquations:
-    """Weighted normal equations of ``prob`` at ``state`` (``fit.Problem.normal_equations``).
+    """Weighted normal equations of ``prob`` at ``state`` (``problem.Problem.normal_equations``).
 
     Residual rows are divided by σ; with a plate prior its rows ``(c - c_cert)/u`` are
-    added as in ``fit.weighted_residual``, and so are the instruments' weighted rows
+    added as in ``problem.weighted_residual``, and so are the instruments' weighted rows
     (laser runs, step gauges: ``instruments``), on the kinematic columns only.
 
     Each block's Jacobian is taken in two parts: the kinematic coefficients ``K`` (the

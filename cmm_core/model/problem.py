@@ -1,6 +1,6 @@
 """One model on one selection of observations: the parameter layout of its effect blocks,
 residuals and their analytic Jacobian, gauge constraints and weighted residual rows
-(thesis eq. 4.13-4.15; the solver that uses them is ``fit.fit``).
+(thesis eq. 4.13-4.15; the solver that uses them is ``fitting.fit``).
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ from ..units import UM
 from . import hole_plate
 from . import normal as _normal
 from .blocks import REGISTRY
-from .blocks.base import Block, Eval
+from .blocks.base import Block
+from .blocks.context import Eval
 from .blocks.kinematic import Kinematic
 from .blocks.plate import Plate
 from .effects import ModelSpec
@@ -54,7 +55,7 @@ class _Layout:
 class Problem:
     """Parameter layout, residuals and analytic Jacobian of one model on one selection.
 
-    The model is the sum of its effect blocks (``cmm_core.blocks``): each lays out its
+    The model is the sum of its effect blocks (``cmm_core.model.blocks``): each lays out its
     columns, takes part in the probe, plate and reading stages of the residual, writes its
     Jacobian columns and its gauge constraints.
     """
@@ -227,7 +228,8 @@ def augmented_state(base: Any, prob: Problem) -> State:
     """A fit's solution (``base``: a ``FitResult``; typed Any, as ``result`` imports this
     module) expressed in another problem's parameter vector on the same
     observations (parameters the fit does not have start at zero): the linearisation
-    point from which a candidate effect is scored (``diagnose.score``, ``holdout``)."""
+    point from which a candidate effect is scored (``diagnosis.scoring.score``,
+    ``diagnosis.crossval``)."""
     return base.state.relabelled(base.labels, prob.layout.labels)
 
 

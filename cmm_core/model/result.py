@@ -76,7 +76,7 @@ class FitResult:
     design_null : ndarray (k, n_params)
         Rows ``N`` of the constraints ``N x = 0`` that hold the combinations this design
         cannot determine (decided at the nominal linearisation); an augmented model scored
-        from this fit keeps them (``diagnose.score``).
+        from this fit keeps them (``diagnosis.scoring.score``).
     chi2_test, dof_test : float, int
         The statistic behind the χ² test and the Birge ratio: ``chi2`` and ``dof``, except
         with the certificate fixed, where the certificate's uncertainty is counted (the χ²
@@ -84,7 +84,7 @@ class FitResult:
         not the model's misfit. None means equal to ``chi2``, ``dof``.
     covariance_noise : ndarray or None
         The part of ``covariance`` due to the probing noise alone, when the certificate's
-        own uncertainty is propagated into it (certificate fixed, ``fit_certificate``);
+        own uncertainty is propagated into it (certificate fixed, ``certificate_prior``);
         None: ``covariance`` is all noise.
     """
 

@@ -17,7 +17,7 @@ import numpy as np
 from ..io import ARTEFACTS, DataError, range_tolerance, refuse_unknown_keys
 from ..io.errors import cut_repr
 from .blocks import BY_TOKEN
-from .blocks.base import SimCheck, SimulatorEffect
+from .blocks.simulation import SimCheck, SimulatorEffect
 from .effects import MAX_ORDER
 
 DEFAULT_CONFIG = {
@@ -38,7 +38,7 @@ DEFAULT_CONFIG = {
     "repeat_at_end": {},
     "artefact": None,
 }
-"""``artefact`` None: the setup's (``io_setup.ARTEFACTS``; a ball plate unless the setup
+"""``artefact`` None: the setup's (``io.setup.ARTEFACTS``; a ball plate unless the setup
 says otherwise); ``"hole_plate"`` simulates the plate's features as holes."""
 
 
@@ -272,10 +272,11 @@ def _check_plate_in_machine(setup, nominal, name, probes_per_position=None):
 
 
 def simulator_effects() -> list:
-    """The hidden effects a simulator panel offers, one :class:`blocks.base.SimulatorEffect`
-    per block with a :attr:`~blocks.base.Block.sim_label`, in ``blocks.REGISTRY`` order:
-    draw a checkbox ``label`` (tooltip ``help``) and, when ticked, one number input per
-    ``params`` entry (label, default, range, step); ``effect.config(values)`` is then the
+    """The hidden effects a simulator panel offers, one
+    :class:`blocks.simulation.SimulatorEffect` per block with a
+    :attr:`~blocks.base.Block.sim_label`, in ``blocks.REGISTRY`` order: draw a checkbox
+    ``label`` (tooltip ``help``) and, when ticked, one number input per ``params`` entry
+    (label, default, range, step); ``effect.config(values)`` is then the
     ``effects.<token>`` body of the configuration."""
     return [SimulatorEffect(token, b.sim_label, b.sim_help, tuple(b.sim_params),
                             dict(b.sim_fixed))

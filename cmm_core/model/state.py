@@ -3,8 +3,8 @@
 The plate coordinates and placements are carried outside the parameter vector so that
 the fitted parameters stay small increments (thesis §4.5: rotations updated
 multiplicatively, the plate into its coordinates); ``x`` holds the parameters of the
-problem's layout (``fit.Problem.layout``). A state is immutable: a Gauss-Newton step
-makes a new one (``fit.Problem.update``), each block replacing what it owns.
+problem's layout (``problem.Problem.layout``). A state is immutable: a Gauss-Newton step
+makes a new one (``problem.Problem.update``), each block replacing what it owns.
 """
 
 from __future__ import annotations

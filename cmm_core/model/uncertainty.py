@@ -226,7 +226,7 @@ def residual_u(result: FitResult, *, chunk: int = 30000) -> np.ndarray:
     ``√(u_model² + σ²)`` treats them as independent, which holds only for a measurement
     the fit did not use, and made nominal 95 % intervals cover about 97 % (96.3 % with
     the plate fixed, 97.1 % with it free, over simulated data sets). With the certificate
-    fixed its errors add their own part (``fit_certificate.residual_u_um``). With this, they
+    fixed its errors add their own part (``certificate_prior.residual_u_um``). With this, they
     cover 95 % (``tests/test_coverage.py``).
 
     Parameters

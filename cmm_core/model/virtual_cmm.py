@@ -5,7 +5,7 @@ every probed ball the true tip centre ``s = R_k c_b' + t_k`` is computed (plate 
 thermal expansion and sag included in ``c_b'``), the scale readings ``x`` that reach it are
 found by solving ``x*(x, p_true) = s + drift`` with exact rotations
 (``kinematics.invert``), and the CMM reports ``r = x + p_nominal`` plus noise. The effects
-are the fit's own blocks (``cmm_core.blocks``): each draws its true parameters
+are the fit's own blocks (``cmm_core.model.blocks``): each draws its true parameters
 (``Block.draw``) and the fit's model at the truth gives the targets (``Problem.targets``).
 
 Configuration keys (all optional; see ``DEFAULT_CONFIG``): ``seed``, ``setup`` (a setup
@@ -48,7 +48,7 @@ from ..io import (
 from ..machine import KinematicTerms
 from ..machine import kinematics as kin
 from .blocks import BY_TOKEN
-from .blocks.base import SimContext
+from .blocks.simulation import SimContext
 from .effects import parse_spec
 from .observations import Observations, approach_directions, setup_layout
 from .problem import Problem

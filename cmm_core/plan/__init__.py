@@ -3,7 +3,8 @@ alone, and the task-specific uncertainty of a measurement (``docs/planning.md``)
 
 Owns: :mod:`.plans` (:class:`Plan`, its simulated data and fit), :mod:`.evaluation`
 (:func:`evaluate`), :mod:`.detect` (detection limits), :mod:`.designer` (cheapest plan),
-:mod:`.study` (Monte Carlo checks, Dask), :mod:`.files` (plan JSON), :mod:`.task`.
+:mod:`.study` (Monte Carlo checks, Dask), :mod:`.files` (plan JSON), :mod:`.task`,
+``proposals/`` (measure next: candidates, appending, rivals, separation, ranking, outcomes).
 May import: ``machine``, ``io``, ``model``, ``diagnosis``, ``gum``, ``export``.
 """
 
@@ -123,7 +124,7 @@ __all__ = [
     "STRATEGY_KEYS", "STROKE_POINTS", "StudyResult", "StudyTask", "summarise", "Task",
     "TASK_KEYS", "task_uncertainty", "TaskResult", "TASKS", "tasks_for", "TOP_KEYS", "units_of",
     "WEAK_PRIOR",
-    # measure next (proposals.py)
+    # measure next (proposals/)
     "TARGET_POWER", "SHIFT_FRACTION", "STYLUS_OFFSET_MM", "NextMeasurement", "Outcome",
     "PlateGrid", "Proposal", "Proposals", "RivalFits", "append_measurement", "fit_rivals",
     "measurement_candidates", "measurement_observations", "plan_file", "plate_grid",

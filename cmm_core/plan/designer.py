@@ -16,7 +16,7 @@ the whole pool; a plan's information matrix is the sum of its units' Gram matric
 - the rank and the covariance follow the fit's rule (column-scaled, gauge constraints by
   null-space projection, relative singular-value tolerance ``rank_rtol``);
 - a detection limit uses the Schur complement of the effect's columns,
-  ``N_EE − N_EB N_BB⁺ N_BE = ‖(I − P_base) J_E‖²`` (``plan_detect``'s non-centrality);
+  ``N_EE − N_EB N_BB⁺ N_BE = ‖(I − P_base) J_E‖²`` (``detect``'s non-centrality);
 - the search criterion is Bayesian D- or A-optimality of the kinematic coefficients
   (Chaloner & Verdinelli 1995): the posterior precision ``N_S + Π`` with the plan's
   prior sizes in Π, so that plans with undetermined parameters still compare.
@@ -76,7 +76,7 @@ class PoolModel:
         self.rows_per_unit = np.bincount(rows, minlength=len(self.units))
         self.prior_gram = J[n_obs_rows:].T @ J[n_obs_rows:]
         # with the certificate fixed its uncertainty propagates into every parameter
-        # (fit_certificate): per unit, the cross information of the parameters and the
+        # (model.certificate_prior): per unit, the cross information of the parameters and the
         # plate coordinates, to be summed over a subset like the Gram matrices
         self.cert_cross, self.cert_u2, self.cert_sq = None, None, None
         if base.plate == "fixed" and obs.cert_u_um is not None:

@@ -1,6 +1,6 @@
 """What a plan will deliver, from its design alone: U1-U3, the error functions'
 uncertainties, undetermined combinations, detection limits and time (``plan`` makes and
-fits the plan's data; ``plan_detect`` the detection limits).
+fits the plan's data; ``detect`` the detection limits).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ class PlanEvaluation:
         the function at ``STROKE_POINTS`` points of its stroke (µm or µrad; None when the
         function is undetermined).
     detection_limits : dict
-        Catalogue effect -> ``plan_detect.DetectionLimit``.
+        Catalogue effect -> ``detect.DetectionLimit``.
     skipped : dict
         Effects the diagnosis would not try with these data, with the reason.
     time_min : float
@@ -140,7 +140,7 @@ def evaluate(plan: Plan, *, detection: bool = True, n_random: int = 200) -> Plan
     ----------
     plan : Plan
     detection : bool
-        Compute the detection limit of every catalogue effect (``plan_detect``).
+        Compute the detection limit of every catalogue effect (``detect``).
     n_random : int
         Random points of U2 and U3 (thesis: 200).
 

@@ -3,7 +3,7 @@
 A plan file holds one setup (machine, placements, styli), the plate, the model, the
 noise and the measurement order and timing shared by its strategies, the strategies to
 compare (each a set of placements with their styli, optionally with its own noise and
-measurement settings) and an optional ``design`` section (``plan_design``).
+measurement settings) and an optional ``design`` section (``designer``).
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ class PlanFile:
     base : Plan
         Every placement of the setup with its default stylus (the pool's geometry).
     design : dict or None
-        The ``design`` section (pool, target, criterion), checked by ``plan_design``.
+        The ``design`` section (pool, target, criterion), checked by ``designer``.
     name : str
         File name for messages.
     """

@@ -9,11 +9,11 @@ measurement this module reports what a fit of such data would report:
   them), and the parameters involved;
 - U1, U2, U3 as thesis §4.5.3 and tables 4.1-4.3 define them (``uncertainty.evaluate``);
 - the standard uncertainty of every error function over its stroke;
-- the detection limit of every catalogue effect (``plan_detect``);
+- the detection limit of every catalogue effect (``detect``);
 - the measuring time.
 
 How. The plan is simulated on the virtual CMM without noise and without errors
-(``simulate``) and fitted with the real fit (``fit.fit``). At zero residual the fit stands
+(``simulate``) and fitted with the real fit (``model.fit``). At zero residual the fit stands
 at the nominal linearisation, so its covariance is the design's ``σ² (JᵀJ)⁺`` on the
 constrained problem (law of propagation of uncertainty, JCGM 100 §5.1.2; thesis
 appendix 2 constraints) and its null space is the design's: the undetermined
@@ -21,7 +21,7 @@ combinations are found by the same code, with the same rank rule, as on real dat
 only approximation is the linearisation point: a fit of real data linearises at its
 estimate, micrometres from nominal, which changes uncertainties by parts per million.
 
-The plan file format (``plan_file``) is described in ``docs/planning.md``.
+The plan file format (``files``) is described in ``docs/planning.md``.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ from the plan's prior sizes) and fits the plan's model:
 - a *clean* task returns the fit's U2/U3 (``uncertainty.evaluate``) and the normalised
   errors ``z = (estimate − truth) / u`` of the kinematic coefficients;
 - an *effect* task hides one catalogue effect at its predicted detection limit and runs
-  the diagnosis's test of it (``plan_detect.detection_trial``).
+  the diagnosis's test of it (``detect.detection_trial``).
 
 Tasks are independent, so they are mapped over a ``dask.distributed`` cluster: a
 ``LocalCluster`` by default, or any scheduler address. Summaries: observed against
@@ -52,7 +52,7 @@ class StudyTask:
     plan : Plan
     seed : int
         Seed of the simulation (noise, prior errors).
-    limit : plan_detect.DetectionLimit or None
+    limit : detect.DetectionLimit or None
         The effect hidden at its detection limit; None for a clean task.
     plan_index : int
         Index of the plan in the study (for the summaries).

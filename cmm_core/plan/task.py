@@ -334,8 +334,8 @@ def task_uncertainty(model: Model, task: Task, *, trials: int | None = None,
 
     Parameters
     ----------
-    model : compensate.Model
-        A saved model (``fit --save``; ``compensate.load_model``).
+    model : export.Model
+        A saved model (``fit --save``; ``export.load_model``).
     task : Task
     trials : int, optional
         Monte Carlo trials (default: the task's).

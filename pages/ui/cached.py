@@ -138,7 +138,7 @@ def cached_uncertainty(key: FitKey, n_random, seed, _result):
 @st.cache_resource(show_spinner=False, max_entries=64)
 def cached_gp_discrepancy(key: FitKey, _result) -> float:
     """GP discrepancy of a fit (µm): the structure a GP over its residuals finds, with the
-    model's own design matrix as basis (``diagnose.discrepancy_gp``)."""
+    model's own design matrix as basis (``diagnosis.discrepancy_gp``)."""
     return float(discrepancy_gp(_result, restarts=1).rms_amplitude_um)
 
 

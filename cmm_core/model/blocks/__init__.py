@@ -1,6 +1,7 @@
-"""Effect blocks: one physical effect, one class, one module (``base.Block`` protocol).
+"""Effect blocks: one physical effect, one class, one module (``base.Block`` protocol; the
+types a block works with in ``context``, ``simulation`` and ``compensation``).
 
-The fit (``fit.Problem``) lays out its parameters, evaluates residuals and Jacobians and
+The fit (``problem.Problem``) lays out its parameters, evaluates residuals and Jacobians and
 collects gauge constraints by looping over :data:`REGISTRY`; the diagnosis asks
 :func:`needs` whether the data can see an effect. Adding an effect is adding one module
 with its block and listing it here (its catalogue text is the block's ``entry``).
@@ -12,9 +13,10 @@ from typing import TYPE_CHECKING
 
 from . import periodic
 from .backlash import Backlash
-from .base import Block, Eval
+from .base import Block
 from .bridge_twist import BridgeTwist
 from .column_bend import ColumnBend
+from .context import Eval
 from .drift import Drift
 from .kinematic import Kinematic
 from .machine_thermal import MachineThermal

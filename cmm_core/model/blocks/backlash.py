@@ -14,6 +14,7 @@ as it did before the blocks corrected new points.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from types import MappingProxyType
 
 import numpy as np
 import pandas as pd
@@ -22,20 +23,10 @@ from ...io import DataError
 from ...io.delimited import numeric_column
 from ...io.errors import cut_repr
 from ..observations import Observations, approach_directions
-from .base import (
-    Block,
-    Column,
-    Correction,
-    Effect,
-    Eval,
-    Jacobian,
-    ModelPart,
-    Shape,
-    SimContext,
-    SimParam,
-    checked_cov,
-    shared_cols,
-)
+from .base import Block, Effect
+from .compensation import Correction, ModelPart, checked_cov
+from .context import Column, Eval, Jacobian, Shape, shared_cols
+from .simulation import SimContext, SimParam
 
 LABELS = tuple(f"backlash.{a}" for a in "xyz")
 
@@ -57,7 +48,7 @@ class Backlash(Block):
         "from both sides.")
 
     sim_keys = frozenset({"x_um", "y_um", "z_um"})
-    sim_ranges = {f"{a}_um": (-1e3, 1e3) for a in "xyz"}
+    sim_ranges = MappingProxyType({f"{a}_um": (-1e3, 1e3) for a in "xyz"})
     sim_label = "Backlash"
     sim_help = ("Reversal error: each axis reads short by half the span in the direction it "
                 "last moved. Visible with serpentine or random order.")

@@ -1,6 +1,8 @@
-"""The protocol every effect block implements, and the evaluation context they share.
+"""The protocol every effect block implements (:class:`Block`), its catalogue entry
+(:class:`Effect`), and the kind of block only some machine layouts have
+(:class:`LayoutBlock`).
 
-The residual of an observation (µm) is built in stages (``fit`` module docstring)::
+The residual of an observation (µm) is built in stages (``problem`` module docstring)::
 
     p' = probe stage(p)                    probe_offset
     x* = kinematic model(r - p, p')        kinematic (thesis eq. 4.13)
@@ -15,165 +17,30 @@ machine_thermal) says what the model file keeps of it (:meth:`Block.compensation
 :meth:`Block.part_to_file`, :meth:`Block.part_from_file`) and how it corrects a point
 (:meth:`Block.correct`); a block checks its own simulator configuration
 (:meth:`Block.check_sim`).
+
+The types a block works with are kept by role: the evaluation context and what a block
+reads of the problem (:mod:`.context`), the simulator's (:mod:`.simulation`), the
+correction of new points' (:mod:`.compensation`).
 """
 
 from __future__ import annotations
 
-import difflib
-import math
-from collections.abc import Collection, Sequence
-from dataclasses import dataclass, field
-from typing import Protocol
+from collections.abc import Collection, Mapping, Sequence
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import ClassVar
 
 import numpy as np
 import pandas as pd
 
 from ...io import DataError
 from ...io.errors import cut_repr
-from ...io.setup import check_celsius
-from ...machine import DEFAULT_LAYOUT, KinematicTerms
+from ...machine import DEFAULT_LAYOUT
 from ..observations import Observations
 from ..state import State
-
-Column = tuple[str, Sequence[str], str | Sequence[str]]
-"""A layout entry :meth:`Block.columns` adds: ``(name, labels, unit)``, the unit one
-string for every label or one per label."""
-
-Jacobian = list[tuple[np.ndarray, np.ndarray]]
-"""What :meth:`Block.jacobian` returns: ``[(cols, values)]``, ``values`` (n, 3, k) the
-derivatives of the three residual components with respect to the ``k`` columns ``cols``
-((n, 3, k) or broadcastable to it, e.g. (n, k))."""
-
-Shape = tuple[str, dict[str, float]]
-"""A detection shape of :meth:`Block.detection_shapes`: ``(name, {label: weight})``."""
-
-
-class LayoutLike(Protocol):
-    """What a block reads of the problem's parameter layout (``problem._Layout``)."""
-
-    @property
-    def blocks(self) -> dict[str, slice]:
-        """Layout name -> slice of the parameter vector."""
-        ...
-
-    @property
-    def n(self) -> int:
-        """Length of the parameter vector."""
-        ...
-
-
-class ProblemLike(Protocol):
-    """What a block reads of the problem it belongs to (``problem.Problem``). A protocol,
-    not the class: ``problem`` imports the blocks, so importing it here would close an
-    import circle (``tests/test_wings.py``)."""
-
-    @property
-    def obs(self) -> Observations:
-        """The observations fitted."""
-        ...
-
-    @property
-    def layout(self) -> LayoutLike:
-        """Column layout of the parameter vector."""
-        ...
-
-    @property
-    def terms(self) -> KinematicTerms:
-        """The kinematic model's terms."""
-        ...
-
-    @property
-    def plate_centre(self) -> np.ndarray:
-        """Centre of the plate (3,) mm, about which it expands."""
-        ...
-
-    @property
-    def sag_basis(self) -> np.ndarray:
-        """Sag shapes of every ball (B, 3)."""
-        ...
-
-
-class SpecLike(Protocol):
-    """What :meth:`Block.wanted` reads of a model spec (``effects.ModelSpec``; a protocol,
-    as ``effects`` imports the blocks)."""
-
-    @property
-    def effects(self) -> Collection[str]:
-        """Physical effects present (catalogue tokens)."""
-        ...
-
-
-class FitLike(Protocol):
-    """What :meth:`Block.compensation` reads of a fit (``result.FitResult``; a protocol,
-    as ``result`` imports the problem, which imports the blocks)."""
-
-    @property
-    def problem(self) -> ProblemLike:
-        """The fitted problem."""
-        ...
-
-    @property
-    def labels(self) -> Sequence[str]:
-        """One label per parameter."""
-        ...
-
-    @property
-    def values(self) -> np.ndarray:
-        """Parameter estimates (p,)."""
-        ...
-
-    @property
-    def covariance(self) -> np.ndarray:
-        """Parameter covariance (p, p)."""
-        ...
-
-
-@dataclass
-class Eval:
-    """Working values of one residual evaluation, shared by the blocks.
-
-    Attributes
-    ----------
-    problem : fit.Problem
-        The problem being evaluated (observations, layout, blocks).
-    state : fit_state.State
-        Plate coordinates, placements and the parameter vector.
-    want_jac : bool
-        Whether the Jacobian is wanted.
-    p_mm : ndarray (n, 3)
-        Probe offsets after the probe stage.
-    plate_mm : ndarray (n, 3)
-        Plate coordinates of each observation after the plate stage.
-    plate_scale : ndarray (n,) or float
-        Thermal scale factor applied to the plate coordinates (plate Jacobian).
-    Rk : ndarray (n, 3, 3)
-        Rotation of each observation's placement.
-    kin_jac : ndarray (n, 3, k) or None
-        Kinematic model Jacobian (µm per coefficient unit).
-    """
-
-    problem: ProblemLike
-    state: State
-    want_jac: bool
-    p_mm: np.ndarray | None = None
-    plate_mm: np.ndarray | None = None
-    plate_scale: np.ndarray | float = 1.0
-    Rk: np.ndarray | None = None
-    kin_jac: np.ndarray | None = None
-    extra: dict = field(default_factory=dict)
-
-    @property
-    def obs(self) -> Observations:
-        """The problem's observations."""
-        return self.problem.obs
-
-    def x(self, name: str) -> np.ndarray:
-        """Parameters of one layout slice."""
-        return self.state.x[self.problem.layout.blocks[name]]
-
-    def start(self, name: str) -> int:
-        """First column of one layout slice."""
-        return self.problem.layout.blocks[name].start
+from .compensation import Correction, ModelPart, checked_cov
+from .context import Column, Eval, FitLike, Jacobian, ProblemLike, Shape, SpecLike, shared_cols
+from .simulation import SimCheck, SimContext
 
 
 @dataclass(frozen=True)
@@ -202,208 +69,6 @@ class Effect:
     needs: str
     confused_with: str
     separate_by: str
-
-
-@dataclass
-class SimContext:
-    """What a block's :meth:`Block.draw` sees of a simulation, and may set.
-
-    Attributes
-    ----------
-    positions, probes : list of str
-        Positions and probes of the setup.
-    temps_C : dict
-        Plate temperature of each position at its start and finish (°C); 20 °C unless a
-        block (plate_thermal) sets it.
-    columns : dict
-        Further columns a block records: column -> {position: (start, finish)},
-        interpolated over each position's measuring time like ``temp_C``.
-    """
-
-    positions: list
-    probes: list
-    temps_C: dict = field(default_factory=dict)
-    columns: dict = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class SimCheck:
-    """What a block's :meth:`Block.check_sim` checks its configuration against, and the
-    refusals it raises (every one a ``DataError`` naming the file and the key).
-
-    Attributes
-    ----------
-    name : str
-        The configuration's file name, for messages.
-    positions : tuple of str
-        Positions of the setup being simulated.
-    probes : tuple of str
-        Probes of that setup.
-    layout : str
-        The simulated machine's layout ("" when not known).
-    """
-
-    name: str
-    positions: tuple
-    probes: tuple
-    layout: str = ""
-
-    def bad(self, column: str, message: str, hint: str | None = None) -> DataError:
-        """A refusal of the key ``column``."""
-        return DataError(message, file=self.name, column=column, hint=hint)
-
-    def known(self, column: str, key: object, names: Collection[str], what: str) -> None:
-        """Refuse ``key`` unless it is one of ``names`` (a position or probe of the setup);
-        a close name is offered (a typo would silently drop the entry)."""
-        if str(key) not in names:
-            close = difflib.get_close_matches(str(key), list(names), n=1, cutoff=0.6)
-            raise self.bad(column, f"{what} {cut_repr(key)} is not in the setup (known: "
-                           f"{cut_repr(', '.join(names), 200)})" + (
-                               f"; did you mean {close[0]!r}?" if close else "."))
-
-    def vectors_by_name(self, cfg: dict, where: str, skip: str, names: Collection[str],
-                        what: str) -> None:
-        """Every key of ``cfg`` but ``skip`` one of ``names`` (positions or probes of the
-        setup), each with a vector of 3 numbers (drift per position, offset per probe)."""
-        for key, v in cfg.items():
-            if key != skip:
-                self.known(f"{where}.{key}", key, names, what)
-                self.vector(f"{where}.{key}", v)
-
-    def vector(self, column: str, v: object) -> None:
-        """Refuse anything but 3 finite numbers."""
-        if not (isinstance(v, list | tuple) and len(v) == 3 and all(
-                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
-                for x in v)):
-            raise self.bad(column, f"expected 3 finite numbers (µm or µm/h), found "
-                           f"{cut_repr(v)}.")
-
-    def start_finish_C(self, column: str, temps: object) -> None:
-        """Refuse ``temps`` unless it maps positions of the setup to [start, finish]
-        temperatures in °C."""
-        if temps is None:
-            return
-        if not isinstance(temps, dict):
-            raise self.bad(column, f"expected an object position: [start, finish] in °C, "
-                           f"found {cut_repr(temps)}.")
-        for pos, t in temps.items():
-            col = f"{column}.{pos}"
-            self.known(col, pos, self.positions, "position")
-            if not (isinstance(t, list) and len(t) == 2 and all(
-                    isinstance(x, int | float) and not isinstance(x, bool) for x in t)):
-                raise self.bad(col, f"expected [start, finish] in °C, found {cut_repr(t)}.")
-            check_celsius(np.asarray(t, float), self.name, col)
-
-
-@dataclass(frozen=True)
-class ModelPart:
-    """What a model file keeps of one block to correct new points (``compensate``).
-
-    Attributes
-    ----------
-    labels : tuple of str
-        The block's parameters applied to new points (fit labels: ``backlash.x``,
-        ``machine_thermal.cte_z``).
-    values : ndarray (k,)
-        Their fitted values, in the block's units.
-    cov : ndarray (n + m + k, n + m + k)
-        Joint covariance of the n kinematic coefficients, the m parameters of the
-        compensating blocks before this one in ``REGISTRY`` order, and these k: the
-        correction's uncertainty needs their correlations with the error map.
-    """
-
-    labels: tuple
-    values: np.ndarray
-    cov: np.ndarray
-    context: dict = field(default_factory=dict, compare=False)
-    """What else the block's :meth:`Block.correct` needs of the fit (the machine's
-    range and layout: ``bridge_twist``), written and read by the block with its keys."""
-
-
-@dataclass(frozen=True)
-class SimParam:
-    """One number of a simulator panel's effect: what a UI needs to draw its input.
-
-    Attributes
-    ----------
-    key : str
-        Key under ``effects.<token>`` in the simulator configuration.
-    label : str
-        Input label, with its unit (``"sag uu (µm)"``).
-    unit : str
-        Unit of the value as the configuration takes it (``um``, ``urad``, ``1/K``).
-    default, low, high : float
-        Default value and the input's range, in the input's unit (times ``scale``:
-        within the block's ``sim_ranges``).
-    step : float
-        Input step.
-    """
-
-    key: str
-    label: str
-    unit: str
-    default: float
-    low: float
-    high: float
-    step: float = 0.1
-    scale: float = 1.0
-    """The configuration's value is the input times ``scale`` (an input in 10⁻⁶/K for a
-    key in 1/K: 1e-6)."""
-
-
-@dataclass(frozen=True)
-class SimulatorEffect:
-    """One hidden effect of the simulator panel (:func:`simulator_effects`): a checkbox
-    labelled ``label`` (tooltip ``help``) and an input per parameter.
-
-    Attributes
-    ----------
-    token : str
-        The effect's token: the key of ``effects`` in the simulator configuration.
-    label, help : str
-        Checkbox label and tooltip.
-    params : tuple of SimParam
-        The inputs to draw when the box is ticked (may be empty: defaults only).
-    fixed : dict
-        Keys always passed besides the inputs (``plate_sag``: ``uv`` 0).
-    """
-
-    token: str
-    label: str
-    help: str
-    params: tuple = ()
-    fixed: dict = field(default_factory=dict)
-
-    def config(self, values: dict | None = None) -> dict:
-        """The ``effects.<token>`` body for the inputs' ``values`` (key -> number; the
-        defaults for keys not given)."""
-        values = values or {}
-        return {**self.fixed, **{p.key: float(values.get(p.key, p.default)) * p.scale
-                                 for p in self.params}}
-
-
-@dataclass(frozen=True)
-class Correction:
-    """A block's correction of new points (:meth:`Block.correct`).
-
-    Attributes
-    ----------
-    delta_um : ndarray (m, 3)
-        Added to the kinematic correction ``e`` (true minus reported tip centre, µm).
-    jac : ndarray (m, 3, k)
-        Derivative of ``delta_um`` with respect to the part's values (µm per unit): the
-        columns that follow the kinematic Jacobian in the propagation through
-        :attr:`ModelPart.cov`.
-    var_um2 : ndarray (m, 3) or None
-        Variance the covariance does not hold (µm²), added to the propagated one.
-    columns : dict
-        Output columns the block adds (name -> (m,) array).
-    """
-
-    delta_um: np.ndarray
-    jac: np.ndarray
-    var_um2: np.ndarray | None = None
-    columns: dict = field(default_factory=dict)
 
 
 class Block:
@@ -435,8 +100,9 @@ class Block:
     sim_keys: frozenset | None = frozenset()
     """Keys the simulator accepts under ``effects.<token>`` (None: position or probe names
     besides those of :attr:`sim_ranges`, checked against the setup)."""
-    sim_ranges: dict = {}
-    """Numeric simulator keys and their allowed (low, high) range."""
+    sim_ranges: ClassVar[Mapping[str, tuple[float, float]]] = MappingProxyType({})
+    """Numeric simulator keys and their allowed (low, high) range (read-only: one mapping
+    per class, shared by its instances)."""
 
     def __init__(self, problem: ProblemLike) -> None:
         self.problem = problem
@@ -527,8 +193,8 @@ class Block:
     """Tooltip of that checkbox."""
     sim_params: tuple = ()
     """:class:`SimParam` inputs drawn when the box is ticked."""
-    sim_fixed: dict = {}
-    """Keys always passed with the inputs."""
+    sim_fixed: ClassVar[Mapping[str, float]] = MappingProxyType({})
+    """Keys always passed with the inputs (read-only)."""
 
     # --- simulator configuration ------------------------------------------------------
     @classmethod
@@ -612,12 +278,6 @@ class Block:
         by this block; ``labels``: the part's fitted labels when known (a block may need
         columns only for some of them). Default: none."""
         return ()
-
-
-MAX_MODEL_U = 1e6
-"""Largest standard uncertainty (µm, µrad) a model file's covariance may give a
-parameter: a metre or a radian is no CMM's error, and larger variances overflow the
-propagation (a grid's J V Jᵀ)."""
 
 
 class LayoutBlock(Block):
@@ -721,45 +381,3 @@ class LayoutBlock(Block):
                             column=f"{col}.{keys[0]}")
         checked_cov(cov, n_before + len(labels), name, f"{col}.{keys[1]}")
         return ModelPart(labels, values, cov, {"range_mm": rng, "layout": layout})
-
-
-def checked_cov(cov: np.ndarray, n: int, name: str | None, column: str) -> None:
-    """Refuse a model file's covariance unless it is an n × n finite, symmetric, positive
-    semi-definite matrix: a NaN or a negative variance would give NaN or imaginary
-    uncertainties, silently."""
-    if cov.shape != (n, n):
-        raise DataError(f"expected a {n}x{n} covariance, found shape {cov.shape}.", file=name,
-                        column=column)
-    if not np.isfinite(cov).all():
-        raise DataError("the covariance holds NaN or infinite entries; expected finite "
-                        "numbers.", file=name, column=column,
-                        hint="refit and save the model again (fit --save).")
-    scale = max(float(np.abs(cov).max()), 1e-300) if n else 1.0
-    if n and np.abs(cov - cov.T).max() > 1e-9 * scale:
-        raise DataError("the covariance is not symmetric.", file=name, column=column,
-                        hint="refit and save the model again (fit --save).")
-    if n and (np.diag(cov) < 0).any():
-        k = int(np.flatnonzero(np.diag(cov) < 0)[0])
-        raise DataError(f"entry {k} of the covariance's diagonal is negative "
-                        f"({cov[k, k]:g}); expected variances >= 0.", file=name, column=column)
-    if n and np.sqrt(np.diag(cov)).max() > MAX_MODEL_U:
-        k = int(np.argmax(np.diag(cov)))
-        raise DataError(f"entry {k} of the covariance's diagonal ({cov[k, k]:.3g}) is a "
-                        f"standard uncertainty above {MAX_MODEL_U:g} (µm or µrad); no CMM "
-                        "model is that uncertain.", file=name, column=column,
-                        hint="refit and save the model again (fit --save).")
-    unit = cov / scale  # scaled: eigvalsh of entries near 1e308 overflows
-    if n and np.linalg.eigvalsh((unit + unit.T) / 2).min() < -1e-8:
-        raise DataError("the covariance is not positive semi-definite; expected a "
-                        "covariance matrix.", file=name, column=column,
-                        hint="refit and save the model again (fit --save).")
-
-
-def per_group_cols(start: int, group: np.ndarray) -> np.ndarray:
-    """Columns ``start + 3 g + (0, 1, 2)`` of per-group xyz parameters, (n, 3)."""
-    return start + 3 * group[:, None] + np.arange(3)
-
-
-def shared_cols(start: int, k: int, n: int) -> np.ndarray:
-    """The same ``k`` columns for every observation, (n, k)."""
-    return np.broadcast_to(np.arange(start, start + k), (n, k))

@@ -104,6 +104,7 @@ no section (a file of a bridge layout whose spec has the block must have it).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from types import MappingProxyType
 
 import numpy as np
 import pandas as pd
@@ -111,16 +112,10 @@ import pandas as pd
 from ...machine import LAYOUTS
 from ...units import UM, URAD
 from ..observations import Observations
-from .base import (
-    Correction,
-    Effect,
-    Eval,
-    LayoutBlock,
-    ModelPart,
-    Shape,
-    SimContext,
-    SimParam,
-)
+from .base import Effect, LayoutBlock
+from .compensation import Correction, ModelPart
+from .context import Eval, Shape
+from .simulation import SimContext, SimParam
 
 SHAPES = ("lin", "quad", "cub")
 """The twist's shapes ``g(s) = s, s², s³`` (module docstring)."""
@@ -225,7 +220,8 @@ class BridgeTwist(LayoutBlock):
 
     sim_keys = frozenset({f"{k}_urad" for k in SHAPES} | {f"{k}_h_urad" for k in SHAPES}
                          | {"axis_height_mm"})
-    sim_ranges = {**{k: (-1e3, 1e3) for k in sim_keys}, "axis_height_mm": (-1e4, 1e4)}
+    sim_ranges = MappingProxyType({**{k: (-1e3, 1e3) for k in sim_keys},
+                                   "axis_height_mm": (-1e4, 1e4)})
     sim_label = "Bridge twist (carriage load)"
     sim_help = ("A roll of a moving bridge or gantry about its travel axis that depends on "
                 "where the carriage stands on it (non-rigid; other layouts: no effect).")

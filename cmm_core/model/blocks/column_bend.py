@@ -69,21 +69,17 @@ model's own ``range_mm`` and ``layout``. A layout without an arm keeps no sectio
 from __future__ import annotations
 
 from collections.abc import Sequence
+from types import MappingProxyType
 
 import numpy as np
 import pandas as pd
 
 from ...machine import LAYOUTS
 from ..observations import Observations
-from .base import (
-    Correction,
-    Effect,
-    Eval,
-    LayoutBlock,
-    ModelPart,
-    SimContext,
-    SimParam,
-)
+from .base import Effect, LayoutBlock
+from .compensation import Correction, ModelPart
+from .context import Eval
+from .simulation import SimContext, SimParam
 
 SHAPES = ("drop", "shear", "bend")
 """The deflection's shapes ``l²·η`` (vertical), ``l·η`` and ``l·η²`` (along the arm)."""
@@ -145,7 +141,7 @@ class ColumnBend(LayoutBlock):
         "height (the arm's length and its vertical bow change with z).")
 
     sim_keys = frozenset({f"{k}_um" for k in SHAPES})
-    sim_ranges = {k: (-1e3, 1e3) for k in sim_keys}
+    sim_ranges = MappingProxyType({k: (-1e3, 1e3) for k in sim_keys})
     sim_label = "Column bending (horizontal arm)"
     sim_help = ("The column of a horizontal-arm machine bending under the arm's moment: "
                 "the tip drops and shifts along the arm by amounts that depend on both the "

@@ -5,22 +5,14 @@ row order at one minute per probed ball (said so where it is reported)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from types import MappingProxyType
 
 import numpy as np
 
 from ..observations import Observations
-from .base import (
-    Block,
-    Column,
-    Effect,
-    Eval,
-    Jacobian,
-    Shape,
-    SimCheck,
-    SimContext,
-    SimParam,
-    per_group_cols,
-)
+from .base import Block, Effect
+from .context import Column, Eval, Jacobian, Shape, per_group_cols
+from .simulation import SimCheck, SimContext, SimParam
 
 
 class Drift(Block):
@@ -38,7 +30,7 @@ class Drift(Block):
         "order, if the balls were measured row by row).")
 
     sim_keys = None
-    sim_ranges = {"sd_um_per_h": (0, 1e4)}
+    sim_ranges = MappingProxyType({"sd_um_per_h": (0, 1e4)})
     sim_label = "Drift"
     sim_help = "A random linear drift of each position's readings in time."
     sim_params = (SimParam("sd_um_per_h", "sd (µm/h)", "um/h", 2.0, 0.0, 50.0),)

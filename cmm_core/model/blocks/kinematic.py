@@ -9,7 +9,8 @@ import numpy as np
 from ...machine import kinematics as kin
 from ...units import UM
 from ..observations import Observations
-from .base import Block, Column, Eval, Jacobian, SpecLike, shared_cols
+from .base import Block
+from .context import Column, Eval, Jacobian, SpecLike, shared_cols
 
 
 class Kinematic(Block):

@@ -16,6 +16,7 @@ keeps the section ``machine_thermal``: the fitted ``axes``, their ``cte_ppm_per_
 from __future__ import annotations
 
 from collections.abc import Sequence
+from types import MappingProxyType
 
 import numpy as np
 import pandas as pd
@@ -26,20 +27,10 @@ from ...io.errors import cut_repr
 from ...io.setup import check_celsius
 from ...units import PPM, UM
 from ..observations import Observations
-from .base import (
-    Block,
-    Column,
-    Correction,
-    Effect,
-    Eval,
-    Jacobian,
-    ModelPart,
-    SimCheck,
-    SimContext,
-    SimParam,
-    checked_cov,
-    shared_cols,
-)
+from .base import Block, Effect
+from .compensation import Correction, ModelPart, checked_cov
+from .context import Column, Eval, Jacobian, shared_cols
+from .simulation import SimCheck, SimContext, SimParam
 
 AXES = "xyz"
 SECTION_KEYS = ("axes", "cte_ppm_per_K", "cov_joint")
@@ -72,7 +63,7 @@ class MachineThermal(Block):
         "recorded (temp_C).")
     sim_keys = frozenset({f"{a}_cte_per_K" for a in AXES} | {"temp_C"})
     # an error of a compensated coefficient can have either sign
-    sim_ranges = {f"{a}_cte_per_K": (-3e-5, 3e-5) for a in AXES}
+    sim_ranges = MappingProxyType({f"{a}_cte_per_K": (-3e-5, 3e-5) for a in AXES})
     sim_label = "Machine scale expansion"
     sim_help = ("Each scale's expansion error with its temperature (recorded in temp_x_C, "
                 "temp_y_C, temp_z_C; 20.5-20.8 °C, warmer at each position).")

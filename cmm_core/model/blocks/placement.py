@@ -14,7 +14,8 @@ from ...units import UM, URAD
 from ..hole_plate import initial_state, is_hole_plate
 from ..observations import Observations
 from ..state import State
-from .base import Block, Column, Eval, Jacobian, SpecLike, per_group_cols
+from .base import Block
+from .context import Column, Eval, Jacobian, SpecLike, per_group_cols
 
 
 class Placement(Block):

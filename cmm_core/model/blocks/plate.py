@@ -15,7 +15,8 @@ from ...units import UM
 from ..hole_plate import is_hole_plate
 from ..observations import Observations
 from ..state import State
-from .base import Block, Column, Eval, Jacobian, SpecLike, per_group_cols
+from .base import Block
+from .context import Column, Eval, Jacobian, SpecLike, per_group_cols
 
 
 class Plate(Block):

@@ -6,12 +6,15 @@ placements do not sag."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from types import MappingProxyType
 
 import numpy as np
 
 from ...units import UM
 from ..observations import Observations
-from .base import Block, Column, Effect, Eval, Jacobian, Shape, SimContext, SimParam, shared_cols
+from .base import Block, Effect
+from .context import Column, Eval, Jacobian, Shape, shared_cols
+from .simulation import SimContext, SimParam
 
 
 class PlateSag(Block):
@@ -28,12 +31,12 @@ class PlateSag(Block):
         "the same horizontal placement at two heights or a vertical placement.")
 
     sim_keys = frozenset({"uu", "uv", "vv"})
-    sim_ranges = {k: (-1e3, 1e3) for k in ("uu", "uv", "vv")}
+    sim_ranges = MappingProxyType({k: (-1e3, 1e3) for k in ("uu", "uv", "vv")})
     sim_label = "Plate sag"
     sim_help = "A bowl of the horizontal placements (height at the plate's edge)."
     sim_params = (SimParam("uu", "sag uu (µm)", "um", 3.0, -20.0, 20.0),
                   SimParam("vv", "sag vv (µm)", "um", 3.0, -20.0, 20.0))
-    sim_fixed = {"uv": 0.0}
+    sim_fixed = MappingProxyType({"uv": 0.0})
     physical_check = True
 
     @classmethod

@@ -5,24 +5,16 @@ coefficient; without a certificate at 20 °C it is a uniform scale in every axis
 from __future__ import annotations
 
 from collections.abc import Sequence
+from types import MappingProxyType
 
 import numpy as np
 
 from ...io import CTE_RANGE_PER_K
 from ...units import PPM, UM
 from ..observations import Observations
-from .base import (
-    Block,
-    Column,
-    Effect,
-    Eval,
-    Jacobian,
-    Shape,
-    SimCheck,
-    SimContext,
-    SimParam,
-    shared_cols,
-)
+from .base import Block, Effect
+from .context import Column, Eval, Jacobian, Shape, shared_cols
+from .simulation import SimCheck, SimContext, SimParam
 
 
 class PlateThermal(Block):
@@ -38,7 +30,7 @@ class PlateThermal(Block):
         "positions measured at different plate temperatures.")
 
     sim_keys = frozenset({"cte_per_K", "temp_C"})
-    sim_ranges = {"cte_per_K": CTE_RANGE_PER_K}
+    sim_ranges = MappingProxyType({"cte_per_K": CTE_RANGE_PER_K})
     sim_label = "Plate thermal expansion"
     sim_help = "The plate 20.0-20.2 °C, 0.4 K warmer at each position."
     sim_params = (SimParam("cte_per_K", "CTE (10⁻⁶/K)", "1e-6/K", 11.5, 0.0, 30.0, 0.5,

@@ -7,24 +7,16 @@ determined (their mean is a placement translation)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from types import MappingProxyType
 
 import numpy as np
 
 from ...machine import kinematics as kin
 from ...units import UM
 from ..observations import Observations
-from .base import (
-    Block,
-    Column,
-    Effect,
-    Eval,
-    Jacobian,
-    Shape,
-    SimCheck,
-    SimContext,
-    SimParam,
-    per_group_cols,
-)
+from .base import Block, Effect
+from .context import Column, Eval, Jacobian, Shape, per_group_cols
+from .simulation import SimCheck, SimContext, SimParam
 
 
 class ProbeOffset(Block):
@@ -41,7 +33,7 @@ class ProbeOffset(Block):
         "interleave the probes ball by ball within one position.")
 
     sim_keys = None
-    sim_ranges = {"sd_um": (0, 1e3)}
+    sim_ranges = MappingProxyType({"sd_um": (0, 1e3)})
     sim_label = "Probe offset errors"
     sim_help = "Random offset errors of the styli (summing to zero)."
     sim_params = (SimParam("sd_um", "sd (µm)", "um", 2.0, 0.0, 20.0),)

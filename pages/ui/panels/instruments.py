@@ -12,7 +12,7 @@ from pages.ui import cached, calls, state
 
 
 def _instrument_columns(kind: str) -> str | None:
-    """The columns of an instrument file of ``kind`` (``io_instruments``), for the help."""
+    """The columns of an instrument file of ``kind`` (``model.instrument_files``), for the help."""
 
     need = getattr(M, f"{kind.upper()}_COLUMNS", None)
     opt = getattr(M, f"{kind.upper()}_OPTIONAL", ())

@@ -1,0 +1,405 @@
+"""The candidate measurements of "measure next" (:class:`NextMeasurement`), generated from
+the data set's own setup and machine range: the plate shifted, moved to the ends of the
+strokes, raised, rotated in its plane or stood up; new styli; the styli in reverse order;
+repeats at the end of placements whose styli were measured in blocks; and instruments (a
+laser, a step gauge, a ball bar). Each carries its machine time from the plan's time model
+(``files.MEASUREMENT_DEFAULTS``: minutes per ball and per placement). The plate is the
+data's, a regular grid read from its certificate (:func:`plate_grid`).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...io import DataError, Dataset
+from ..files import MEASUREMENT_DEFAULTS
+
+SHIFT_FRACTION = 0.5
+"""Default fraction of the ball pitch by which the plate is shifted."""
+
+STYLUS_OFFSET_MM = 60.0
+"""Lateral offset (mm) of the extra styli proposed."""
+
+REPEAT_BALLS = (4, 12)
+"""Balls a stylus is measured again on at the end of a placement (:func:`repeat_candidates`):
+a few, and more for a small drift."""
+
+
+@dataclass(frozen=True)
+class NextMeasurement:
+    """One extra measurement: a plate placement measured with some styli.
+
+    Attributes
+    ----------
+    name : str
+        Short key (``shift_y``, ``rot90``, ``xz``, ``stylus_x``, ...).
+    description : str
+        The measurement in words ("the plate of H0 shifted 40 mm along Y").
+    positions : dict
+        New placement name -> placement in the setup format (machine frame).
+    probes : dict
+        Stylus name -> offset (mm) for styli the data set does not have yet.
+    probes_of : dict
+        New placement name -> list of stylus names measured there, in order.
+    time_min : float
+        Machine time in minutes (balls × styli × minutes per ball + minutes per
+        placement; ``files.MEASUREMENT_DEFAULTS``; an instrument: its readings × minutes
+        per ball + minutes per placement for setting it up).
+    instrument : dict
+        For an instrument instead of the plate: ``kind`` (``laser``, ``step_gauge``,
+        ``ball_bar``) and the keywords of its simulator (``simulate_laser``, ...) but the
+        simulation; empty for a plate placement.
+    repeat : dict
+        For a repeat at the end of placements already measured (:func:`repeat_candidates`):
+        placement -> ``{"probe": stylus, "balls": [...], "time_min": [...]}``, the stylus
+        measured again on those balls at those times (after the placement's last reading,
+        before its plate is moved: the same pose); ``positions`` is then empty.
+    """
+
+    name: str
+    description: str
+    positions: dict
+    probes: dict
+    probes_of: dict
+    time_min: float
+    instrument: dict = field(default_factory=dict)
+    repeat: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class PlateGrid:
+    """The plate as a regular grid, read from the certificate.
+
+    Attributes
+    ----------
+    rows, cols : int
+        Balls per column and per row (ball ``b`` at column ``(b-1) % cols``).
+    pitch_mm : float
+        Ball spacing in mm.
+    offset_mm : ndarray (B, 3)
+        Certificate minus nominal grid (mm), both relative to ball 1.
+    """
+
+    rows: int
+    cols: int
+    pitch_mm: float
+    offset_mm: np.ndarray = field(repr=False)
+
+
+def plate_grid(data: Dataset) -> PlateGrid:
+    """Rows, columns and pitch of the data's plate from its certificate.
+
+    Raises
+    ------
+    DataError
+        When there is no certificate or the balls are not a row-major regular grid.
+    """
+    cert = data.certificate
+    if cert is None:
+        raise DataError("the data set has no certificate; expected one giving the plate's "
+                        "ball centres.", file=data.name, column="certificate",
+                        hint="load the plate's certificate: proposals simulate the same plate")
+    xyz = np.asarray(cert.xyz_mm, float)
+    xyz = xyz - xyz[0]
+    d = np.linalg.norm(xyz[1:] - xyz[0], axis=1)
+    pitch = float(d.min()) if d.size else 0.0
+    cols = int(np.sum(np.abs(xyz[:, 1]) < 0.25 * pitch)) if pitch > 0 else 0
+    rows = len(xyz) // max(cols, 1)
+    ok = pitch > 0 and rows * cols == len(xyz) and cols > 1
+    if ok:
+        # the nominal pitch (0.1 mm): the certificate's departure from it is carried in
+        # ``offset_mm`` and moves the simulated readings onto the certified balls
+        pitch = round(float(np.median(np.linalg.norm(np.diff(xyz[:cols], axis=0), axis=1))),
+                      1)
+        b = np.arange(len(xyz))
+        nominal = np.column_stack([b % cols * pitch, b // cols * pitch, np.zeros(len(xyz))])
+        off = xyz - nominal
+        ok = bool(np.abs(off).max() < 0.25 * pitch)
+    if not ok:
+        raise DataError(f"the certificate's {len(xyz)} balls are not a row-major regular "
+                        f"grid; expected ball b at column (b-1) % cols, found pitch "
+                        f"{pitch:.3g} mm and {cols} balls in the first row.",
+                        file=data.name, column="certificate",
+                        hint="proposals need a ball plate with a regular grid")
+    return PlateGrid(rows, cols, pitch, off)
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v)
+
+
+def _placement_time(n_balls: int, n_probes: int, minutes_per_ball: float,
+                    minutes_per_placement: float) -> float:
+    """``Plan.time_min`` for one placement (a Plan needs a full plan to be built)."""
+    return float(n_balls * n_probes * minutes_per_ball + minutes_per_placement)
+
+
+def measurement_candidates(data: Dataset, *, reference: str | None = None,
+                           shift_fraction: float = SHIFT_FRACTION,
+                           stylus_offset_mm: float = STYLUS_OFFSET_MM,
+                           minutes_per_ball: float | None = None,
+                           minutes_per_placement: float | None = None,
+                           repeat_balls: int | Sequence[int] = REPEAT_BALLS,
+                           ) -> list[NextMeasurement]:
+    """The default candidate measurements for a data set.
+
+    From a reference placement (default: the first horizontal one): the plate shifted
+    along X, Y by ``shift_fraction`` of its pitch, moved to the low and the high end of the
+    X and Y strokes (5 % from each end), raised (or lowered) by a third of the
+    Z stroke; rotated 90° and 180° in its plane about its centre; stood in XZ and in YZ;
+    measured again with a stylus offset ``stylus_offset_mm`` along X, along Y, and a
+    stylus 100 mm longer; and, with two styli or more, measured again with its styli in
+    reverse order; and where styli were measured in blocks, the first stylus measured
+    again at the end of such a placement (:func:`repeat_candidates`, on
+    ``repeat_balls`` balls). Each new placement is measured with the reference's styli (the new
+    stylus alone for a stylus candidate). Candidates outside the machine are dropped by
+    :func:`propose` (with the reason). Machine time: the plan's time model
+    (``Plan.time_min``), minutes per ball and per placement defaulting to
+    ``files.MEASUREMENT_DEFAULTS``.
+    """
+    grid = plate_grid(data)
+    defaults: dict = MEASUREMENT_DEFAULTS
+    per_ball = float(defaults["minutes_per_ball"] if minutes_per_ball is None
+                     else minutes_per_ball)
+    per_place = float(defaults["minutes_per_placement"] if minutes_per_placement is None
+                      else minutes_per_placement)
+    raw = data.setup.raw
+    pos = raw["positions"]
+    probes_in = {p: list(dict.fromkeys(data.meas.loc[data.meas["position"] == p, "probe"]))
+                 for p in pos}
+    if reference is None:
+        reference = next((p for p in pos if data.setup.positions[p].horizontal), next(iter(pos)))
+    if reference not in pos:
+        raise DataError(f"unknown placement {reference!r}; expected one of {sorted(pos)}.",
+                        file=data.name, column="reference", hint="name a placement of the setup")
+    ref = pos[reference]
+    o = np.asarray(ref["origin_mm"], float)
+    u, v = _unit(ref["u_axis"]), _unit(ref["v_axis"])
+    styli = probes_in[reference] or [ref.get("probe")]
+    half = np.array([(grid.cols - 1), (grid.rows - 1)]) * grid.pitch_mm / 2.0
+    centre = o + half[0] * u + half[1] * v
+    rng_mm = np.asarray(data.setup.range_mm, float)
+    shift = shift_fraction * grid.pitch_mm
+    dz = rng_mm[2] / 3.0 * (1.0 if o[2] + rng_mm[2] / 3.0 < 0.8 * rng_mm[2] else -1.0)
+    n_balls = grid.rows * grid.cols
+    out = []
+
+    def add(name, text, origin, uu, vv, probes_of_new, new_probes=None):
+        key = f"next_{name}"
+        place = {"origin_mm": [float(x) for x in origin], "u_axis": [float(x) for x in uu],
+                 "v_axis": [float(x) for x in vv], "probe": probes_of_new[0]}
+        out.append(NextMeasurement(name, text, {key: place}, dict(new_probes or {}),
+                             {key: list(probes_of_new)},
+                             _placement_time(n_balls, len(probes_of_new), per_ball,
+                                             per_place)))
+
+    for a, ax in enumerate("XY"):
+        e = np.eye(3)[a]
+        add(f"shift_{ax.lower()}", f"the plate of {reference} shifted {shift:g} mm along "
+            f"{ax}", o + shift * e, u, v, styli)
+    extent = (grid.cols - 1) * grid.pitch_mm * np.abs(u) + (grid.rows - 1) * grid.pitch_mm \
+        * np.abs(v)
+    low = o - np.minimum(u, 0) * (grid.cols - 1) * grid.pitch_mm \
+        - np.minimum(v, 0) * (grid.rows - 1) * grid.pitch_mm  # the plate's lowest corner
+    for a, ax in enumerate("XY"):
+        for end, corner in (("low", 0.05 * rng_mm[a]),
+                            ("high", 0.95 * rng_mm[a] - extent[a])):
+            move = corner - low[a]
+            if abs(move) > grid.pitch_mm:  # else a shift by part of the pitch covers it
+                add(f"{end}_{ax.lower()}", f"the plate of {reference} moved {move:+g} mm "
+                    f"along {ax}, to the {end} end of the stroke", o + move * np.eye(3)[a],
+                    u, v, styli)
+    add("height", f"the plate of {reference} {'raised' if dz > 0 else 'lowered'} "
+        f"{abs(dz):g} mm", o + dz * np.eye(3)[2], u, v, styli)
+    for deg, (uu, vv) in {90: (v, -u), 180: (-u, -v)}.items():
+        add(f"rot{deg}", f"the plate of {reference} rotated {deg}° in its plane",
+            centre - half[0] * uu - half[1] * vv, uu, vv, styli)
+    for plane, uu in {"XZ": np.eye(3)[0], "YZ": np.eye(3)[1]}.items():
+        add(plane.lower(), f"the plate stood in {plane} near {reference}",
+            o + np.array([0.0, 0.0, 20.0]), uu, np.eye(3)[2], styli)
+    tip = np.asarray(raw["probes"][styli[0]], float)
+    for name, off, text in (("stylus_x", [stylus_offset_mm, 0, 0],
+                             f"{stylus_offset_mm:g} mm along X"),
+                            ("stylus_y", [0, stylus_offset_mm, 0],
+                             f"{stylus_offset_mm:g} mm along Y"),
+                            ("stylus_long", [0, 0, -100.0], "100 mm longer")):
+        q = f"next_{name}"
+        add(name, f"{reference} again with a new stylus {q} offset {text}", o, u, v, [q],
+            {q: (tip + np.asarray(off, float)).tolist()})
+    if len(styli) > 1:
+        add("reverse", f"{reference} again with its styli in reverse order "
+            f"({', '.join(styli[::-1])})", o, u, v, styli[::-1])
+    return out + repeat_candidates(data, n_balls=repeat_balls, minutes_per_ball=per_ball)
+
+
+def blocked_styli(data: Dataset) -> dict[str, list[str]]:
+    """Placements whose styli were measured in blocks: two styli or more, each stylus's
+    readings one run in time (``time_min``), -> their styli in the order measured. There a
+    placement's drift and its later styli's offsets look alike (``Drift``'s aliases); none
+    without a ``time_min`` column (a repeat's time would be unknown)."""
+    m = data.meas
+    if "time_min" not in m or not m["time_min"].notna().all():
+        return {}
+    out = {}
+    for p in data.setup.raw["positions"]:
+        rows = m.loc[m["position"] == p].sort_values("time_min", kind="stable")
+        seq = rows["probe"].astype(str).tolist()
+        runs = [q for i, q in enumerate(seq) if i == 0 or q != seq[i - 1]]
+        if len(runs) > 1 and len(runs) == len(set(runs)):
+            out[str(p)] = runs
+    return out
+
+
+def repeat_candidates(data: Dataset, *, n_balls: int | Sequence[int] = REPEAT_BALLS,
+                      minutes_per_ball: float | None = None) -> list[NextMeasurement]:
+    """Repeats that tell a placement's drift from its styli's offsets.
+
+    For each placement whose styli were measured in blocks (:func:`blocked_styli`): its
+    first stylus measured again on the first ``n_balls`` balls it measured there (the
+    same balls, the earliest times), right after the placement's last reading, before its
+    plate is moved (``repeat_<placement>_<n>``); and, with two such placements or more,
+    the same at the end of each (``repeat_all_<n>``). A stylus's offset repeats
+    exactly; a drift of ``v`` µm/h moves the repeated readings by ``v`` times the time
+    elapsed since the first ones (``Drift``'s own remedy: "repeating the first ball at
+    the end of each position"). Machine time: balls × minutes per ball (the plan's time
+    model, ``files.MEASUREMENT_DEFAULTS``; no new placement: the plate stays where it
+    is). For a placement no longer on the machine the repeat is a change of plan for the
+    next run of the same placements.
+    """
+    defaults: dict = MEASUREMENT_DEFAULTS
+    per_ball = float(defaults["minutes_per_ball"] if minutes_per_ball is None
+                     else minutes_per_ball)
+    m = data.meas
+    out = []
+    counts = [int(n_balls)] if isinstance(n_balls, int | np.integer) else \
+        [int(n) for n in n_balls]
+    blocked = blocked_styli(data)
+    named: set = set()  # a count above a stylus's balls gives the same repeat again
+    position = m["position"].astype(str)
+    for n in counts:
+        each = {}
+        for p, styli in blocked.items():
+            rows = m.loc[(position == str(p)) & (m["probe"].astype(str) == styli[0])]
+            rows = rows.sort_values("time_min", kind="stable")
+            balls = [int(b) for b in dict.fromkeys(rows["ball"])][:max(n, 1)]
+            end = float(m.loc[position == str(p), "time_min"].max())
+            each[p] = {"probe": styli[0], "balls": balls,
+                       "time_min": [end + per_ball * (j + 1) for j in range(len(balls))]}
+            name = f"repeat_{p}_{len(balls)}"
+            if name in named:
+                continue
+            named.add(name)
+            out.append(NextMeasurement(
+                name, f"stylus {styli[0]} measured again on "
+                f"{len(balls)} ball(s) of {p} (balls {', '.join(map(str, balls))}) at the "
+                f"end of {p}, before its plate is moved", {}, {}, {},
+                len(balls) * per_ball, repeat={p: each[p]}))
+        # named by the balls each placement repeats (fewer than n where a stylus has less)
+        sizes = sorted({len(r["balls"]) for r in each.values()})
+        label = "-".join(map(str, sizes))
+        if len(each) > 1 and f"repeat_all_{label}" not in named:
+            named.add(f"repeat_all_{label}")
+            out.append(NextMeasurement(
+                f"repeat_all_{label}", f"the first stylus of each of {', '.join(each)} "
+                f"measured again on {label} of its balls at the end of that placement, "
+                f"before its plate is moved", {}, {}, {},
+                sum(len(r["balls"]) for r in each.values()) * per_ball, repeat=each))
+    return out
+
+
+def _tagged(c: NextMeasurement, tag: str) -> NextMeasurement:
+    """The candidate with its placement and new styli renamed by ``tag`` (unique names
+    when several references or fractions are combined)."""
+    def ren(n):
+        return f"{n}_{tag}" if n.startswith("next_") else n
+
+    return NextMeasurement(
+        f"{c.name}_{tag}", c.description,
+        {ren(p): {**pl, "probe": ren(pl["probe"])} for p, pl in c.positions.items()},
+        {ren(q): v for q, v in c.probes.items()},
+        {ren(p): [ren(q) for q in qs] for p, qs in c.probes_of.items()}, c.time_min,
+        c.instrument, c.repeat)
+
+
+def wide_candidates(data: Dataset, fractions: Sequence[float] = (0.25, 0.5, 0.75)
+                    ) -> list[NextMeasurement]:
+    """A large candidate set: :func:`measurement_candidates` from every placement as the
+    reference and at each shift ``fractions`` of the pitch (a study for
+    :func:`propose_many`); duplicates are kept once (same placement, styli and offsets)."""
+    out, seen = [], set()
+    for p in data.setup.raw["positions"]:
+        for i, f in enumerate(fractions):
+            for c in measurement_candidates(data, reference=p, shift_fraction=f):
+                if i and not c.name.startswith("shift_"):
+                    continue
+                key = json.dumps([list(c.positions.values()), list(c.probes_of.values()),
+                                  c.probes, c.repeat], sort_keys=True)
+                if key in seen:
+                    continue
+                seen.add(key)
+                out.append(_tagged(c, f"{p}_{round(100 * f)}"))
+    return out
+
+
+def instrument_candidates(data: Dataset, *, reference: str | None = None,
+                          n_readings: int = 21, minutes_per_ball: float | None = None,
+                          minutes_per_placement: float | None = None
+                          ) -> list[NextMeasurement]:
+    """Instrument candidates: a laser positioning run along X, Y and Z through the
+    reference plate's centre (``n_readings`` readings from 5 % to 95 % of the stroke,
+    reflector at the reference stylus's offset); a step gauge along X and along Y (from
+    5 % of the stroke, ``n_readings - 1`` lengths up to 80 % of it); a ball bar of 40 % of
+    the smaller horizontal stroke in four orientations (0°, 45°, 90°, 135°) about that
+    centre. Machine time: readings × minutes per ball + minutes per placement (setting
+    the instrument up), the plan's time model applied to instruments (an assumption:
+    ``files.MEASUREMENT_DEFAULTS``)."""
+    defaults: dict = MEASUREMENT_DEFAULTS
+    per_ball = float(defaults["minutes_per_ball"] if minutes_per_ball is None
+                     else minutes_per_ball)
+    per_place = float(defaults["minutes_per_placement"] if minutes_per_placement is None
+                      else minutes_per_placement)
+    grid = plate_grid(data)
+    pos = data.setup.raw["positions"]
+    if reference is None:
+        reference = next((p for p in pos if data.setup.positions[p].horizontal), next(iter(pos)))
+    ref = pos[reference]
+    u, v = _unit(ref["u_axis"]), _unit(ref["v_axis"])
+    centre = (np.asarray(ref["origin_mm"], float) + (grid.cols - 1) * grid.pitch_mm / 2 * u
+              + (grid.rows - 1) * grid.pitch_mm / 2 * v)
+    tip = [float(x) for x in data.setup.raw["probes"][ref["probe"]]]
+    R = np.asarray(data.setup.range_mm, float)
+    out = []
+    for a, ax in enumerate("xyz"):
+        out.append(NextMeasurement(
+            f"laser_{ax}", f"a laser positioning run along {ax.upper()} through the centre "
+            f"of {reference} ({n_readings} readings)", {}, {}, {},
+            n_readings * per_ball + per_place,
+            {"kind": "laser", "axis": ax, "line_mm": centre.tolist(),
+             "positions_mm": np.linspace(0.05 * R[a], 0.95 * R[a], n_readings).tolist(),
+             "offset_mm": tip}))
+    for a, ax in enumerate("xy"):
+        start = centre.copy()
+        start[a] = 0.05 * R[a]
+        end = start.copy()
+        end[a] = 0.85 * R[a]
+        out.append(NextMeasurement(
+            f"step_gauge_{ax}", f"a step gauge along {ax.upper()} through the centre of "
+            f"{reference} ({n_readings - 1} lengths)", {}, {}, {},
+            (n_readings - 1) * per_ball + per_place,
+            {"kind": "step_gauge", "start_mm": start.tolist(), "end_mm": end.tolist(),
+             "lengths_mm": np.linspace(0.8 * R[a] / (n_readings - 1), 0.8 * R[a],
+                                       n_readings - 1).tolist(), "offset_mm": tip}))
+    half = 0.2 * min(R[0], R[1])
+    ang = np.deg2rad([0.0, 45.0, 90.0, 135.0])
+    d = half * np.column_stack([np.cos(ang), np.sin(ang), np.zeros(4)])
+    out.append(NextMeasurement(
+        "ball_bar_xy", f"a ball bar of {2 * half:g} mm at 0°, 45°, 90° and 135° in XY about "
+        f"the centre of {reference}", {}, {}, {}, 4 * 2 * per_ball + per_place,
+        {"kind": "ball_bar", "start_mm": (centre - d).tolist(),
+         "end_mm": (centre + d).tolist(), "offset_mm": tip}))
+    return out
