@@ -31,7 +31,7 @@ from pathlib import Path
 
 from ..io import atomic_write_text
 
-__all__ = ["KEEP_DAYS", "MAX_SESSION_BYTES", "SavedSession", "SessionStore", "default_session_folder",
+__all__ = ["KEEP_DAYS", "MAX_SESSION_BYTES", "PRIVATE_FILE", "PRIVATE_FOLDER", "SavedSession", "SessionStore", "default_session_folder",
            "new_session_id", "valid_session_id"]
 
 KEEP_DAYS = 30

@@ -83,6 +83,8 @@ from .output import (
     check_outputs,
 )
 from .provenance import (
+    COMMIT_FILE,
+    SOFTWARE,
     InputFile,
     Provenance,
     input_file,
@@ -96,6 +98,7 @@ from .setup import (
     COMBINE,
     CTE_RANGE_PER_K,
     LAYOUTS,
+    MAX_MACHINE_ID,
     MAX_PROBE_MM,
     MAX_STROKE_MM,
     MIN_STROKE_MM,
@@ -145,5 +148,5 @@ __all__ = [
     "sniff", "stated_certificate", "suggest_mapping", "TableInfo", "TableMapping",
     "TEMP_RANGE_C", "THESIS_COLUMNS", "thesis_dataset", "THESIS_DIR", "THESIS_POSITIONS",
     "TIME_UNITS_MIN", "write_certificate", "write_long_csv", "InputFile", "Provenance",
-    "input_file", "provenance", "provenance_from_dict", "software_identity", "read_bytes",
+    "input_file", "provenance", "provenance_from_dict", "software_identity", "read_bytes", "COMMIT_FILE", "SOFTWARE", "MAX_MACHINE_ID",
 ]
