@@ -1,7 +1,7 @@
 """CMM error lab core: data, kinematic error model, fitting, uncertainty, GP, diagnosis.
 
 Lengths are mm in files and in the geometry; errors and residuals are µm; rotations µrad.
-The wings and what each may import: README, "Layout".
+The wings and what each may import: docs/architecture.md, "The core, in wings".
 """
 
 from importlib import metadata as _metadata
