@@ -5,7 +5,7 @@ once; the first call in a process also packs plotly.js, reported as "cold"). Pee
 same run, on the same fit: the per-figure assembly (every figure with its own plotly.js,
 plotly's ``to_html``), which runs against today's package. (The previous assembly, read
 from an old commit with git, no longer imports against today's package: the comparison
-with it is recorded in the README's history, not re-run.)
+with it is recorded in docs/performance.md, not re-run.)
 Run: ``.venv/bin/python bench/report.py``.
 """
 

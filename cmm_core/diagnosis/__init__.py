@@ -1,5 +1,5 @@
 """The diagnosis: which physical effect is missing from the model, how sure we are, and
-what the data cannot tell apart (SPEC "The diagnosis"; thesis ch. 7 for the GP residual).
+what the data cannot tell apart (docs/validation.md; thesis ch. 7 for the GP residual).
 
 Owns: :mod:`.search` (:func:`diagnose`, :class:`Diagnosis`, :class:`Candidate`, σ
 estimate), :mod:`.scoring` (the significance rule: Δχ², family-wise levels, BIC),

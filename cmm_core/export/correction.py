@@ -1,7 +1,7 @@
 """Compensation: correct measured points with a fitted model, with uncertainties.
 
 The true tip centre of a reported point ``r`` measured with probe offset ``p`` is
-``r + e(r - p, p)`` (SPEC conventions). A saved model holds what that needs: the
+``r + e(r - p, p)`` (docs/formats.md conventions). A saved model holds what that needs: the
 kinematic terms and coefficients with their covariance, and the probe offsets (nominal plus
 any fitted offset error). The effect blocks that act on new points add their parts
 (``Block.compensation``; the model file's keys are each block's, ``Block.part_to_file``)

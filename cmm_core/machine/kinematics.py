@@ -1,6 +1,6 @@
 """The 21-error kinematic model of a moving-bridge FXYZ CMM (thesis eq. 4.1-4.9, 4.13).
 
-Conventions (SPEC "The kinematic model"): the modelled tip centre for scale readings
+Conventions (docs/formats.md): the modelled tip centre for scale readings
 ``x = (x, y, z)`` and probe offset ``p`` is
 
     x*(x, p) = xx(x) + Rx(x) [ xy(y) + Ry(y) [ xz(z) + Rz(z) p ] ]

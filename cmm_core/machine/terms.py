@@ -83,7 +83,7 @@ def basis(name: str, u_mm: np.ndarray, order: int, stroke_mm: float, *,
     Positioning and rotation functions use ``T_j(s) - T_j(-1)``, j = 1..order, so they are
     zero at the axis origin. Straightness functions use ``T_j(s)`` minus the chord through
     its values at both ends of the stroke, j = 2..order: zero at both ends, so their linear
-    part (squareness or frame orientation, SPEC) is not duplicated. Squareness is the axis
+    part (squareness or frame orientation, docs/formats.md) is not duplicated. Squareness is the axis
     coordinate itself in mm (the coefficient is an angle in µrad).
 
     ``vander``: ``chebvander(2 u / stroke - 1, K)`` for some K >= order, when the caller

@@ -203,7 +203,7 @@ class ModelSpec:
 
 
 def parse_spec(spec: str, *, default_order: int = 2) -> ModelSpec:
-    """Parse a model spec string (SPEC grammar), raising ValueError on unknown tokens.
+    """Parse a model spec string (the grammar of docs/formats.md "Model specs"), raising ValueError on unknown tokens.
 
     ``""`` or ``"rigid"`` is the rigid-placement-only model.
     """
@@ -213,7 +213,7 @@ def parse_spec(spec: str, *, default_order: int = 2) -> ModelSpec:
     effects: set[str] = set()
     periods: dict[str, float] = {}
     for raw in str(spec).split(","):
-        tok = raw.strip().lower()  # "Kinematic21", "DYZ:3" read as the SPEC names
+        tok = raw.strip().lower()  # "Kinematic21", "DYZ:3" read as the documented names
         if not tok or tok == "rigid":
             continue
         remove = tok.startswith("-")

@@ -9,7 +9,7 @@ are the fit's own blocks (``cmm_core.model.blocks``): each draws its true parame
 (``Block.draw``) and the fit's model at the truth gives the targets (``Problem.targets``).
 
 Configuration keys (all optional; see ``DEFAULT_CONFIG``): ``seed``, ``setup`` (a setup
-dict in the SPEC format, frame ``machine``; default the thesis placements),
+dict in the documented format (docs/formats.md), frame ``machine``; default the thesis placements),
 ``probes_per_position``, ``plate`` (``rows, cols, pitch_mm, form_um, certificate_u_um``),
 ``kinematic`` (``spec``, ``order``, ``coefficients`` by label, ``random_um``,
 ``random_urad``; the spec may carry periodic scale errors, e.g.
