@@ -151,7 +151,7 @@ def refractive_index_sensitivities(t_C: float, p_Pa: float, rh_percent: float,
 
 def air_from_args(t_C: float, p_Pa: float, rh_percent: float, wavelength_nm: float,
                   co2_ppm: float = CO2_REFERENCE_PPM) -> dict:
-    """The ``air`` command (SPEC): n by the modified Edlén equation, JSON-ready.
+    """The ``air`` command (docs/formats.md): n by the modified Edlén equation, JSON-ready.
 
     Returns
     -------

@@ -14,7 +14,7 @@ documented assumption (:class:`BallPlateBudgetInputs`):
   temperatures and humidities of the six measurements (the environment records above
   tables 6.1-6.6, :data:`THESIS_ENVIRONMENT`); CMM resolution 0.01 µm (the tables print
   1e-5 mm); plate pitch 133 mm, 5 x 5 balls (tables 6.1-6.6);
-- assumed (not in the thesis): repeatability s = 0.5 µm from n = 5 repeats (SPEC default
+- assumed (not in the thesis): repeatability s = 0.5 µm from n = 5 repeats (the documented default
   repeatability), verification agreement 0.5 µm, probe reproducibility 0.2 µm, barometer
   U(k=2) = 20 Pa with 1 Pa resolution and p = 101 325 Pa (no pressure is recorded),
   thermometer resolution 0.01 °C, plate CTE 11.5e-6 /K with δα half-width 1e-6 /K
@@ -399,7 +399,7 @@ def budget_vs_length(inputs: BallPlateBudgetInputs | dict | None = None,
 
 
 def budget_spec_dict(budget: BallPlateBudget) -> dict:
-    """The budget as the SPEC ``budget`` JSON (read by ``python -m cmm_core budget``)."""
+    """The budget as the ``budget`` JSON of docs/formats.md (read by ``python -m cmm_core budget``)."""
     rows = []
     for ct, eq in zip(budget.contributions, budget.equations, strict=True):
         r = {"name": f"{ct.name} [eq. {eq}]", "distribution": ct.distribution,

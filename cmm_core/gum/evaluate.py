@@ -8,7 +8,7 @@ G.4.1, eq. G.2b) and the coverage factor from the t distribution (JCGM 100 G.3, 
 :func:`monte_carlo` propagates the distributions themselves (JCGM 101 clause 7), with
 probabilistically symmetric and shortest coverage intervals (JCGM 101 7.7) and the adaptive
 procedure of JCGM 101 7.9. :func:`budget_from_dict` is the ``budget`` command of the CLI
-(SPEC "Command line").
+(docs/formats.md "Command line").
 
 Without a measurement function the model is additive, ``Y = sum_i c_i X_i`` (``c_i``
 default 1), as in a classical budget table whose rows are already expressed in the unit of
@@ -49,7 +49,7 @@ _FIELDS = {"name", "u", "half_width", "distribution", "c", "dof", "k", "value", 
 
 
 def contribution_from_dict(d: dict, index: int = 0) -> Contribution:
-    """One SPEC budget contribution ``{"name", "u" | "half_width", "distribution", "c", "dof"}``.
+    """One budget contribution (docs/formats.md) ``{"name", "u" | "half_width", "distribution", "c", "dof"}``.
 
     ``half_width`` of a normal input needs ``k`` (it is then an expanded uncertainty);
     ``dof`` null or absent means infinite; ``c`` absent means 1.
@@ -124,7 +124,7 @@ def _min_trials(coverage_probability: float) -> int:
 
 
 def budget_from_dict(d: dict, *, progress: Callable | None = None) -> dict:
-    """The ``budget`` command (SPEC): GUM result and optional JCGM 101 Monte Carlo result.
+    """The ``budget`` command (docs/formats.md): GUM result and optional JCGM 101 Monte Carlo result.
 
     Parameters
     ----------
