@@ -8,7 +8,6 @@ import pandas as pd
 import streamlit as st
 
 from cmm_core import analysis as A
-from cmm_core.diagnosis import BLUNDERS
 from cmm_core.model import PERIODIC, catalogue_entry, parse_spec
 from cmm_core.plan import (
     PSEUDO,
@@ -246,21 +245,28 @@ with t_time, calls.guarded("Residuals against time"):
 
 st.subheader("Which effect is missing?")
 pending = cached.pending_outliers(ds)
-if pending:
-    w1, w2 = st.columns([4, 1])
-    w1.warning(f"{len(pending)} flagged outlier(s) are still in the fit: one blunder of tens "
-               "of µm can hide a real effect or pose as one. Exclude them first (the Data "
-               "page lists them).")
-    w2.button("Exclude the flagged outliers", key="diag_exclude_outliers",
-              on_click=state.set_exclusions, args=(pending, True))
+# the flagged outliers still in the fit: said here, unless the diagnosis's headline says it
+# (its verdict is that they hold the misfit), so one condition gets one message and button
+outlier_slot = st.container()
 cols = st.columns([1, 1, 4])
 if cols[0].button("Run the diagnosis", key="run_diagnosis", type="primary"):
     s["diag_on"] = True
 if cols[1].button("Hide", key="hide_diagnosis"):
     s["diag_on"] = False
 
+base, cands, conclusion, info = (cached.run_diagnosis(show_progress=True) if s["diag_on"]
+                                 else (None, None, "", {}))
+head = info.get("headline")  # the core's headline (Diagnosis.headline), drawn as it is
+if pending and not (head and head["verdict"] == "flagged_outliers"):
+    with outlier_slot:
+        w1, w2 = st.columns([4, 1])
+        w1.warning(f"{len(pending)} flagged outlier(s) are still in the fit: one blunder of "
+                   "tens of µm can hide a real effect or pose as one. Exclude them first "
+                   "(the Data page lists them).")
+        w2.button("Exclude the flagged outliers", key="diag_exclude_outliers",
+                  on_click=state.set_exclusions, args=(pending, True))
+
 if s["diag_on"]:
-    base, cands, conclusion, info = cached.run_diagnosis(show_progress=True)
     if cands is None:
         st.stop()
     cert = info.get("certificate")
@@ -285,42 +291,20 @@ if s["diag_on"]:
                       on_click=state.set_plate, args=("prior",))
             b2.button("Self-calibrate the plate (free)", key="cert_free",
                       on_click=state.set_plate, args=("free",))
-    sigma = info.get("sigma_check")
-    if not cands:
-        st.info("No candidate effect left to try.")
+    # the verdict in one message, with the one button its action needs
+    if head["verdict"] == "flagged_outliers":
+        b1, b2 = st.columns([4, 1])
+        widgets.headline(head, b1)
+        b2.button("Exclude the flagged outliers", key="diag_exclude_blunders",
+                  on_click=state.set_exclusions, args=(pending, True), type="primary",
+                  disabled=not pending)
     else:
-        best = cands[0]
-        if info.get("verdict") == BLUNDERS:
-            # the outliers are the misfit: the one action before any effect or σ
-            b1, b2 = st.columns([4, 1])
-            b1.error("**Flagged outlier(s) first**: they hold most of the misfit, so no "
-                     "effect is named and σ is not estimated from these residuals. "
-                     "Exclude them and run the diagnosis again (read which below).")
-            b2.button("Exclude the flagged outliers", key="diag_exclude_blunders",
-                      on_click=state.set_exclusions, args=(pending, True), type="primary",
-                      disabled=not pending)
-        elif info.get("verdict") == "outside_catalogue":
-            st.warning("**Outside the catalogue**: the misfit is significant and no catalogue "
-                     "effect explains it (read why below; the residual maps above show where "
-                     "it lives).")
-        elif best["significant"] and not best["is_verdict"] and info.get("verdict") is None:
-            st.warning("No effect is named: the baseline fit did not converge (see below).")
-        elif best["is_verdict"]:
-            st.success(f"Most likely missing: **{best['title']}** (`{best['effect']}`): "
-                       f"ΔBIC {best['delta_bic']:.1f}, p = {best['p_value']:.2g}.")
-        elif not base.fails_chi2_test:
-            st.info(f"No candidate is significant and the fit passes its χ² test (χ²/dof "
-                    f"{base.chi2_dof:.2f}): the data are explained to noise by this model.")
-        elif sigma and sigma.get("uniform"):
-            st.warning(f"No candidate is significant and the misfit is spread evenly: the "
-                       f"stated σ = {base.sigma_um:.3g} µm looks too small. Estimated from the "
-                       f"data: σ = {sigma['value_um']:.3g} ± {sigma['u_um']:.2g} µm "
-                       f"({sigma['detail']}).")
-            st.button(f"Refit with σ = {sigma['value_um']:.3g} µm", key="adopt_sigma",
-                      on_click=state.set_sigma, args=(sigma["value_um"],), type="primary")
-        else:
-            st.warning(f"No catalogue effect explains a significant part of the misfit, yet "
-                       f"χ²/dof is {base.chi2_dof:.1f}: see the conclusion below.")
+        widgets.headline(head)
+    if head["verdict"] == "sigma_too_small":
+        sigma = info["sigma_check"]
+        st.button(f"Refit with σ = {sigma['value_um']:.3g} µm", key="adopt_sigma",
+                  on_click=state.set_sigma, args=(sigma["value_um"],), type="primary")
+    if cands:
         st.caption(conclusion)
         cols_shown = ["effect", "title", "rms_um", "chi2_dof", "delta_chi2", "n_params",
                       "delta_bic", "p_value", "significant", "confirmed", "aliases"]

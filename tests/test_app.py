@@ -8,10 +8,14 @@ import numpy as np
 import pytest
 
 pytest.importorskip("streamlit")
+import scenarios as sc  # noqa: E402
 from conftest import uploader as _uploader  # noqa: E402
 from streamlit.testing.v1 import AppTest  # noqa: E402
 
+from cmm_core import analysis as A  # noqa: E402
+from cmm_core.diagnosis import diagnose  # noqa: E402
 from cmm_core.export import downloads as export
+from cmm_core.model import simulate  # noqa: E402
 from pages.ui.session import session_record
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -277,6 +281,41 @@ def test_diagnosis_add_an_effect_rms_falls_and_history_records_it():
     assert at.session_state["spec"] == "kinematic21"
 
 
+def test_a_blunder_verdict_is_one_headline_with_one_exclude_button():
+    """Issue 41: a 40 µm blunder that holds the misfit (100 mm plate, four placements):
+    the page draws the core's headline (outliers first) and one "Exclude the flagged
+    outliers" button for that condition, not the pending-outlier warning beside it too;
+    the button excludes them and the next diagnosis names no blunder."""
+    ds = simulate(sc.layout_config("pitch100_4pos", seed=12)).dataset
+    delta = np.zeros((len(ds.meas), 3))
+    delta[17, 1] = 40e-3
+    files = A.simulated_sources(sc.perturb(ds, delta), "simulated blunder")
+    h = diagnose(A.load_sources(files), "kinematic21").headline()
+    assert h.verdict == "flagged_outliers"
+    at = AppTest.from_file(APP, default_timeout=TIMEOUT)
+    at.session_state["sources"] = files
+    at.session_state["ds_key"] = A.sources_key(files)
+    at.run()
+    at.switch_page("pages/diagnose.py")
+    at.run()
+    # before the diagnosis: the pending outliers' warning and its button
+    assert [b.key for b in at.button if b.label == "Exclude the flagged outliers"] == [
+        "diag_exclude_outliers"]
+    at.button(key="run_diagnosis").click()
+    at.run()
+    assert not at.exception, [e.message for e in at.exception]
+    assert [e.value for e in at.error] == [f"**{h.title}**\n\n{h.text}\n\nNext: {h.action}"]
+    # (the sidebar's status line still counts them: no message with a button)
+    assert not any("still in the fit" in w.value for w in at.main.warning)
+    assert [b.key for b in at.button if b.label == "Exclude the flagged outliers"] == [
+        "diag_exclude_blunders"]
+    at.button(key="diag_exclude_blunders").click()
+    at.run()
+    _ok(at)
+    assert at.session_state["exclusions"]
+    assert not any(b.label == "Exclude the flagged outliers" for b in at.button)
+
+
 def test_remove_an_error_function():
     at = _new()
     at.switch_page("pages/diagnose.py")
@@ -339,8 +378,6 @@ def test_upload_with_its_own_setup_never_borrows_the_thesis_certificate(tmp_path
     """Acceptance finding: measurements and setup of another plate, no certificate: the
     thesis certificate stood in silently and the fit was 20 times the noise. Now the plate
     is self-calibrated and the load message says so."""
-    from cmm_core.model import simulate
-
     simulate({"seed": 5}).write(tmp_path)
     at = _new()
     _uploader(at, "Measurement CSV").set_value(

@@ -23,6 +23,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from scenarios import simulated  # noqa: E402
 
 from cmm_core import analysis as A  # noqa: E402
+from cmm_core.diagnosis import diagnose  # noqa: E402
 from cmm_core.plan import read_plan  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,14 +59,30 @@ def _diagnosed(files: A.DataSources) -> AppTest:
     at.button(key="run_diagnosis").click()
     at.run()
     _ok(at)
-    named = [m.value for m in at.success if m.value.startswith("Most likely missing")]
-    assert len(named) == 1 and ("(`sxy`)" in named[0] or "(`rxz:4`)" in named[0]), named
+    # one headline: the pair named as a set (issue 41), as the core words it
+    named = [m.value for m in at.success if m.value.startswith("**Most likely missing")]
+    assert len(named) == 1 and ("(sxy)" in named[0] or "(rxz:4)" in named[0]), named
+    assert "squareness XY or X carriage yaw" in named[0] or (
+        "X carriage yaw (about Z), order 4 or squareness XY" in named[0]), named
     # the section computes only while it is open (as the page's tabs)
     assert not any(b.key and b.key.startswith("next_sim_") for b in at.button)
     at.session_state["w_diag_next"] = True
     at.run()
     _ok(at)
     return at
+
+
+def test_the_page_shows_the_cores_headline(alias_files):
+    """The Diagnose page draws the core's headline (``Diagnosis.headline``) as it is: one
+    success message, title, text and action equal to the core's diagnosis of the same
+    choices (the pair named as a set, no ``nan``)."""
+    at = _diagnosed(alias_files)
+    d = diagnose(A.load_sources(alias_files), BASE)
+    h = d.headline()
+    assert h.verdict == "named" and set(h.alias_of) & set(RIVALS) and "nan" not in h.text
+    shown = [m.value for m in at.success]
+    assert shown == [f"**{h.title}**\n\n{h.text}\n\nNext: {h.action}"]
+    assert h.text in shown[0]
 
 
 def _top_name(at) -> str:

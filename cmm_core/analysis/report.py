@@ -26,7 +26,7 @@ import plotly.io as pio
 from plotly.offline import get_plotlyjs, get_plotlyjs_version
 
 from .. import __version__
-from ..diagnosis import Diagnosis
+from ..diagnosis import Diagnosis, Headline
 from ..gum import MpeResult
 from ..io import DataError, Dataset, atomic_write_text
 from ..model import FitResult
@@ -60,6 +60,10 @@ table.tbl td,table.tbl th{border:1px solid #ddd;padding:2px 6px;text-align:right
 .note{color:#555;font-size:.9em}.kv td{padding:2px 10px}
 .chi2{padding:.4em .7em;border-left:4px solid #2ca02c;background:#f3faf3}
 .chi2.fail{border-color:#d62728;background:#fdf1f1}
+.headline{padding:.4em .7em;border-left:4px solid #1f77b4;background:#f1f6fc}
+.headline.success{border-color:#2ca02c;background:#f3faf3}
+.headline.warning{border-color:#ff7f0e;background:#fff6ec}
+.headline.error{border-color:#d62728;background:#fdf1f1}
 """
 TIMESTAMP = re.compile(r"Generated \d{4}-\d\d-\d\d \d\d:\d\d UTC")
 """The only part of a report that differs between two runs of the same record."""
@@ -255,18 +259,20 @@ def write_report(analysis_path: str | Path, out_path: str | Path) -> dict:
 
 def render(res: AnalysisResult, *, generated: str | None = None) -> str:
     """The HTML report of an :class:`~cmm_core.analysis.AnalysisResult`."""
-    diag, text = None, ""
+    diag, text, head = None, "", None
     if res.diagnosis is not None:
         diag = pd.DataFrame(diagnosis_rows(res.diagnosis))
         text = diagnosis_conclusion(res.diagnosis)
+        head = res.diagnosis.headline()
     figs: dict[str, str] = {}
     sections = _record_sections(res) + monitor_sections(res.interim, res.calibration_history,
                                                         figs)
     return build_report(res.dataset, res.fit, exclusions=res.exclusions,
                         history=list(res.history), uncertainty=res.uncertainty,
                         diagnosis=diag, magnification=res.record.magnification,
-                        diagnosis_conclusion=text, mpe=res.mpe, generated=generated,
-                        sigma=res.sigma, extra_sections=sections, extra_figures=figs)
+                        diagnosis_conclusion=text, diagnosis_headline=head, mpe=res.mpe,
+                        generated=generated, sigma=res.sigma, extra_sections=sections,
+                        extra_figures=figs)
 
 
 def _esc(text: str) -> str:
@@ -399,6 +405,13 @@ def diagnosis_rows(d: Diagnosis) -> list:
              "aliases": ", ".join(c.aliases)} for c in d.candidates]
 
 
+def headline_html(h: Headline) -> str:
+    """The diagnosis's headline (``Diagnosis.headline``, the app's first message) as a
+    box of its level: the title in bold, the text, the action."""
+    return (f"<div class='headline {_esc(h.level)}'><p><b>{_esc(h.title)}</b></p>"
+            f"<p>{_esc(h.text)}</p><p>Next: {_esc(h.action)}</p></div>")
+
+
 def diagnosis_conclusion(d: Diagnosis) -> str:
     """The diagnosis's verdict in words, with the candidates it did not try."""
     return d.message + "".join(f" Not tried: {k} ({v})." for k, v in d.skipped.items())
@@ -408,8 +421,9 @@ def build_report(dataset: Dataset, result: FitResult, *, exclusions: Iterable = 
                  history: Iterable = (), uncertainty: Any = None,
                  diagnosis: pd.DataFrame | None = None, magnification: float = 2000.0,
                  extra_sections: Iterable = (), diagnosis_conclusion: str = "",
-                 mpe: MpeResult | None = None, generated: str | None = None,
-                 sigma: dict | None = None, extra_figures: dict | None = None) -> str:
+                 diagnosis_headline: Headline | None = None, mpe: MpeResult | None = None,
+                 generated: str | None = None, sigma: dict | None = None,
+                 extra_figures: dict | None = None) -> str:
     """A self-contained HTML report of a fit: summary, figures and tables.
 
     Prefer :func:`analysis_report`, which builds every argument from one analysis record.
@@ -429,6 +443,9 @@ def build_report(dataset: Dataset, result: FitResult, *, exclusions: Iterable = 
     extra_sections : iterable of (heading, html) pairs, optional
     diagnosis_conclusion : str
         The diagnosis's plain-language verdict, printed above its table.
+    diagnosis_headline : Headline, optional
+        The diagnosis's headline (``Diagnosis.headline``), shown first in its section (the
+        app's Diagnose page and ``diagnose --json`` carry the same).
     mpe : MpeResult, optional
         The MPE check (``cmm_core.gum.mpe.mpe_check``): plot, counts and the rule used.
     generated : str, optional
@@ -498,14 +515,17 @@ def build_report(dataset: Dataset, result: FitResult, *, exclusions: Iterable = 
         section("Uncertainty (standard, k = 1; thesis tables 4.1-4.3)", chi2_html(r),
                 _table_html(_uncertainty_table(uncertainty, r)),
                 f"<p class='note'>{html.escape(uncertainty.message)}</p>")
-    if diagnosis is not None and len(diagnosis):
-        keep = [c for c in ("effect", "title", "rms_um", "chi2_dof", "delta_chi2", "n_params",
-                            "delta_bic", "p_value", "significant", "aliases")
-                if c in diagnosis]
-        section("Diagnosis: candidate effects, best first",
-                f"<p>{html.escape(diagnosis_conclusion)}</p>" if diagnosis_conclusion else "",
-                _table_html(diagnosis[keep].head(10) if keep else diagnosis.head(10)),
-                f"<p class='note'>The 10 best of {len(diagnosis)} candidates.</p>")
+    ranked = diagnosis is not None and len(diagnosis) > 0
+    if ranked or diagnosis_headline is not None:
+        items = ["" if diagnosis_headline is None else headline_html(diagnosis_headline),
+                 f"<p>{html.escape(diagnosis_conclusion)}</p>" if diagnosis_conclusion else ""]
+        if diagnosis is not None and ranked:
+            keep = [c for c in ("effect", "title", "rms_um", "chi2_dof", "delta_chi2",
+                                "n_params", "delta_bic", "p_value", "significant", "aliases")
+                    if c in diagnosis]
+            items += [_table_html(diagnosis[keep].head(10) if keep else diagnosis.head(10)),
+                      f"<p class='note'>The 10 best of {len(diagnosis)} candidates.</p>"]
+        section("Diagnosis: candidate effects, best first", *items)
     if mpe is not None:
         counts = pd.DataFrame([{"decision": k, "lengths": v} for k, v in mpe.counts.items()])
         section("MPE check (0.6 µm + L/600 with L in mm, ISO 14253-1 decision rule)", chi2_html(r),

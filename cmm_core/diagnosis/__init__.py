@@ -7,7 +7,9 @@ estimate), :mod:`.scoring` (the significance rule: Δχ², family-wise levels, B
 out check), :mod:`.certificate_check`, :mod:`.discrepancy` (GP on the residuals),
 :mod:`.replicates` (σ from repeats and residuals), :mod:`.outliers`, :mod:`.blunders`
 (flagged outliers that dominate the misfit are the verdict before any effect),
-:mod:`.certnoise` (a fixed certificate's own errors in the candidates' F-tests).
+:mod:`.certnoise` (a fixed certificate's own errors in the candidates' F-tests),
+:mod:`.headline` (:class:`Headline`: the verdict in one message, shared by the app, the
+report and the CLI).
 May import: ``machine``, ``io``, ``model``, ``gp``.
 """
 
@@ -41,6 +43,16 @@ from .crossval import (
     scales_alone_p,
 )
 from .discrepancy import Discrepancy, discrepancy_gp, kinematic_basis
+from .headline import (
+    HEADLINE_LEVELS,
+    HEADLINE_VERDICTS,
+    MAX_TERMS,
+    SETUP_GROUPS,
+    SIGNIFICANT_Z,
+    Headline,
+    headline_of,
+    significant_terms,
+)
 from .outliers import OutlierReport, detect_outliers
 from .replicates import (
     UNIFORM_ALPHA,
@@ -67,7 +79,15 @@ from .scoring import (
     score,
 )
 from .search import BASE_MAX_ITER, Candidate, Diagnosis, diagnose, estimate_sigma
-from .verdict import OUTSIDE, evidence, fitted_text, misfit_location, stylus_offsets
+from .verdict import (
+    OUTSIDE,
+    evidence,
+    fitted_parameters,
+    fitted_text,
+    misfit_location,
+    stylus_offsets,
+    stylus_text,
+)
 
 __all__ = [
     "ACTION", "ALPHA", "axis_weights", "BASE_MAX_ITER", "blunder_check", "BlunderCheck", "BLUNDERS",
@@ -81,4 +101,6 @@ __all__ = [
     "candidate_noise", "certificate_noise", "CertNoise", "cert_columns", "cert_noise",
     "cert_scales", "critical_ratio", "MIN_FORM_DOF", "null_p_value", "quadratic_form_sf",
     "rejection_probability", "size_for_power",
+    "Headline", "headline_of", "HEADLINE_LEVELS", "HEADLINE_VERDICTS", "MAX_TERMS",
+    "SETUP_GROUPS", "SIGNIFICANT_Z", "significant_terms", "fitted_parameters", "stylus_text",
 ]

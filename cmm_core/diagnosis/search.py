@@ -64,6 +64,7 @@ from ..units import label as unit_label
 from . import replicates as repeatability
 from .blunders import BLUNDERS, BlunderCheck, blunder_check
 from .certificate_check import CertificateCheck, check_certificate
+from .headline import Headline, headline_of
 from .scoring import (
     FAMILY_ALPHA,
     ScoreCache,
@@ -244,10 +245,16 @@ class Diagnosis:
     blunders: BlunderCheck | None = None
     unseen: dict = field(default_factory=dict)
 
+    def headline(self) -> Headline:
+        """The verdict in one message (:func:`headline.headline_of`): what the app's
+        Diagnose page draws first, the report shows and ``to_dict`` carries."""
+        return headline_of(self)
+
     def to_dict(self) -> dict:
-        """JSON-ready result in the ``diagnose`` shape (docs/formats.md)."""
+        """JSON-ready result in the ``diagnose`` shape (docs/formats.md), with the
+        ``headline`` (:meth:`headline`)."""
         b = self.baseline
-        return {"baseline": b.summary(),
+        return {"baseline": b.summary(), "headline": self.headline().to_dict(),
                 "candidates": [c.to_dict() for c in self.candidates],
                 "verdict": self.verdict, "skipped": self.skipped, "message": self.message,
                 "holdout": [h.to_dict() for h in self.holdout],

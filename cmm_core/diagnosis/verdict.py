@@ -11,6 +11,7 @@ is :data:`OUTSIDE` the catalogue, with where the residual lives
 from __future__ import annotations
 
 import inspect
+import re
 from dataclasses import replace
 from typing import Protocol
 
@@ -18,17 +19,24 @@ import numpy as np
 from scipy import stats
 
 from ..model import PERIODIC, FitResult, fit
-from ..units import label as unit_label
+from ..units import number, p_text, value_u
 from . import crossval as holdout
 from .blunders import BLUNDERS
 from .replicates import axis_weights
 
 
 class _Named(Protocol):
-    """What :func:`fitted_text` reads of a candidate (``search.Candidate``)."""
+    """What :func:`fitted_text` reads of a candidate (``search.Candidate``, frozen: read
+    only)."""
 
-    effect: str
-    fitted: dict
+    @property
+    def effect(self) -> str: ...
+    @property
+    def fitted(self) -> dict: ...
+    @property
+    def aliases(self) -> list: ...
+    @property
+    def would_leave_undetermined(self) -> list: ...
 
 OUTSIDE = "outside_catalogue"
 """Verdict when the misfit is significant and no catalogue effect passes the checks."""
@@ -303,25 +311,75 @@ def stylus_offsets(fitted: dict) -> dict:
     return out
 
 
+_TERM = re.compile(r"[0-9.]+·(\S+)")
+"""A parameter's label in an undetermined combination (``1.00·probe1.x + ...``)."""
+
+
+def _u_why(c: _Named, labels) -> str:
+    """Why the fitted parameters ``labels`` of candidate ``c`` have no determinable u:
+    the undetermined combination of the model with it that holds one of them (its other
+    members), else that the model leaves some undetermined, else its aliases ("" when
+    none of these says why)."""
+    for combo in c.would_leave_undetermined:
+        names = list(dict.fromkeys(_TERM.findall(combo)))
+        if any(lab in names for lab in labels):
+            others = [n for n in names if n not in labels]
+            return ("aliased with " + ", ".join(others[:3])
+                    + (" …" if len(others) > 3 else "") + " in this design")
+    if c.would_leave_undetermined:
+        return (f"the model with {c.effect} leaves {len(c.would_leave_undetermined)} "
+                "parameter combination(s) undetermined")
+    if c.aliases:
+        return "aliased with " + ", ".join(c.aliases)
+    return ""
+
+
+def stylus_text(c: _Named, note: str = "") -> str:
+    """``Stylus 2 is the furthest off: its offset error is (x +1.18 ± 0.05, ...) µm (|e|
+    = 5.02 µm; note)`` of a probe offset candidate: the stylus whose fitted offset vector
+    is largest, each component with its u, or the components alone and why their u is
+    not determinable (never ``± nan``)."""
+    off = stylus_offsets(c.fitted)
+    q = max(off, key=lambda k: float(np.linalg.norm(off[k][0])))
+    v, u = off[q]
+    if np.all(np.isfinite(u) & (u > 0)):
+        vec = ", ".join(f"{a} {number(x, '+.2f')} ± {number(s, '.2f')}"
+                        for a, x, s in zip("xyz", v, u, strict=True))
+        tail = ""
+    else:
+        vec = ", ".join(f"{a} {number(x, '+.2f')}" for a, x in zip("xyz", v, strict=True))
+        why = _u_why(c, [f"probe{q}.{a}" for a in "xyz"])
+        tail = f"; u not determinable: {why or 'the data do not determine it'}"
+    return (f"Stylus {q} is the furthest off: its offset error is ({vec}) µm (|e| = "
+            f"{number(float(np.linalg.norm(v)), '.2f')} µm{'; ' + note if note else ''}"
+            f"{tail})")
+
+
+def fitted_parameters(c: _Named, limit: int = 3) -> list:
+    """The named effect's added parameters largest against their u first (those without
+    a determinable u after them, largest first), at most ``limit``, as text:
+    ``dxx[1] = -1.85 ± 0.45 µm`` (``value_u``: a u not determinable says why)."""
+    def key(item):
+        _, v, u = item[1]
+        has_u = bool(np.isfinite(u) and u > 0)
+        return (not has_u, -abs(v) / u if has_u else -abs(v))
+
+    top = sorted(c.fitted.items(), key=key)[:limit]
+    return [f"{lab} = {value_u(v, u, unit, _u_why(c, [lab]))}"
+            for lab, (unit, v, u) in top]
+
+
 def fitted_text(c: _Named) -> str:
     """The named effect's numbers: a probe offset names the stylus furthest off (the
     largest offset vector, with u), other effects their parameters largest against u."""
     if not c.fitted:
         return ""
     if c.effect == "probe_offset":
-        off = stylus_offsets(c.fitted)
-        q = max(off, key=lambda k: float(np.linalg.norm(off[k][0])))
-        v, u = off[q]
-        vec = ", ".join(f"{a} {x:+.2f} ± {s:.2f}" for a, x, s in zip("xyz", v, u,
-                                                                     strict=True))
-        return (f" Stylus {q} is the furthest off: its offset error is ({vec}) µm "
-                f"(|e| = {np.linalg.norm(v):.2f} µm; u standard uncertainties, each stylus "
-                "relative to the mean of all, since the fit only sees their differences); "
-                "requalify it. Every stylus's vector is in the candidate's fitted "
+        return (" " + stylus_text(c, "u standard uncertainties, each stylus relative to the "
+                                     "mean of all, since the fit only sees their differences")
+                + "; requalify it. Every stylus's vector is in the candidate's fitted "
                 "parameters.")
-    top = sorted(c.fitted.items(), key=lambda kv: -abs(kv[1][1]) / max(kv[1][2], 1e-300))
-    return " Fitted: " + ", ".join(f"{lab} = {v:.3g} ± {u:.2g} {unit_label(unit)}"
-                                    for lab, (unit, v, u) in top[:3]) + "."
+    return " Fitted: " + ", ".join(fitted_parameters(c)) + "."
 
 
 def evidence(base: FitResult) -> dict:
@@ -400,7 +458,7 @@ def _test_text(base) -> str:
            f"decides on; the fit's own χ²/dof, {base.chi2_dof:.2f}, leaves that uncertainty "
            "out)" if base.test_counts_certificate else "")
     return (f"χ²/dof {val:.2f} at {dof} degrees of freedom against σ = "
-            f"{base.sigma_um:.3g} µm{own} {verdict} the χ² test (p = {base.chi2_p_value:.2g})")
+            f"{base.sigma_um:.3g} µm{own} {verdict} the χ² test ({p_text(base.chi2_p_value)})")
 
 
 def _conclusion(base, cands, verdict, sigma=None, uniform=None, where=None):
@@ -465,7 +523,7 @@ def _conclusion(base, cands, verdict, sigma=None, uniform=None, where=None):
     expl = best.explanation[:1].upper() + best.explanation[1:]
     text = (f" Most likely missing: {name}: adding it lowers χ² by "
             f"{best.delta_chi2:.1f} for {best.n_params} parameter(s), ΔBIC "
-            f"{best.delta_bic:.1f}, p = {best.p_value:.2g}. {expl}{fitted_text(best)}")
+            f"{number(best.delta_bic, '.1f')}, {p_text(best.p_value)}. {expl}{fitted_text(best)}")
     if best.delta_bic > 0:
         text += (f" Its ΔBIC is positive: BIC charges ln N = "
                  f"{np.log(base.dof + base.rank):.1f} per parameter and would rather not add "

@@ -150,7 +150,8 @@ def run_diagnosis(show_progress: bool = False):
     delta_chi2, delta_bic, p_value, n_params, significant, confirmed, is_verdict (the
     core's verdict: none when the baseline did not converge), signature_um (n, 3).
     With ``show_progress`` a progress bar follows the scoring of the candidates. The
-    fourth item holds the verdict, the σ check, the certificate check, where the
+    fourth item holds the verdict and its headline (``Diagnosis.headline``: what the page
+    draws first), the σ check, the certificate check, where the
     residual lives and the leave-one-placement-out checks (``holdout``, which
     "Measure next" reads through ``plan.open_pairs``) (``Diagnosis.to_dict``).
     """
@@ -189,8 +190,8 @@ def cached_diagnosis(key: FitKey, _ds, _instruments=(), _show_progress=False, _f
     if bar is not None:
         bar.empty()
     full = d.to_dict()
-    info = {k: full[k] for k in ("verdict", "sigma_check", "certificate", "where",
-                                 "blunders", "cannot_see", "evidence", "holdout")}
+    info = {k: full[k] for k in ("verdict", "headline", "sigma_check", "certificate",
+                                 "where", "blunders", "cannot_see", "evidence", "holdout")}
     return rows, A.diagnosis_conclusion(d), info
 
 

@@ -34,6 +34,14 @@ def misfit_banner(r) -> None:
                    f"(p = {r.chi2_p_value:.2g}){note}; the σ-based uncertainties stand.")
 
 
+def headline(h: dict, where=None) -> None:
+    """The diagnosis's headline (``Headline.to_dict``) as one message of its level
+    (``st.success``, ``info``, ``warning``, ``error``): the title in bold, the text, the
+    action; in ``where`` (a column or container) when given."""
+    draw = getattr(where if where is not None else st, h["level"])
+    draw(f"**{h['title']}**\n\n{h['text']}\n\nNext: {h['action']}")
+
+
 def spec_text(spec: str) -> str:
     """The spec as written, one blank after each comma: a table cell wraps there rather
     than inside a name (the blank parses the same)."""
