@@ -86,10 +86,23 @@ def test_the_allowed_wings_form_no_circle():
             del left[w]
 
 
+def _import_module_calls(tree):
+    """Every ``importlib.import_module(...)`` call (or ``import_module(...)``) in ``tree``:
+    an import by name, which the wing checks above cannot read."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call):
+            f = node.func
+            name = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", "")
+            if name == "import_module":
+                yield node
+
+
 def test_no_function_local_project_import_without_a_reason():
     """A project import inside a function is allowed only with a comment on its line or
-    the line above saying why it is lazy (a heavy optional dependency). Module-level
-    ``if TYPE_CHECKING:`` imports are not function-local (they still run downhill)."""
+    the line above saying why it is lazy (a heavy optional dependency); so is an import by
+    name (``importlib.import_module``, the command line's commands, imported when they
+    run). Module-level ``if TYPE_CHECKING:`` imports are not function-local (they still
+    run downhill)."""
     unjustified = []
     for path, parts in _modules():
         lines = path.read_text().splitlines()
@@ -97,7 +110,8 @@ def test_no_function_local_project_import_without_a_reason():
         in_functions = {id(n) for f in ast.walk(tree)
                         if isinstance(f, ast.FunctionDef | ast.AsyncFunctionDef)
                         for n in ast.walk(f)}
-        for _target, _names, node, _tree in _imports(path, parts):
+        nodes = [node for _target, _names, node, _tree in _imports(path, parts)]
+        for node in nodes + list(_import_module_calls(tree)):
             if id(node) not in in_functions:
                 continue
             around = lines[node.lineno - 2] + lines[node.lineno - 1]

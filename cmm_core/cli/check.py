@@ -1,10 +1,10 @@
 """``python -m cmm_core check`` and ``compare``: interim checks against a stored
 calibration, and a machine's calibration history (docs/monitoring.md).
 
-:func:`add_parser` adds both sub-commands to the main parser (their ``func`` returns the
-JSON summary ``cli.main`` prints); :func:`run` runs one on its own: the summary on stdout
-(or ``--json FILE`` when the parser has that option), exit status 0; bad input exits
-with status 2 and one line on stderr naming the file, row and column.
+:func:`add_parser` adds both sub-commands to a parser (their options are in
+:mod:`.parser`; their ``func`` runs :func:`_command_check` or :func:`_command_compare`,
+which return the JSON summary ``cli.main`` prints; bad input raises ``DataError``, which
+``cli.main`` prints as one line on stderr naming the file, row and column, exit status 2).
 """
 
 from __future__ import annotations
@@ -24,96 +24,16 @@ from ..analysis import (
 )
 from ..export import load_model, results_json
 from ..io import DataError, atomic_write_all, atomic_write_text, check_outputs, load_dataset
-from ..monitor import (
-    MAX_MAP_NODES_PER_AXIS,
-    check_sigma_um,
-    compare_calibrations,
-    parse_mpe,
-    run_check,
-)
-from .inputs import add_instrument_args, instruments_of, number_arg
-
-_MODEL_HELP = ("the stored calibration: a model file written by 'fit --save' (kinematic "
-               "coefficients with their covariance, σ, layout, strokes and styli)")
-_MEAS_HELP = ("the new measurements (long CSV, docs/formats.md): one placement of the plate "
-              "is enough; several files are read as one; none when instruments alone "
-              "(--laser, --step-gauge, --ball-bar) are the check")
-_SETUP_HELP = ("setup JSON of the new measurements (layout, strokes, placements, styli; "
-               "required with measurements; default: none, for instruments alone): the "
-               "machine must be the model's")
-_REPORT_HELP = ("write the HTML report of the check (an analysis record of the new data "
-                "with its section 'Interim check', docs/report.md); needs plate "
-                "measurements (default: no report)")
-_RESULTS_HELP = ("write the results document (JSON, docs/compensation.md) with its section "
-                 "'%s': the numbers with their uncertainties and decision rules (default: "
-                 "none)")
-_CERT_HELP = ("certificate CSV of the plate (calibrated ball centres with their "
-              "uncertainties): the check predicts the balls from it (default: the one the "
-              "setup names; one of the two is required)")
-_SIGMA_HELP = ("repeatability of one probed coordinate of the new data, µm, 0.001 to 1000 "
-               "(default: the stored model's σ)")
-_ALPHA_HELP = ("false-alarm level of the χ² test, 0.001 to 0.2 (default: %(default)s): the "
-               "fraction of checks of an unchanged machine that fail")
-_FAMILY_HELP = ("family-wise false-alarm level of the parameter changes (Holm over the "
-                "parameters tested), 0.001 to 0.2 (default: %(default)s)")
-_POS_HELP = ("placements of the new data to check, comma-separated (default: all)")
-_MPE_HELP = ("the machine's MPE for lengths as 'A,D': MPE = A µm + L/D with L in mm, e.g. "
-             "0.6,600 (the thesis machine). With it the check states conformity by the "
-             "ISO 14253-1 rule (conforms, does not conform, cannot say); default: no "
-             "statement")
-_MODELS_HELP = "two or more model files of one machine, written by 'fit --save'"
-_DATES_HELP = ("the calibration date of each model, ISO 8601 (YYYY-MM-DD), in the order of "
-               "the models (required)")
-_NODES_HELP = (f"grid nodes per axis of the error map's change, 2 to {MAX_MAP_NODES_PER_AXIS} "
-               "(default: %(default)s)")
-
-
-_LEVEL = number_arg(float, 0.001, 0.2)
-"""A false-alarm level: 0.1 % to 20 %."""
-
-
-def _mpe(text: str) -> tuple[float, float]:
-    """``--mpe``: ``monitor.parse_mpe`` (the app's field reads it there too)."""
-    try:
-        return parse_mpe(text)
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
+from ..monitor import check_sigma_um, compare_calibrations, run_check
+from .inputs import instruments_of
+from .parser import add_command
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``check`` and ``compare`` to the sub-parsers of ``cli.build_parser``."""
-    p = subparsers.add_parser(
-        "check", help="interim check of new measurements against a stored calibration: χ² "
-                      "test, E_n per ball, what changed, conformity to the MPE")
-    p.add_argument("model", metavar="MODEL.json", help=_MODEL_HELP)
-    p.add_argument("meas", nargs="*", metavar="MEAS.csv", help=_MEAS_HELP)
-    p.add_argument("--setup", metavar="SETUP.json", default=None, help=_SETUP_HELP)
-    p.add_argument("--certificate", metavar="CERT.csv", help=_CERT_HELP)
-    p.add_argument("--sigma-um", type=number_arg(float, 1e-3, 999.999, "µm"), default=None, metavar="UM", help=_SIGMA_HELP)
-    p.add_argument("--alpha", type=_LEVEL, default=0.05, metavar="LEVEL", help=_ALPHA_HELP)
-    p.add_argument("--family-alpha", type=_LEVEL, default=0.05, metavar="LEVEL",
-                   help=_FAMILY_HELP)
-    p.add_argument("--positions", default=None, metavar="P1,P2", help=_POS_HELP)
-    p.add_argument("--mpe", type=_mpe, default=None, metavar="A,D", help=_MPE_HELP)
-    add_instrument_args(p)
-    p.add_argument("--report", metavar="OUT.html", default=None, help=_REPORT_HELP)
-    p.add_argument("--results-json", metavar="OUT.json", default=None,
-                   help=_RESULTS_HELP % "interim_check")
-    p.set_defaults(func=_command_check)
-    p = subparsers.add_parser(
-        "compare", help="a machine's calibration history: every shared parameter's change "
-                        "with u and E_n, significant changes, the error map's change")
-    p.add_argument("models", nargs="+", metavar="MODEL.json", help=_MODELS_HELP)
-    p.add_argument("--dates", nargs="+", required=True, metavar="YYYY-MM-DD",
-                   help=_DATES_HELP)
-    p.add_argument("--family-alpha", type=_LEVEL, default=0.05, metavar="LEVEL",
-                   help=_FAMILY_HELP)
-    p.add_argument("--nodes", type=number_arg(int, 2, MAX_MAP_NODES_PER_AXIS), default=5, metavar="N", help=_NODES_HELP)
-    p.add_argument("--results-json", metavar="OUT.json", default=None,
-                   help=(_RESULTS_HELP % "history").replace(" (default", ", beside the "
-                                                             "latest calibration's parameters "
-                                                             "(default"))
-    p.set_defaults(func=_command_compare)
+    """Add ``check`` and ``compare`` to ``subparsers`` (as ``cli.build_parser`` does; their
+    options are in :mod:`.parser`)."""
+    add_command(subparsers, "check")
+    add_command(subparsers, "compare")
 
 
 def _command_check(args) -> dict:
