@@ -24,8 +24,10 @@ $(VENV)/.test: $(TEST_LOCK) pyproject.toml setup.py | $(BIN)/python
 	$(BIN)/pip install -q --no-deps -e .
 	touch $@
 
+# the same as an installed `cmm-error-lab app`: on this computer only, HOST=0.0.0.0 for the network
+HOST ?= 127.0.0.1
 run: $(VENV)/.runtime
-	$(BIN)/python serve.py --server.port $(PORT) --server.headless true
+	$(BIN)/cmm-error-lab app --port $(PORT) --host $(HOST)
 
 test: $(VENV)/.test
 	$(BIN)/ruff check .

@@ -6,8 +6,8 @@ options and the function it runs), :mod:`.options` (the options several share), 
 module per command or pair of commands that use the same wings: :mod:`.fitting` (fit,
 diagnose, gp, reading their data through :mod:`.inputs`), :mod:`.simulate`,
 :mod:`.compensate`, :mod:`.budget` (budget, air), :mod:`.report`, :mod:`.plan` (plan,
-task), :mod:`.export`, :mod:`.check` (check, compare), :mod:`.proposals` (next). May
-import every wing.
+task), :mod:`.export`, :mod:`.check` (check, compare), :mod:`.proposals` (next),
+:mod:`.app` (app: the app's server, standard library only). May import every wing.
 
 A lazy face (PEP 562): :func:`main`, the parser and the options are imported here, and
 need the standard library only, so that ``--help`` starts without numpy, scipy, pandas or
@@ -21,6 +21,15 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING
 
+from .app import (
+    APP_PACKAGE,
+    DEFAULT_HOST,
+    DEFAULT_PORT,
+    add_app_arguments,
+    app_folder,
+    serve_app,
+    server_command,
+)
 from .commands import main
 from .options import (
     CERT_HELP,
@@ -103,7 +112,8 @@ def __dir__() -> list[str]:
 
 
 __all__ = [
-    "add_arguments", "add_command", "add_data_args", "add_export_arguments", "add_fit_args",
+    "add_app_arguments", "APP_PACKAGE", "app_folder", "DEFAULT_HOST", "DEFAULT_PORT",
+    "serve_app", "server_command", "add_arguments", "add_command", "add_data_args", "add_export_arguments", "add_fit_args",
     "add_foreign_args", "add_instrument_args", "add_outlier_args", "add_parser",
     "add_plan_arguments", "add_task_arguments", "AXIS_TABLE_FILES", "build_parser",
     "CERT_HELP", "cmd_air", "cmd_budget", "cmd_compensate", "cmd_diagnose", "cmd_fit",

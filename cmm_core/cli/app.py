@@ -16,8 +16,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-__all__ = ["APP_PACKAGE", "DEFAULT_HOST", "DEFAULT_PORT", "add_arguments", "app_folder",
-           "run", "server_command"]
+__all__ = ["APP_PACKAGE", "DEFAULT_HOST", "DEFAULT_PORT", "add_app_arguments", "app_folder",
+           "serve_app", "server_command"]
 
 APP_PACKAGE = "cmm_error_lab_app"
 """The app's package in the wheel."""
@@ -26,7 +26,7 @@ DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8501
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
+def add_app_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``app``."""
     p.add_argument("--port", type=int, default=DEFAULT_PORT, metavar="N",
                    help=f"port the app listens on (default {DEFAULT_PORT}); the address "
@@ -62,7 +62,7 @@ def server_command(port: int, host: str, open_browser: bool = False) -> list[str
             "--server.address", host, "--server.headless", "false" if open_browser else "true"]
 
 
-def run(args: argparse.Namespace) -> int:
+def serve_app(args: argparse.Namespace) -> int:
     """Serve the app until interrupted (Ctrl+C); returns the server's exit code."""
     cmd = server_command(args.port, args.host, args.open)
     print(f"CMM error lab: starting on http://{args.host}:{args.port} (Ctrl+C stops it)",

@@ -116,6 +116,8 @@ def _one_line(exc, name) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status (a usage error exits 2 from argparse)."""
     args = build_parser().parse_args(argv)
+    if args.func.serves:  # the app's server: its exit status, no JSON, none of the core
+        return args.func(args)
     # after parsing, so that --help and a usage error load none of the core; the command's
     # own module loads in args.func (parser.Subcommand), the wings it uses with it
     # lazy: the io wing brings numpy and pandas, which neither --help nor a usage error needs

@@ -18,7 +18,9 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
+from .app import add_app_arguments
 from .options import (
     _MAX_MAP_NODES_PER_AXIS,
     _MAX_ORDER,
@@ -467,8 +469,11 @@ class Subcommand:
     help: str
     arguments: Callable[[argparse.ArgumentParser], None]
     run: str
+    serves: bool = False
+    """A server (``app``): it runs until stopped and returns its exit status, not a JSON
+    document; it has no ``--json``."""
 
-    def __call__(self, args: argparse.Namespace) -> dict:
+    def __call__(self, args: argparse.Namespace) -> Any:
         module, name = self.run.split(":")
         # imported when the command runs, not when the parser is built (--help, usage errors)
         # lazy: a command's module brings the wings it uses (numpy, scipy, pandas, plotly)
@@ -505,6 +510,9 @@ COMMANDS: dict[str, Subcommand] = {
                           _compare_arguments, "check:_command_compare"),
     "next": Subcommand("propose the measurement that tells two rival effects apart",
                        _next_arguments, "proposals:run"),
+    "app": Subcommand("start the app in the browser (on this computer only unless --host "
+                      "says otherwise); Ctrl+C stops it", add_app_arguments, "app:serve_app",
+                      serves=True),
 }
 """Every sub-command, in the order ``--help`` lists them (docs/formats.md)."""
 
@@ -527,6 +535,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True)
     for name in COMMANDS:
         add_command(sub, name)
-    for p in sub.choices.values():  # --json after the command too (SUPPRESS: no override)
-        p.add_argument("--json", metavar="FILE", default=argparse.SUPPRESS, help=_JSON_HELP)
+    for name, p in sub.choices.items():  # --json after the command too (SUPPRESS: no override)
+        if not COMMANDS[name].serves:
+            p.add_argument("--json", metavar="FILE", default=argparse.SUPPRESS,
+                           help=_JSON_HELP)
     return ap
