@@ -21,6 +21,7 @@ import cmm_core
 from cmm_core import analysis as A
 from cmm_core import export as ex
 from cmm_core import monitor as mon
+from cmm_core.cli import main
 from cmm_core.io import (
     THESIS_DIR,
     THESIS_POSITIONS,
@@ -178,3 +179,33 @@ def test_a_history_of_two_machines_is_refused_and_an_older_model_is_noted(thesis
     notes = mon.version_notes([m, old, legacy])
     assert len(notes) == 2 and "old.json was made by cmm-error-lab 0.7.0" in notes[0]
     assert "legacy.json" in notes[1] and "before 0.8.0" in notes[1]
+
+
+HISTORY = ROOT / "sample_data" / "history"
+
+
+def test_the_command_lines_records_name_their_inputs(tmp_path, capsys):
+    """``fit --save``, ``check --results-json`` and ``compare --results-json``: each
+    record lists the files the command read, by the SHA-256 of their bytes."""
+    model = tmp_path / "model.json"
+    args = [*map(str, FILES), "--setup", str(THESIS_DIR / "setup.json"),
+            "--certificate", str(THESIS_DIR / "certificate.csv")]
+    assert main(["fit", *args, "--save", str(model)]) == 0
+    _check(json.loads(model.read_text())["provenance"], _expected_inputs())
+    res = tmp_path / "check.json"
+    assert main(["check", str(model), *args[:1], *args[6:], "--results-json", str(res)]) == 0
+    prov = json.loads(res.read_text())["provenance"]
+    names = [f["name"] for f in prov["inputs"]]
+    assert names[0] == "model.json" and "BP111.csv" in names and "setup.json" in names
+    assert prov["inputs"][0]["sha256"] == _sha(model) and prov["machine"] == MACHINE
+    capsys.readouterr()
+    cals = sorted(HISTORY.glob("calibration_*.json"))
+    dates = [p.stem.split("_")[1] for p in cals]
+    out = tmp_path / "history.json"
+    assert main(["compare", *map(str, cals), "--dates", *dates, "--results-json",
+                 str(out)]) == 0
+    err = capsys.readouterr().err
+    # the sample calibrations were written before files named their software
+    assert err.count("note: ") == len(cals) and "before 0.8.0" in err
+    made = json.loads(out.read_text())["provenance"]
+    assert sorted(f["sha256"] for f in made["inputs"]) == sorted(_sha(p) for p in cals)

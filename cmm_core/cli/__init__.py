@@ -70,11 +70,13 @@ if TYPE_CHECKING:
     from .fitting import cmd_diagnose, cmd_fit, cmd_gp
     from .inputs import (
         CommandChoices,
+        command_inputs,
         data_of,
         dataset_of,
         exclusions_of,
         fit_args_of,
         instruments_of,
+        provenance_of,
         sigma_of,
     )
     from .plan import cmd_plan, cmd_task, run_plan, run_task
@@ -86,7 +88,8 @@ _LAZY = {
     "AXIS_TABLE_FILES": "export", "add_parser": "export", "command": "export",
     "output_files": "export", "run": "export",
     "cmd_diagnose": "fitting", "cmd_fit": "fitting", "cmd_gp": "fitting",
-    "CommandChoices": "inputs", "data_of": "inputs", "dataset_of": "inputs",
+    "CommandChoices": "inputs", "command_inputs": "inputs", "provenance_of": "inputs",
+    "data_of": "inputs", "dataset_of": "inputs",
     "exclusions_of": "inputs", "fit_args_of": "inputs", "instruments_of": "inputs",
     "sigma_of": "inputs",
     "cmd_plan": "plan", "cmd_task": "plan", "run_plan": "plan", "run_task": "plan",
@@ -113,7 +116,7 @@ def __dir__() -> list[str]:
 
 __all__ = [
     "add_app_arguments", "APP_PACKAGE", "app_folder", "DEFAULT_HOST", "DEFAULT_PORT",
-    "serve_app", "server_command", "add_arguments", "add_command", "add_data_args", "add_export_arguments", "add_fit_args",
+    "serve_app", "server_command", "command_inputs", "provenance_of", "add_arguments", "add_command", "add_data_args", "add_export_arguments", "add_fit_args",
     "add_foreign_args", "add_instrument_args", "add_outlier_args", "add_parser",
     "add_plan_arguments", "add_task_arguments", "AXIS_TABLE_FILES", "build_parser",
     "CERT_HELP", "cmd_air", "cmd_budget", "cmd_compensate", "cmd_diagnose", "cmd_fit",

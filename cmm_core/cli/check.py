@@ -24,8 +24,8 @@ from ..analysis import (
 )
 from ..export import load_model, results_json
 from ..io import DataError, atomic_write_all, atomic_write_text, check_outputs, load_dataset
-from ..monitor import check_sigma_um, compare_calibrations, run_check
-from .inputs import instruments_of
+from ..monitor import check_sigma_um, compare_calibrations, run_check, version_notes
+from .inputs import command_inputs, instruments_of
 from .parser import add_command
 
 
@@ -101,10 +101,13 @@ def _command_check(args) -> dict:
         outcome = run_check(model, data, instruments=instruments, sigma_um=args.sigma_um,
                             alpha=args.alpha, family_alpha=args.family_alpha,
                             positions=positions, mpe=args.mpe)
-    out: dict[str, object] = {"model": Path(args.model).name, **outcome.to_dict()}
+    out: dict[str, object] = {"model": Path(args.model).name, **outcome.to_dict(),
+                              "notes": version_notes([model])}
     if args.results_json:
+        made = model.derived_provenance(command_inputs(args, leave_out=[model.source]))
         texts[Path(args.results_json)] = results_json(
-            model, source=Path(args.model).name, interim_check=outcome.results_section())
+            model, source=Path(args.model).name, interim_check=outcome.results_section(),
+            provenance=made)
         out["results_json"] = str(args.results_json)
     if args.report:
         out["report"] = str(args.report)
@@ -122,14 +125,16 @@ def _command_compare(args) -> dict:
     models = [load_model(m) for m in args.models]
     h = compare_calibrations(list(zip(models, args.dates, strict=True)),
                              family_alpha=args.family_alpha, nodes_per_axis=args.nodes)
-    out = h.to_dict()
+    out = {**h.to_dict(), "notes": version_notes(models)}
     if args.results_json:
         # the latest by the history's own date order (parsed dates, not strings: the
         # history refuses two models of one date, so it is one model)
         last = next(i for i, d in enumerate(args.dates)
                     if dt.date.fromisoformat(d.strip()).isoformat() == h.dates[-1])
+        made = models[last].derived_provenance(
+            command_inputs(args, leave_out=[models[last].source]))
         atomic_write_text(args.results_json, results_json(
             models[last], source=Path(args.models[last]).name,
-            history=h.results_section()))
+            history=h.results_section(), provenance=made))
         out["results_json"] = str(args.results_json)
     return out

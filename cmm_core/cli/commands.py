@@ -126,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     try:  # before any work: outputs that would destroy an input or each other
         outs, folders, ins = _files(args)
         check_outputs(outs, ins, folders=folders)
+        args.input_files = [p for p in ins if p]  # their digests go into every record
     except (DataError, ValueError, KeyError, OSError) as exc:
         print(f"error: {_one_line(exc, None)}", file=sys.stderr)
         return 2
@@ -138,6 +139,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: internal error ({_one_line(exc, None)}); please report it with the "
               "input files.", file=sys.stderr)
         return 3
+    for note in out.get("notes", []) if isinstance(out, dict) else []:
+        print(f"note: {_one_line(note, None)}", file=sys.stderr)
     text = json.dumps(_jsonable(out), indent=1)
     if args.json:
         try:

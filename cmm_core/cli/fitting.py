@@ -17,6 +17,7 @@ from .inputs import (
     exclusions_of,
     fit_args_of,
     instruments_of,
+    provenance_of,
     sigma_of,
 )
 
@@ -29,7 +30,7 @@ def cmd_fit(args: argparse.Namespace) -> dict:
     r = fit(data, args.model, instruments=instruments or None,
             **fit_args_of(args, args.model, exclude, sigma_um=sigma_um))
     if args.save:
-        save_model(r, args.save)
+        save_model(r, args.save, provenance_of(args, data))
     return {**r.summary(), "sigma": sigma,
             "parameters": {lab: {"value": v, "u": u, "u_inflated": ui, "unit": un}
                            for lab, v, u, ui, un in zip(r.labels, r.values, r.u, r.u_inflated,
