@@ -35,7 +35,8 @@ sys.path.insert(0, str(ROOT))
 
 from cmm_core.cli import main as cli_main  # noqa: E402
 from cmm_core.export import load_model, read_points, save_model  # noqa: E402
-from cmm_core.export.correction import COMPENSATING, extrapolation_note  # noqa: E402
+from cmm_core.export.correction import extrapolation_note  # noqa: E402
+from cmm_core.export.model_file import COMPENSATING  # noqa: E402
 from cmm_core.io import DataError, atomic_write_text, load_dataset  # noqa: E402
 from cmm_core.io.delimited import file_rows  # noqa: E402
 from cmm_core.model import fit, propagate_error  # noqa: E402

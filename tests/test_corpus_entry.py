@@ -710,7 +710,7 @@ def test_instrument_readers_refuse_in_one_line_or_read_every_row_finite(kind, ce
 @pytest.mark.slow  # the model reader's own corpus is in test_hardening
 def test_model_file_corpus_through_export_is_refused_in_one_line(work, tmp_path):
     """Model files with one leaf broken, fed to ``export``: the same four rules (the
-    model reader's range checks live in ``export/correction.py``)."""
+    model reader's range checks live in ``export/model_file.py``)."""
     doc = json.loads(GOOD_MODEL.read_text())
     cases = _json_cases("model", doc, random.Random(CORPUS_SEED), 60, skip=("summary",))
     failures = []

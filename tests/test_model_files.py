@@ -20,7 +20,7 @@ from cmm_core.io import DataError
 from cmm_core.machine import kinematics as kin
 
 GOOD = Path(__file__).resolve().parent / "corpus" / "good_model.json"
-BOUND_MM = 10.0  # the documented bound (docs/compensation.md, correction._MAX_ERROR_UM)
+BOUND_MM = 10.0  # the documented bound (docs/compensation.md, model_file._MAX_ERROR_UM)
 
 
 def _dict():

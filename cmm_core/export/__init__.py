@@ -1,8 +1,9 @@
 """What leaves the program for a machine or a spreadsheet: the model file, corrected
 points, compensation tables and grids, results and project files (``docs/compensation.md``).
 
-Owns: :mod:`.safe` (spreadsheet-safe CSV, grid limits), :mod:`.correction` (the model
-file, :func:`compensate`), :mod:`.comp_tables` (controller tables and grids),
+Owns: :mod:`.safe` (spreadsheet-safe CSV, grid limits), :mod:`.model_file` (the model
+file: :class:`Model`, written and read back checked), :mod:`.correction`
+(:func:`compensate`: corrected points with their uncertainty), :mod:`.comp_tables` (controller tables and grids),
 :mod:`.results` (results bundle), :mod:`.downloads` (parameter, residual and grid CSV,
 project files). May import: ``machine``, ``io``, ``model``.
 """
@@ -32,19 +33,11 @@ from .comp_tables import (
     squareness_table,
 )
 from .correction import (
-    COMPENSATING,
-    MODEL_FORMAT,
     OFF_MACHINE,
-    Model,
     compensate,
     extrapolation_note,
-    load_model,
-    model_from_dict,
-    model_from_result,
-    model_to_dict,
     read_points,
     refuse_off_machine,
-    save_model,
 )
 from .downloads import (
     PROJECT_FORMAT,
@@ -57,6 +50,16 @@ from .downloads import (
     project_from_json,
     project_to_json,
     residuals_csv,
+)
+from .model_file import (
+    COMPENSATING,
+    MODEL_FORMAT,
+    Model,
+    load_model,
+    model_from_dict,
+    model_from_result,
+    model_to_dict,
+    save_model,
 )
 from .results import (
     DEFAULT_COVERAGE_FACTOR,

@@ -31,13 +31,8 @@ from numpy.typing import ArrayLike
 from ..io import DataError, Provenance
 from ..machine import AXES, split_chain
 from ..model import BY_TOKEN, CHI2_ALPHA, FitResult, covariance_factor
-from .correction import (
-    Model,
-    _propagated,
-    _refuse_non_finite,
-    extrapolation_note,
-    model_from_result,
-)
+from .correction import _propagated, _refuse_non_finite, extrapolation_note
+from .model_file import Model, model_from_result
 from .safe import MAX_GRID_NODES, safe_csv
 
 GRID_FORMAT = "cmm-error-lab compensation grid 1"

@@ -36,7 +36,8 @@ from ..io import DataError, Provenance, read_json, read_measurement_files, read_
 from ..io import provenance as make_provenance
 from ..model import MAX_ORDER, PLATE_MODES, FitResult, parse_spec
 from .comp_tables import as_model, compensation_grid
-from .correction import Model, compensate
+from .correction import compensate
+from .model_file import Model
 from .safe import safe_csv
 
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
@@ -87,7 +88,7 @@ def error_map_grid(result: Model | FitResult, *,
 
     Parameters
     ----------
-    result : FitResult or correction.Model
+    result : FitResult or model_file.Model
     step_mm : float or 3 floats
         Grid spacing per axis (mm).
     lower_mm, upper_mm : 3 floats, optional

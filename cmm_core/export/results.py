@@ -17,7 +17,7 @@ along the normal, its placements' tilts and normal translations: ``hole_plate``)
 value is the one it was held at, with no uncertainty.
 
 A saved model's results equal those of the model of the fit it came from
-(:func:`correction.model_from_result`): the summary keeps the artefact, the placements
+(:func:`model_file.model_from_result`): the summary keeps the artefact, the placements
 and the χ² test's statistic. A model file written before those were kept reports a ball
 plate, no placements and the statistic as unknown.
 """
@@ -35,7 +35,7 @@ import numpy as np
 from ..io import Provenance
 from ..model import FitResult
 from .comp_tables import as_model, chi2_status, model_extras
-from .correction import Model
+from .model_file import Model
 
 RESULTS_FORMAT = "cmm-error-lab results"
 RESULTS_VERSION = 1

@@ -48,8 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from .._blas import single_blas_thread
-from ..export import OFF_MACHINE, Model
-from ..export.correction import extrapolation_note
+from ..export import OFF_MACHINE, Model, extrapolation_note
 from ..gum import coverage_intervals
 from ..io import DataError, read_json, refuse_unknown_keys
 from ..io.errors import cut_repr
