@@ -31,6 +31,7 @@ from ..gum import MpeResult
 from ..io import DataError, Dataset, atomic_write_text
 from ..model import FitResult
 from ..monitor import CHANGE_RULE, HISTORY_RULE, TEST_RULE, VERDICTS, CheckOutcome, History
+from ..units import p_text
 from .figures import (
     fig_deviation,
     fig_error_functions,
@@ -148,12 +149,12 @@ def chi2_html(result: FitResult) -> str:
                       for x in chi2_test_numbers(r))
     if r.fails_chi2_test:
         return (f"<p class='chi2 fail'><b>The model fails its χ² test</b>: χ²/dof "
-                f"{val:.2f} at {dof} degrees of freedom (p = {r.chi2_p_value:.2g}){note}. "
+                f"{val:.2f} at {dof} degrees of freedom ({p_text(r.chi2_p_value)}){note}. "
                 f"Uncertainties from σ = {r.sigma_um:.3g} µm alone are too small by the "
                 f"Birge ratio ×{r.birge_ratio:.2f}; the inflated values are shown beside "
                 "them. Neither is trustworthy until the diagnosis explains the misfit.</p>")
     return (f"<p class='chi2'>χ² test passed: χ²/dof {val:.2f} at {dof} degrees of "
-            f"freedom (p = {r.chi2_p_value:.2g}){note}; the σ-based uncertainties stand.</p>")
+            f"freedom ({p_text(r.chi2_p_value)}){note}; the σ-based uncertainties stand.</p>")
 
 
 def _uncertainty_table(uncertainty, result) -> pd.DataFrame:
@@ -475,7 +476,7 @@ def build_report(dataset: Dataset, result: FitResult, *, exclusions: Iterable = 
     r = result
     val, dof, _ = chi2_test_numbers(r)
     chi2 = (f"{'FAILS' if r.fails_chi2_test else 'passes'} at 1 %: χ²/dof {val:.3f}, "
-            f"{dof} dof, p = {r.chi2_p_value:.3g}")
+            f"{dof} dof, {p_text(r.chi2_p_value)}")
     summary = [("Dataset", dataset.name), ("Positions", ", ".join(map(str, dataset.positions))),
                ("Probes", ", ".join(map(str, dataset.probes))),
                ("Certificate", "yes" if dataset.certificate is not None else
@@ -494,7 +495,7 @@ def build_report(dataset: Dataset, result: FitResult, *, exclusions: Iterable = 
                                                    for p, q, b in exclusions) or "none")]
     rows = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>"
                    for k, v in summary)
-    parts.append(f"<h1>CMM error lab report</h1><p class='note'>Generated {now} by cmm_core "
+    parts.append(f"<h1>CMM error lab report</h1><p class='note'>Generated {now} by cmm-error-lab "
                  f"{__version__}. Lengths in mm, errors and uncertainties in µm (rotations "
                  "µrad); bands and expanded uncertainties at k = 2.</p>")
     section("Summary", f"<table class='kv'>{rows}</table>", chi2_html(r),

@@ -6,6 +6,7 @@ from __future__ import annotations
 import streamlit as st
 
 from cmm_core import analysis as A
+from cmm_core.units import p_text
 from pages.ui.cached import current_fit, pending_outliers
 from pages.ui.calls import describe_error
 from pages.ui.state import INSTRUMENT_NAMES, dataset
@@ -55,7 +56,7 @@ def sidebar():
         c1.metric("RMS (µm)", f"{r.rms_um:.3f}")
         c2.metric("χ²/dof", f"{r.chi2_dof:.2f}")
         if r.fails_chi2_test:
-            sb.warning(f"Fails the χ² test (p = {r.chi2_p_value:.2g}, "
+            sb.warning(f"Fails the χ² test ({p_text(r.chi2_p_value)}, "
                        f"{A.chi2_test_numbers(r)[1]} dof): "
                        f"uncertainties from σ are too small by ×{r.birge_ratio:.2f}.")
         status = {"converged": "converged", "max_iterations": "NOT converged",

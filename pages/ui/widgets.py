@@ -12,6 +12,7 @@ import streamlit as st
 from cmm_core import analysis as A
 from cmm_core.analysis import figure_svg, svg_supported
 from cmm_core.model import parse_spec
+from cmm_core.units import p_text
 from pages.ui.cached import figure
 from pages.ui.state import spec_tokens
 
@@ -24,14 +25,14 @@ def misfit_banner(r) -> None:
     val, dof, note = A.chi2_test_numbers(r)
     if r.fails_chi2_test:
         st.warning(f"The model fails its χ² test: χ²/dof {val:.2f} at {dof} degrees "
-                   f"of freedom (p = {r.chi2_p_value:.2g}){note}. Uncertainties from σ = "
+                   f"of freedom ({p_text(r.chi2_p_value)}){note}. Uncertainties from σ = "
                    f"{r.sigma_um:.3g} µm alone are too small by the Birge ratio "
                    f"×{r.birge_ratio:.2f}; multiply them by it (inflated values are shown "
                    "beside them where listed). Neither is trustworthy until the diagnosis "
                    "explains the misfit.")
     else:
         st.caption(f"χ² test passed: χ²/dof {val:.2f} at {dof} degrees of freedom "
-                   f"(p = {r.chi2_p_value:.2g}){note}; the σ-based uncertainties stand.")
+                   f"({p_text(r.chi2_p_value)}){note}; the σ-based uncertainties stand.")
 
 
 def headline(h: dict, where=None) -> None:
