@@ -13,6 +13,7 @@ import contextlib
 import copy
 import io
 import json
+import os
 
 import numpy as np
 import pytest
@@ -95,9 +96,14 @@ def test_instrument_row_limit_edges():
         read_laser(io.BytesIO(_laser_rows(20_001)), name="l.csv")
 
 
-def test_a_device_is_read_only_up_to_the_size_limit():
-    with pytest.raises(DataError, match="zero: file is more than"):
+def test_a_device_or_a_pipe_is_refused_before_it_is_read(tmp_path):
+    """/dev/zero would read until the size limit, a FIFO would block until written."""
+    with pytest.raises(DataError, match="zero: is not a regular file"):
         read_laser("/dev/zero")
+    if hasattr(os, "mkfifo"):
+        os.mkfifo(tmp_path / "pipe.csv")
+        with pytest.raises(DataError, match="pipe.csv: is not a regular file"):
+            read_laser(tmp_path / "pipe.csv")
 
 
 def _cli(argv):

@@ -324,3 +324,26 @@ def test_help_states_the_allowed_ranges():
     assert "1 to 1024" in helps["plan"] and "0 to 100000" in helps["plan"]
     assert "1 to 5" in helps["gp"]
     assert "0 to 40" in helps["air"] and "60000 to 120000" in helps["air"]
+
+
+@pytest.mark.parametrize("target", ["interim", "history"])
+def test_report_never_writes_over_a_calibration_its_record_reads(tmp_path, target):
+    """The record's stored model (its interim check) and its history's models are inputs:
+    ``report --out`` or ``--json`` naming one is refused before any work, the file kept."""
+    src = ROOT / "sample_data" / "history"
+    for p in src.rglob("*"):
+        if p.is_file():
+            dest = tmp_path / p.relative_to(src)
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            dest.write_bytes(p.read_bytes())
+    doc = json.loads((tmp_path / "analysis_after_crash.json").read_text())
+    victim = tmp_path / (doc["interim_check"]["model"]["path"] if target == "interim" else
+                         doc["calibration_history"]["models"][-1]["path"])
+    before = victim.read_bytes()
+    for opt in ("--out", "--json"):
+        argv = ["report", tmp_path / "analysis_after_crash.json", "--out",
+                victim if opt == "--out" else tmp_path / "r.html",
+                *(["--json", victim] if opt == "--json" else [])]
+        rc, lines, _ = _run(argv)
+        assert rc == 2 and len(lines) == 1 and victim.name in lines[0], lines
+        assert victim.read_bytes() == before

@@ -13,7 +13,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..io import DataError, InputFile, Provenance, apply_mapping, input_file, provenance
+from ..io import (
+    DataError,
+    InputFile,
+    Provenance,
+    apply_mapping,
+    input_file,
+    provenance,
+    read_bytes,
+)
 from ..model import INSTRUMENT_KINDS, read_instrument
 
 __all__ = ["FORMAT", "VERSION", "DEFAULT_EXCLUDE_OUTLIERS", "ERROR_CONVENTION",
@@ -79,8 +87,8 @@ class DataFile:
         if self.content is not None:
             return input_file(self.name, self.content)
         try:
-            return input_file(self.name, Path(str(self.path)).read_bytes())
-        except OSError:
+            return input_file(self.name, read_bytes(Path(str(self.path)), self.name)[0])
+        except DataError:
             return None
 
     def source_text(self) -> str:
@@ -89,11 +97,12 @@ class DataFile:
             return self.content
         if self.path is None:
             raise DataError("names neither a path nor its content.", file=self.name)
+        raw, _ = read_bytes(Path(self.path), Path(self.path).name)  # capped, files only
         try:
-            return Path(self.path).read_bytes().decode("utf-8-sig")
-        except (OSError, UnicodeDecodeError) as exc:
-            why = getattr(exc, "strerror", None) or "not UTF-8 text"
-            raise DataError(f"cannot be read ({why}).", file=Path(self.path).name) from None
+            return raw.decode("utf-8-sig")
+        except UnicodeDecodeError:
+            raise DataError("cannot be read (not UTF-8 text).",
+                            file=Path(self.path).name) from None
 
 
 def instrument_kinds() -> tuple:

@@ -65,9 +65,14 @@ def _files(args):
         # lazy: report alone reads a file (its record) before the outputs are checked
         from ..analysis import read_record
 
-        data = read_record(Path(args.analysis)).data  # the files the record reads
+        record = read_record(Path(args.analysis))
+        data = record.data  # the files the record reads, its stored calibrations too
         ins += [f.path for f in (*data.measurements, data.setup, data.certificate) if f]
         ins += [i.file.path for i in data.instruments]
+        if record.interim_check is not None:
+            ins.append(record.interim_check.model.path)
+        if record.calibration_history is not None:
+            ins += [f.path for f, _ in record.calibration_history.models]
         outs["--out"] = args.out
     elif cmd == "plan":
         ins.append(args.plan)
@@ -75,8 +80,11 @@ def _files(args):
         ins += [args.model, args.task]
     elif cmd == "check":
         ins.append(args.model)
+        outs["--report"] = args.report
+        outs["--results-json"] = args.results_json
     elif cmd == "compare":
         ins += args.models
+        outs["--results-json"] = args.results_json
     elif cmd == "next":
         outs["--plan-out"] = args.plan_out
     elif cmd == "export":

@@ -45,8 +45,9 @@ _COLUMNS_HINT = ("Columns: position,probe,ball,x_mm,y_mm,z_mm (long form) or "
 def read_bytes(source: FileSource, name: str | None) -> tuple[bytes, str]:
     """The raw bytes of a path, bytes or file-like object, refusing oversized files.
 
-    At most :data:`MAX_BYTES` + 1 bytes are ever read: a device or pipe (``/dev/zero``),
-    whose size the file system does not know, or an endless upload stream is refused at
+    A path must name a regular file: a device (``/dev/zero``), a pipe (which would block
+    until someone writes to it) or a socket is refused before it is opened. At most
+    :data:`MAX_BYTES` + 1 bytes are ever read, so an endless upload stream is refused at
     the limit instead of filling the memory.
     """
     if isinstance(source, (str, Path)):
@@ -57,6 +58,9 @@ def read_bytes(source: FileSource, name: str | None) -> tuple[bytes, str]:
         if path.is_dir():
             raise DataError("is a folder; expected a file.", file=name,
                             hint="name the file inside the folder.")
+        if not path.is_file():
+            raise DataError("is not a regular file (a device, a pipe or a socket); expected "
+                            "a file.", file=name, hint="name the file itself.")
         _refuse_size(path.stat().st_size, name)
         try:
             with path.open("rb") as fh:
