@@ -347,3 +347,19 @@ def test_report_never_writes_over_a_calibration_its_record_reads(tmp_path, targe
         rc, lines, _ = _run(argv)
         assert rc == 2 and len(lines) == 1 and victim.name in lines[0], lines
         assert victim.read_bytes() == before
+
+
+def test_check_and_compare_refuse_one_file_for_two_of_their_outputs(tmp_path):
+    h = ROOT / "sample_data" / "history"
+    crash = h / "check_2025-02-10_after_crash"
+    same = tmp_path / "out.json"
+    check = ["check", h / "calibration_2024-03-04.json", crash / "measurements.csv",
+             "--setup", crash / "setup.json", "--certificate", crash / "certificate.csv"]
+    cals = sorted(h.glob("calibration_*.json"))
+    compare = ["compare", *cals, "--dates", *[p.stem.split("_")[1] for p in cals]]
+    for argv in ([*check, "--json", same, "--results-json", same],
+                 [*check, "--json", same, "--report", same],
+                 [*compare, "--json", same, "--results-json", same]):
+        rc, lines, _ = _run(argv)
+        assert rc == 2 and len(lines) == 1 and "out.json" in lines[0], lines
+        assert not same.exists()
