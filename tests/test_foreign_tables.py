@@ -13,7 +13,9 @@ import json
 
 import numpy as np
 import pytest
+from conftest import ROOT
 
+from cmm_core.cli import main
 from cmm_core.io import DataError, load_dataset, write_certificate
 from cmm_core.io.dmis import read_dmis, read_foreign
 from cmm_core.io.table_mapping import (
@@ -436,3 +438,16 @@ def test_read_foreign_dispatches_by_name(meas, tmp_path):
     m = {"x": "X", "y": "Y", "z": "Z", "label": "Feature", "pattern": PATTERN}
     assert len(read_foreign(csv, mapping=m).meas) == 4
     assert len(read_foreign(io.BytesIO(csv.read_bytes()), name="v.csv", mapping=m).meas) == 4
+
+
+def test_the_command_line_says_what_a_mapped_tables_reader_did(tmp_path, capsys):
+    """Every note of the reader (separator, decimal comma, unit conversion) reaches the
+    user: one stderr line each, and the result's ``notes`` (issue: no silent drops)."""
+    f, sim = ROOT / "sample_data" / "foreign", ROOT / "sample_data" / "simulated"
+    rc = main(["--json", str(tmp_path / "fit.json"), "fit", str(f / "vendor_export.csv"),
+               "--mapping", str(f / "mapping.json"), "--setup", str(sim / "setup.json"),
+               "--certificate", str(sim / "certificate.csv")])
+    err = capsys.readouterr().err.strip().splitlines()
+    notes = json.loads((tmp_path / "fit.json").read_text())["notes"]
+    assert rc == 0 and notes and err == [f"note: {n}" for n in notes]
+    assert any("converted from um to mm" in n for n in notes)

@@ -37,12 +37,14 @@ def cmd_fit(args: argparse.Namespace) -> dict:
                                                         r.units, strict=True)},
             "unidentifiable": r.unidentifiable, "null_combinations": r.null_combinations,
             "instruments": summary(r),
-            "outliers": outliers, "excluded": [list(e) for e in exclude]}
+            "outliers": outliers, "excluded": [list(e) for e in exclude],
+            "notes": list(getattr(data, "notes", ()))}
 
 
 def cmd_diagnose(args: argparse.Namespace) -> dict:
     instruments = instruments_of(args)
     data = data_of(args, instruments)
+    notes = list(getattr(data, "notes", ()))
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
     sigma_um, sigma = sigma_of(args, data, exclude, args.baseline)
     if instruments and not isinstance(data, Observations):  # they ride on the observations into every model the diagnosis fits
@@ -53,6 +55,7 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
     out["certificate_u_source"] = d.baseline.certificate_u_source
     out["sigma"] = sigma
     out["outliers"] = outliers
+    out["notes"] = notes
     return out
 
 
@@ -70,6 +73,6 @@ def cmd_gp(args: argparse.Namespace) -> dict:
                           mean="zero" if basis is not None
                           else args.mean, kernel=args.kernel, basis=basis,
                           probe_mm=obs.p_mm if args.inputs == "probe" else None)
-    return {"mean": args.mean, "kernel": args.kernel,
+    return {"mean": args.mean, "kernel": args.kernel, "notes": list(data.notes),
             "inputs": "ram position and probe offset" if comps.probe_input else "tip",
             "loo_coverage_95": comps.loo_coverage(0.95), "components": comps.summary()}

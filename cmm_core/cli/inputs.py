@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import io
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..analysis import fit_kwargs
@@ -86,13 +86,19 @@ def dataset_of(args: argparse.Namespace) -> Dataset:
                         hint="the setup JSON gives the layout, placements and styli "
                              "(docs/formats.md#setup).")
     mapping = read_mapping(args.mapping) if args.mapping else None
-    meas = [read_foreign(m, mapping=mapping, pattern=args.dmis_pattern,
-                         default_probe=args.default_probe).as_source()
-            if mapping is not None or str(m).lower().endswith(DMIS_SUFFIXES) else m
-            for m in args.meas]
+    meas, notes = [], []
+    for m in args.meas:
+        if mapping is not None or str(m).lower().endswith(DMIS_SUFFIXES):
+            table = read_foreign(m, mapping=mapping, pattern=args.dmis_pattern,
+                                 default_probe=args.default_probe)
+            notes += [f"{Path(m).name}: {n}" for n in table.notes]
+            meas.append(table.as_source())
+        else:
+            meas.append(m)
     try:
-        return load_dataset(meas, args.setup, args.certificate,
-                            name=", ".join(Path(m).name for m in args.meas))
+        ds = load_dataset(meas, args.setup, args.certificate,
+                          name=", ".join(Path(m).name for m in args.meas))
+        return replace(ds, notes=tuple(notes))
     except DataError:
         for m in args.meas:  # another tool's file given as ours: name the reader that takes it
             foreign = sniff(m) if isinstance(m, str | Path) else None

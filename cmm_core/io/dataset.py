@@ -49,6 +49,9 @@ class Dataset:
     inputs : tuple of InputFile
         The files it was read from, each with its SHA-256 (measurements, then the setup
         and the certificate when they were files); empty for data built in memory.
+    notes : tuple of str
+        What the readers of other tools' files left out or assumed (rows not read, units
+        converted, a default stylus): said by every command and page that uses the data.
     """
 
     meas: pd.DataFrame
@@ -56,6 +59,7 @@ class Dataset:
     certificate: Certificate | None
     name: str = "dataset"
     inputs: tuple[InputFile, ...] = field(default=(), compare=False)
+    notes: tuple[str, ...] = field(default=(), compare=False)
 
     def provenance(self, inputs: Iterable[InputFile] = (), **extra: Any) -> Provenance:
         """The provenance of a record made now from this dataset (and ``inputs`` more):

@@ -110,12 +110,13 @@ class ForeignDataset:
         """Read the three texts with :func:`cmm_core.io.load_dataset` (every check of a
         user's own files applies); raises its :class:`DataError`."""
         label = name or f"MSL {self.kind}: {self.name}"
-        return load_dataset([(_io.BytesIO(self.measurements_csv.encode()),
-                              f"{self.name} (as measurements.csv)")],
-                            self.setup,
-                            (_io.BytesIO(self.certificate_csv.encode()),
-                             f"{self.name} (nominal grid as certificate.csv)"),
-                            name=label)
+        ds = load_dataset([(_io.BytesIO(self.measurements_csv.encode()),
+                            f"{self.name} (as measurements.csv)")],
+                          self.setup,
+                          (_io.BytesIO(self.certificate_csv.encode()),
+                           f"{self.name} (nominal grid as certificate.csv)"),
+                          name=label)
+        return replace(ds, notes=tuple(self.notes))
 
     def setup_json(self) -> str:
         """The setup as JSON text, to save beside the two CSV texts."""
