@@ -145,3 +145,15 @@ def test_compare_takes_the_latest_by_date_not_by_string_and_refuses_one_model_tw
     assert doc["model"]["name"] == "calibration_2024-03-04.json"
     code, out, err = _run(["compare", a, a, "--dates", "2024-01-01", "2025-01-01"], capsys)
     assert code == 2 and "same calibration" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize(("text", "needle"), [
+    ("600,0.6", "did you mean 0.6,600?"),   # the terms swapped
+    ("0.6,0.6", "not a CMM's MPE"),         # L/0.6: 1.7 mm per metre
+    ("250,600", "not a CMM's MPE"),         # 250 µm constant term
+])
+def test_an_mpe_that_is_no_cmms_is_refused_in_one_line(text, needle, capsys):
+    with pytest.raises(SystemExit) as exc:  # a usage error: argparse's exit status 2
+        main(_check_args(CRASH, "--mpe", text))
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1 and needle in err

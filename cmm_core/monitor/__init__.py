@@ -28,7 +28,15 @@ from .check import (
     gls_fit,
     interim_check,
 )
-from .conformity import RULE, STATEMENTS, Conformity, conformity, parse_mpe
+from .conformity import (
+    MPE_MAX_A_UM,
+    MPE_MIN_D,
+    RULE,
+    STATEMENTS,
+    Conformity,
+    conformity,
+    parse_mpe,
+)
 from .history import HISTORY_RULE, MAX_MAP_NODES_PER_AXIS, History, compare_calibrations
 from .identity import machine_of, refuse_mixed_machines, refuse_other_machine, version_notes
 from .numbers import json_num
@@ -49,4 +57,4 @@ __all__ = ["CheckSystem", "check_sigma_um", "check_system", "GlsFit", "gls_fit",
            "compare_calibrations", "MAX_MAP_NODES_PER_AXIS", "CheckOutcome", "NewEffects",
            "name_new_effects", "run_check", "VERDICTS", "TEST_RULE", "CHANGE_RULE",
            "HISTORY_RULE", "json_num", "machine_of", "refuse_mixed_machines",
-           "refuse_other_machine", "version_notes"]
+           "refuse_other_machine", "version_notes", "MPE_MAX_A_UM", "MPE_MIN_D"]

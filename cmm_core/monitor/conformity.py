@@ -64,6 +64,14 @@ class Conformity:
                 "counts": dict(self.counts), "rule": self.rule, "unseen": list(self.unseen)}
 
 
+MPE_MAX_A_UM = 100.0
+"""Largest constant term of a length MPE this reads (µm): the largest CMMs state a few
+tens of µm; 600 is the length term written first."""
+MPE_MIN_D = 10.0
+"""Smallest D of the length term L/D (L in mm) this reads: L/10 is 100 µm per metre,
+beyond any CMM; 0.6 is the constant term written second."""
+
+
 def parse_mpe(text: str) -> tuple[float, float]:
     """The machine's MPE for lengths written ``"A,D"`` (ISO 10360-2 style, MPE = A µm +
     L/D with L in mm, e.g. ``"0.6,600"``) as ``(A, D)``; the CLI's ``--mpe`` and the
@@ -73,7 +81,9 @@ def parse_mpe(text: str) -> tuple[float, float]:
     ------
     ValueError
         One line quoting the text when it is not two finite numbers with A >= 0 and
-        D > 0 (``inf,600`` and ``nan,1`` are refused).
+        D > 0 (``inf,600`` and ``nan,1`` are refused), or when they are not a CMM's
+        (A above :data:`MPE_MAX_A_UM` µm or D below :data:`MPE_MIN_D`: the terms swapped,
+        ``600,0.6``, or the length term written as µm per metre).
     """
     try:
         a, d = (float(v) for v in str(text).split(","))
@@ -83,6 +93,12 @@ def parse_mpe(text: str) -> tuple[float, float]:
     if not (np.isfinite(a) and np.isfinite(d) and a >= 0 and d > 0):
         raise ValueError(f"expected 'A,D' with finite A >= 0 µm and D > 0, e.g. 0.6,600, "
                          f"found {str(text)[:40]!r}")
+    if a > MPE_MAX_A_UM or d < MPE_MIN_D:
+        raise ValueError(f"{str(text)[:40]!r} is not a CMM's MPE (A = {a:g} µm, L/{d:g}): "
+                         f"expected A up to {MPE_MAX_A_UM:g} µm and D of {MPE_MIN_D:g} or "
+                         f"more, e.g. 0.6,600" + (f"; did you mean {d:g},{a:g}?" if
+                                                  d <= MPE_MAX_A_UM and a >= MPE_MIN_D
+                                                  else ""))
     return a, d
 
 
