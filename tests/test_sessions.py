@@ -10,11 +10,14 @@ from pathlib import Path
 import pytest
 from streamlit.testing.v1 import AppTest
 
+from cmm_core import analysis as A
 from cmm_core.analysis import (
+    SessionConflict,
     SessionStore,
     default_session_folder,
     new_session_id,
     sessions,
+    text_digest,
     valid_session_id,
 )
 
@@ -224,3 +227,41 @@ def test_a_link_a_fifo_or_an_oversized_file_named_like_a_session_is_not_read(sto
     assert secret.read_text() == '{"not": "yours"}'
     assert not (store.folder / f"{linked}.json").is_symlink()
     assert store.load(linked).text == '{"mine": 1}'
+
+
+def test_a_save_over_another_writers_version_is_refused_and_nothing_is_written(store):
+    sid = new_session_id()
+    store.save(sid, '{"v": 1}', expected=None)  # a new analysis: no file yet
+    mine = text_digest('{"v": 1}')
+    store.save(sid, '{"v": 2}', expected=mine)  # the tab's own last version: written
+    with pytest.raises(SessionConflict, match="another tab"):
+        store.save(sid, '{"v": 3}', expected=mine)  # another tab wrote v2 meanwhile
+    assert store.load(sid).text == '{"v": 2}'
+    with pytest.raises(SessionConflict):
+        store.save(sid, '{"v": 4}', expected=None)  # "no file yet", but there is one
+    # a lock left by a server killed mid-save is taken over once it is stale
+    lock = store.folder / f"{sid}.lock"
+    lock.write_text("")
+    old = time.time() - 2 * sessions.STALE_LOCK_S
+    os.utime(lock, (old, old))
+    store.save(sid, '{"v": 5}', expected=store.load(sid).digest)
+    assert store.load(sid).text == '{"v": 5}' and not lock.exists()
+
+
+def test_two_tabs_on_one_analysis_never_lose_a_change_silently():
+    """Tab A and tab B restore the same analysis; A saves a change; B's later change is
+    not written over A's: B is told to reload, and the file keeps A's version."""
+    first = _app()
+    sid = first.session_state["session_id"]
+    first.switch_page("pages/kinematic.py").run()
+    first.text_input(key="w_spec").set_value("kinematic21,plate_sag").run()
+    a, b = _app(sid), _app(sid)
+    for tab, spec in ((a, "kinematic21,backlash"), (b, "kinematic21,drift")):
+        tab.switch_page("pages/kinematic.py").run()
+        tab.text_input(key="w_spec").set_value(spec).run()
+        assert not tab.exception
+    saved = A.record_from_project(_store().load(sid).text, "saved")
+    assert saved.spec == "kinematic21,backlash"
+    warned = " ".join(w.value for w in b.sidebar.warning)
+    assert "changed in another tab" in warned and "reload" in warned
+    assert "changed in another tab" not in " ".join(w.value for w in a.sidebar.warning)

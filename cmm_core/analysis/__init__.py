@@ -117,13 +117,17 @@ from .runner import (
 )
 from .sessions import (
     KEEP_DAYS,
+    LOCK_WAIT_S,
     MAX_SESSION_BYTES,
     PRIVATE_FILE,
     PRIVATE_FOLDER,
+    STALE_LOCK_S,
     SavedSession,
+    SessionConflict,
     SessionStore,
     default_session_folder,
     new_session_id,
+    text_digest,
     valid_session_id,
 )
 from .sources import (
@@ -150,7 +154,7 @@ __all__ = [
     "placement_views_svg", "figure_svg", "nice_ticks", "svg_supported", "COLORWAY", "PLACEMENT_SYMBOLS", "fig_placement_views", "record_exclusions", "resolve_sigma", "diagnose_record", "FitChoices", "fit_kwargs", "fit_record",
     "against_coordinates", "analysis_report", "AnalysisRecord", "AnalysisResult",
     "approach_split", "AXIS_COLOURS", "breakdown", "build_report", "chi2_html",
-    "chi2_test_numbers", "CheckChoices", "compare_models", "ComparisonFigure", "coverage_reasons", "DataFile", "DataSources", "default_session_folder", "DEFAULT_EXCLUDE_OUTLIERS", "MAX_SESSION_BYTES", "PRIVATE_FILE", "PRIVATE_FOLDER",
+    "chi2_test_numbers", "CheckChoices", "compare_models", "ComparisonFigure", "coverage_reasons", "DataFile", "DataSources", "default_session_folder", "DEFAULT_EXCLUDE_OUTLIERS", "MAX_SESSION_BYTES", "PRIVATE_FILE", "PRIVATE_FOLDER", "LOCK_WAIT_S", "STALE_LOCK_S", "SessionConflict", "text_digest",
     "deviations_plate_frame", "diagnosis_conclusion", "diagnosis_rows", "headline_html", "ERROR_CONVENTION",
     "EN_CLASSES", "error_function_curves", "fig_deviation", "fig_en_map", "fig_detection_limits", "fig_error_functions", "fig_history", "fig_budget_vs_length", "fig_mpe", "fig_residuals_time", "fig_parameter_trend", "fig_error_map_change",
     "fig_pattern", "fig_placements", "fig_residual_map", "fig_signature_scatter",

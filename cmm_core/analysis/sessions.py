@@ -20,18 +20,22 @@ shared computer another account cannot list or read the analyses. Files not writ
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import os
 import re
 import secrets
 import stat
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..io import atomic_write_text
 
-__all__ = ["KEEP_DAYS", "MAX_SESSION_BYTES", "PRIVATE_FILE", "PRIVATE_FOLDER", "SavedSession", "SessionStore", "default_session_folder",
+__all__ = ["KEEP_DAYS", "LOCK_WAIT_S", "MAX_SESSION_BYTES", "PRIVATE_FILE", "PRIVATE_FOLDER",
+           "SessionConflict", "STALE_LOCK_S", "text_digest", "SavedSession", "SessionStore", "default_session_folder",
            "new_session_id", "valid_session_id"]
 
 KEEP_DAYS = 30
@@ -85,6 +89,23 @@ def default_session_folder(platform: str | None = None,
     return base / "cmm-error-lab" / "sessions"
 
 
+def text_digest(text: str) -> str:
+    """SHA-256 of a saved analysis's text: what a tab last saw of its file."""
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+class SessionConflict(Exception):
+    """The analysis's file changed since this tab last read or wrote it: another tab or
+    window of the same analysis saved in between. The later save is refused, never lost
+    silently: the tab is asked to reload."""
+
+
+LOCK_WAIT_S = 5.0
+"""Seconds a save waits for another save of the same analysis to finish."""
+STALE_LOCK_S = 60.0
+"""A lock older than this (a server killed mid-save) is taken over."""
+
+
 @dataclass(frozen=True)
 class SavedSession:
     """An analysis found on disk."""
@@ -97,6 +118,11 @@ class SavedSession:
     """The project file's content (JSON)."""
     saved: float
     """When it was last written (seconds since the epoch)."""
+
+    @property
+    def digest(self) -> str:
+        """:func:`text_digest` of the file as read: the ``expected`` of the next save."""
+        return text_digest(self.text)
 
     @property
     def saved_text(self) -> str:
@@ -117,18 +143,57 @@ class SessionStore:
             raise ValueError(f"session id: expected 32 hex digits, found {sid!r}.")
         return self.folder / f"{sid}.json"
 
-    def save(self, sid: str, text: str) -> Path:
-        """Write the analysis of ``sid`` (atomically) and return its path."""
+    def save(self, sid: str, text: str, expected: str | None | bool = True) -> Path:
+        """Write the analysis of ``sid`` (atomically) and return its path.
+
+        ``expected``: the :func:`text_digest` of the file as this writer last read or wrote
+        it (None: it had no file yet); when the file on disk is another, another tab saved
+        in between and :class:`SessionConflict` is raised with nothing written. ``True``
+        (the default) writes whatever is there. One save of an analysis at a time: a lock
+        file beside it (created exclusively, which every operating system provides) keeps
+        two servers or threads from interleaving the check and the write."""
         p = self.path(sid)
-        if p.is_symlink():  # planted in the folder: the save would write where it points
-            p.unlink()
         p.parent.mkdir(parents=True, exist_ok=True, mode=PRIVATE_FOLDER)
         if os.name == "posix":  # a folder made before this rule, or by a wider umask
             os.chmod(p.parent, PRIVATE_FOLDER)
-        atomic_write_text(p, text)
-        if os.name == "posix":
-            os.chmod(p, PRIVATE_FILE)
+        with self._locked(sid):
+            if p.is_symlink():  # planted in the folder: a save would write where it points
+                p.unlink()
+            if expected is not True:
+                now = self.load(sid)
+                if (now.digest if now is not None else None) != expected:
+                    raise SessionConflict(
+                        "this analysis was changed in another tab or window since this "
+                        "one last saved it; reload the page to see that version (the "
+                        "change made here is not saved).")
+            atomic_write_text(p, text)
+            if os.name == "posix":
+                os.chmod(p, PRIVATE_FILE)
         return p
+
+    @contextlib.contextmanager
+    def _locked(self, sid: str) -> Iterator[None]:
+        lock = self.folder / f"{sid}.lock"
+        deadline = time.monotonic() + LOCK_WAIT_S
+        while True:
+            try:
+                fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, PRIVATE_FILE)
+                break
+            except FileExistsError:
+                with contextlib.suppress(OSError):
+                    if time.time() - lock.stat().st_mtime > STALE_LOCK_S:
+                        lock.unlink()
+                        continue
+                if time.monotonic() > deadline:
+                    raise SessionConflict("another save of this analysis did not finish; "
+                                          "reload the page.") from None
+                time.sleep(0.02)
+        try:
+            yield
+        finally:
+            os.close(fd)
+            with contextlib.suppress(OSError):
+                lock.unlink()
 
     def load(self, sid: str) -> SavedSession | None:
         """The analysis saved under ``sid``, or None when there is none (or the id is

@@ -151,6 +151,7 @@ def session_start():
                 s["restore_note"] = ("info", f"Restored from the saved analysis "
                                      f"{saved.session_id} (saved {saved.saved_text}).{note}")
                 s["saved_fingerprint"] = session_fingerprint()
+                s["saved_digest"] = saved.digest  # what the next save expects on disk
         else:
             if asked:
                 s["restore_note"] = ("info", "The link names no analysis saved on this "
@@ -159,6 +160,7 @@ def session_start():
             # a new analysis is saved only once it differs from the defaults
             init_state()
             s["saved_fingerprint"] = session_fingerprint()
+            s["saved_digest"] = None  # no file yet: the first save expects none
             try:
                 store.prune()
             except OSError:  # a read-only or shared folder: pruning is a courtesy
@@ -190,8 +192,12 @@ def autosave():
         return
     try:
         text = A.record_to_project_json(session_record(s))
-        s["saved_path"] = str(session_store().save(s["session_id"], text))
+        s["saved_path"] = str(session_store().save(s["session_id"], text,
+                                                   expected=s.get("saved_digest", True)))
+        s["saved_digest"] = A.text_digest(text)
         s.pop("save_error", None)
+    except A.SessionConflict as exc:  # another tab saved: this one is not written over it
+        s["save_conflict"] = str(exc)
     except Exception as exc:  # noqa: BLE001 - a failed save must not stop the page
         s["save_error"] = describe_error(exc)
     s["saved_fingerprint"] = fp

@@ -69,6 +69,8 @@ def sidebar():
     pending = pending_outliers(ds)
     if pending:
         sb.warning(f"{len(pending)} flagged outlier(s) still in the fit (see Data).")
+    if s.get("save_conflict"):
+        sb.warning(f"Not saved: {s['save_conflict']}")
     if s.get("save_error"):
         sb.caption(f"Not kept for a reload: {s['save_error']} (the last good state is).")
 
