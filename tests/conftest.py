@@ -1,7 +1,10 @@
 """Shared fixtures: paths from __file__, seeded generators, the thesis dataset."""
 
 import os
+import socket
 import tempfile
+import time
+import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -102,3 +105,27 @@ def part_correction(dataset, token: str):
     r_mm = pts[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
     p_mm = np.array([m.probes_mm[q] for q in pts["probe"].astype(str)])
     return r, m, delta, r_mm, p_mm
+
+
+def free_port() -> int:
+    """A TCP port nothing listens on now (for an app server a test starts)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_until_served(proc, url: str, seconds: float = 90.0) -> None:
+    """Wait until the Streamlit server ``proc`` answers at ``url`` (its health check);
+    RuntimeError with the server's last output when it exits or does not answer."""
+    deadline = time.time() + seconds
+    while time.time() < deadline:
+        if proc.poll() is not None:
+            out = proc.stdout.read().decode(errors="replace") if proc.stdout else ""
+            raise RuntimeError("the app's server exited: " + out[-3000:])
+        try:
+            with urllib.request.urlopen(url + "/_stcore/health", timeout=2) as r:
+                if r.status == 200:
+                    return
+        except OSError:
+            time.sleep(0.3)
+    raise RuntimeError(f"the app's server did not answer within {seconds:g} s")

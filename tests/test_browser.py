@@ -8,14 +8,12 @@ report content is verified through the same core function the button calls.
 
 import os
 import re
-import socket
 import subprocess
 import sys
-import time
-import urllib.request
 from pathlib import Path
 
 import pytest
+from conftest import free_port, wait_until_served
 
 pytestmark = pytest.mark.slow  # a real browser: seconds a test (`make test-fast` skips)
 
@@ -39,16 +37,10 @@ except ImportError:  # pragma: no cover
 expect.set_options(timeout=30_000)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _start_server(script: Path = ROOT / "app.py"):
     """The app as ``make run`` starts it (``serve.py``), or ``streamlit run SCRIPT``, on a
     free port: (process, url) once it answers."""
-    port = _free_port()
+    port = free_port()
     env = {**os.environ, "STREAMLIT_BROWSER_GATHER_USAGE_STATS": "false"}
     # the app as ``make run`` starts it (serve.py), any other script by streamlit run
     start = ([str(ROOT / "serve.py")] if script == ROOT / "app.py"
@@ -59,19 +51,11 @@ def _start_server(script: Path = ROOT / "app.py"):
          "--server.fileWatcherType", "none"],
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
-    deadline = time.time() + 60
-    while time.time() < deadline:
-        try:
-            with urllib.request.urlopen(url + "/_stcore/health", timeout=2) as r:
-                if r.status == 200:
-                    break
-        except OSError:
-            time.sleep(0.3)
-        if proc.poll() is not None:
-            raise RuntimeError("streamlit exited: " + proc.stdout.read().decode()[-2000:])
-    else:
+    try:
+        wait_until_served(proc, url, 60)
+    except RuntimeError:
         proc.terminate()
-        raise RuntimeError("streamlit did not start within 60 s")
+        raise
     return proc, url
 
 

@@ -12,12 +12,11 @@ import shutil
 import socket
 import subprocess
 import sys
-import time
-import urllib.request
 import zipfile
 from pathlib import Path
 
 import pytest
+from conftest import free_port, wait_until_served
 from packaging.requirements import Requirement
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -77,12 +76,6 @@ COPY_IGNORE = shutil.ignore_patterns(".venv", "build", "dist", "*.egg-info", "__
 
 def _bin(venv: Path, name: str) -> Path:
     return venv / ("Scripts" if os.name == "nt" else "bin") / name
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -145,22 +138,12 @@ def test_cmm_error_lab_app_serves_the_first_page_from_the_installed_wheel(instal
     """Started outside the checkout: the server answers on 127.0.0.1 (not on the
     computer's other addresses), and a browser gets the Data page with its sidebar."""
     _, venv, away = installed
-    port = _free_port()
+    port = free_port()
     proc = subprocess.Popen([str(_bin(venv, "cmm-error-lab")), "app", "--port", str(port)],
                             cwd=away, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.time() + 90
-        while time.time() < deadline:
-            assert proc.poll() is None, proc.stdout.read().decode()[-3000:]
-            try:
-                with urllib.request.urlopen(url + "/_stcore/health", timeout=2) as r:
-                    if r.status == 200:
-                        break
-            except OSError:
-                time.sleep(0.5)
-        else:
-            pytest.fail("the app did not answer within 90 s")
+        wait_until_served(proc, url)
         listening = [c for c in _listening() if c[1] == port]
         assert listening and all(addr == "127.0.0.1" for addr, _ in listening), listening
         if not Path(CHROMIUM).exists():
