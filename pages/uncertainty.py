@@ -269,8 +269,9 @@ def show_mpe(out, skipped, u_src, sig):
 
 
 st.subheader("MPE check (0.6 µm + L/600, L in mm)")
-if ds.certificate is None or len(ds.certificate.balls) != 25:
-    st.info("The MPE check needs a certificate of a 5 × 5 ball plate.")
+if gum.plate_side(ds.certificate) is None:
+    st.info("The MPE check needs the certificate of a square ball plate (n × n balls, "
+            "n from 3, numbered row by row).")
 else:
     out, skipped = None, []
     with calls.guarded("MPE check"):

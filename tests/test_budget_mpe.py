@@ -6,7 +6,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scenarios import simulated
 
+from cmm_core import gum
 from cmm_core.gum import (
     DECISIONS,
     THESIS_ENVIRONMENT,
@@ -208,3 +210,21 @@ def test_conformity_uncertainty_of_a_length_error_by_hand():
 
     assert float(conformity_uncertainty_um(532.0, 0.5)) == pytest.approx(1.7578, abs=5e-4)
     assert float(conformity_uncertainty_um(0.0, 0.0)) == pytest.approx(0.26)
+
+
+@pytest.mark.parametrize(("layout", "n"), [("pitch150_5pos", 4), ("pitch80_3pos", 6),
+                                           ("pitch100_4pos", 5)])
+def test_the_mpe_check_takes_any_square_plate(layout, n):
+    """A 4 x 4 or 6 x 6 plate is checked as the thesis's 5 x 5 (the Interim check judged a
+    4 x 4 plate the Uncertainty page refused): every row, column and diagonal pair, each
+    length the certificate's own distance (to rounding of the printed mm, 1e-9)."""
+    ds = simulated(layout, 11).dataset
+    assert gum.plate_side(ds.certificate) == n
+    out, _ = gum.check_dataset(ds)
+    pairs = gum.line_pairs(n)
+    groups = ds.meas.groupby(["position", "probe"]).ngroups
+    assert len(out.length_mm) == len(pairs) * groups
+    xyz = ds.certificate.xyz_mm
+    expected = [np.linalg.norm(xyz[a - 1] - xyz[b - 1]) for a, b, _ in pairs]
+    np.testing.assert_allclose(out.length_mm[:len(pairs)], expected, atol=1e-9)
+    assert set(out.decision) <= set(gum.DECISIONS)

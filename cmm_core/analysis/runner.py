@@ -103,7 +103,7 @@ class AnalysisResult:
     diagnosis: Diagnosis | None = None
     """:class:`~cmm_core.diagnosis.Diagnosis` when the record asks for it."""
     mpe: MpeResult | None = None
-    """:class:`~cmm_core.gum.mpe.MpeResult`, None without a 25-ball certificate."""
+    """:class:`~cmm_core.gum.mpe.MpeResult`, None without the certificate of a square plate."""
     gp: GPComponents | None = None
     """:class:`~cmm_core.gp.cmm.GPComponents` when the record names a GP mean."""
     instruments: tuple = ()

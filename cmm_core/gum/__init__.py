@@ -58,13 +58,14 @@ from .mpe import (
     line_pairs,
     mpe_check,
     mpe_um,
+    plate_side,
     uncertainty_um,
 )
 
 __all__ = [
     "air_from_args", "average_environment", "ballplate_budget", "BallPlateBudget",
     "BallPlateBudgetInputs", "budget_from_dict", "budget_spec_dict", "budget_vs_length",
-    "check_dataset", "cmm_uncertainty_um", "CO2_REFERENCE_PPM", "conformity_uncertainty_um",
+    "check_dataset", "plate_side", "cmm_uncertainty_um", "CO2_REFERENCE_PPM", "conformity_uncertainty_um",
     "Contribution", "contribution_from_dict", "coverage_factor", "coverage_intervals", "decide",
     "DECISIONS", "default_inputs", "DIRECTIONS", "DISTRIBUTIONS", "EnvironmentRecord",
     "gum_combine", "GumResult", "half_width_divisor", "inputs_from_record", "LengthDependence",

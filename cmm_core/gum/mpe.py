@@ -18,13 +18,14 @@ x axis, ball 21 starts the last row. Functions take arrays; reading files is
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..io import Dataset
+from ..io import Certificate, Dataset
 
 DECISIONS = ("conforms", "does not conform", "inconclusive")
 """Possible ISO 14253-1 decisions."""
@@ -238,19 +239,30 @@ U_SOURCES = {"test": "the test: plate certificate and repeatability σ",
 """Where the U of the conformity decision comes from (see :func:`check_dataset`)."""
 
 
+def plate_side(certificate: Certificate | None) -> int | None:
+    """Balls per side of a square n x n plate's certificate (n >= 3), None for no
+    certificate or another ball count: the lengths of :func:`line_pairs` need the grid."""
+    if certificate is None:
+        return None
+    n = math.isqrt(len(certificate.balls))
+    return n if n >= 3 and n * n == len(certificate.balls) else None
+
+
 def check_dataset(dataset: Dataset, *, u_source: str = "test", sigma_um: float = 0.5
                   ) -> tuple[MpeResult | None, list]:
-    """MPE check of every position and probe of a dataset against its 5 x 5 certificate.
+    """MPE check of every position and probe of a dataset against its certificate, a
+    square n x n plate (n from 3: the thesis's 5 x 5, a 4 x 4, a 7 x 7), balls row-major.
 
     ``u_source`` picks U (``U_SOURCES``): ``"test"`` (:func:`conformity_uncertainty_um`
     with ``sigma_um``) or ``"cmm_spec"`` (:func:`uncertainty_um`). Returns ``(result,
-    skipped)``: None when there is no 25-ball certificate or no complete table, and the
-    position/probe groups left out for missing balls.
+    skipped)``: None when there is no certificate of a square plate or no complete table,
+    and the position/probe groups left out for missing balls.
     """
     if u_source not in U_SOURCES:
         raise ValueError(f"u_source must be one of {sorted(U_SOURCES)}, got {u_source!r}.")
     cert = dataset.certificate
-    if cert is None or len(cert.balls) != 25:
+    n = plate_side(cert)
+    if cert is None or n is None:
         return None, []
     tables, skipped = {}, []
     for (pos, prb), _ in dataset.meas.groupby(["position", "probe"], sort=False):
@@ -263,4 +275,4 @@ def check_dataset(dataset: Dataset, *, u_source: str = "test", sigma_um: float =
         return None, skipped
     sig = float(sigma_um)
     unc = (lambda L: conformity_uncertainty_um(L, sig)) if u_source == "test" else None
-    return mpe_check(tables, cert.xyz_mm, uncertainty=unc), skipped
+    return mpe_check(tables, cert.xyz_mm, n=n, uncertainty=unc), skipped
