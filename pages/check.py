@@ -4,6 +4,7 @@ import io
 import json
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import streamlit as st
 
@@ -28,7 +29,7 @@ SAMPLE_MODEL = "calibration_2024-03-04.json"
 # drawn while the History is looked at (widgets.held)
 CHECK_DEFAULTS = {"chk_src": "Sample history", "chk_sample": next(iter(SAMPLE_CHECKS)),
                   "chk_alpha": 0.05, "chk_family": 0.05, "chk_mpe": "0.6,600",
-                  "chk_kind": next(iter(INSTRUMENT_KINDS))}
+                  "chk_k": 2.0, "chk_kind": next(iter(INSTRUMENT_KINDS))}
 
 
 def _model(name: str, text: str):
@@ -40,17 +41,18 @@ def _model(name: str, text: str):
 
 @st.cache_data(show_spinner=False, max_entries=8)
 def run_check(model_name, model_text, meas, setup, cert, alpha, family_alpha, mpe,
-              instruments=()):
+              instruments=(), coverage_factor=2.0):
     """The check, what changed, the new effect the diagnosis names and (with an MPE)
-    conformity, as plain tables and dicts (``monitor.run_check``); ``meas`` None: the
-    instruments (``(kind, name, bytes)``) alone are the check."""
+    conformity, as plain tables and dicts (``monitor.run_check``, E_n at
+    ``coverage_factor``); ``meas`` None: the instruments (``(kind, name, bytes)``) alone
+    are the check."""
     model = _model(model_name, model_text)
     data = None if meas is None else cio.load_dataset(
         [(io.BytesIO(meas[1]), meas[0])], io.BytesIO(setup[1]),
         None if cert is None else (io.BytesIO(cert[1]), cert[0]), name=meas[0])
     inst = [read_instrument(io.BytesIO(b), kind, name=n) for kind, n, b in instruments]
     out = mon.run_check(model, data, instruments=inst, alpha=alpha,
-                        family_alpha=family_alpha, mpe=mpe)
+                        family_alpha=family_alpha, mpe=mpe, coverage_factor=coverage_factor)
     return (out.to_dict(), out.check.table, out.changes.table, ex.results_json(
         model, source=model_name, interim_check=out.results_section()), out.check.readings,
         mon.version_notes([model]))
@@ -58,7 +60,7 @@ def run_check(model_name, model_text, meas, setup, cert, alpha, family_alpha, mp
 
 @st.cache_data(show_spinner=False, max_entries=8)
 def run_history(named_texts, dates, family_alpha):
-    """The calibration history of the models, as plain tables and a dict."""
+    """The calibration history of the models, as plain tables and a dict (E_n at k = 2)."""
     models = [_model(n, t) for n, t in named_texts]
     h = mon.compare_calibrations(list(zip(models, dates, strict=True)),
                                  family_alpha=family_alpha)
@@ -67,6 +69,17 @@ def run_history(named_texts, dates, family_alpha):
 
 def _read(path: Path) -> tuple:
     return path.name, path.read_bytes()
+
+
+def _en_columns(table: pd.DataFrame, k: float) -> pd.DataFrame:
+    """A table with its E_n columns headed with their coverage factor (``En`` ->
+    ``E_n (k = 2)``, ``En_alone`` -> ``E_n alone (k = 2)``, ``rms_En`` -> ``RMS E_n (k =
+    2)``...), so no E_n is shown without its k."""
+    tag = f"(k = {k:g})"
+    names = {"En": f"E_n {tag}", "En_alone": f"E_n alone {tag}",
+             "En_x": f"E_n x {tag}", "En_y": f"E_n y {tag}", "En_z": f"E_n z {tag}",
+             "rms_En": f"RMS E_n {tag}", "max_abs_En": f"largest |E_n| {tag}"}
+    return table.rename(columns={c: n for c, n in names.items() if c in table})
 
 
 # lazy tabs (issue 27): each tab's widgets, tables and figures are drawn only while it is
@@ -112,13 +125,18 @@ with t_check:
                 st.info("Upload the stored model and the new data: the measurements with "
                         "their setup and the plate's certificate, or instrument files, or "
                         "both.")
-        c1, c2, c3 = st.columns(3)
+        c1, c2, c3, c4 = st.columns(4)
         alpha = c1.number_input("χ² test level", 0.001, 0.2, 0.05, 0.01, key="chk_alpha",
                                 help="fraction of checks of an unchanged machine that fail")
         family = c2.number_input("Family-wise level of the changes", 0.001, 0.2, 0.05, 0.01,
                                  key="chk_family", help="Holm over the parameters tested")
         mpe_text = c3.text_input("MPE 'A,D' (A µm + L/D)", "0.6,600", key="chk_mpe",
                                  help="empty: no conformity statement")
+        k_en = c4.number_input("Coverage factor k of the E_n", 1.0, 3.0, 2.0, 0.5,
+                               key="chk_k",
+                               help="E_n = residual / (k u), ISO/IEC 17043: |E_n| ≤ 1 is "
+                                    "the usual acceptance at k = 2; the tests do not "
+                                    "depend on it")
         mpe = None
         if mpe_text.strip():
             try:
@@ -127,15 +145,25 @@ with t_check:
                 st.error(f"MPE: {e}.")
         if files is not None:
             out = calls.safe(run_check, files[0][0], files[0][1], files[1], files[2], files[3],
-                             float(alpha), float(family), mpe, files[4], what="Interim check")
+                             float(alpha), float(family), mpe, files[4], float(k_en),
+                             what="Interim check")
             if out is not None:
                 res, table, chg_table, results, readings, notes = out
                 chk, chg, eff, conf = (res["check"], res["changes"], res["new_effects"],
                                        res["conformity"])
-                m1, m2, m3 = st.columns(3)
+                k = float(chk["coverage_factor"])
+                en = f"E_n (k = {k:g})"
+                m1, m2, m3, m4 = st.columns(4)
                 m1.metric("χ² / dof", f"{chk['chi2']:.1f} / {chk['dof']}")
                 m2.metric("p-value", f"{chk['p_value']:.3g}")
                 m3.metric("Within 95 % intervals", f"{100 * chk['coverage_95']:.1f} %")
+                worst = np.abs(np.concatenate([table["En"].to_numpy(float),
+                                               readings["En"].to_numpy(float)]))
+                worst = worst[np.isfinite(worst)]
+                m4.metric(f"Largest |{en}|", f"{worst.max():.2f}" if worst.size else "–",
+                          help="E_n = residual / (k u): the residual over its expanded "
+                               "uncertainty (ISO/IEC 17043); |E_n| ≤ 1 is the usual "
+                               "acceptance")
                 # a changed machine is a result, not a failure of the page: a warning; a
                 # partial check says what it could not see
                 show = {"no change seen": st.success, "changed": st.warning}.get(
@@ -145,13 +173,15 @@ with t_check:
                 if len(table):
                     with calls.guarded("E_n map"):
                         widgets.show(A.fig_en_map(table, "Normalised errors of the new "
-                                                "observations (largest of x, y, z)"),
-                                   chart_key="chk_map")
+                                                         f"observations: {en}, the largest "
+                                                         "of x, y, z", coverage_factor=k),
+                                     chart_key="chk_map")
                 if chk.get("instruments"):
-                    widgets.dataframe(pd.DataFrame(chk["instruments"]), hide_index=True,
-                                    key="chk_instruments")
-                    with st.expander("E_n of each instrument reading (file row)"):
-                        widgets.dataframe(readings, hide_index=True, key="chk_readings")
+                    widgets.dataframe(_en_columns(pd.DataFrame(chk["instruments"]), k),
+                                      hide_index=True, key="chk_instruments")
+                    with st.expander(f"{en} of each instrument reading (file row)"):
+                        widgets.dataframe(_en_columns(readings, k), hide_index=True,
+                                          key="chk_readings")
                 if eff is not None:
                     st.subheader("New effect")
                     st.write(eff["message"])
@@ -165,15 +195,19 @@ with t_check:
                 st.subheader("What changed")
                 st.write(chg["message"])
                 shown = chg_table[chg_table["tested"]].copy()
-                widgets.dataframe(shown[["label", "unit", "change", "u_updated", "u_null", "En",
-                                       "significant",
-                                       "change_alone", "u_change_alone", "En_alone",
-                                       "significant_alone", "resolved"]],
-                                hide_index=True, key="chk_changes")
+                widgets.dataframe(_en_columns(shown[[
+                    "label", "unit", "change", "u_updated", "u_null", "En", "significant",
+                    "change_alone", "u_change_alone", "En_alone", "significant_alone",
+                    "resolved"]], k), hide_index=True, key="chk_changes")
                 if chg["unseen"]:
                     with st.expander(f"{len(chg['unseen'])} combination(s) the new data cannot "
                                      "see"):
-                        st.write("\n".join(f"- {u}" for u in chg["unseen"]))
+                        st.write("\n".join(
+                            f"- {u}" + (f" ({n} combinations)" if n > 1 else "")
+                            for u, n in mon.distinct_words(chg["unseen"])))
+                        st.caption("A change of any of these would pass unnoticed. The "
+                                   "combinations as weights are in the results document "
+                                   "(unseen_combinations).")
                 st.subheader("Conformity")
                 if conf is None:
                     st.caption("Give the machine's MPE for a conformity statement.")
@@ -223,7 +257,8 @@ with t_hist:
                 st.write(summary["message"])
                 if notes:
                     st.caption("  \n".join(notes))
-                widgets.dataframe(changes, hide_index=True, key="hist_changes")
+                widgets.dataframe(_en_columns(changes, summary["coverage_factor"]),
+                                  hide_index=True, key="hist_changes")
                 with calls.guarded("Trend"):
                     labels = list(dict.fromkeys(trend["label"]))
                     default = summary["significant"][0]["label"] if summary["significant"] \

@@ -21,7 +21,7 @@ from cmm_core.io import DataError
 from cmm_core.machine import kinematics as kin
 from cmm_core.machine import rigid_fit
 from cmm_core.model import fit, select
-from cmm_core.monitor import interim_check, remeasured
+from cmm_core.monitor import interim_check, remeasured, run_check
 from cmm_core.units import UM
 
 LAYOUTS = ("pitch100_4pos", "pitch80_3pos")
@@ -138,3 +138,51 @@ def test_a_stored_model_that_failed_its_own_test_is_flagged():
     assert "failed its own χ² test (Birge ratio 1.80)" in res.message
     assert "failed its own" not in interim_check(
         model, remeasured(cal, 41, probes_per_position={"H0": ["A"]}).dataset).message
+
+
+def test_En_is_stated_at_k_2_the_k_1_value_over_2_and_the_test_is_unchanged():
+    # E_n as laboratories read it (ISO/IEC 17043 Annex B, expanded uncertainties at
+    # k = 2): the same residuals over twice their standard uncertainty; the χ² test,
+    # its p-value and the 95 % coverage are those of the standard scores, whatever k
+    cal, model = calibrated("pitch100_4pos", 1)
+    data = remeasured(cal, 41, probes_per_position={"H0": ["A", "B"]},
+                      changes={"sxy": 3 * float(np.sqrt(model.cov[-3, -3]))}).dataset
+    c2, c1 = interim_check(model, data), interim_check(model, data, coverage_factor=1.0)
+    assert c2.coverage_factor == 2.0 and c1.coverage_factor == 1.0
+    t1, t2 = c1.table, c2.table
+    for ax in "xyz":
+        assert np.array_equal(t1[f"d{ax}_um"], t2[f"d{ax}_um"])
+        assert np.allclose(t1[f"En_{ax}"], t1[f"d{ax}_um"] / t1[f"u_d{ax}_um"], rtol=1e-12)
+        assert np.allclose(t2[f"En_{ax}"], t1[f"En_{ax}"] / 2, rtol=1e-12, atol=0)
+    assert np.allclose(t2["En"], t1["En"] / 2, rtol=1e-12, atol=0)
+    assert (c1.chi2, c1.dof, c1.p_value, c1.status, c1.coverage_95) == \
+        (c2.chi2, c2.dof, c2.p_value, c2.status, c2.coverage_95)
+    assert f"Largest |E_n| (k = 2) = {t2['En'].max():.2f}" in c2.message
+    assert f"Largest |E_n| (k = 1) = {t1['En'].max():.2f}" in c1.message
+    d = c2.to_dict()
+    assert d["coverage_factor"] == 2.0 and d["En_definition"].startswith("E_n (k = 2)")
+    assert d["largest_En"][0]["En"] == pytest.approx(t2["En"].max())
+    with pytest.raises(ValueError, match="coverage_factor"):
+        interim_check(model, data, coverage_factor=0.0)
+
+
+def test_run_check_passes_the_coverage_factor_to_the_check_and_the_changes():
+    cal, model = calibrated("pitch100_4pos", 1)
+    data = remeasured(cal, 41, probes_per_position={"H0": ["A", "B"]},
+                      changes={"dxx[1]": 5.0}).dataset
+    two = run_check(model, data, name_effects=False)
+    one = run_check(model, data, name_effects=False, coverage_factor=1.0)
+    assert one.check.coverage_factor == one.changes.coverage_factor == 1.0
+    assert two.changes.coverage_factor == 2.0
+    t1, t2 = one.changes.table, two.changes.table
+    assert np.allclose(t2["En"], t1["En"] / 2, rtol=1e-12, atol=0)
+    assert np.allclose(t2["En_alone"], t1["En_alone"] / 2, rtol=1e-12, equal_nan=True)
+    # the tests are those of the standard scores: the same p-values and rejections
+    assert np.array_equal(t1["p_value"], t2["p_value"])
+    assert one.changes.significant_alone == two.changes.significant_alone
+    assert two.changes.significant_alone[0] == "dxx[1]"
+    assert "E_n (k = 2) = " in two.changes.message and "E_n (k = 1) = " in one.changes.message
+    sec = two.results_section()
+    assert sec["coverage_factor"] == sec["test"]["coverage_factor"] == 2.0
+    assert sec["changes"]["coverage_factor"] == 2.0
+    assert "E_n (k = 2)" in sec["test"]["En_definition"]

@@ -141,3 +141,31 @@ def test_the_check_tab_keeps_its_choices_while_the_history_is_open():
     _ok(at)
     assert at.radio(key="chk_src").value == "Upload files"
     assert at.file_uploader(key="chk_model").value.name == "stored.json"
+
+
+def test_the_map_states_En_at_k_2_and_its_legend_counts_the_markers_drawn():
+    # E_n as laboratories read it, with its coverage factor beside it everywhere the page
+    # shows one; the map's legend: each class's count is the number of its markers drawn
+    at = _page()
+    _ok(at)
+    assert any("Largest |E_n| (k = 2)" in c.value for c in at.caption)
+    assert any(m.label == "Largest |E_n (k = 2)|" for m in at.metric)
+    svg = next(m.value for m in at.markdown if 'data-figure="chk_map"' in m.value)
+    assert "Normalised errors of the new observations: E_n (k = 2)" in svg
+    # legend entries: a marker without a hover title, then "label: count"
+    legend = re.findall(r'<circle [^>]*fill="(#[0-9a-f]{6})"[^>]*/>\s*<text[^>]*>([^<]*): '
+                        r"(\d+)</text>", svg)
+    assert [lab for _, lab, _ in legend] == ["|E_n| ≤ 1 (k = 2)", "1 &lt; |E_n| ≤ 1.5 (k = 2)",
+                                             "|E_n| &gt; 1.5 (k = 2)"]
+    # the markers drawn: one per ball, each with its hover title
+    drawn = re.findall(r'<circle [^>]*fill="(#[0-9a-f]{6})"[^>]*><title>', svg)
+    assert len(drawn) == 200
+    assert {c: int(n) for c, _, n in legend} == {c: drawn.count(c) for c, _, _ in legend}
+    # the tables' E_n columns are headed with their k
+    tables = [t.value for t in at.dataframe if "E_n (k = 2)" in t.value.columns]
+    assert tables, "a table of the changes with its E_n headed with k"
+    # what the check cannot see, in words (the quiet one-placement check)
+    at.selectbox(key="chk_sample").set_value("quiet (2024-06-17, one placement)").run()
+    _ok(at)
+    words = next(m.value for m in at.markdown if m.value.startswith("- "))
+    assert "the z scale" in words and "[1]" not in words and " - 0." not in words

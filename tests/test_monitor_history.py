@@ -119,3 +119,21 @@ def test_a_parameter_held_fixed_in_both_is_not_compared():
     assert len(h.changes) == len(m1.terms.labels) - 1
     assert np.isfinite(h.changes["En"]).all()
     assert "held fixed" in h.message and "sxy" in h.message
+
+
+def test_history_En_is_stated_at_k_2_and_the_tests_do_not_depend_on_it():
+    # E_n = (c₂ − c₁) / sqrt(U₁² + U₂²) with U = 2 u (ISO/IEC 17043 Annex B): the k = 1
+    # value over 2; the p-values and Holm's rejections are those of the standard scores
+    cal, m1 = calibrated("pitch100_4pos", 4)
+    m2 = _recalibrated(cal, 44, {"sxy": 25.0})
+    pairs = [(m1, "2024-06-01"), (m2, "2025-06-01")]
+    h2, h1 = compare_calibrations(pairs), compare_calibrations(pairs, coverage_factor=1.0)
+    assert h2.coverage_factor == 2.0
+    assert np.allclose(h2.changes["En"], h1.changes["En"] / 2, rtol=1e-12, atol=0)
+    assert np.allclose(h1.changes["En"], h1.changes["change"] / h1.changes["u_change"])
+    assert np.array_equal(h1.changes["p_value"], h2.changes["p_value"])
+    assert h1.significant == h2.significant and h2.significant
+    assert "(E_n (k = 2) = " in h2.message
+    assert h2.results_section()["coverage_factor"] == 2.0
+    with pytest.raises(ValueError, match="coverage_factor"):
+        compare_calibrations(pairs, coverage_factor=-1.0)

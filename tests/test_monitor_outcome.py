@@ -219,7 +219,9 @@ def test_an_instruments_En_is_per_reading_named_by_its_file_row():
     assert c.instruments.iloc[0][["readings", "rows"]].tolist() == [19, 18]
     worst = int(np.abs(r["En"]).argmax())
     assert f"file row {laser.rows[worst]} of laser" in c.message
-    assert c.coverage_95 == np.mean(np.abs(r["En"]) <= 1.96)
+    # the 95 % intervals are of the standard scores, E_n at k = 2 times 2
+    assert c.coverage_factor == 2.0
+    assert c.coverage_95 == np.mean(np.abs(2 * r["En"]) <= 1.96)
     # reference: with the stored model taken as exact (V = 0) each reading's residual is
     # the prediction minus the reading less the run's weighted mean (equal u: the mean),
     # and its sd u·sqrt(1 - 1/19) (the offset's leverage)
@@ -230,11 +232,12 @@ def test_an_instruments_En_is_per_reading_named_by_its_file_row():
     assert np.allclose(r0["u_residual_um"], 0.2 * np.sqrt(1 - 1 / 19), rtol=1e-9)
     # the stored model's uncertainty widens every reading's interval
     assert (r["u_residual_um"] > r0["u_residual_um"]).all()
-    # a ball bar has no nuisance: its E_n per reading is its row's, named by file row
+    # a ball bar has no nuisance: its E_n per reading is its row's (residual over its
+    # expanded uncertainty, k = 2), named by file row
     bar = _bars(sim, 4_018)
     b = interim_check(model, None, instruments=[bar])
     g = b.gls
-    assert np.allclose(b.readings["En"], g.residual_um / np.sqrt(g.residual_cov_diag))
+    assert np.allclose(b.readings["En"], g.residual_um / (2 * np.sqrt(g.residual_cov_diag)))
     assert "file row " + str(bar.rows[int(np.abs(b.readings["En"]).argmax())]) in b.message
 
 

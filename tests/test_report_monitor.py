@@ -87,7 +87,7 @@ def test_report_has_the_interim_check_with_its_numbers():
     top = c.largest_En(10)
     assert (c.table["En"] == c.table[["En_x", "En_y", "En_z"]].abs().max(axis=1)).all()
     assert top["En"].iloc[0] == c.table["En"].max() and len(top) == 10
-    assert f"Largest |E_n| = {top['En'].iloc[0]:.2f}" in c.message
+    assert f"Largest |E_n| (k = 2) = {top['En'].iloc[0]:.2f}" in c.message
     assert all(f"<td>{v:.4g}</td>" in sec for v in top["dx_um"])
     # the E_n map is a figure of the report, and the conformity statement with its rule
     assert "id='mon1'" in sec

@@ -12,7 +12,6 @@ import plotly.express as px
 import plotly.graph_objects as go
 from numpy.typing import ArrayLike
 from plotly.subplots import make_subplots
-from scipy import stats
 
 from ..gum import LengthDependence, MpeResult
 from ..io import Dataset
@@ -314,26 +313,41 @@ def fig_signature_scatter(residuals_um: ArrayLike, signature_um: ArrayLike, titl
     return _layout(fig, title, height=height)
 
 
-# |E_n| classes of an interim check's map: (upper limit, label, colour). E_n is a residual
-# over its standard uncertainty and the class takes the largest of a ball's x, y, z, so
-# the first class is "each component within its 95 % interval" (the check's coverage_95,
-# |E_n| <= 1.96; on an unchanged machine some 0.95³ = 86 % of balls are in it).
-EN_CLASSES = ((float(stats.norm.ppf(0.975)), "x, y, z each within 95 % (|E_n| ≤ 1.96)",
-               "#2ca02c"),
-              (3.0, "1.96 < |E_n| ≤ 3", "#ff7f0e"),
-              (np.inf, "|E_n| > 3", "#d62728"))
+EN_CLASSES = ((2.0, "#2ca02c"), (3.0, "#ff7f0e"), (np.inf, "#d62728"))
+"""The |E_n| classes of an interim check's map: (upper limit of the standard score
+``|residual / u|``, colour). At a coverage factor k the limits are ``2 / k`` and
+``3 / k`` of E_n (ISO/IEC 17043:2010 Annex B, ``E_n = residual / (k u)``): at k = 2,
+``|E_n| <= 1`` (the usual acceptance: each of x, y, z within its expanded uncertainty),
+``1 < |E_n| <= 1.5`` and ``|E_n| > 1.5``. The class takes the largest of a ball's three
+components (on an unchanged machine some 0.954³ = 87 % of balls are in the first)."""
 
 
-def fig_en_map(table: pd.DataFrame, title: str, height: int = 420) -> go.Figure:
+def en_classes(coverage_factor: float = 2.0) -> list:
+    """:data:`EN_CLASSES` at a coverage factor: ``(upper limit of |E_n|, legend label,
+    colour)`` each, the labels stating k (``"|E_n| ≤ 1 (k = 2)"``)."""
+    k = float(coverage_factor)
+    lims = [z / k for z, _ in EN_CLASSES]
+    tag = f" (k = {k:g})"
+    labels = [f"|E_n| ≤ {lims[0]:.3g}{tag}",
+              f"{lims[0]:.3g} < |E_n| ≤ {lims[1]:.3g}{tag}",
+              f"|E_n| > {lims[1]:.3g}{tag}"]
+    return [(lim, lab, col) for lim, lab, (_, col) in zip(lims, labels, EN_CLASSES,
+                                                           strict=True)]
+
+
+def fig_en_map(table: pd.DataFrame, title: str, height: int = 420, *,
+               coverage_factor: float = 2.0) -> go.Figure:
     """The normalised errors of an interim check's new observations over the plate (x, y
-    in mm): one colour per :data:`EN_CLASSES` class of the largest ``|E_n|`` of each ball
-    (grey where E_n could not be computed)
-    (``monitor`` ``CheckResult.table``: columns ``x_mm, y_mm, position, probe, ball,
-    En_x, En_y, En_z, En``); a hover title gives the three components."""
+    in mm): one colour per :func:`en_classes` class of the largest ``|E_n|`` of each ball
+    (grey where E_n could not be computed), each legend entry with its count of balls
+    (``monitor`` ``InterimCheck.table``: columns ``x_mm, y_mm, position, probe, ball,
+    En_x, En_y, En_z, En``, E_n at ``coverage_factor``, the check's
+    ``InterimCheck.coverage_factor``); a hover title gives the three components."""
     en = np.abs(table["En"].to_numpy(float))
     lower = -np.inf
     fig = go.Figure()
-    classes = [*EN_CLASSES, (np.nan, "E_n not computed", "#999999")]
+    k = float(coverage_factor)
+    classes = [*en_classes(k), (np.nan, "E_n not computed", "#999999")]
     for upper, name, colour in classes:
         sub = table[np.isnan(en)] if np.isnan(upper) else table[(en > lower) & (en <= upper)]
         if np.isnan(upper) and not len(sub):
@@ -344,7 +358,8 @@ def fig_en_map(table: pd.DataFrame, title: str, height: int = 420) -> go.Figure:
             marker={"color": colour, "size": 9},
             customdata=sub[["position", "probe", "ball", "En_x", "En_y", "En_z"]].to_numpy(
                 object),
-            hovertemplate="%{customdata[0]} stylus %{customdata[1]} ball %{customdata[2]}: "
+            hovertemplate="%{customdata[0]} stylus %{customdata[1]} ball %{customdata[2]}"
+                          f" (k = {k:g}): "
                           "E_n x %{customdata[3]:+.2f}, y %{customdata[4]:+.2f}, "
                           "z %{customdata[5]:+.2f}<extra></extra>"))
     fig.update_xaxes(title_text="x (mm)")

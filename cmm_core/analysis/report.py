@@ -30,10 +30,20 @@ from ..diagnosis import Diagnosis, Headline
 from ..gum import MpeResult
 from ..io import DataError, Dataset, atomic_write_text
 from ..model import FitResult
-from ..monitor import CHANGE_RULE, HISTORY_RULE, TEST_RULE, VERDICTS, CheckOutcome, History
+from ..monitor import (
+    CHANGE_RULE,
+    HISTORY_RULE,
+    TEST_RULE,
+    VERDICTS,
+    CheckOutcome,
+    History,
+    distinct_words,
+    en_definition,
+)
 from ..units import p_text
 from .figures import (
     fig_deviation,
+    fig_en_map,
     fig_error_functions,
     fig_history,
     fig_mpe,
@@ -283,10 +293,11 @@ def _esc(text: str) -> str:
 def monitor_sections(interim: CheckOutcome | None, hist: History | None,
                      figures: dict) -> list:
     """The report's sections "Interim check" and "History" (docs/monitoring.md): the
-    test with its decision rule, the E_n map, what changed with the uncertainties, the
-    new effect the diagnosis names, what the check cannot see, conformity; the history's
-    changes with u and E_n, a trend plot, the error map's change. Figures go into
-    ``figures`` (ids ``mon1``, ``mon2`` ...)."""
+    test with its decision rule, the E_n map (:func:`.figures.fig_en_map`, E_n at the
+    check's coverage factor, stated: ISO/IEC 17043:2010 Annex B), what changed with the
+    uncertainties, the new effect the diagnosis names, what the check cannot see in
+    words, conformity; the history's changes with u and E_n, a trend plot, the error
+    map's change. Figures go into ``figures`` (ids ``mon1``, ``mon2`` ...)."""
     out = []
 
     def fig(f: go.Figure) -> str:
@@ -294,6 +305,7 @@ def monitor_sections(interim: CheckOutcome | None, hist: History | None,
 
     if interim is not None:
         c, ch = interim.check, interim.changes
+        en = f"E_n (k = {c.coverage_factor:g})"
         ok = interim.verdict == VERDICTS[0]
         kv = [("Stored calibration", c.model_name), ("Verdict", interim.verdict),
               ("χ²", f"{c.chi2:.2f}"), ("Degrees of freedom", str(c.dof)),
@@ -301,34 +313,30 @@ def monitor_sections(interim: CheckOutcome | None, hist: History | None,
               ("σ of the new data", f"{c.sigma_um:g} µm"),
               ("Ball centres", str(len(c.table))),
               ("Placements", ", ".join(map(str, c.positions)) or "none"),
-              ("Within their 95 % intervals", f"{100 * c.coverage_95:.1f} %")]
+              ("Within their 95 % intervals", f"{100 * c.coverage_95:.1f} %"),
+              ("Coverage factor of the E_n", f"k = {c.coverage_factor:g}")]
         rows = "".join(f"<tr><th>{_esc(k)}</th><td>{_esc(v)}</td></tr>" for k, v in kv)
         body = [f"<p class='chi2{'' if ok else ' fail'}'><b>{_esc(interim.verdict)}</b>: "
                 f"{_esc(interim.message)}</p>", f"<table class='kv'>{rows}</table>",
                 f"<p>{_esc(c.message)}</p>",
-                f"<p class='note'>Decision rule: {_esc(TEST_RULE)}.</p>"]
+                f"<p class='note'>Decision rule: {_esc(TEST_RULE)}. "
+                f"{_esc(en_definition(c.coverage_factor))}.</p>"]
         if len(c.table):
-            t = c.table  # its En: the largest |E_n| of each ball (InterimCheck.table)
-            f = go.Figure(go.Scatter(
-                x=t["x_mm"], y=t["y_mm"], mode="markers",
-                marker={"color": t["En"], "colorscale": "Reds", "cmin": 0, "cmax": 4,
-                        "size": 9, "colorbar": {"title": "largest |E_n|"}},
-                text=[f"{p}/{q} ball {b}" for p, q, b in zip(t["position"], t["probe"],
-                                                             t["ball"], strict=True)]))
-            f.update_layout(title="Normalised errors of the new observations (scale "
-                                  "readings)", xaxis_title="x (mm)", yaxis_title="y (mm)",
-                            height=450)
-            body.append(fig(f))
+            body.append(fig(fig_en_map(
+                c.table, f"Normalised errors of the new observations: {en}, the largest "
+                         "of x, y, z (scale readings)", height=450,
+                coverage_factor=c.coverage_factor)))
             cols = ["position", "probe", "ball", "dx_um", "dy_um", "dz_um", "u_dx_um",
                     "u_dy_um", "u_dz_um", "En_x", "En_y", "En_z"]
-            body.append("<p class='note'>The 10 largest |E_n| (residual: measured minus "
+            body.append(f"<p class='note'>The 10 largest |{en}| (residual: measured minus "
                         "predicted after the pose fit, µm; u: its standard uncertainty "
-                        "with the stored model's, the certificate's and σ).</p>"
+                        "with the stored model's, the certificate's and σ; En_x ...: "
+                        f"residual / ({c.coverage_factor:g} u)).</p>"
                         + _table_html(c.largest_En(10)[cols]))
         if len(c.instruments):
             r = c.readings
             body.append(_table_html(c.instruments)
-                        + "<p class='note'>The instrument readings of largest |E_n| (file "
+                        + f"<p class='note'>The instrument readings of largest |{en}| (file "
                           "row; residual: the stored model's prediction minus the reading, "
                           "the run's offset and slope removed, µm; u: its standard "
                           "uncertainty).</p>"
@@ -341,9 +349,10 @@ def monitor_sections(interim: CheckOutcome | None, hist: History | None,
                     "resolved"]])
             + "<p class='note'>change: the posterior mean of the change (shrunk toward 0 "
               "by about its resolved fraction); u_updated: its standard uncertainty (the "
-              "posterior sd); u_null: the sd of the change if nothing changed (the E_n "
-              "denominator); change_alone: the unshrunk change had the parameter alone "
-              f"moved. Decision rule: {_esc(CHANGE_RULE)}.</p>")
+              "posterior sd); u_null: the sd of the change if nothing changed; En: "
+              f"change / ({ch.coverage_factor:g} u_null), {_esc(en)}; change_alone: the "
+              "unshrunk change had the parameter alone moved, En_alone its E_n at the "
+              f"same k. Decision rule: {_esc(CHANGE_RULE)}.</p>")
         if interim.effects is not None:
             body.append(f"<h3>New effect (the diagnosis against the stored model)</h3><p>"
                         f"{_esc(interim.effects.message)}</p>")
@@ -357,8 +366,13 @@ def monitor_sections(interim: CheckOutcome | None, hist: History | None,
         unseen = ch.unseen
         body.append("<h3>What this check cannot see</h3>" + (
             f"<p>{len(unseen)} combination(s) of the stored model's parameters (a change "
-            "there passes unnoticed):</p><ul>" + "".join(f"<li>{_esc(u)}</li>"
-                                                         for u in unseen) + "</ul>"
+            "there passes unnoticed):</p><ul>" + "".join(
+                f"<li>{_esc(u)}" + (f" ({n} combinations)" if n > 1 else "") + "</li>"
+                for u, n in distinct_words(unseen)) + "</ul>"
+            + "<p class='note'>One basis of what the new data cannot determine, each named "
+              "by the errors that carry it (the combinations themselves, as weights in "
+              "units of each parameter's prior u, are the results document's "
+              "interim_check.changes.unseen_combinations).</p>"
             if unseen else "<p>Nothing: the new data resolve every combination of the "
                            "stored model's parameters.</p>"))
         if interim.conformity is not None:
@@ -384,7 +398,10 @@ def monitor_sections(interim: CheckOutcome | None, hist: History | None,
                         " over the calibrations (± u)", xaxis_title="date",
                         yaxis_title="value (µm or µrad)", height=400)
         body.append(fig(f))
-        body.append(_table_html(chg))
+        body.append(_table_html(chg) + "<p class='note'>u_change: sqrt(u₁² + u₂²); En: "
+                    f"change / ({hist.coverage_factor:g} u_change), E_n (k = "
+                    f"{hist.coverage_factor:g}); p_value: two-sided, of change / "
+                    "u_change.</p>")
         d = hist.map_change
         body.append("<p class='note'>The error map's change, first to last calibration, "
                     "over the working volume (ram reference point): largest |change| and "

@@ -29,6 +29,7 @@ from .effects import (
     catalogue_entry,
     correction_columns,
     parse_spec,
+    rotation_kind,
 )
 from .fitting import PLATE_MODES, fit
 from .hole_plate import (
@@ -119,7 +120,7 @@ __all__ = [
     "is_hole_plate", "LASER_COLUMNS", "LASER_OPTIONAL", "LaserRun", "length_change",
     "LINE_TOLERANCE_MM", "MAX_ERROR_UM", "MAX_MODEL_U", "MAX_LENGTH_DIFF_MM", "MAX_ORDER", "MAX_STYLUS_MM",
     "measured_normal", "MIN_BAR_MM", "ModelSpec", "monte_carlo_error", "needs", "Normal",
-    "normal_equations", "NormalEquations", "Observations", "OFFSET_COLUMNS", "parse_spec",
+    "normal_equations", "NormalEquations", "Observations", "OFFSET_COLUMNS", "parse_spec", "rotation_kind",
     "PERIOD_SCAN", "PERIODIC", "PHYSICAL", "Plate", "PLATE_MODES", "Problem", "propagate_error",
     "covariance_factor",
     "RANGE_MARGIN", "read_ball_bar", "read_instrument", "read_laser", "read_step_gauge",

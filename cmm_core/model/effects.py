@@ -30,6 +30,28 @@ MAX_ORDER = 5
 _AXIS = {"x": "X", "y": "Y", "z": "Z"}
 
 
+def rotation_kind(name: str) -> str:
+    """ISO 230-1's word for a carriage's rotation error ``r<axis><about>`` (``rxx``,
+    ``ryx``, ``rzy``...): ``"roll"`` about its own axis; a horizontal carriage's
+    ``"yaw"`` is about the vertical (z), its ``"pitch"`` about the other horizontal axis;
+    the vertical ram has no pitch or yaw, it tilts (``"tilt"``) about x or y (ISO 230-1:2012
+    EAZ, EBZ). The catalogue's titles and the interim check's words for what it cannot
+    see (``monitor.unseen``) both use it.
+
+    Parameters
+    ----------
+    name : str
+        A rotation error's name (``rotational`` group), e.g. ``"ryx"``.
+
+    Returns
+    -------
+    str
+        ``"roll"``, ``"pitch"``, ``"yaw"`` or ``"tilt"``.
+    """
+    return ("roll" if name[1] == name[2] else "tilt" if name[1] == "z"
+            else "yaw" if name[2] == "z" else "pitch")
+
+
 def _kinematic_effect(name: str) -> Effect:
     if name in SQUARENESS:
         a, b = _AXIS[name[1]], _AXIS[name[2]]
@@ -55,11 +77,7 @@ def _kinematic_effect(name: str) -> Effect:
                       f"rotation errors of the {ax} axis seen through a probe offset, or "
                       "plate form.",
                       "the same balls with two probe offsets.")
-    # ISO 230-1's words for a carriage's rotations: roll about its own axis; a horizontal
-    # carriage's yaw is about the vertical (z), its pitch about the other horizontal axis;
-    # the vertical ram has no pitch or yaw, it tilts about x or y (EAZ, EBZ)
-    kind = ("roll" if name[1] == name[2] else "tilt" if name[1] == "z"
-            else "yaw" if name[2] == "z" else "pitch")
+    kind = rotation_kind(name)
     return Effect(name, f"{ax} carriage {kind} (about {d})",
                   f"the {ax} carriage tilts about {d} as it moves: points away from the "
                   f"axis line (Abbe offset) shift in proportion to their lever arm.",

@@ -2,8 +2,9 @@
 its calibration history (issue 28, ``docs/monitoring.md``).
 
 Owns: :mod:`.check` (:func:`interim_check`: the χ² test of new measurements against a
-stored model, poses fitted as nuisances, E_n per observation), :mod:`.changes`
+stored model, poses fitted as nuisances, E_n per observation at k = 2), :mod:`.changes`
 (:func:`what_changed`: the stored model refitted on the new data as its own prior),
+:mod:`.unseen` (:func:`unseen_words`: what a check cannot see, in words),
 :mod:`.identity` (which machine a model is of, which version made it),
 :mod:`.conformity` (the ISO 14253-1 statement against the MPE), :mod:`.history`
 (:func:`compare_calibrations`: a machine's calibrations compared), :mod:`.outcome`
@@ -25,6 +26,7 @@ from .check import (
     InterimCheck,
     check_sigma_um,
     check_system,
+    en_definition,
     gls_fit,
     interim_check,
 )
@@ -50,6 +52,14 @@ from .outcome import (
     run_check,
 )
 from .scenario import remeasured
+from .unseen import (
+    CARRIER_WEIGHT,
+    MAX_CARRIERS,
+    combination_text,
+    distinct_words,
+    unseen_example,
+    unseen_words,
+)
 
 __all__ = ["CheckSystem", "check_sigma_um", "check_system", "GlsFit", "gls_fit", "interim_check", "InterimCheck",
            "MAX_OBSERVATIONS", "PROBE_TOLERANCE_MM", "remeasured", "Changes", "MIN_RESOLVED", "what_changed",
@@ -57,4 +67,6 @@ __all__ = ["CheckSystem", "check_sigma_um", "check_system", "GlsFit", "gls_fit",
            "compare_calibrations", "MAX_MAP_NODES_PER_AXIS", "CheckOutcome", "NewEffects",
            "name_new_effects", "run_check", "VERDICTS", "TEST_RULE", "CHANGE_RULE",
            "HISTORY_RULE", "json_num", "machine_of", "refuse_mixed_machines",
-           "refuse_other_machine", "version_notes", "MPE_MAX_A_UM", "MPE_MIN_D"]
+           "refuse_other_machine", "version_notes", "MPE_MAX_A_UM", "MPE_MIN_D",
+           "en_definition", "unseen_words", "combination_text", "unseen_example",
+           "distinct_words", "CARRIER_WEIGHT", "MAX_CARRIERS"]

@@ -19,9 +19,15 @@ with mean ``A β`` (``A`` the pose columns) and the dense covariance::
 stored model's uncertainty is correlated across points), ``K`` the placed-ball
 derivative (each ball's certificate error shared by every observation of it). The pose
 is estimated by generalised least squares; the check is the χ² test of the GLS residual,
-``χ² = r̂ᵀ Σ⁻¹ r̂`` with ``3n - 6P`` degrees of freedom (Rao 1973, §4a.3), and each
-component's normalised error ``E_n = r̂_i / sqrt((Σ - A M⁻¹ Aᵀ)_ii)``,
-``M = Aᵀ Σ⁻¹ A`` (the leverage of the pose fit included).
+``χ² = r̂ᵀ Σ⁻¹ r̂`` with ``3n - 6P`` degrees of freedom (Rao 1973, §4a.3). Each
+component's standard uncertainty is ``u_i = sqrt((Σ - A M⁻¹ Aᵀ)_ii)``,
+``M = Aᵀ Σ⁻¹ A`` (the leverage of the pose fit included), and its normalised error is
+stated as laboratories read one, with the expanded uncertainty ``U_i = k u_i`` at the
+coverage factor ``k`` (default 2, as EA-4/02 states U; ISO/IEC 17043:2010 Annex B:
+``E_n = (x - X) / sqrt(U_x² + U_X²)``, the stored model's prediction and the new
+measurement being the two values): ``E_n = r̂_i / (k u_i)``, ``|E_n| <= 1`` the usual
+acceptance (at k = 2 the standard score ``|r̂_i / u_i| <= 2``). The χ² test does not
+depend on ``k``.
 
 Σ is dense (3n × 3n, Cholesky by ``scipy.linalg.cho_factor``): memory ``72 n²`` bytes
 and time ``O(n³)``; :data:`MAX_OBSERVATIONS` (1500 balls probed: 4500², 162 MB) bounds it.
@@ -149,7 +155,8 @@ class InterimCheck:
         ``"passes"`` (the χ² test does not reject the stored model at ``alpha``) or
         ``"fails"``.
     message : str
-        The outcome in one paragraph: the test, its degrees of freedom, the largest E_n.
+        The outcome in one paragraph: the test, its degrees of freedom, the largest E_n
+        with its coverage factor (``"Largest |E_n| (k = 2) = ..."``).
     chi2 : float
         χ² of the GLS residuals with the full covariance.
     dof : int
@@ -166,12 +173,13 @@ class InterimCheck:
         One row per observation: ``position, probe, ball``, the scale readings
         ``x_mm, y_mm, z_mm`` (for a map), the residual ``dx_um, dy_um, dz_um`` (measured
         minus predicted after the pose fit), its standard uncertainty ``u_dx_um ...``,
-        ``En_x, En_y, En_z`` (residual over its standard uncertainty) and ``En`` (the
-        largest of the three in absolute value: the map's colour, :meth:`largest_En`).
+        ``En_x, En_y, En_z`` (residual over its expanded uncertainty ``k u``, k the
+        ``coverage_factor``) and ``En`` (the largest of the three in absolute value: the
+        map's colour, :meth:`largest_En`).
     coverage_95 : float
         Fraction of the plate's residual components and of the instruments' readings
-        (``readings``) within their 95 % intervals (``|E_n| <= 1.96``); about 0.95 when
-        the model holds.
+        (``readings``) within their 95 % intervals (``|residual| <= 1.96 u``, whatever
+        ``coverage_factor``); about 0.95 when the model holds.
     sigma_um : float
         σ of one probed coordinate of the new data (µm).
     outside_region : int
@@ -185,16 +193,20 @@ class InterimCheck:
     instruments : DataFrame
         One row per instrument of the check: ``kind``, ``file``, ``readings``, ``rows``
         (its weighted, nuisance-free rows: the χ² degrees of freedom it adds),
-        ``rms_En`` and ``max_abs_En`` over its readings; empty without.
+        ``rms_En`` and ``max_abs_En`` over its readings (E_n at ``coverage_factor``);
+        empty without.
     readings : DataFrame
         One row per instrument reading: ``kind``, ``file``, ``row`` (the file row),
         ``label`` (run, bar or gauge), ``residual_um`` (the stored model's prediction
         minus the reading, the run's offset and slope removed), ``u_residual_um`` (its
-        standard uncertainty: σ of the readings and the stored model's) and ``En``.
+        standard uncertainty: σ of the readings and the stored model's) and ``En``
+        (``residual_um / (k u_residual_um)``).
         The check's rows are rotated combinations of the readings (``T (pred −
         measured)``, one fewer per eliminated offset or slope); they are mapped back by
         the instrument's ``Q`` (``transform[1]``), each reading's variance
         ``u² diag(Q Σ_rows Qᵀ)`` (``Σ_rows`` the rows' block of the covariance).
+    coverage_factor : float
+        The k of every E_n of the check (``E_n = residual / (k u)``; default 2).
     """
 
     status: str
@@ -213,6 +225,7 @@ class InterimCheck:
     gls: GlsFit
     instruments: pd.DataFrame = field(default_factory=pd.DataFrame)
     readings: pd.DataFrame = field(default_factory=pd.DataFrame)
+    coverage_factor: float = 2.0
 
     @property
     def passes(self) -> bool:
@@ -229,6 +242,8 @@ class InterimCheck:
         worst = self.largest_En(10)
         return {"status": self.status, "message": self.message, "chi2": self.chi2,
                 "dof": self.dof, "p_value": self.p_value, "alpha": self.alpha,
+                "coverage_factor": self.coverage_factor, "En_definition": en_definition(
+                    self.coverage_factor),
                 "model": self.model_name, "positions": list(self.positions),
                 "n_obs": len(self.table), "coverage_95": self.coverage_95,
                 "sigma_um": self.sigma_um, "outside_region": self.outside_region,
@@ -251,7 +266,8 @@ def interim_check(model: Model, dataset: Dataset | None, *, sigma_um: float | No
                   alpha: float = 0.05, positions: Sequence[str] | None = None,
                   probes: Sequence[str] | None = None,
                   instruments: Sequence = (),
-                  exclude: Iterable[Sequence] = ()) -> InterimCheck:
+                  exclude: Iterable[Sequence] = (),
+                  coverage_factor: float = 2.0) -> InterimCheck:
     """Test new measurements against a stored calibration.
 
     Parameters
@@ -274,6 +290,11 @@ def interim_check(model: Model, dataset: Dataset | None, *, sigma_um: float | No
     exclude : iterable of (position, probe, ball)
         Observations left out of the check (``model.select``): an analysis's own
         exclusions and its outlier rule's, so the check tests the data the fit used.
+    coverage_factor : float
+        k of the expanded uncertainties the E_n are stated with, ``E_n = residual /
+        (k u)`` (default 2: ISO/IEC 17043:2010 Annex B with the k = 2 expanded
+        uncertainties of EA-4/02, ``|E_n| <= 1`` the usual acceptance). Presentation
+        only: the χ² test and ``coverage_95`` do not depend on it.
 
     Returns
     -------
@@ -289,16 +310,20 @@ def interim_check(model: Model, dataset: Dataset | None, *, sigma_um: float | No
     """
     if not 0 < alpha < 0.5:
         raise ValueError(f"alpha must be in (0, 0.5), got {alpha}.")
+    k = float(coverage_factor)
+    if not (np.isfinite(k) and k > 0):
+        raise ValueError(f"coverage_factor must be a positive number, got {coverage_factor}.")
     sys = check_system(model, dataset, sigma_um=sigma_um, positions=positions,
                        probes=probes, instruments=instruments, exclude=exclude)
     g = gls_fit(sys)
     n, m = len(sys.obs.r_mm), sys.n_plate
     u = np.sqrt(np.clip(g.residual_cov_diag, 0, None))
-    En = g.residual_um / u
+    z = g.residual_um / u  # standard scores: N(0, 1) when the model holds
+    En = z / k
     p_value = float(stats.chi2.sf(g.chi2, g.dof))
     status = "passes" if p_value >= alpha else "fails"
     table = _observation_table(sys, g.residual_um[:m], u[:m], En[:m])
-    readings = _reading_table(sys, g.residual_um)
+    readings = _reading_table(sys, g.residual_um, k)
     inst = _instrument_table(sys, readings)
     lo, hi = (np.asarray(model.summary.get("region_mm", [[-np.inf] * 3, [np.inf] * 3]), float))
     pts = [sys.x_mm[:n]] + [x for it, _, _ in sys.instrument_rows for x, _ in it.points()]
@@ -317,16 +342,17 @@ def interim_check(model: Model, dataset: Dataset | None, *, sigma_um: float | No
     else:
         r = readings.iloc[worst - m]
         where = f"file row {int(r.row)} of {r.kind} {r.file}, {r.label}"
-    coverage = float(np.mean(np.abs(all_En) <= 1.96))
+    coverage = float(np.mean(np.abs(k * all_En) <= 1.96))  # standard scores within 95 %
     msg = (f"Interim check against {model.name}: χ² = {g.chi2:.1f} on {g.dof} degrees of "
            f"freedom ({'; '.join(what)}), p = {p_value:.3g}: the machine "
            + ("behaves as the stored model predicts" if status == "passes" else
               "no longer behaves as the stored model predicts")
-           + f" at the {100 * alpha:g} % level. Largest |E_n| = {abs(all_En[worst]):.2f} "
-           f"({where}); {100 * coverage:.1f} % of the "
+           + f" at the {100 * alpha:g} % level. Largest |E_n| (k = {k:g}) = "
+           f"{abs(all_En[worst]):.2f} ({where}); {100 * np.mean(np.abs(all_En) <= 1):.1f} % "
+           "of the "
            + ("components and readings" if len(readings) and m else
               "readings" if len(readings) else "components")
-           + " lie within their 95 % intervals.")
+           + f" have |E_n| ≤ 1 and {100 * coverage:.1f} % lie within their 95 % intervals.")
     if model.summary.get("fails_chi2_test"):
         msg += (f" The stored model failed its own χ² test (Birge ratio "
                 f"{float(model.summary.get('birge_ratio', float('nan'))):.2f}): its σ "
@@ -337,16 +363,26 @@ def interim_check(model: Model, dataset: Dataset | None, *, sigma_um: float | No
                 "the model was fitted in (its predictions there are extrapolated).")
     return InterimCheck(status, msg, float(g.chi2), int(g.dof), p_value, float(alpha),
                         model.name, list(sys.obs.positions) if n else [], table,
-                        coverage, sys.sigma_um, outside, sys, g, inst, readings)
+                        coverage, sys.sigma_um, outside, sys, g, inst, readings, k)
+
+
+def en_definition(coverage_factor: float) -> str:
+    """The E_n of a check in words, with its coverage factor (the results' ``En_definition``
+    and the report's note)."""
+    return (f"E_n (k = {coverage_factor:g}) = residual / (k u), u the residual's standard "
+            "uncertainty (the new data's σ and the certificate's, the stored model's "
+            "J V Jᵀ, the pose fit's leverage): ISO/IEC 17043:2010 Annex B with the "
+            "expanded uncertainties at k; |E_n| <= 1 the usual acceptance")
 
 
 _READING_COLUMNS = ["kind", "file", "row", "label", "residual_um", "u_residual_um", "En"]
 
 
-def _reading_table(sys: CheckSystem, res: np.ndarray) -> pd.DataFrame:
+def _reading_table(sys: CheckSystem, res: np.ndarray, k: float) -> pd.DataFrame:
     """One row per instrument reading: the rows mapped back by ``Q`` (``InterimCheck``'s
     ``readings``). An instrument's rows have no pose columns, so their residual is
-    ``d`` itself and its covariance the rows' block of Σ."""
+    ``d`` itself and its covariance the rows' block of Σ; E_n at the coverage factor
+    ``k``."""
     frames = []
     for it, start, stop in sys.instrument_rows:
         Q = it.transform[1]
@@ -354,7 +390,7 @@ def _reading_table(sys: CheckSystem, res: np.ndarray) -> pd.DataFrame:
         z = np.asarray(Q @ res[start:stop], float)  # weighted residual per reading
         var = np.einsum("ij,ij->i", Qm @ sys.cov[start:stop, start:stop], Qm)
         sd = np.sqrt(np.clip(var, 0, None))
-        En = np.where(sd > 0, z / np.where(sd > 0, sd, 1), 0.0)
+        En = np.where(sd > 0, z / np.where(sd > 0, sd, 1), 0.0) / k
         frames.append(pd.DataFrame({"kind": it.kind, "file": it.source,
                                     "row": np.asarray(it.rows, int), "label": it.labels(),
                                     "residual_um": it.u_um * z,

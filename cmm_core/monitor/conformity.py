@@ -26,6 +26,7 @@ from ..gum import MpeResult, conformity_uncertainty_um, mpe_check
 from ..io import DataError, Dataset
 from .changes import Changes, what_changed
 from .check import InterimCheck
+from .unseen import unseen_example
 
 STATEMENTS = ("conforms", "does not conform", "cannot say")
 """The machine-level statements of :func:`conformity`."""
@@ -48,7 +49,8 @@ class Conformity:
     rule : str
         The decision rule in words (for reports).
     unseen : list of str
-        The parameter combinations the check cannot determine (``Changes.unseen``).
+        The parameter combinations the check cannot determine, in words
+        (``Changes.unseen``).
     """
 
     statement: str
@@ -179,7 +181,8 @@ def conformity(model: Model, check: InterimCheck, dataset: Dataset, *, mpe_a_um:
         statement = "cannot say"
         msg = (f"The {len(mpe.error_um)} lengths measured conform to {limit}, but the check "
                f"cannot see {len(changes.unseen)} combination(s) of the machine's errors "
-               f"(e.g. {changes.unseen[0]}): it cannot say that the machine conforms.")
+               f"(e.g. {unseen_example(changes.unseen)}): it cannot say that the machine "
+               "conforms.")
     else:
         statement = "conforms"
         msg = (f"Conforms to {limit}: all {len(mpe.error_um)} lengths, and the check sees "

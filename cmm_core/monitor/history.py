@@ -3,9 +3,13 @@
 Two or more stored models of one machine (``export.Model``), each with its date. The
 calibrations are independent measurements, so the change of a parameter shared by two
 consecutive calibrations has the variance ``u₁² + u₂²`` (JCGM 100 eq. 10) and
-``E_n = (c₂ - c₁) / sqrt(u₁² + u₂²)`` is standard normal when nothing changed (ISO/IEC
-17043 Annex B with k = 1). The changes are tested at a family-wise level by Holm's
-step-down procedure (Holm 1979) over every tested pair and parameter. The error map's
+``z = (c₂ - c₁) / sqrt(u₁² + u₂²)`` is standard normal when nothing changed. The changes
+are tested by its two-sided p-value at a family-wise level by Holm's step-down procedure
+(Holm 1979) over every tested pair and parameter. The normalised error is stated as
+laboratories read one (ISO/IEC 17043:2010 Annex B), with the expanded uncertainties
+``U = k u`` at the coverage factor ``k`` (default 2, as EA-4/02 states them):
+``E_n = (c₂ - c₁) / sqrt(U₁² + U₂²) = z / k``, ``|E_n| <= 1`` the usual acceptance; the
+tests do not depend on ``k``. The error map's
 change from the first to the last calibration is computed on a grid over the working
 volume (ram reference point, probe offset 0), its uncertainty ``sqrt(diag(J₁V₁J₁ᵀ) +
 diag(J₂V₂J₂ᵀ))`` (JCGM 100 eq. 13 for each model).
@@ -30,10 +34,12 @@ from .changes import holm
 from .identity import refuse_mixed_machines
 from .numbers import json_num
 
-HISTORY_RULE = ("a parameter changed between two consecutive calibrations when E_n = "
-                "(c₂ − c₁) / sqrt(u₁² + u₂²) (two-sided, standard normal) is rejected by "
-                "Holm's step-down procedure at family_alpha over every pair and shared "
-                "parameter")
+HISTORY_RULE = ("a parameter changed between two consecutive calibrations when the "
+                "two-sided p-value of z = (c₂ − c₁) / sqrt(u₁² + u₂²) (standard normal if "
+                "nothing changed) is rejected by Holm's step-down procedure at family_alpha "
+                "over every pair and shared parameter; En is stated at the coverage factor "
+                "k, E_n = (c₂ − c₁) / sqrt(U₁² + U₂²) = z / k with U = k u (ISO/IEC 17043 "
+                "Annex B)")
 """The history's decision rule, as the results document states it."""
 
 MAX_MAP_NODES_PER_AXIS = 21
@@ -56,7 +62,8 @@ class History:
     changes : DataFrame
         One row per consecutive pair and shared parameter: ``label``, ``unit``,
         ``date_from``, ``date_to``, ``value_from``, ``value_to``, ``change``,
-        ``u_change``, ``En``, ``p_value`` (two-sided), ``significant`` (Holm).
+        ``u_change``, ``En`` (``change / (k u_change)``, k the ``coverage_factor``),
+        ``p_value`` (two-sided, of ``change / u_change``), ``significant`` (Holm).
     trend : DataFrame
         One row per model and parameter: ``label``, ``unit``, ``date``, ``value``, ``u``
         (for a trend plot per parameter).
@@ -70,6 +77,8 @@ class History:
         The error map's change from the first to the last calibration on a grid:
         ``x_mm, y_mm, z_mm``, ``dex_um, dey_um, dez_um`` (last minus first) and their
         standard uncertainties ``u_dex_um ...``.
+    coverage_factor : float
+        The k of the E_n stated (default 2).
     """
 
     message: str
@@ -81,6 +90,7 @@ class History:
     only_in: dict
     family_alpha: float
     map_change: pd.DataFrame
+    coverage_factor: float = 2.0
 
     def results_section(self) -> dict:
         """The "history" section of the results document (``export.results_dict``): every
@@ -89,7 +99,8 @@ class History:
         d = self.map_change
         return {"models": list(self.names), "dates": list(self.dates),
                 "family_alpha": self.family_alpha, "method": "Holm",
-                "decision_rule": HISTORY_RULE, "message": self.message,
+                "decision_rule": HISTORY_RULE, "coverage_factor": self.coverage_factor,
+                "message": self.message,
                 "changes": [{"name": r.label, "unit": r.unit, "date_from": r.date_from,
                              "date_to": r.date_to, "value_from": json_num(r.value_from),
                              "value_to": json_num(r.value_to), "change": json_num(r.change),
@@ -107,7 +118,8 @@ class History:
         worst = {a: float(np.abs(d[f"de{a}_um"]).max()) for a in "xyz"}
         return {"message": self.message, "models": list(self.names),
                 "dates": list(self.dates), "family_alpha": self.family_alpha,
-                "method": "Holm", "n_tested": len(self.changes),
+                "method": "Holm", "coverage_factor": self.coverage_factor,
+                "n_tested": len(self.changes),
                 "significant": [{k: (float(v) if isinstance(v, float | np.floating) else v)
                                  for k, v in r.items()} for r in sig.to_dict("records")],
                 "only_in": {k: list(v) for k, v in self.only_in.items()},
@@ -116,7 +128,7 @@ class History:
 
 @single_blas_thread
 def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, family_alpha: float = 0.05,
-                         nodes_per_axis: int = 5) -> History:
+                         nodes_per_axis: int = 5, coverage_factor: float = 2.0) -> History:
     """Every shared parameter's change between consecutive calibrations of one machine.
 
     Parameters
@@ -128,6 +140,9 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
         Family-wise false-alarm level (Holm over all pairs and shared parameters).
     nodes_per_axis : int
         Grid of the error map's change (2 to :data:`MAX_MAP_NODES_PER_AXIS` per axis).
+    coverage_factor : float
+        k of the expanded uncertainties the E_n are stated with (ISO/IEC 17043:2010
+        Annex B; default 2 as EA-4/02 states them). The tests do not depend on it.
 
     Returns
     -------
@@ -147,6 +162,9 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
     if not 2 <= int(nodes_per_axis) <= MAX_MAP_NODES_PER_AXIS:
         raise ValueError(f"nodes_per_axis must be 2 to {MAX_MAP_NODES_PER_AXIS}, got "
                          f"{nodes_per_axis}.")
+    cf = float(coverage_factor)
+    if not (np.isfinite(cf) and cf > 0):
+        raise ValueError(f"coverage_factor must be a positive number, got {coverage_factor}.")
     items = _checked(models_with_dates)
     models = [m for m, _ in items]
     dates = [d.isoformat() for _, d in items]
@@ -182,8 +200,9 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
                          "value_from": float(v1[k]), "value_to": float(v2[k]),
                          "change": float(v2[k] - v1[k]), "u_change": float(u[k])})
     changes = pd.DataFrame(rows)
-    changes["En"] = changes["change"] / changes["u_change"]
-    changes["p_value"] = 2 * stats.norm.sf(np.abs(changes["En"].to_numpy()))
+    z = (changes["change"] / changes["u_change"]).to_numpy()  # N(0, 1) if unchanged
+    changes["En"] = z / cf
+    changes["p_value"] = 2 * stats.norm.sf(np.abs(z))
     changes["significant"] = holm(changes["p_value"].to_numpy(), len(changes), family_alpha)
     trend = pd.DataFrame([{"label": lab, "unit": m.terms.unit(lab), "date": d,
                            "value": float(m.coef[j]), "u": float(np.sqrt(m.cov[j, j]))}
@@ -197,7 +216,8 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
            f"consecutive calibrations tested (Holm, family-wise false-alarm level "
            f"{100 * family_alpha:g} %); "
            + (f"{len(significant)} significant: "
-              + "; ".join(f"{r.label} {r.change:+.3g} ± {r.u_change:.2g} (E_n {r.En:+.1f}, "
+              + "; ".join(f"{r.label} {r.change:+.3g} ± {r.u_change:.2g} (E_n (k = {cf:g}) = "
+                          f"{r.En:+.1f}, "
                           f"{r.date_from} → {r.date_to})" for r in sig_rows.itertuples())
               if significant else "none significant")
            + ". The error map changed by up to "
@@ -211,7 +231,7 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
         msg += (" Not compared (held fixed, no uncertainty in either calibration): "
                 + ", ".join(held) + ".")
     return History(msg, [m.name for m in models], dates, changes, trend, significant,
-                   only_in, float(family_alpha), grid)
+                   only_in, float(family_alpha), grid, cf)
 
 
 def _checked(models_with_dates) -> list:

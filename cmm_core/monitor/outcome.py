@@ -31,23 +31,26 @@ from ..export import Model
 from ..io import Dataset
 from ..machine import kinematics as kin
 from .changes import MIN_RESOLVED, Changes, what_changed
-from .check import InterimCheck, interim_check
+from .check import InterimCheck, en_definition, interim_check
 from .conformity import RULE, Conformity, conformity
 from .numbers import json_num
+from .unseen import unseen_example
 
 TEST_RULE = ("the machine no longer behaves as the stored model predicts when P(χ²_dof > χ²) "
              "< alpha, χ² the generalised least-squares residual of the new data with the "
              "covariance σ² I + J V Jᵀ + K U_cert Kᵀ (each placement's pose fitted; dof = "
              "rows − 6 per placement)")
 """The interim check's decision rule, as the results document states it."""
-CHANGE_RULE = ("a parameter moved when its change E_n = s / u_null (s the posterior mean "
-               "of the change, shrunk toward 0, of the stored model refitted on the new "
-               "data with itself as the prior; u_null the sd of s if nothing changed) is "
-               "rejected by Holm's step-down procedure at family_alpha over the parameters "
-               f"the new data resolve (at least {100 * MIN_RESOLVED:g} % of their prior "
-               "variance); standard_uncertainty is the posterior sd; *_alone: the same "
-               "parameter's unshrunk change had it alone moved (score test, Holm at "
-               "family_alpha over the parameters resolved alone, at least "
+CHANGE_RULE = ("a parameter moved when the two-sided p-value of its standard score "
+               "z = s / u_null (s the posterior mean of the change, shrunk toward 0, of the "
+               "stored model refitted on the new data with itself as the prior; u_null the "
+               "sd of s if nothing changed; z standard normal then) is rejected by Holm's "
+               "step-down procedure at family_alpha over the parameters the new data "
+               f"resolve (at least {100 * MIN_RESOLVED:g} % of their prior variance); En is "
+               "stated at the coverage factor k, E_n = z / k (ISO/IEC 17043 Annex B, "
+               "expanded uncertainties at k); standard_uncertainty is the posterior sd; "
+               "*_alone: the same parameter's unshrunk change had it alone moved (score "
+               "test, Holm at family_alpha over the parameters resolved alone, at least "
                f"{100 * MIN_RESOLVED:g} % of their prior variance)")
 """The parameter changes' decision rule, as the results document states it."""
 VERDICTS = ("no change seen", "partial: no change seen in what was measured", "changed")
@@ -191,16 +194,25 @@ class CheckOutcome:
 
     def results_section(self) -> dict:
         """The "interim_check" section of the results document (``export.results_dict``):
-        the test, each tested parameter's change with its standard uncertainty (the
-        posterior sd) and its ``u_null`` (the E_n denominator), the new
-        effect, conformity, each with its decision rule; numbers JSON-safe (NaN: null)."""
+        the test with the largest E_n at the check's coverage factor, each tested
+        parameter's change with its standard uncertainty (the posterior sd) and its
+        ``u_null`` (the sd of the change if nothing changed: ``E_n = change / (k
+        u_null)``), what the check cannot see in words (``unseen``) and as prior-scaled
+        weights (``unseen_combinations``), the new effect, conformity, each with its
+        decision rule; numbers JSON-safe (NaN: null)."""
         c, ch = self.check, self.changes
         tested = ch.table[ch.table["tested"]]
         return {
             "model": c.model_name, "verdict": self.verdict, "message": self.message,
+            "coverage_factor": c.coverage_factor,
             "test": {"statistic": "chi2", "chi2": json_num(c.chi2), "dof": c.dof,
                      "p_value": json_num(c.p_value), "alpha": c.alpha,
                      "passes": c.passes, "decision_rule": TEST_RULE,
+                     "coverage_factor": c.coverage_factor,
+                     "En_definition": en_definition(c.coverage_factor),
+                     "largest_En": [{"position": str(r.position), "probe": str(r.probe),
+                                     "ball": int(r.ball), "En": json_num(r.En)}
+                                    for r in c.largest_En(10).itertuples()],
                      "sigma_um": json_num(c.sigma_um), "n_ball_centres": len(c.table),
                      "positions": list(c.positions),
                      "coverage_95": json_num(c.coverage_95),
@@ -208,7 +220,8 @@ class CheckOutcome:
                                       for k, v in r.items()}
                                      for r in c.instruments.to_dict("records")]},
             "changes": {"family_alpha": ch.family_alpha, "method": "Holm",
-                        "decision_rule": CHANGE_RULE, "n_tested": ch.n_tested,
+                        "decision_rule": CHANGE_RULE, "coverage_factor": ch.coverage_factor,
+                        "n_tested": ch.n_tested,
                         "n_tested_alone": ch.n_tested_alone,
                         "parameters": [
                             {"name": r.label, "unit": r.unit, "stored": json_num(r.stored),
@@ -221,7 +234,8 @@ class CheckOutcome:
                              "significant_alone": bool(r.significant_alone),
                              "resolved": json_num(r.resolved)}
                             for r in tested.itertuples()],
-                        "unseen": list(ch.unseen)},
+                        "unseen": list(ch.unseen),
+                        "unseen_combinations": list(ch.unseen_combinations)},
             "new_effects": None if self.effects is None else self.effects.to_dict(),
             "conformity": None if self.conformity is None else self.conformity.to_dict()}
 
@@ -237,8 +251,8 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
               sigma_um: float | None = None, alpha: float = 0.05,
               family_alpha: float = 0.05, positions: Sequence[str] | None = None,
               mpe: tuple[float, float] | None = None, name_effects: bool = True,
-              probes: Sequence[str] | None = None, exclude: Iterable[Sequence] = ()
-              ) -> CheckOutcome:
+              probes: Sequence[str] | None = None, exclude: Iterable[Sequence] = (),
+              coverage_factor: float = 2.0) -> CheckOutcome:
     """The interim check, what changed, the new effect and (with ``mpe``) conformity.
 
     Parameters
@@ -252,6 +266,10 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
     sigma_um, alpha, positions, probes, exclude
         As :func:`interim_check`: the selection of the new data and the observations
         left out (an analysis's exclusions), so the check tests the data its fit used.
+    coverage_factor : float
+        k of the E_n stated by the check and the changes (``E_n = residual / (k u)``,
+        ISO/IEC 17043:2010 Annex B; default 2 as EA-4/02 states expanded
+        uncertainties). The tests do not depend on it.
     family_alpha : float
         Family-wise level of :func:`what_changed`.
     mpe : (float, float), optional
@@ -266,7 +284,7 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
     exclude = list(exclude)
     check = interim_check(model, dataset, sigma_um=sigma_um, alpha=alpha,
                           positions=positions, probes=probes, instruments=instruments,
-                          exclude=exclude)
+                          exclude=exclude, coverage_factor=coverage_factor)
     changes = what_changed(model, check, family_alpha=family_alpha)
     effects = None
     if name_effects and not check.passes:
@@ -291,8 +309,8 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
         verdict = VERDICTS[1]
         msg = (f"No change seen in what this check measures, but it cannot see "
                f"{len(changes.unseen)} combination(s) of the stored model's parameters (e.g. "
-               f"{changes.unseen[0]}): a change there would pass unnoticed. This partial "
-               "check does not say that the machine is unchanged.")
+               f"{unseen_example(changes.unseen)}): a change there would pass unnoticed. "
+               "This partial check does not say that the machine is unchanged.")
     else:
         verdict = VERDICTS[0]
         msg = ("No change seen: the check sees every combination of the stored model's "
