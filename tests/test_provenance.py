@@ -209,3 +209,17 @@ def test_the_command_lines_records_name_their_inputs(tmp_path, capsys):
     assert err.count("note: ") == len(cals) and "before 0.8.0" in err
     made = json.loads(out.read_text())["provenance"]
     assert sorted(f["sha256"] for f in made["inputs"]) == sorted(_sha(p) for p in cals)
+
+
+def test_every_commands_json_says_what_made_it(tmp_path, capsys):
+    """The printed result of any command names the software and the files it read."""
+    budget = ROOT / "sample_data" / "budget" / "ballplate_budget.json"
+    assert main(["--json", str(tmp_path / "b.json"), "budget", str(budget)]) == 0
+    prov = json.loads((tmp_path / "b.json").read_text())["provenance"]
+    assert prov["version"] == cmm_core.__version__
+    assert prov["inputs"] == [{"name": budget.name, "sha256": _sha(budget),
+                               "bytes": budget.stat().st_size}]
+    assert main(["air", "--t-C", "20", "--p-Pa", "101325", "--rh-percent", "50",
+                 "--wavelength-nm", "632.99"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["provenance"]["software"] == "cmm-error-lab" and out["provenance"]["inputs"] == []

@@ -70,16 +70,15 @@ if TYPE_CHECKING:
     from .fitting import cmd_diagnose, cmd_fit, cmd_gp
     from .inputs import (
         CommandChoices,
-        command_inputs,
         data_of,
         dataset_of,
         exclusions_of,
         fit_args_of,
         instruments_of,
-        provenance_of,
         sigma_of,
     )
     from .plan import cmd_plan, cmd_task, run_plan, run_task
+    from .records import command_inputs, provenance_of
     from .report import cmd_report
     from .simulate import cmd_simulate
 
@@ -88,7 +87,7 @@ _LAZY = {
     "AXIS_TABLE_FILES": "export", "add_parser": "export", "command": "export",
     "output_files": "export", "run": "export",
     "cmd_diagnose": "fitting", "cmd_fit": "fitting", "cmd_gp": "fitting",
-    "CommandChoices": "inputs", "command_inputs": "inputs", "provenance_of": "inputs",
+    "CommandChoices": "inputs", "command_inputs": "records", "provenance_of": "records",
     "data_of": "inputs", "dataset_of": "inputs",
     "exclusions_of": "inputs", "fit_args_of": "inputs", "instruments_of": "inputs",
     "sigma_of": "inputs",

@@ -25,8 +25,9 @@ from ..analysis import (
 from ..export import load_model, results_json
 from ..io import DataError, atomic_write_all, atomic_write_text, check_outputs, load_dataset
 from ..monitor import check_sigma_um, compare_calibrations, run_check, version_notes
-from .inputs import command_inputs, instruments_of
+from .inputs import instruments_of
 from .parser import add_command
+from .records import command_inputs
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

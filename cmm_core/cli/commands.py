@@ -130,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     # own module loads in args.func (parser.Subcommand), the wings it uses with it
     # lazy: the io wing brings numpy and pandas, which neither --help nor a usage error needs
     from ..io import DataError, atomic_write_text, check_outputs
+    from .records import provenance_of  # lazy: the io wing's, as the line above
 
     try:  # before any work: outputs that would destroy an input or each other
         outs, folders, ins = _files(args)
@@ -149,6 +150,8 @@ def main(argv: list[str] | None = None) -> int:
         return 3
     for note in out.get("notes", []) if isinstance(out, dict) else []:
         print(f"note: {_one_line(note, None)}", file=sys.stderr)
+    if isinstance(out, dict) and "provenance" not in out:  # what made this result
+        out["provenance"] = provenance_of(args).to_dict()
     text = json.dumps(_jsonable(out), indent=1)
     if args.json:
         try:

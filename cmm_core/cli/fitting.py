@@ -17,9 +17,9 @@ from .inputs import (
     exclusions_of,
     fit_args_of,
     instruments_of,
-    provenance_of,
     sigma_of,
 )
+from .records import provenance_of
 
 
 def cmd_fit(args: argparse.Namespace) -> dict:

@@ -16,13 +16,8 @@ from ..io import (
     DMIS_SUFFIXES,
     DataError,
     Dataset,
-    InputFile,
-    Provenance,
     combine_plates,
-    input_file,
     load_dataset,
-    provenance,
-    read_bytes,
     read_foreign,
     read_machine,
     read_mapping,
@@ -36,31 +31,6 @@ from ..model import (
     read_instrument,
     refuse_repeated,
 )
-
-
-def command_inputs(args: argparse.Namespace, *, leave_out: Sequence = ()) -> list[InputFile]:
-    """Every file the command reads (``cli.main`` lists them as ``args.input_files`` for its
-    output checks), each with its SHA-256; ``leave_out``: digests already named (a model
-    file the record names as its own)."""
-    seen = {f.sha256 for f in leave_out if f is not None}
-    out = []
-    for path in getattr(args, "input_files", []):
-        try:
-            f = input_file(Path(path).name, read_bytes(Path(path), None)[0])
-        except (DataError, OSError):  # read, and refused, by the command itself
-            continue
-        if f.sha256 not in seen:
-            seen.add(f.sha256)
-            out.append(f)
-    return out
-
-
-def provenance_of(args: argparse.Namespace, data: object = None) -> Provenance:
-    """The provenance of what the command writes: its input files, and the machine and
-    calibration date of ``data``'s setup when it has one."""
-    setup = getattr(data, "setup", None)
-    return provenance(command_inputs(args), machine=getattr(setup, "machine_id", None),
-                      calibration_date=getattr(setup, "calibration_date", None))
 
 
 def dataset_of(args: argparse.Namespace) -> Dataset:
