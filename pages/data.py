@@ -6,7 +6,7 @@ import streamlit as st
 
 from cmm_core import analysis as A
 from cmm_core import io as cio
-from pages.ui import cached, calls, state, widgets
+from pages.ui import cached, calls, session, state, widgets
 from pages.ui.panels import instruments, project, simulate, upload
 from pages.ui.panels.msl import msl_section
 
@@ -14,6 +14,25 @@ st.title("Data")
 st.caption("Ball-plate measurements, setup and certificate. Files are in mm; the screen "
            "shows µm.")
 widgets.flash()
+
+# the first screen says what the loaded data show and the one next step (issue 41)
+with calls.guarded("Summary"):
+    try:
+        _ds = state.dataset()
+    except Exception:  # noqa: BLE001 - the validation report below says why
+        _ds = None
+    if _ds is not None:
+        look = A.first_look(_ds, cached.current_fit(show_error=False),
+                            len(cached.pending_outliers(_ds)))
+        box = {"success": st.success, "info": st.info, "warning": st.warning}[look.level]
+        box(f"**{look.title}**  \n{look.text}  \n**Next:** {look.action}")
+        target = {"refit": "pages/kinematic.py", "diagnose": "pages/diagnose.py",
+                  "uncertainty": "pages/uncertainty.py"}.get(look.step)
+        if target is not None:
+            st.page_link(target, label={"refit": "Kinematic model", "diagnose":
+                                        "Compare and diagnose", "uncertainty":
+                                        "Uncertainty"}[look.step], icon=":material/east:",
+                         query_params=session.session_query())
 
 # lazy tabs (issue 27): a tab's widgets (the simulator's form alone is some thirty, the
 # upload tab's file fields each load their script and layout) are sent only while the tab
@@ -28,7 +47,9 @@ tab_thesis, tab_upload, tab_other, tab_sim, tab_proj = st.tabs(DATA_TABS, key="d
 with tab_thesis:
     st.write("The six ball-plate tables of thesis chapter 6 (tables 6.1-6.6) with the appendix 5 "
              "certificate, exactly as printed (including the values that look wrong).")
-    if st.button("Load thesis tables", key="load_thesis"):
+    loaded = st.session_state.get("ds_origin", {}).get("kind") == "thesis"
+    if st.button("Thesis tables loaded" if loaded else "Load thesis tables",
+                 key="load_thesis", disabled=loaded):
         state.set_dataset(A.thesis_sources(), A.THESIS_ORIGIN)
         state.loaded("Loaded the thesis tables.")
 

@@ -4,9 +4,9 @@ the same way by the app, the CLI and the report, and the report with its figures
 Owns: :mod:`.record` (:class:`AnalysisRecord`), :mod:`.record_io` (JSON and project
 files), :mod:`.runner` (:func:`run`, :class:`AnalysisResult`), :mod:`.residuals`,
 :mod:`.comparison` (thesis chapter 7: kinematic vs GP vs measurement), :mod:`.figures`
-(plotly figures), :mod:`.report` (HTML report), :mod:`.sessions` (analyses kept on disk
-between browser sessions). May import every wing
-below it except ``cli``.
+(plotly figures), :mod:`.report` (HTML report), :mod:`.first_look` (the first screen's
+summary and next step), :mod:`.sessions` (analyses kept on disk between browser
+sessions). May import every wing below it except ``cli``.
 """
 
 from __future__ import annotations
@@ -47,6 +47,7 @@ from .figures import (
     fig_surface_grid,
     true_function_curve,
 )
+from .first_look import FIRST_STEPS, FirstLook, first_look
 from .record import (
     DEFAULT_EXCLUDE_OUTLIERS,
     ERROR_CONVENTION,
@@ -149,6 +150,7 @@ from .sources import (
 from .svg import figure_svg, nice_ticks, placement_views_svg, svg_supported
 
 __all__ = [
+    "FIRST_STEPS", "FirstLook", "first_look",
     "THESIS_ORIGIN", "FOREIGN_HINT", "Assembly", "SourceProblem", "assemble_upload", "inline_sources", "refuse_paths",
     "load_sources", "problems_of", "record_from_sources", "simulated_sources", "sources_key",
     "thesis_sources",
