@@ -48,8 +48,9 @@ with tab_thesis:
     st.write("The six ball-plate tables of thesis chapter 6 (tables 6.1-6.6) with the appendix 5 "
              "certificate, exactly as printed (including the values that look wrong).")
     loaded = st.session_state.get("ds_origin", {}).get("kind") == "thesis"
-    if st.button("Thesis tables loaded" if loaded else "Load thesis tables",
-                 key="load_thesis", disabled=loaded):
+    # loaded already: the button starts them over, the settings back to their defaults
+    if st.button("Reload the thesis tables (settings to defaults)" if loaded
+                 else "Load thesis tables", key="load_thesis"):
         state.set_dataset(A.thesis_sources(), A.THESIS_ORIGIN)
         state.loaded("Loaded the thesis tables.")
 
