@@ -8,6 +8,7 @@ import streamlit as st
 
 from cmm_core import analysis as A
 from cmm_core import export as ex
+from cmm_core import io as cio
 from cmm_core.model import correction_columns
 from pages.ui import cached, calls, session, widgets
 from pages.ui.panels.task import task_section
@@ -69,6 +70,7 @@ points = None
 if up is not None:
     points = calls.safe(ex.read_points, io.BytesIO(up.getvalue()), name=up.name, what="Points file")
     ckey = (up.name, len(up.getvalue()), hash(up.getvalue()))
+    points_prov = prov.with_inputs([cio.input_file(up.name, up.getvalue())])
 elif use_example:
     t = r.table
     points = pd.DataFrame({"probe": t["probe"].astype(str), "x_mm": t["mx_mm"],
@@ -78,6 +80,7 @@ elif use_example:
                            # refuses points without their scale temperatures)
                            **{c: t[c] for c in extra_cols if c in t}}).head(50)
     ckey = "example"
+    points_prov = prov  # the measured centres of the data it names
 corr = None
 if points is not None:
     corr = calls.safe(corrected, args, ckey, points, r, what="Compensation")
@@ -101,16 +104,16 @@ if corr is not None:
                    "use an arbitrary (minimum-norm) choice for them and carry no "
                    "uncertainty. Add placements on the Kinematic model page first.")
     st.download_button("Download corrected points (CSV)",
-                       ex.safe_csv(corr, float_format="%.6f"), fname("corrected_points.csv"),
+                       ex.corrected_csv(corr, points_prov), fname("corrected_points.csv"),
                        "text/csv", key="dl_corrected", on_click="ignore")
 
 task_section()
 
 st.subheader("Downloads")
 c1, c2, c3 = st.columns(3)
-c1.download_button("Fitted parameters with uncertainties (CSV)", ex.parameters_csv(r),
+c1.download_button("Fitted parameters with uncertainties (CSV)", ex.parameters_csv(r, prov),
                    fname("parameters.csv"), "text/csv", key="dl_parameters", on_click="ignore")
-c2.download_button("Residuals (CSV)", ex.residuals_csv(r), fname("residuals.csv"), "text/csv",
+c2.download_button("Residuals (CSV)", ex.residuals_csv(r, prov), fname("residuals.csv"), "text/csv",
                    key="dl_residuals", on_click="ignore")
 
 with st.container(border=True):

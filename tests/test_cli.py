@@ -48,7 +48,9 @@ def test_simulate_fit_save_compensate_roundtrip(tmp_path):
     pts = tmp_path / "pts.csv"
     pts.write_text("id,probe,x_mm,y_mm,z_mm\nA,1,500,400,100\nB,3,650,420,300\n")
     run("compensate", tmp_path / "model.json", pts, "--out", tmp_path / "corr.csv")
-    text = (tmp_path / "corr.csv").read_text().splitlines()
+    lines = (tmp_path / "corr.csv").read_text().splitlines()
+    text = [line for line in lines if not line.startswith("# ")]  # its provenance first
+    assert lines[0].startswith("# software: cmm-error-lab")
     assert text[0].startswith("id,probe,x_mm,y_mm,z_mm,xc_mm") and len(text) == 3
 
 

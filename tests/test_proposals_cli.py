@@ -52,6 +52,8 @@ def test_next_lists_proposals_as_json_and_writes_a_plan(files, tmp_path):
     assert best["outcome"].startswith("with ") and best["time_min"] > 0
     pf = read_plan(plan)
     assert [s.name for s in pf.strategies][0] == "current data"
+    # what wrote it, kept by the plan reader (docs/planning.md)
+    assert json.loads(plan.read_text())["provenance"]["software"] == "cmm-error-lab"
 
 
 @pytest.mark.parametrize("bad", ["sxy", "sxy,sxy", "a,b,c", ","])

@@ -223,3 +223,51 @@ def test_every_commands_json_says_what_made_it(tmp_path, capsys):
                  "--wavelength-nm", "632.99"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["provenance"]["software"] == "cmm-error-lab" and out["provenance"]["inputs"] == []
+
+
+def _header(text: str) -> str:
+    return "\n".join(line for line in text.splitlines() if line.startswith("#"))
+
+
+def test_the_apps_parameter_residual_and_corrected_point_tables_name_it(thesis):
+    ds, r = thesis
+    prov = ds.provenance()
+    points = ex.read_points(ROOT / "sample_data" / "compensate" / "points.csv")
+    corrected = ex.compensate_points(r, points)
+    texts = [ex.parameters_csv(r, prov), ex.residuals_csv(r, prov),
+             ex.corrected_csv(corrected, prov)]
+    for text in texts:
+        head = _header(text)
+        assert f"cmm-error-lab {cmm_core.__version__}" in head and MACHINE in head
+        for name, sha in _expected_inputs():
+            assert f"input: {name} sha256:{sha}" in head
+    # the product reads its own table back past the comment lines, every row kept
+    back = ex.read_points(io.BytesIO(texts[2].encode()), name="corrected.csv")
+    assert len(back) == len(points) and list(back["xc_mm"].astype(float)) == pytest.approx(
+        list(corrected["xc_mm"]), abs=5e-7)  # written to 6 decimals (1 nm)
+
+
+def test_compensate_out_names_the_model_and_the_points_file(thesis, tmp_path):
+    ds, r = thesis
+    model, out = tmp_path / "model.json", tmp_path / "corrected.csv"
+    ex.save_model(r, model, ds.provenance())
+    points = ROOT / "sample_data" / "compensate" / "points.csv"
+    assert main(["compensate", str(model), str(points), "--out", str(out)]) == 0
+    head = _header(out.read_text())
+    assert f"input: model.json sha256:{_sha(model)}" in head
+    assert f"input: points.csv sha256:{_sha(points)}" in head and MACHINE in head
+    assert len(ex.read_points(out)) == len(ex.read_points(points))
+
+
+def test_a_simulations_files_name_the_configuration_that_made_them(tmp_path, capsys):
+    cfg = ROOT / "sample_data" / "simulated" / "config.json"
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "sim")]) == 0
+    for name in ("setup.json", "truth.json"):
+        prov = json.loads((tmp_path / "sim" / name).read_text())["provenance"]
+        assert prov["version"] == cmm_core.__version__
+        assert prov["inputs"] == [{"name": cfg.name, "sha256": _sha(cfg),
+                                   "bytes": cfg.stat().st_size}]
+        provenance_from_dict(prov)
+    sim = tmp_path / "sim"
+    ds = load_dataset([sim / "measurements.csv"], sim / "setup.json", sim / "certificate.csv")
+    assert len(ds.meas) > 0  # the setup's provenance key is left alone by the reader

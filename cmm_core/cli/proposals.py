@@ -22,6 +22,7 @@ from ..plan import (
 )
 from .inputs import dataset_of, sigma_of
 from .parser import add_command
+from .records import provenance_of
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -54,9 +55,10 @@ def run(args: argparse.Namespace) -> dict:
                             for t, o in outs.items()}
     if plates and args.plan_out:  # a plan holds placements, styli and repeats
         # checked against the inputs before any work (cli.commands), written atomically
-        atomic_write_text(args.plan_out, json.dumps(
-            plan_file(data, plates[0], baseline=args.baseline, order=args.order,
-                      noise_um=sigma), indent=1))
+        doc = plan_file(data, plates[0], baseline=args.baseline, order=args.order,
+                        noise_um=sigma)
+        doc["provenance"] = provenance_of(args, data).to_dict()  # the data it extends
+        atomic_write_text(args.plan_out, json.dumps(doc, indent=1))
         out["plan_file"] = {"path": str(args.plan_out), "proposal": plates[0].candidate.name}
     elif args.plan_out:
         out["plan_file"] = {"skipped": "no placement, stylus or repeat proposal to write: "

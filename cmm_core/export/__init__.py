@@ -43,6 +43,7 @@ from .downloads import (
     PROJECT_FORMAT,
     PROJECT_VERSION,
     compensate_points,
+    corrected_csv,
     download_name,
     error_map_csv,
     error_map_grid,
@@ -77,7 +78,7 @@ from .safe import MAX_GRID_NODES, neutralise, safe_csv, safe_frame
 __all__ = [
     "as_model", "AXIS_FORMAT", "axis_functions", "axis_nodes", "axis_roles", "axis_table",
     "axis_tables", "axis_tables_csv", "axis_tables_zip", "Characteristic", "characteristics",
-    "chi2_status", "compensate", "compensate_points", "COMPENSATING", "compensation_grid",
+    "chi2_status", "compensate", "compensate_points", "corrected_csv", "COMPENSATING", "compensation_grid",
     "DEFAULT_COVERAGE_FACTOR", "download_name", "error_map_csv", "error_map_grid", "extrapolation_note",
     "function_values", "grid_csv", "GRID_FORMAT", "held_labels", "load_model", "MAX_AXIS_NODES",
     "MAX_GRID_NODES", "Model", "model_extras", "MODEL_FORMAT", "model_from_dict",

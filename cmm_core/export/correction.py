@@ -26,10 +26,13 @@ import pandas as pd
 from ..io import (
     MAX_BYTES,
     DataError,
+    Provenance,
     atomic_writer,
+    file_input,
 )
 from ..io.delimited import (
     FileSource,
+    blank_leading_comments,
     file_rows,
     numeric_column,
     read_csv_text,
@@ -130,12 +133,14 @@ def compensate(model: Model | FitResult, points: pd.DataFrame, *, out: None = No
 
 @overload
 def compensate(model: Model | FitResult, points: str | os.PathLike, *, out: str | os.PathLike,
-               allow_extrapolation: bool = True, chunk_points: int = _CHUNK_POINTS) -> dict: ...
+               allow_extrapolation: bool = True, chunk_points: int = _CHUNK_POINTS,
+               provenance: Provenance | None = None) -> dict: ...
 
 
 def compensate(model: Model | FitResult, points: pd.DataFrame | str | os.PathLike, *,
                out: str | os.PathLike | None = None, allow_extrapolation: bool = True,
-               chunk_points: int = _CHUNK_POINTS) -> pd.DataFrame | dict:
+               chunk_points: int = _CHUNK_POINTS,
+               provenance: Provenance | None = None) -> pd.DataFrame | dict:
     """Corrected points ``xc_mm, yc_mm, zc_mm`` with standard uncertainties in µm.
 
     ``points`` needs ``x_mm, y_mm, z_mm`` (reported tip centres, machine frame) and a
@@ -166,6 +171,10 @@ def compensate(model: Model | FitResult, points: pd.DataFrame | str | os.PathLik
         (:func:`refuse_off_machine`) after the flagged output is written.
     chunk_points : int
         Points evaluated (and, with ``out``, read) at a time.
+    provenance : Provenance, optional
+        With ``out``: what made the output, written as ``#`` comment lines before the
+        header row (:meth:`Provenance.lines`), the points file's SHA-256 added to its
+        inputs; default the model's (:meth:`Model.derived_provenance`).
 
     Returns
     -------
@@ -183,7 +192,11 @@ def compensate(model: Model | FitResult, points: pd.DataFrame | str | os.PathLik
     """
     m = model_from_result(model) if isinstance(model, FitResult) else model
     if out is not None:
-        return _compensate_file(m, Path(points), out, allow_extrapolation, chunk_points)
+        # a path that is no regular file is refused by the reader below, in its words
+        digest = [file_input(Path(points))] if Path(points).is_file() else []
+        prov = (provenance or m.derived_provenance()).with_inputs(digest)
+        return _compensate_file(m, Path(points), out, allow_extrapolation, chunk_points,
+                                prov.lines())
     if not isinstance(points, pd.DataFrame):
         raise ValueError("points: expected a DataFrame (or a file path together with out=), "
                          f"found {type(points).__name__}.")
@@ -302,14 +315,16 @@ def _refuse_non_finite(m: Model, points: pd.DataFrame | None, e_um: np.ndarray,
 
 
 def _compensate_file(m: Model, path: Path, out, allow_extrapolation: bool,
-                     chunk_points: int) -> dict:
-    """:func:`compensate` of the points file ``path`` streamed to ``out``."""
+                     chunk_points: int, head: list[str]) -> dict:
+    """:func:`compensate` of the points file ``path`` streamed to ``out``, the comment
+    lines ``head`` first."""
     name = path.name
     factor = covariance_factor(m.joint_cov)
     whole = "backlash" in m.parts  # directions follow the order over the whole file
     tables = iter([read_points(path)]) if whole else _point_chunks(path, name, chunk_points)
     n, n_off, first_off, max_abs, max_corr = 0, 0, None, 0.0, 0.0
     with atomic_writer(out, "w") as fh:
+        fh.write("".join(f"# {line}\n" for line in head))
         for table in tables:
             r = _coordinates(table, name)
             res = _corrected(m, factor, table, r, name, chunk_points)
@@ -396,7 +411,7 @@ def _chunk_end(text: str, chunk_points: int, *, blank: bool) -> int:
     """Where a chunk of ``text`` (lines of a CSV file) may end: after its last line end
     outside quotes once it holds ``chunk_points`` lines; 0 to read on. The first chunk
     (``blank``) also waits for a line that is not blank (the header)."""
-    if text.count("\n") < chunk_points or (blank and not text.strip()):
+    if text.count("\n") < chunk_points or (blank and not blank_leading_comments(text).strip()):
         return 0
     cut = text.rfind("\n") + 1
     while cut > 0 and text.count('"', 0, cut) % 2:
@@ -405,8 +420,10 @@ def _chunk_end(text: str, chunk_points: int, *, blank: bool) -> int:
 
 
 def _header_line(chunk: str) -> str:
-    """The header line of a file's first chunk: its first line with a cell."""
-    return next(line for line in chunk.split("\n") if line.strip(" \t,;"))
+    """The header line of a file's first chunk: its first line with a cell after any
+    comment lines."""
+    return next(line for line in blank_leading_comments(chunk).split("\n")
+                if line.strip(" \t,;"))
 
 
 _BLANK_LINE = re.compile(r"^(?:[^\S\n]|,)*$", re.MULTILINE)

@@ -59,20 +59,27 @@ def download_name(dataset_name: str, file_name: str, date: str | None = None,
 
 PROJECT_FORMAT = "cmm-error-lab-project"
 PROJECT_VERSION = 1
-def parameters_csv(result: FitResult) -> str:
-    """Fitted parameters with standard uncertainties (µm, µrad), one row per parameter."""
+def parameters_csv(result: FitResult, provenance: Provenance | None = None) -> str:
+    """Fitted parameters with standard uncertainties (µm, µrad), one row per parameter,
+    below ``#`` lines of the provenance (the fitted data's,
+    :meth:`cmm_core.io.Dataset.provenance`; default this process with no inputs), the
+    model and its fit."""
     df = result.parameters_frame().rename(columns={"u": "u_standard"})
     df["identifiable"] = ~df["parameter"].isin(result.unidentifiable)
-    head = [f"model {result.spec}; order per spec; plate {result.plate}; "
+    head = [*(provenance or make_provenance()).lines(),
+            f"model {result.spec}; order per spec; plate {result.plate}; "
             f"sigma {result.sigma_um} um; RMS {result.rms_um:.4f} um; "
             f"chi2/dof {result.chi2_dof:.3f}; status {result.status}",
             f"certificate uncertainty: {result.certificate_u_source}"]
     return safe_csv(df, float_format="%.6g", header_lines=head)
 
 
-def residuals_csv(result: FitResult) -> str:
-    """Residuals per observation (µm) with position, probe, ball, source file and row."""
-    return safe_csv(result.residuals_frame(), float_format="%.4f")
+def residuals_csv(result: FitResult, provenance: Provenance | None = None) -> str:
+    """Residuals per observation (µm) with position, probe, ball, source file and row,
+    below ``#`` lines of the provenance (as :func:`parameters_csv`)."""
+    return safe_csv(result.residuals_frame(), float_format="%.4f",
+                    header_lines=[*(provenance or make_provenance()).lines(),
+                                  f"model {result.spec}; residuals = measured - fitted, um"])
 
 
 def error_map_grid(result: Model | FitResult, *,
@@ -148,6 +155,13 @@ def compensate_points(result: Model | FitResult, points: pd.DataFrame) -> pd.Dat
     u_z_um`` (``correction.compensate``), with an ``extrapolated`` note per point."""
 
     return compensate(result, points)
+
+
+def corrected_csv(corrected: pd.DataFrame, provenance: Provenance) -> str:
+    """The corrected points (:func:`compensate_points`) as spreadsheet-safe CSV below
+    ``#`` lines of ``provenance`` (the model's and the points file's), as the command
+    line's ``compensate --out`` writes them."""
+    return safe_csv(corrected, float_format="%.6f", header_lines=provenance.lines())
 
 
 # ---------------------------------------------------------------------------------------

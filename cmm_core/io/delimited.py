@@ -114,6 +114,20 @@ def _too_many_fields(header, bad, delim, name) -> DataError:
     return DataError.collect(found.found, found.total)
 
 
+def blank_leading_comments(text: str) -> str:
+    """``text`` with each line before its first table line that starts with ``#`` made
+    blank: the comment header this product writes above its own tables (their provenance,
+    docs/formats.md) is read past, and blank lines keep their place in the row numbers.
+    A ``#`` after the header is a cell like any other."""
+    lines = text.split("\n")
+    for i, line in enumerate(lines):
+        if line.lstrip().startswith("#"):
+            lines[i] = ""
+        elif line.strip(" \t,;"):
+            break
+    return "\n".join(lines)
+
+
 def read_csv_text(source: FileSource, name: str | None, *,
                   max_rows: int | None = None) -> tuple[pd.DataFrame, str]:
     """Read a CSV from a path, bytes or file-like object into strings (nothing coerced).
@@ -121,7 +135,8 @@ def read_csv_text(source: FileSource, name: str | None, *,
     The separator is taken from the header line (see :func:`_delimiter`); in a file
     separated by semicolons or tabs, numbers written with a decimal comma are read as
     decimals. Tolerated alike in every file: a UTF-8 byte-order mark, CRLF or CR line
-    ends, blank lines (they keep their place in the row numbering), and a separator at
+    ends, blank lines (they keep their place in the row numbering), ``#`` comment lines
+    before the header (:func:`blank_leading_comments`), and a separator at
     the end of every line (a common export) as long as nothing follows it. A row with
     more fields than the header, a header naming a column twice, or cells the CSV
     grammar cannot read are refused with their rows. With ``max_rows``, a file of more
@@ -148,7 +163,10 @@ def read_csv_text(source: FileSource, name: str | None, *,
                         hint="export the table as CSV (UTF-8).")
     # one line end everywhere: a bare CR (old Mac export, or a stray one in a cell) would
     # otherwise end a line for one reader and not for another
-    text = text.replace("\r\n", "\n").replace("\r", "\n")
+    text = blank_leading_comments(text.replace("\r\n", "\n").replace("\r", "\n"))
+    if not text.strip():
+        raise DataError("holds comment lines only; expected a header line with column "
+                        "names after them.", file=name)
     first_line = next(line for line in _io.StringIO(text) if line.strip()).rstrip("\n")
     delim = _delimiter(first_line)
     reader = csv.reader(_io.StringIO(text), delimiter=delim, skipinitialspace=True)

@@ -31,8 +31,8 @@ from typing import Any
 from .. import __version__
 from .errors import DataError, cut_repr
 
-__all__ = ["COMMIT_FILE", "InputFile", "Provenance", "SOFTWARE", "input_file", "provenance",
-           "provenance_from_dict", "software_identity"]
+__all__ = ["COMMIT_FILE", "InputFile", "Provenance", "SOFTWARE", "file_input", "input_file",
+           "provenance", "provenance_from_dict", "software_identity"]
 
 SOFTWARE = "cmm-error-lab"
 """The software's name in every record."""
@@ -63,6 +63,17 @@ def input_file(name: str, data: bytes | str) -> InputFile:
     """The :class:`InputFile` of ``data`` (text is hashed as its UTF-8 bytes)."""
     raw = data.encode("utf-8") if isinstance(data, str) else bytes(data)
     return InputFile(str(name), hashlib.sha256(raw).hexdigest(), len(raw))
+
+
+def file_input(path: str | Path, name: str | None = None) -> InputFile:
+    """The :class:`InputFile` of the file at ``path`` (named ``name``, default its file
+    name), its digest computed in blocks: a file streamed by its reader (the points of
+    ``compensate``) is hashed without being held in memory."""
+    p = Path(path)
+    with p.open("rb") as fh:
+        digest = hashlib.file_digest(fh, "sha256")
+        n = fh.tell()
+    return InputFile(str(name or p.name), digest.hexdigest(), n)
 
 
 def _git(*args: str) -> str | None:

@@ -40,11 +40,13 @@ from ..io import (
     Certificate,
     DataError,
     Dataset,
+    Provenance,
     read_setup,
     resolve,
     write_certificate,
     write_long_csv,
 )
+from ..io import provenance as make_provenance
 from ..machine import KinematicTerms
 from ..machine import kinematics as kin
 from .blocks import BY_TOKEN
@@ -92,17 +94,25 @@ class Simulation:
     true_plate_mm: np.ndarray
     config: dict
 
-    def write(self, out_dir: str | Path) -> None:
-        """Write ``measurements.csv``, ``setup.json``, ``certificate.csv``, ``truth.json``."""
+    def write(self, out_dir: str | Path, provenance: Provenance | None = None) -> None:
+        """Write ``measurements.csv``, ``setup.json``, ``certificate.csv``, ``truth.json``.
+
+        ``provenance`` (default this process, no inputs) is written as the
+        ``provenance`` object of ``setup.json`` (a key the setup reader leaves alone) and
+        of ``truth.json``: the simulated data name the software and configuration that
+        made them."""
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
+        prov = (provenance or make_provenance()).to_dict()
         write_long_csv(self.dataset.meas, out / "measurements.csv")
-        (out / "setup.json").write_text(json.dumps(self.dataset.setup.raw, indent=1))
+        (out / "setup.json").write_text(json.dumps({**self.dataset.setup.raw,
+                                                    "provenance": prov}, indent=1))
         if self.dataset.certificate is None:
             raise ValueError("a simulation's dataset has a certificate; this one has none")
         write_certificate(self.dataset.certificate, out / "certificate.csv")
         (out / "truth.json").write_text(json.dumps({"truth": self.truth,
-                                                    "config": self.config}, indent=1))
+                                                    "config": self.config,
+                                                    "provenance": prov}, indent=1))
 
 
 def _merge(base, over):

@@ -23,7 +23,9 @@ from .evaluation import evaluate
 from .plans import Plan, _build
 
 TOP_KEYS = ("name", "setup", "plate", "model", "noise_um", "measurement", "strategies",
-            "design", "seed")
+            "design", "seed", "provenance")
+"""The plan file's keys; ``provenance`` (what wrote the file, ``next --plan-out``) is
+kept for the reader of the file and not used by the plan."""
 PLATE_DEFAULTS = {"rows": 5, "cols": 5, "pitch_mm": 133.0, "certificate_u_um": 0.13,
                   "geometry": "fixed"}
 _MIN_PRIOR = 0.01
