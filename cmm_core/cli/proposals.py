@@ -45,6 +45,9 @@ def run(args: argparse.Namespace) -> dict:
     out = pr.to_dict()
     out["proposals"] = out["proposals"][:args.top]
     out["sigma"] = sigma_rec
+    # on stderr, one line each (cli.main prints notes): a candidate left out is said,
+    # not silently missing from the ranking; the JSON's "skipped" holds the records
+    out["notes"] = [s.line() for s in pr.infeasible]
     if pr.ranked and args.simulate and set(pr.rivals) & PSEUDO:
         out["simulated"] = {"skipped": f"{pr.rivals[1]} cannot be simulated as the truth"}
     elif pr.ranked and args.simulate:  # the top proposal, a placement, repeat or instrument
