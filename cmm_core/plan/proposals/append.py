@@ -327,7 +327,7 @@ def _in_machine(data: Dataset, cands: list) -> tuple:
     """(observations of the candidates that fit in the machine, those candidates, skipped
     ones with the reason): each checked by :func:`out_of_reach` first, then one
     simulation unless some still fail in it (one at a time to tell which)."""
-    skipped = {}
+    skipped: dict[str, str] = {}
     reach = [c for c in cands if not _skip(skipped, c, out_of_reach(data, c))]
     try:
         return (measurement_observations(data, reach) if reach else None), reach, skipped

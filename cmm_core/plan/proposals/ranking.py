@@ -20,10 +20,9 @@ from typing import Any
 
 from ..._blas import single_blas_thread
 from ...diagnosis import FAMILY_ALPHA, Diagnosis, diagnose
-from ...io import Dataset
+from ...io import DataError, Dataset
 from ...model import select
 from ..study import dask_client
-from ...io import DataError
 from .append import _in_machine, _machine, instrument_of, instrument_out_of_reach
 from .candidates import FAMILIES, WIDER, NextMeasurement, measurement_candidates
 from .rivals import BASELINE, RivalFits, fit_rivals, rivals_of
