@@ -185,7 +185,7 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
 
     From a reference placement (default: the first horizontal one): the plate shifted
     along X, Y by ``shift_fraction`` of its pitch, moved to the low and the high end of the
-    X and Y strokes (5 % from each end), raised (or lowered) by a third of the
+    X and Y strokes (every stylus's scale reading 5 % from each end), raised (or lowered) by a third of the
     Z stroke; rotated 90° and 180° in its plane about its centre; stood in XZ and in YZ;
     measured again with a stylus offset ``stylus_offset_mm`` along X, along Y, and a
     stylus 100 mm longer; and, with two styli or more, measured again with its styli in
@@ -240,9 +240,12 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
         * np.abs(v)
     low = o - np.minimum(u, 0) * (grid.cols - 1) * grid.pitch_mm \
         - np.minimum(v, 0) * (grid.rows - 1) * grid.pitch_mm  # the plate's lowest corner
+    # the ends of the strokes are the ram's (the scale readings): every stylus's reading
+    # 5 % inside, so the tip's end moves by the styli's offsets
+    offs = np.array([raw["probes"][q] for q in styli], float)
     for a, ax in enumerate("XY"):
-        for end, corner in (("low", 0.05 * rng_mm[a]),
-                            ("high", 0.95 * rng_mm[a] - extent[a])):
+        for end, corner in (("low", 0.05 * rng_mm[a] + offs[:, a].max()),
+                            ("high", 0.95 * rng_mm[a] + offs[:, a].min() - extent[a])):
             move = corner - low[a]
             if abs(move) > grid.pitch_mm:  # else a shift by part of the pitch covers it
                 add(f"{end}_{ax.lower()}", f"the plate of {reference} moved {move:+g} mm "
@@ -257,11 +260,14 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
         add(plane.lower(), f"the plate stood in {plane} near {reference}",
             o + np.array([0.0, 0.0, 20.0]), uu, np.eye(3)[2], styli, family="orientation")
     tip = np.asarray(raw["probes"][styli[0]], float)
+    # longer along the stylus itself (a horizontal arm's styli point sideways); a stylus
+    # at the ram's reference point is lengthened down, as on a bridge
+    along = tip / np.linalg.norm(tip) if np.linalg.norm(tip) > 0 else np.array([0, 0, -1.0])
     for name, off, text, fam in (("stylus_x", [stylus_offset_mm, 0, 0],
                                   f"{stylus_offset_mm:g} mm along X", "stylus"),
                                  ("stylus_y", [0, stylus_offset_mm, 0],
                                   f"{stylus_offset_mm:g} mm along Y", "stylus"),
-                                 ("stylus_long", [0, 0, -100.0], "100 mm longer",
+                                 ("stylus_long", 100.0 * along, "100 mm longer",
                                   "stylus_length")):
         q = f"next_{name}"
         add(name, f"{reference} again with a new stylus {q} offset {text}", o, u, v, [q],
