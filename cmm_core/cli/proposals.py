@@ -3,7 +3,10 @@ cannot (issue 29, ``plan.proposals``; docs/proposals.md).
 
 Registered by ``cli`` (its options in :mod:`.parser`; :func:`add_parser` adds it to a
 parser of one's own); :func:`run` returns the JSON-ready result (``cli.main`` prints it
-and turns errors into one line on stderr).
+and turns errors into one line on stderr). The result opens with the conclusion
+(``message``, ``decided``: "No candidate decides between A and B: ..." when none
+does); each candidate out of the machine's reach is a ``skipped`` record and a
+``note: skipped: ...`` line on stderr.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ import json
 from ..io import atomic_write_text
 from ..plan import (
     PSEUDO,
+    decide_bar,
     instrument_candidates,
     measurement_candidates,
     plan_file,
@@ -46,6 +50,9 @@ def run(args: argparse.Namespace) -> dict:
     out = pr.to_dict()
     out["proposals"] = out["proposals"][:args.top]
     out["sigma"] = sigma_rec
+    # on stderr, one line each (cli.main prints notes): a candidate left out is said,
+    # not silently missing from the ranking; the JSON's "skipped" holds the records
+    out["notes"] = [s.line() for s in pr.infeasible]
     if pr.ranked and args.simulate and set(pr.rivals) & PSEUDO:
         out["simulated"] = {"skipped": f"{pr.rivals[1]} cannot be simulated as the truth"}
     elif pr.ranked and args.simulate:  # the top proposal, a placement, repeat or instrument
@@ -59,7 +66,8 @@ def run(args: argparse.Namespace) -> dict:
                         noise_um=sigma)
         doc["provenance"] = provenance_of(args, data).to_dict()  # the data it extends
         atomic_write_text(args.plan_out, json.dumps(doc, indent=1))
-        out["plan_file"] = {"path": str(args.plan_out), "proposal": plates[0].candidate.name}
+        out["plan_file"] = {"path": str(args.plan_out), "proposal": plates[0].candidate.name,
+                            "decides": plates[0].power_min >= decide_bar(pr.target)}
     elif args.plan_out:
         out["plan_file"] = {"skipped": "no placement, stylus or repeat proposal to write: "
                                        "a plan file cannot hold instruments"}

@@ -259,20 +259,94 @@ def measurement_observations(data: Dataset, cands: list) -> Observations:
     return select(simulate(cfg, name="proposals").dataset)
 
 
+def _first_outside(scale: np.ndarray, rng: np.ndarray) -> tuple[int, int] | None:
+    """(point, axis) of the first scale reading outside ``[0, rng]``, or None."""
+    bad = (scale < 0.0) | (scale > rng)
+    rows = np.flatnonzero(bad.any(axis=1))
+    if not rows.size:
+        return None
+    i = int(rows[0])
+    return i, int(np.flatnonzero(bad[i])[0])
+
+
+def out_of_reach(data: Dataset, cand: NextMeasurement) -> str:
+    """Why the machine cannot measure the candidate's plate, or "" when it can.
+
+    The virtual CMM's own check (``simulation_config._check_plate_in_machine``, as
+    ``io.matching`` checks measured points): the scale reading of every ball (tip minus
+    the offset of the stylus probing it) of every new placement, with every stylus
+    measured there, inside the strokes; here without the simulator's slack
+    (``io.range_tolerance``: at least 100 mm, for a rough nominal setup), since the
+    product lays the proposal out itself: a proposal needs a reachable pose. The balls
+    are the certificate's (the appended readings are, :func:`append_measurement`). A
+    repeat is of a placement already measured (""); an instrument is checked once
+    measured (:func:`instrument_out_of_reach`).
+    """
+    if cand.repeat or cand.instrument or not cand.positions:
+        return ""
+    grid = plate_grid(data)
+    raw = data.setup.raw
+    probes = {**raw["probes"], **cand.probes}
+    setup = read_setup({**{k: copy.deepcopy(raw[k]) for k in ("units", "machine")
+                           if k in raw},
+                        "frame": "machine", "positions": copy.deepcopy(cand.positions),
+                        "probes": probes}, name=f"proposal {cand.name!r}")
+    b = np.arange(grid.rows * grid.cols)
+    balls = np.column_stack([b % grid.cols * grid.pitch_mm, b // grid.cols * grid.pitch_mm,
+                             np.zeros(b.size)]) + grid.offset_mm
+    rng = np.asarray(setup.range_mm, float)
+    for p, styli in cand.probes_of.items():
+        tips = setup.positions[p].to_machine(balls)
+        for q in styli:
+            hit = _first_outside(tips - np.asarray(probes[q], float), rng)
+            if hit is not None:
+                i, a = hit
+                reading = tips[i, a] - float(probes[q][a])
+                return (f"ball {i + 1} with stylus {q} needs the scale reading {reading:.1f} "
+                        f"mm of axis {'xyz'[a]}, outside the machine's stroke 0 to "
+                        f"{rng[a]:g} mm")
+    return ""
+
+
+def instrument_out_of_reach(inst, range_mm) -> str:
+    """Why the machine cannot read an instrument's points, or "" when it can: each point's
+    scale reading (``points()``: indicated point minus offset, what the fit evaluates the
+    model at) inside the strokes; the fit's own check (``instruments._check_in_range``)
+    without its margin (``model.RANGE_MARGIN``, for files of a real machine)."""
+    rng = np.asarray(range_mm, float)
+    for x, _ in inst.points():
+        hit = _first_outside(np.asarray(x, float), rng)
+        if hit is not None:
+            i, a = hit
+            return (f"the scale reading {x[i, a]:.1f} mm of axis {'xyz'[a]} is outside "
+                    f"the machine's stroke 0 to {rng[a]:g} mm")
+    return ""
+
+
 def _in_machine(data: Dataset, cands: list) -> tuple:
     """(observations of the candidates that fit in the machine, those candidates, skipped
-    ones with the reason); one simulation unless some do not fit."""
+    ones with the reason): each checked by :func:`out_of_reach` first, then one
+    simulation unless some still fail in it (one at a time to tell which)."""
+    skipped: dict[str, str] = {}
+    reach = [c for c in cands if not _skip(skipped, c, out_of_reach(data, c))]
     try:
-        return measurement_observations(data, cands), list(cands), {}
+        return (measurement_observations(data, reach) if reach else None), reach, skipped
     except DataError:
-        ok, skipped = [], {}
-        for c in cands:
+        ok = []
+        for c in reach:
             try:
                 measurement_observations(data, [c])
                 ok.append(c)
             except DataError as exc:
                 skipped[c.name] = str(exc)
         return (measurement_observations(data, ok) if ok else None), ok, skipped
+
+
+def _skip(skipped: dict, cand: NextMeasurement, why: str) -> bool:
+    """Record ``why`` for ``cand`` in ``skipped`` when it is not empty; True then."""
+    if why:
+        skipped[cand.name] = why
+    return bool(why)
 
 
 _SIMULATORS: dict = {"laser": simulate_laser, "step_gauge": simulate_step_gauge,

@@ -28,6 +28,22 @@ REPEAT_BALLS = (4, 12)
 """Balls a stylus is measured again on at the end of a placement (:func:`repeat_candidates`):
 a few, and more for a small drift."""
 
+FAMILIES = {
+    "placement": "the plate moved, shifted, raised or turned in its plane",
+    "orientation": "a second plate orientation (the plate stood in XZ or YZ)",
+    "stylus": "another stylus offset sideways",
+    "stylus_length": "another stylus length",
+    "order": "the styli in reverse order",
+    "repeat": "a repeat at the end of a placement",
+    "instrument": "instrument runs (a laser, a step gauge, a ball bar: next --instruments)",
+}
+"""Family of a candidate (:attr:`NextMeasurement.family`) -> the family in words: what a
+conclusion names when no candidate decides and a family was not searched."""
+
+WIDER = ("instrument", "stylus_length", "orientation")
+"""Families that may decide what the plate moved in its plane cannot (they see other
+error functions): named when nothing decides and they were not searched."""
+
 
 @dataclass(frozen=True)
 class NextMeasurement:
@@ -58,6 +74,10 @@ class NextMeasurement:
         placement -> ``{"probe": stylus, "balls": [...], "time_min": [...]}``, the stylus
         measured again on those balls at those times (after the placement's last reading,
         before its plate is moved: the same pose); ``positions`` is then empty.
+    family : str
+        The kind of measurement, a key of :data:`FAMILIES` (``placement``,
+        ``orientation``, ``stylus``, ``stylus_length``, ``order``, ``repeat``,
+        ``instrument``): which families a ranking searched.
     """
 
     name: str
@@ -68,6 +88,7 @@ class NextMeasurement:
     time_min: float
     instrument: dict = field(default_factory=dict)
     repeat: dict = field(default_factory=dict)
+    family: str = "placement"
 
 
 @dataclass(frozen=True)
@@ -133,6 +154,20 @@ def _unit(v) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
+def styli_at(data: Dataset, placement: str) -> list[str]:
+    """The styli measured at ``placement``, in the order first measured: read from the
+    measurement rows, as the fit reads them, so that a setup naming the stylus on each row
+    (no ``probe`` per placement) is handled as one naming it per placement; else the
+    placement's own ``probe``; else the setup's first stylus."""
+    m = data.meas
+    rows = m.loc[m["position"].astype(str) == str(placement), "probe"]
+    styli = [str(q) for q in dict.fromkeys(rows.dropna())]
+    if styli:
+        return styli
+    own = data.setup.raw["positions"][placement].get("probe")
+    return [str(own)] if own is not None else [str(next(iter(data.setup.raw["probes"])))]
+
+
 def _placement_time(n_balls: int, n_probes: int, minutes_per_ball: float,
                     minutes_per_placement: float) -> float:
     """``Plan.time_min`` for one placement (a Plan needs a full plan to be built)."""
@@ -150,7 +185,7 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
 
     From a reference placement (default: the first horizontal one): the plate shifted
     along X, Y by ``shift_fraction`` of its pitch, moved to the low and the high end of the
-    X and Y strokes (5 % from each end), raised (or lowered) by a third of the
+    X and Y strokes (every stylus's scale reading 5 % from each end), raised (or lowered) by a third of the
     Z stroke; rotated 90° and 180° in its plane about its centre; stood in XZ and in YZ;
     measured again with a stylus offset ``stylus_offset_mm`` along X, along Y, and a
     stylus 100 mm longer; and, with two styli or more, measured again with its styli in
@@ -170,8 +205,6 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
                       else minutes_per_placement)
     raw = data.setup.raw
     pos = raw["positions"]
-    probes_in = {p: list(dict.fromkeys(data.meas.loc[data.meas["position"] == p, "probe"]))
-                 for p in pos}
     if reference is None:
         reference = next((p for p in pos if data.setup.positions[p].horizontal), next(iter(pos)))
     if reference not in pos:
@@ -180,7 +213,7 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
     ref = pos[reference]
     o = np.asarray(ref["origin_mm"], float)
     u, v = _unit(ref["u_axis"]), _unit(ref["v_axis"])
-    styli = probes_in[reference] or [ref.get("probe")]
+    styli = styli_at(data, reference)
     half = np.array([(grid.cols - 1), (grid.rows - 1)]) * grid.pitch_mm / 2.0
     centre = o + half[0] * u + half[1] * v
     rng_mm = np.asarray(data.setup.range_mm, float)
@@ -189,14 +222,15 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
     n_balls = grid.rows * grid.cols
     out = []
 
-    def add(name, text, origin, uu, vv, probes_of_new, new_probes=None):
+    def add(name, text, origin, uu, vv, probes_of_new, new_probes=None,
+            family="placement"):
         key = f"next_{name}"
         place = {"origin_mm": [float(x) for x in origin], "u_axis": [float(x) for x in uu],
                  "v_axis": [float(x) for x in vv], "probe": probes_of_new[0]}
         out.append(NextMeasurement(name, text, {key: place}, dict(new_probes or {}),
-                             {key: list(probes_of_new)},
-                             _placement_time(n_balls, len(probes_of_new), per_ball,
-                                             per_place)))
+                                   {key: list(probes_of_new)},
+                                   _placement_time(n_balls, len(probes_of_new), per_ball,
+                                                   per_place), family=family))
 
     for a, ax in enumerate("XY"):
         e = np.eye(3)[a]
@@ -206,9 +240,12 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
         * np.abs(v)
     low = o - np.minimum(u, 0) * (grid.cols - 1) * grid.pitch_mm \
         - np.minimum(v, 0) * (grid.rows - 1) * grid.pitch_mm  # the plate's lowest corner
+    # the ends of the strokes are the ram's (the scale readings): every stylus's reading
+    # 5 % inside, so the tip's end moves by the styli's offsets
+    offs = np.array([raw["probes"][q] for q in styli], float)
     for a, ax in enumerate("XY"):
-        for end, corner in (("low", 0.05 * rng_mm[a]),
-                            ("high", 0.95 * rng_mm[a] - extent[a])):
+        for end, corner in (("low", 0.05 * rng_mm[a] + offs[:, a].max()),
+                            ("high", 0.95 * rng_mm[a] + offs[:, a].min() - extent[a])):
             move = corner - low[a]
             if abs(move) > grid.pitch_mm:  # else a shift by part of the pitch covers it
                 add(f"{end}_{ax.lower()}", f"the plate of {reference} moved {move:+g} mm "
@@ -221,19 +258,23 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
             centre - half[0] * uu - half[1] * vv, uu, vv, styli)
     for plane, uu in {"XZ": np.eye(3)[0], "YZ": np.eye(3)[1]}.items():
         add(plane.lower(), f"the plate stood in {plane} near {reference}",
-            o + np.array([0.0, 0.0, 20.0]), uu, np.eye(3)[2], styli)
+            o + np.array([0.0, 0.0, 20.0]), uu, np.eye(3)[2], styli, family="orientation")
     tip = np.asarray(raw["probes"][styli[0]], float)
-    for name, off, text in (("stylus_x", [stylus_offset_mm, 0, 0],
-                             f"{stylus_offset_mm:g} mm along X"),
-                            ("stylus_y", [0, stylus_offset_mm, 0],
-                             f"{stylus_offset_mm:g} mm along Y"),
-                            ("stylus_long", [0, 0, -100.0], "100 mm longer")):
+    # longer along the stylus itself (a horizontal arm's styli point sideways); a stylus
+    # at the ram's reference point is lengthened down, as on a bridge
+    along = tip / np.linalg.norm(tip) if np.linalg.norm(tip) > 0 else np.array([0, 0, -1.0])
+    for name, off, text, fam in (("stylus_x", [stylus_offset_mm, 0, 0],
+                                  f"{stylus_offset_mm:g} mm along X", "stylus"),
+                                 ("stylus_y", [0, stylus_offset_mm, 0],
+                                  f"{stylus_offset_mm:g} mm along Y", "stylus"),
+                                 ("stylus_long", 100.0 * along, "100 mm longer",
+                                  "stylus_length")):
         q = f"next_{name}"
         add(name, f"{reference} again with a new stylus {q} offset {text}", o, u, v, [q],
-            {q: (tip + np.asarray(off, float)).tolist()})
+            {q: (tip + np.asarray(off, float)).tolist()}, family=fam)
     if len(styli) > 1:
         add("reverse", f"{reference} again with its styli in reverse order "
-            f"({', '.join(styli[::-1])})", o, u, v, styli[::-1])
+            f"({', '.join(styli[::-1])})", o, u, v, styli[::-1], family="order")
     return out + repeat_candidates(data, n_balls=repeat_balls, minutes_per_ball=per_ball)
 
 
@@ -298,7 +339,7 @@ def repeat_candidates(data: Dataset, *, n_balls: int | Sequence[int] = REPEAT_BA
                 name, f"stylus {styli[0]} measured again on "
                 f"{len(balls)} ball(s) of {p} (balls {', '.join(map(str, balls))}) at the "
                 f"end of {p}, before its plate is moved", {}, {}, {},
-                len(balls) * per_ball, repeat={p: each[p]}))
+                len(balls) * per_ball, repeat={p: each[p]}, family="repeat"))
         # named by the balls each placement repeats (fewer than n where a stylus has less)
         sizes = sorted({len(r["balls"]) for r in each.values()})
         label = "-".join(map(str, sizes))
@@ -308,7 +349,8 @@ def repeat_candidates(data: Dataset, *, n_balls: int | Sequence[int] = REPEAT_BA
                 f"repeat_all_{label}", f"the first stylus of each of {', '.join(each)} "
                 f"measured again on {label} of its balls at the end of that placement, "
                 f"before its plate is moved", {}, {}, {},
-                sum(len(r["balls"]) for r in each.values()) * per_ball, repeat=each))
+                sum(len(r["balls"]) for r in each.values()) * per_ball, repeat=each,
+                family="repeat"))
     return out
 
 
@@ -320,10 +362,11 @@ def _tagged(c: NextMeasurement, tag: str) -> NextMeasurement:
 
     return NextMeasurement(
         f"{c.name}_{tag}", c.description,
-        {ren(p): {**pl, "probe": ren(pl["probe"])} for p, pl in c.positions.items()},
+        {ren(p): {**pl, "probe": ren(str(pl.get("probe", c.probes_of[p][0])))}
+         for p, pl in c.positions.items()},
         {ren(q): v for q, v in c.probes.items()},
         {ren(p): [ren(q) for q in qs] for p, qs in c.probes_of.items()}, c.time_min,
-        c.instrument, c.repeat)
+        c.instrument, c.repeat, c.family)
 
 
 def wide_candidates(data: Dataset, fractions: Sequence[float] = (0.25, 0.5, 0.75)
@@ -350,14 +393,20 @@ def instrument_candidates(data: Dataset, *, reference: str | None = None,
                           n_readings: int = 21, minutes_per_ball: float | None = None,
                           minutes_per_placement: float | None = None
                           ) -> list[NextMeasurement]:
-    """Instrument candidates: a laser positioning run along X, Y and Z through the
-    reference plate's centre (``n_readings`` readings from 5 % to 95 % of the stroke,
-    reflector at the reference stylus's offset); a step gauge along X and along Y (from
-    5 % of the stroke, ``n_readings - 1`` lengths up to 80 % of it); a ball bar of 40 % of
-    the smaller horizontal stroke in four orientations (0°, 45°, 90°, 135°) about that
-    centre. Machine time: readings × minutes per ball + minutes per placement (setting
-    the instrument up), the plan's time model applied to instruments (an assumption:
-    ``files.MEASUREMENT_DEFAULTS``)."""
+    """Instrument candidates, laid out in the machine's scale readings (the ram: tip
+    minus stylus offset), so that each is inside the strokes whatever the stylus.
+
+    The reference point is the ram's scale reading with the reference placement's first
+    stylus (as measured: :func:`styli_at`) on the plate's centre, kept 5 % inside each
+    stroke. Through it: a laser positioning run along X, Y and Z (``n_readings`` readings
+    from 5 % to 95 % of the stroke, reflector at that stylus's offset); a step gauge along
+    X and along Y (its first face read at 5 % of the stroke, ``n_readings - 1`` lengths
+    up to 80 % of it); a ball bar of 40 % of the smaller horizontal stroke in four
+    orientations (0°, 45°, 90°, 135°) about it (moved in XY until both balls are inside
+    the strokes). Machine time: readings × minutes per ball + minutes per placement
+    (setting the instrument up), the plan's time model applied to instruments (an
+    assumption: ``files.MEASUREMENT_DEFAULTS``). :func:`propose` still checks every
+    point against the strokes (a stylus longer than a stroke cannot be laid out so)."""
     defaults: dict = MEASUREMENT_DEFAULTS
     per_ball = float(defaults["minutes_per_ball"] if minutes_per_ball is None
                      else minutes_per_ball)
@@ -367,39 +416,51 @@ def instrument_candidates(data: Dataset, *, reference: str | None = None,
     pos = data.setup.raw["positions"]
     if reference is None:
         reference = next((p for p in pos if data.setup.positions[p].horizontal), next(iter(pos)))
+    if reference not in pos:
+        raise DataError(f"unknown placement {reference!r}; expected one of {sorted(pos)}.",
+                        file=data.name, column="reference", hint="name a placement of the setup")
     ref = pos[reference]
     u, v = _unit(ref["u_axis"]), _unit(ref["v_axis"])
     centre = (np.asarray(ref["origin_mm"], float) + (grid.cols - 1) * grid.pitch_mm / 2 * u
               + (grid.rows - 1) * grid.pitch_mm / 2 * v)
-    tip = [float(x) for x in data.setup.raw["probes"][ref["probe"]]]
+    stylus = styli_at(data, reference)[0]
+    tip = np.asarray(data.setup.raw["probes"][stylus], float)
     R = np.asarray(data.setup.range_mm, float)
+    # the instruments' simulators take the laser's line as a ram point but the gauges'
+    # faces and the bar's balls as tip points: all are derived from the ram's reading
+    ram = np.clip(centre - tip, 0.05 * R, 0.95 * R)
+    offset = tip.tolist()
     out = []
     for a, ax in enumerate("xyz"):
         out.append(NextMeasurement(
             f"laser_{ax}", f"a laser positioning run along {ax.upper()} through the centre "
-            f"of {reference} ({n_readings} readings)", {}, {}, {},
+            f"of {reference} ({n_readings} readings, stylus {stylus})", {}, {}, {},
             n_readings * per_ball + per_place,
-            {"kind": "laser", "axis": ax, "line_mm": centre.tolist(),
+            {"kind": "laser", "axis": ax, "line_mm": ram.tolist(),
              "positions_mm": np.linspace(0.05 * R[a], 0.95 * R[a], n_readings).tolist(),
-             "offset_mm": tip}))
+             "offset_mm": offset}, family="instrument"))
     for a, ax in enumerate("xy"):
-        start = centre.copy()
-        start[a] = 0.05 * R[a]
+        start = ram + tip
+        start[a] = 0.05 * R[a] + tip[a]
         end = start.copy()
-        end[a] = 0.85 * R[a]
+        end[a] = 0.85 * R[a] + tip[a]
         out.append(NextMeasurement(
             f"step_gauge_{ax}", f"a step gauge along {ax.upper()} through the centre of "
-            f"{reference} ({n_readings - 1} lengths)", {}, {}, {},
+            f"{reference} ({n_readings - 1} lengths, stylus {stylus})", {}, {}, {},
             (n_readings - 1) * per_ball + per_place,
             {"kind": "step_gauge", "start_mm": start.tolist(), "end_mm": end.tolist(),
              "lengths_mm": np.linspace(0.8 * R[a] / (n_readings - 1), 0.8 * R[a],
-                                       n_readings - 1).tolist(), "offset_mm": tip}))
+                                       n_readings - 1).tolist(), "offset_mm": offset},
+            family="instrument"))
     half = 0.2 * min(R[0], R[1])
+    mid = ram.copy()
+    mid[:2] = np.clip(mid[:2], half, R[:2] - half)  # both balls inside in XY
     ang = np.deg2rad([0.0, 45.0, 90.0, 135.0])
     d = half * np.column_stack([np.cos(ang), np.sin(ang), np.zeros(4)])
     out.append(NextMeasurement(
         "ball_bar_xy", f"a ball bar of {2 * half:g} mm at 0°, 45°, 90° and 135° in XY about "
-        f"the centre of {reference}", {}, {}, {}, 4 * 2 * per_ball + per_place,
-        {"kind": "ball_bar", "start_mm": (centre - d).tolist(),
-         "end_mm": (centre + d).tolist(), "offset_mm": tip}))
+        f"the centre of {reference} (stylus {stylus})", {}, {}, {},
+        4 * 2 * per_ball + per_place,
+        {"kind": "ball_bar", "start_mm": (mid + tip - d).tolist(),
+         "end_mm": (mid + tip + d).tolist(), "offset_mm": offset}, family="instrument"))
     return out

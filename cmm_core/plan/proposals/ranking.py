@@ -20,11 +20,11 @@ from typing import Any
 
 from ..._blas import single_blas_thread
 from ...diagnosis import FAMILY_ALPHA, Diagnosis, diagnose
-from ...io import Dataset
+from ...io import DataError, Dataset
 from ...model import select
 from ..study import dask_client
-from .append import _in_machine, _machine, instrument_of
-from .candidates import NextMeasurement, measurement_candidates
+from .append import _in_machine, _machine, instrument_of, instrument_out_of_reach
+from .candidates import FAMILIES, WIDER, NextMeasurement, measurement_candidates
 from .rivals import BASELINE, RivalFits, fit_rivals, rivals_of
 from .separation import (
     _design,
@@ -42,8 +42,54 @@ NO_POWER = 0.05
 """A power below this (one chance in twenty) decides nothing: the ranking does not tell
 such powers apart (:func:`_rank_key`)."""
 
+DECIDE_POWER = 0.8
+"""Expected power below which a candidate is not said to decide the pair, whatever the
+target (the conventional least power of a study design, Cohen 1988 §2.4): below both it
+and the target, a ranking says that nothing decides (``Proposals.decided``) instead of
+naming a best next measurement (:func:`decide_bar`)."""
+
 CHUNK = 16
 """Candidates per Dask task of :func:`propose_many`."""
+
+
+def decide_bar(target: float) -> float:
+    """The expected power a proposal needs to be called deciding: the ``target``, or
+    :data:`DECIDE_POWER` when the target is above it (a proposal between the two decides,
+    short of the target, and is named with its power)."""
+    return min(float(target), DECIDE_POWER)
+
+
+@dataclass(frozen=True)
+class Skipped:
+    """A candidate not scored, and why.
+
+    Attributes
+    ----------
+    name : str
+        The candidate's name (``NextMeasurement.name``).
+    description : str
+        The measurement in words.
+    family : str
+        Its family (``NextMeasurement.family``).
+    reason : str
+        Why it was not scored: the ball, stylus and scale reading outside the machine's
+        stroke (``append.out_of_reach``), the instrument point outside it, or the error
+        its simulation raised.
+    """
+
+    name: str
+    description: str
+    family: str
+    reason: str
+
+    def to_dict(self) -> dict:
+        """JSON-ready record."""
+        return {"name": self.name, "description": self.description, "family": self.family,
+                "reason": self.reason}
+
+    def line(self) -> str:
+        """One line: ``skipped: <name> (<description>): <reason>``."""
+        return f"skipped: {self.name} ({self.description}): {self.reason}"
 
 
 @dataclass(frozen=True)
@@ -133,48 +179,137 @@ class Proposals:
         :data:`BASELINE`, which has nothing to see).
     ranked : list of Proposal
         Best first: those reaching ``target`` power by machine time (at equal time by
-        power, then Δχ² per minute), then the rest by power.
-    skipped : dict
-        Candidate name -> why it was not scored (outside the machine, ...).
+        power, then Δχ² per minute), then the rest by power. The first need not decide
+        (``decided``).
+    infeasible : list of Skipped
+        The candidates not scored, each with why: outside the machine's strokes (every
+        probed ball of every stylus, every instrument point, without slack:
+        ``append.out_of_reach``), or failing in the simulation; in candidate order.
     target : float
         Power at which a pair counts as decided.
     message : str
-        The conclusion in words.
+        The conclusion in words: the best next measurement when one decides, else first
+        that none does, the best power reached, and the wider families not searched
+        (:func:`conclusion`).
+    decided : bool
+        Whether some proposal reaches the power to decide (:func:`decide_bar`: the
+        target, at most :data:`DECIDE_POWER`); when False no proposal is a "best next
+        measurement".
+    families : tuple of str
+        The candidate families scored (``NextMeasurement.family``), in first-seen order.
     """
 
     rivals: tuple
     baseline: str
     current: dict
     ranked: list
-    skipped: dict
+    infeasible: list
     target: float
     message: str = ""
+    decided: bool = False
+    families: tuple = ()
+
+    @property
+    def skipped(self) -> dict:
+        """Candidate name -> why it was not scored (``infeasible`` as a mapping)."""
+        return {s.name: s.reason for s in self.infeasible}
 
     def to_dict(self) -> dict:
-        """JSON-ready record (``next`` command's output)."""
-        return {"rivals": list(self.rivals), "baseline": self.baseline,
+        """JSON-ready record (``next`` command's output): the conclusion first."""
+        return {"message": self.message, "decided": self.decided,
+                "rivals": list(self.rivals), "baseline": self.baseline,
                 "current_power": self.current, "target_power": self.target,
-                "proposals": [p.to_dict() for p in self.ranked], "skipped": self.skipped,
-                "message": self.message}
+                "decide_power": decide_bar(self.target),
+                "proposals": [p.to_dict() for p in self.ranked],
+                "skipped": [s.to_dict() for s in self.infeasible],
+                "families": list(self.families)}
+
+
+def _verdict(cand: NextMeasurement, power_min: float, bar: float) -> str:
+    """The end of an outcome: decided with its power, or its power too little (below
+    ``bar``: "decided with 0 % power" would call a useless measurement a decision)."""
+    if power_min >= bar:
+        return f"decided with {100 * power_min:.0f} % power in {cand.time_min:.0f} min"
+    return (f"only {100 * power_min:.0f} % power in {cand.time_min:.0f} min, too little to "
+            f"decide ({100 * bar:.0f} % needed)")
 
 
 def _outcome(cand: NextMeasurement, rivals, lam: dict, power_min: float,
-             rank: tuple | None = None) -> str:
+             rank: tuple | None = None, bar: float = DECIDE_POWER) -> str:
     a, b = rivals
     if b == BASELINE:
         k, k_now = rank or (0, 0)
         return (f"with {cand.description}, the data determine {k} parameter "
                 f"combination(s) of {a} ({k_now} now) and it stands out by Δχ² ≈ "
-                f"{lam[a]:.0f}: decided with {100 * power_min:.0f} % power in "
-                f"{cand.time_min:.0f} min")
+                f"{lam[a]:.0f}: {_verdict(cand, power_min, bar)}")
     return (f"with {cand.description}, {a} and {b} differ by Δχ² ≈ {min(lam.values()):.0f}"
-            f" ({a} true: {lam[a]:.0f}, {b} true: {lam[b]:.0f}): decided with "
-            f"{100 * power_min:.0f} % power in {cand.time_min:.0f} min")
+            f" ({a} true: {lam[a]:.0f}, {b} true: {lam[b]:.0f}): "
+            f"{_verdict(cand, power_min, bar)}")
 
 
-def _proposals(results, rivals, rf: RivalFits, rank_now: int = 0) -> list:
+def conclusion(rivals: Sequence[str], current: dict, ranked: list, infeasible: list,
+               families: Sequence[str], target: float) -> tuple[str, bool]:
+    """The conclusion of a ranking in words, and whether a proposal decides.
+
+    When one reaches :func:`decide_bar`'s power: the current data's power and the best
+    next measurement (the first in rank order that decides). Else, first, that none
+    decides, with the best power reached and by what, then the current data's power, and
+    the wider families (:data:`~.candidates.WIDER`: instrument runs, another stylus
+    length, a second plate orientation) that were not searched (none of their candidates
+    given) or that were out of the machine's reach (all skipped): those might.
+
+    Parameters
+    ----------
+    rivals : two str
+    current : dict
+        Rival -> the current data's power (``Proposals.current``).
+    ranked : list of Proposal
+        Best first.
+    infeasible : list of Skipped
+    families : sequence of str
+        The families scored.
+    target : float
+
+    Returns
+    -------
+    (str, bool)
+    """
+    a, b = rivals
+    now = (f"the current data decide with {100 * min(current.values()):.0f} % power"
+           if current else "the current data decide nothing")
+    bar = decide_bar(target)
+    deciding = [p for p in ranked if p.power_min >= bar]
+    if deciding:
+        return f"{a} against {b}: {now}. Best next measurement: {deciding[0].outcome}.", True
+    if ranked:
+        best = max(ranked, key=lambda p: p.power_min)  # the first of the most powerful
+        head = (f"No candidate decides between {a} and {b}: the best reaches "
+                f"{100 * best.power_min:.0f} % power ({best.candidate.description}, "
+                f"{best.candidate.time_min:.0f} min; {100 * bar:.0f} % needed); {now}.")
+    else:
+        head = (f"No candidate decides between {a} and {b}: no candidate measurement fits "
+                f"in the machine; {now}.")
+    out_of_reach = {s.family for s in infeasible} - set(families)
+    unsearched = [f for f in WIDER if f not in families and f not in out_of_reach]
+    unreached = [f for f in WIDER if f in out_of_reach]
+    if unsearched:
+        head += (" Not searched, and might decide: "
+                 + "; ".join(FAMILIES[f] for f in unsearched) + ".")
+    if unreached:
+        head += (" Out of the machine's reach here: "
+                 + "; ".join(FAMILIES[f] for f in unreached) + ".")
+    return head, False
+
+
+def _families(cands) -> tuple:
+    """The families of ``cands`` in first-seen order."""
+    return tuple(dict.fromkeys(c.family for c in cands))
+
+
+def _proposals(results, rivals, rf: RivalFits, rank_now: int = 0,
+               bar: float = DECIDE_POWER) -> list:
     """Proposals from ``(candidate, {rival: (λ, k, ν, power, λ fitted, parameters,
-    power at λ)})`` pairs."""
+    power at λ)})`` pairs; ``bar``: the power that decides (:func:`decide_bar`)."""
     out = []
     for cand, res in results:
         lam = {t: v[0] for t, v in res.items()}
@@ -185,7 +320,7 @@ def _proposals(results, rivals, rf: RivalFits, rank_now: int = 0) -> list:
         a = rivals[0]
         out.append(Proposal(cand, rivals, lam, {t: (v[1], v[2]) for t, v in res.items()},
                             dict(rf.levels), power, pmin, lmin / cand.time_min,
-                            _outcome(cand, rivals, lam, pmin, (res[a][1], rank_now)),
+                            _outcome(cand, rivals, lam, pmin, (res[a][1], rank_now), bar),
                             {t: v[4] for t, v in res.items()},
                             {t: v[5] for t, v in res.items()},
                             {t: v[6] for t, v in res.items()}))
@@ -285,29 +420,46 @@ def propose(data: Dataset, rivals: Sequence[str] | None = None, *, baseline: str
     current = {t: v[3] for t, v in scores_now.items() if t != BASELINE}
     rank_now = scores_now[rivals[0]][1]
     cands = list(cands if cands is not None else measurement_candidates(data))
+    bar = decide_bar(target)
     plates = [c for c in cands if not c.instrument and not c.repeat]
     scored, skipped = [], {}
     for i in range(0, len(plates), CHUNK):  # one simulation and design per chunk
         obs, ok, out = _in_machine(data, plates[i:i + CHUNK])
         skipped.update(out)
-        scored += _proposals(_score_candidates(now, obs, ok, rf), rivals, rf, rank_now)
+        scored += _proposals(_score_candidates(now, obs, ok, rf), rivals, rf, rank_now, bar)
     scored += _proposals(_score_repeats(data, [c for c in cands if c.repeat], rf), rivals,
-                         rf, rank_now)
+                         rf, rank_now, bar)
     tools = [c for c in cands if c.instrument]
     if tools:
         sim0, obs_now = _machine(data), select(data)
         scored += _proposals(((c, _score_on(_stack(now, _instrument_design(
-            obs_now, now, rf, instrument_of(c, sim0))), rf)) for c in tools), rivals, rf,
-            rank_now)
+            obs_now, now, rf, inst)), rf)) for c, inst in _instruments(data, tools, sim0,
+                                                                       skipped)),
+            rivals, rf, rank_now, bar)
     scored.sort(key=_rank_key(target))
-    a, b = rivals
-    if scored:
-        msg = (f"{a} against {b}: the current data decide with {100 * min(current.values()):.0f}"
-               f" % power. Best next measurement: {scored[0].outcome}.")
-    else:
-        msg = f"{a} against {b}: no candidate measurement fits in the machine."
-    return Proposals(rivals, rf.fits[a].problem.spec.to_string(), current, scored, skipped,
-                     target, msg)
+    infeasible = [Skipped(c.name, c.description, c.family, skipped[c.name]) for c in cands
+                  if c.name in skipped]
+    families = _families(p.candidate for p in scored)
+    msg, decided = conclusion(rivals, current, scored, infeasible, families, target)
+    return Proposals(rivals, rf.fits[rivals[0]].problem.spec.to_string(), current, scored,
+                     infeasible, target, msg, decided, families)
+
+
+def _instruments(data: Dataset, tools: list, sim0, skipped: dict):
+    """``(candidate, instrument)`` of each instrument candidate the machine can read
+    (:func:`~.append.instrument_out_of_reach`); the others, and any its simulation
+    refuses, are recorded in ``skipped`` with the reason (one never stops the rest)."""
+    for c in tools:
+        try:
+            inst = instrument_of(c, sim0)
+        except DataError as exc:
+            skipped[c.name] = str(exc)
+            continue
+        why = instrument_out_of_reach(inst, data.setup.range_mm)
+        if why:
+            skipped[c.name] = why
+            continue
+        yield c, inst
 
 
 def _score_chunk(cands: list, data: Dataset, rivals, settings: dict) -> Proposals:
@@ -340,10 +492,10 @@ def propose_many(data: Dataset, rivals: Sequence[str], cands: list, *,
             parts = go(c)
     target = settings.get("target", TARGET_POWER)
     ranked = sorted((p for part in parts for p in part.ranked), key=_rank_key(target))
-    skipped = {k: v for part in parts for k, v in part.skipped.items()}
+    infeasible = [s for part in parts for s in part.infeasible]
     first = parts[0]
-    msg = first.message.partition(" Best next measurement:")[0]
-    if ranked:
-        msg += f" Best next measurement: {ranked[0].outcome}."
-    return Proposals(first.rivals, first.baseline, first.current, ranked, skipped, target,
-                     msg)
+    families = tuple(dict.fromkeys(f for part in parts for f in part.families))
+    msg, decided = conclusion(first.rivals, first.current, ranked, infeasible, families,
+                              target)
+    return Proposals(first.rivals, first.baseline, first.current, ranked, infeasible,
+                     target, msg, decided, families)
