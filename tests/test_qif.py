@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cmm_core.export import EXTENSION_NS, QIF_LABEL_PATTERN, QIF_NS, qif_document
-from cmm_core.io import thesis_dataset
+from cmm_core.export import EXTENSION_NS, qif_document
+from cmm_core.io import QIF_LABEL_PATTERN, QIF_NS, DataError, read_qif, thesis_dataset
 from cmm_core.model import fit
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -195,3 +195,97 @@ def test_bad_keywords_are_refused(calibration):
         qif_document(r, ds, temperature_compensation="SOMETIMES")
     with pytest.raises(ValueError, match="mpe"):
         qif_document(r, ds, mpe=(0.6,))
+
+
+@pytest.mark.parametrize("which", ["full", "plain"])
+def test_export_then_read_gives_back_the_same_centres(calibration, full_doc, plain_doc, which):
+    """With nominals (labels on the measurements) and without: every centre, position,
+    probe and ball as measured, to the last bit (the writer's digits round-trip)."""
+    ds, _ = calibration
+    table = read_qif(full_doc if which == "full" else plain_doc, name="thesis.qif")
+    got = table.meas
+    assert len(got) == len(ds.meas)
+    assert got["position"].tolist() == ds.meas["position"].tolist()
+    assert got["probe"].tolist() == ds.meas["probe"].tolist()
+    assert got["ball"].astype(int).tolist() == ds.meas["ball"].astype(int).tolist()
+    for c in ("x_mm", "y_mm", "z_mm"):
+        assert np.array_equal(got[c].to_numpy(), ds.meas[c].to_numpy())
+
+
+def test_labels_from_feature_items_units_and_a_pattern(full_doc):
+    """A measurement without FeatureName is named by its feature item; a document in
+    inches is read in mm; a pattern without position takes the default position."""
+    root = ET.fromstring(full_doc)
+    m = root.find(f".//{Q}SphereFeatureMeasurement")
+    m.remove(m.find(f"{Q}FeatureName"))
+    loc = m.find(f"{Q}Location")
+    x_mm = [float(v) for v in loc.text.split()]
+    loc.text = " ".join(repr(v / 25.4) for v in x_mm)
+    loc.set("linearUnit", "inch")
+    table = read_qif(ET.tostring(root), name="edited.qif")
+    assert table.meas.iloc[0][["x_mm", "y_mm", "z_mm"]].tolist() == pytest.approx(x_mm)
+    assert table.meas.iloc[0]["position"] == "BP111"
+    one = read_qif(full_doc, name="thesis.qif", pattern=r"BP111/(?P<probe>\w+)/(?P<ball>\d+)",
+                   default_position="A")
+    assert set(one.meas["position"]) == {"A"} and len(one.meas) == 25
+
+
+def _edited(doc: bytes, edit) -> bytes:
+    root = ET.fromstring(doc)
+    edit(root)
+    return ET.tostring(root)
+
+
+def _drop_location(root):
+    m = root.findall(f".//{Q}SphereFeatureMeasurement")[3]
+    m.remove(m.find(f"{Q}Location"))
+
+
+def _unknown_unit(root):
+    root.find(f"{Q}FileUnits/{Q}PrimaryUnits/{Q}LinearUnit/{Q}UnitName").text = "parsec"
+    conv = root.find(f"{Q}FileUnits/{Q}PrimaryUnits/{Q}LinearUnit")
+    conv.remove(conv.find(f"{Q}UnitConversion"))
+
+
+def _bad_location(root):
+    root.findall(f".//{Q}SphereFeatureMeasurement")[0].find(f"{Q}Location").text = "1 2"
+
+
+@pytest.mark.parametrize("edit, words", [
+    (_drop_location, ["SphereFeatureMeasurement id=", "(BP111/1/4)", "no Location",
+                      "measured centre"]),
+    (_unknown_unit, ["FileUnits/PrimaryUnits/LinearUnit/UnitName", "'parsec'",
+                     "expected a length unit"]),
+    (_bad_location, ["SphereFeatureMeasurement id=", "Location '1 2'",
+                     "expected three numbers"]),
+])
+def test_bad_documents_are_refused_naming_the_element(plain_doc, edit, words):
+    with pytest.raises(DataError) as exc:
+        read_qif(_edited(plain_doc, edit), name="bad.qif")
+    text = str(exc.value)
+    assert "bad.qif" in text
+    for w in words:
+        assert w in text
+
+
+def test_a_missing_centre_names_its_line(plain_doc):
+    bad = _edited(plain_doc, _drop_location)
+    with pytest.raises(DataError) as exc:
+        read_qif(bad, name="bad.qif")
+    line = bad.decode().split("\n")[exc.value.row - 1]
+    assert "SphereFeatureMeasurement" in line
+
+
+def test_a_wrong_root_or_no_results_is_refused(plain_doc):
+    with pytest.raises(DataError, match=r"root element <MeasurementResults> without a "
+                       r"namespace: expected <QIFDocument>"):
+        read_qif(b"<MeasurementResults/>", name="old.xml")
+    with pytest.raises(DataError, match=r"root element <QIFDocument> in namespace urn:x"):
+        read_qif(b'<QIFDocument xmlns="urn:x"/>', name="other.xml")
+    no_results = _edited(plain_doc, lambda r: r.remove(r.find(f"{Q}Results")))
+    with pytest.raises(DataError, match=r"has no <Results>"):
+        read_qif(no_results, name="plan.qif")
+    with pytest.raises(DataError, match="not well-formed XML"):
+        read_qif(b"<QIFDocument", name="cut.qif")
+    with pytest.raises(DataError, match="matches the pattern"):
+        read_qif(plain_doc, name="thesis.qif", pattern=r"P(?P<position>\d)_(?P<ball>\d+)")

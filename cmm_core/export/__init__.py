@@ -63,8 +63,8 @@ from .model_file import (
 )
 from .qif import (
     EXTENSION_NS,
-    QIF_LABEL_PATTERN,
-    QIF_NS,
+    QIF_GEOMETRY,
+    QIF_VERSION,
     TEMPERATURE_COMPENSATION,
     qif_document,
 )
@@ -93,5 +93,5 @@ __all__ = [
     "PROJECT_VERSION", "read_points", "refuse_off_machine", "residuals_csv", "results_dict",
     "RESULTS_FORMAT", "results_json", "RESULTS_VERSION", "results_xml", "safe_csv",
     "safe_frame", "save_model", "SIGN_GRID", "squareness_table", "EXTENSION_NS",
-    "QIF_LABEL_PATTERN", "QIF_NS", "TEMPERATURE_COMPENSATION", "qif_document",
+    "QIF_GEOMETRY", "QIF_VERSION", "TEMPERATURE_COMPENSATION", "qif_document",
 ]

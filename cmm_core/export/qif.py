@@ -21,7 +21,7 @@ What is written where (``docs/formats.md``, "QIF 3.0"):
   are written and the certificate is in the extension only.
 - ``Results`` (Part 6, QIFResults.xsd): one ``MeasurementResults`` per placement, each
   probed centre a ``SphereFeatureMeasurement`` whose ``FeatureName`` is
-  ``position/probe/ball`` (:data:`QIF_LABEL_PATTERN` reads it back) and whose ``Location``
+  ``position/probe/ball`` (:data:`cmm_core.io.QIF_LABEL_PATTERN` reads it back) and whose ``Location``
   is the centre as measured (mm, in the setup's frame) with the fit's repeatability as
   its combined standard uncertainty per coordinate.
 - ``UserDataXML`` (the QIF document's extension point, Part 2): what QIF has no element
@@ -45,23 +45,18 @@ from datetime import date
 
 import numpy as np
 
-from ..io import LAYOUTS, Dataset, Provenance
+from ..io import LAYOUTS, QIF_NS, Dataset, Provenance
 from ..model import FitResult
 from .results import DEFAULT_COVERAGE_FACTOR, results_dict
 
-QIF_NS = "http://qifstandards.org/xsd/qif3"
-"""The QIF 3.0 namespace."""
 QIF_VERSION = "3.0.0"
 """``QIFDocument/@versionQIF``."""
 EXTENSION_NS = "urn:cmm-error-lab:qif:1"
 """Namespace of the elements this program writes in QIF's ``UserDataXML``."""
-QIF_LABEL_PATTERN = r"(?P<position>.+)/(?P<probe>[^/]+)/(?P<ball>\d+)"
-"""The ``FeatureName`` of each measured sphere, ``position/probe/ball``, as a label
-pattern for :func:`cmm_core.io.read_qif`."""
 TEMPERATURE_COMPENSATION = ("NONE", "DEVICE_ONLY", "DEVICE_AND_PART_SAME",
                             "DEVICE_AND_PART_SEPARATE")
 """QIF's ``TemperatureCompensationEnum`` values (Part 5)."""
-GEOMETRY = {"moving_bridge": "MOVING_BRIDGE", "fixed_bridge": "FIXED_BRIDGE",
+QIF_GEOMETRY = {"moving_bridge": "MOVING_BRIDGE", "fixed_bridge": "FIXED_BRIDGE",
             "gantry": "GANTRY", "horizontal_arm": "FIXED_TABLE_HORIZONTAL_ARM"}
 """Layout family (``machine.layout`` up to its chain) -> ``CartesianCMMGeometryEnum``; a
 horizontal arm of this model stands on a fixed table (its chain starts at F)."""
@@ -77,7 +72,7 @@ def _x(tag: str) -> str:
     return f"{{{EXTENSION_NS}}}{tag}"
 
 
-def decimal(v: float) -> str:
+def _decimal(v: float) -> str:
     """``v`` as an xs:decimal: shortest positional digits that read back as the same
     double (``repr`` would write ``1e-05``, which xs:decimal refuses)."""
     v = float(v)
@@ -160,7 +155,7 @@ def _calibrations(cmm: ET.Element, ds: Dataset, interval_months: int) -> None:
     if temps:
         ts = _el(cal, "Temperatures", n=str(len(temps)))
         for t in temps:
-            _el(_el(ts, "Temperature"), "Temperature", decimal(t))
+            _el(_el(ts, "Temperature"), "Temperature", _decimal(t))
     _el(cal, "CalibrationDate", f"{day}T00:00:00")
     _el(cal, "ExpirationDate", f"{_expiry(day, interval_months)}T00:00:00")
 
@@ -172,8 +167,8 @@ def _accuracy(cmm: ET.Element, mpe: tuple[float, float]) -> None:
     acc = _el(_el(cmm, "Accuracies", n="1"), "CartesianCMMAccuracy")
     _el(acc, "EnvironmentalRange")
     lin = _el(_el(acc, "CartesianCMMISO10360Test"), "LinearError")
-    _el(lin, "BaseError", decimal(a_um / 1000))
-    _el(lin, "ErrorRate", decimal(b_um_per_mm / 1000))
+    _el(lin, "BaseError", _decimal(a_um / 1000))
+    _el(lin, "ErrorRate", _decimal(b_um_per_mm / 1000))
     _el(_el(acc, "AccuracySource"), "AccuracySourceEnum", "MANUFACTURER_SPECIFICATION")
 
 
@@ -194,11 +189,11 @@ def _cmm(root: ET.Element, ds: Dataset, ids: _Ids, layout: str, *, mpe, compensa
     if isinstance(machine, dict) and "range_mm" in machine:
         vol = _el(cmm, "CartesianWorkingVolume")
         for axis, v in zip("XYZ", ds.setup.range_mm, strict=True):
-            _el(vol, f"{axis}AxisLength", decimal(v))
+            _el(vol, f"{axis}AxisLength", _decimal(v))
     if compensation is not None:
         _el(_el(cmm, "TemperatureCompensation"), "TemperatureCompensationEnum", compensation)
     family = layout.rsplit("_", 1)[0]
-    _el(_el(cmm, "CMMGeometry"), "CartesianCMMGeometryEnum", GEOMETRY[family])
+    _el(_el(cmm, "CMMGeometry"), "CartesianCMMGeometryEnum", QIF_GEOMETRY[family])
     if mpe is not None:
         _accuracy(cmm, mpe)
     return cmm_id
@@ -217,7 +212,7 @@ def _features(root: ET.Element, ds: Dataset, ids: _Ids, diameter_mm: float) -> d
     def_id = ids.next()
     d = _el(defs, "SphereFeatureDefinition", id=def_id)
     _el(d, "InternalExternal", "EXTERNAL")
-    _el(d, "Diameter", decimal(diameter_mm))
+    _el(d, "Diameter", _decimal(diameter_mm))
     noms = _el(feats, "FeatureNominals", n=str(len(cert.balls)))
     nominal = {}
     for b, xyz in zip(cert.balls, cert.xyz_mm, strict=True):
@@ -225,7 +220,7 @@ def _features(root: ET.Element, ds: Dataset, ids: _Ids, diameter_mm: float) -> d
         n = _el(noms, "SphereFeatureNominal", id=nominal[int(b)])
         _el(n, "Name", f"ball {int(b)}")
         _el(n, "FeatureDefinitionId", def_id)
-        _el(n, "Location", " ".join(decimal(v) for v in xyz))
+        _el(n, "Location", " ".join(_decimal(v) for v in xyz))
     keys = list(dict.fromkeys(_label(p, q, b) for p, q, b in
                               ds.meas[["position", "probe", "ball"]].itertuples(index=False)
                               if int(b) in nominal))
@@ -245,7 +240,7 @@ def _results(root: ET.Element, ds: Dataset, ids: _Ids, cmm_id: str, sigma_mm: fl
     """One MeasurementResults per placement, one SphereFeatureMeasurement per centre."""
     positions = ds.positions
     rs = _el(_el(root, "Results"), "MeasurementResultsSet", n=str(len(positions)))
-    u = decimal(sigma_mm)
+    u = _decimal(sigma_mm)
     for pos in positions:
         g = ds.meas[ds.meas["position"] == pos]
         res = _el(rs, "MeasurementResults", id=ids.next())
@@ -261,7 +256,7 @@ def _results(root: ET.Element, ds: Dataset, ids: _Ids, cmm_id: str, sigma_mm: fl
                 _el(m, "FeatureItemId", items[key])
             _el(m, "FeatureName", key)
             _el(_el(m, "MeasurementDeviceIds", n="1"), "Id", cmm_id)
-            _el(m, "Location", " ".join(decimal(v) for v in (x, y, z)),
+            _el(m, "Location", " ".join(_decimal(v) for v in (x, y, z)),
                 xCombinedUncertainty=u, yCombinedUncertainty=u, zCombinedUncertainty=u)
         _el(_el(res, "InspectionStatus"), "InspectionStatusEnum", "NOT_CALCULATED")
 
@@ -269,7 +264,7 @@ def _results(root: ET.Element, ds: Dataset, ids: _Ids, cmm_id: str, sigma_mm: fl
 def _ext_text(parent: ET.Element, tag: str, value, **attrib: str) -> None:
     el = ET.SubElement(parent, _x(tag), attrib)
     if value is not None:
-        el.text = decimal(value) if isinstance(value, float) else str(value)
+        el.text = _decimal(value) if isinstance(value, float) else str(value)
 
 
 def _extension(root: ET.Element, ds: Dataset, doc: dict) -> None:
@@ -281,7 +276,7 @@ def _extension(root: ET.Element, ds: Dataset, doc: dict) -> None:
     _ext_text(fit, "Repeatability", doc["model"]["sigma_um"], unit="um")
     _ext_text(fit, "RMS", doc["model"]["rms_um"], unit="um")
     t = doc["chi2_test"]
-    chi = ET.SubElement(fit, _x("Chi2Test"), {"alpha": decimal(t["alpha"])})
+    chi = ET.SubElement(fit, _x("Chi2Test"), {"alpha": _decimal(t["alpha"])})
     for tag, key in (("Chi2PerDof", "chi2_dof"), ("TestedChi2PerDof", "chi2_test_dof"),
                      ("DegreesOfFreedom", "dof"), ("PValue", "p_value"),
                      ("BirgeRatio", "birge_ratio")):
@@ -306,8 +301,8 @@ def _extension(root: ET.Element, ds: Dataset, doc: dict) -> None:
         u = cert.u_um if cert.u_um is not None else np.full_like(cert.xyz_mm, np.nan)
         for b, xyz, ub in zip(cert.balls, cert.xyz_mm, u, strict=True):
             a = {"number": str(int(b))}
-            a.update({f"{k}": decimal(v) for k, v in zip("xyz", xyz, strict=True)})
-            a.update({f"u{k}": decimal(v) for k, v in zip("xyz", ub, strict=True)
+            a.update({f"{k}": _decimal(v) for k, v in zip("xyz", xyz, strict=True)})
+            a.update({f"u{k}": _decimal(v) for k, v in zip("xyz", ub, strict=True)
                       if np.isfinite(v)})
             ET.SubElement(ce, _x("Ball"), a)
 
@@ -325,7 +320,7 @@ def _check(result: FitResult, ds: Dataset, mpe, compensation, ball_diameter_mm,
         raise ValueError("a QIF calibration document needs the certificate (nominal "
                          "centres): load the dataset with its certificate.")
     layout = ds.setup.raw.get("machine", {}).get("layout", LAYOUTS[0])
-    if layout.rsplit("_", 1)[0] not in GEOMETRY:
+    if layout.rsplit("_", 1)[0] not in QIF_GEOMETRY:
         raise ValueError(f"layout {layout!r} has no QIF CMM geometry.")
     if compensation is not None and compensation not in TEMPERATURE_COMPENSATION:
         raise ValueError(f"temperature_compensation must be one of "
