@@ -4,7 +4,7 @@ points, compensation tables and grids, results and project files (``docs/compens
 Owns: :mod:`.safe` (spreadsheet-safe CSV, grid limits), :mod:`.model_file` (the model
 file: :class:`Model`, written and read back checked), :mod:`.correction`
 (:func:`compensate`: corrected points with their uncertainty), :mod:`.comp_tables` (controller tables and grids),
-:mod:`.results` (results bundle), :mod:`.downloads` (parameter, residual and grid CSV,
+:mod:`.results` (results bundle), :mod:`.qif` (QIF 3.0 document), :mod:`.downloads` (parameter, residual and grid CSV,
 project files). May import: ``machine``, ``io``, ``model``.
 """
 
@@ -62,6 +62,13 @@ from .model_file import (
     model_to_dict,
     save_model,
 )
+from .qif import (
+    EXTENSION_NS,
+    QIF_GEOMETRY,
+    QIF_VERSION,
+    TEMPERATURE_COMPENSATION,
+    qif_document,
+)
 from .results import (
     DEFAULT_COVERAGE_FACTOR,
     RESULTS_FORMAT,
@@ -86,5 +93,6 @@ __all__ = [
     "parameters_csv", "probe_offset", "PROJECT_FORMAT", "project_from_json", "project_to_json",
     "PROJECT_VERSION", "read_points", "refuse_off_machine", "residuals_csv", "results_dict",
     "RESULTS_FORMAT", "results_json", "RESULTS_VERSION", "results_xml", "safe_csv",
-    "safe_frame", "save_model", "SIGN_GRID", "squareness_table"
+    "safe_frame", "save_model", "SIGN_GRID", "squareness_table", "EXTENSION_NS",
+    "QIF_GEOMETRY", "QIF_VERSION", "TEMPERATURE_COMPENSATION", "qif_document",
 ]

@@ -8,7 +8,7 @@ every cell-level problem in ``DataError.problems`` while ``str(exc)`` stays one 
 
 Owns: :mod:`.errors` (DataError, problem collector, name checks), :mod:`.delimited` (bytes,
 CSV cells, numbers, JSON), :mod:`.setup`, :mod:`.measurements`, :mod:`.certificate`,
-:mod:`.matching` (measurements against setup and certificate), :mod:`.dataset` (one call
+:mod:`.matching` (measurements against setup and certificate), :mod:`.qif` (QIF 3.0 results), :mod:`.dataset` (one call
 from files to a :class:`Dataset`), :mod:`.provenance` (what every record says of its
 software, inputs and machine). May import: ``machine`` (layout names).
 """
@@ -94,6 +94,7 @@ from .provenance import (
     provenance_from_dict,
     software_identity,
 )
+from .qif import QIF_LABEL_PATTERN, QIF_NS, QIF_UNITS_MM, read_qif
 from .setup import (
     ARTEFACTS,
     AXIS_TOLERANCE_DEG,
@@ -151,4 +152,5 @@ __all__ = [
     "TEMP_RANGE_C", "THESIS_COLUMNS", "thesis_dataset", "THESIS_DIR", "THESIS_POSITIONS",
     "TIME_UNITS_MIN", "write_certificate", "write_long_csv", "InputFile", "Provenance",
     "file_input", "input_file", "provenance", "provenance_from_dict", "software_identity", "read_bytes", "COMMIT_FILE", "SOFTWARE", "MAX_MACHINE_ID",
+    "QIF_LABEL_PATTERN", "QIF_NS", "QIF_UNITS_MM", "read_qif",
 ]
