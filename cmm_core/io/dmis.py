@@ -22,17 +22,15 @@ from datetime import date, datetime, time, timedelta
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from .delimited import FileSource, read_bytes
 from .errors import DataError, Problems, cut_repr
 from .table_mapping import (
     ForeignTable,
     TableMapping,
-    _balls_from,
     _finish,
+    _label_columns,
     _label_regex,
-    _names_from,
     _unmatched_note,
     apply_mapping,
 )
@@ -254,6 +252,7 @@ def _minutes(rd: _Reader, spheres):
     return np.array([(t - t0) / timedelta(minutes=1) for t in when]), None
 
 
+
 def read_dmis(source: FileSource, *, name: str | None = None, pattern: str,
           default_probe: str = "1", default_position: str | None = None) -> ForeignTable:
     """Read the spheres of a DMIS output file into the project's long form.
@@ -323,15 +322,7 @@ def read_dmis(source: FileSource, *, name: str | None = None, pattern: str,
     lines = np.array([s.line for s in spheres], int)
     found = Problems(name, lines)
     prefix = [f"sphere {s.kind}({s.label})" for s in spheres]
-    long = pd.DataFrame({
-        "position": _names_from(len(hits), None, [h.groupdict().get("position") for h in hits]
-                                if "position" in rx.groupindex else None, default_position,
-                                "position", labels, found, None),
-        "probe": _names_from(len(hits), None, [h.groupdict().get("probe") for h in hits]
-                             if "probe" in rx.groupindex else None, str(default_probe),
-                             "probe", labels, found, None),
-        "ball": _balls_from([h["ball"] for h in hits], labels, found, None),
-    })
+    long = _label_columns(hits, rx, labels, found, default_position, default_probe)
     xyz = np.array([s.xyz_mm for s in spheres])
     long["x_mm"], long["y_mm"], long["z_mm"] = xyz.T
     if minutes is not None:

@@ -24,16 +24,14 @@ import xml.etree.ElementTree as ET
 from datetime import datetime, timedelta
 
 import numpy as np
-import pandas as pd
 
 from .delimited import FileSource, read_bytes
 from .errors import DataError, Problems, cut_repr
 from .table_mapping import (
     ForeignTable,
-    _balls_from,
     _finish,
+    _label_columns,
     _label_regex,
-    _names_from,
     _unmatched_note,
 )
 
@@ -273,15 +271,7 @@ def read_qif(source: FileSource, *, name: str | None = None,
     lines = np.array([s.line for s in spheres], int)
     found = Problems(name, lines)
     prefix = [f"SphereFeatureMeasurement ({s.label})" for s in spheres]
-    long = pd.DataFrame({
-        "position": _names_from(len(hits), None, [h.groupdict().get("position") for h in hits]
-                                if "position" in rx.groupindex else None, default_position,
-                                "position", labels, found, None),
-        "probe": _names_from(len(hits), None, [h.groupdict().get("probe") for h in hits]
-                             if "probe" in rx.groupindex else None, str(default_probe),
-                             "probe", labels, found, None),
-        "ball": _balls_from([h["ball"] for h in hits], labels, found, None),
-    })
+    long = _label_columns(hits, rx, labels, found, default_position, default_probe)
     long["x_mm"], long["y_mm"], long["z_mm"] = np.array([s.xyz_mm for s in spheres]).T
     if minutes is not None:
         long["time_min"] = minutes

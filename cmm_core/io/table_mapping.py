@@ -828,3 +828,16 @@ def preview(source: FileSource, mapping: TableMapping | dict, *, name: str | Non
     return Preview(shown.reset_index(drop=True), len(long), tuple(problems), tuple(notes))
 
 
+def _label_columns(hits, rx, labels, found, default_position, default_probe) -> pd.DataFrame:
+    """``position``, ``probe`` and ``ball`` of each matched label (``hits``, matches of the
+    pattern ``rx``): a group the pattern lacks takes its default; problems go to ``found``.
+    Shared by the DMIS and QIF readers."""
+    return pd.DataFrame({
+        "position": _names_from(len(hits), None, [h.groupdict().get("position") for h in hits]
+                                if "position" in rx.groupindex else None, default_position,
+                                "position", labels, found, None),
+        "probe": _names_from(len(hits), None, [h.groupdict().get("probe") for h in hits]
+                             if "probe" in rx.groupindex else None, str(default_probe),
+                             "probe", labels, found, None),
+        "ball": _balls_from([h["ball"] for h in hits], labels, found, None),
+    })
