@@ -48,7 +48,7 @@ def test_parameters_and_residuals_csv(result):
     p = pd.read_csv(io.StringIO(export.parameters_csv(result)), comment="#")
     assert {"parameter", "block", "unit", "value", "u_standard", "identifiable"} <= set(p)
     assert len(p) == len(result.labels)
-    r = pd.read_csv(io.StringIO(export.residuals_csv(result)))
+    r = pd.read_csv(io.StringIO(export.residuals_csv(result)), comment="#")
     assert len(r) == result.n_obs
     assert np.allclose(r[["rx_um", "ry_um", "rz_um"]].to_numpy(), result.residuals_um,
                        atol=1e-4)

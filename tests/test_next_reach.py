@@ -16,7 +16,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from scenarios import simulated  # noqa: E402
 
 from cmm_core.cli.commands import main  # noqa: E402
-from cmm_core.io import read_setup  # noqa: E402
+from cmm_core.io import load_dataset, read_setup  # noqa: E402
 from cmm_core.model import simulate  # noqa: E402
 from cmm_core.plan.proposals import (  # noqa: E402
     DECIDE_POWER,
@@ -214,9 +214,12 @@ def test_when_nothing_decides_the_conclusion_says_so_first(no_effect):
     assert pr.message.startswith(f"No candidate decides between sxy and rxz:4: the best "
                                  f"reaches {100 * best:.0f} % power (")
     assert "Best next measurement" not in pr.message
-    # instruments were not searched; the plate stood up is out of this machine's reach
+    # instruments were not searched; the plate stood up was (its styli point up from
+    # plates at z = 0: readings below the zero this machine already made), and nothing
+    # was out of reach
     assert f"Not searched, and might decide: {FAMILIES['instrument']}." in pr.message
-    assert f"Out of the machine's reach here: {FAMILIES['orientation']}." in pr.message
+    assert "orientation" in pr.families and not pr.skipped
+    assert "Out of the machine's reach" not in pr.message
     assert "another stylus length" not in pr.message  # searched: stylus_long
     top = pr.ranked[0]
     assert "too little to decide" in top.outcome and "decided with" not in top.outcome
@@ -236,3 +239,24 @@ def test_next_says_first_that_nothing_decides(no_effect, tmp_path, capsys):
                                      "reaches ")
     assert "Best next measurement" not in doc["message"]
     assert "instrument runs" not in doc["message"]
+
+
+def test_readings_the_data_already_made_stay_reachable():
+    """Plates at z = 0 probed with an upward stylus (the sample data, after the thesis):
+    the z reading -50 mm was measured, so moves of that plate are proposed, while the
+    stylus 100 mm longer (reading -150 mm, beyond anything measured) is skipped with its
+    reading; every plate proposal stays within what the data reached."""
+    root = Path(__file__).resolve().parents[1] / "sample_data" / "simulated"
+    data = load_dataset([root / "measurements.csv"], root / "setup.json",
+                        root / "certificate.csv")
+    lo, hi = append.reached_range(data)
+    assert lo[2] == pytest.approx(-50.0, abs=0.1) and (hi >= data.setup.range_mm).all()
+    cands = measurement_candidates(data)
+    reasons = {c.name: append.out_of_reach(data, c) for c in cands}
+    assert reasons["stylus_long"].startswith("ball 1 with stylus next_stylus_long needs "
+                                             "the scale reading -150.0 mm of axis z")
+    assert reasons["low_x"] == reasons["xz"] == ""
+    for c in cands:
+        if c.positions and not reasons[c.name]:
+            x = _scale_readings(data, c)
+            assert ((x >= lo - 1e-9) & (x <= hi + 1e-9)).all(), c.name

@@ -99,9 +99,17 @@ def test_report_size_and_plotly_once(thesis_app):
 
 
 def _sim_session(tmp_path, sim, **state):
+    # The session holds the written files' text, as an upload of them would: the written
+    # setup.json carries the simulation's provenance, which the report's input digests see.
     d = tmp_path / "data"
     sim.write(d)
-    return d, _session(sources=A.simulated_sources(sim.dataset, "simulated"), **state)
+    return d, _session(sources=A.inline_sources(_written(d)), **state)
+
+
+def _written(d):
+    return A.DataSources("simulated", (A.DataFile("measurements.csv", str(d / "measurements.csv")),),
+                         A.DataFile("setup.json", str(d / "setup.json")),
+                         A.DataFile("certificate.csv", str(d / "certificate.csv")))
 
 
 def test_simulated_hidden_effect_app_and_cli_byte_identical(tmp_path, capsys):
@@ -112,10 +120,7 @@ def test_simulated_hidden_effect_app_and_cli_byte_identical(tmp_path, capsys):
     d, state = _sim_session(tmp_path, sim, diag_on=True)
     record = session_record(state)
     app_html = rep.analysis_report(record)
-    by_path = dataclasses.replace(record, data=A.DataSources(
-        "simulated", (A.DataFile("measurements.csv", str(d / "measurements.csv")),),
-        A.DataFile("setup.json", str(d / "setup.json")),
-        A.DataFile("certificate.csv", str(d / "certificate.csv"))))
+    by_path = dataclasses.replace(record, data=_written(d))
     path = tmp_path / "rec" / "ANALYSIS.json"
     path.parent.mkdir()
     path.write_text(A.record_to_json(by_path, relative_to=path.parent))

@@ -259,14 +259,31 @@ def measurement_observations(data: Dataset, cands: list) -> Observations:
     return select(simulate(cfg, name="proposals").dataset)
 
 
-def _first_outside(scale: np.ndarray, rng: np.ndarray) -> tuple[int, int] | None:
-    """(point, axis) of the first scale reading outside ``[0, rng]``, or None."""
-    bad = (scale < 0.0) | (scale > rng)
+def _first_outside(scale: np.ndarray, lo: np.ndarray,
+                   hi: np.ndarray) -> tuple[int, int] | None:
+    """(point, axis) of the first scale reading outside ``[lo, hi]``, or None."""
+    bad = (scale < lo) | (scale > hi)
     rows = np.flatnonzero(bad.any(axis=1))
     if not rows.size:
         return None
     i = int(rows[0])
     return i, int(np.flatnonzero(bad[i])[0])
+
+
+def reached_range(data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) scale readings per axis, mm, that a proposal may ask for: the stroke
+    ``[0, range_mm]`` widened to the readings the current data already made (tip minus
+    the offset of the stylus probing it). A machine's zero is not always a stroke's end
+    (the thesis's plates stand at z = 0 with an upward stylus): what it measured, it can
+    measure again; nothing beyond both is proposed."""
+    rng = np.asarray(data.setup.range_mm, float)
+    m = data.meas
+    probes = data.setup.raw["probes"]
+    off = np.array([probes[str(q)] for q in m["probe"]], float).reshape(-1, 3)
+    scale = m[list(_RESOLVED)].to_numpy(float) - off
+    if not len(scale):
+        return np.zeros(3), rng
+    return np.minimum(0.0, scale.min(axis=0)), np.maximum(rng, scale.max(axis=0))
 
 
 def out_of_reach(data: Dataset, cand: NextMeasurement) -> str:
@@ -275,7 +292,8 @@ def out_of_reach(data: Dataset, cand: NextMeasurement) -> str:
     The virtual CMM's own check (``simulation_config._check_plate_in_machine``, as
     ``io.matching`` checks measured points): the scale reading of every ball (tip minus
     the offset of the stylus probing it) of every new placement, with every stylus
-    measured there, inside the strokes; here without the simulator's slack
+    measured there, inside the strokes (:func:`reached_range`); here without the
+    simulator's slack
     (``io.range_tolerance``: at least 100 mm, for a rough nominal setup), since the
     product lays the proposal out itself: a proposal needs a reachable pose. The balls
     are the certificate's (the appended readings are, :func:`append_measurement`). A
@@ -287,24 +305,33 @@ def out_of_reach(data: Dataset, cand: NextMeasurement) -> str:
     grid = plate_grid(data)
     raw = data.setup.raw
     probes = {**raw["probes"], **cand.probes}
-    setup = read_setup({**{k: copy.deepcopy(raw[k]) for k in ("units", "machine")
-                           if k in raw},
-                        "frame": "machine", "positions": copy.deepcopy(cand.positions),
-                        "probes": probes}, name=f"proposal {cand.name!r}")
+    # the placements without their stylus: the setup reader's check of ball 1 (with the
+    # slack a user's rough setup needs) would refuse what the check below reports, ball
+    # by ball and with no slack, as a reason to skip
+    positions = {p: {k: copy.deepcopy(v) for k, v in pl.items() if k != "probe"}
+                 for p, pl in cand.positions.items()}
+    try:
+        setup = read_setup({**{k: copy.deepcopy(raw[k]) for k in ("units", "machine")
+                               if k in raw},
+                            "frame": "machine", "positions": positions, "probes": probes},
+                           name=f"proposal {cand.name!r}")
+    except DataError as exc:
+        return f"its layout is refused: {exc}"
+
     b = np.arange(grid.rows * grid.cols)
     balls = np.column_stack([b % grid.cols * grid.pitch_mm, b // grid.cols * grid.pitch_mm,
                              np.zeros(b.size)]) + grid.offset_mm
-    rng = np.asarray(setup.range_mm, float)
+    lo, hi = reached_range(data)
     for p, styli in cand.probes_of.items():
         tips = setup.positions[p].to_machine(balls)
         for q in styli:
-            hit = _first_outside(tips - np.asarray(probes[q], float), rng)
+            hit = _first_outside(tips - np.asarray(probes[q], float), lo, hi)
             if hit is not None:
                 i, a = hit
                 reading = tips[i, a] - float(probes[q][a])
                 return (f"ball {i + 1} with stylus {q} needs the scale reading {reading:.1f} "
-                        f"mm of axis {'xyz'[a]}, outside the machine's stroke 0 to "
-                        f"{rng[a]:g} mm")
+                        f"mm of axis {'xyz'[a]}, outside the machine's stroke {round(lo[a], 1):g} to "
+                        f"{round(hi[a], 1):g} mm")
     return ""
 
 
@@ -315,7 +342,7 @@ def instrument_out_of_reach(inst, range_mm) -> str:
     without its margin (``model.RANGE_MARGIN``, for files of a real machine)."""
     rng = np.asarray(range_mm, float)
     for x, _ in inst.points():
-        hit = _first_outside(np.asarray(x, float), rng)
+        hit = _first_outside(np.asarray(x, float), np.zeros(3), rng)
         if hit is not None:
             i, a = hit
             return (f"the scale reading {x[i, a]:.1f} mm of axis {'xyz'[a]} is outside "
