@@ -169,6 +169,9 @@ def test_dmis_labels_not_matching_are_listed_in_one_line(meas):
     assert table.unmatched == ("REF_A", "REF_B", "CHECK")
     note = [n for n in table.notes if "do not match" in n]
     assert len(note) == 1 and note[0].startswith("3 label(s)") and "'REF_A'" in note[0]
+    # the plane is not a ball, and is said to be left out with its row (not dropped)
+    other = [n for n in table.notes if "other than spheres" in n]
+    assert len(other) == 1 and "PLANE FA(PLANE_1) (row " in other[0]
     exc = _one_line(pytest.raises(DataError, read_dmis, extra, name="m.dmo", pattern=PATTERN))
     assert exc.file == "m.dmo" and "none of the 3 sphere label(s)" in exc.detail
 

@@ -119,3 +119,41 @@ def test_no_nan_or_inf_leaves_compensate_or_a_grid():
     assert "\n" not in str(exc.value)
     with pytest.raises(DataError, match="expected finite numbers"):
         compensation_grid(bad, 200.0)
+
+
+def _number_leaves(obj, path=()):
+    """Index paths of every JSON number in ``obj`` (bools are not numbers)."""
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            yield from _number_leaves(v, (*path, k))
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            yield from _number_leaves(v, (*path, i))
+    elif isinstance(obj, int | float) and not isinstance(obj, bool):
+        yield path
+
+
+_NUMBER_PATHS = [p for p in _number_leaves(_dict()) if p[0] != "provenance"]
+
+
+@pytest.mark.parametrize("value", [True, False, "2"])
+def test_no_number_of_a_model_file_is_read_from_a_boolean_or_a_string(value):
+    """Generated over every number of the sample model (orders, strokes, coefficients,
+    covariance, offsets, summary): ``true`` (read as 1.0 by ``float``), ``false`` and
+    ``"2"`` are each refused in one line naming the file; none is taken as a number
+    (issue 38: "true read as 1.0")."""
+    assert len(_NUMBER_PATHS) > 100  # 21 coefficients and their covariance at least
+    accepted = []
+    for path in _NUMBER_PATHS:
+        d = _dict()
+        t = d
+        for k in path[:-1]:
+            t = t[k]
+        t[path[-1]] = value
+        try:
+            model_from_dict(d, name="m.json")
+        except DataError as exc:
+            assert "m.json" in str(exc) and "\n" not in str(exc), path
+        else:
+            accepted.append(path)
+    assert not accepted, accepted[:5]

@@ -33,7 +33,7 @@ from ..io.delimited import (
     FileSource,
     read_bytes,
 )
-from ..io.errors import cut_repr
+from ..io.errors import cut_repr, not_a_json_number
 from ..io.provenance import InputFile, Provenance, input_file, provenance_from_dict
 from ..io.provenance import provenance as make_provenance
 from ..machine import DEFAULT_LAYOUT, LAYOUTS, KinematicTerms
@@ -281,8 +281,42 @@ def _checked_model_header(d, name):
     return layout
 
 
+_SUMMARY_NUMBERS = ("rms_um", "chi2_dof", "birge_ratio", "chi2_p_value", "chi2_test_dof",
+                    "dof_test", "n_obs", "sigma_um")
+"""Summary keys that hold one number (or null): what the check and report print."""
+
+
+def _refuse_non_numbers(d, name):
+    """Every number of the file a JSON number: ``true`` or ``"2"`` where a coefficient,
+    a variance, an order or a stroke belongs would be read as 1.0 or 2.0."""
+    fields = [(k, d.get(k)) for k in ("coef", "cov", "range_mm") if k in d]
+    if isinstance(d.get("probes_mm"), dict):
+        fields += [(f"probes_mm.{q}", v) for q, v in d["probes_mm"].items()]
+    for key in ("orders", "periods"):
+        if isinstance(d.get(key), list):
+            fields += [(f"{key}[{i}]", pair[1]) for i, pair in enumerate(d[key])
+                       if isinstance(pair, list) and len(pair) == 2]
+    summary = d.get("summary")
+    if isinstance(summary, dict):
+        fields += [(f"summary.{k}", summary[k]) for k in _SUMMARY_NUMBERS
+                   if summary.get(k) is not None]
+        if summary.get("region_mm") is not None:
+            fields.append(("summary.region_mm", summary["region_mm"]))
+    for column, value in fields:
+        bad = not_a_json_number(value)
+        if bad:
+            raise DataError(f"expected JSON numbers, found {column}{bad}.", file=name,
+                            column=column, hint="refit and save the model again (fit "
+                                                "--save); do not edit it.")
+    for i, (_, order) in enumerate(p for p in d.get("orders", []) if isinstance(p, list)):
+        if isinstance(order, float) and not order.is_integer():
+            raise DataError(f"expected a whole polynomial order, found {order!r}.", file=name,
+                            column=f"orders[{i}]")
+
+
 def _parsed_model(d, name, layout):
     """The model's terms and arrays, or a DataError when the file's structure is wrong."""
+    _refuse_non_numbers(d, name)
     try:
         terms = KinematicTerms(tuple((str(n), int(o)) for n, o in d["orders"]),
                                    tuple(float(x) for x in d["range_mm"]),

@@ -47,6 +47,7 @@ from .errors import (
     cut_repr,
     describe_error,
     likely_typo,
+    not_a_json_number,
     refuse_unknown_keys,
 )
 from .matching import missing_balls, resolve
@@ -136,7 +137,7 @@ __all__ = [
     "apply_mapping", "ARTEFACTS", "atomic_write_all", "atomic_write_bytes", "atomic_write_text", "atomic_writer",
     "AXIS_TOLERANCE_DEG", "Certificate", "CertificateUncertainty", "check_celsius",
     "check_outputs", "COLUMN_ALIASES", "COMBINE", "combine_plates", "CTE_RANGE_PER_K",
-    "cut_repr", "describe_error", "DataError", "Dataset", "DECIMALS", "DELIMITERS", "DMIS_SUFFIXES",
+    "cut_repr", "not_a_json_number", "describe_error", "DataError", "Dataset", "DECIMALS", "DELIMITERS", "DMIS_SUFFIXES",
     "DMIS_UNITS_MM", "file_rows", "FileSource", "ForeignDataset", "ForeignStepGauge",
     "ForeignTable", "inspect_table", "LABEL_GROUPS", "LAYOUTS", "LENGTH_UNITS_MM",
     "likely_typo", "load_dataset", "read_machine", "LONG_COLUMNS", "MAX_BYTES", "MAX_PROBE_MM", "MAX_PROBLEMS",

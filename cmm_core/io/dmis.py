@@ -42,6 +42,9 @@ DMIS_SUFFIXES = (".dmo", ".dmi", ".dms")
 
 _SPHERE = re.compile(r"^(?P<kind>FA|F)\s*\(\s*(?P<label>[^)]*?)\s*\)\s*=\s*FEAT\s*/\s*"
                      r"SPHERE\s*(?P<args>.*)$", re.I)
+_FEATURE = re.compile(r"^(?P<kind>FA|F)\s*\(\s*(?P<label>[^)]*?)\s*\)\s*=\s*FEAT\s*/\s*"
+                      r"(?P<type>\w+)", re.I)
+"""Any other feature (a circle, a point, a plane): not a ball, but said, not dropped."""
 _ASSIGN = re.compile(r"^(?P<key>DATE|TIME)\s*=\s*(?P<value>.*)$", re.I)
 _UNITS = re.compile(r"^UNITS\s*/\s*(?P<unit>[A-Z]*)", re.I)
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
@@ -144,6 +147,7 @@ class _Reader:
         self.day, self.clock = None, None
         self.stamps = []  # (line, day or None, clock) of every DATE/TIME
         self.spheres = []
+        self.others = []  # (line, kind, type, label) of measured features not spheres
         self.problems = []
         self.first_unitless = None
 
@@ -217,6 +221,10 @@ def _read_statements(text, name) -> _Reader:
         g = _SPHERE.match(st)
         if g:
             rd.sphere(line, g["kind"], g["label"], g["args"])
+            continue
+        g = _FEATURE.match(st)
+        if g:
+            rd.others.append((line, g["kind"].upper(), g["type"].upper(), g["label"]))
             continue
         g = _UNITS.match(st)
         if g:
@@ -299,6 +307,12 @@ def read_dmis(source: FileSource, *, name: str | None = None, pattern: str,
     if measured and len(measured) < len(rd.spheres):
         notes.append(f"{len(rd.spheres) - len(measured)} nominal sphere(s) F(...) ignored: "
                      "the measured FA(...) are read.")
+    others = [o for o in rd.others if o[1] == "FA"]
+    if others:
+        shown = ", ".join(f"{t} FA({lab}) (row {line})" for line, _, t, lab in others[:3])
+        notes.append(f"{len(others)} measured feature(s) other than spheres left out: "
+                     f"{shown}{', ...' if len(others) > 3 else ''}; a ball is a "
+                     "FEAT/SPHERE.")
     if not rd.spheres and not rd.problems:
         raise DataError("has no sphere feature; expected FA(label)=FEAT/SPHERE,CART,x,y,z,d "
                         "statements.", file=name,

@@ -135,6 +135,24 @@ def cut_repr(value: object, limit: int = 60) -> str:
     return text if len(text) <= limit else text[:limit - 1] + "…"
 
 
+def not_a_json_number(value: object) -> str:
+    """Where ``value`` (a JSON number or nested lists of them) holds something else: ``""``
+    when it holds numbers only, else the first offender's index path and value, as
+    ``"[3]: true"``.
+
+    ``np.asarray(value, float)`` and ``float()`` read ``true`` as 1.0 and ``"2"`` as 2.0:
+    a hand-edited file would pass with a number nobody wrote. Checked before any
+    conversion."""
+    if isinstance(value, bool) or not isinstance(value, int | float | list):
+        return f": {cut_repr(value, 30)}"
+    if isinstance(value, list):
+        for i, v in enumerate(value):
+            bad = not_a_json_number(v)
+            if bad:
+                return f"[{i}]{bad}"
+    return ""
+
+
 COLUMN_ALIASES = {"time": "time_min", "t_min": "time_min", "minutes": "time_min",
                   "time_s": "time_min", "time_h": "time_min", "temp": "temp_C",
                   "temperature": "temp_C", "t_c": "temp_C", "temp_k": "temp_C",
