@@ -21,7 +21,7 @@ from _timing import median_time  # noqa: E402
 from cmm_core import analysis as A  # noqa: E402
 from cmm_core.analysis import report as rep  # noqa: E402
 
-RECORD = ROOT / "sample_data" / "analysis" / "thesis.json"
+RECORD = ROOT / "sample_data" / "thesis" / "analysis.json"
 
 
 def per_figure(res) -> str:

@@ -20,7 +20,7 @@ from cmm_core.model import fit
 from pages.ui.session import session_record
 
 ROOT = Path(__file__).resolve().parents[1]
-SAMPLE = ROOT / "sample_data" / "analysis" / "thesis.json"
+SAMPLE = ROOT / "sample_data" / "thesis" / "analysis.json"
 
 
 def _session(**state):

@@ -1158,7 +1158,7 @@ def test_a_restored_record_is_fitted_as_the_report_fits_it():
     from cmm_core import analysis as A
 
     rec = dataclasses.replace(
-        A.read_record(ROOT / "sample_data" / "analysis" / "thesis.json"), sigma_um="auto",
+        A.read_record(ROOT / "sample_data" / "thesis" / "analysis.json"), sigma_um="auto",
         exclude_outliers=True, exclusions=(), positions=("BP111", "BP112", "BP211", "BP212"),
         spec="kinematic21", history=(("kinematic21", "baseline"),), diagnose=False)
     res = A.run(rec)

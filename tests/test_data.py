@@ -399,7 +399,7 @@ def test_a_project_file_of_the_wrong_shape_restores_nothing_and_says_why(part, v
     from cmm_core import analysis as A
     from cmm_core.io import thesis_dataset
 
-    rec = A.read_record(ROOT / "sample_data" / "analysis" / "thesis.json")
+    rec = A.read_record(ROOT / "sample_data" / "thesis" / "analysis.json")
     doc = json.loads(A.record_to_project_json(rec))
     (doc["dataset"] if part == "measurements" else doc)[part] = value
     at = _upload_app()

@@ -126,13 +126,11 @@ def test_json_and_save_refuse_inputs(tmp_path, model, points):
 
 def test_report_refuses_a_data_file_of_its_record(tmp_path):
     shutil.copytree(ROOT / "sample_data" / "thesis", tmp_path / "thesis")
-    (tmp_path / "analysis").mkdir()
-    record = tmp_path / "analysis" / "thesis.json"
-    shutil.copy(ROOT / "sample_data" / "analysis" / "thesis.json", record)
+    record = tmp_path / "thesis" / "analysis.json"
     target = tmp_path / "thesis" / "BP111.csv"
     before = target.read_bytes()
     _refused(*_run(["report", record, "--out", target])[:2], "--out", "BP111.csv")
-    _refused(*_run(["report", record, "--out", record])[:2], "--out", "thesis.json")
+    _refused(*_run(["report", record, "--out", record])[:2], "--out", "analysis.json")
     assert target.read_bytes() == before
 
 

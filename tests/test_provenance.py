@@ -119,7 +119,7 @@ def test_compensation_tables_and_the_error_map_say_it_in_their_headers(thesis, t
 
 
 def test_the_analysis_record_the_project_file_and_the_report(thesis, tmp_path):
-    record = A.read_record(ROOT / "sample_data" / "analysis" / "thesis.json")
+    record = A.read_record(ROOT / "sample_data" / "thesis" / "analysis.json")
     inputs = [(f.name, hashlib.sha256(Path(f.path).read_bytes()).hexdigest())
               for f in record.data.files]
     _check(json.loads(A.record_to_json(record))["provenance"], inputs)

@@ -18,7 +18,7 @@ from cmm_core.cli import main
 from pages.ui.session import session_record
 
 ROOT = Path(__file__).resolve().parents[1]
-SAMPLE = ROOT / "sample_data" / "analysis" / "thesis.json"
+SAMPLE = ROOT / "sample_data" / "thesis" / "analysis.json"
 FLAGGED = [("BP112", "2", 7), ("BP112", "2", 10), ("BP312", "6", 16)]
 
 
@@ -30,8 +30,8 @@ def _session(**state):
             "sources": A.thesis_sources(), **state}
 
 
-def _cli(record_path, out, capsys):
-    code = main(["report", str(record_path), "--out", str(out)])
+def _cli(record_path, out, capsys, *flags):
+    code = main(["report", str(record_path), "--out", str(out), *flags])
     printed = capsys.readouterr()
     return code, printed
 
@@ -48,7 +48,7 @@ def test_export_page_calls_the_cli_function_on_the_session_record():
     assert "session.session_record, s," in src and "A.analysis_report(_record)" in src
     assert "build_report" not in src
     cli = (ROOT / "cmm_core" / "analysis" / "report.py").read_text()
-    assert "res = run(read_record(Path(analysis_path)))" in cli and "text = render(res)" in cli
+    assert "res = run(read_record(Path(analysis_path), confine=confine))" in cli and "text = render(res)" in cli
     assert "def analysis_report" in cli
 
 
@@ -121,13 +121,21 @@ def test_simulated_hidden_effect_app_and_cli_byte_identical(tmp_path, capsys):
     record = session_record(state)
     app_html = rep.analysis_report(record)
     by_path = dataclasses.replace(record, data=_written(d))
-    path = tmp_path / "rec" / "ANALYSIS.json"
-    path.parent.mkdir()
+    path = tmp_path / "ANALYSIS.json"
     path.write_text(A.record_to_json(by_path, relative_to=path.parent))
-    assert '"../data/measurements.csv"' in path.read_text()
+    assert '"data/measurements.csv"' in path.read_text()
     code, printed = _cli(path, tmp_path / "r.html", capsys)
     assert code == 0, printed.err
     assert _same(app_html, (tmp_path / "r.html").read_text(encoding="utf-8"))
+    # the same record one folder down names ../data: refused unless --any-path is given
+    below = tmp_path / "rec" / "ANALYSIS.json"
+    below.parent.mkdir()
+    below.write_text(A.record_to_json(by_path, relative_to=below.parent))
+    code, printed = _cli(below, tmp_path / "r2.html", capsys)
+    assert code == 2 and not (tmp_path / "r2.html").exists()
+    assert printed.err.count("\n") == 1 and "'data.measurements[0]': '../data/measurements" \
+        ".csv' lies outside the record's folder" in printed.err and "--any-path" in printed.err
+    assert main(["report", str(below), "--out", str(tmp_path / "r2.html"), "--any-path"]) == 0
     assert "Diagnosis: candidate effects" in app_html and "plate_sag" in app_html
     assert "The model fails its χ² test" in app_html and "x × Birge (µm)" in app_html
 
@@ -192,7 +200,8 @@ def test_report_with_an_instrument_app_and_cli_byte_identical(tmp_path, capsys):
     path = tmp_path / "ANALYSIS.json"
     path.write_text(A.record_to_json(by_path, relative_to=tmp_path))
     assert '"kind": "laser"' in path.read_text()
-    code, printed = _cli(path, tmp_path / "r.html", capsys)
+    # the record names the sample data where they are: outside its folder
+    code, printed = _cli(path, tmp_path / "r.html", capsys, "--any-path")
     assert code == 0, printed.err
     assert _same(app_html, (tmp_path / "r.html").read_text(encoding="utf-8"))
     assert "Instruments fitted with the plate" in app_html

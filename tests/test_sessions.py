@@ -160,7 +160,7 @@ def test_an_uploaded_project_naming_a_server_path_is_refused_in_one_line(tmp_pat
     secret = tmp_path / "secret.csv"
     secret.write_text("TOP SECRET first line\n1,2,3\n")
     doc = json.loads(A.record_to_project_json(A.read_record(
-        ROOT / "sample_data" / "analysis" / "thesis.json")))
+        ROOT / "sample_data" / "thesis" / "analysis.json")))
     rest = doc["extra"]["analysis"]
     if where == "instrument":
         rest["instruments"] = [{"kind": "laser", "name": "x.csv", "path": str(secret)}]

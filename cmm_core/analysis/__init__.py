@@ -71,6 +71,7 @@ from .record_io import (
     KEYS,
     instruments_from_list,
     read_record,
+    record_files,
     record_from_dict,
     record_from_inline,
     record_from_project,
@@ -169,7 +170,7 @@ __all__ = [
     "ModelComparison", "monitor_sections", "MPE_U_SOURCES", "placement_plane_grid", "PlaneGrid", "PLATE_CHOICES",
     "plate_coordinates_mm", "plotly_loader", "position_trends", "read_record",
     "record_from_dict", "record_from_inline", "record_from_project", "record_to_dict",
-    "record_to_json", "record_to_project_json", "render", "residual_summary", "run",
+    "record_files", "record_to_json", "record_to_project_json", "render", "residual_summary", "run",
     "TIMESTAMP", "true_function_curve", "uncertainty_gain", "VERSION", "with_instruments",
     "write_report"
 ]

@@ -34,7 +34,7 @@ from .record import (
 )
 
 __all__ = ["KEYS", "instruments_from_list", "record_from_dict", "record_to_dict",
-           "record_to_json", "read_record", "record_from_inline",
+           "record_to_json", "read_record", "record_files", "record_from_inline",
            "record_to_project_json", "record_from_project"]
 
 KEYS = [f.name for f in fields(AnalysisRecord)]
@@ -326,13 +326,46 @@ def record_to_json(record: AnalysisRecord, relative_to: str | Path | None = None
     return json.dumps(record_to_dict(record, relative_to), indent=1, ensure_ascii=False)
 
 
-def read_record(source: FileSource, name: str | None = None) -> AnalysisRecord:
+def record_files(record: AnalysisRecord) -> list[tuple[str, DataFile]]:
+    """Every file the record reads, with the key that names it: the data, the
+    instruments, the interim check's stored model and the history's models."""
+    data = record.data
+    out = [(f"data.measurements[{i}]", f) for i, f in enumerate(data.measurements)]
+    out += [("data.setup", data.setup)]
+    out += [("data.certificate", data.certificate)] if data.certificate else []
+    out += [(f"data.instruments[{i}]", x.file) for i, x in enumerate(data.instruments)]
+    if record.interim_check is not None:
+        out.append(("interim_check.model", record.interim_check.model))
+    if record.calibration_history is not None:
+        out += [(f"calibration_history.models[{i}]", f)
+                for i, (f, _) in enumerate(record.calibration_history.models)]
+    return out
+
+
+def read_record(source: FileSource, name: str | None = None, *,
+                confine: bool = False) -> AnalysisRecord:
     """Read ``ANALYSIS.json`` (path, bytes or text); relative data paths are resolved
-    against the file's folder."""
+    against the file's folder.
+
+    With ``confine`` (the command line's default), every file the record names by path
+    must lie in the record's folder or below it, links resolved: a record handed on by
+    someone else cannot make the program read, or count as its input, a file elsewhere
+    on the computer (``/etc/...``, ``../../other_lab/...``). Refused in one line naming
+    the key."""
     doc, name = read_json(source, name)
     base = Path(source).parent if isinstance(source, str | Path) and not str(
         source).lstrip().startswith("{") else None
-    return record_from_dict(doc, name or "ANALYSIS.json", base)
+    record = record_from_dict(doc, name or "ANALYSIS.json", base)
+    if confine and base is not None:
+        root = base.resolve()
+        for where, f in record_files(record):
+            if f.path is not None and not Path(f.path).resolve().is_relative_to(root):
+                shown = os.path.relpath(f.path, base)  # as the record names it
+                raise DataError(f"{cut_repr(shown, 80)} lies outside the record's folder; "
+                                "expected a file in it or below it.", file=name,
+                                column=where, hint="copy the file beside the record, or "
+                                "pass --any-path to read files elsewhere.")
+    return record
 
 
 def _inline(name, measurements, setup, certificate, instruments=()) -> dict:

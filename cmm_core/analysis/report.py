@@ -246,13 +246,15 @@ def analysis_report(record: AnalysisRecord, *, generated: str | None = None) -> 
     return render(run(record), generated=generated)
 
 
-def write_report(analysis_path: str | Path, out_path: str | Path) -> dict:
+def write_report(analysis_path: str | Path, out_path: str | Path, *,
+                 confine: bool = True) -> dict:
     """``python -m cmm_core report``: the report of the record at ``analysis_path``
-    written to ``out_path``; returns what the command prints (the fit's χ² test too)."""
+    written to ``out_path``; returns what the command prints (the fit's χ² test too).
+    ``confine``: the record's files must lie in its folder (:func:`read_record`)."""
     if not Path(out_path).parent.is_dir():  # refused before minutes of work, not after
         raise DataError(f"the folder {Path(out_path).parent} does not exist.",
                         file=Path(out_path).name, hint="create it or write elsewhere.")
-    res = run(read_record(Path(analysis_path)))
+    res = run(read_record(Path(analysis_path), confine=confine))
     text = render(res)
     atomic_write_text(out_path, text)  # temporary file + rename: never half a report
     return {"out": str(out_path), "bytes": len(text.encode()), **res.fit.summary(),

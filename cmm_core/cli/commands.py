@@ -63,16 +63,11 @@ def _files(args):
     elif cmd == "report":
         ins.append(args.analysis)
         # lazy: report alone reads a file (its record) before the outputs are checked
-        from ..analysis import read_record
+        from ..analysis import read_record, record_files
 
-        record = read_record(Path(args.analysis))
-        data = record.data  # the files the record reads, its stored calibrations too
-        ins += [f.path for f in (*data.measurements, data.setup, data.certificate) if f]
-        ins += [i.file.path for i in data.instruments]
-        if record.interim_check is not None:
-            ins.append(record.interim_check.model.path)
-        if record.calibration_history is not None:
-            ins += [f.path for f, _ in record.calibration_history.models]
+        record = read_record(Path(args.analysis), confine=not args.any_path)
+        # the files the record reads, its stored calibrations too
+        ins += [f.path for _, f in record_files(record)]
         outs["--out"] = args.out
     elif cmd == "plan":
         ins.append(args.plan)

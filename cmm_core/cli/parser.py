@@ -148,7 +148,12 @@ def _report_arguments(p: argparse.ArgumentParser) -> None:
                         "spec, order, plate mode, σ in µm, exclusions, exclude_outliers "
                         "(default false: flagged outliers stay in the fit), diagnosis, GP, "
                         "MPE and magnification choices (docs/report.md; example: "
-                        "sample_data/analysis/thesis.json)")
+                        "sample_data/thesis/analysis.json)")
+    p.add_argument("--any-path", action="store_true",
+                   help="read the files the record names wherever they are; by default "
+                        "every one must lie in the record's folder or below it, so that a "
+                        "record from elsewhere cannot make the program read other files "
+                        "on this computer")
     p.add_argument("--out", required=True, metavar="REPORT.html",
                    help="HTML file to write (plotly inline, opens offline; about 2 MB); "
                         "required. The χ² test of the fit is printed as JSON")

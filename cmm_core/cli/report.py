@@ -8,4 +8,4 @@ from ..analysis import write_report
 
 
 def cmd_report(args: argparse.Namespace) -> dict:
-    return write_report(args.analysis, args.out)
+    return write_report(args.analysis, args.out, confine=not args.any_path)
