@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 
 from cmm_core.export import compensate, load_model, read_points
-from cmm_core.io import DataError
+from cmm_core.io import MAX_MEASUREMENT_ROWS, DataError, read_measurements
 from cmm_core.model import LaserRun, Problem, parse_spec, select, simulate
 from cmm_core.model import instruments as ins
 from cmm_core.model import normal as normal_module
@@ -251,3 +251,23 @@ def test_normal_equations_of_observations_out_of_block_order():
         np.testing.assert_allclose(blocks.g, one.g, rtol=1e-10, atol=1e-9 * np.abs(one.g).max())
         np.testing.assert_array_equal(blocks.d, one.d)
         assert np.isclose(blocks.cost, one.cost, rtol=1e-12)
+
+
+def test_a_million_readings_are_refused_at_the_limit_in_bounded_memory(tmp_path):
+    """A 10⁶-row measurement file (51 MB) is refused at the first row beyond ``MAX_MEASUREMENT_ROWS``, naming
+    that row, and the reader's peak memory stays within three times the file's size
+    (it held a StringIO of four bytes per character and every line split, 7.7 times,
+    before): the rest of the file is never parsed into cells."""
+    path = tmp_path / "million.csv"
+    path.write_bytes(b"position,probe,ball,x_mm,y_mm,z_mm,time_min\n"
+                     + b"BP111,1,1,333.999306,233.998938,-0.001962,0.000000\n" * 10**6)
+    tracemalloc.start()
+    try:
+        with pytest.raises(DataError) as exc:
+            read_measurements(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert f"more than {MAX_MEASUREMENT_ROWS} data rows (row {MAX_MEASUREMENT_ROWS + 2} " \
+        in str(exc.value) and "million.csv" in str(exc.value)
+    assert peak < 3 * path.stat().st_size, peak

@@ -308,7 +308,9 @@ def _refuse_non_numbers(d, name):
             raise DataError(f"expected JSON numbers, found {column}{bad}.", file=name,
                             column=column, hint="refit and save the model again (fit "
                                                 "--save); do not edit it.")
-    for i, (_, order) in enumerate(p for p in d.get("orders", []) if isinstance(p, list)):
+    orders = d.get("orders") if isinstance(d.get("orders"), list) else []
+    for i, pair in enumerate(orders):
+        order = pair[1] if isinstance(pair, list) and len(pair) == 2 else None
         if isinstance(order, float) and not order.is_integer():
             raise DataError(f"expected a whole polynomial order, found {order!r}.", file=name,
                             column=f"orders[{i}]")

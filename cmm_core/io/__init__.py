@@ -28,6 +28,7 @@ from .dataset import (
 )
 from .delimited import (
     MAX_BYTES,
+    MAX_MEASUREMENT_ROWS,
     FileSource,
     blank_leading_comments,
     file_rows,
@@ -140,7 +141,7 @@ __all__ = [
     "cut_repr", "not_a_json_number", "describe_error", "DataError", "Dataset", "DECIMALS", "DELIMITERS", "DMIS_SUFFIXES",
     "DMIS_UNITS_MM", "file_rows", "FileSource", "ForeignDataset", "ForeignStepGauge",
     "ForeignTable", "inspect_table", "LABEL_GROUPS", "LAYOUTS", "LENGTH_UNITS_MM",
-    "likely_typo", "load_dataset", "read_machine", "LONG_COLUMNS", "MAX_BYTES", "MAX_PROBE_MM", "MAX_PROBLEMS",
+    "likely_typo", "load_dataset", "read_machine", "LONG_COLUMNS", "MAX_BYTES", "MAX_MEASUREMENT_ROWS", "MAX_PROBE_MM", "MAX_PROBLEMS",
     "MAX_STROKE_MM", "MIN_CERTIFICATE_BALLS", "MIN_STROKE_MM", "missing_balls",
     "msl_coefficients", "MSL_HEADER_KEYS", "MSL_KINDS", "msl_layout", "MSL_LAYOUTS",
     "MSL_MAX_DEVIATION_MM", "MSL_PARAMETERS", "msl_rotation", "MSL_ROUNDING_U_UM",

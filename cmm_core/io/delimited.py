@@ -12,7 +12,6 @@ Nothing here knows what a measurement, setup or certificate is; the points reade
 from __future__ import annotations
 
 import csv
-import io as _io
 import json
 import re
 from collections.abc import Iterable
@@ -25,6 +24,12 @@ import pandas as pd
 from .errors import DataError, Problems, cut_repr
 
 MAX_BYTES = 50 * 1024 * 1024
+MAX_MEASUREMENT_ROWS = 200_000
+"""Most readings a measurement file (long form, thesis form, a mapped table, DMIS spheres)
+may hold: ten times a large calibration (a 100-hole plate in 20 placements with five
+styli, ten repeats each). The fit's Jacobian holds three rows per reading, so 10⁶ readings
+would cost gigabytes before any answer; beyond the limit the file is refused as soon as the
+reader meets the row after it, before the rest is parsed."""
 _NAN_WORDS = {"nan", "+nan", "-nan"}
 _DELIM_NAMES = {",": "comma", ";": "semicolon", "\t": "tab"}
 # A number written with a decimal comma ("-1,25", "3,5e-2"); only rewritten in files whose
@@ -118,14 +123,33 @@ def blank_leading_comments(text: str) -> str:
     """``text`` with each line before its first table line that starts with ``#`` made
     blank: the comment header this product writes above its own tables (their provenance,
     docs/formats.md) is read past, and blank lines keep their place in the row numbers.
-    A ``#`` after the header is a cell like any other."""
-    lines = text.split("\n")
-    for i, line in enumerate(lines):
+    A ``#`` after the header is a cell like any other. Only the lines before the header
+    are looked at (a 10⁶-line file is not split into lines here)."""
+    out, pos, changed = [], 0, False
+    while pos < len(text):
+        end = text.find("\n", pos)
+        end = len(text) if end < 0 else end
+        line = text[pos:end]
         if line.lstrip().startswith("#"):
-            lines[i] = ""
+            out.append("")
+            changed = True
         elif line.strip(" \t,;"):
-            break
-    return "\n".join(lines)
+            return "\n".join([*out, text[pos:]]) if changed else text
+        else:
+            out.append(line)
+        pos = end + 1
+    return "\n".join(out + [""] * text.endswith("\n")) if changed else text
+
+
+def _lines(text: str):
+    """The lines of ``text`` with their line ends, one at a time: the CSV reader holds
+    one line, where a StringIO of the text would hold four bytes per character."""
+    pos = 0
+    while pos < len(text):
+        end = text.find("\n", pos)
+        end = len(text) if end < 0 else end + 1
+        yield text[pos:end]
+        pos = end
 
 
 def read_csv_text(source: FileSource, name: str | None, *,
@@ -153,6 +177,7 @@ def read_csv_text(source: FileSource, name: str | None, *,
     data, name = read_bytes(source, name)
     try:
         text = data.decode("utf-8-sig")
+        del data  # the text is what is read from here on
     except UnicodeDecodeError as exc:
         raise DataError("is not UTF-8 text (a binary file, or another encoding).", file=name,
                         hint="export the table as CSV (UTF-8).") from exc
@@ -163,13 +188,15 @@ def read_csv_text(source: FileSource, name: str | None, *,
                         hint="export the table as CSV (UTF-8).")
     # one line end everywhere: a bare CR (old Mac export, or a stray one in a cell) would
     # otherwise end a line for one reader and not for another
-    text = blank_leading_comments(text.replace("\r\n", "\n").replace("\r", "\n"))
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    text = blank_leading_comments(text)
     if not text.strip():
         raise DataError("holds comment lines only; expected a header line with column "
                         "names after them.", file=name)
-    first_line = next(line for line in _io.StringIO(text) if line.strip()).rstrip("\n")
+    first_line = next(line for line in _lines(text) if line.strip()).rstrip("\n")
     delim = _delimiter(first_line)
-    reader = csv.reader(_io.StringIO(text), delimiter=delim, skipinitialspace=True)
+    reader = csv.reader(_lines(text), delimiter=delim, skipinitialspace=True)
     header, records, rows, bad = None, [], [], []
     try:
         while True:

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .delimited import FileSource, read_bytes
+from .delimited import MAX_MEASUREMENT_ROWS, FileSource, read_bytes
 from .errors import DataError, Problems, cut_repr
 from .table_mapping import (
     ForeignTable,
@@ -181,6 +181,11 @@ class _Reader:
             self.stamps.append((line, self.day, clock))
 
     def sphere(self, line, kind, label, args):
+        if len(self.spheres) >= MAX_MEASUREMENT_ROWS:
+            raise DataError(f"has more than {MAX_MEASUREMENT_ROWS} spheres (row {line} is "
+                            "beyond the limit of a measurement file).", file=self.name,
+                            row=line, hint="split the run into several files "
+                                           "(docs/formats.md#size-limits).")
         toks = [t.strip() for t in args.split(",")]
         where = f"sphere {kind.upper()}({label})"
         if toks[0]:

@@ -17,6 +17,7 @@ import pandas as pd
 
 from .delimited import (
     _COLUMNS_HINT,
+    MAX_MEASUREMENT_ROWS,
     FileSource,
     _names,
     file_rows,
@@ -59,7 +60,7 @@ def read_measurements(source: FileSource, *, name: str | None = None,
     DataError
         With every problem of the file in ``problems`` (see :mod:`cmm_core.io`).
     """
-    df, name = read_csv_text(source, name)
+    df, name = read_csv_text(source, name, max_rows=MAX_MEASUREMENT_ROWS)
     # a probe column says long form: without position it must not pass as thesis form,
     # where every position's ball 1 would "appear twice"
     long = "position" in df.columns or "probe" in df.columns

@@ -34,6 +34,7 @@ import pandas as pd
 from .delimited import (
     _DECIMAL_COMMA,
     _DELIM_NAMES,
+    MAX_MEASUREMENT_ROWS,
     FileSource,
     file_rows,
     numeric_column,
@@ -436,7 +437,7 @@ def inspect_table(source: FileSource, *, name: str | None = None) -> TableInfo:
     DataError
         When the file cannot be read as a table (see :func:`~cmm_core.io.read_csv_text`).
     """
-    df, name = read_csv_text(source, name)
+    df, name = read_csv_text(source, name, max_rows=MAX_MEASUREMENT_ROWS)
     return TableInfo(tuple(df.columns), df.attrs["delimiter"],
                      "," if df.attrs["decimal_comma"] else ".", len(df),
                      suggest_mapping(df.columns))
@@ -747,7 +748,7 @@ def apply_mapping(source: FileSource, mapping: TableMapping | dict, *,
     """
     m = _as_mapping(mapping)
     raw, name = read_bytes(source, name)
-    df, name = read_csv_text(raw, name)
+    df, name = read_csv_text(raw, name, max_rows=MAX_MEASUREMENT_ROWS)
     if len(df) == 0:
         raise DataError("has no data rows; expected a header followed by one row per "
                         "probed ball.", file=name,
@@ -806,7 +807,7 @@ def preview(source: FileSource, mapping: TableMapping | dict, *, name: str | Non
     """
     try:
         m = _as_mapping(mapping)
-        df, name = read_csv_text(source, name)
+        df, name = read_csv_text(source, name, max_rows=MAX_MEASUREMENT_ROWS)
         long, rows, labels, unmatched, found, notes = _convert(df, m, name)
     except DataError as exc:
         return Preview(_empty_rows(), 0, tuple(_lines(exc)))
