@@ -362,3 +362,53 @@ def test_check_and_compare_refuse_one_file_for_two_of_their_outputs(tmp_path):
         rc, lines, _ = _run(argv)
         assert rc == 2 and len(lines) == 1 and "out.json" in lines[0], lines
         assert not same.exists()
+
+
+# --- two runs, one output -------------------------------------------------------------
+
+def test_an_output_written_by_another_run_meanwhile_is_not_replaced(tmp_path):
+    """Between a command's start (``check_outputs``) and its write, another run wrote the
+    output: the later write keeps that file, puts its own result beside it as
+    ``NAME.conflict-XXXX`` and says so in one line (it was "the last rename wins")."""
+    out = tmp_path / "result.json"
+    check_outputs({"--json": out})
+    out.write_text("the other run's result")  # another process, after this one started
+    with pytest.raises(DataError) as exc:
+        atomic_write_text(out, "this run's result")
+    assert out.read_text() == "the other run's result"
+    kept = [p for p in tmp_path.iterdir() if p.name.startswith("result.json.conflict-")]
+    assert len(kept) == 1 and kept[0].read_text() == "this run's result"
+    assert kept[0].name in str(exc.value) and "another run" in str(exc.value)
+    output_module.forget_outputs()
+
+
+def test_a_set_of_outputs_is_refused_whole_when_one_was_written_meanwhile(tmp_path):
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    b.write_text("old b")
+    check_outputs({"--grid": a, "--tables": b})
+    b.write_text("b from another run")
+    with pytest.raises(DataError):
+        output_module.atomic_write_all({a: "new a", b: "new b"})
+    assert not a.exists() and b.read_text() == "b from another run"  # all or none
+    output_module.forget_outputs()
+
+
+def test_the_cli_tells_the_later_run_and_exits_non_zero(tmp_path, model, points,
+                                                        monkeypatch):
+    """``compensate --out`` whose output another run writes while it works: exit 2, one
+    line naming the file and where this run's result went; the other run's file stays,
+    and a run after both writes normally (the states are forgotten at the end)."""
+    out = tmp_path / "corrected.csv"
+    real = output_module._Temp.finish
+
+    def meanwhile(f):  # as this run's table reaches the disk, another run's lands
+        out.write_text("another run's table")
+        real(f)
+
+    monkeypatch.setattr(output_module._Temp, "finish", staticmethod(meanwhile))
+    rc, lines, _ = _run(["compensate", model, points, "--out", out])
+    monkeypatch.undo()
+    assert rc == 2 and len(lines) == 1 and "another run" in lines[0] and "conflict-" in lines[0]
+    assert out.read_text() == "another run's table"
+    rc, lines, _ = _run(["compensate", model, points, "--out", out])
+    assert rc == 0 and out.read_text() != "another run's table"

@@ -124,6 +124,18 @@ def main(argv: list[str] | None = None) -> int:
     # after parsing, so that --help and a usage error load none of the core; the command's
     # own module loads in args.func (parser.Subcommand), the wings it uses with it
     # lazy: the io wing brings numpy and pandas, which neither --help nor a usage error needs
+    from ..io import forget_outputs
+
+    try:
+        return _run(args)
+    finally:  # the outputs' states at the start belong to this command alone
+        forget_outputs()
+
+
+def _run(args) -> int:
+    """The parsed command, its outputs checked first (``io.check_outputs``), its result
+    printed or written: the exit status."""
+    # lazy: as in main
     from ..io import DataError, atomic_write_text, check_outputs
     from .records import provenance_of  # lazy: the io wing's, as the line above
 

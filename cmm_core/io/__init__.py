@@ -84,6 +84,7 @@ from .output import (
     atomic_write_text,
     atomic_writer,
     check_outputs,
+    forget_outputs,
 )
 from .provenance import (
     COMMIT_FILE,
@@ -137,7 +138,7 @@ from .table_mapping import (
 __all__ = [
     "apply_mapping", "ARTEFACTS", "atomic_write_all", "atomic_write_bytes", "atomic_write_text", "atomic_writer",
     "AXIS_TOLERANCE_DEG", "Certificate", "CertificateUncertainty", "check_celsius",
-    "check_outputs", "COLUMN_ALIASES", "COMBINE", "combine_plates", "CTE_RANGE_PER_K",
+    "check_outputs", "forget_outputs", "COLUMN_ALIASES", "COMBINE", "combine_plates", "CTE_RANGE_PER_K",
     "cut_repr", "not_a_json_number", "describe_error", "DataError", "Dataset", "DECIMALS", "DELIMITERS", "DMIS_SUFFIXES",
     "DMIS_UNITS_MM", "file_rows", "FileSource", "ForeignDataset", "ForeignStepGauge",
     "ForeignTable", "inspect_table", "LABEL_GROUPS", "LAYOUTS", "LENGTH_UNITS_MM",

@@ -5,7 +5,9 @@ Every file the command line writes goes through :func:`atomic_write_bytes` (or
 flushed to disk, and the temporary file is renamed over the target (``os.replace``, atomic
 on one file system). A reader sees the old file or the new one, never half of one; a run
 that fails mid-write leaves the old file as it was and no temporary file behind. Two runs
-writing the same file: the last rename wins, and each version is whole.
+writing the same file: each version is whole, and a run whose output another run wrote
+after this one's :func:`check_outputs` is refused at the rename, keeping its own result
+beside the file (:func:`_Temp.check_unchanged`): the loser is told, nothing is lost.
 
 :func:`check_outputs` refuses, before any work, an output that is one of the command's
 inputs, an existing folder, or the same file as another output, in one line naming the
@@ -24,6 +26,25 @@ from pathlib import Path
 from typing import IO
 
 from .errors import DataError
+
+_STARTED: dict[Path, tuple | None] = {}
+"""Each output of the running command (its resolved target) -> the file's state when the
+command started (:func:`_state`), recorded by :func:`check_outputs`."""
+
+
+def forget_outputs() -> None:
+    """End of a command: its outputs' starting states are forgotten, so that a later
+    write in the same process (a test, the app) is not compared with them."""
+    _STARTED.clear()
+
+
+def _state(target: Path) -> tuple | None:
+    """(device, inode, size, mtime in ns) of a file, or None when there is none."""
+    try:
+        s = target.stat()
+    except OSError:
+        return None
+    return (s.st_dev, s.st_ino, s.st_size, s.st_mtime_ns)
 
 
 def _target(path) -> Path:
@@ -75,14 +96,33 @@ class _Temp:
         f.flush()
         os.fsync(f.fileno())
 
+    def check_unchanged(self) -> None:
+        """Refuse to rename over an output that another run wrote after this command
+        started (its state differs from the one :func:`check_outputs` recorded): the
+        temporary file is kept as ``NAME.conflict-XXXX`` beside it and named in one
+        line, so neither run's result is lost and the later one is told."""
+        if self.target not in _STARTED or _state(self.target) == _STARTED[self.target]:
+            return
+        assert self.tmp is not None
+        kept = self.target.parent / f"{self.target.name}.conflict-{secrets.token_hex(3)}"
+        os.replace(self.tmp, kept)
+        self.tmp = None
+        raise DataError(f"was written by another run while this one ran; this run's result "
+                        f"is kept as {kept.name} beside it.", file=str(self.shown),
+                        hint="compare the two and keep one; run one command at a time "
+                             "on one output.")
+
     def commit(self) -> None:
-        """Rename the finished temporary file over the target."""
+        """Rename the finished temporary file over the target (:meth:`check_unchanged`
+        first), and record the new file as this run's own."""
         assert self.tmp is not None
         if self.keep is not None:
             os.chmod(self.tmp, self.keep)
         os.replace(self.tmp, self.target)
         self.tmp = None
         _sync_folder(self.target.parent)
+        if self.target in _STARTED:
+            _STARTED[self.target] = _state(self.target)
 
     def discard(self) -> None:
         """Remove the temporary file (nothing happens to the target)."""
@@ -120,6 +160,7 @@ def atomic_writer(path: str | os.PathLike, mode: str = "wb", encoding: str | Non
         with t.open(mode, encoding) as f:
             yield f
             t.finish(f)
+        t.check_unchanged()
         t.commit()
     except OSError as exc:
         raise t.error(exc) from exc
@@ -158,6 +199,9 @@ def atomic_write_all(files: Mapping[Path, str | bytes], encoding: str = "utf-8")
             with t.open("wb", None) as f:
                 f.write(content.encode(encoding) if isinstance(content, str) else content)
                 t.finish(f)
+        for t in temps:  # every target checked before the first rename: all or none
+            current = t
+            t.check_unchanged()
         for t in temps:
             current = t
             t.commit()
@@ -215,6 +259,7 @@ def check_outputs(outputs: dict, inputs: Iterable = (), *, folders: dict | None 
         output (a folder of ``folders`` an existing file).
     """
     ins = [Path(p) for p in inputs if p is not None and not isinstance(p, bool)]
+    _STARTED.clear()  # one command at a time in a process: its outputs alone
     made = {opt: Path(d) for opt, d in (folders or {}).items() if d is not None}
     for opt, d in made.items():
         if d.exists() and not d.is_dir():
@@ -244,3 +289,4 @@ def check_outputs(outputs: dict, inputs: Iterable = (), *, folders: dict | None 
                             else f"{other} and {opt} name the same file")
                     raise DataError(f"{what}. Name different files.", file=str(p))
             seen.append((opt, p))
+            _STARTED[_target(p)] = _state(_target(p))
