@@ -87,6 +87,7 @@ from .proposals import (
     plate_grid,
     propose,
     propose_many,
+    reached_range,
     repeat_candidates,
     repeat_from_fit,
     restrict,
@@ -142,5 +143,5 @@ __all__ = [
     "PLACEMENT_SCALE", "ScaleFit", "scale_columns", "SCALE_RTOL", "BASELINE",
     "PSEUDO", "open_pairs", "blocked_styli", "repeat_candidates", "repeat_from_fit",
     "REPEAT_BALLS", "NO_POWER", "DECIDE_POWER", "decide_bar", "conclusion", "Skipped",
-    "FAMILIES", "WIDER", "styli_at", "out_of_reach", "instrument_out_of_reach",
+    "FAMILIES", "WIDER", "styli_at", "out_of_reach", "reached_range", "instrument_out_of_reach",
 ]

@@ -40,6 +40,7 @@ from .append import (
     instrument_out_of_reach,
     measurement_observations,
     out_of_reach,
+    reached_range,
     repeat_from_fit,
     restrict,
 )
@@ -94,7 +95,7 @@ __all__ = [
     "STYLUS_OFFSET_MM", "REPEAT_BALLS", "FAMILIES", "WIDER", "styli_at",
     # append
     "append_measurement", "repeat_from_fit", "restrict", "measurement_observations",
-    "instrument_of", "out_of_reach", "instrument_out_of_reach",
+    "instrument_of", "out_of_reach", "reached_range", "instrument_out_of_reach",
     # rivals
     "BASELINE", "PSEUDO", "PLACEMENT_SCALE", "SCALE_RTOL", "rival_pairs", "open_pairs",
     "rivals_of", "RivalFits", "fit_rivals", "ScaleFit", "scale_columns",
