@@ -47,6 +47,7 @@ import numpy as np
 
 from ..io import LAYOUTS, QIF_NS, Dataset, Provenance
 from ..model import FitResult
+from .model_file import Model
 from .results import DEFAULT_COVERAGE_FACTOR, results_dict
 
 QIF_VERSION = "3.0.0"
@@ -235,12 +236,15 @@ def _features(root: ET.Element, ds: Dataset, ids: _Ids, diameter_mm: float) -> d
     return out
 
 
-def _results(root: ET.Element, ds: Dataset, ids: _Ids, cmm_id: str, sigma_mm: float,
-             items: dict) -> None:
-    """One MeasurementResults per placement, one SphereFeatureMeasurement per centre."""
+def _results(root: ET.Element, ds: Dataset, ids: _Ids, cmm_id: str,
+             sigma_mm: float | None, items: dict) -> None:
+    """One MeasurementResults per placement, one SphereFeatureMeasurement per centre
+    (without its uncertainty when the model states no σ: a model file of an old release)."""
     positions = ds.positions
     rs = _el(_el(root, "Results"), "MeasurementResultsSet", n=str(len(positions)))
-    u = _decimal(sigma_mm)
+    u = {} if sigma_mm is None else dict.fromkeys(
+        ("xCombinedUncertainty", "yCombinedUncertainty", "zCombinedUncertainty"),
+        _decimal(sigma_mm))
     for pos in positions:
         g = ds.meas[ds.meas["position"] == pos]
         res = _el(rs, "MeasurementResults", id=ids.next())
@@ -256,8 +260,7 @@ def _results(root: ET.Element, ds: Dataset, ids: _Ids, cmm_id: str, sigma_mm: fl
                 _el(m, "FeatureItemId", items[key])
             _el(m, "FeatureName", key)
             _el(_el(m, "MeasurementDeviceIds", n="1"), "Id", cmm_id)
-            _el(m, "Location", " ".join(_decimal(v) for v in (x, y, z)),
-                xCombinedUncertainty=u, yCombinedUncertainty=u, zCombinedUncertainty=u)
+            _el(m, "Location", " ".join(_decimal(v) for v in (x, y, z)), **u)
         _el(_el(res, "InspectionStatus"), "InspectionStatusEnum", "NOT_CALCULATED")
 
 
@@ -314,7 +317,7 @@ def _qpid(prov: Provenance) -> str:
     return str(uuid.uuid5(uuid.NAMESPACE_URL, f"{EXTENSION_NS}:{key}"))
 
 
-def _check(result: FitResult, ds: Dataset, mpe, compensation, ball_diameter_mm,
+def _check(result: FitResult | Model, ds: Dataset, mpe, compensation, ball_diameter_mm,
            interval_months) -> None:
     if ds.certificate is None:
         raise ValueError("a QIF calibration document needs the certificate (nominal "
@@ -337,7 +340,7 @@ def _check(result: FitResult, ds: Dataset, mpe, compensation, ball_diameter_mm,
                          f"{interval_months!r}.")
 
 
-def qif_document(result: FitResult, dataset: Dataset, *, provenance: Provenance | None = None,
+def qif_document(result: FitResult | Model, dataset: Dataset, *, provenance: Provenance | None = None,
                  mpe: Sequence[float] | None = None,
                  temperature_compensation: str | None = None,
                  ball_diameter_mm: float | None = None,
@@ -348,8 +351,10 @@ def qif_document(result: FitResult, dataset: Dataset, *, provenance: Provenance 
 
     Parameters
     ----------
-    result : FitResult
-        The fit of ``dataset`` (its parameters and χ² test go into the extension).
+    result : FitResult or Model
+        The fit of ``dataset`` (its parameters and χ² test go into the extension), or the
+        model file of that fit (``export --qif``: the caller makes sure the model was
+        fitted to ``dataset``); the repeatability σ is its summary's.
     dataset : Dataset
         The measurements (ball centres), the setup (machine, strokes, calibration date) and
         the certificate (nominal centres with their uncertainties); required.
@@ -404,7 +409,8 @@ def qif_document(result: FitResult, dataset: Dataset, *, provenance: Provenance 
                   interval_months=int(calibration_interval_months))
     items = {} if ball_diameter_mm is None else _features(root, dataset, ids,
                                                           float(ball_diameter_mm))
-    _results(root, dataset, ids, cmm_id, float(result.sigma_um) / 1000, items)
+    sigma_um = doc["model"]["sigma_um"]  # a fit's, or the one its model file records
+    _results(root, dataset, ids, cmm_id, None if sigma_um is None else sigma_um / 1000, items)
     _extension(root, dataset, doc)
     root.set("idMax", str(ids.last))
     ET.indent(root, space=" ")
