@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 from ..export import comp_tables as ct
@@ -161,7 +160,7 @@ def qif_bytes(args: argparse.Namespace, model: Model, source: str) -> tuple[byte
                         file=source, hint="give the MEAS files, --setup and --certificate "
                         "that 'fit --save' read.")
     _refuse_other_data(model, given, source)
-    ds = _fitted_placements(dataset_of(args), model)
+    ds = dataset_of(args)
     if ds.certificate is None:
         raise DataError("--qif needs the plate certificate: a QIF calibration document "
                         "states the nominal ball centres.", file="command line",
@@ -170,7 +169,7 @@ def qif_bytes(args: argparse.Namespace, model: Model, source: str) -> tuple[byte
     # with the data files read: the document's inputs are both
     doc = qif_document(model, ds, provenance=model.derived_provenance(given),
                        coverage_factor=args.coverage_factor)
-    return doc, list(ds.notes)
+    return doc, [*ds.notes, *_left_out(ds, model)]
 
 
 def _refuse_other_data(model: Model, given: list[InputFile], source: str) -> None:
@@ -193,24 +192,13 @@ def _refuse_other_data(model: Model, given: list[InputFile], source: str) -> Non
                             "data and export that model.")
 
 
-def _fitted_placements(ds: Dataset, model: Model) -> Dataset:
-    """``ds`` with the placements the model was fitted to (its summary's): refused when
-    one is missing (part of the fit's data given), cut when the data hold more (the
-    document's centres are those of its parameters)."""
+def _left_out(ds: Dataset, model: Model) -> list:
+    """The note on placements of the data the model was not fitted to (the document
+    leaves them out, ``export.qif_document``); none when the data are the fit's."""
     keep = model.summary.get("placements")
-    if not isinstance(keep, list):  # a model file of a release before the key
-        return ds
-    missing = [p for p in keep if p not in set(ds.positions)]
-    if missing:
-        raise DataError(f"the data given for --qif lack placement(s) {', '.join(missing)} "
-                        f"of the {len(keep)} the model was fitted to.", file="command line",
-                        hint="give every measurement file 'fit --save' read.")
-    if set(ds.positions) <= set(keep):
-        return ds
-    left = sorted(set(ds.positions) - set(keep))
-    return replace(ds, meas=ds.meas[ds.meas["position"].isin(keep)].reset_index(drop=True),
-                   notes=(*ds.notes, f"placement(s) {', '.join(left)} left out of the QIF "
-                          "document: the model was not fitted to them."))
+    left = sorted(set(ds.positions) - set(keep)) if isinstance(keep, list) else []
+    return [f"placement(s) {', '.join(left)} left out of the QIF document: the model was "
+            "not fitted to them."] if left else []
 
 
 def run(args: argparse.Namespace) -> int:
