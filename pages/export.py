@@ -177,9 +177,9 @@ with st.container(border=True):
 
     @st.cache_data(show_spinner="Writing the QIF document…", max_entries=16)
     def qif_file(args, k, _r, _ds, _prov):
-        # the fit itself (not its model file): the same document as `export --qif` of the
-        # model file and these data
-        return ex.qif_document(_r, _ds, provenance=_prov, coverage_factor=k)
+        # of the model, as the results files: the parameters `export --qif` writes from
+        # the model file and these data
+        return ex.qif_document(ex.as_model(_r), _ds, provenance=_prov, coverage_factor=k)
 
     tables = calls.safe(comp_tables, args, float(cstep), None if cprobe == origin else cprobe,
                     r, prov, what="Compensation tables")

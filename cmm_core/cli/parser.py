@@ -240,10 +240,11 @@ _EXPORT_MEAS_HELP = ("for --qif only: the measurement file(s) the model was fitt
                      "records (its SHA-256), so that the document's measured centres are "
                      "those of its parameters")
 _EXPORT_SETUP_HELP = ("for --qif only: the setup JSON the model was fitted with (machine, "
-                      "placements, styli, calibration date); required with MEAS files")
+                      "placements, styli, calibration date); required with MEAS files (default: "
+                      "none)")
 _EXPORT_CERT_HELP = ("for --qif only: the plate certificate CSV the model was fitted with "
                      "(the nominal ball centres and their uncertainties); a QIF calibration "
-                     "document needs one")
+                     "document needs one (default: none)")
 _QIF_HELP = ("write the calibration as an ANSI/DMSC QIF 3.0 document (QIFDocument, "
              "schema-valid): the CMM, each placement's measured ball centres (mm, "
              "labelled position/probe/ball) with the fit's repeatability as their "
