@@ -48,15 +48,15 @@ AXIS_TABLE_FILES = (*(f"axis_{a}.csv" for a in AXES), "squareness.csv")
 """The files ``--axis-tables DIR`` writes into its folder."""
 
 
-QIF_DATA_OPTIONS = ("meas", "setup", "certificate", "mapping", "msl", "msl_metadata")
+_QIF_DATA = ("meas", "setup", "certificate", "mapping", "msl", "msl_metadata")
 """The options of ``export`` naming the data files ``--qif`` reads."""
 
 
-def data_files(args: argparse.Namespace) -> list:
+def _data_files(args: argparse.Namespace) -> list:
     """The data files given for ``--qif`` (measurements, setup, certificate, mapping, MSL
-    snapshots and metadata), in the order of :data:`QIF_DATA_OPTIONS`."""
+    snapshots and metadata), in the order of :data:`_QIF_DATA`."""
     out = []
-    for attr in QIF_DATA_OPTIONS:
+    for attr in _QIF_DATA:
         v = getattr(args, attr, None)
         out += v if isinstance(v, list) else ([v] if v else [])
     return out
@@ -89,7 +89,7 @@ def command(args: argparse.Namespace) -> dict:
     if not any(outs):
         raise DataError("nothing to write: give --grid, --axis-tables, --results-json, "
                         "--results-xml and/or --qif.", file=source)
-    data = data_files(args)
+    data = _data_files(args)
     if data and not qif:  # data nothing reads would look as if it shaped the tables
         raise DataError("measurement, setup and certificate files are read for --qif "
                         "only; the tables and results come from the model file alone.",
@@ -137,7 +137,7 @@ def _write(args, model, source) -> dict:
         texts[Path(args.results_xml)] = rx.results_xml(model, **kw)
         out["results_xml"] = str(args.results_xml)
     if getattr(args, "qif", None):
-        doc, notes = qif_bytes(args, model, source)
+        doc, notes = _qif_bytes(args, model, source)
         texts[Path(args.qif)] = doc
         out["qif"] = str(args.qif)
         out["notes"] = notes
@@ -147,13 +147,13 @@ def _write(args, model, source) -> dict:
     return out
 
 
-def qif_bytes(args: argparse.Namespace, model: Model, source: str) -> tuple[bytes, list]:
+def _qif_bytes(args: argparse.Namespace, model: Model, source: str) -> tuple[bytes, list]:
     """The QIF 3.0 document of ``model`` and the data of ``args`` (``export.qif_document``);
     and the notes on how the data were read.
 
     Raises DataError (one line) without data, with a data file that is not one of the
     model's recorded inputs, or without a certificate (QIF's nominal centres)."""
-    given = [input_file(Path(p).name, read_bytes(Path(p), None)[0]) for p in data_files(args)]
+    given = [input_file(Path(p).name, read_bytes(Path(p), None)[0]) for p in _data_files(args)]
     if not given:
         raise DataError("--qif needs the data the model was fitted to: the document holds "
                         "the measured ball centres, which a model file does not.",

@@ -50,7 +50,7 @@ QIF_UNITS_MM = {"mm": 1.0, "millimeter": 1.0, "millimetre": 1.0, "cm": 10.0,
 QIF_SUFFIXES = (".qif",)
 """File name endings read as QIF whatever their content (:func:`is_qif`); an ``.xml`` file
 is read as QIF when its content is a QIF document."""
-QIF_SNIFF_BYTES = 4096
+_SNIFF_BYTES = 4096
 """How much of a file's start :func:`is_qif` reads: the root element and its namespace
 declaration stand within the first lines of any QIF document."""
 
@@ -77,7 +77,7 @@ def is_qif(source: FileSource, name: str | None = None) -> bool:
     -------
     bool
         True when the name ends in :data:`QIF_SUFFIXES`, or when the first
-        :data:`QIF_SNIFF_BYTES` bytes of a path or of bytes hold a ``QIFDocument`` start tag
+        4096 bytes (``_SNIFF_BYTES``) of a path or of bytes hold a ``QIFDocument`` start tag
         and the QIF namespace (an ``.xml`` from a CMM's software). A file-like object is
         judged by its name alone, so that sniffing never consumes a stream. Never raises:
         an unreadable file is not QIF here, and its reader says what is wrong with it.
@@ -87,13 +87,13 @@ def is_qif(source: FileSource, name: str | None = None) -> bool:
     if name and name.lower().endswith(QIF_SUFFIXES):
         return True
     if isinstance(source, (bytes, bytearray, memoryview)):
-        head = bytes(source[:QIF_SNIFF_BYTES])
+        head = bytes(source[:_SNIFF_BYTES])
     elif isinstance(source, (str, Path)):
         if not Path(source).is_file():  # a pipe would block the open; read_bytes says why
             return False
         try:
             with Path(source).open("rb") as fh:
-                head = fh.read(QIF_SNIFF_BYTES)
+                head = fh.read(_SNIFF_BYTES)
         except OSError:
             return False
     else:
