@@ -145,10 +145,12 @@ with st.container(border=True):
                 "(true − indicated, added to the reading, µm) with uncertainties; the "
                 "per-axis error functions and squareness a controller needs (µm, µrad); the "
                 "fitted model's parameters with uncertainties and its χ² test as JSON and "
-                "QIF-like XML. The same files as `cmm-error-lab export cmm_model.json` "
-                "gives from the *Fitted model* download above (only the creation time "
-                "differs); every fitted parameter, plate and placements included, is in "
-                "the parameters CSV.")
+                "QIF-like XML; and the calibration as a QIF 3.0 document (schema-valid: "
+                "the CMM, the measured ball centres, the parameters in its extension; "
+                "`docs/formats.md`, \"QIF 3.0\"). The same files as `cmm-error-lab export "
+                "cmm_model.json` gives from the *Fitted model* download above (only the "
+                "creation time differs; `--qif` reads the data files too); every fitted "
+                "parameter, plate and placements included, is in the parameters CSV.")
     k1, k2, k3 = st.columns(3)
     cstep = k1.number_input("Table step (mm)", 25.0, 500.0, 100.0, step=25.0,
                             key="w_comp_step")
@@ -173,10 +175,19 @@ with st.container(border=True):
         return (ex.results_json(m, coverage_factor=k, source=MODEL_FILE, provenance=_prov),
                 ex.results_xml(m, coverage_factor=k, source=MODEL_FILE, provenance=_prov))
 
+    @st.cache_data(show_spinner="Writing the QIF document…", max_entries=16)
+    def qif_file(args, k, _r, _ds, _prov):
+        # of the model, as the results files: the parameters `export --qif` writes from
+        # the model file and these data
+        return ex.qif_document(ex.as_model(_r), _ds, provenance=_prov, coverage_factor=k)
+
     tables = calls.safe(comp_tables, args, float(cstep), None if cprobe == origin else cprobe,
                     r, prov, what="Compensation tables")
     files = calls.safe(results_files, args, float(kfac), r, prov, what="Results files")
-    t1, t2, t3, t4 = st.columns(4)
+    # QIF states the nominal centres: a self-calibrated plate has none to state
+    qif = None if ds.certificate is None else calls.safe(
+        qif_file, args, float(kfac), r, ds, prov, what="QIF document")
+    t1, t2, t3, t4, t5 = st.columns(5)
     if tables is not None:
         t1.download_button("Grid compensation table (CSV)", tables[0], fname("compensation_grid.csv"),
                            "text/csv", key="dl_comp_grid", on_click="ignore",
@@ -194,6 +205,18 @@ with st.container(border=True):
                            key="dl_results_json", on_click="ignore")
         t4.download_button("Results (QIF-like XML)", files[1], fname("cmm_results.xml"),
                            "application/xml", key="dl_results_xml", on_click="ignore")
+    if qif is not None:
+        t5.download_button("QIF 3.0 (.qif)", qif, fname("cmm_calibration.qif"),
+                           "application/xml", key="dl_qif", on_click="ignore",
+                           help="ANSI/DMSC QIF 3.0 document: the CMM, each placement's "
+                                "measured ball centres (labelled position/probe/ball, "
+                                "σ as their uncertainty), the fitted parameters with "
+                                "U = k·u and the χ² test in its extension, provenance in "
+                                "its header. The Data page (and `cmm-error-lab fit`) "
+                                "reads it back.")
+    elif ds.certificate is None:
+        t5.info("No QIF document: it states the plate's nominal ball centres, and this "
+                "dataset has no certificate (self-calibrated plate).")
 
 
 # One analysis record from the session: the report, the record file and the project file

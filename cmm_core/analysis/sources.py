@@ -24,6 +24,7 @@ from ..io import (
     DataError,
     Dataset,
     describe_error,
+    is_qif,
     load_dataset,
     read_certificate,
     read_measurements,
@@ -160,7 +161,7 @@ def _measurements(files: Sequence[tuple[str, bytes]], problems: list, notes: lis
         try:
             df = read_measurements(io.BytesIO(data), name=name)
         except Exception as exc:  # noqa: BLE001 - every problem becomes a row
-            foreign = sniff(data)
+            foreign = sniff(data) or (_QIF_SENTENCE if is_qif(data, name) else None)
             problems.extend([SourceProblem(name, foreign, foreign_hint)]
                             if foreign else problems_of(exc, name))
             continue
@@ -195,6 +196,10 @@ def _statement_words(statement: dict) -> str:
 
 
 FOREIGN_HINT = "read it with that tool's reader (docs/foreign-formats.md)."
+_QIF_SENTENCE = ("this is a QIF 3.0 document, not a measurement CSV: its measured spheres are "
+                "read through a label pattern (cmm_core.io.read_qif; in the app, the "
+                "mapped import).")
+"""What the plain reader says of a QIF document (the foreign hint follows)."""
 """The default hint beside a measurement file in another tool's format."""
 
 

@@ -1,6 +1,10 @@
 """``python -m cmm_core export``: compensation tables and results files from a saved model.
 
-Formats in docs/compensation.md. :func:`add_parser` adds the sub-command to a parser (its
+Formats in docs/compensation.md; the QIF 3.0 document of ``--qif`` in docs/formats.md ("QIF
+3.0"). A model file is detached from its data, and a QIF document holds the measured ball
+centres too: ``--qif`` reads the data the model was fitted to, as the fitting commands read
+them, and refuses any data file that is not one of the inputs the model file records (by
+SHA-256), so that a document never pairs one fit's parameters with other measurements. :func:`add_parser` adds the sub-command to a parser (its
 options are in :mod:`.parser`; its ``func`` runs :func:`command`, which returns the JSON
 summary ``cli.main`` prints); :func:`run` runs it on its own: the summary on stdout, exit
 status 0; bad input exits with status 2 and one line on stderr naming the file, row and
@@ -17,10 +21,20 @@ import sys
 from pathlib import Path
 
 from ..export import comp_tables as ct
-from ..export import load_model
+from ..export import load_model, qif_document
 from ..export import results as rx
-from ..io import DataError, atomic_write_all, check_outputs
+from ..export.model_file import Model
+from ..io import (
+    DataError,
+    Dataset,
+    InputFile,
+    atomic_write_all,
+    check_outputs,
+    input_file,
+    read_bytes,
+)
 from ..machine import AXES
+from .inputs import dataset_of
 from .parser import add_command
 
 
@@ -34,11 +48,25 @@ AXIS_TABLE_FILES = (*(f"axis_{a}.csv" for a in AXES), "squareness.csv")
 """The files ``--axis-tables DIR`` writes into its folder."""
 
 
+_QIF_DATA = ("meas", "setup", "certificate", "mapping", "msl", "msl_metadata")
+"""The options of ``export`` naming the data files ``--qif`` reads."""
+
+
+def _data_files(args: argparse.Namespace) -> list:
+    """The data files given for ``--qif`` (measurements, setup, certificate, mapping, MSL
+    snapshots and metadata), in the order of :data:`_QIF_DATA`."""
+    out = []
+    for attr in _QIF_DATA:
+        v = getattr(args, attr, None)
+        out += v if isinstance(v, list) else ([v] if v else [])
+    return out
+
+
 def output_files(args: argparse.Namespace) -> tuple[dict, dict]:
     """``(outputs, folders)`` of ``export`` for ``io.check_outputs``: option -> file(s)
     written, option -> folder created."""
     outs = {"--grid": args.grid, "--results-json": args.results_json,
-            "--results-xml": args.results_xml}
+            "--results-xml": args.results_xml, "--qif": getattr(args, "qif", None)}
     folders = {}
     if args.axis_tables:
         folders["--axis-tables"] = args.axis_tables
@@ -56,12 +84,19 @@ def command(args: argparse.Namespace) -> dict:
     """
 
     source = Path(args.model).name
-    outs = (args.grid, args.axis_tables, args.results_json, args.results_xml)
+    qif = getattr(args, "qif", None)
+    outs = (args.grid, args.axis_tables, args.results_json, args.results_xml, qif)
     if not any(outs):
-        raise DataError("nothing to write: give --grid, --axis-tables, --results-json "
-                        "and/or --results-xml.", file=source)
+        raise DataError("nothing to write: give --grid, --axis-tables, --results-json, "
+                        "--results-xml and/or --qif.", file=source)
+    data = _data_files(args)
+    if data and not qif:  # data nothing reads would look as if it shaped the tables
+        raise DataError("measurement, setup and certificate files are read for --qif "
+                        "only; the tables and results come from the model file alone.",
+                        file=Path(data[0]).name, hint="give --qif OUT.qif, or leave the "
+                        "data files out.")
     files, folders = output_files(args)
-    check_outputs(files, [args.model], folders=folders)
+    check_outputs(files, [args.model, *data], folders=folders)
     model = load_model(args.model)
     try:
         return _write(args, model, source)
@@ -101,10 +136,69 @@ def _write(args, model, source) -> dict:
     if args.results_xml:
         texts[Path(args.results_xml)] = rx.results_xml(model, **kw)
         out["results_xml"] = str(args.results_xml)
+    if getattr(args, "qif", None):
+        doc, notes = _qif_bytes(args, model, source)
+        texts[Path(args.qif)] = doc
+        out["qif"] = str(args.qif)
+        out["notes"] = notes
     if args.axis_tables:
         Path(args.axis_tables).mkdir(parents=True, exist_ok=True)
     atomic_write_all(texts)  # all or nothing: never a grid beside another model's tables
     return out
+
+
+def _qif_bytes(args: argparse.Namespace, model: Model, source: str) -> tuple[bytes, list]:
+    """The QIF 3.0 document of ``model`` and the data of ``args`` (``export.qif_document``);
+    and the notes on how the data were read.
+
+    Raises DataError (one line) without data, with a data file that is not one of the
+    model's recorded inputs, or without a certificate (QIF's nominal centres)."""
+    given = [input_file(Path(p).name, read_bytes(Path(p), None)[0]) for p in _data_files(args)]
+    if not given:
+        raise DataError("--qif needs the data the model was fitted to: the document holds "
+                        "the measured ball centres, which a model file does not.",
+                        file=source, hint="give the MEAS files, --setup and --certificate "
+                        "that 'fit --save' read.")
+    _refuse_other_data(model, given, source)
+    ds = dataset_of(args)
+    if ds.certificate is None:
+        raise DataError("--qif needs the plate certificate: a QIF calibration document "
+                        "states the nominal ball centres.", file="command line",
+                        hint="give --certificate CERT.csv, the one the model was fitted with.")
+    # the provenance of the other outputs (the model file, the machine and date it names)
+    # with the data files read: the document's inputs are both
+    doc = qif_document(model, ds, provenance=model.derived_provenance(given),
+                       coverage_factor=args.coverage_factor)
+    return doc, [*ds.notes, *_left_out(ds, model)]
+
+
+def _refuse_other_data(model: Model, given: list[InputFile], source: str) -> None:
+    """Refuse data files that are not among the inputs the model file records."""
+    p = model.provenance
+    if p is None or not p.inputs:
+        raise DataError("records no input files (a model file of release 0.7 or earlier), "
+                        "so the data of --qif cannot be checked against it.", file=source,
+                        hint="fit the data again with 'fit --save' and export that model.")
+    known = {f.sha256 for f in p.inputs}
+    for f in given:
+        if f.sha256 not in known:
+            names = ", ".join(g.name for g in p.inputs[:8]) + (" ..." if len(p.inputs) > 8
+                                                                else "")
+            raise DataError(f"is not one of the files {source} was fitted to (its SHA-256 "
+                            f"{f.sha256[:12]}... is not among the model's inputs: {names}); "
+                            "the QIF document would pair the model's parameters with other "
+                            "measurements.", file=f.name,
+                            hint="give the files 'fit --save' read, unchanged, or fit these "
+                            "data and export that model.")
+
+
+def _left_out(ds: Dataset, model: Model) -> list:
+    """The note on placements of the data the model was not fitted to (the document
+    leaves them out, ``export.qif_document``); none when the data are the fit's."""
+    keep = model.summary.get("placements")
+    left = sorted(set(ds.positions) - set(keep)) if isinstance(keep, list) else []
+    return [f"placement(s) {', '.join(left)} left out of the QIF document: the model was "
+            "not fitted to them."] if left else []
 
 
 def run(args: argparse.Namespace) -> int:

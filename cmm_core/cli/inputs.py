@@ -17,6 +17,7 @@ from ..io import (
     DataError,
     Dataset,
     combine_plates,
+    is_qif,
     load_dataset,
     read_foreign,
     read_machine,
@@ -35,7 +36,9 @@ from ..model import (
 
 def dataset_of(args: argparse.Namespace) -> Dataset:
     """The dataset the fitting commands read: this project's files, tables from other
-    software through ``--mapping`` or a DMIS pattern, or MSL cmm-error-map snapshots."""
+    software through ``--mapping``, DMIS files through ``--dmis-pattern``, QIF documents
+    (``.qif``, or XML that is a ``QIFDocument``) through ``--qif-pattern``, or MSL
+    cmm-error-map snapshots."""
     if args.msl:
         if args.meas:
             raise DataError("give measurement files or --msl snapshots, not both.",
@@ -58,9 +61,10 @@ def dataset_of(args: argparse.Namespace) -> Dataset:
     mapping = read_mapping(args.mapping) if args.mapping else None
     meas, notes = [], []
     for m in args.meas:
-        if mapping is not None or str(m).lower().endswith(DMIS_SUFFIXES):
+        if mapping is not None or str(m).lower().endswith(DMIS_SUFFIXES) or is_qif(m):
             table = read_foreign(m, mapping=mapping, pattern=args.dmis_pattern,
-                                 default_probe=args.default_probe)
+                                 default_probe=args.default_probe,
+                                 qif_pattern=getattr(args, "qif_pattern", None))
             notes += [f"{Path(m).name}: {n}" for n in table.notes]
             meas.append(table.as_source())
         else:

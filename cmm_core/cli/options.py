@@ -21,6 +21,8 @@ _TARGET_POWER = 0.9
 """``plan.TARGET_POWER``, the default of ``next --target-power`` (a copy)."""
 _MAX_MAP_NODES_PER_AXIS = 21
 """``monitor.MAX_MAP_NODES_PER_AXIS``, the largest ``compare --nodes`` (a copy)."""
+_QIF_LABEL_PATTERN = r"(?P<position>.+)/(?P<probe>[^/]+)/(?P<ball>\d+)"
+"""``io.QIF_LABEL_PATTERN``, the default of ``--qif-pattern`` (a copy)."""
 
 MEAS_HELP = ("measurement CSV file(s), coordinates in mm: one long-form file "
               "(position,probe,ball,x_mm,y_mm,z_mm[,time_min,temp_C,repeat,temp_x_C,temp_y_C,temp_z_C]) or one "
@@ -82,9 +84,17 @@ def add_foreign_args(p: argparse.ArgumentParser) -> None:
                         "must match, with named groups ball and optionally position and "
                         "probe, e.g. 'BP(?P<position>\\w+)_(?P<ball>\\d+)'; default: none, "
                         "required for .dmo files")
+    p.add_argument("--qif-pattern", metavar="REGEX",
+                   help="regular expression every measured sphere's label "
+                        "(SphereFeatureMeasurement FeatureName) of a QIF 3.0 results "
+                        "document (.qif, or .xml that is a QIFDocument) must match, with "
+                        "named groups ball and optionally position and probe; default: "
+                        f"'{_QIF_LABEL_PATTERN}', the position/probe/ball labels of "
+                        "'export --qif' (docs/formats.md, "
+                        "\"QIF 3.0\")")
     p.add_argument("--default-probe", default="1", metavar="NAME",
-                   help="probe of DMIS spheres whose label has no probe group (default: "
-                        "%(default)s)")
+                   help="probe of DMIS or QIF spheres whose label has no probe group "
+                        "(default: %(default)s)")
     p.add_argument("--msl", action="append", default=[], metavar="SNAPSHOT.csv",
                    help="MSL cmm-error-map plate snapshot, read with its conventions "
                         "(ball numbering, origin = location + probe, angles, layout flags, "

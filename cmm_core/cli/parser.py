@@ -31,6 +31,7 @@ from .options import (
     _spec_arg,
     add_data_args,
     add_fit_args,
+    add_foreign_args,
     add_instrument_args,
     add_outlier_args,
     number_arg,
@@ -236,8 +237,27 @@ def add_task_arguments(p: argparse.ArgumentParser) -> None:
 
 _MODEL_HELP = ("fitted model written by 'fit --save' (its kinematic coefficients, their "
                "covariance, the layout, strokes and probe offsets). At least one of --grid, "
-               "--axis-tables, --results-json, --results-xml is required; formats in "
+               "--axis-tables, --results-json, --results-xml, --qif is required; formats in "
                "docs/compensation.md")
+_EXPORT_MEAS_HELP = ("for --qif only: the measurement file(s) the model was fitted to, as "
+                     "'fit' read them (long or thesis-form CSV, a mapped table, a DMIS or "
+                     "QIF file), unchanged: each must be one of the inputs the model file "
+                     "records (its SHA-256), so that the document's measured centres are "
+                     "those of its parameters")
+_EXPORT_SETUP_HELP = ("for --qif only: the setup JSON the model was fitted with (machine, "
+                      "placements, styli, calibration date); required with MEAS files (default: "
+                      "none)")
+_EXPORT_CERT_HELP = ("for --qif only: the plate certificate CSV the model was fitted with "
+                     "(the nominal ball centres and their uncertainties); a QIF calibration "
+                     "document needs one (default: none)")
+_QIF_HELP = ("write the calibration as an ANSI/DMSC QIF 3.0 document (QIFDocument, "
+             "schema-valid): the CMM, each placement's measured ball centres (mm, "
+             "labelled position/probe/ball) with the fit's repeatability as their "
+             "standard uncertainty, and in its extension the fitted parameters with "
+             "standard and expanded uncertainties (k = --coverage-factor), the χ² test and "
+             "the certificate; provenance in its header (docs/formats.md, \"QIF 3.0\"). "
+             "Needs the data the model was fitted to: MEAS files, --setup and "
+             "--certificate (or --msl snapshots). Default: not written")
 _GRID_STEP_HELP = ("spacing of the 3-D compensation grid along each axis, mm, 0.1 to 10000; "
                    "one number for all axes or three (x,y,z), e.g. 100 or 100,100,50. Each "
                    "axis runs "
@@ -307,9 +327,15 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--axis-tables", metavar="DIR", help=_AXES_HELP)
     p.add_argument("--results-json", metavar="OUT.json", help=_RESULTS_JSON_HELP)
     p.add_argument("--results-xml", metavar="OUT.xml", help=_XML_HELP)
+    p.add_argument("--qif", metavar="OUT.qif", help=_QIF_HELP)
     p.add_argument("--coverage-factor", type=_coverage, default=2.0, metavar="K",
                    help=_K_HELP)
     p.add_argument("--allow-undetermined", action="store_true", help=_UNDET_HELP)
+    # the data of --qif, read as the fitting commands read them (cli.inputs.dataset_of)
+    p.add_argument("meas", nargs="*", metavar="MEAS.csv", help=_EXPORT_MEAS_HELP)
+    p.add_argument("--setup", metavar="SETUP.json", help=_EXPORT_SETUP_HELP)
+    p.add_argument("--certificate", metavar="CERT.csv", help=_EXPORT_CERT_HELP)
+    add_foreign_args(p)
 
 
 # --- check, compare (docs/monitoring.md)

@@ -47,6 +47,8 @@ import numpy as np
 
 from ..io import LAYOUTS, QIF_NS, Dataset, Provenance
 from ..model import FitResult
+from .comp_tables import as_model
+from .model_file import Model
 from .results import DEFAULT_COVERAGE_FACTOR, results_dict
 
 QIF_VERSION = "3.0.0"
@@ -235,12 +237,15 @@ def _features(root: ET.Element, ds: Dataset, ids: _Ids, diameter_mm: float) -> d
     return out
 
 
-def _results(root: ET.Element, ds: Dataset, ids: _Ids, cmm_id: str, sigma_mm: float,
-             items: dict) -> None:
-    """One MeasurementResults per placement, one SphereFeatureMeasurement per centre."""
+def _results(root: ET.Element, ds: Dataset, ids: _Ids, cmm_id: str,
+             sigma_mm: float | None, items: dict) -> None:
+    """One MeasurementResults per placement, one SphereFeatureMeasurement per centre
+    (without its uncertainty when the model states no σ: a model file of an old release)."""
     positions = ds.positions
     rs = _el(_el(root, "Results"), "MeasurementResultsSet", n=str(len(positions)))
-    u = _decimal(sigma_mm)
+    u = {} if sigma_mm is None else dict.fromkeys(
+        ("xCombinedUncertainty", "yCombinedUncertainty", "zCombinedUncertainty"),
+        _decimal(sigma_mm))
     for pos in positions:
         g = ds.meas[ds.meas["position"] == pos]
         res = _el(rs, "MeasurementResults", id=ids.next())
@@ -256,8 +261,7 @@ def _results(root: ET.Element, ds: Dataset, ids: _Ids, cmm_id: str, sigma_mm: fl
                 _el(m, "FeatureItemId", items[key])
             _el(m, "FeatureName", key)
             _el(_el(m, "MeasurementDeviceIds", n="1"), "Id", cmm_id)
-            _el(m, "Location", " ".join(_decimal(v) for v in (x, y, z)),
-                xCombinedUncertainty=u, yCombinedUncertainty=u, zCombinedUncertainty=u)
+            _el(m, "Location", " ".join(_decimal(v) for v in (x, y, z)), **u)
         _el(_el(res, "InspectionStatus"), "InspectionStatusEnum", "NOT_CALCULATED")
 
 
@@ -307,6 +311,15 @@ def _extension(root: ET.Element, ds: Dataset, doc: dict) -> None:
             ET.SubElement(ce, _x("Ball"), a)
 
 
+def _fitted(ds: Dataset, placements) -> Dataset:
+    """``ds`` cut to the fit's placements (a fit of some of the dataset's placements): the
+    document's measured centres are those its parameters were fitted to."""
+    if not isinstance(placements, list) or set(ds.positions) <= set(placements):
+        return ds
+    return replace(ds, meas=ds.meas[ds.meas["position"].isin(placements)]
+                   .reset_index(drop=True))
+
+
 def _qpid(prov: Provenance) -> str:
     """The document's QPId: a UUID from its provenance, so the same record of the same
     inputs has the same id (QIF 3.0 Part 2: a QPId identifies one document)."""
@@ -314,11 +327,15 @@ def _qpid(prov: Provenance) -> str:
     return str(uuid.uuid5(uuid.NAMESPACE_URL, f"{EXTENSION_NS}:{key}"))
 
 
-def _check(result: FitResult, ds: Dataset, mpe, compensation, ball_diameter_mm,
+def _check(fitted: list | None, ds: Dataset, mpe, compensation, ball_diameter_mm,
            interval_months) -> None:
     if ds.certificate is None:
         raise ValueError("a QIF calibration document needs the certificate (nominal "
                          "centres): load the dataset with its certificate.")
+    missing = [p for p in fitted or () if p not in set(ds.positions)]
+    if missing:
+        raise ValueError(f"the dataset lacks placement(s) {', '.join(map(str, missing))} of "
+                         "the fit: give the data the model was fitted to.")
     layout = ds.setup.raw.get("machine", {}).get("layout", LAYOUTS[0])
     if layout.rsplit("_", 1)[0] not in QIF_GEOMETRY:
         raise ValueError(f"layout {layout!r} has no QIF CMM geometry.")
@@ -337,7 +354,7 @@ def _check(result: FitResult, ds: Dataset, mpe, compensation, ball_diameter_mm,
                          f"{interval_months!r}.")
 
 
-def qif_document(result: FitResult, dataset: Dataset, *, provenance: Provenance | None = None,
+def qif_document(result: FitResult | Model, dataset: Dataset, *, provenance: Provenance | None = None,
                  mpe: Sequence[float] | None = None,
                  temperature_compensation: str | None = None,
                  ball_diameter_mm: float | None = None,
@@ -348,11 +365,14 @@ def qif_document(result: FitResult, dataset: Dataset, *, provenance: Provenance 
 
     Parameters
     ----------
-    result : FitResult
-        The fit of ``dataset`` (its parameters and χ² test go into the extension).
+    result : FitResult or Model
+        The fit of ``dataset`` (its parameters and χ² test go into the extension), or the
+        model file of that fit (``export --qif``: the caller makes sure the model was
+        fitted to ``dataset``); the repeatability σ is its summary's.
     dataset : Dataset
         The measurements (ball centres), the setup (machine, strokes, calibration date) and
-        the certificate (nominal centres with their uncertainties); required.
+        the certificate (nominal centres with their uncertainties); required. Only the
+        placements the fit used are written (a fit of some of them writes those).
     provenance : Provenance, optional
         What made the document; default ``dataset.provenance(inputs)``.
     mpe : (float, float), optional
@@ -384,11 +404,15 @@ def qif_document(result: FitResult, dataset: Dataset, *, provenance: Provenance 
     Raises
     ------
     ValueError
-        Without a certificate, for a layout QIF cannot name, or a bad keyword value.
+        Without a certificate, without a placement the fit used, for a layout QIF cannot
+        name, or a bad keyword value.
     """
-    _check(result, dataset, mpe, temperature_compensation, ball_diameter_mm,
+    # the placements of the fit (a model file of a release before the key: None)
+    fitted = as_model(result).summary.get("placements")
+    _check(fitted, dataset, mpe, temperature_compensation, ball_diameter_mm,
            calibration_interval_months)
     prov = provenance or dataset.provenance(tuple(inputs))
+    dataset = _fitted(dataset, fitted)
     if created is not None:
         prov = replace(prov, created=created)
     doc = results_dict(result, coverage_factor=coverage_factor, provenance=prov)
@@ -404,7 +428,8 @@ def qif_document(result: FitResult, dataset: Dataset, *, provenance: Provenance 
                   interval_months=int(calibration_interval_months))
     items = {} if ball_diameter_mm is None else _features(root, dataset, ids,
                                                           float(ball_diameter_mm))
-    _results(root, dataset, ids, cmm_id, float(result.sigma_um) / 1000, items)
+    sigma_um = doc["model"]["sigma_um"]  # a fit's, or the one its model file records
+    _results(root, dataset, ids, cmm_id, None if sigma_um is None else sigma_um / 1000, items)
     _extension(root, dataset, doc)
     root.set("idMax", str(ids.last))
     ET.indent(root, space=" ")

@@ -97,7 +97,7 @@ from .provenance import (
     provenance_from_dict,
     software_identity,
 )
-from .qif import QIF_LABEL_PATTERN, QIF_NS, QIF_UNITS_MM, read_qif
+from .qif import QIF_LABEL_PATTERN, QIF_NS, QIF_SUFFIXES, QIF_UNITS_MM, is_qif, read_qif
 from .setup import (
     ARTEFACTS,
     AXIS_TOLERANCE_DEG,
@@ -155,5 +155,5 @@ __all__ = [
     "TEMP_RANGE_C", "THESIS_COLUMNS", "thesis_dataset", "THESIS_DIR", "THESIS_POSITIONS",
     "TIME_UNITS_MIN", "write_certificate", "write_long_csv", "InputFile", "Provenance",
     "file_input", "input_file", "provenance", "provenance_from_dict", "software_identity", "read_bytes", "COMMIT_FILE", "SOFTWARE", "MAX_MACHINE_ID",
-    "QIF_LABEL_PATTERN", "QIF_NS", "QIF_UNITS_MM", "read_qif",
+    "QIF_LABEL_PATTERN", "QIF_NS", "QIF_SUFFIXES", "QIF_UNITS_MM", "is_qif", "read_qif",
 ]

@@ -13,6 +13,9 @@ The user maps each label to position, probe and ball by a regular expression wit
 groups (see :func:`read_dmis`); labels that do not match are listed (one line: how many,
 the first few) and left out. Every problem names the file, the line (as ``row``) and the
 sphere's label. See ``docs/foreign-formats.md``.
+
+:func:`read_foreign` routes any foreign measurement file to its reader: a QIF document to
+:func:`cmm_core.io.read_qif`, a DMIS file here, any other table through a column mapping.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import numpy as np
 
 from .delimited import MAX_MEASUREMENT_ROWS, FileSource, read_bytes
 from .errors import DataError, Problems, cut_repr
+from .qif import QIF_LABEL_PATTERN, is_qif, read_qif
 from .table_mapping import (
     ForeignTable,
     TableMapping,
@@ -373,18 +377,26 @@ def _unit_notes(rd: _Reader) -> list:
 
 def read_foreign(source: FileSource, *, name: str | None = None,
              mapping: TableMapping | dict | None = None, pattern: str | None = None,
-             default_probe: str = "1", default_position: str | None = None) -> ForeignTable:
-    """A DMIS output file or a mapped delimited table, by its name, as a ForeignTable.
+             default_probe: str = "1", default_position: str | None = None,
+             qif_pattern: str | None = None) -> ForeignTable:
+    """A QIF document, a DMIS output file or a mapped delimited table, as a ForeignTable.
 
     Parameters
     ----------
     source : path, bytes or file-like
     name : str, optional
-        File name (default: the path's name); an ending in :data:`DMIS_SUFFIXES` reads the
-        file as DMIS with ``pattern``, any other through ``mapping``.
+        File name (default: the path's name). A QIF document (:func:`~cmm_core.io.is_qif`:
+        an ending in :data:`~cmm_core.io.QIF_SUFFIXES`, or XML content that is a
+        ``QIFDocument``) is read by :func:`~cmm_core.io.read_qif` with ``qif_pattern``; an
+        ending in :data:`DMIS_SUFFIXES` as DMIS with ``pattern``; any other file through
+        ``mapping``.
     mapping : TableMapping or dict, optional
     pattern, default_probe, default_position
-        As :func:`read_dmis`.
+        As :func:`read_dmis` (``default_probe`` and ``default_position`` serve QIF too).
+    qif_pattern : str, optional
+        The label pattern of a QIF document's spheres; default
+        :data:`~cmm_core.io.QIF_LABEL_PATTERN`, the ``position/probe/ball`` this program's
+        QIF export writes.
 
     Raises
     ------
@@ -394,6 +406,9 @@ def read_foreign(source: FileSource, *, name: str | None = None,
     if name is None and isinstance(source, (str, Path)):
         name = Path(source).name
     shown = name or "uploaded file"
+    if is_qif(source, name):
+        return read_qif(source, name=name, pattern=qif_pattern or QIF_LABEL_PATTERN,
+                        default_probe=default_probe, default_position=default_position)
     if shown.lower().endswith(DMIS_SUFFIXES):
         if pattern is None:
             raise DataError("is a DMIS file; expected a label pattern with named groups "

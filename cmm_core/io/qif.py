@@ -22,6 +22,7 @@ from __future__ import annotations
 import re
 import xml.etree.ElementTree as ET
 from datetime import datetime, timedelta
+from pathlib import Path
 
 import numpy as np
 
@@ -46,12 +47,58 @@ QIF_UNITS_MM = {"mm": 1.0, "millimeter": 1.0, "millimetre": 1.0, "cm": 10.0,
                 "micron": 0.001, "in": 25.4, "inch": 25.4, "ft": 304.8, "foot": 304.8,
                 "feet": 304.8}
 """Length ``UnitName`` values read (case-insensitive) and the size of one unit in mm."""
+QIF_SUFFIXES = (".qif",)
+"""File name endings read as QIF whatever their content (:func:`is_qif`); an ``.xml`` file
+is read as QIF when its content is a QIF document."""
+_SNIFF_BYTES = 4096
+"""How much of a file's start :func:`is_qif` reads: the root element and its namespace
+declaration stand within the first lines of any QIF document."""
 
 _Q = f"{{{QIF_NS}}}"
+# the root start tag, any prefix, and the QIF namespace URI declared anywhere in the head
+_ROOT = re.compile(rb"<(?:[\w.-]+:)?QIFDocument[\s/>]")
 _OPEN = re.compile(rb"<(?:[\w.-]+:)?SphereFeatureMeasurement[\s/>]")
 _LONG = ("position", "probe", "ball", "x_mm", "y_mm", "z_mm", "time_min")
 _MEASURED = (f"{_Q}Results/{_Q}MeasurementResultsSet/{_Q}MeasurementResults/"
              f"{_Q}MeasuredFeatures/{_Q}SphereFeatureMeasurement")
+
+
+def is_qif(source: FileSource, name: str | None = None) -> bool:
+    """Whether ``source`` is to be read as a QIF document (:func:`read_qif`).
+
+    Parameters
+    ----------
+    source : path, bytes or file-like
+        The file.
+    name : str, optional
+        Its name (default: the path's name).
+
+    Returns
+    -------
+    bool
+        True when the name ends in :data:`QIF_SUFFIXES`, or when the first
+        4096 bytes (``_SNIFF_BYTES``) of a path or of bytes hold a ``QIFDocument`` start tag
+        and the QIF namespace (an ``.xml`` from a CMM's software). A file-like object is
+        judged by its name alone, so that sniffing never consumes a stream. Never raises:
+        an unreadable file is not QIF here, and its reader says what is wrong with it.
+    """
+    if name is None and isinstance(source, (str, Path)):
+        name = Path(source).name
+    if name and name.lower().endswith(QIF_SUFFIXES):
+        return True
+    if isinstance(source, (bytes, bytearray, memoryview)):
+        head = bytes(source[:_SNIFF_BYTES])
+    elif isinstance(source, (str, Path)):
+        if not Path(source).is_file():  # a pipe would block the open; read_bytes says why
+            return False
+        try:
+            with Path(source).open("rb") as fh:
+                head = fh.read(_SNIFF_BYTES)
+        except OSError:
+            return False
+    else:
+        return False
+    return _ROOT.search(head) is not None and QIF_NS.encode() in head
 
 
 def _parse(data: bytes, name: str) -> ET.Element:

@@ -1,8 +1,10 @@
 """The Data page's panel for foreign files: any delimited table through a column mapping,
-or a DMIS output file (.dmo) through a label pattern, previewed before anything is loaded.
+or a DMIS output file (.dmo) or a QIF 3.0 results document (.qif, or .xml that is one)
+through a label pattern, previewed before anything is loaded.
 
 :func:`mapping_panel` only gathers inputs, calls the core (:mod:`cmm_core.io.table_mapping`,
-:mod:`cmm_core.io.dmis`) and draws; every core error is one ``st.error`` line.
+:mod:`cmm_core.io.dmis`, :mod:`cmm_core.io.qif`) and draws; every core error is one
+``st.error`` line.
 """
 
 from __future__ import annotations
@@ -15,14 +17,18 @@ from cmm_core.io import (
     DECIMALS,
     DMIS_SUFFIXES,
     LENGTH_UNITS_MM,
+    QIF_LABEL_PATTERN,
+    QIF_SUFFIXES,
     TIME_UNITS_MIN,
     DataError,
     ForeignTable,
     TableMapping,
     apply_mapping,
     inspect_table,
+    is_qif,
     preview,
     read_dmis,
+    read_qif,
 )
 
 NONE = "(none)"
@@ -60,22 +66,34 @@ def _pick(label, columns, key, default=None, help=None):
     return None if value == NONE else value
 
 
-def _dmis_panel(data: bytes, name: str, key: str):
-    """Pattern inputs, the preview of the spheres read, and the table (or None)."""
+_SPHERE_FILES = {
+    "dmis": ("DMIS label pattern", DEFAULT_PATTERN, read_dmis,
+             "(?P<position>BP\\d+)_(?P<ball>\\d+) reads BP111_5 as position BP111, ball 5."),
+    "qif": ("QIF label pattern", QIF_LABEL_PATTERN, read_qif,
+            "the default reads the labels this program's QIF export writes, BP111/1/5 as "
+            "position BP111, probe 1, ball 5."),
+}
+"""Kind -> (pattern label, default pattern, core reader, the example in the help) of the
+files whose spheres are labelled (the pattern maps a label to position, probe, ball)."""
+
+
+def _sphere_panel(data: bytes, name: str, key: str, kind: str):
+    """Pattern inputs, the preview of the spheres read, and the table (or None), for a
+    DMIS file or a QIF document (``kind``)."""
+    label, default, reader, example = _SPHERE_FILES[kind]
     c1, c2, c3 = st.columns([3, 1, 1])
     pattern = c1.text_input(
-        "DMIS label pattern", value=DEFAULT_PATTERN, key=f"{key}_pattern",
+        label, value=default, key=f"{key}_pattern",
         help="A regular expression a whole sphere label must match, with named groups "
-             "ball and optionally position and probe: (?P<position>BP\\d+)_(?P<ball>\\d+) "
-             "reads BP111_5 as position BP111, ball 5.")
+             f"ball and optionally position and probe: {example}")
     probe = c2.text_input("Default probe", value="1", key=f"{key}_probe",
                           help="Probe of spheres whose label has no probe group.")
     position = c3.text_input("Default position", value="", key=f"{key}_position",
                              help="Position of spheres whose label has no position group "
                                   "(one file per placement).")
     try:
-        table = read_dmis(data, name=name, pattern=pattern, default_probe=probe.strip() or "1",
-                          default_position=position.strip() or None)
+        table = reader(data, name=name, pattern=pattern, default_probe=probe.strip() or "1",
+                       default_position=position.strip() or None)
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback
         st.error(_message(exc))
         return None
@@ -179,19 +197,23 @@ def mapping_panel(key_prefix: str) -> ForeignTable | None:
         in which the button was pressed and the file converted; None otherwise.
     """
     st.write("A table from other software (any columns, mm, µm or inch, decimal point or "
-             "comma) or a DMIS output file (.dmo): pick what each column means, check the "
-             "preview, then load (docs/foreign-formats.md).")
-    upload = st.file_uploader("Table (CSV/TXT) or DMIS output (.dmo)",
-                              type=["csv", "txt", "tsv", *(s[1:] for s in DMIS_SUFFIXES)],
+             "comma), a DMIS output file (.dmo) or a QIF 3.0 results document (.qif, .xml): "
+             "pick what each column (or sphere label) means, check the preview, then load "
+             "(docs/foreign-formats.md; QIF: docs/formats.md).")
+    upload = st.file_uploader("Table (CSV/TXT), DMIS output (.dmo) or QIF 3.0 (.qif, .xml)",
+                              type=["csv", "txt", "tsv", *(s[1:] for s in DMIS_SUFFIXES),
+                                    *(s[1:] for s in QIF_SUFFIXES), "xml"],
                               key=f"{key_prefix}_file")
     if upload is None:
         return None
     data, name = upload.getvalue(), upload.name
     # widgets keyed by the file: another file starts from its own suggestions
     key = f"{key_prefix}_{hashlib.sha1(data).hexdigest()[:10]}"
-    is_dmis = name.lower().endswith(DMIS_SUFFIXES)
-    if is_dmis:
-        table = _dmis_panel(data, name, key)
+    # by content too: a CMM's software often names its QIF results .xml
+    kind = "qif" if is_qif(data, name) else \
+        "dmis" if name.lower().endswith(DMIS_SUFFIXES) else None
+    if kind is not None:
+        table = _sphere_panel(data, name, key, kind)
         ready = table is not None
     else:
         mapping = _table_panel(data, name, key)
@@ -200,7 +222,7 @@ def mapping_panel(key_prefix: str) -> ForeignTable | None:
                         disabled=not ready)
     if not (pressed and ready):
         return None
-    if is_dmis:
+    if kind is not None:
         return table
     try:
         return apply_mapping(data, mapping, name=name)
