@@ -73,9 +73,11 @@ from .proposals import (
     Skipped,
     append_measurement,
     blocked_styli,
+    check_rivals,
     conclusion,
     decide_bar,
     fit_rivals,
+    function_of,
     instrument_candidates,
     instrument_of,
     instrument_out_of_reach,
@@ -143,4 +145,5 @@ __all__ = [
     "PSEUDO", "open_pairs", "blocked_styli", "repeat_candidates", "repeat_from_fit",
     "REPEAT_BALLS", "NO_POWER", "DECIDE_POWER", "decide_bar", "conclusion", "Skipped",
     "FAMILIES", "WIDER", "styli_at", "out_of_reach", "instrument_out_of_reach",
+    "check_rivals", "function_of",
 ]
