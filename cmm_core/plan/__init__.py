@@ -81,6 +81,7 @@ from .proposals import (
     instrument_candidates,
     instrument_of,
     instrument_out_of_reach,
+    last_placement,
     measurement_candidates,
     measurement_observations,
     open_pairs,
@@ -89,6 +90,7 @@ from .proposals import (
     plate_grid,
     propose,
     propose_many,
+    reached_range,
     repeat_candidates,
     repeat_from_fit,
     restrict,
@@ -145,5 +147,5 @@ __all__ = [
     "PSEUDO", "open_pairs", "blocked_styli", "repeat_candidates", "repeat_from_fit",
     "REPEAT_BALLS", "NO_POWER", "DECIDE_POWER", "decide_bar", "conclusion", "Skipped",
     "FAMILIES", "WIDER", "styli_at", "out_of_reach", "instrument_out_of_reach",
-    "check_rivals", "function_of",
+    "check_rivals", "function_of", "last_placement", "reached_range",
 ]

@@ -40,6 +40,7 @@ from .append import (
     instrument_out_of_reach,
     measurement_observations,
     out_of_reach,
+    reached_range,
     repeat_from_fit,
     restrict,
 )
@@ -53,6 +54,7 @@ from .candidates import (
     PlateGrid,
     blocked_styli,
     instrument_candidates,
+    last_placement,
     measurement_candidates,
     plate_grid,
     repeat_candidates,
@@ -93,10 +95,10 @@ __all__ = [
     # candidates
     "NextMeasurement", "PlateGrid", "plate_grid", "measurement_candidates", "blocked_styli",
     "repeat_candidates", "wide_candidates", "instrument_candidates", "SHIFT_FRACTION",
-    "STYLUS_OFFSET_MM", "REPEAT_BALLS", "FAMILIES", "WIDER", "styli_at",
+    "STYLUS_OFFSET_MM", "REPEAT_BALLS", "FAMILIES", "WIDER", "styli_at", "last_placement",
     # append
     "append_measurement", "repeat_from_fit", "restrict", "measurement_observations",
-    "instrument_of", "out_of_reach", "instrument_out_of_reach",
+    "instrument_of", "out_of_reach", "instrument_out_of_reach", "reached_range",
     # rivals
     "BASELINE", "PSEUDO", "PLACEMENT_SCALE", "SCALE_RTOL", "rival_pairs", "open_pairs",
     "rivals_of", "RivalFits", "fit_rivals", "ScaleFit", "scale_columns", "check_rivals",

@@ -117,7 +117,8 @@ def plan_file(data: Dataset, proposal: Proposal, *, baseline: str = "kinematic21
     """The proposal as a ``plan`` JSON document (docs/planning.md, "The plan file"): the
     data set's setup with the proposal's placement and styli added, its plate, and two
     strategies: the current placements alone and with the proposal (a repeat: the same
-    placements with its balls measured again at their end, ``repeat_at_end``)."""
+    placements with its balls measured again, ``repeat_at_end``, timed after the data's
+    last reading with the set-up of a plate set up again, :func:`_timed_repeat`)."""
     c = proposal.candidate
     if c.instrument:
         raise ValueError(f"{c.name} is an instrument: a plan file holds plate placements, "
@@ -139,7 +140,16 @@ def plan_file(data: Dataset, proposal: Proposal, *, baseline: str = "kinematic21
             "strategies": [{"name": "current data", "placements": now},
                            {"name": f"with {c.description}",
                             "placements": {**now, **c.probes_of}}
-                           | ({"repeat_at_end": {p: {"probe": r["probe"],
-                                                     "balls": list(r["balls"])}
+                           | ({"repeat_at_end": {p: _timed_repeat(r)
                                                  for p, r in c.repeat.items()}}
                               if c.repeat else {})]}
+
+
+def _timed_repeat(r: dict) -> dict:
+    """A repeat as a plan strategy's ``repeat_at_end`` entry: its stylus and balls, when
+    each is read (``time_min``: after the data's last reading, on the data's clock) and
+    the set-up before them (``setup_min``: 0 appended to the current placement, the
+    minutes per placement in the next session)."""
+    return {"probe": r["probe"], "balls": list(r["balls"]),
+            "time_min": [float(t) for t in r["time_min"]],
+            "setup_min": float(r.get("setup_min", 0.0))}

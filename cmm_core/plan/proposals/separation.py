@@ -305,16 +305,17 @@ def _score_candidates(now: _Design, obs, ok: list, rf: RivalFits):
 
 
 def _union(reps: list) -> NextMeasurement | None:
-    """One repeat holding every candidate's rows, or None when two candidates repeat a
-    ball with the same stylus at different times (they cannot share one design)."""
+    """One repeat holding every candidate's rows, or None when two candidates repeat one
+    placement with different styli (its rows are one stylus's). A ball repeated at two
+    times (a placement's repeat alone in the next session, and later in ``repeat_all``
+    after another's) is two rows of the union, each candidate keeping its own."""
     rows: dict = {}
     for c in reps:
         for p, r in c.repeat.items():
             for b, t in zip(r["balls"], r["time_min"], strict=True):
-                if rows.setdefault((p, r["probe"], int(b)), float(t)) != float(t):
-                    return None
+                rows.setdefault((p, r["probe"], int(b), round(float(t), 6)), float(t))
     each: dict = {}
-    for (p, q, b), t in rows.items():
+    for (p, q, b, _), t in rows.items():
         if p in each and each[p]["probe"] != q:
             return None
         r = each.setdefault(p, {"probe": q, "balls": [], "time_min": []})
@@ -325,8 +326,10 @@ def _union(reps: list) -> NextMeasurement | None:
 
 def _score_repeats(data: Dataset, reps: list, rf: RivalFits):
     """``(candidate, {rival: (λ, k, ν, power, ...)})`` for each repeat. A repeat adds rows
-    to placements already measured, so its design is that of the whole augmented data
-    set, its hours counted from the mean time of the placement's readings before (moving
+    to placements already measured (at its own times, after the data's last reading: a
+    drift is seen over all the time elapsed), so its design is that of the whole
+    augmented data set, its hours counted from the mean time of the placement's readings
+    before (moving
     that centre changes a drift column by a multiple of the placement's translation
     columns, which every rival holds: the projections and λ do not change; the fit of the
     augmented data centres anew). One design of all the repeats' rows together serves
@@ -352,11 +355,14 @@ def _score_repeats(data: Dataset, reps: list, rf: RivalFits):
             hours[at] = (tm[at] - tm[at & ~new].mean()) / 60.0
     obs = replace(obs, hours=hours)
     des = _design(obs, rf)
+    # a row is the candidate's by its placement, stylus, ball and time (the union may
+    # hold a ball at two times)
     key = list(zip(t["position"].astype(str), t["probe"].astype(str), t["ball"].astype(int),
-                   strict=True))
+                   np.round(tm, 6), strict=True))
     n3 = 3 * len(t)
     for c in reps:
-        mine = {(p, r["probe"], int(b)) for p, r in c.repeat.items() for b in r["balls"]}
+        mine = {(p, r["probe"], int(b), round(float(u), 6)) for p, r in c.repeat.items()
+                for b, u in zip(r["balls"], r["time_min"], strict=True)}
         keep = np.repeat(~new | np.array([k in mine for k in key]), 3)
         J = np.vstack([des.J[:n3][keep], des.J[n3:]])
         yield c, _score_on(_Design(J, des.labels, des.has), rf)
