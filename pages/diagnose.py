@@ -85,6 +85,13 @@ def _pairs(cands: list, holdout: list | None) -> list:
         for c in cands], "holdout": list(holdout or [])})
 
 
+def _rivals_words(rivals) -> str:
+    """The rivals in words: "A against B", "A against B and C" (an alias set)."""
+    rest = [str(r) for r in rivals[1:]]
+    return f"{rivals[0]} against " + (rest[0] if len(rest) == 1 else
+                                      f"{', '.join(rest[:-1])} and {rest[-1]}")
+
+
 def _outcome_words(truth: str, other: str, o: dict) -> str:
     if o["separated"]:
         return (f"with **{truth}** as the truth the diagnosis names `{o['verdict']}`, "
@@ -112,7 +119,7 @@ def measure_next(ds, fkey: cached.FitKey, cands: list, holdout: list | None = No
     if fkey.instruments:
         st.caption("The instrument files fitted with the plate are left out of the proposals.")
     pair = st.selectbox("Rivals to tell apart", pairs, key="w_next_pair",
-                        format_func=lambda p: f"{p[0]} against {p[1]}")
+                        format_func=_rivals_words)
     pair = tuple(pair)
     tools = st.checkbox("Also instrument runs (laser along X, Y, Z; step gauge along X, Y; "
                         "ball bar in XY)", key="w_next_instruments",
@@ -122,8 +129,8 @@ def measure_next(ds, fkey: cached.FitKey, cands: list, holdout: list | None = No
     if pr is None:
         return
     now = min(pr.current.values())
-    st.markdown(f"The current data decide **{pair[0]}** against **{pair[1]}** with "
-                f"{100 * now:.0f} % power (target {100 * pr.target:.0f} %).")
+    st.markdown(f"The current data decide {_rivals_words([f'**{r}**' for r in pair])} "
+                f"with {100 * now:.0f} % power (target {100 * pr.target:.0f} %).")
     if not pr.ranked:
         st.warning(pr.message)
         return
@@ -159,9 +166,9 @@ def measure_next(ds, fkey: cached.FitKey, cands: list, holdout: list | None = No
                 outs = calls.safe(cached_outcomes, fkey, pair, name, 0, ds, p,
                                   what="Simulating the proposal")
                 if outs is not None:
-                    a, b = pair
                     st.markdown("Simulated (seed 0): " + "; ".join(
-                        _outcome_words(t, o_, outs[t]) for t, o_ in ((a, b), (b, a))) + ".")
+                        _outcome_words(t, " nor ".join(o_ for o_ in pair if o_ != t),
+                                       outs[t]) for t in pair) + ".")
                     if all(o["separated"] for o in outs.values()):
                         st.success("The rivals separate: measured, this tells them apart.")
                     else:

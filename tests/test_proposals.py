@@ -572,8 +572,9 @@ def drift80():
 
 
 def test_repeats_are_offered_where_styli_are_measured_in_blocks(drift80):
-    """Each placement's first stylus again on its first balls, right after the
-    placement's last reading: time balls × 0.5 min (plan time model, no new placement)."""
+    """Each placement's first stylus again on its first balls, after the data's last
+    reading: the last placement's appended to it (balls × 0.5 min), another's in the
+    next session, the plate set up again first (+ 10 min; plan time model)."""
     assert blocked_styli(drift80) == {"H": ["1", "4"], "D1": ["2", "4"], "D2": ["3", "4"]}
     cands = {c.name: c for c in measurement_candidates(drift80) if c.repeat}
     assert set(cands) == {f"repeat_{p}_{n}" for p in ("H", "D1", "D2", "all")
@@ -582,10 +583,13 @@ def test_repeats_are_offered_where_styli_are_measured_in_blocks(drift80):
     h = m[(m["position"] == "H") & (m["probe"] == "1")].sort_values("time_min")
     rep = cands["repeat_H_4"].repeat["H"]
     assert rep["probe"] == "1" and rep["balls"] == h["ball"].tolist()[:4]
-    end = m.loc[m["position"] == "H", "time_min"].max()
-    assert rep["time_min"] == pytest.approx(end + 0.5 * np.arange(1, 5))
-    assert cands["repeat_H_4"].time_min == pytest.approx(2.0)
-    assert cands["repeat_all_12"].time_min == pytest.approx(18.0)  # 3 × 12 × 0.5 min
+    end = m["time_min"].max()  # D2's last reading: H was taken down long before
+    assert rep["time_min"] == pytest.approx(end + 10.0 + 0.5 * np.arange(1, 5))
+    assert rep["setup_min"] == 10.0 and rep["session"] == "next"
+    assert cands["repeat_H_4"].time_min == pytest.approx(12.0)
+    assert cands["repeat_D2_4"].time_min == pytest.approx(2.0)  # still set up
+    # 3 × 12 × 0.5 min, and H and D1 set up again
+    assert cands["repeat_all_12"].time_min == pytest.approx(38.0)
     # a count above a stylus's balls is named by the balls it repeats, and only once
     k = {p: m[(m["position"] == p) & (m["probe"] == q)]["ball"].nunique()
          for p, q in (("H", "1"), ("D1", "2"), ("D2", "3"))}
@@ -701,7 +705,9 @@ def test_a_repeat_as_a_plan_file_determines_what_the_current_plan_cannot(driftin
     for spec in ("kinematic21,drift,probe_offset", "kinematic21"):
         pf = read_plan(to_plan(drifting, top, baseline=spec), name="proposal")
         now, more = pf.strategies
-        assert more.repeat_at_end == {p: {"probe": r["probe"], "balls": r["balls"]}
+        assert more.repeat_at_end == {p: {"probe": r["probe"], "balls": r["balls"],
+                                          "time_min": r["time_min"],
+                                          "setup_min": r["setup_min"]}
                                       for p, r in top.candidate.repeat.items()}
         assert more.n_probings - now.n_probings == n_again == 36
         assert more.time_min - now.time_min == pytest.approx(top.candidate.time_min)

@@ -429,11 +429,12 @@ _MAX_TOP = 100
 
 
 def _rivals_arg(text):
-    """Two different model tokens separated by a comma (``sxy,rxz:4``)."""
+    """Two or more different model tokens separated by commas (``sxy,rxz:4``; an alias
+    set: ``dzz:4,probe_offset,drift``)."""
     parts = [t.strip() for t in str(text).split(",")]
-    if len(parts) != 2 or not all(parts) or parts[0] == parts[1]:
+    if len(parts) < 2 or not all(parts) or len(set(parts)) != len(parts):
         raise argparse.ArgumentTypeError(
-            f"expected two different effect tokens separated by a comma (e.g. "
+            f"expected two or more different effect tokens separated by commas (e.g. "
             f"'probe_offset,drift'), found {text[:60]!r}")
     return tuple(parts)
 
@@ -454,12 +455,14 @@ def _next_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sigma-um", type=_sigma_arg, default=0.5, metavar="UM|auto",
                    help="repeatability of one probed coordinate in µm (0.001 to 1000), or "
                         "'auto' to estimate it from the data (default: %(default)s µm)")
-    p.add_argument("--rivals", type=_rivals_arg, metavar="A,B", default=None,
-                   help="the two effects to tell apart, as model tokens separated by a "
-                        "comma, e.g. 'probe_offset,drift'; second may be 'placement_scale' "
-                        "(each placement's own scale) or 'baseline' (the model as it is: "
-                        "for an effect the data cannot determine in full) (default: the "
-                        "diagnosis's first candidate and its alias, or its runner-up)")
+    p.add_argument("--rivals", type=_rivals_arg, metavar="A,B[,C]", default=None,
+                   help="the effects to tell apart, as model tokens separated by commas, "
+                        "e.g. 'probe_offset,drift' or an alias set 'dzz:4,probe_offset,"
+                        "drift' (each of another function: not 'rxz:3,rxz:4'); the second "
+                        "of two may be 'placement_scale' (each placement's own scale) or "
+                        "'baseline' (the model as it is: for an effect the data cannot "
+                        "determine in full) (default: the diagnosis's first candidate with "
+                        "all its aliases, or its runner-up)")
     p.add_argument("--top", type=number_arg(int, 1, _MAX_TOP), default=5, metavar="N",
                    help=f"how many proposals to list, best first, 1 to {_MAX_TOP} (default: "
                         "%(default)s)")

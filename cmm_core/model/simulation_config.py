@@ -215,11 +215,15 @@ def _check_against_setup(cfg, setup, terms, name, own_ppp):
 
 
 def check_repeat_at_end(spec, column: str, bad, *, styli: dict, n_balls: int) -> dict:
-    """Balls measured once more at the end of a placement (a simulation config's or a plan
-    strategy's ``repeat_at_end``): placement -> ``{"probe": stylus, "balls": [numbers]}``,
-    each placement one of ``styli`` (placement -> the styli it is measured with), the
-    stylus one of its, each ball on the plate of ``n_balls`` and named once. Returns it
-    with the stylus as text; ``bad(column, message, hint=None)`` makes the refusal."""
+    """Balls measured once more on a placement after its own readings (a simulation
+    config's or a plan strategy's ``repeat_at_end``): placement -> ``{"probe": stylus,
+    "balls": [numbers]}``, each placement one of ``styli`` (placement -> the styli it is
+    measured with), the stylus one of its, each ball on the plate of ``n_balls`` and named
+    once; optional ``time_min`` (one time per ball, minutes: when each is read, e.g. in
+    the next session after every placement, ``plan.proposals``' repeats; default right
+    after the placement's last reading) and ``setup_min`` (minutes to set the plate up
+    again before them; default 0: the plate not moved). Returns it with the stylus as
+    text; ``bad(column, message, hint=None)`` makes the refusal."""
     if not isinstance(spec, dict):
         raise bad(column, f"expected an object placement: {{\"probe\": stylus, "
                   f"\"balls\": [numbers]}}, found {cut_repr(spec)}.")
@@ -229,9 +233,10 @@ def check_repeat_at_end(spec, column: str, bad, *, styli: dict, n_balls: int) ->
         if pos not in styli:
             raise bad(where, f"placement {cut_repr(pos)} is not among those measured "
                       f"({', '.join(styli)}).")
-        if not isinstance(body, dict) or set(map(str, body)) != {"probe", "balls"}:
-            raise bad(where, f"expected an object with the keys probe and balls, found "
-                      f"{cut_repr(body)}.")
+        if not isinstance(body, dict) or not {"probe", "balls"} <= set(map(str, body)) \
+                or not set(map(str, body)) <= {"probe", "balls", "time_min", "setup_min"}:
+            raise bad(where, f"expected an object with the keys probe and balls (and "
+                      f"optionally time_min, setup_min), found {cut_repr(body)}.")
         q, balls = body["probe"], body["balls"]
         if isinstance(q, bool) or not isinstance(q, str | int) or str(q) not in styli[pos]:
             raise bad(f"{where}.probe", f"stylus {cut_repr(q)} is not among the styli "
@@ -246,6 +251,21 @@ def check_repeat_at_end(spec, column: str, bad, *, styli: dict, n_balls: int) ->
             raise bad(f"{where}.balls", f"expected distinct ball numbers (each repeated "
                       f"once at the end), found {cut_repr(balls)}.")
         out[str(pos)] = {"probe": str(q), "balls": list(balls)}
+        times = body.get("time_min")
+        if times is not None:
+            if not isinstance(times, list) or len(times) != len(balls) or not all(
+                    isinstance(t, int | float) and not isinstance(t, bool)
+                    and np.isfinite(t) and t >= 0 for t in times):
+                raise bad(f"{where}.time_min", f"expected one time in minutes (at least "
+                          f"0) per ball, {len(balls)}, found {cut_repr(times)}.")
+            out[str(pos)]["time_min"] = [float(t) for t in times]
+        setup = body.get("setup_min")
+        if setup is not None:
+            if isinstance(setup, bool) or not isinstance(setup, int | float) \
+                    or not np.isfinite(setup) or setup < 0:
+                raise bad(f"{where}.setup_min", f"expected the minutes (at least 0) to set "
+                          f"the plate up again, found {cut_repr(setup)}.")
+            out[str(pos)]["setup_min"] = float(setup)
     return out
 
 

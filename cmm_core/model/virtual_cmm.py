@@ -20,7 +20,8 @@ dict in the documented format (docs/formats.md), frame ``machine``; default the 
 ``probes_interleaved``, ``minutes_per_ball``, ``repeats``, ``repeat_at_end`` (position ->
 ``{"probe": stylus, "balls": [numbers]}``: those balls measured once more with that stylus
 after the position's last reading, before the plate is moved; their ``repeat`` is
-``repeats``), ``artefact`` (``"hole_plate"``:
+``repeats``; with ``time_min``, one per ball, they are read at those times instead, e.g.
+in a later session, which must be after the position's own readings), ``artefact`` (``"hole_plate"``:
 the plate's features are holes, of which the fit uses the in-plane coordinates only;
 default the setup's, a ball plate).
 """
@@ -238,7 +239,17 @@ def simulate(config: dict | None = None, *, name: str = "simulation config") -> 
             seq = seq + [(int(b) - 1, str(again["probe"])) for b in again["balls"]]
         t_start = clock
         times = t_start + np.arange(len(seq)) * cfg["minutes_per_ball"]
-        clock = times[-1] + 10.0  # re-fixturing the plate takes time
+        if again and again.get("time_min") is not None:
+            # timed repeats (a later session: the plate set up again) are read when
+            # given, and the next position follows the position's own readings
+            given = np.asarray(again["time_min"], float)
+            if given.min() <= times[n_seq - 1]:
+                raise ValueError(f"repeat_at_end.{p}.time_min: {given.min():g} min is not "
+                                 f"after the position's last reading at "
+                                 f"{times[n_seq - 1]:g} min.")
+            times[n_seq:] = given
+        clock = times[n_seq - 1 if again and again.get("time_min") is not None else -1] \
+            + 10.0  # re-fixturing the plate takes time
         t0, t1 = temps[p]
         # start to finish over the position's own readings; balls repeated at its end
         # are read at the finish temperature (the setup's [start, finish] are those of

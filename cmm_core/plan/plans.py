@@ -72,7 +72,9 @@ class Plan:
         Placement -> ``{"probe": stylus, "balls": [numbers]}``: balls measured once more
         with one of the placement's styli after its last reading, before the plate is
         moved (a repeat tells a placement's drift from a stylus's offset,
-        docs/proposals.md); empty: none.
+        docs/proposals.md); optional ``time_min`` (one per ball: read then, e.g. in the
+        next session) and ``setup_min`` (the plate set up again first: counted in
+        :attr:`time_min`); empty: none.
     """
 
     name: str
@@ -96,10 +98,12 @@ class Plan:
     @property
     def time_min(self) -> float:
         """Measuring time in minutes: probings × minutes per ball plus placements ×
-        minutes per placement (fixturing and alignment)."""
+        minutes per placement (fixturing and alignment), plus the set-up of each plate
+        set up again for its repeat (``repeat_at_end``'s ``setup_min``)."""
         m = self.measurement
         return float(self.n_probings * m["minutes_per_ball"]
-                     + len(self.probes_of) * m["minutes_per_placement"])
+                     + len(self.probes_of) * m["minutes_per_placement"]
+                     + sum(r.get("setup_min", 0.0) for r in self.repeat_at_end.values()))
 
     def with_units(self, probes_of: dict, name: str | None = None) -> Plan:
         """The same plan measuring other placements/styli (placements from ``setup``)."""
@@ -150,6 +154,8 @@ def simulation_config(plan: Plan, *, seed: int = 0, noise_um: float = 0.0,
             "probes_interleaved": m["probes_interleaved"],
             "minutes_per_ball": m["minutes_per_ball"], "repeats": m["repeats"],
             "repeat_at_end": {p: {"probe": r["probe"], "balls": list(r["balls"])}
+                              | ({"time_min": list(r["time_min"])} if "time_min" in r
+                                 else {})
                               for p, r in plan.repeat_at_end.items()}}
 
 

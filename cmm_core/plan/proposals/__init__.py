@@ -17,7 +17,7 @@ One module per step, each importing only those above it:
   :func:`instrument_out_of_reach`: every probed ball of every stylus, every instrument
   point, inside the strokes without slack); the data set as a fit selects it
   (:func:`restrict`).
-- :mod:`.rivals`: the pairs of rivals a diagnosis leaves open (:func:`open_pairs`,
+- :mod:`.rivals`: the sets of rivals a diagnosis leaves open (pairs, whole alias sets) (:func:`open_pairs`,
   :func:`rivals_of`) and each rival fitted to the current data (:func:`fit_rivals`, the
   placement scales' :class:`ScaleFit`).
 - :mod:`.separation`: how well a candidate separates two rivals: the power of the nested
@@ -54,6 +54,7 @@ from .candidates import (
     PlateGrid,
     blocked_styli,
     instrument_candidates,
+    last_placement,
     measurement_candidates,
     plate_grid,
     repeat_candidates,
@@ -81,7 +82,9 @@ from .rivals import (
     SCALE_RTOL,
     RivalFits,
     ScaleFit,
+    check_rivals,
     fit_rivals,
+    function_of,
     open_pairs,
     rival_pairs,
     rivals_of,
@@ -92,13 +95,14 @@ __all__ = [
     # candidates
     "NextMeasurement", "PlateGrid", "plate_grid", "measurement_candidates", "blocked_styli",
     "repeat_candidates", "wide_candidates", "instrument_candidates", "SHIFT_FRACTION",
-    "STYLUS_OFFSET_MM", "REPEAT_BALLS", "FAMILIES", "WIDER", "styli_at",
+    "STYLUS_OFFSET_MM", "REPEAT_BALLS", "FAMILIES", "WIDER", "styli_at", "last_placement",
     # append
     "append_measurement", "repeat_from_fit", "restrict", "measurement_observations",
-    "instrument_of", "out_of_reach", "reached_range", "instrument_out_of_reach",
+    "instrument_of", "out_of_reach", "instrument_out_of_reach", "reached_range",
     # rivals
     "BASELINE", "PSEUDO", "PLACEMENT_SCALE", "SCALE_RTOL", "rival_pairs", "open_pairs",
-    "rivals_of", "RivalFits", "fit_rivals", "ScaleFit", "scale_columns",
+    "rivals_of", "RivalFits", "fit_rivals", "ScaleFit", "scale_columns", "check_rivals",
+    "function_of",
     # ranking
     "TARGET_POWER", "NO_POWER", "CHUNK", "Proposal", "Proposals", "propose", "propose_many",
     "DECIDE_POWER", "decide_bar", "Skipped", "conclusion",

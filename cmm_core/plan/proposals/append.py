@@ -52,8 +52,9 @@ def append_measurement(data: Dataset, cand: NextMeasurement, *, config: dict | N
     grid (rotated into the placement), so that the appended balls are the certificate's.
 
     A repeat (``cand.repeat``) is simulated at its placement's pose in the setup (the
-    truth of a simulated data set) and appended to that placement; its drift continues
-    that of the readings before: ``config``'s ``effects.drift`` must then give each
+    truth of a simulated data set) and appended to that placement at its own times
+    (after the data's last reading: appended to the current placement, or in the next
+    session); its drift continues that of the readings before over all the time elapsed: ``config``'s ``effects.drift`` must then give each
     repeated placement's own vector (µm/h), not a spread.
 
     Raises
@@ -109,7 +110,10 @@ def _with_rows(data: Dataset, new: pd.DataFrame, name: str) -> Dataset:
     # apart (0 for the readings before when they have none)
     again = int(old["repeat"].max()) + 1 if "repeat" in old else 1
     old = old if "repeat" in old else old.assign(repeat=0)
-    new = new.assign(repeat=again)
+    # a ball repeated twice among the new rows (a union of repeats at two times) is
+    # told apart from itself too
+    new = new.assign(repeat=again + new.groupby(["position", "probe", "ball"]).cumcount()
+                     .to_numpy())
     cols += ["repeat"]
     both = pd.concat([old[cols + [c for c in ("source", "row") if c in old]],
                       new[cols + ["source", "row"]]], ignore_index=True)

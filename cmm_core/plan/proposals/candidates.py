@@ -34,7 +34,7 @@ FAMILIES = {
     "stylus": "another stylus offset sideways",
     "stylus_length": "another stylus length",
     "order": "the styli in reverse order",
-    "repeat": "a repeat at the end of a placement",
+    "repeat": "a repeat of a placement (appended to the current one, or in the next session)",
     "instrument": "instrument runs (a laser, a step gauge, a ball bar: next --instruments)",
 }
 """Family of a candidate (:attr:`NextMeasurement.family`) -> the family in words: what a
@@ -70,10 +70,13 @@ class NextMeasurement:
         ``ball_bar``) and the keywords of its simulator (``simulate_laser``, ...) but the
         simulation; empty for a plate placement.
     repeat : dict
-        For a repeat at the end of placements already measured (:func:`repeat_candidates`):
-        placement -> ``{"probe": stylus, "balls": [...], "time_min": [...]}``, the stylus
-        measured again on those balls at those times (after the placement's last reading,
-        before its plate is moved: the same pose); ``positions`` is then empty.
+        For a repeat of placements already measured (:func:`repeat_candidates`):
+        placement -> ``{"probe": stylus, "balls": [...], "time_min": [...], "setup_min":
+        minutes, "session": "current" | "next"}``, the stylus measured again on those
+        balls at those times, all after the data's last reading: appended to the current
+        placement (still set up, ``setup_min`` 0) or in the next session, the plate set up
+        again at that placement (``setup_min`` to set it up; taken at the same pose);
+        ``positions`` is then empty.
     family : str
         The kind of measurement, a key of :data:`FAMILIES` (``placement``,
         ``orientation``, ``stylus``, ``stylus_length``, ``order``, ``repeat``,
@@ -190,8 +193,9 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
     measured again with a stylus offset ``stylus_offset_mm`` along X, along Y, and a
     stylus 100 mm longer; and, with two styli or more, measured again with its styli in
     reverse order; and where styli were measured in blocks, the first stylus measured
-    again at the end of such a placement (:func:`repeat_candidates`, on
-    ``repeat_balls`` balls). Each new placement is measured with the reference's styli (the new
+    again on such a placement after the data's last reading (:func:`repeat_candidates`,
+    on ``repeat_balls`` balls: appended to the current placement, or in the next
+    session). Each new placement is measured with the reference's styli (the new
     stylus alone for a stylus candidate). Candidates outside the machine are dropped by
     :func:`propose` (with the reason). Machine time: the plan's time model
     (``Plan.time_min``), minutes per ball and per placement defaulting to
@@ -275,7 +279,8 @@ def measurement_candidates(data: Dataset, *, reference: str | None = None,
     if len(styli) > 1:
         add("reverse", f"{reference} again with its styli in reverse order "
             f"({', '.join(styli[::-1])})", o, u, v, styli[::-1], family="order")
-    return out + repeat_candidates(data, n_balls=repeat_balls, minutes_per_ball=per_ball)
+    return out + repeat_candidates(data, n_balls=repeat_balls, minutes_per_ball=per_ball,
+                                   minutes_per_placement=per_place)
 
 
 def blocked_styli(data: Dataset) -> dict[str, list[str]]:
@@ -296,50 +301,101 @@ def blocked_styli(data: Dataset) -> dict[str, list[str]]:
     return out
 
 
+def last_placement(data: Dataset) -> str | None:
+    """The placement measured last (the one of the latest ``time_min``): the plate still
+    set up on the machine, where a repeat is appended to the current placement; None
+    without times."""
+    m = data.meas
+    if "time_min" not in m or not m["time_min"].notna().any():
+        return None
+    return str(m.loc[m["time_min"].idxmax(), "position"])
+
+
+def _times_text(times: Sequence[float]) -> str:
+    """Times of a repeat's readings in words: "at 120.5 min", "at 120.5 to 122 min"."""
+    return (f"at {times[0]:g} min" if len(times) == 1
+            else f"at {times[0]:g} to {times[-1]:g} min")
+
+
 def repeat_candidates(data: Dataset, *, n_balls: int | Sequence[int] = REPEAT_BALLS,
-                      minutes_per_ball: float | None = None) -> list[NextMeasurement]:
-    """Repeats that tell a placement's drift from its styli's offsets.
+                      minutes_per_ball: float | None = None,
+                      minutes_per_placement: float | None = None) -> list[NextMeasurement]:
+    """Repeats that tell a placement's drift from its styli's offsets: measurements the
+    lab can make next, after the data's last reading.
 
     For each placement whose styli were measured in blocks (:func:`blocked_styli`): its
     first stylus measured again on the first ``n_balls`` balls it measured there (the
-    same balls, the earliest times), right after the placement's last reading, before its
-    plate is moved (``repeat_<placement>_<n>``); and, with two such placements or more,
-    the same at the end of each (``repeat_all_<n>``). A stylus's offset repeats
-    exactly; a drift of ``v`` µm/h moves the repeated readings by ``v`` times the time
-    elapsed since the first ones (``Drift``'s own remedy: "repeating the first ball at
-    the end of each position"). Machine time: balls × minutes per ball (the plan's time
-    model, ``files.MEASUREMENT_DEFAULTS``; no new placement: the plate stays where it
-    is). For a placement no longer on the machine the repeat is a change of plan for the
-    next run of the same placements.
+    same balls, the earliest times) (``repeat_<placement>_<n>``); and, with two such
+    placements or more, the same on each (``repeat_all_<n>``). The placement measured
+    last (:func:`last_placement`) is still set up: its repeat is appended to the current
+    placement, right after the data's last reading. Any other was taken down when the
+    next was measured: its repeat is in the next session, the plate set up again at that
+    placement (``minutes_per_placement`` to set it up, then its balls), after the data's
+    last reading; ``repeat_all`` appends to the current placement first, then sets up each
+    other in the setup's order. Every repeated reading is timed (``repeat[p]["time_min"]``,
+    after the data's last ``time_min``; ``setup_min``: the set-up before it, 0 when
+    appended; ``session``: ``"current"`` or ``"next"``), which is what the drift model sees.
+    A stylus's offset repeats exactly; a drift of ``v`` µm/h moves the repeated readings by
+    ``v`` times the time elapsed since the first ones (``Drift``'s own remedy: "repeating
+    the first ball at the end of each position"). The plate set up again is taken at the
+    same pose (the placement's own pose parameters: a fixture that puts it back within
+    the noise). Machine time: balls × minutes per ball, plus minutes per placement for
+    each placement set up again (the plan's time model, ``files.MEASUREMENT_DEFAULTS``).
     """
     defaults: dict = MEASUREMENT_DEFAULTS
     per_ball = float(defaults["minutes_per_ball"] if minutes_per_ball is None
                      else minutes_per_ball)
+    per_place = float(defaults["minutes_per_placement"] if minutes_per_placement is None
+                      else minutes_per_placement)
     m = data.meas
     out = []
     counts = [int(n_balls)] if isinstance(n_balls, int | np.integer) else \
         [int(n) for n in n_balls]
     blocked = blocked_styli(data)
+    if not blocked:
+        return out
+    last = last_placement(data)
+    t_last = float(m["time_min"].max())
     named: set = set()  # a count above a stylus's balls gives the same repeat again
     position = m["position"].astype(str)
+
+    def balls_of(p: str, styli: list, n: int) -> list:
+        rows = m.loc[(position == str(p)) & (m["probe"].astype(str) == styli[0])]
+        rows = rows.sort_values("time_min", kind="stable")
+        return [int(b) for b in dict.fromkeys(rows["ball"])][:max(n, 1)]
+
+    def timed(p: str, probe: str, balls: list, clock: float) -> dict:
+        # the current placement's repeat follows its last reading; another placement is
+        # set up again first (the plan's minutes per placement)
+        setup = 0.0 if p == last else per_place
+        return {"probe": probe, "balls": balls, "setup_min": setup,
+                "session": "current" if p == last else "next",
+                "time_min": [clock + setup + per_ball * (j + 1) for j in range(len(balls))]}
+
+    def words(p: str, r: dict) -> str:
+        balls = r["balls"]
+        what = (f"stylus {r['probe']} measured again on {len(balls)} ball(s) of {p} (balls "
+                f"{', '.join(map(str, balls))}) {_times_text(r['time_min'])}")
+        if r["session"] == "current":
+            return f"{what}, appended to the current placement {p} (still set up)"
+        return (f"{what}, in the next session: the plate set up again at {p} "
+                f"({r['setup_min']:g} min) after the last reading ({t_last:g} min)")
+
     for n in counts:
-        each = {}
-        for p, styli in blocked.items():
-            rows = m.loc[(position == str(p)) & (m["probe"].astype(str) == styli[0])]
-            rows = rows.sort_values("time_min", kind="stable")
-            balls = [int(b) for b in dict.fromkeys(rows["ball"])][:max(n, 1)]
-            end = float(m.loc[position == str(p), "time_min"].max())
-            each[p] = {"probe": styli[0], "balls": balls,
-                       "time_min": [end + per_ball * (j + 1) for j in range(len(balls))]}
+        # the current placement first (still set up), then the others as set up anew
+        order = sorted(blocked, key=lambda p: p != last)
+        each, clock = {}, t_last
+        for p in order:
+            balls = balls_of(p, blocked[p], n)
+            r = timed(p, blocked[p][0], balls, t_last)
             name = f"repeat_{p}_{len(balls)}"
-            if name in named:
-                continue
-            named.add(name)
-            out.append(NextMeasurement(
-                name, f"stylus {styli[0]} measured again on "
-                f"{len(balls)} ball(s) of {p} (balls {', '.join(map(str, balls))}) at the "
-                f"end of {p}, before its plate is moved", {}, {}, {},
-                len(balls) * per_ball, repeat={p: each[p]}, family="repeat"))
+            if name not in named:
+                named.add(name)
+                out.append(NextMeasurement(
+                    name, words(p, r), {}, {}, {}, len(balls) * per_ball + r["setup_min"],
+                    repeat={p: r}, family="repeat"))
+            each[p] = timed(p, blocked[p][0], balls, clock)
+            clock = each[p]["time_min"][-1]
         # named by the balls each placement repeats (fewer than n where a stylus has less)
         sizes = sorted({len(r["balls"]) for r in each.values()})
         label = "-".join(map(str, sizes))
@@ -347,10 +403,10 @@ def repeat_candidates(data: Dataset, *, n_balls: int | Sequence[int] = REPEAT_BA
             named.add(f"repeat_all_{label}")
             out.append(NextMeasurement(
                 f"repeat_all_{label}", f"the first stylus of each of {', '.join(each)} "
-                f"measured again on {label} of its balls at the end of that placement, "
-                f"before its plate is moved", {}, {}, {},
-                sum(len(r["balls"]) for r in each.values()) * per_ball, repeat=each,
-                family="repeat"))
+                f"measured again on {label} of its balls: "
+                + "; then ".join(words(p, r) for p, r in each.items()), {}, {}, {},
+                sum(len(r["balls"]) * per_ball + r["setup_min"] for r in each.values()),
+                repeat=each, family="repeat"))
     return out
 
 

@@ -57,7 +57,7 @@ class Outcome:
     aliases : list of str
         The aliases it still reports for its first candidate.
     separated : bool
-        The verdict is the truth and the other rival is no longer its alias.
+        The verdict is the truth and no other rival is still its alias.
     message : str
         The diagnosis's message.
     """
@@ -73,9 +73,9 @@ class Outcome:
 def simulate_outcomes(data: Dataset, proposal: Proposal, *, baseline: str = "kinematic21",
                       order: int = 2, plate: str | None = None, sigma_um: float = 0.5,
                       seed: int = 0) -> dict:
-    """One click, simulated: for each rival as the truth (its fit on the current data),
-    simulate the proposal with noise σ, append it to the data and run the diagnosis.
-    Returns ``{rival: Outcome}``.
+    """One click, simulated: for each rival as the truth (its fit on the current data; each
+    rival of an alias set of three or more), simulate the proposal with noise σ, append
+    it to the data and run the diagnosis. Returns ``{rival: Outcome}``.
 
     An instrument candidate is measured on the machine of each rival's fitted kinematic
     errors (its effects belong to the plate's placements and styli, which an instrument
@@ -87,13 +87,13 @@ def simulate_outcomes(data: Dataset, proposal: Proposal, *, baseline: str = "kin
     if BASELINE in proposal.rivals:
         raise ValueError(f"against the {BASELINE} the outcome is the effect's own test: "
                          "its power is the proposal's score (nothing to simulate).")
-    a, b = proposal.rivals
     rf = fit_rivals(data, proposal.rivals, baseline=baseline, order=order, plate=plate,
                     sigma_um=sigma_um)
     out = {}
     cand = proposal.candidate
     aug: Dataset | Observations
-    for t, o in ((a, b), (b, a)):
+    for t in proposal.rivals:
+        others = [o for o in proposal.rivals if o != t]
         if cand.repeat:  # the same placements: their fitted poses, plate and drift
             aug = repeat_from_fit(data, cand, rf.fits[t], noise_um=sigma_um, seed=seed)
         elif cand.instrument:
@@ -107,7 +107,8 @@ def simulate_outcomes(data: Dataset, proposal: Proposal, *, baseline: str = "kin
             aug = append_measurement(data, cand, config=cfg, seed=seed)
         d = diagnose(aug, baseline, order=order, plate=plate, sigma_um=sigma_um)
         al = list(d.candidates[0].aliases) if d.candidates else []
-        out[t] = Outcome(t, d.verdict, al, bool(d.verdict == t and o not in al), d.message)
+        out[t] = Outcome(t, d.verdict, al, bool(d.verdict == t and not set(others) & set(al)),
+                         d.message)
     return out
 
 
@@ -116,7 +117,8 @@ def plan_file(data: Dataset, proposal: Proposal, *, baseline: str = "kinematic21
     """The proposal as a ``plan`` JSON document (docs/planning.md, "The plan file"): the
     data set's setup with the proposal's placement and styli added, its plate, and two
     strategies: the current placements alone and with the proposal (a repeat: the same
-    placements with its balls measured again at their end, ``repeat_at_end``)."""
+    placements with its balls measured again, ``repeat_at_end``, timed after the data's
+    last reading with the set-up of a plate set up again, :func:`_timed_repeat`)."""
     c = proposal.candidate
     if c.instrument:
         raise ValueError(f"{c.name} is an instrument: a plan file holds plate placements, "
@@ -138,7 +140,16 @@ def plan_file(data: Dataset, proposal: Proposal, *, baseline: str = "kinematic21
             "strategies": [{"name": "current data", "placements": now},
                            {"name": f"with {c.description}",
                             "placements": {**now, **c.probes_of}}
-                           | ({"repeat_at_end": {p: {"probe": r["probe"],
-                                                     "balls": list(r["balls"])}
+                           | ({"repeat_at_end": {p: _timed_repeat(r)
                                                  for p, r in c.repeat.items()}}
                               if c.repeat else {})]}
+
+
+def _timed_repeat(r: dict) -> dict:
+    """A repeat as a plan strategy's ``repeat_at_end`` entry: its stylus and balls, when
+    each is read (``time_min``: after the data's last reading, on the data's clock) and
+    the set-up before them (``setup_min``: 0 appended to the current placement, the
+    minutes per placement in the next session)."""
+    return {"probe": r["probe"], "balls": list(r["balls"]),
+            "time_min": [float(t) for t in r["time_min"]],
+            "setup_min": float(r.get("setup_min", 0.0))}

@@ -1,7 +1,9 @@
 """The proposals: each candidate scored by its separation of the rivals
 (:mod:`.separation`) and ranked (:func:`propose`; :func:`propose_many` in chunks on Dask).
 
-A candidate decides the pair with power ``min(power_A, power_B)``. Proposals are ranked
+A candidate decides the pair with power ``min(power_A, power_B)``; an alias set of three
+rivals or more with the minimum pairwise power (each rival's power against the rival it
+is hardest to tell from, :mod:`.separation`'s docstring), the smallest over the truths. Proposals are ranked
 on the powers at the noise-corrected sizes (``Proposal.power_at_size``): those reaching
 ``target`` power first, by machine time; then the others by power. Not on the assurance:
 under the flat prior it credits a candidate for seeing directions the current data leave
@@ -25,7 +27,7 @@ from ...model import select
 from ..study import dask_client
 from .append import _in_machine, _machine, instrument_of, instrument_out_of_reach
 from .candidates import FAMILIES, WIDER, NextMeasurement, measurement_candidates
-from .rivals import BASELINE, RivalFits, fit_rivals, rivals_of
+from .rivals import BASELINE, RivalFits, check_rivals, fit_rivals, rivals_of
 from .separation import (
     _design,
     _instrument_design,
@@ -101,10 +103,11 @@ class Proposal:
     candidate : NextMeasurement
         The measurement.
     rivals : tuple of str
-        The two rival tokens (A, B).
+        The rival tokens (A, B, ...: two, or three or more for an alias set).
     delta_chi2 : dict
-        Rival taken as the truth -> expected Δχ² (non-centrality λ) the other rival leaves
-        on the noise-free augmented data, its size's noise taken out: ``‖M θ̂‖² −
+        Rival taken as the truth -> expected Δχ² (non-centrality λ) the other rival (of
+        three or more: the one it is hardest to tell from) leaves on the noise-free
+        augmented data, its size's noise taken out: ``‖M θ̂‖² −
         tr(M C Mᵀ)`` (at least 0), ``C`` the covariance of the fitted ``θ̂``
         (:mod:`.separation`'s docstring).
     dof : dict
@@ -118,7 +121,8 @@ class Proposal:
         the expected power over the uncertainty of the rival's fitted size
         (:func:`_expected_power`, the "assurance").
     power_min : float
-        The smaller of the two powers: the probability the pair is decided.
+        The smallest of the powers: the probability the pair is decided (of three rivals
+        or more: the minimum pairwise power, :mod:`.separation`'s docstring).
     per_minute : float
         The smaller expected Δχ² per minute of machine time.
     outcome : str
@@ -170,9 +174,10 @@ class Proposals:
     Attributes
     ----------
     rivals : tuple of str
-        The two rival tokens scored.
+        The rival tokens scored (two, or three or more for an alias set).
     baseline : str
-        Spec of the baseline the rivals are added to.
+        The baseline the rivals are added to, exactly as given (``"kinematic21,-sxy"``
+        stays so, whichever the rivals).
     current : dict
         Rival taken as the truth -> power of its nested test with the current data alone
         (the same formula without a candidate): what the data already decide (not for
@@ -234,17 +239,25 @@ def _verdict(cand: NextMeasurement, power_min: float, bar: float) -> str:
             f"decide ({100 * bar:.0f} % needed)")
 
 
+def _names(rivals: Sequence[str]) -> str:
+    """The rivals in words: "A and B", "A, B and C"."""
+    rivals = [str(r) for r in rivals]
+    return rivals[0] if len(rivals) == 1 else f"{', '.join(rivals[:-1])} and {rivals[-1]}"
+
+
 def _outcome(cand: NextMeasurement, rivals, lam: dict, power_min: float,
              rank: tuple | None = None, bar: float = DECIDE_POWER) -> str:
-    a, b = rivals
-    if b == BASELINE:
+    a = rivals[0]
+    if rivals[-1] == BASELINE:
         k, k_now = rank or (0, 0)
         return (f"with {cand.description}, the data determine {k} parameter "
                 f"combination(s) of {a} ({k_now} now) and it stands out by Δχ² ≈ "
                 f"{lam[a]:.0f}: {_verdict(cand, power_min, bar)}")
-    return (f"with {cand.description}, {a} and {b} differ by Δχ² ≈ {min(lam.values()):.0f}"
-            f" ({a} true: {lam[a]:.0f}, {b} true: {lam[b]:.0f}): "
-            f"{_verdict(cand, power_min, bar)}")
+    each = ", ".join(f"{r} true: {lam[r]:.0f}" for r in rivals)
+    # three or more: each pair must differ, and the figure is the hardest pair's
+    differ = "differ by" if len(rivals) == 2 else "differ pairwise by at least"
+    return (f"with {cand.description}, {_names(rivals)} {differ} Δχ² ≈ "
+            f"{min(lam.values()):.0f} ({each}): {_verdict(cand, power_min, bar)}")
 
 
 def conclusion(rivals: Sequence[str], current: dict, ranked: list, infeasible: list,
@@ -260,7 +273,8 @@ def conclusion(rivals: Sequence[str], current: dict, ranked: list, infeasible: l
 
     Parameters
     ----------
-    rivals : two str
+    rivals : sequence of str
+        Two, or three or more for an alias set.
     current : dict
         Rival -> the current data's power (``Proposals.current``).
     ranked : list of Proposal
@@ -274,21 +288,22 @@ def conclusion(rivals: Sequence[str], current: dict, ranked: list, infeasible: l
     -------
     (str, bool)
     """
-    a, b = rivals
+    a, others = rivals[0], _names(rivals[1:])
     now = (f"the current data decide with {100 * min(current.values()):.0f} % power"
            if current else "the current data decide nothing")
     bar = decide_bar(target)
     deciding = [p for p in ranked if p.power_min >= bar]
     if deciding:
-        return f"{a} against {b}: {now}. Best next measurement: {deciding[0].outcome}.", True
+        return (f"{a} against {others}: {now}. Best next measurement: "
+                f"{deciding[0].outcome}."), True
     if ranked:
         best = max(ranked, key=lambda p: p.power_min)  # the first of the most powerful
-        head = (f"No candidate decides between {a} and {b}: the best reaches "
+        head = (f"No candidate decides between {_names(rivals)}: the best reaches "
                 f"{100 * best.power_min:.0f} % power ({best.candidate.description}, "
                 f"{best.candidate.time_min:.0f} min; {100 * bar:.0f} % needed); {now}.")
     else:
-        head = (f"No candidate decides between {a} and {b}: no candidate measurement fits "
-                f"in the machine; {now}.")
+        head = (f"No candidate decides between {_names(rivals)}: no candidate measurement "
+                f"fits in the machine; {now}.")
     out_of_reach = {s.family for s in infeasible} - set(families)
     unsearched = [f for f in WIDER if f not in families and f not in out_of_reach]
     unreached = [f for f in WIDER if f in out_of_reach]
@@ -386,17 +401,21 @@ def propose(data: Dataset, rivals: Sequence[str] | None = None, *, baseline: str
             plate: str | None = None, sigma_um: float = 0.5, alpha: float = FAMILY_ALPHA,
             cands: list | None = None, target: float = TARGET_POWER,
             diagnosis: Diagnosis | None = None) -> Proposals:
-    """Rank candidate measurements by how well they decide between two rivals.
+    """Rank candidate measurements by how well they decide between rivals.
 
     Parameters
     ----------
     data : Dataset
         The current measurements (with a certificate of a regular-grid plate).
-    rivals : sequence of two str, optional
-        The rival tokens; default the diagnosis's first candidate and its alias or
-        runner-up (:func:`rivals_of`), running ``diagnose`` when ``diagnosis`` is None.
+    rivals : sequence of str, optional
+        The rival tokens, two or more (:func:`~.rivals.check_rivals`: each of its own
+        function); default the diagnosis's open question, its first candidate with all
+        its aliases or its runner-up (:func:`rivals_of`), running ``diagnose`` when
+        ``diagnosis`` is None. Three or more are decided with the minimum pairwise power
+        (:mod:`.separation`'s docstring).
     baseline, order, plate, sigma_um, alpha
-        The diagnosis's settings.
+        The diagnosis's settings; ``baseline`` is kept as given in
+        ``Proposals.baseline``.
     cands : list of NextMeasurement, optional
         Default :func:`measurement_candidates` of the data.
     target : float
@@ -410,9 +429,7 @@ def propose(data: Dataset, rivals: Sequence[str] | None = None, *, baseline: str
         diagnosis = diagnosis or diagnose(data, baseline, order=order, plate=plate,
                                           sigma_um=sigma_um, alpha=alpha)
         rivals = rivals_of(diagnosis)
-    rivals = tuple(rivals)
-    if len(rivals) != 2 or rivals[0] == rivals[1]:
-        raise ValueError(f"expected two different rival tokens, got {list(rivals)}.")
+    rivals = check_rivals(rivals)
     rf = fit_rivals(data, rivals, baseline=baseline, order=order, plate=plate,
                     sigma_um=sigma_um, alpha=alpha)
     now = _design(select(data), rf)
@@ -441,8 +458,11 @@ def propose(data: Dataset, rivals: Sequence[str] | None = None, *, baseline: str
                   if c.name in skipped]
     families = _families(p.candidate for p in scored)
     msg, decided = conclusion(rivals, current, scored, infeasible, families, target)
-    return Proposals(rivals, rf.fits[rivals[0]].problem.spec.to_string(), current, scored,
-                     infeasible, target, msg, decided, families)
+    # the baseline as the user gave it: the fitted spec holds the first rival, and a
+    # rival the baseline took out ("-sxy") would be lost in it
+    given = baseline if isinstance(baseline, str) else baseline.to_string()
+    return Proposals(rivals, given, current, scored, infeasible, target, msg, decided,
+                     families)
 
 
 def _instruments(data: Dataset, tools: list, sim0, skipped: dict):

@@ -1,11 +1,14 @@
 """The rivals a measurement should tell apart, and their fits to the current data.
 
-Every pair a diagnosis leaves open (:func:`rival_pairs`, :func:`open_pairs`,
-:func:`rivals_of`): its first candidate and each alias, its runner-up, an effect standing in
-for each placement's own scale against :data:`PLACEMENT_SCALE`, an effect whose addition
-would leave combinations undetermined against the :data:`BASELINE`. Each rival fitted to
-the current data (:func:`fit_rivals`: its size and the level its nested test is judged at;
-the placement scales fitted to the baseline's residual, :class:`ScaleFit`).
+Every set of rivals a diagnosis leaves open (:func:`rival_pairs`, :func:`open_pairs`,
+:func:`rivals_of`): its first candidate with all its aliases (two, three or more effects:
+the whole alias set, not two of it), its runner-up, an effect standing in for each
+placement's own scale against :data:`PLACEMENT_SCALE`, an effect whose addition would
+leave combinations undetermined against the :data:`BASELINE`. One error function at two
+orders (``rxz:3`` and ``rxz:4``) is one physical function, never two rivals
+(:func:`function_of`, :func:`check_rivals`). Each rival fitted to the current data
+(:func:`fit_rivals`: its size and the level its nested test is judged at; the placement
+scales fitted to the baseline's residual, :class:`ScaleFit`).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import numpy as np
 from ...diagnosis import FAMILY_ALPHA, SCALE_ALPHA, Diagnosis
 from ...diagnosis import scale_columns as placement_scales
 from ...io import Dataset
+from ...machine import ERROR_NAMES
 from ...model import FitResult, Observations, Problem, fit, weighted_residual
 from ..detect import candidate_tokens
 
@@ -44,12 +48,55 @@ columns are projected out for that scale to be fitted (``diagnosis.crossval``'s 
 rule)."""
 
 
+def function_of(token: str) -> str:
+    """The physical function a rival token stands for: a kinematic error function without
+    its order (``rxz:4`` -> ``rxz``: the same carriage rotation at any order), any other
+    token itself (``periodic_x:40`` names a period, another function than
+    ``periodic_x:20``; ``probe_offset``, ``drift``)."""
+    name, _, _ = str(token).partition(":")
+    return name if name in ERROR_NAMES else str(token)
+
+
+def check_rivals(rivals: Sequence[str]) -> tuple[str, ...]:
+    """The rivals as a tuple, checked: two or more, different, each of its own function
+    (:func:`function_of`: one function at two orders is not a question between two
+    effects), a pseudo-rival (:data:`PSEUDO`) only as the second of two.
+
+    Raises
+    ------
+    ValueError
+        When they are not.
+    """
+    out = tuple(str(r) for r in rivals)
+    if len(out) < 2 or len(set(out)) != len(out):
+        raise ValueError(f"expected two or more different rival tokens, got {list(out)}.")
+    seen: dict = {}
+    for r in out:
+        f = function_of(r)
+        if f in seen:
+            raise ValueError(f"{seen[f]} and {r} are one function ({f}) at two orders: the "
+                             "same physical function, not rivals; give rivals of different "
+                             "effects or functions (e.g. the verdict's aliases).")
+        seen[f] = r
+    if out[0] in PSEUDO:
+        raise ValueError(f"give {out[0]} as the second rival (after the effect it is "
+                         "told apart from).")
+    if len(out) > 2 and set(out) & PSEUDO:
+        raise ValueError(f"{', '.join(sorted(set(out) & PSEUDO))} is the rival of one "
+                         "effect: give it as the second of two rivals.")
+    return out
+
+
 def rival_pairs(candidates: Sequence[Mapping[str, Any]], *, top: int = 3
-                ) -> list[tuple[str, str]]:
-    """Every pair a diagnosis leaves open, most pressing first: the first candidate
-    with each of its aliases; its runner-up (the next significant candidate of another
-    function); then each alias of the next ``top - 1`` significant candidates. Each pair
-    once, whichever its order.
+                ) -> list[tuple[str, ...]]:
+    """Every set of rivals a diagnosis leaves open, most pressing first: the first
+    candidate with all its aliases (one set: a three-way alias set is one question of
+    three rivals, not two pairs of it); its runner-up (the next significant candidate of
+    another function); then the alias set of each of the next ``top - 1`` significant
+    candidates. Within a set one token per function (:func:`function_of`: an alias that
+    is the candidate's own function at another order is the same physical function, left
+    out; a set left with one function is no question). Each set once, whichever its
+    order, and none that an earlier set holds.
 
     Parameters
     ----------
@@ -63,26 +110,34 @@ def rival_pairs(candidates: Sequence[Mapping[str, Any]], *, top: int = 3
         :data:`BASELINE` are a pair, last).
     top : int
         How many of the first candidates' aliases count.
-    """
-    out: list[tuple[str, str]] = []
 
-    def add(a: str, b: str) -> None:
-        if a != b and (a, b) not in out and (b, a) not in out:
-            out.append((a, b))
+    Returns
+    -------
+    list of tuple of str
+        Each set, the candidate first (two rivals for a pair, more for a larger alias
+        set).
+    """
+    out: list[tuple[str, ...]] = []
+
+    def add(*names: str) -> None:
+        kept: list[str] = []
+        for n in map(str, names):
+            if all(function_of(n) != function_of(k) for k in kept):
+                kept.append(n)
+        if len(kept) > 1 and not any(set(kept) <= set(o) for o in out):
+            out.append(tuple(kept))
 
     if not candidates:
         return out
     first = candidates[0]
-    for al in first["aliases"]:
-        add(first["effect"], al)
-    name = str(first["effect"]).partition(":")[0]
+    add(first["effect"], *first["aliases"])
+    name = function_of(first["effect"])
     other = next((c for c in candidates[1:] if c["significant"]
-                  and str(c["effect"]).partition(":")[0] != name), None)
+                  and function_of(c["effect"]) != name), None)
     if other is not None:
         add(first["effect"], other["effect"])
     for c in [c for c in candidates[1:] if c["significant"]][:max(top - 1, 0)]:
-        for al in c["aliases"]:
-            add(c["effect"], al)
+        add(c["effect"], *c["aliases"])
     for c in candidates[:max(top, 1)]:
         if c.get("stands_in_for_scale"):
             add(c["effect"], PLACEMENT_SCALE)
@@ -93,8 +148,8 @@ def rival_pairs(candidates: Sequence[Mapping[str, Any]], *, top: int = 3
 
 
 def open_pairs(diagnosis: Diagnosis | Mapping[str, Any], *, top: int = 3
-               ) -> list[tuple[str, str]]:
-    """Every pair of rivals a diagnosis leaves open (:func:`rival_pairs`), read from the
+               ) -> list[tuple[str, ...]]:
+    """Every set of rivals a diagnosis leaves open (:func:`rival_pairs`), read from the
     diagnosis itself: each candidate's aliases and significance, whether it stands in
     for each placement's own scale (``HoldoutCheck.stands_in_for_scale``, the rule
     ``diagnosis.crossval.check`` judges by; not merely a failed check), and the combinations its addition would leave
@@ -129,9 +184,10 @@ def open_pairs(diagnosis: Diagnosis | Mapping[str, Any], *, top: int = 3
                         for c in cands], top=top)
 
 
-def rivals_of(diagnosis: Diagnosis) -> tuple[str, str]:
-    """The pair the diagnosis leaves open: the first of :func:`open_pairs` for its first
-    candidate (``top=1``): its first alias, or else the next significant candidate of
+def rivals_of(diagnosis: Diagnosis) -> tuple[str, ...]:
+    """The open question of the diagnosis: the first of :func:`open_pairs` for its first
+    candidate (``top=1``): it with all its aliases of other functions (two rivals, or
+    three or more for a larger alias set), or else the next significant candidate of
     another function (a runner-up), or else :data:`PLACEMENT_SCALE` when it stands in
     for each placement's own scale, or else :data:`BASELINE` when its addition would
     leave combinations undetermined.
@@ -155,19 +211,19 @@ def rivals_of(diagnosis: Diagnosis) -> tuple[str, str]:
 
 @dataclass(frozen=True)
 class RivalFits:
-    """The two rivals fitted to the current data.
+    """The rivals fitted to the current data.
 
     Attributes
     ----------
     rivals : tuple of str
-        The rival tokens (A, B).
+        The rival tokens (A, B, ...: two, or more for an alias set).
     specs : dict
         Rival -> the baseline with it added (``ModelSpec``).
     fits : dict
         Rival -> its ``FitResult`` on the current data.
     levels : dict
-        Rival -> the level its nested test is judged at: for two model tokens the first
-        rival's level, both directions (:func:`fit_rivals`).
+        Rival -> the level its nested tests are judged at: for model tokens the first
+        rival's level, every direction (:func:`fit_rivals`).
     """
 
     rivals: tuple
@@ -186,12 +242,11 @@ def fit_rivals(data: Dataset, rivals: Sequence[str], *, baseline: str = "kinemat
     Raises
     ------
     ValueError
-        When a rival is a pseudo-rival given first, or a rival token the baseline already
+        When the rivals are not different effects (:func:`check_rivals`: a pseudo-rival
+        given first, one function at two orders), or a rival token the baseline already
         holds (adding it changes nothing: there would be nothing to tell apart).
     """
-    if rivals[0] in PSEUDO:
-        raise ValueError(f"give {rivals[0]} as the second rival (after the effect it is "
-                         "told apart from).")
+    rivals = check_rivals(rivals)
     base = fit(data, baseline, order=order, plate=plate, sigma_um=sigma_um, max_iter=2000)
     spec0 = base.problem.spec
     specs = {r: spec0 if r in PSEUDO else spec0.with_token(r) for r in rivals}

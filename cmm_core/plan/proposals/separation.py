@@ -1,4 +1,5 @@
-"""How well a candidate measurement separates two rival models (issue 29).
+"""How well a candidate measurement separates rival models (issue 29): two, or the
+three or more effects of an alias set.
 
 How a candidate is scored. Each rival in turn is the truth at the size it is fitted to on
 the current data (``θ_A``, the parameters A has and B has not). The noise-free augmented
@@ -42,9 +43,19 @@ of the nested test (O'Hagan & Stevens 2001; Spiegelhalter, Abrams & Myles 2004 �
 posterior of A's size under a flat prior (the linear model with σ known), with
 ``λ_A(θ) = θᵀ Mᵀ M θ``. With ``C_A → 0`` it is the power at the fitted size.
 
-A repeat (:func:`repeat_candidates`: a stylus measured again at the end of a placement
-already measured) adds rows to that placement, not a new one: it is scored on the design
-of the whole augmented data set (:func:`_score_repeats`).
+Three rivals or more (an alias set of the diagnosis, ``rivals.rival_pairs``): deciding
+means separating each pair. With ``A`` true its power is the smallest, over the other
+rivals ``O``, of the power of "A still needed once O is in" (the hardest pairwise
+separation; its λ, dof and size are that test's), and the candidate decides the set with
+the smallest of these over the truths: the minimum pairwise power (:func:`_score_on`).
+That is the chance of the hardest of the tests the diagnosis runs, an upper bound of the
+chance that all of them single out the true one at once (Bonferroni's lower bound of that
+is ``1 − Σ_O (1 − power_{A|O})``); for two rivals it is the pair's power.
+
+A repeat (:func:`repeat_candidates`: a stylus measured again on a placement already
+measured, appended to the current placement or in the next session) adds rows to that
+placement, not a new one: it is scored on the design of the whole augmented data set
+(:func:`_score_repeats`).
 """
 
 from __future__ import annotations
@@ -75,7 +86,7 @@ _ASSURANCE_SEED = 2001
 
 @dataclass(frozen=True)
 class _Design:
-    """Weighted Jacobian at the nominal linearisation of the model holding both rivals,
+    """Weighted Jacobian at the nominal linearisation of the model holding every rival,
     its column labels, and which labels each rival's own model has."""
 
     J: np.ndarray
@@ -84,18 +95,21 @@ class _Design:
 
 
 def _both(rf: RivalFits):
-    """The model holding both rivals (the baseline for a placement-scale rival)."""
-    a, b = rf.rivals
-    return rf.specs[a] if b in PSEUDO else rf.specs[a].with_token(b)
+    """The model holding every rival (the first's with each other token added; a
+    pseudo-rival adds no token)."""
+    spec = rf.specs[rf.rivals[0]]
+    for r in rf.rivals[1:]:
+        if r not in PSEUDO:
+            spec = spec.with_token(r)
+    return spec
 
 
 def _design(obs, rf: RivalFits) -> _Design:
-    a, b = rf.rivals
-    f = rf.fits[a]
+    f = rf.fits[rf.rivals[0]]
     prob = Problem(obs, _both(rf), f.plate)
     J = weighted_residual(prob, prob.initial_state(), f.sigma_um, True)[2].toarray()
     labels = list(prob.layout.labels)
-    has = {r: set(Problem(obs, rf.specs[r], f.plate).layout.labels) for r in (a, b)}
+    has = {r: set(Problem(obs, rf.specs[r], f.plate).layout.labels) for r in rf.rivals}
     if PLACEMENT_SCALE in rf.rivals:
         S, lab_s = scale_columns(obs, f.sigma_um, J.shape[0])
         J = np.hstack([J, S])
@@ -264,13 +278,18 @@ def _powers(lam: np.ndarray, k: int, nu: int, level: float) -> np.ndarray:
 
 
 def _score_on(des: _Design, rf: RivalFits) -> dict:
-    a, b = rf.rivals
+    """Rival taken as the truth -> :func:`_separation`'s tuple against the other rival
+    it is hardest to tell from (module docstring): of the tests "truth still needed once
+    ``o`` is in", the one of the smallest power at the corrected size (then expected
+    power, then λ). For two rivals the one test each way."""
     out = {}
-    for t, o in ((a, b), (b, a)):
+    for t in rf.rivals:
         f = rf.fits[t]
-        out[t] = _separation(des, t, o, dict(zip(f.labels, f.values, strict=True)),
-                             rank_rtol=f.rank_rtol, level=rf.levels[t],
+        theta = dict(zip(f.labels, f.values, strict=True))
+        tests = [_separation(des, t, o, theta, rank_rtol=f.rank_rtol, level=rf.levels[t],
                              spread=(f.labels, f.covariance))
+                 for o in rf.rivals if o != t]
+        out[t] = min(tests, key=lambda v: (v[6], v[3], v[0]))
     return out
 
 
@@ -286,16 +305,17 @@ def _score_candidates(now: _Design, obs, ok: list, rf: RivalFits):
 
 
 def _union(reps: list) -> NextMeasurement | None:
-    """One repeat holding every candidate's rows, or None when two candidates repeat a
-    ball with the same stylus at different times (they cannot share one design)."""
+    """One repeat holding every candidate's rows, or None when two candidates repeat one
+    placement with different styli (its rows are one stylus's). A ball repeated at two
+    times (a placement's repeat alone in the next session, and later in ``repeat_all``
+    after another's) is two rows of the union, each candidate keeping its own."""
     rows: dict = {}
     for c in reps:
         for p, r in c.repeat.items():
             for b, t in zip(r["balls"], r["time_min"], strict=True):
-                if rows.setdefault((p, r["probe"], int(b)), float(t)) != float(t):
-                    return None
+                rows.setdefault((p, r["probe"], int(b), round(float(t), 6)), float(t))
     each: dict = {}
-    for (p, q, b), t in rows.items():
+    for (p, q, b, _), t in rows.items():
         if p in each and each[p]["probe"] != q:
             return None
         r = each.setdefault(p, {"probe": q, "balls": [], "time_min": []})
@@ -306,8 +326,10 @@ def _union(reps: list) -> NextMeasurement | None:
 
 def _score_repeats(data: Dataset, reps: list, rf: RivalFits):
     """``(candidate, {rival: (λ, k, ν, power, ...)})`` for each repeat. A repeat adds rows
-    to placements already measured, so its design is that of the whole augmented data
-    set, its hours counted from the mean time of the placement's readings before (moving
+    to placements already measured (at its own times, after the data's last reading: a
+    drift is seen over all the time elapsed), so its design is that of the whole
+    augmented data set, its hours counted from the mean time of the placement's readings
+    before (moving
     that centre changes a drift column by a multiple of the placement's translation
     columns, which every rival holds: the projections and λ do not change; the fit of the
     augmented data centres anew). One design of all the repeats' rows together serves
@@ -333,11 +355,14 @@ def _score_repeats(data: Dataset, reps: list, rf: RivalFits):
             hours[at] = (tm[at] - tm[at & ~new].mean()) / 60.0
     obs = replace(obs, hours=hours)
     des = _design(obs, rf)
+    # a row is the candidate's by its placement, stylus, ball and time (the union may
+    # hold a ball at two times)
     key = list(zip(t["position"].astype(str), t["probe"].astype(str), t["ball"].astype(int),
-                   strict=True))
+                   np.round(tm, 6), strict=True))
     n3 = 3 * len(t)
     for c in reps:
-        mine = {(p, r["probe"], int(b)) for p, r in c.repeat.items() for b in r["balls"]}
+        mine = {(p, r["probe"], int(b), round(float(u), 6)) for p, r in c.repeat.items()
+                for b, u in zip(r["balls"], r["time_min"], strict=True)}
         keep = np.repeat(~new | np.array([k in mine for k in key]), 3)
         J = np.vstack([des.J[:n3][keep], des.J[n3:]])
         yield c, _score_on(_Design(J, des.labels, des.has), rf)
