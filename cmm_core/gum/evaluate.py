@@ -3,11 +3,13 @@
 A budget is a sequence of :class:`Contribution` (one input quantity each: its estimate,
 standard uncertainty, probability distribution, sensitivity coefficient and degrees of
 freedom). :func:`gum_combine` applies the law of propagation of uncertainty for
-uncorrelated inputs (JCGM 100 5.1.2, eq. 10), the Welch-Satterthwaite formula (JCGM 100
+uncorrelated inputs (JCGM 100 5.1.2, eq. 10) or, given correlation coefficients between
+named inputs, for correlated ones (JCGM 100 5.2.2, eq. 16), the Welch-Satterthwaite formula (JCGM 100
 G.4.1, eq. G.2b) and the coverage factor from the t distribution (JCGM 100 G.3, G.4).
 :func:`monte_carlo` propagates the distributions themselves (JCGM 101 clause 7), with
 probabilistically symmetric and shortest coverage intervals (JCGM 101 7.7) and the adaptive
-procedure of JCGM 101 7.9. :func:`budget_from_dict` is the ``budget`` command of the CLI
+procedure of JCGM 101 7.9 (correlated normal inputs jointly, JCGM 101 6.4.8).
+:func:`budget_from_dict` is the ``budget`` command of the CLI
 (docs/formats.md "Command line").
 
 Without a measurement function the model is additive, ``Y = sum_i c_i X_i`` (``c_i``
@@ -21,7 +23,8 @@ The code is split by concept; this module holds the ``budget`` command's contrac
 of the others, so that ``from cmm_core.gum import ...`` finds them all:
 
 - ``cmm_core.gum.inputs``: :class:`Contribution`, ``DISTRIBUTIONS``,
-  :func:`half_width_divisor` (JCGM 100 4.1.5, 4.3.7-4.3.9);
+  :func:`half_width_divisor`, :func:`correlation_matrix` (JCGM 100 4.1.5, 4.3.7-4.3.9,
+  5.2.2);
 - ``cmm_core.gum.framework``: :func:`gum_combine`, :class:`GumResult`,
   :func:`coverage_factor`, :func:`welch_satterthwaite`, :func:`sensitivity_coefficients`
   (JCGM 100 clauses 5-6, annex G);
