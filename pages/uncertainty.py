@@ -203,7 +203,7 @@ with calls.guarded("Budget"):
             bar.progress(min(max(float(frac), 0.0), 1.0),
                          text=f"Monte Carlo (JCGM 101): {100 * frac:.0f} %")
 
-        res = gum.monte_carlo(b.contributions, trials=int(bt),
+        res = gum.monte_carlo(b.contributions, trials=int(bt), correlations=b.correlations,
                               coverage_probability=float(p_cov), seed=1,
                               progress=_progress)
         bar.empty()

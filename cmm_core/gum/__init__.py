@@ -37,7 +37,7 @@ from .ballplate import (
     read_budget,
     thesis_budgets,
 )
-from .evaluate import budget_from_dict, contribution_from_dict
+from .evaluate import budget_from_dict, contribution_from_dict, correlations_from_list
 from .framework import (
     GumResult,
     coverage_factor,
@@ -45,7 +45,7 @@ from .framework import (
     sensitivity_coefficients,
     welch_satterthwaite,
 )
-from .inputs import DISTRIBUTIONS, Contribution, half_width_divisor
+from .inputs import DISTRIBUTIONS, Contribution, correlation_matrix, half_width_divisor
 from .mc import MonteCarloResult, coverage_intervals, monte_carlo
 from .mpe import (
     DECISIONS,
@@ -66,7 +66,8 @@ __all__ = [
     "air_from_args", "average_environment", "ballplate_budget", "BallPlateBudget",
     "BallPlateBudgetInputs", "budget_from_dict", "budget_spec_dict", "budget_vs_length",
     "check_dataset", "plate_side", "cmm_uncertainty_um", "CO2_REFERENCE_PPM", "conformity_uncertainty_um",
-    "Contribution", "contribution_from_dict", "coverage_factor", "coverage_intervals", "decide",
+    "Contribution", "contribution_from_dict", "correlation_matrix", "correlations_from_list",
+    "coverage_factor", "coverage_intervals", "decide",
     "DECISIONS", "default_inputs", "DIRECTIONS", "DISTRIBUTIONS", "EnvironmentRecord",
     "gum_combine", "GumResult", "half_width_divisor", "inputs_from_record", "LengthDependence",
     "line_pairs", "monte_carlo", "MonteCarloResult", "mpe_check", "mpe_um", "MpeResult",

@@ -193,6 +193,12 @@ class BallPlateBudgetInputs:
     """Half-width of the correction δα of the expansion coefficient (eq. 3.29)."""
     dt_from_20_C: float = 0.82
     """Largest |t - 20 °C| during the measurement, multiplies δα (eq. 3.29)."""
+    thermometer_correlation: float = 0.0
+    """Correlation coefficient r between the calibration errors of the air thermometer
+    (eq. 3.24) and the plate thermometer (eq. 3.27): both carry the U(k=2) = 0.02 °C of
+    appendix 1; r = 1 when one thermometer (or one calibration certificate) serves both,
+    0 (the thesis's reading, the default) when they were calibrated independently
+    (JCGM 100 5.2.2, eq. 16). Used only with ``include_air``."""
 
     def __post_init__(self):
         for f in fields(self):
@@ -201,6 +207,11 @@ class BallPlateBudgetInputs:
                 continue
             if not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise ValueError(f"{f.name}: expected a finite number, got {v!r}.")
+            if f.name == "thermometer_correlation":
+                if not -1.0 <= v <= 1.0:
+                    raise ValueError(f"{f.name}: expected a correlation coefficient in "
+                                     f"[-1, 1], got {v!r}.")
+                continue
             if v < 0:
                 raise ValueError(f"{f.name}: expected a value >= 0, got {v!r}.")
         if int(self.n_repeats) != self.n_repeats or self.n_repeats < 2:
@@ -254,6 +265,9 @@ class BallPlateBudget:
     """Thesis equation of each contribution."""
     gum: GumResult
     """GUM result in µm (u_c, nu_eff, k, U, shares)."""
+    correlations: tuple[tuple[str, str, float], ...] = ()
+    """Correlated pairs ``(a, b, r)`` of contribution names (empty: independent inputs);
+    pass them to :func:`~cmm_core.gum.mc.monte_carlo` with ``contributions``."""
 
     def table(self) -> list[dict]:
         """Budget rows with the thesis equation added."""
@@ -262,6 +276,17 @@ class BallPlateBudget:
             r["equation"] = eq
             r["unit"] = ct.unit
         return rows
+
+
+_T_AIR_CAL = "δl_n air temperature, calibration (k=2)"
+_T_PLATE_CAL = "α·δt_m plate thermometer (k=2)"
+
+
+def _correlations(inp: BallPlateBudgetInputs) -> tuple[tuple[str, str, float], ...]:
+    """The correlated pairs of the budget: the two thermometer calibrations (eq. 3.24, 3.27)."""
+    if inp.include_air and inp.thermometer_correlation != 0.0:
+        return ((_T_AIR_CAL, _T_PLATE_CAL, float(inp.thermometer_correlation)),)
+    return ()
 
 
 def _contributions(inp: BallPlateBudgetInputs) -> tuple[list[Contribution], list[str]]:
@@ -297,7 +322,7 @@ def _contributions(inp: BallPlateBudgetInputs) -> tuple[list[Contribution], list
                                                  inp.p_U_Pa, "normal", k=2.0, c=c_p, unit="Pa"))
         add("3.23", Contribution.from_half_width("δl_n pressure, resolution",
                                                  inp.p_resolution_Pa / 2, c=c_p, unit="Pa"))
-        add("3.24", Contribution.from_half_width("δl_n air temperature, calibration (k=2)",
+        add("3.24", Contribution.from_half_width(_T_AIR_CAL,
                                                  inp.t_air_U_C, "normal", k=2.0, c=c_t, unit="°C"))
         add("3.25", Contribution.from_half_width("δl_n air temperature, resolution",
                                                  inp.t_resolution_C / 2, c=c_t, unit="°C"))
@@ -305,7 +330,7 @@ def _contributions(inp: BallPlateBudgetInputs) -> tuple[list[Contribution], list
     add("3.26", Contribution.from_half_width("δl_Ax misalignment (cosine error)",
                                              L_um * (1.0 - math.cos(theta)), c=1.0, unit="µm"))
     c_alpha = -L_um * inp.cte_per_K
-    add("3.27", Contribution.from_half_width("α·δt_m plate thermometer (k=2)", inp.t_plate_U_C,
+    add("3.27", Contribution.from_half_width(_T_PLATE_CAL, inp.t_plate_U_C,
                                              "normal", k=2.0, c=c_alpha, unit="°C"))
     add("3.28", Contribution.from_half_width("α·δt_d plate temperature distribution",
                                              inp.t_distribution_C, c=c_alpha, unit="°C"))
@@ -341,8 +366,10 @@ def ballplate_budget(inputs: BallPlateBudgetInputs | dict | None = None, *,
         raise ValueError(f"inputs: expected BallPlateBudgetInputs or dict, got "
                          f"{type(inputs).__name__}.")
     cts, eqs = _contributions(inputs)
-    g = gum_combine(cts, coverage_probability=coverage_probability)
-    return BallPlateBudget(inputs=inputs, contributions=tuple(cts), equations=tuple(eqs), gum=g)
+    corr = _correlations(inputs)
+    g = gum_combine(cts, coverage_probability=coverage_probability, correlations=corr)
+    return BallPlateBudget(inputs=inputs, contributions=tuple(cts), equations=tuple(eqs), gum=g,
+                           correlations=corr)
 
 
 def thesis_budgets(length_mm: float | None = None) -> dict[str, BallPlateBudget]:
@@ -401,8 +428,10 @@ def budget_vs_length(inputs: BallPlateBudgetInputs | dict | None = None,
 def budget_spec_dict(budget: BallPlateBudget) -> dict:
     """The budget as the ``budget`` JSON of docs/formats.md (read by ``python -m cmm_core budget``)."""
     rows = []
-    for ct, eq in zip(budget.contributions, budget.equations, strict=True):
-        r = {"name": f"{ct.name} [eq. {eq}]", "distribution": ct.distribution,
+    label = {ct.name: f"{ct.name} [eq. {eq}]"
+             for ct, eq in zip(budget.contributions, budget.equations, strict=True)}
+    for ct in budget.contributions:
+        r = {"name": label[ct.name], "distribution": ct.distribution,
              "c": float(1.0 if ct.c is None else ct.c)}
         if ct.distribution == "normal":
             r["u"] = ct.u
@@ -411,11 +440,15 @@ def budget_spec_dict(budget: BallPlateBudget) -> dict:
         r["dof"] = None if math.isinf(ct.dof) else ct.dof
         r["unit"] = ct.unit
         rows.append(r)
-    return {"description": f"Ball-plate calibration budget, thesis eq. 3.14-3.29, "
-                           f"L = {budget.inputs.length_mm:.1f} mm; result in µm.",
-            "contributions": rows,
-            "coverage_probability": budget.gum.coverage_probability,
-            "monte_carlo_trials": 200000}
+    out = {"description": f"Ball-plate calibration budget, thesis eq. 3.14-3.29, "
+                          f"L = {budget.inputs.length_mm:.1f} mm; result in µm.",
+           "contributions": rows,
+           "coverage_probability": budget.gum.coverage_probability,
+           "monte_carlo_trials": 200000}
+    if budget.correlations:
+        out["correlations"] = [{"between": [label[a], label[b]], "r": r}
+                               for a, b, r in budget.correlations]
+    return out
 
 
 def read_budget(source: FileSource, *, name: str | None = None,

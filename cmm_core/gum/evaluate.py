@@ -3,11 +3,13 @@
 A budget is a sequence of :class:`Contribution` (one input quantity each: its estimate,
 standard uncertainty, probability distribution, sensitivity coefficient and degrees of
 freedom). :func:`gum_combine` applies the law of propagation of uncertainty for
-uncorrelated inputs (JCGM 100 5.1.2, eq. 10), the Welch-Satterthwaite formula (JCGM 100
+uncorrelated inputs (JCGM 100 5.1.2, eq. 10) or, given correlation coefficients between
+named inputs, for correlated ones (JCGM 100 5.2.2, eq. 16), the Welch-Satterthwaite formula (JCGM 100
 G.4.1, eq. G.2b) and the coverage factor from the t distribution (JCGM 100 G.3, G.4).
 :func:`monte_carlo` propagates the distributions themselves (JCGM 101 clause 7), with
 probabilistically symmetric and shortest coverage intervals (JCGM 101 7.7) and the adaptive
-procedure of JCGM 101 7.9. :func:`budget_from_dict` is the ``budget`` command of the CLI
+procedure of JCGM 101 7.9 (correlated normal inputs jointly, JCGM 101 6.4.8).
+:func:`budget_from_dict` is the ``budget`` command of the CLI
 (docs/formats.md "Command line").
 
 Without a measurement function the model is additive, ``Y = sum_i c_i X_i`` (``c_i``
@@ -21,7 +23,8 @@ The code is split by concept; this module holds the ``budget`` command's contrac
 of the others, so that ``from cmm_core.gum import ...`` finds them all:
 
 - ``cmm_core.gum.inputs``: :class:`Contribution`, ``DISTRIBUTIONS``,
-  :func:`half_width_divisor` (JCGM 100 4.1.5, 4.3.7-4.3.9);
+  :func:`half_width_divisor`, :func:`correlation_matrix` (JCGM 100 4.1.5, 4.3.7-4.3.9,
+  5.2.2);
 - ``cmm_core.gum.framework``: :func:`gum_combine`, :class:`GumResult`,
   :func:`coverage_factor`, :func:`welch_satterthwaite`, :func:`sensitivity_coefficients`
   (JCGM 100 clauses 5-6, annex G);
@@ -40,7 +43,7 @@ from .framework import (
 from .inputs import DISTRIBUTIONS, Contribution, _check_number
 from .mc import monte_carlo
 
-__all__ = ["budget_from_dict", "contribution_from_dict"]
+__all__ = ["budget_from_dict", "contribution_from_dict", "correlations_from_list"]
 
 
 # --------------------------------------------------------------------------- CLI contract
@@ -123,6 +126,32 @@ def _min_trials(coverage_probability: float) -> int:
     return max(10_000, math.ceil(100 / (1 - coverage_probability)))
 
 
+def correlations_from_list(raw) -> list[tuple[str, str, float]]:
+    """The ``correlations`` of a budget (docs/formats.md): ``[{"between": [a, b], "r": r}]``.
+
+    Returns ``(a, b, r)`` triples for :func:`~cmm_core.gum.framework.gum_combine`, which
+    checks the names, the range of r and the matrix (JCGM 100 5.2.2, eq. 14).
+    """
+    if not isinstance(raw, list):
+        raise ValueError(f"correlations: expected a list of {{\"between\": [a, b], \"r\": r}}, "
+                         f"got {type(raw).__name__}.")
+    out = []
+    for i, item in enumerate(raw):
+        where = f"correlations[{i}]"
+        if not isinstance(item, dict) or set(item) != {"between", "r"}:
+            raise ValueError(f"{where}: expected an object with exactly 'between' (two input "
+                             f"names) and 'r' (a correlation coefficient), got {item!r:.80}.")
+        pair = item["between"]
+        if (not isinstance(pair, list) or len(pair) != 2
+                or not all(isinstance(x, str) for x in pair)):
+            raise ValueError(f"{where}.between: expected two input names [a, b], got "
+                             f"{pair!r:.80}.")
+        if isinstance(item["r"], bool) or not isinstance(item["r"], (int, float)):
+            raise ValueError(f"{where}.r: expected a number in [-1, 1], got {item['r']!r:.40}.")
+        out.append((pair[0], pair[1], float(item["r"])))
+    return out
+
+
 def budget_from_dict(d: dict, *, progress: Callable | None = None) -> dict:
     """The ``budget`` command (docs/formats.md): GUM result and optional JCGM 101 Monte Carlo result.
 
@@ -130,7 +159,8 @@ def budget_from_dict(d: dict, *, progress: Callable | None = None) -> dict:
     ----------
     d : dict
         ``{"contributions": [...], "coverage_probability": 0.95, "monte_carlo_trials": N,
-        "seed": S, "dof_rounding": "truncate"}`` (see :func:`contribution_from_dict`).
+        "seed": S, "dof_rounding": "truncate", "correlations": [{"between": [a, b],
+        "r": r}]}`` (see :func:`contribution_from_dict`, :func:`correlations_from_list`).
     progress : callable, optional
         Passed to :func:`monte_carlo`.
 
@@ -139,7 +169,9 @@ def budget_from_dict(d: dict, *, progress: Callable | None = None) -> dict:
     dict
         JSON-ready: ``y``, ``u_c``, ``nu_eff`` (null = infinite), ``nu_used``, ``k``, ``U``,
         ``coverage_probability``, ``contributions`` (each with ``u``, ``c``, ``u_y``,
-        ``dof``, ``share``) and, when ``monte_carlo_trials`` > 0, ``mc`` with ``mean``,
+        ``dof``, ``share``), with correlations ``correlated: true`` and ``correlations``
+        (each pair's ``between``, ``r`` and ``term``, its part of u_c², JCGM 100 eq. 16)
+        and, when ``monte_carlo_trials`` > 0, ``mc`` with ``mean``,
         ``u``, ``interval`` (shortest), ``interval_symmetric``, ``trials``, ``status``,
         ``seed``.
 
@@ -152,7 +184,7 @@ def budget_from_dict(d: dict, *, progress: Callable | None = None) -> dict:
         raise ValueError(f"budget: expected a JSON object with 'contributions', got "
                          f"{type(d).__name__}.")
     known = {"contributions", "coverage_probability", "monte_carlo_trials", "seed",
-             "dof_rounding", "name", "unit", "description", "note", "source"}
+             "dof_rounding", "name", "unit", "description", "note", "source", "correlations"}
     extra = sorted(set(d) - known)
     if extra:
         raise ValueError(f"budget: unknown field(s) {', '.join(extra)}; expected some of "
@@ -174,7 +206,8 @@ def budget_from_dict(d: dict, *, progress: Callable | None = None) -> dict:
         if not u_y <= _MAX_U_Y:  # its fourth power in Welch-Satterthwaite would overflow
             raise ValueError(f"contributions[{i}]: c·u = {u_y:g}; expected a contribution "
                              f"of a measurement, at most {_MAX_U_Y:g} in the result's unit.")
-    g = gum_combine(cts, coverage_probability=p, dof_rounding=rounding)
+    corr = correlations_from_list(d["correlations"]) if "correlations" in d else None
+    g = gum_combine(cts, coverage_probability=p, dof_rounding=rounding, correlations=corr)
     if not g.u_c > 0:
         raise ValueError("contributions: every contribution is zero (u or half_width 0, or "
                          "c 0), so U = 0; expected at least one uncertainty above zero.")
@@ -185,6 +218,10 @@ def budget_from_dict(d: dict, *, progress: Callable | None = None) -> dict:
                               "u": r["u"], "c": r["c"], "u_y": r["u_y"],
                               "dof": _finite_or_none(r["dof"]), "share": r["share"]}
                              for r in g.table()]}
+    if g.correlated:
+        out["correlated"] = True
+        out["correlations"] = [{"between": [t["a"], t["b"]], "r": t["r"], "term": t["term"]}
+                               for t in g.correlation_terms()]
     n = d.get("monte_carlo_trials", 0)
     if n is None:
         n = 0
@@ -201,7 +238,8 @@ def budget_from_dict(d: dict, *, progress: Callable | None = None) -> dict:
         seed = d.get("seed", 1)
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
             raise ValueError(f"seed: expected a non-negative integer, got {seed!r}.")
-        mc = monte_carlo(cts, trials=n, coverage_probability=p, seed=seed, progress=progress)
+        mc = monte_carlo(cts, trials=n, coverage_probability=p, seed=seed, progress=progress,
+                         correlations=corr)
         out["mc"] = {"mean": mc.mean, "u": mc.u, "interval": list(mc.interval_shortest),
                      "interval_symmetric": list(mc.interval_symmetric), "trials": mc.trials,
                      "status": mc.status, "seed": seed}

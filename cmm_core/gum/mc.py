@@ -23,7 +23,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from .inputs import _SHAPES, Contribution, _as_contributions, _check_number, half_width_divisor
+from .inputs import (
+    _SHAPES,
+    Contribution,
+    _as_contributions,
+    _check_number,
+    correlation_matrix,
+    half_width_divisor,
+)
 
 
 @dataclass(frozen=True)
@@ -85,11 +92,26 @@ def coverage_intervals(sorted_values: np.ndarray, coverage_probability: float
     return sym, short
 
 
-def _sampler(cts: Sequence[Contribution], student_t: bool):
-    """Draw ``m`` values of every input: list of arrays (JCGM 101 6.4)."""
+def _sampler(cts: Sequence[Contribution], student_t: bool, R: np.ndarray | None = None):
+    """Draw ``m`` values of every input: list of arrays (JCGM 101 6.4).
+
+    Inputs correlated through ``R`` are drawn jointly from the multivariate Gaussian
+    distribution N(x, diag(u) R diag(u)) (JCGM 101 6.4.8); the others independently.
+    """
+    joint = (np.array([], int) if R is None else
+             np.flatnonzero(np.any(R - np.eye(len(cts)) != 0, axis=1)))
+
     def draw(rng: np.random.Generator, m: int) -> list[np.ndarray]:
         out = []
-        for ct in cts:
+        z_joint = None
+        for i, ct in enumerate(cts):
+            if i in joint:
+                if z_joint is None:     # drawn once per chunk, at the first correlated input
+                    z_joint = dict(zip(joint.tolist(), rng.multivariate_normal(
+                        np.zeros(joint.size), R[np.ix_(joint, joint)], size=m).T,
+                        strict=True))
+                out.append(ct.value + ct.u * z_joint[i])
+                continue
             if ct.u == 0.0:
                 out.append(np.full(m, ct.value))
                 continue
@@ -141,7 +163,7 @@ def monte_carlo(contributions: Sequence[Contribution], *, function: Callable | N
                 chunk_size: int = 131_072, progress: Callable[[float], bool | None] | None = None,
                 adaptive: bool = False, n_dig: int = 2, max_trials: int = 10_000_000,
                 student_t_for_finite_dof: bool = False, keep_values: bool = False,
-                bins: int = 100) -> MonteCarloResult:
+                bins: int = 100, correlations=None) -> MonteCarloResult:
     """Propagate the input distributions by Monte Carlo (JCGM 101 clause 7).
 
     Parameters
@@ -182,6 +204,13 @@ def monte_carlo(contributions: Sequence[Contribution], *, function: Callable | N
         Keep the sorted model values in the result.
     bins : int
         Number of histogram bins (between the 0.05 % and 99.95 % quantiles).
+    correlations : mapping or sequence, optional
+        ``{(a, b): r}`` or ``[(a, b, r), ...]`` between named inputs, as for
+        :func:`~cmm_core.gum.framework.gum_combine` (validated by
+        :func:`~cmm_core.gum.inputs.correlation_matrix`). Correlated inputs must be normal:
+        they are drawn from the multivariate Gaussian distribution with covariance
+        ``u_i u_j r_ij`` (JCGM 101 6.4.8, JCGM 100 eq. 14); a joint distribution of
+        correlated rectangular or other inputs is not defined by their r alone.
 
     Returns
     -------
@@ -190,11 +219,12 @@ def monte_carlo(contributions: Sequence[Contribution], *, function: Callable | N
     cts = _as_contributions(contributions)
     p = _checked_arguments(cts, function, coverage_probability, trials, chunk_size, n_dig,
                            max_trials)
+    R = _checked_correlation(cts, correlations, student_t_for_finite_dof)
     if rng is None:
         rng = np.random.default_rng(seed)
     else:
         seed = None
-    draw = _sampler(cts, student_t_for_finite_dof)
+    draw = _sampler(cts, student_t_for_finite_dof, R)
     model = _model(cts, function)
     t0 = time.perf_counter()
 
@@ -236,6 +266,29 @@ def _checked_arguments(cts, function, coverage_probability, trials, chunk_size, 
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
             raise ValueError(f"{what}: expected an integer >= {lo}, got {v!r}.")
     return p
+
+
+def _checked_correlation(cts, correlations, student_t: bool) -> np.ndarray | None:
+    """The correlation matrix of the inputs (None when independent); correlated inputs
+    must be normal, and not sampled from a t distribution."""
+    R = correlation_matrix(cts, correlations)
+    off = np.any(R - np.eye(len(cts)) != 0, axis=1)
+    if not off.any():
+        return None
+    for i in np.flatnonzero(off):
+        ct = cts[i]
+        if ct.distribution != "normal":
+            raise ValueError(f"correlations: {ct.name!r} is {ct.distribution}; expected "
+                             "normal inputs only to be correlated in the Monte Carlo method "
+                             "(JCGM 101 6.4.8, multivariate Gaussian). Hint: its r alone does "
+                             "not define a joint distribution of non-normal inputs; use the "
+                             "GUM framework (gum_combine) for it.")
+        if student_t and math.isfinite(ct.dof):
+            raise ValueError(f"correlations: {ct.name!r} has {ct.dof:g} dof and "
+                             "student_t_for_finite_dof is set; expected correlated inputs "
+                             "to be sampled as Gaussian. Hint: leave student_t_for_finite_dof "
+                             "False.")
+    return R
 
 
 def _fixed_run(batch, trials, chunk_size, progress):
