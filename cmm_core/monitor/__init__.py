@@ -4,6 +4,8 @@ its calibration history (issue 28, ``docs/monitoring.md``).
 Owns: :mod:`.check` (:func:`interim_check`: the χ² test of new measurements against a
 stored model, poses fitted as nuisances, E_n per observation at k = 2), :mod:`.changes`
 (:func:`what_changed`: the stored model refitted on the new data as its own prior),
+:mod:`.explain` (:func:`explain_change`: the fewest physical changes that explain the
+new data, by nested tests),
 :mod:`.unseen` (:func:`unseen_words`: what a check cannot see, in words),
 :mod:`.identity` (which machine a model is of, which version made it),
 :mod:`.conformity` (the ISO 14253-1 statement against the MPE), :mod:`.history`
@@ -39,6 +41,7 @@ from .conformity import (
     conformity,
     parse_mpe,
 )
+from .explain import ALIAS_CHI2, ChangeExplanation, Hypothesis, Step, explain_change, hypotheses
 from .history import HISTORY_RULE, MAX_MAP_NODES_PER_AXIS, History, compare_calibrations
 from .identity import machine_of, refuse_mixed_machines, refuse_other_machine, version_notes
 from .numbers import json_num
@@ -69,4 +72,5 @@ __all__ = ["CheckSystem", "check_sigma_um", "check_system", "GlsFit", "gls_fit",
            "HISTORY_RULE", "json_num", "machine_of", "refuse_mixed_machines",
            "refuse_other_machine", "version_notes", "MPE_MAX_A_UM", "MPE_MIN_D",
            "en_definition", "unseen_words", "combination_text", "unseen_example",
-           "distinct_words", "CARRIER_WEIGHT", "MAX_CARRIERS"]
+           "distinct_words", "CARRIER_WEIGHT", "MAX_CARRIERS", "ALIAS_CHI2",
+           "ChangeExplanation", "Hypothesis", "Step", "explain_change", "hypotheses"]

@@ -109,6 +109,11 @@ class Changes:
         parameter's prior standard uncertainty (the largest weight +1).
     coverage_factor : float
         The k of the E_n stated (the check's).
+    score : ndarray (k,)
+        ``g = -Jᵀ Π d``: ``N(H δ, H)`` for a change ``δ`` (``N(0, H)`` if nothing
+        changed), what :func:`.explain.explain_change` tests hypotheses on.
+    information : ndarray (k, k)
+        ``H = Jᵀ Π J``.
     """
 
     message: str
@@ -124,6 +129,8 @@ class Changes:
     unseen_combinations: list = field(default_factory=list)
     unseen_directions: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     coverage_factor: float = 2.0
+    score: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    information: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     def to_dict(self) -> dict:
         """JSON-ready summary."""
@@ -237,7 +244,8 @@ def what_changed(model: Model, check: InterimCheck, *, family_alpha: float = 0.0
                 f"parameters (a change there is not seen), e.g. {unseen_example(unseen)}.")
     strongest = [labels[j] for j in np.argsort(-np.abs(np.nan_to_num(z))) if alone[j]]
     return Changes(msg, float(family_alpha), table, sig, strongest, unseen, int(tested.sum()),
-                   model.coef + s, post, int(seen.sum()), combinations, directions, k)
+                   model.coef + s, post, int(seen.sum()), combinations, directions, k,
+                   g_alone, H)
 
 
 

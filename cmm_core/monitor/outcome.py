@@ -33,6 +33,7 @@ from ..machine import kinematics as kin
 from .changes import MIN_RESOLVED, Changes, what_changed
 from .check import InterimCheck, en_definition, interim_check
 from .conformity import RULE, Conformity, conformity
+from .explain import ChangeExplanation, explain_change
 from .numbers import json_num
 from .unseen import unseen_example
 
@@ -183,6 +184,9 @@ class CheckOutcome:
         The diagnosis of the new data against the stored model (None when not asked).
     conformity : Conformity or None
         The ISO 14253-1 statement (None without an MPE or without a plate).
+    explanation : ChangeExplanation or None
+        The fewest physical changes that explain the new data (None when the check
+        passes): what the message names first.
     """
 
     verdict: str
@@ -191,6 +195,7 @@ class CheckOutcome:
     changes: Changes
     effects: NewEffects | None
     conformity: Conformity | None
+    explanation: ChangeExplanation | None = None
 
     def results_section(self) -> dict:
         """The "interim_check" section of the results document (``export.results_dict``):
@@ -236,6 +241,7 @@ class CheckOutcome:
                             for r in tested.itertuples()],
                         "unseen": list(ch.unseen),
                         "unseen_combinations": list(ch.unseen_combinations)},
+            "explanation": None if self.explanation is None else self.explanation.to_dict(),
             "new_effects": None if self.effects is None else self.effects.to_dict(),
             "conformity": None if self.conformity is None else self.conformity.to_dict()}
 
@@ -243,6 +249,8 @@ class CheckOutcome:
         """JSON-ready summary (the ``check`` command's output)."""
         return {"verdict": self.verdict, "message": self.message,
                 "check": self.check.to_dict(), "changes": self.changes.to_dict(),
+                "explanation": None if self.explanation is None
+                else self.explanation.to_dict(),
                 "new_effects": None if self.effects is None else self.effects.to_dict(),
                 "conformity": None if self.conformity is None else self.conformity.to_dict()}
 
@@ -286,6 +294,8 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
                           positions=positions, probes=probes, instruments=instruments,
                           exclude=exclude, coverage_factor=coverage_factor)
     changes = what_changed(model, check, family_alpha=family_alpha)
+    explanation = None if check.passes else explain_change(model, check, changes,
+                                                           alpha=family_alpha)
     effects = None
     if name_effects and not check.passes:
         effects = name_new_effects(model, check, changes)
@@ -302,7 +312,10 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
                               changes=changes)
     if not check.passes:
         verdict = VERDICTS[2]
-        msg = "The machine changed: " + changes.message
+        # the fewest changes first, in physical terms; the parameter-by-parameter
+        # refit after it, for the expert
+        msg = ("The machine changed. " + explanation.message + " Parameter by parameter: "
+               + changes.message)
         if effects is not None:
             msg += " " + effects.message
     elif changes.unseen:
@@ -315,4 +328,4 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
         verdict = VERDICTS[0]
         msg = ("No change seen: the check sees every combination of the stored model's "
                "parameters and the machine behaves as the stored model predicts.")
-    return CheckOutcome(verdict, msg, check, changes, effects, conf)
+    return CheckOutcome(verdict, msg, check, changes, effects, conf, explanation)
