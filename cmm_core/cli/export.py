@@ -115,7 +115,7 @@ def _write(args, model, source) -> dict:
         axis_step = axis_step[0]
     out = {"model": source, "spec": model.spec, "layout": model.terms.layout,
            "fails_chi2_test": model.summary.get("fails_chi2_test")}
-    texts = {}  # path -> text
+    texts: dict[Path, str | bytes] = {}  # path -> text (the QIF document as bytes)
     if args.grid:
         g = ct.compensation_grid(model, step, probe=args.probe,
                                  allow_undetermined=args.allow_undetermined)

@@ -164,7 +164,7 @@ def welch_satterthwaite(u_y: np.ndarray, dof: np.ndarray,
             if np.all(np.isinf(nus)):
                 continue
             if not np.all(nus == nus[0]):
-                who = (", ".join(repr(names[m]) for m in members) if names is not None
+                who = (", ".join(repr(names[int(m)]) for m in members) if names is not None
                        else ", ".join(f"#{m}" for m in members))
                 raise ValueError(
                     f"correlations: inputs {who} are correlated but have degrees of freedom "

@@ -216,7 +216,7 @@ def correlation_matrix(contributions: Sequence[Contribution], correlations=None
             raise ValueError(f"{where}: expected a correlation coefficient in [-1, 1], got "
                              f"{r_raw!r}; a covariance u(a, b) is entered as "
                              "r = u(a, b) / (u(a) u(b)) (JCGM 100 eq. 14).")
-        i, j = sorted((index[a], index[b]))
+        i, j = sorted((index[str(a)], index[str(b)]))
         if (i, j) in seen:
             raise ValueError(f"{where}: the pair is given twice (r = {seen[(i, j)]:g} and "
                              f"r = {r:g}); expected each pair once.")

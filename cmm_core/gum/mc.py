@@ -98,8 +98,8 @@ def _sampler(cts: Sequence[Contribution], student_t: bool, R: np.ndarray | None 
     Inputs correlated through ``R`` are drawn jointly from the multivariate Gaussian
     distribution N(x, diag(u) R diag(u)) (JCGM 101 6.4.8); the others independently.
     """
-    joint = (np.array([], int) if R is None else
-             np.flatnonzero(np.any(R - np.eye(len(cts)) != 0, axis=1)))
+    R = np.eye(len(cts)) if R is None else R  # no correlation: every input alone
+    joint = np.flatnonzero(np.any(R - np.eye(len(cts)) != 0, axis=1))
 
     def draw(rng: np.random.Generator, m: int) -> list[np.ndarray]:
         out = []

@@ -227,7 +227,7 @@ def check_repeat_at_end(spec, column: str, bad, *, styli: dict, n_balls: int) ->
     if not isinstance(spec, dict):
         raise bad(column, f"expected an object placement: {{\"probe\": stylus, "
                   f"\"balls\": [numbers]}}, found {cut_repr(spec)}.")
-    out = {}
+    out: dict[str, dict] = {}
     for pos, body in spec.items():
         where = f"{column}.{pos}"
         if pos not in styli:

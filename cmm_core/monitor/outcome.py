@@ -314,8 +314,8 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
         verdict = VERDICTS[2]
         # the fewest changes first, in physical terms; the parameter-by-parameter
         # refit after it, for the expert
-        msg = ("The machine changed. " + explanation.message + " Parameter by parameter: "
-               + changes.message)
+        msg = ("The machine changed. " + (explanation.message if explanation else "")
+               + " Parameter by parameter: " + changes.message)
         if effects is not None:
             msg += " " + effects.message
     elif changes.unseen:

@@ -348,7 +348,7 @@ def repeat_candidates(data: Dataset, *, n_balls: int | Sequence[int] = REPEAT_BA
     per_place = float(defaults["minutes_per_placement"] if minutes_per_placement is None
                       else minutes_per_placement)
     m = data.meas
-    out = []
+    out: list[NextMeasurement] = []
     counts = [int(n_balls)] if isinstance(n_balls, int | np.integer) else \
         [int(n) for n in n_balls]
     blocked = blocked_styli(data)

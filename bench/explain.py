@@ -1,0 +1,104 @@
+"""Validation of ``monitor.explain_change`` on simulated machine histories (issue 39).
+
+For each layout of ``tests/scenarios.py`` (none of them the sample data's) a calibration
+is simulated and fitted (kinematic21, plate fixed), and the machine is measured again
+``--seeds`` times (new noise, new plate and certificate draws) in each event:
+
+- ``none``: nothing changed: the share of seeds whose check fails *and* whose explanation
+  names a change (the false alarm of the headline), and of seeds naming a change at all;
+- ``sxy``: the xy squareness moved by ``--step`` u (u of the stored model's sxy);
+- ``rxz``: the x carriage's yaw, linear term, moved by ``--step`` u of ``rxz[1]``;
+- ``warm``: the three scales 17 ppm long (1.5 K warm steel scales), with the full plate
+  and with one placement (``warm1``).
+
+For each event: the share of seeds whose check fails (power), whose first named change
+is the true one (``scale`` for warm scales, ``sxy``, ``rxz`` or its linear form), and
+whose first named change is something else; binomial standard errors beside each.
+
+Run: ``.venv/bin/python bench/explain.py [--seeds N] [--layouts a,b] [--step 3]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+
+import scenarios as sc  # noqa: E402
+
+from cmm_core.export import model_from_result  # noqa: E402
+from cmm_core.model import fit  # noqa: E402
+from cmm_core.monitor import remeasured, run_check  # noqa: E402
+
+PPM = 17.0
+"""Warm scales: 1.5 K on steel's 11.5 ppm/K."""
+
+
+@functools.cache
+def calibrated(layout: str):
+    cal = sc.simulated(layout, 3)
+    return cal, model_from_result(fit(cal.dataset, "kinematic21", plate="fixed"))
+
+
+def events(layout: str, step: float) -> dict:
+    """Event -> (changes, placements of the new measurement or None, true first keys)."""
+    cal, model = calibrated(layout)
+    labels = model.terms.labels
+    u = {lab: float(np.sqrt(model.cov[i, i])) for i, lab in enumerate(labels)}
+    rng = dict(zip("xyz", model.terms.range_mm, strict=True))
+    warm = {f"d{a}{a}[1]": PPM * rng[a] / 2000.0 for a in "xyz"}
+    first = next(iter(sc.LAYOUTS[layout]["positions"].items()))
+    one = {first[0]: first[1][1]}
+    return {"none": ({}, None, ()),
+            "sxy": ({"sxy": step * u["sxy"]}, None, ("sxy",)),
+            "rxz": ({"rxz[1]": step * u["rxz[1]"]}, None, ("rxz_linear", "rxz")),
+            "warm": (warm, None, ("scale",)),
+            "warm1": (warm, one, ("scale",))}
+
+
+def share(k: int, n: int) -> str:
+    p = k / n
+    return f"{100 * p:5.1f} % ± {100 * np.sqrt(p * (1 - p) / n):.1f}"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=400, help="seeds per layout and event")
+    ap.add_argument("--layouts", default=",".join(sc.LAYOUTS), help="layouts, comma-separated")
+    ap.add_argument("--step", type=float, default=3.0, help="squareness and yaw steps in u")
+    ap.add_argument("--events", default="none,sxy,rxz,warm,warm1", help="events to run")
+    args = ap.parse_args()
+    print(f"seeds {args.seeds}, step {args.step:g} u, warm scales {PPM:g} ppm; "
+          "shares with binomial standard errors")
+    for layout in args.layouts.split(","):
+        cal, model = calibrated(layout)
+        for name, (changes, one, truth) in events(layout, args.step).items():
+            if name not in args.events.split(","):
+                continue
+            fails = named = right = 0
+            for s in range(args.seeds):
+                new = remeasured(cal, 50_000 + s, changes=changes, probes_per_position=one)
+                out = run_check(model, new.dataset, name_effects=False)
+                if out.check.passes:
+                    continue
+                fails += 1
+                step = out.explanation.first if out.explanation else None
+                if step is not None:
+                    named += 1
+                    right += step.hypothesis.key in truth
+            n = args.seeds
+            line = (f"{layout:14s} {name:6s} check fails {share(fails, n)}; names a change "
+                    f"{share(named, n)}")
+            if truth:
+                line += f"; first named is the truth {share(right, n)}"
+            print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()
