@@ -96,7 +96,8 @@ def main() -> None:
             line = (f"{layout:14s} {name:6s} check fails {share(fails, n)}; names a change "
                     f"{share(named, n)}")
             if truth:
-                line += f"; first named is the truth {share(right, n)}"
+                line += (f"; first named is the truth {share(right, n)} (of the failing "
+                         f"checks: {share(right, fails) if fails else '-'})")
             print(line, flush=True)
 
 
