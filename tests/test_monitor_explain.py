@@ -133,3 +133,30 @@ def test_the_explanation_is_in_the_results_and_the_json():
     quiet = run_check(model, remeasured(cal, 7_005).dataset, name_effects=False)
     if quiet.check.passes:
         assert quiet.explanation is None and quiet.to_dict()["explanation"] is None
+
+
+def _with_scale_temps(data, t_C: float):
+    m = data.meas.copy()
+    for a in "xyz":
+        m[f"temp_{a}_C"] = t_C
+    return dataclasses.replace(data, meas=m)
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_recorded_scale_temperatures_name_the_change_as_thermal(layout):
+    """The same warm machine with its scales' temperatures in the file (21.48 °C, 1.48 K
+    warm): the change is named as the scales' thermal expansion (machine_thermal) with
+    κ within 4 u of 17 ppm / 1.48 K; without them, as the common scale (the test above).
+    A squareness step on the same warm-recorded file is not told as thermal."""
+    cal, model = calibrated(layout)
+    warm = _with_scale_temps(remeasured(cal, 7_006, changes=_warm(model)).dataset, 21.48)
+    out = run_check(model, warm, name_effects=False)
+    first = out.explanation.first
+    assert first.hypothesis.key == "machine_thermal" and first.hypothesis.units == ("ppm/K",)
+    assert abs(first.values[0] - PPM / 1.48) <= 4 * first.u[0], (first.values, first.u)
+    assert "machine_thermal" in out.message and "21.48" in out.message
+    j = model.terms.labels.index("sxy")
+    step = 3 * float(np.sqrt(model.cov[j, j]))
+    square = _with_scale_temps(remeasured(cal, 7_007, changes={"sxy": step}).dataset, 21.48)
+    first = run_check(model, square, name_effects=False).explanation.first
+    assert first.hypothesis.key == "sxy"

@@ -18,7 +18,12 @@ parameters) shifts it to ``N(H X θ, H)``. A hypothesis set ``S`` explains
 ``χ²(S ∪ b) - χ²(S) ~ χ²_q`` (q the rank it adds) when ``S`` is the whole change (the
 nested test of a Gaussian linear model; Rao 1973 §4b). The hypotheses, physical first:
 
-- **a common scale** of the three axes (one number, ppm: warm scales, a wrong expansion
+- with the scales' temperatures recorded in the new data (``temp_x_C``, ``temp_y_C``,
+  ``temp_z_C``), their **thermal expansion** (``machine_thermal``): each axis's scale
+  changed by ``κ (T_a - 20 °C)``, one number κ in ppm/K over the axes' mean recorded
+  temperatures, named first (with every axis equally warm it is the common scale below,
+  said in its physical cause);
+- a **common scale** of the three axes (one number, ppm: warm scales, a wrong expansion
   coefficient, a wrong temperature compensation);
 - each axis's **scale** alone (ppm);
 - each **squareness** (µrad);
@@ -96,7 +101,8 @@ class Step:
 
     def text(self) -> str:
         """``a common scale change of all three axes: +17.1 ± 0.4 ppm``."""
-        parts = [f"{'' if len(self.values) == 1 else n + ' '}{_value_u(v, s, unit)}"
+        parts = [f"{'' if len(self.values) == 1 and n != 'κ' else n + ' = '}"
+                 f"{_value_u(v, s, unit)}"
                  for n, v, s, unit in zip(self.hypothesis.names, self.values, self.u,
                                           self.hypothesis.units, strict=True)]
         alias = (f" (or, as well explained, {' or '.join(self.aliases)})"
@@ -149,9 +155,12 @@ class ChangeExplanation:
                 "p_left": self.p_left}
 
 
-def hypotheses(model: Model) -> list[Hypothesis]:
+def hypotheses(model: Model, scale_temps_C: dict | None = None) -> list[Hypothesis]:
     """The physical changes tried, in the order named by the module docstring, each
-    built on the stored model's labels (those of its functions it has)."""
+    built on the stored model's labels (those of its functions it has).
+
+    ``scale_temps_C``: axis (``"x"``) -> mean recorded temperature of its scale in the
+    new data (°C), for the thermal hypothesis; without it none is tried."""
     labels = list(model.terms.labels)
     n = len(labels)
     rng = dict(zip("xyz", model.terms.range_mm, strict=True))
@@ -163,6 +172,16 @@ def hypotheses(model: Model) -> list[Hypothesis]:
             col = np.zeros(n)
             col[labels.index(lab)] = float(rng[f[1]]) / 2000.0  # µm of dAA[1] per ppm
             scale_cols[f[1]] = col
+    warm = {a: float(t) - 20.0 for a, t in (scale_temps_C or {}).items()
+            if a in scale_cols and np.isfinite(t)}
+    if warm and any(abs(d) > 0 for d in warm.values()):
+        temps = ", ".join(f"{a} {20 + d:.2f}" for a, d in warm.items())
+        out.append(Hypothesis(
+            "machine_thermal", f"the scales' thermal expansion (machine_thermal: their "
+            f"recorded temperatures {temps} °C, {_axes(''.join(warm))} each changed by "
+            "κ × (T − 20 °C))", np.sum([d * scale_cols[a] for a, d in warm.items()],
+                                       axis=0).reshape(-1, 1), ("ppm/K",), ("κ",),
+            "scale"))
     if len(scale_cols) > 1:
         axes = "".join(scale_cols)
         out.append(Hypothesis("scale", f"a common scale change of the {_axes(axes)} "
@@ -236,7 +255,8 @@ def _resolved(h: Hypothesis, H: np.ndarray, V: np.ndarray) -> bool:
 
 
 def explain_change(model: Model, check: InterimCheck, changes: Changes, *,
-                   alpha: float = 0.05, max_steps: int = 4) -> ChangeExplanation:
+                   alpha: float = 0.05, max_steps: int = 4,
+                   scale_temps_C: dict | None = None) -> ChangeExplanation:
     """The fewest physical changes that explain the new data (module docstring).
 
     Parameters
@@ -251,6 +271,9 @@ def explain_change(model: Model, check: InterimCheck, changes: Changes, *,
         Family-wise false-alarm level of the first step (Bonferroni at each step).
     max_steps : int
         At most this many changes are named.
+    scale_temps_C : dict, optional
+        Axis -> mean recorded temperature of its scale in the new data (°C): the
+        thermal hypothesis (:func:`hypotheses`).
 
     Returns
     -------
@@ -261,7 +284,7 @@ def explain_change(model: Model, check: InterimCheck, changes: Changes, *,
     g, H = changes.score, changes.information
     V = model.cov
     total, rank, _, _ = _explained(g, H, np.eye(len(g)))
-    pool = [h for h in hypotheses(model) if _resolved(h, H, V)]
+    pool = [h for h in hypotheses(model, scale_temps_C) if _resolved(h, H, V)]
     chosen: list[Hypothesis] = []
     steps: list[Step] = []
     have = 0.0

@@ -255,6 +255,22 @@ class CheckOutcome:
                 "conformity": None if self.conformity is None else self.conformity.to_dict()}
 
 
+def scale_temperatures(dataset: Dataset | None, positions: Sequence[str]) -> dict:
+    """Axis -> mean recorded temperature of its scale (°C) over the readings of
+    ``positions``: the ``temp_x_C``, ``temp_y_C``, ``temp_z_C`` columns the data have
+    (none: an empty dict)."""
+    if dataset is None:
+        return {}
+    m = dataset.meas
+    rows = m[m["position"].astype(str).isin([str(p) for p in positions])]
+    out = {}
+    for a in "xyz":
+        col = f"temp_{a}_C"
+        if col in rows and rows[col].notna().all() and len(rows):
+            out[a] = float(rows[col].astype(float).mean())
+    return out
+
+
 def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = (),
               sigma_um: float | None = None, alpha: float = 0.05,
               family_alpha: float = 0.05, positions: Sequence[str] | None = None,
@@ -294,8 +310,9 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
                           positions=positions, probes=probes, instruments=instruments,
                           exclude=exclude, coverage_factor=coverage_factor)
     changes = what_changed(model, check, family_alpha=family_alpha)
-    explanation = None if check.passes else explain_change(model, check, changes,
-                                                           alpha=family_alpha)
+    explanation = None if check.passes else explain_change(
+        model, check, changes, alpha=family_alpha,
+        scale_temps_C=scale_temperatures(dataset, check.positions))
     effects = None
     if name_effects and not check.passes:
         effects = name_new_effects(model, check, changes)
