@@ -93,7 +93,8 @@ class Step:
     tried: int
     """Hypotheses tried at this step (the Bonferroni count)."""
     values: tuple[float, ...]
-    """Its parameters' estimates with every chosen hypothesis in, in :attr:`Hypothesis.units`."""
+    """Its parameters' estimates, in :attr:`Hypothesis.units`, fitted with the hypotheses
+    chosen before it."""
     u: tuple[float, ...]
     """Their standard uncertainties (the stored model's uncertainty and the noise)."""
     aliases: tuple[str, ...]
@@ -281,10 +282,43 @@ def explain_change(model: Model, check: InterimCheck, changes: Changes, *,
     """
     if not 0 < alpha < 0.5:
         raise ValueError(f"alpha must be in (0, 0.5), got {alpha}.")
-    g, H = changes.score, changes.information
-    V = model.cov
+    return select_changes(changes.score, changes.information, model.cov,
+                          hypotheses(model, scale_temps_C), alpha=alpha, max_steps=max_steps)
+
+
+def explain_difference(m1: Model, m2: Model, *, alpha: float = 0.05,
+                       max_steps: int = 4) -> ChangeExplanation:
+    """The fewest physical changes between two calibrations of one machine.
+
+    Their difference on the parameters both have, ``Δ = c₂ - c₁``, is ``N(δ, V₁ + V₂)``
+    for independent calibrations (JCGM 100 eq. 13 with their full covariances): the
+    score of a change is ``g = W Δ`` and its information ``H = W`` with ``W = (V₁ +
+    V₂)⁺``, and the hypotheses of :func:`hypotheses` (on ``m1``'s labels, restricted to
+    the shared ones) are selected as by :func:`explain_change`.
+    """
+    common = [lab for lab in m1.terms.labels if lab in set(m2.terms.labels)]
+    i1 = [m1.terms.labels.index(lab) for lab in common]
+    i2 = [m2.terms.labels.index(lab) for lab in common]
+    V = m1.cov[np.ix_(i1, i1)] + m2.cov[np.ix_(i2, i2)]
+    W = np.linalg.pinv((V + V.T) / 2, hermitian=True)
+    delta = m2.coef[i2] - m1.coef[i1]
+    pool = []
+    for h in hypotheses(m1):
+        cols = h.columns[i1]
+        if np.any(cols):
+            pool.append(Hypothesis(h.key, h.words, cols, h.units, h.names, h.function))
+    return select_changes(W @ delta, W, V, pool, alpha=alpha, max_steps=max_steps)
+
+
+def select_changes(g: np.ndarray, H: np.ndarray, V: np.ndarray,
+                   candidates: list[Hypothesis], *, alpha: float = 0.05,
+                   max_steps: int = 4) -> ChangeExplanation:
+    """Forward selection of the hypotheses that explain a score ``g ~ N(H δ, H)``
+    (module docstring); ``V`` the prior covariance the resolution rule reads."""
+    if not 0 < alpha < 0.5:
+        raise ValueError(f"alpha must be in (0, 0.5), got {alpha}.")
     total, rank, _, _ = _explained(g, H, np.eye(len(g)))
-    pool = [h for h in hypotheses(model, scale_temps_C) if _resolved(h, H, V)]
+    pool = [h for h in candidates if _resolved(h, H, V)]
     chosen: list[Hypothesis] = []
     steps: list[Step] = []
     have = 0.0

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import datetime as dt
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -31,6 +31,7 @@ from ..io import DataError
 from ..machine import kinematics as kin
 from ..units import UM
 from .changes import holm
+from .explain import ChangeExplanation, explain_difference
 from .identity import refuse_mixed_machines
 from .numbers import json_num
 
@@ -41,6 +42,16 @@ HISTORY_RULE = ("a parameter changed between two consecutive calibrations when t
                 "k, E_n = (c₂ − c₁) / sqrt(U₁² + U₂²) = z / k with U = k u (ISO/IEC 17043 "
                 "Annex B)")
 """The history's decision rule, as the results document states it."""
+
+CALIBRATION_CHI2_ALPHA = 0.05
+"""A calibration whose own χ² test (the model file's ``summary.chi2_p_value``) is below
+this level does not fit its data to its stated noise: its covariance is inflated by the
+square of its Birge ratio before it is compared, and the message says so."""
+
+INFLATION_RULE = ("a calibration whose own χ² test fails (p < 0.05) has its covariance "
+                  "multiplied by the square of its Birge ratio sqrt(χ²/dof) before it is "
+                  "compared (Birge 1932; its uncertainties as the misfit says they are)")
+"""The inflation rule, as the message and the results document state it."""
 
 MAX_MAP_NODES_PER_AXIS = 21
 """Largest grid of the error-map change (21³ = 9261 nodes)."""
@@ -79,6 +90,12 @@ class History:
         standard uncertainties ``u_dex_um ...``.
     coverage_factor : float
         The k of the E_n stated (default 2).
+    explanations : list of ChangeExplanation
+        The fewest physical changes between each pair of consecutive calibrations
+        (:func:`.explain.explain_difference`, full covariances), in date order.
+    inflated : dict
+        Model name -> the factor its uncertainties were multiplied by (its Birge ratio)
+        because its own χ² test failed (:data:`INFLATION_RULE`).
     """
 
     message: str
@@ -91,6 +108,8 @@ class History:
     family_alpha: float
     map_change: pd.DataFrame
     coverage_factor: float = 2.0
+    explanations: tuple = ()
+    inflated: dict = field(default_factory=dict)
 
     def results_section(self) -> dict:
         """The "history" section of the results document (``export.results_dict``): every
@@ -108,6 +127,10 @@ class History:
                              "p_value": json_num(r.p_value), "significant": bool(r.significant)}
                             for r in self.changes.itertuples()],
                 "only_in": {k: list(v) for k, v in self.only_in.items()},
+                "explanations": [dict(e.to_dict(), date_from=a, date_to=b) for e, a, b in
+                                 zip(self.explanations, self.dates, self.dates[1:],
+                                     strict=False)],
+                "inflated": dict(self.inflated), "inflation_rule": INFLATION_RULE,
                 "map_change_max_um": {a: json_num(np.abs(d[f"de{a}_um"]).max()) for a in "xyz"},
                 "map_change_u_max_um": {a: json_num(d[f"u_de{a}_um"].max()) for a in "xyz"}}
 
@@ -123,6 +146,8 @@ class History:
                 "significant": [{k: (float(v) if isinstance(v, float | np.floating) else v)
                                  for k, v in r.items()} for r in sig.to_dict("records")],
                 "only_in": {k: list(v) for k, v in self.only_in.items()},
+                "explanations": [e.to_dict() for e in self.explanations],
+                "inflated": dict(self.inflated),
                 "map_change_max_um": worst}
 
 
@@ -166,6 +191,13 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
     if not (np.isfinite(cf) and cf > 0):
         raise ValueError(f"coverage_factor must be a positive number, got {coverage_factor}.")
     items = _checked(models_with_dates)
+    inflated = {}
+    for k, (m, d) in enumerate(items):
+        p, birge = m.summary.get("chi2_p_value"), m.summary.get("birge_ratio")
+        if isinstance(p, int | float) and isinstance(birge, int | float) and \
+                p < CALIBRATION_CHI2_ALPHA and birge > 1:
+            inflated[m.name] = float(birge)
+            items[k] = (replace(m, cov=m.cov * float(birge) ** 2), d)
     models = [m for m, _ in items]
     dates = [d.isoformat() for _, d in items]
     label_sets = [set(m.terms.labels) for m in models]
@@ -211,7 +243,19 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
     sig_rows = changes[changes["significant"]]
     significant = [f"{r.label} ({r.date_from} → {r.date_to})" for r in sig_rows.itertuples()]
     grid = _map_change(models[0], models[-1], int(nodes_per_axis))
-    msg = (f"{len(models)} calibrations of one {models[0].terms.layout} machine "
+    explanations = tuple(explain_difference(m1, m2, alpha=family_alpha)
+                         for (m1, _), (m2, _) in zip(items, items[1:], strict=False))
+    lead = (f"The fewest changes that explain each difference (the calibrations' full "
+            f"covariances, nested tests at the family-wise level {100 * family_alpha:g} %): "
+            + " ".join(f"{d1} → {d2}: {_lead(e)}" for e, d1, d2 in
+                       zip(explanations, dates, dates[1:], strict=False)))
+    warn = "".join(f" Warning: {name} fails its own χ² test (p = "
+                   f"{models[names_index].summary['chi2_p_value']:.2g}); its uncertainties are "
+                   f"multiplied by its Birge ratio {b:.2f} ({INFLATION_RULE})."
+                   for name, b in inflated.items()
+                   for names_index in [[m.name for m in models].index(name)])
+    msg = (f"{lead}{warn} Parameter by parameter: "
+           f"{len(models)} calibrations of one {models[0].terms.layout} machine "
            f"({dates[0]} to {dates[-1]}): {len(changes)} parameter changes between "
            f"consecutive calibrations tested (Holm, family-wise false-alarm level "
            f"{100 * family_alpha:g} %); "
@@ -231,7 +275,14 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
         msg += (" Not compared (held fixed, no uncertainty in either calibration): "
                 + ", ".join(held) + ".")
     return History(msg, [m.name for m in models], dates, changes, trend, significant,
-                   only_in, float(family_alpha), grid, cf)
+                   only_in, float(family_alpha), grid, cf, explanations, inflated)
+
+
+def _lead(e: ChangeExplanation) -> str:
+    """One pair's fewest changes in a sentence (no change: said so)."""
+    if not e.steps:
+        return "no change of the geometry needed to explain the difference."
+    return "; then ".join(s.text() for s in e.steps) + "."
 
 
 def _checked(models_with_dates) -> list:
