@@ -7,10 +7,11 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import ROOT
 from scipy import stats
 from test_monitor import LAYOUTS, calibrated
 
-from cmm_core.export import model_from_result
+from cmm_core.export import load_model, model_from_result
 from cmm_core.io import DataError
 from cmm_core.model import fit
 from cmm_core.monitor import compare_calibrations, holm, remeasured
@@ -137,3 +138,44 @@ def test_history_En_is_stated_at_k_2_and_the_tests_do_not_depend_on_it():
     assert h2.results_section()["coverage_factor"] == 2.0
     with pytest.raises(ValueError, match="coverage_factor"):
         compare_calibrations(pairs, coverage_factor=-1.0)
+
+
+def _sample_history():
+    h = ROOT / "sample_data" / "history"
+    return [(load_model(h / f"calibration_{d}.json"), d)
+            for d in ("2023-03-01", "2024-03-04", "2025-03-03")]
+
+
+def test_the_sample_crash_is_the_one_change_named_between_the_calibrations():
+    """sample_data/history: the machine's sxy moved by 12 µrad between the 2024 and the
+    2025 calibrations (make_history.py's truth). The fewest changes between 2024 and
+    2025 are that squareness alone, within 3 of its u of 12 µrad (u with the full
+    covariances of both calibrations); nothing is needed between 2023 and 2024; the
+    message says so first."""
+    h = compare_calibrations(_sample_history())
+    first, second = h.explanations
+    assert not first.steps
+    assert [s.hypothesis.key for s in second.steps] == ["sxy"], second.message
+    step = second.first
+    assert abs(step.values[0] - 12.0) <= 3 * step.u[0], (step.values, step.u)
+    assert h.message.startswith("The fewest changes that explain each difference")
+    assert "2024-03-04 → 2025-03-03: the xy squareness (sxy): +" in h.message
+    assert h.results_section()["explanations"][1]["steps"][0]["change"] == "sxy"
+
+
+def test_a_calibration_failing_its_own_chi2_test_is_inflated_and_said():
+    models = _sample_history()
+    bad, d = models[1]
+    summary = {**bad.summary, "chi2_p_value": 1e-6, "birge_ratio": 1.7}
+    models[1] = (replace(bad, summary=summary), d)
+    h = compare_calibrations(models)
+    assert h.inflated == {bad.name: 1.7}
+    assert f"Warning: {bad.name} fails its own χ² test" in h.message and "1.70" in h.message
+    plain = compare_calibrations(_sample_history())
+    row = h.changes.set_index(["label", "date_to"]).loc[("sxy", "2024-03-04")]
+    ref = plain.changes.set_index(["label", "date_to"]).loc[("sxy", "2024-03-04")]
+    j = bad.terms.labels.index("sxy")
+    u0 = models[0][0].cov[j, j]
+    # the change's u grows as the inflated calibration's variance does: u₁² + 1.7² u₂²
+    assert row.u_change == pytest.approx(np.sqrt(u0 + 1.7**2 * bad.cov[j, j]), rel=1e-12)
+    assert ref.u_change == pytest.approx(np.sqrt(u0 + bad.cov[j, j]), rel=1e-12)
