@@ -15,7 +15,13 @@ For each event: the share of seeds whose check fails (power), whose first named 
 is the true one (``scale`` for warm scales, ``sxy``, ``rxz`` or its linear form), and
 whose first named change is something else; binomial standard errors beside each.
 
-Run: ``.venv/bin/python bench/explain.py [--seeds N] [--layouts a,b] [--step 3]``.
+With ``--compare``, the same events between two calibrations (``compare``,
+``monitor.explain_difference``): each seed a first calibration (seed 100 + s) and a
+second of the same machine measured again (seed 20 000 + s), both fitted; the steps are
+in u of the change, ``sqrt(u₁² + u₂²)`` of the parameter (each calibration's u).
+
+Run: ``.venv/bin/python bench/explain.py [--seeds N] [--layouts a,b] [--step 3]
+[--compare]``.
 """
 
 from __future__ import annotations
@@ -34,7 +40,7 @@ import scenarios as sc  # noqa: E402
 
 from cmm_core.export import model_from_result  # noqa: E402
 from cmm_core.model import fit  # noqa: E402
-from cmm_core.monitor import remeasured, run_check  # noqa: E402
+from cmm_core.monitor import compare_calibrations, remeasured, run_check  # noqa: E402
 
 PPM = 17.0
 """Warm scales: 1.5 K on steel's 11.5 ppm/K."""
@@ -62,6 +68,36 @@ def events(layout: str, step: float) -> dict:
             "warm1": (warm, one, ("scale",))}
 
 
+def compare_events(layout: str, step: float) -> dict:
+    """Event -> (changes, true first keys) between two calibrations: steps in u of the
+    change (``sqrt(2)`` times one calibration's u)."""
+    _, model = calibrated(layout)
+    labels = model.terms.labels
+    u = {lab: float(np.sqrt(2 * model.cov[i, i])) for i, lab in enumerate(labels)}
+    return {"none": ({}, ()), "sxy": ({"sxy": step * u["sxy"]}, ("sxy",)),
+            "rxz": ({"rxz[1]": step * u["rxz[1]"]}, ("rxz_linear", "rxz"))}
+
+
+def run_compare(layout: str, seeds: int, step: float, names: list) -> None:
+    for name, (changes, truth) in compare_events(layout, step).items():
+        if name not in names:
+            continue
+        named = right = 0
+        for s in range(seeds):
+            cal = sc.simulated(layout, 100 + s)
+            m1 = model_from_result(fit(cal.dataset, "kinematic21", plate="fixed"))
+            new = remeasured(cal, 20_000 + s, changes=changes)
+            m2 = model_from_result(fit(new.dataset, "kinematic21", plate="fixed"))
+            e = compare_calibrations([(m1, "2024-01-01"), (m2, "2025-01-01")]).explanations[0]
+            if e.first is not None:
+                named += 1
+                right += e.first.hypothesis.key in truth
+        line = f"{layout:14s} compare {name:5s} names a change {share(named, seeds)}"
+        if truth:
+            line += f"; first named is the truth {share(right, seeds)}"
+        print(line, flush=True)
+
+
 def share(k: int, n: int) -> str:
     p = k / n
     return f"{100 * p:5.1f} % ± {100 * np.sqrt(p * (1 - p) / n):.1f}"
@@ -73,10 +109,15 @@ def main() -> None:
     ap.add_argument("--layouts", default=",".join(sc.LAYOUTS), help="layouts, comma-separated")
     ap.add_argument("--step", type=float, default=3.0, help="squareness and yaw steps in u")
     ap.add_argument("--events", default="none,sxy,rxz,warm,warm1", help="events to run")
+    ap.add_argument("--compare", action="store_true",
+                    help="between two calibrations (compare) instead of interim checks")
     args = ap.parse_args()
     print(f"seeds {args.seeds}, step {args.step:g} u, warm scales {PPM:g} ppm; "
           "shares with binomial standard errors")
     for layout in args.layouts.split(","):
+        if args.compare:
+            run_compare(layout, args.seeds, args.step, args.events.split(","))
+            continue
         cal, model = calibrated(layout)
         for name, (changes, one, truth) in events(layout, args.step).items():
             if name not in args.events.split(","):
