@@ -68,7 +68,10 @@ def test_sample_check_after_a_crash_shows_verdict_map_and_effect(page):
     expect(chart).to_be_visible()
     expect(chart.get_by_text("Normalised errors of the new observations")).to_be_visible()
     assert _markers(chart) == 200  # 4 placements × 25 balls × 2 styli
-    # what changed, named as the diagnosis names effects
+    # what changed: the fewest changes first (the squareness alone), then as the
+    # diagnosis names effects
+    expect(page.get_by_text("The fewest changes that explain the new data").first
+           ).to_be_visible()
     expect(page.get_by_text("names squareness XY (sxy").first).to_be_visible()
     expect(page.get_by_role("heading", name="Conformity")).to_be_visible()
     _no_exception(page)

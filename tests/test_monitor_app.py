@@ -35,6 +35,10 @@ def test_crash_sample_fails_names_sxy_and_history_shows_it():
     assert any("Interim check" in t.value for t in at.title)
     _ok(at)  # the default sample: the check after the crash
     assert any("Verdict: changed" in w.value for w in at.warning)
+    # the fewest changes first: the squareness alone, with its size (issue 39)
+    verdict = next(w.value for w in at.warning if "Verdict: changed" in w.value)
+    assert "The fewest changes that explain the new data" in verdict
+    assert "the xy squareness (sxy): +" in verdict.split("Parameter by parameter")[0]
     assert any("no longer behaves" in c.value for c in at.caption)
     assert any("sxy" in m.value for m in at.markdown)
     # the diagnosis against the stored model names the crash's squareness
@@ -50,6 +54,9 @@ def test_crash_sample_fails_names_sxy_and_history_shows_it():
     at.run()
     _ok(at)
     assert any("sxy" in m.value and "significant" in m.value for m in at.markdown)
+    assert any("The fewest changes that explain each difference" in m.value
+               and "2024-03-04 → 2025-03-03: the xy squareness (sxy)" in m.value
+               for m in at.markdown)
     assert {c.key for c in at.get("plotly_chart")} >= {"hist_trend", "hist_map"}
 
 
