@@ -5,7 +5,8 @@ Owns: :mod:`.check` (:func:`interim_check`: the χ² test of new measurements ag
 stored model, poses fitted as nuisances, E_n per observation at k = 2), :mod:`.changes`
 (:func:`what_changed`: the stored model refitted on the new data as its own prior),
 :mod:`.explain` (:func:`explain_change`: the fewest physical changes that explain the
-new data, by nested tests),
+new data, by nested tests), :mod:`.blunder` (:func:`find_blunders`: a misprobe named
+before the machine is blamed),
 :mod:`.unseen` (:func:`unseen_words`: what a check cannot see, in words),
 :mod:`.identity` (which machine a model is of, which version made it),
 :mod:`.conformity` (the ISO 14253-1 statement against the MPE), :mod:`.history`
@@ -19,6 +20,7 @@ both results sections), :mod:`.scenario`
 
 from __future__ import annotations
 
+from .blunder import MAX_BLUNDERS, Blunder, find_blunders, worst_observation
 from .changes import MIN_RESOLVED, Changes, holm, what_changed
 from .check import (
     MAX_OBSERVATIONS,
@@ -41,8 +43,24 @@ from .conformity import (
     conformity,
     parse_mpe,
 )
-from .explain import ALIAS_CHI2, ChangeExplanation, Hypothesis, Step, explain_change, hypotheses
-from .history import HISTORY_RULE, MAX_MAP_NODES_PER_AXIS, History, compare_calibrations
+from .explain import (
+    ALIAS_CHI2,
+    ChangeExplanation,
+    Hypothesis,
+    Step,
+    explain_change,
+    explain_difference,
+    hypotheses,
+    select_changes,
+)
+from .history import (
+    CALIBRATION_CHI2_ALPHA,
+    HISTORY_RULE,
+    INFLATION_RULE,
+    MAX_MAP_NODES_PER_AXIS,
+    History,
+    compare_calibrations,
+)
 from .identity import machine_of, refuse_mixed_machines, refuse_other_machine, version_notes
 from .numbers import json_num
 from .outcome import (
@@ -53,6 +71,7 @@ from .outcome import (
     NewEffects,
     name_new_effects,
     run_check,
+    scale_temperatures,
 )
 from .scenario import remeasured
 from .unseen import (
@@ -73,4 +92,7 @@ __all__ = ["CheckSystem", "check_sigma_um", "check_system", "GlsFit", "gls_fit",
            "refuse_other_machine", "version_notes", "MPE_MAX_A_UM", "MPE_MIN_D",
            "en_definition", "unseen_words", "combination_text", "unseen_example",
            "distinct_words", "CARRIER_WEIGHT", "MAX_CARRIERS", "ALIAS_CHI2",
-           "ChangeExplanation", "Hypothesis", "Step", "explain_change", "hypotheses"]
+           "ChangeExplanation", "Hypothesis", "Step", "explain_change", "hypotheses",
+           "MAX_BLUNDERS", "Blunder", "find_blunders", "worst_observation",
+           "explain_difference", "select_changes", "CALIBRATION_CHI2_ALPHA", "INFLATION_RULE",
+           "scale_temperatures"]

@@ -49,6 +49,7 @@ from scipy import stats
 
 from ..export import Model
 from ..machine import ERROR_NAMES, POSITIONING, ROTATIONAL, SQUARENESS
+from ..units import p_text
 from .changes import MIN_RESOLVED, Changes
 from .check import InterimCheck
 from .unseen import unseen_words
@@ -368,9 +369,9 @@ def _message(steps, left, dof_left, p_left, alpha) -> str:
                 f"the family-wise level {100 * alpha:g} %.")
     named = "; then ".join(s.text() for s in steps)
     rest = (f"nothing more is needed (what is left: χ² = {left:.1f} for {dof_left} "
-            f"degrees of freedom, p = {p_left:.2g})" if p_left >= alpha else
+            f"degrees of freedom, {p_text(p_left)})" if p_left >= alpha else
             f"a change none of these names remains (χ² = {left:.1f} for {dof_left} "
-            f"degrees of freedom, p = {p_left:.2g})")
+            f"degrees of freedom, {p_text(p_left)})")
     n = "change explains" if len(steps) == 1 else f"{len(steps)} changes explain"
     return (f"The fewest changes that explain the new data (nested tests, family-wise "
             f"level {100 * alpha:g} %): {named}. This {n} what the check sees; {rest}.")

@@ -30,6 +30,8 @@ from ..diagnosis import Diagnosis, diagnose
 from ..export import Model
 from ..io import Dataset
 from ..machine import kinematics as kin
+from ..units import p_text
+from .blunder import Blunder, find_blunders
 from .changes import MIN_RESOLVED, Changes, what_changed
 from .check import InterimCheck, en_definition, interim_check
 from .conformity import RULE, Conformity, conformity
@@ -187,6 +189,9 @@ class CheckOutcome:
     explanation : ChangeExplanation or None
         The fewest physical changes that explain the new data (None when the check
         passes): what the message names first.
+    blunders : tuple of Blunder
+        Ball centres left out as probable blunders (:mod:`.blunder`): the check, the
+        changes and the verdict are of the data without them.
     """
 
     verdict: str
@@ -196,6 +201,7 @@ class CheckOutcome:
     effects: NewEffects | None
     conformity: Conformity | None
     explanation: ChangeExplanation | None = None
+    blunders: tuple = ()
 
     def results_section(self) -> dict:
         """The "interim_check" section of the results document (``export.results_dict``):
@@ -242,6 +248,7 @@ class CheckOutcome:
                         "unseen": list(ch.unseen),
                         "unseen_combinations": list(ch.unseen_combinations)},
             "explanation": None if self.explanation is None else self.explanation.to_dict(),
+            "blunders": [b.to_dict() for b in self.blunders],
             "new_effects": None if self.effects is None else self.effects.to_dict(),
             "conformity": None if self.conformity is None else self.conformity.to_dict()}
 
@@ -251,6 +258,7 @@ class CheckOutcome:
                 "check": self.check.to_dict(), "changes": self.changes.to_dict(),
                 "explanation": None if self.explanation is None
                 else self.explanation.to_dict(),
+                "blunders": [b.to_dict() for b in self.blunders],
                 "new_effects": None if self.effects is None else self.effects.to_dict(),
                 "conformity": None if self.conformity is None else self.conformity.to_dict()}
 
@@ -306,9 +314,18 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
     CheckOutcome
     """
     exclude = list(exclude)
-    check = interim_check(model, dataset, sigma_um=sigma_um, alpha=alpha,
-                          positions=positions, probes=probes, instruments=instruments,
-                          exclude=exclude, coverage_factor=coverage_factor)
+
+    def checked(more: list) -> InterimCheck:
+        return interim_check(model, dataset, sigma_um=sigma_um, alpha=alpha,
+                             positions=positions, probes=probes, instruments=instruments,
+                             exclude=exclude + more, coverage_factor=coverage_factor)
+
+    check = checked([])
+    blunders: list[Blunder] = []
+    if not check.passes and dataset is not None:
+        # a misprobe before the machine is blamed: named only when the check without
+        # it passes (.blunder)
+        blunders, check = find_blunders(check, checked, alpha)
     changes = what_changed(model, check, family_alpha=family_alpha)
     explanation = None if check.passes else explain_change(
         model, check, changes, alpha=family_alpha,
@@ -327,6 +344,16 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
         else:
             conf = conformity(model, check, dataset, mpe_a_um=mpe[0], mpe_per_mm=1 / mpe[1],
                               changes=changes)
+    said = ""
+    if blunders:
+        said = (f"Probable blunder{'s' if len(blunders) > 1 else ''}: "
+                + "; ".join(b.text() for b in blunders)
+                + f" (beyond the single-outlier bound of the check's coordinates at "
+                f"{100 * alpha:g} %); without {'them' if len(blunders) > 1 else 'it'} the "
+                f"check passes (χ² = {check.chi2:.1f} for {check.dof} degrees of freedom, "
+                f"{p_text(check.p_value)}). Re-measure "
+                f"{'them' if len(blunders) > 1 else 'it'}; what follows is of the data "
+                f"without {'them' if len(blunders) > 1 else 'it'}. ")
     if not check.passes:
         verdict = VERDICTS[2]
         # the fewest changes first, in physical terms; the parameter-by-parameter
@@ -345,4 +372,5 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
         verdict = VERDICTS[0]
         msg = ("No change seen: the check sees every combination of the stored model's "
                "parameters and the machine behaves as the stored model predicts.")
-    return CheckOutcome(verdict, msg, check, changes, effects, conf, explanation)
+    return CheckOutcome(verdict, said + msg, check, changes, effects, conf, explanation,
+                        tuple(blunders))
