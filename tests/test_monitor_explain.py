@@ -20,7 +20,13 @@ import scenarios as sc
 
 from cmm_core.export import model_from_result
 from cmm_core.model import fit
-from cmm_core.monitor import explain_change, hypotheses, remeasured, run_check
+from cmm_core.monitor import (
+    change_system,
+    hypotheses,
+    remeasured,
+    run_check,
+    select_changes,
+)
 
 LAYOUTS = ("pitch100_4pos", "pitch80_3pos", "pitch150_5pos")
 PPM = 17.0  # steel scales 1.5 K warm (11.5 ppm/K)
@@ -87,21 +93,22 @@ def test_a_3u_squareness_or_yaw_is_named_first_with_its_size(layout, label, key)
 
 @pytest.mark.parametrize("layout", LAYOUTS)
 def test_nothing_is_named_beyond_the_level_when_nothing_changed(layout):
-    """Under "nothing changed" the score is N(0, H) exactly: 1000 draws of it (seeded)
+    """Under "nothing changed" the score is N(0, H) exactly: 1000 draws of the check's
+    residuals from its own covariance (seeded), each scored as the check's data are,
     give the share of checks that would name a change; Bonferroni over the first step's
     hypotheses bounds it by alpha = 5 %, with 3 binomial standard errors of slack
     (0.021 at 1000 draws). It is also not far below (> 1 %): the rule is not vacuous."""
     cal, model = calibrated(layout)
     out = run_check(model, remeasured(cal, 7_003).dataset, name_effects=False)
-    ch = out.changes
-    H = (ch.information + ch.information.T) / 2
-    w, Q = np.linalg.eigh(H)
-    root = Q * np.sqrt(np.clip(w, 0, None))
+    cs = change_system(model, out.check)
+    assert any(h.function == "stylus" for h in cs.hypotheses)  # the styli are tried too
+    # d ~ N(0, Σ) (the check's full covariance) gives the score Wᵀ d ~ N(0, H) exactly
+    L = np.tril(out.check.gls.factor[0])
     rng = np.random.default_rng(39)
     n, named = 1000, 0
     for _ in range(n):
-        g = root @ rng.standard_normal(len(w))
-        e = explain_change(model, out.check, dataclasses.replace(ch, score=g))
+        g = cs.weights.T @ (L @ rng.standard_normal(L.shape[0]))
+        e = select_changes(g, cs.information, cs.prior, list(cs.hypotheses))
         named += bool(e.steps)
     rate = named / n
     assert 0.01 < rate <= 0.05 + 3 * np.sqrt(0.05 * 0.95 / n), rate
@@ -203,3 +210,21 @@ def test_a_crash_is_not_called_a_blunder():
         "sxy": 5 * float(np.sqrt(model.cov[j, j]))}).dataset, name_effects=False)
     assert out.verdict == "changed" and not out.blunders
     assert out.explanation.first.hypothesis.key == "sxy"
+
+
+@pytest.mark.parametrize("layout, stylus", [("pitch100_4pos", "B"), ("pitch80_3pos", "2"),
+                                            ("pitch150_5pos", "R")])
+def test_a_bent_stylus_is_named_as_the_stylus_with_its_offset_error(layout, stylus):
+    """Issue 39: a stylus change is named as the stylus that moved, with its offset error
+    and u (the probe_offset convention of the diagnosis: +3, 0, -2 µm simulated), not as
+    the rotations that mimic it."""
+    cal, model = calibrated(layout)
+    new = remeasured(cal, 7_012, effects={"probe_offset": {stylus: [3.0, 0.0, -2.0]}})
+    out = run_check(model, new.dataset, name_effects=False)
+    first = out.explanation.first
+    assert first is not None and first.hypothesis.key == f"stylus_{stylus}", \
+        out.explanation.message
+    truth = np.array([3.0, 0.0, -2.0])
+    assert (np.abs(np.array(first.values) - truth) <= 4 * np.array(first.u)).all(), \
+        (first.values, first.u)
+    assert f"stylus {stylus}'s offset" in out.message

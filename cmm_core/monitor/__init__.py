@@ -46,8 +46,10 @@ from .conformity import (
 from .explain import (
     ALIAS_CHI2,
     ChangeExplanation,
+    ChangeSystem,
     Hypothesis,
     Step,
+    change_system,
     explain_change,
     explain_difference,
     hypotheses,
@@ -94,5 +96,5 @@ __all__ = ["CheckSystem", "check_sigma_um", "check_system", "GlsFit", "gls_fit",
            "distinct_words", "CARRIER_WEIGHT", "MAX_CARRIERS", "ALIAS_CHI2",
            "ChangeExplanation", "Hypothesis", "Step", "explain_change", "hypotheses",
            "MAX_BLUNDERS", "Blunder", "find_blunders", "worst_observation",
-           "explain_difference", "select_changes", "CALIBRATION_CHI2_ALPHA", "INFLATION_RULE",
+           "explain_difference", "select_changes", "ChangeSystem", "change_system", "CALIBRATION_CHI2_ALPHA", "INFLATION_RULE",
            "scale_temperatures"]

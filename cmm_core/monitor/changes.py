@@ -109,11 +109,6 @@ class Changes:
         parameter's prior standard uncertainty (the largest weight +1).
     coverage_factor : float
         The k of the E_n stated (the check's).
-    score : ndarray (k,)
-        ``g = -Jᵀ Π d``: ``N(H δ, H)`` for a change ``δ`` (``N(0, H)`` if nothing
-        changed), what :func:`.explain.explain_change` tests hypotheses on.
-    information : ndarray (k, k)
-        ``H = Jᵀ Π J``.
     """
 
     message: str
@@ -129,8 +124,6 @@ class Changes:
     unseen_combinations: list = field(default_factory=list)
     unseen_directions: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     coverage_factor: float = 2.0
-    score: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    information: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     def to_dict(self) -> dict:
         """JSON-ready summary."""
@@ -174,12 +167,9 @@ def what_changed(model: Model, check: InterimCheck, *, family_alpha: float = 0.0
     k = check.coverage_factor if coverage_factor is None else float(coverage_factor)
     if not (np.isfinite(k) and k > 0):
         raise ValueError(f"coverage_factor must be a positive number, got {coverage_factor}.")
-    sys, g = check.system, check.gls
+    sys = check.system
     V = model.cov
-    SiA = linalg.cho_solve(g.factor, sys.A)
-    SiJ = linalg.cho_solve(g.factor, sys.J)
-    M = sys.A.T @ SiA
-    PiJ = SiJ - SiA @ np.linalg.solve(M, sys.A.T @ SiJ) if M.size else SiJ  # Π J
+    PiJ = projected(check, sys.J)
     H = sys.J.T @ PiJ  # Jᵀ Π J
     H = (H + H.T) / 2
     # the stored model corrects with c; the machine now has c + δ: d = -J δ + A β + ε
@@ -244,9 +234,20 @@ def what_changed(model: Model, check: InterimCheck, *, family_alpha: float = 0.0
                 f"parameters (a change there is not seen), e.g. {unseen_example(unseen)}.")
     strongest = [labels[j] for j in np.argsort(-np.abs(np.nan_to_num(z))) if alone[j]]
     return Changes(msg, float(family_alpha), table, sig, strongest, unseen, int(tested.sum()),
-                   model.coef + s, post, int(seen.sum()), combinations, directions, k,
-                   g_alone, H)
+                   model.coef + s, post, int(seen.sum()), combinations, directions, k)
 
+
+
+def projected(check: InterimCheck, X: np.ndarray) -> np.ndarray:
+    """``Π X``: the check's pose-projected precision (module docstring) applied to the
+    columns ``X`` (rows of the check's system)."""
+    g = check.gls
+    SiX = linalg.cho_solve(g.factor, X)
+    A = check.system.A
+    if not A.size:
+        return SiX
+    SiA = linalg.cho_solve(g.factor, A)
+    return SiX - SiA @ np.linalg.solve(A.T @ SiA, A.T @ SiX)
 
 
 def holm(p: np.ndarray, m: int, alpha: float) -> np.ndarray:

@@ -45,12 +45,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import linalg, stats
 
 from ..export import Model
 from ..machine import ERROR_NAMES, POSITIONING, ROTATIONAL, SQUARENESS
 from ..units import p_text
-from .changes import MIN_RESOLVED, Changes
+from .changes import MIN_RESOLVED, Changes, projected
 from .check import InterimCheck
 from .unseen import unseen_words
 
@@ -248,15 +248,82 @@ def _explained(g: np.ndarray, H: np.ndarray, X: np.ndarray) -> tuple[float, int,
 
 def _resolved(h: Hypothesis, H: np.ndarray, V: np.ndarray) -> bool:
     """Some column of the hypothesis resolved, moving alone, to at least
-    :data:`MIN_RESOLVED` of its prior variance (the rule of ``what_changed``)."""
+    :data:`MIN_RESOLVED` of its prior variance (the rule of ``what_changed``); a stylus
+    offset, which has no prior in the model file, when its u is below
+    :data:`STYLUS_U_MAX_UM`."""
     for x in h.columns.T:
         prior = float(x @ V @ x)
-        if prior > 0 and float(x @ H @ x) * prior >= MIN_RESOLVED:
+        info = float(x @ H @ x)
+        if h.function == "stylus":
+            if info > 0 and info ** -0.5 <= STYLUS_U_MAX_UM:
+                return True
+        elif prior > 0 and info * prior >= MIN_RESOLVED:
             return True
     return False
 
 
-def explain_change(model: Model, check: InterimCheck, changes: Changes, *,
+STYLUS_U_MAX_UM = 5.0
+"""A stylus's offset change is tried when the new data give it, alone, a standard
+uncertainty of at most this (µm): a stylus measured alone in its placement leaves its
+offset to the pose (infinite u), and is never headlined."""
+
+
+@dataclass(frozen=True)
+class ChangeSystem:
+    """The linear system the hypotheses of an interim check are tested in: the
+    kinematic change ``δ`` and, with two styli or more, the styli's offset errors ``p``
+    (3 per stylus, µm; the ``probe_offset`` convention of the simulator and the
+    diagnosis), ``θ = (δ, p)``."""
+
+    weights: np.ndarray
+    """``W`` (rows of the check's system × θ): the score is ``Wᵀ d``; ``-Π J`` for δ and
+    ``Π S`` for p (``S``: minus-identity blocks on each stylus's plate readings, whose
+    residuals move by ``-p_q``), ``Π`` the check's pose-projected precision."""
+    score: np.ndarray
+    """``g = Wᵀ d``, ``N(H θ, H)`` (``N(0, H)`` if nothing changed)."""
+    information: np.ndarray
+    """``H``: ``Jᵀ Π J`` for δ (what ``what_changed`` tests), ``Sᵀ Π S`` for p, and
+    ``-Jᵀ Π S`` between them."""
+    prior: np.ndarray
+    """The stored model's covariance of δ, zero for p (the model file has none)."""
+    hypotheses: tuple
+    """The :class:`Hypothesis` tried, on θ."""
+
+
+def change_system(model: Model, check: InterimCheck, *,
+                  scale_temps_C: dict | None = None) -> ChangeSystem:
+    """The system :func:`explain_change` selects in (:class:`ChangeSystem`)."""
+    sys_ = check.system
+    J = sys_.J
+    obs = sys_.obs
+    styli = [str(q) for q in obs.probes] if obs is not None and len(obs.probes) >= 2 \
+        else []
+    n_k, n_p = J.shape[1], 3 * len(styli)
+    S = np.zeros((len(sys_.d_um), n_p))
+    if styli:
+        n_plate = sys_.n_plate_rows if sys_.n_plate_rows >= 0 else len(sys_.d_um)
+        for i, q in enumerate(obs.probe[: n_plate // 3]):
+            S[3 * i:3 * i + 3, 3 * q:3 * q + 3] = -np.eye(3)
+    Z = np.hstack([-J, S])  # how each θ enters d
+    W = projected(check, Z)
+    H = Z.T @ W
+    H = (H + H.T) / 2
+    V = linalg.block_diag(model.cov, np.zeros((n_p, n_p)))
+    pool = [Hypothesis(h.key, h.words, np.vstack([h.columns,
+                                                  np.zeros((n_p, h.columns.shape[1]))]),
+                       h.units, h.names, h.function)
+            for h in hypotheses(model, scale_temps_C)]
+    for j, q in enumerate(styli):
+        # a bent or replaced stylus is named as such, not as the rotations that mimic it
+        cols = np.zeros((n_k + n_p, 3))
+        cols[n_k + 3 * j:n_k + 3 * j + 3] = np.eye(3)
+        pool.append(Hypothesis(f"stylus_{q}", f"stylus {q}'s offset (bent, replaced or "
+                               "requalified)", cols, ("µm",) * 3,
+                               tuple(f"{q}.{a}" for a in "xyz"), "stylus"))
+    return ChangeSystem(W, W.T @ sys_.d_um, H, V, tuple(pool))
+
+
+def explain_change(model: Model, check: InterimCheck, changes: Changes | None = None, *,
                    alpha: float = 0.05, max_steps: int = 4,
                    scale_temps_C: dict | None = None) -> ChangeExplanation:
     """The fewest physical changes that explain the new data (module docstring).
@@ -267,8 +334,9 @@ def explain_change(model: Model, check: InterimCheck, changes: Changes, *,
         The stored calibration.
     check : InterimCheck
         The check of the new data against it.
-    changes : Changes
-        :func:`.changes.what_changed` of the same (its score and information).
+    changes : Changes, optional
+        :func:`.changes.what_changed` of the same (not needed: the system is the
+        check's own, :func:`change_system`).
     alpha : float
         Family-wise false-alarm level of the first step (Bonferroni at each step).
     max_steps : int
@@ -281,10 +349,9 @@ def explain_change(model: Model, check: InterimCheck, changes: Changes, *,
     -------
     ChangeExplanation
     """
-    if not 0 < alpha < 0.5:
-        raise ValueError(f"alpha must be in (0, 0.5), got {alpha}.")
-    return select_changes(changes.score, changes.information, model.cov,
-                          hypotheses(model, scale_temps_C), alpha=alpha, max_steps=max_steps)
+    cs = change_system(model, check, scale_temps_C=scale_temps_C)
+    return select_changes(cs.score, cs.information, cs.prior, list(cs.hypotheses),
+                          alpha=alpha, max_steps=max_steps)
 
 
 def explain_difference(m1: Model, m2: Model, *, alpha: float = 0.05,

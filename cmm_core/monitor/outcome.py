@@ -328,7 +328,7 @@ def run_check(model: Model, dataset: Dataset | None, *, instruments: Sequence = 
         blunders, check = find_blunders(check, checked, alpha)
     changes = what_changed(model, check, family_alpha=family_alpha)
     explanation = None if check.passes else explain_change(
-        model, check, changes, alpha=family_alpha,
+        model, check, alpha=family_alpha,
         scale_temps_C=scale_temperatures(dataset, check.positions))
     effects = None
     if name_effects and not check.passes:
