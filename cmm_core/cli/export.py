@@ -35,6 +35,7 @@ from ..io import (
 )
 from ..machine import AXES
 from .inputs import dataset_of
+from .options import msl_metadata_beside
 from .parser import add_command
 
 
@@ -59,7 +60,7 @@ def _data_files(args: argparse.Namespace) -> list:
     for attr in _QIF_DATA:
         v = getattr(args, attr, None)
         out += v if isinstance(v, list) else ([v] if v else [])
-    return out
+    return out + msl_metadata_beside(args)  # read by --msl-metadata's default
 
 
 def output_files(args: argparse.Namespace) -> tuple[dict, dict]:

@@ -25,6 +25,8 @@ from .options import (
     _MAX_MAP_NODES_PER_AXIS,
     _MAX_ORDER,
     _TARGET_POWER,
+    DEFAULT_ORDER,
+    DEFAULT_SIGMA_UM,
     PLATE_HELP,
     _order_arg,
     _sigma_arg,
@@ -128,9 +130,10 @@ def _gp_arguments(p: argparse.ArgumentParser) -> None:
                         "one noise level per stylus, when the data carry several styli; "
                         "'tip' = the tip coordinates only (default: %(default)s)")
     add_outlier_args(p)
-    p.add_argument("--order", type=number_arg(int, 1, _MAX_ORDER), default=2, metavar="N",
+    p.add_argument("--order", type=number_arg(int, 1, _MAX_ORDER), default=None, metavar="N",
                    help=f"polynomial order of the kinematic model for --mean kinematic, 1 "
-                        f"to {_MAX_ORDER} (default: %(default)s)")
+                        f"to {_MAX_ORDER} (default: {DEFAULT_ORDER}; with MSL files the "
+                        "degree of the model parameters their metadata lists)")
     p.add_argument("--plate", choices=("fixed", "prior", "free"), help=PLATE_HELP)
 
 
@@ -446,15 +449,17 @@ def _next_arguments(p: argparse.ArgumentParser) -> None:
                    help="model the diagnosis starts from, as a model spec "
                         "(docs/formats.md#model-specs), e.g. 'kinematic21,-sxy' "
                         "(default: %(default)s)")
-    p.add_argument("--order", type=_order_arg, default=2, metavar="N",
-                   help="default polynomial order of the error functions (default: "
-                        "%(default)s)")
+    p.add_argument("--order", type=_order_arg, default=None, metavar="N",
+                   help=f"default polynomial order of the error functions (default: "
+                        f"{DEFAULT_ORDER}; with MSL files the degree of the model "
+                        "parameters their metadata lists)")
     p.add_argument("--plate", choices=("fixed", "prior", "free"),
                    help="plate geometry in the fits: certificate fixed, as a prior, or free "
                         "(default: fixed with a certificate)")
-    p.add_argument("--sigma-um", type=_sigma_arg, default=0.5, metavar="UM|auto",
+    p.add_argument("--sigma-um", type=_sigma_arg, default=None, metavar="UM|auto",
                    help="repeatability of one probed coordinate in µm (0.001 to 1000), or "
-                        "'auto' to estimate it from the data (default: %(default)s µm)")
+                        f"'auto' to estimate it from the data (default: {DEFAULT_SIGMA_UM} "
+                        "µm; with MSL simulated files the rounding of their decimals)")
     p.add_argument("--rivals", type=_rivals_arg, metavar="A,B[,C]", default=None,
                    help="the effects to tell apart, as model tokens separated by commas, "
                         "e.g. 'probe_offset,drift' or an alias set 'dzz:4,probe_offset,"

@@ -104,6 +104,8 @@ class MslNames:
         How to give a plate and a bar snapshot (the other reader of a refused file).
     pairing : str
         How a metadata file is paired with its snapshot.
+    files : str
+        How to give MSL files at all (a file that is none).
     """
 
     kind: str = "kind='simulated' or kind='measured'"
@@ -117,6 +119,8 @@ class MslNames:
     plate: str = "read it with cmm_core.io.msl.read_msl_plate"
     bar: str = "read it with cmm_core.io.msl.read_msl_bar"
     pairing: str = "expected the metadata saved with it"
+    files: str = ("read MSL files with cmm_core.io.msl.read_msl_plate or read_msl_bar "
+                  "(snapshot, metadata, kind=...)")
 
 
 MSL_API_NAMES = MslNames()
@@ -1007,11 +1011,13 @@ def read_msl_metadata(source: FileSource, name: str | None = None) -> dict:
             "parameters": meta["parameters"]}
 
 
-def msl_header(source: FileSource, name: str | None = None) -> tuple:
+def msl_header(source: FileSource, name: str | None = None,
+               names: MslNames = MSL_API_NAMES) -> tuple:
     """What identifies a measurement in an MSL file's header: ``name``,
     ``artefact.title``, ``artefact.nballs``, ``artefact.ball_spacing``, ``location`` and
     ``rotation/deg`` as written. A snapshot and the metadata saved with it have the same
     (the readers refuse a pair that differ), so this pairs them whatever their order.
+    ``names``: as :func:`read_msl_plate`.
 
     Raises
     ------
@@ -1019,7 +1025,7 @@ def msl_header(source: FileSource, name: str | None = None) -> tuple:
         A file that is not an MSL file, naming its row and column.
     """
     lines, name = _lines(source, name, "snapshot or metadata")
-    head = _header(lines, name, "snapshot or metadata", _use("plate"))
+    head = _header(lines, name, "snapshot or metadata", names.files)
     return tuple(head.rows[k][1].strip() for k in MSL_HEADER_KEYS[2:])
 
 
