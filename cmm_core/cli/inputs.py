@@ -38,7 +38,6 @@ from ..model import (
 )
 from .options import DEFAULT_ORDER, DEFAULT_SIGMA_UM
 
-
 MSL_CLI_NAMES = MslNames(
     kind="--msl-kind simulated or --msl-kind measured", measured="--msl-kind measured",
     simulated="--msl-kind simulated", certificate_u="--msl-certificate-u A_UM,B_UM_PER_MM",

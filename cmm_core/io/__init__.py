@@ -62,12 +62,12 @@ from .measurements import (
     write_long_csv,
 )
 from .msl import (
+    MSL_API_NAMES,
     MSL_HEADER_KEYS,
     MSL_KINDS,
     MSL_LAYOUTS,
     MSL_MAX_DEVIATION_MM,
     MSL_PARAMETERS,
-    MSL_API_NAMES,
     MSL_ROUNDING_U_UM,
     MSL_SQUARENESS_CARRIERS,
     ForeignDataset,
