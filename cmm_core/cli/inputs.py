@@ -16,6 +16,8 @@ from ..io import (
     DMIS_SUFFIXES,
     DataError,
     Dataset,
+    ForeignDataset,
+    ForeignStepGauge,
     MslNames,
     combine_plates,
     is_qif,
@@ -139,7 +141,8 @@ def msl_inputs(args: argparse.Namespace) -> MslInputs:
                         "metadata.", file=unpaired[0],
                         hint="give it with the snapshot it was saved with, or leave it out.")
     cu = _certificate_u(args.msl_certificate_u)
-    plates, bars = [], []
+    plates: list[ForeignDataset] = []
+    bars: list[ForeignStepGauge] = []
     for flag, snap, meta in pairs:
         read = read_msl_plate if flag == "--msl" else read_msl_bar
         flags = {snap: flag} if meta is None else {snap: flag, meta: "--msl-metadata"}

@@ -420,7 +420,8 @@ def rounding_u_um(decimals: int) -> float:
 
 
 def msl_metadata_text(parameters: dict, layout: str, range_mm: Sequence[float] | np.ndarray,
-                      *, probe_name: str = "ram", probe_mm: Sequence[float] = (0.0, 0.0, 0.0),
+                      *, probe_name: str = "ram",
+                      probe_mm: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0),
                       title: str = "cmm-error-lab fitted machine", name: str = "fit",
                       save_time: str = "", digits: int = 10) -> str:
     """A machine in MSL's metadata form, as :func:`read_msl_metadata` (and
@@ -643,7 +644,9 @@ def _metadata(source, name, head: _Header | None, use, names: MslNames = MSL_API
     snapshot's header (``head``; None: a metadata file alone)."""
     lines, name = _lines(source, name, "metadata")
     meta = _header(lines, name, "metadata", use)
-    for key in MSL_HEADER_KEYS[2:] if head is not None else ():
+    for key in MSL_HEADER_KEYS[2:]:
+        if head is None:  # a metadata file alone: no snapshot to repeat
+            break
         a, b = meta.rows[key][1].strip(), head.rows[key][1].strip()
         if a != b:
             raise DataError(f"{key} {cut_repr(a)} differs from the snapshot's {cut_repr(b)} "
