@@ -389,8 +389,9 @@ def msl_parameters(coefficients: dict, layout: str, range_mm: Sequence[float] | 
             cheb[0], cheb[1] = -(lo + hi) / 2, -(hi - lo) / 2
         else:  # positioning, rotation: T_j - T_j(-1), zero at the axis origin
             cheb[0] = -sum(cheb[j] * (-1) ** j for j in range(1, deg + 1))
-        poly = Chebyshev(cheb, domain=[0.0, stroke]).convert(kind=Polynomial).coef
-        poly = np.pad(poly, (0, max(0, deg + 1 - len(poly))))
+        coef = Chebyshev(cheb, domain=[0.0, stroke]).convert(kind=Polynomial).coef
+        poly = np.zeros(deg + 1)
+        poly[:len(coef)] = np.real(coef)
         if p in carriers:  # the squareness as the chord slope (µrad -> µm/mm)
             sq = square.get(carriers[p], 0.0) * 1e-3
             poly[1] += -sq if on_table else sq
