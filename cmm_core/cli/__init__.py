@@ -69,7 +69,14 @@ add_arguments = add_export_arguments
 if TYPE_CHECKING:
     from .budget import cmd_air, cmd_budget
     from .compensate import cmd_compensate
-    from .export import AXIS_TABLE_FILES, add_parser, command, output_files, run
+    from .export import (
+        AXIS_TABLE_FILES,
+        add_parser,
+        command,
+        msl_parameters_text,
+        output_files,
+        run,
+    )
     from .fitting import cmd_diagnose, cmd_fit, cmd_gp
     from .inputs import (
         MSL_CLI_NAMES,
@@ -93,7 +100,7 @@ if TYPE_CHECKING:
 _LAZY = {
     "cmd_air": "budget", "cmd_budget": "budget", "cmd_compensate": "compensate",
     "AXIS_TABLE_FILES": "export", "add_parser": "export", "command": "export",
-    "output_files": "export", "run": "export",
+    "output_files": "export", "run": "export", "msl_parameters_text": "export",
     "cmd_diagnose": "fitting", "cmd_fit": "fitting", "cmd_gp": "fitting",
     "CommandChoices": "inputs", "command_inputs": "records", "provenance_of": "records",
     "data_of": "inputs", "dataset_of": "inputs",
@@ -134,5 +141,5 @@ __all__ = [
     "MEAS_HELP", "MIN_TRIALS", "number_arg", "ORDER_HELP", "output_files", "PLATE_HELP",
     "program_name", "run", "run_plan", "run_task", "SETUP_HELP", "sigma_of", "Subcommand",
     "DEFAULT_ORDER", "DEFAULT_SIGMA_UM", "msl_metadata_beside", "MSL_CLI_NAMES", "MslInputs",
-    "msl_inputs", "notes_of", "settle_defaults",
+    "msl_inputs", "notes_of", "settle_defaults", "msl_parameters_text",
 ]
