@@ -281,7 +281,8 @@ def settle_defaults(args: argparse.Namespace) -> list[str]:
             args.sigma_um = rounding_u_um(decimals)
             notes.append(f"sigma: {args.sigma_um:.3g} µm, the rounding of the MSL files' "
                          f"{decimals} decimals (step/√12), a noise-free simulation's only "
-                         "scatter (--sigma-um overrides).")
+                         "scatter (--sigma-um overrides: a simulation with added noise "
+                         "needs it).")
         elif msl and msl.plates:
             notes.append(f"sigma: {DEFAULT_SIGMA_UM} µm, assumed: an MSL measured file does "
                          "not state the repeatability (give --sigma-um UM, or --sigma-um "
