@@ -170,6 +170,11 @@ def test_every_refusal_names_the_flag_and_the_file(files, tmp_path, capsys):
         (["--msl", xz, "--msl", xz, "--msl-kind", "simulated"], ["--msl", str(xz)]),
         (["--msl-bar", bar, "--msl-bar", bar, "--msl-kind", "simulated"],
          ["--msl-bar", str(bar)]),
+        # an MSL file given as this project's measurements: the flags that take it
+        ([xz, "--setup", ROOT / "sample_data" / "simulated" / "setup.json"],
+         ["--msl", "--msl-kind", "snapshot.csv"]),
+        ([files / "XZ" / "metadata.csv", "--setup", ROOT / "sample_data" / "simulated" /
+          "setup.json"], ["--msl", "--msl-metadata", "metadata.csv"]),
     ]
     for args, words in cases:
         line = _refused(["fit", *args], capsys)

@@ -50,7 +50,7 @@ MSL_CLI_NAMES = MslNames(
     pairing="give the metadata.csv saved with it (--msl-metadata pairs each file with the "
             "snapshot whose header it repeats)",
     files="give MSL snapshots with --msl or --msl-bar and their metadata with "
-          "--msl-metadata")
+          "--msl-metadata", metadata_flag="--msl-metadata")
 """The MSL readers' refusals in the command line's words: its flags, not the keywords of
 ``io.read_msl_plate``."""
 
@@ -224,7 +224,7 @@ def dataset_of(args: argparse.Namespace) -> Dataset:
         return replace(ds, notes=tuple(notes))
     except DataError:
         for m in args.meas:  # another tool's file given as ours: name the reader that takes it
-            foreign = sniff(m) if isinstance(m, str | Path) else None
+            foreign = sniff(m, MSL_CLI_NAMES) if isinstance(m, str | Path) else None
             if foreign:
                 raise DataError(foreign, file=Path(m).name) from None
         raise

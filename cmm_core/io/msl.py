@@ -106,6 +106,8 @@ class MslNames:
         How a metadata file is paired with its snapshot.
     files : str
         How to give MSL files at all (a file that is none).
+    metadata_flag : str
+        The metadata file's keyword or flag alone.
     """
 
     kind: str = "kind='simulated' or kind='measured'"
@@ -121,6 +123,7 @@ class MslNames:
     pairing: str = "expected the metadata saved with it"
     files: str = ("read MSL files with cmm_core.io.msl.read_msl_plate or read_msl_bar "
                   "(snapshot, metadata, kind=...)")
+    metadata_flag: str = "metadata"
 
 
 MSL_API_NAMES = MslNames()
@@ -1110,10 +1113,12 @@ def combine_plates(datasets: Iterable[ForeignDataset]) -> ForeignDataset:
 # --------------------------------------------------------------------------- sniffing
 
 
-def sniff(source: FileSource) -> str | None:
+def sniff(source: FileSource, names: MslNames = MSL_API_NAMES) -> str | None:
     """A sentence naming the MSL reader when ``source`` is an MSL cmm-error-map file, else
     None: for the plain readers, whose column checks would only say that columns are
-    missing. Never raises for unreadable input."""
+    missing. Never raises for unreadable input. ``names`` other than the API's (the
+    command line's): the sentence names only how to give the file there
+    (``names.plate``, ``names.bar``, ``names.kind``)."""
     try:
         data, _ = read_bytes(source, None)
         text = data[:8192].decode("utf-8-sig", errors="replace")
@@ -1130,6 +1135,15 @@ def sniff(source: FileSource) -> str | None:
     bar = nb.replace(" ", "").endswith(",1")
     reader = "read_msl_bar" if bar else "read_msl_plate"
     art = "bar (step gauge)" if bar else "plate"
+    if names is not MSL_API_NAMES:
+        give = names.bar if bar else names.plate
+        if what == "metadata":
+            return (f"this looks like an MSL cmm-error-map {art} metadata file: give its "
+                    f"snapshot.csv ({give}) and this file with {names.metadata_flag} (or "
+                    "beside the snapshot, as MSL saves them).")
+        return (f"this looks like an MSL cmm-error-map {art} "
+                + ("full-data file: not read; " if what == "full-data" else "file: ")
+                + f"{give} (its snapshot.csv) and give {names.kind}.")
     if what == "snapshot":
         return (f"this looks like an MSL cmm-error-map {art} snapshot file: read it with "
                 f"cmm_core.io.{reader} with its metadata.csv and kind='simulated' or "
