@@ -17,7 +17,12 @@ lines; ``docs/msl-format.md`` describes the format and every convention applied 
   own position, so odd powers of them change sign (:func:`msl_coefficients`).
 
 Every problem is a :class:`~cmm_core.io.DataError` naming file, row and column; the
-cell-level problems of a file are reported together.
+cell-level problems of a file are reported together, and the caller's choices in the
+caller's words (:class:`MslNames`: keywords here, flags on the command line).
+
+The other way, :func:`msl_parameters` turns this project's coefficients into MSL's
+parameters (the conventions above in reverse) and :func:`msl_metadata_text` writes them
+in MSL's metadata form, which :func:`read_msl_metadata` reads back.
 """
 
 from __future__ import annotations
