@@ -33,6 +33,8 @@ from .app import (
 from .commands import main
 from .options import (
     CERT_HELP,
+    DEFAULT_ORDER,
+    DEFAULT_SIGMA_UM,
     MEAS_HELP,
     ORDER_HELP,
     PLATE_HELP,
@@ -42,6 +44,7 @@ from .options import (
     add_foreign_args,
     add_instrument_args,
     add_outlier_args,
+    msl_metadata_beside,
     number_arg,
 )
 from .parser import (
@@ -66,15 +69,27 @@ add_arguments = add_export_arguments
 if TYPE_CHECKING:
     from .budget import cmd_air, cmd_budget
     from .compensate import cmd_compensate
-    from .export import AXIS_TABLE_FILES, add_parser, command, output_files, run
+    from .export import (
+        AXIS_TABLE_FILES,
+        add_parser,
+        command,
+        msl_parameters_text,
+        output_files,
+        run,
+    )
     from .fitting import cmd_diagnose, cmd_fit, cmd_gp
     from .inputs import (
+        MSL_CLI_NAMES,
         CommandChoices,
+        MslInputs,
         data_of,
         dataset_of,
         exclusions_of,
         fit_args_of,
         instruments_of,
+        msl_inputs,
+        notes_of,
+        settle_defaults,
         sigma_of,
     )
     from .plan import cmd_plan, cmd_task, run_plan, run_task
@@ -85,12 +100,13 @@ if TYPE_CHECKING:
 _LAZY = {
     "cmd_air": "budget", "cmd_budget": "budget", "cmd_compensate": "compensate",
     "AXIS_TABLE_FILES": "export", "add_parser": "export", "command": "export",
-    "output_files": "export", "run": "export",
+    "output_files": "export", "run": "export", "msl_parameters_text": "export",
     "cmd_diagnose": "fitting", "cmd_fit": "fitting", "cmd_gp": "fitting",
     "CommandChoices": "inputs", "command_inputs": "records", "provenance_of": "records",
     "data_of": "inputs", "dataset_of": "inputs",
     "exclusions_of": "inputs", "fit_args_of": "inputs", "instruments_of": "inputs",
-    "sigma_of": "inputs",
+    "sigma_of": "inputs", "MSL_CLI_NAMES": "inputs", "MslInputs": "inputs",
+    "msl_inputs": "inputs", "notes_of": "inputs", "settle_defaults": "inputs",
     "cmd_plan": "plan", "cmd_task": "plan", "run_plan": "plan", "run_task": "plan",
     "cmd_report": "report", "cmd_simulate": "simulate",
 }
@@ -124,4 +140,6 @@ __all__ = [
     "instruments_of", "main", "MAX_CHECK_TRIALS", "MAX_MESSAGE", "MAX_TRIALS", "MAX_WORKERS",
     "MEAS_HELP", "MIN_TRIALS", "number_arg", "ORDER_HELP", "output_files", "PLATE_HELP",
     "program_name", "run", "run_plan", "run_task", "SETUP_HELP", "sigma_of", "Subcommand",
+    "DEFAULT_ORDER", "DEFAULT_SIGMA_UM", "msl_metadata_beside", "MSL_CLI_NAMES", "MslInputs",
+    "msl_inputs", "notes_of", "settle_defaults", "msl_parameters_text",
 ]

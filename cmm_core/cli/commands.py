@@ -15,6 +15,7 @@ import os
 import sys
 from pathlib import Path
 
+from .options import msl_metadata_beside
 from .parser import _SIM_FILES, MAX_MESSAGE, build_parser
 
 
@@ -48,6 +49,7 @@ def _files(args):
     for attr in _DATA_FILES:
         v = getattr(args, attr, None)
         ins += v if isinstance(v, list) else [v]
+    ins += msl_metadata_beside(args)  # the default of --msl-metadata reads them
     cmd = args.command
     if cmd == "simulate":
         ins.append(args.config)

@@ -20,21 +20,27 @@ import json
 import sys
 from pathlib import Path
 
+from .. import __version__
 from ..export import comp_tables as ct
-from ..export import load_model, qif_document
+from ..export import load_model, probe_offset, qif_document
 from ..export import results as rx
 from ..export.model_file import Model
 from ..io import (
+    MSL_PARAMETERS,
+    MSL_SQUARENESS_CARRIERS,
     DataError,
     Dataset,
     InputFile,
     atomic_write_all,
     check_outputs,
     input_file,
+    msl_metadata_text,
+    msl_parameters,
     read_bytes,
 )
 from ..machine import AXES
 from .inputs import dataset_of
+from .options import msl_metadata_beside
 from .parser import add_command
 
 
@@ -59,14 +65,15 @@ def _data_files(args: argparse.Namespace) -> list:
     for attr in _QIF_DATA:
         v = getattr(args, attr, None)
         out += v if isinstance(v, list) else ([v] if v else [])
-    return out
+    return out + msl_metadata_beside(args)  # read by --msl-metadata's default
 
 
 def output_files(args: argparse.Namespace) -> tuple[dict, dict]:
     """``(outputs, folders)`` of ``export`` for ``io.check_outputs``: option -> file(s)
     written, option -> folder created."""
     outs = {"--grid": args.grid, "--results-json": args.results_json,
-            "--results-xml": args.results_xml, "--qif": getattr(args, "qif", None)}
+            "--results-xml": args.results_xml, "--qif": getattr(args, "qif", None),
+            "--msl-parameters": getattr(args, "msl_parameters", None)}
     folders = {}
     if args.axis_tables:
         folders["--axis-tables"] = args.axis_tables
@@ -85,10 +92,11 @@ def command(args: argparse.Namespace) -> dict:
 
     source = Path(args.model).name
     qif = getattr(args, "qif", None)
-    outs = (args.grid, args.axis_tables, args.results_json, args.results_xml, qif)
+    outs = (args.grid, args.axis_tables, args.results_json, args.results_xml, qif,
+            getattr(args, "msl_parameters", None))
     if not any(outs):
         raise DataError("nothing to write: give --grid, --axis-tables, --results-json, "
-                        "--results-xml and/or --qif.", file=source)
+                        "--results-xml, --qif and/or --msl-parameters.", file=source)
     data = _data_files(args)
     if data and not qif:  # data nothing reads would look as if it shaped the tables
         raise DataError("measurement, setup and certificate files are read for --qif "
@@ -136,15 +144,87 @@ def _write(args, model, source) -> dict:
     if args.results_xml:
         texts[Path(args.results_xml)] = rx.results_xml(model, **kw)
         out["results_xml"] = str(args.results_xml)
+    notes: list[str] = []
     if getattr(args, "qif", None):
-        doc, notes = _qif_bytes(args, model, source)
+        doc, qif_notes = _qif_bytes(args, model, source)
         texts[Path(args.qif)] = doc
         out["qif"] = str(args.qif)
+        notes += qif_notes
+    if getattr(args, "msl_parameters", None):
+        text, msl_notes = msl_parameters_text(model, source, probe=args.probe,
+                                              allow_undetermined=args.allow_undetermined)
+        texts[Path(args.msl_parameters)] = text
+        out["msl_parameters"] = str(args.msl_parameters)
+        notes += msl_notes
+    if notes or getattr(args, "qif", None):
         out["notes"] = notes
     if args.axis_tables:
         Path(args.axis_tables).mkdir(parents=True, exist_ok=True)
     atomic_write_all(texts)  # all or nothing: never a grid beside another model's tables
     return out
+
+
+def msl_parameters_text(model: Model, source: str, *, probe: str | None = None,
+                        allow_undetermined: bool = False) -> tuple[str, list[str]]:
+    """The model as an MSL cmm-error-map metadata file (``io.msl_metadata_text``), so that
+    MSL's app can show the machine this program fitted; and the notes on what it holds.
+
+    The coefficients become MSL's parameters by the inverse of the reader's conventions
+    (``io.msl_parameters``: power series in mm and rad, a moving table's odd powers and
+    the squareness back in MSL's sign). No provenance line: MSL's files start with
+    ``save time`` and the readers take every line after ``model parameters`` to be a
+    parameter; the header's ``title`` names this program, the model file and its SHA-256.
+
+    Raises
+    ------
+    DataError
+        A model with undetermined combinations (unless ``allow_undetermined``: they are
+        then written at the fit's minimum-norm choice), a layout MSL does not know, a
+        probe the model lacks.
+    """
+    if model.undetermined and not allow_undetermined:
+        raise DataError("the model has parameter combinations the data do not determine: "
+                        "their MSL parameters would be an arbitrary (minimum-norm) choice.",
+                        file=model.name, column="undetermined",
+                        hint="measure more placements and refit, or give "
+                             "--allow-undetermined to write them as the fit chose them.")
+    terms = model.terms
+    coefficients = dict(zip(terms.labels, (float(v) for v in model.coef), strict=True))
+    try:
+        params, left_out = msl_parameters(coefficients, terms.layout, terms.range_mm)
+        digest = model.source.sha256[:12] if model.source is not None else "unknown"
+        title = f"cmm-error-lab {__version__} fit {source} sha256 {digest} {model.spec}"
+        text = msl_metadata_text(params, terms.layout, terms.range_mm,
+                                 probe_name=probe or "ram",
+                                 probe_mm=probe_offset(model, probe), title=title,
+                                 name=Path(source).stem)
+    except ValueError as exc:  # MSL knows four layouts
+        raise DataError(str(exc), file=source,
+                        hint="MSL's model has no gantry or horizontal arm.") from None
+    present = {n for n, _ in terms.functions} | set(terms.labels)
+    absent = [p for p in MSL_PARAMETERS[:18]
+              if ("d" if p[0] == "T" else "r") + p[1:].lower() not in present
+              and not (p in MSL_SQUARENESS_CARRIERS.values()
+                       and {k for k, v in MSL_SQUARENESS_CARRIERS.items() if v == p}
+                       & present)]
+    order = max((o for _, o in terms.functions), default=1)
+    notes = [f"msl parameters: {len(MSL_PARAMETERS)} lines in MSL's form (power series, "
+             "lowest power first, mm and rad; a moving table's odd powers and each "
+             "squareness, in Tyx, Tzx, Tzy, back in MSL's sign), "
+             + ("2 coefficients each, as MSL's own files." if order <= 1 else
+                f"{order + 1} coefficients each (order {order}); MSL's own files have 2.")]
+    if absent:
+        notes.append(f"msl parameters: {', '.join(absent)} are not in the model "
+                     f"({model.spec}): written as zero; the W terms are zero.")
+    if left_out or model.parts:
+        notes.append("msl parameters: MSL's form cannot hold "
+                     + ", ".join([*left_out, *model.parts]) + ": left out.")
+    if model.undetermined:
+        notes.append("msl parameters: the model's undetermined combinations are written at "
+                     "the fit's minimum-norm choice (--allow-undetermined), not measured.")
+    notes.append("msl parameters: the header's artefact lines say no artefact (one ball at "
+                 "the origin); probe " + (probe or "none, the ram reference point") + ".")
+    return text, notes
 
 
 def _qif_bytes(args: argparse.Namespace, model: Model, source: str) -> tuple[bytes, list]:

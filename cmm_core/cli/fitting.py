@@ -17,12 +17,15 @@ from .inputs import (
     exclusions_of,
     fit_args_of,
     instruments_of,
+    notes_of,
+    settle_defaults,
     sigma_of,
 )
 from .records import provenance_of
 
 
 def cmd_fit(args: argparse.Namespace) -> dict:
+    settle_defaults(args)  # --order, --sigma-um from the MSL files where they state them
     instruments = instruments_of(args)
     data = data_of(args, instruments)
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
@@ -38,13 +41,14 @@ def cmd_fit(args: argparse.Namespace) -> dict:
             "unidentifiable": r.unidentifiable, "null_combinations": r.null_combinations,
             "instruments": summary(r),
             "outliers": outliers, "excluded": [list(e) for e in exclude],
-            "notes": list(getattr(data, "notes", ()))}
+            "notes": notes_of(args, data)}
 
 
 def cmd_diagnose(args: argparse.Namespace) -> dict:
+    settle_defaults(args)
     instruments = instruments_of(args)
     data = data_of(args, instruments)
-    notes = list(getattr(data, "notes", ()))
+    notes = notes_of(args, data)
     outliers, exclude = exclusions_of(data, args.exclude_outliers)
     sigma_um, sigma = sigma_of(args, data, exclude, args.baseline)
     if instruments and not isinstance(data, Observations):  # they ride on the observations into every model the diagnosis fits
@@ -60,6 +64,7 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
 
 
 def cmd_gp(args: argparse.Namespace) -> dict:
+    settle_defaults(args)
     data = dataset_of(args)
     _, exclude = exclusions_of(data, args.exclude_outliers)
     spec = "kinematic21" if args.mean == "kinematic" else "rigid"
@@ -73,6 +78,6 @@ def cmd_gp(args: argparse.Namespace) -> dict:
                           mean="zero" if basis is not None
                           else args.mean, kernel=args.kernel, basis=basis,
                           probe_mm=obs.p_mm if args.inputs == "probe" else None)
-    return {"mean": args.mean, "kernel": args.kernel, "notes": list(data.notes),
+    return {"mean": args.mean, "kernel": args.kernel, "notes": notes_of(args, data),
             "inputs": "ram position and probe offset" if comps.probe_input else "tip",
             "loo_coverage_95": comps.loo_coverage(0.95), "components": comps.summary()}

@@ -16,14 +16,20 @@ from ..io import (
     DMIS_SUFFIXES,
     DataError,
     Dataset,
+    ForeignDataset,
+    ForeignStepGauge,
+    MslNames,
     combine_plates,
     is_qif,
     load_dataset,
+    msl_degree,
+    msl_header,
     read_foreign,
     read_machine,
     read_mapping,
     read_msl_bar,
     read_msl_plate,
+    rounding_u_um,
     sniff,
 )
 from ..model import (
@@ -32,25 +38,168 @@ from ..model import (
     read_instrument,
     refuse_repeated,
 )
+from .options import DEFAULT_ORDER, DEFAULT_SIGMA_UM
+
+MSL_CLI_NAMES = MslNames(
+    kind="--msl-kind simulated or --msl-kind measured", measured="--msl-kind measured",
+    simulated="--msl-kind simulated", certificate_u="--msl-certificate-u A_UM,B_UM_PER_MM",
+    certificate_example="--msl-certificate-u 0.26,0.0019", metadata="--msl-metadata "
+    "METADATA.csv (the metadata.csv saved with the snapshot, which repeats its header), or "
+    "put that file beside the snapshot", machine="",
+    plate="give it with --msl", bar="give it with --msl-bar",
+    pairing="give the metadata.csv saved with it (--msl-metadata pairs each file with the "
+            "snapshot whose header it repeats)",
+    files="give MSL snapshots with --msl or --msl-bar and their metadata with "
+          "--msl-metadata", metadata_flag="--msl-metadata")
+"""The MSL readers' refusals in the command line's words: its flags, not the keywords of
+``io.read_msl_plate``."""
+
+
+@dataclass(frozen=True)
+class MslInputs:
+    """The MSL files of a command line, read once (:func:`msl_inputs`).
+
+    Attributes
+    ----------
+    plates : list of io.ForeignDataset
+        The ``--msl`` snapshots with their metadata, in the order given.
+    bars : list of io.ForeignStepGauge
+        The ``--msl-bar`` snapshots with their metadata.
+    notes : list of str
+        How they were read: every convention once, naming the files it applies to, and
+        each metadata file taken from beside its snapshot.
+    """
+
+    plates: list
+    bars: list
+    notes: list
+
+    @property
+    def parts(self) -> list:
+        """Every snapshot read, plates first."""
+        return [*self.plates, *self.bars]
+
+
+def msl_inputs(args: argparse.Namespace) -> MslInputs:
+    """The ``--msl`` and ``--msl-bar`` snapshots read with their metadata (memoised on
+    ``args``: the data, the instruments and the defaults all need them).
+
+    Each ``--msl-metadata`` file is paired with the snapshot whose header it repeats
+    (:func:`io.msl_header`), in any order; a snapshot without one takes the
+    ``metadata.csv`` beside it when that file repeats its header (MSL saves the two
+    together), and says so in a note.
+
+    Raises
+    ------
+    DataError
+        In the flags' words (:data:`MSL_CLI_NAMES`), naming the file: a snapshot without
+        metadata, a metadata file no snapshot pairs with, a placement given twice, a bad
+        file.
+    """
+    done = getattr(args, "msl_read", None)
+    if isinstance(done, MslInputs):
+        return done
+    given: dict[tuple, str] = {}
+    for m in args.msl_metadata:
+        key = _flagged({str(m): "--msl-metadata"}, msl_header, m, str(m),
+                       MSL_CLI_NAMES)
+        if key in given:
+            raise DataError(f"repeats the header of --msl-metadata {given[key]} (name "
+                            f"{key[0]!r}, location {key[4]}, rotation {key[5]}); give each "
+                            "snapshot's metadata once.", file=str(m))
+        given[key] = str(m)
+    snaps = [("--msl", str(s)) for s in args.msl] + [("--msl-bar", str(s))
+                                                     for s in args.msl_bar]
+    seen: dict[tuple, str] = {}
+    pairs, beside_notes = [], []
+    for flag, snap in snaps:
+        key = _flagged({snap: flag}, msl_header, snap, snap, MSL_CLI_NAMES)
+        if key in seen:
+            # one placement fitted twice would count its balls double and divide every
+            # uncertainty it gives by √2 without a word
+            raise DataError(f"repeats the header of {seen[key]} (name {key[0]!r}, location "
+                            f"{key[4]}, rotation {key[5]}): the same placement given twice; "
+                            "each may be fitted once.", file=snap,
+                            hint=f"give the snapshot once ({flag}).")
+        seen[key] = snap
+        meta = given.get(key)
+        beside = Path(snap).with_name("metadata.csv")
+        if meta is None and beside.is_file() and not beside.samefile(snap) and _flagged(
+                {str(beside): "--msl-metadata"}, msl_header, beside, str(beside),
+                MSL_CLI_NAMES) == key:
+            meta = str(beside)
+            beside_notes.append(f"{snap}: metadata: {meta}, the metadata.csv saved beside "
+                                "the snapshot (no --msl-metadata repeats its header).")
+        # without metadata the reader refuses the snapshot in the flags' words (after its
+        # own checks: a metadata file given as a snapshot is named as such)
+        pairs.append((flag, snap, meta))
+    unpaired = sorted(set(given.values()) - {m for _f, _s, m in pairs if m})
+    if unpaired:
+        raise DataError("--msl-metadata: repeats the header of none of the --msl and "
+                        "--msl-bar snapshots "
+                        "(name, artefact, location, rotation); it is no snapshot's "
+                        "metadata.", file=unpaired[0],
+                        hint="give it with the snapshot it was saved with, or leave it out.")
+    cu = _certificate_u(args.msl_certificate_u)
+    plates: list[ForeignDataset] = []
+    bars: list[ForeignStepGauge] = []
+    for flag, snap, meta in pairs:
+        read = read_msl_plate if flag == "--msl" else read_msl_bar
+        flags = {snap: flag} if meta is None else {snap: flag, meta: "--msl-metadata"}
+        (plates if flag == "--msl" else bars).append(_flagged(
+            flags, read, snap, meta, kind=args.msl_kind,
+            certificate_u=cu, snapshot_name=snap, metadata_name=meta, names=MSL_CLI_NAMES))
+    out = MslInputs(plates, bars, beside_notes + _grouped_notes(plates + bars))
+    args.msl_read = out
+    return out
+
+
+def _flagged(flags: dict[str, str], read, *a, **kw):
+    """``read(*a, **kw)``, its one-problem DataError led by the flag that gave the file it
+    names (``flags``: file name -> flag): a refusal names the flag and the file."""
+    try:
+        return read(*a, **kw)
+    except DataError as exc:
+        flag = flags.get(str(exc.file))
+        if flag is None or exc.n_problems != 1 or exc.detail.startswith(flag):
+            raise
+        raise DataError(f"{flag}: {exc.detail}", file=exc.file, row=exc.row,
+                        column=exc.column, hint=exc.hint) from None
+
+
+def _grouped_notes(parts: list) -> list[str]:
+    """Each reader note once, naming the snapshots it applies to (``every MSL snapshot``
+    when all): three placements' identical conventions are not said three times."""
+    names: dict[str, list[str]] = {}
+    for part in parts:
+        for note in part.notes:
+            names.setdefault(note, []).append(part.name)
+    every = len(parts) > 1
+    return [f"{'every MSL snapshot' if every and len(n) == len(parts) else ', '.join(n)}: "
+            f"{note}" for note, n in names.items()]
+
+
+def _certificate_u(ab: tuple[float, float] | None) -> dict | None:
+    """``--msl-certificate-u A,B`` (parsed by its argparse type) as the setup's
+    certificate statement (k = 2, in quadrature)."""
+    if ab is None:
+        return None
+    return {"U_um": [float(ab[0]), float(ab[1])], "k": 2, "combine": "quadrature",
+            "source": "--msl-certificate-u"}
 
 
 def dataset_of(args: argparse.Namespace) -> Dataset:
     """The dataset the fitting commands read: this project's files, tables from other
     software through ``--mapping``, DMIS files through ``--dmis-pattern``, QIF documents
     (``.qif``, or XML that is a ``QIFDocument``) through ``--qif-pattern``, or MSL
-    cmm-error-map snapshots."""
+    cmm-error-map snapshots (:func:`msl_inputs`)."""
     if args.msl:
         if args.meas:
             raise DataError("give measurement files or --msl snapshots, not both.",
                             file=str(args.meas[0]))
-        metas = args.msl_metadata or [None] * len(args.msl)
-        if len(metas) != len(args.msl):
-            raise DataError(f"{len(args.msl)} --msl snapshot(s) but {len(metas)} "
-                            "--msl-metadata file(s); give one metadata file per snapshot, "
-                            "in the same order.", file=str(args.msl[0]))
-        cu = _certificate_u_arg(args.msl_certificate_u)
-        return combine_plates([read_msl_plate(s, m, kind=args.msl_kind, certificate_u=cu)
-                               for s, m in zip(args.msl, metas, strict=True)]).to_dataset()
+        msl = msl_inputs(args)
+        ds = combine_plates(msl.plates).to_dataset()
+        return replace(ds, notes=tuple(msl.notes))
     if not args.meas:
         raise DataError("no measurement file given.", file="command line",
                         hint="name MEAS.csv file(s), or --msl SNAPSHOT.csv for MSL files.")
@@ -75,7 +224,7 @@ def dataset_of(args: argparse.Namespace) -> Dataset:
         return replace(ds, notes=tuple(notes))
     except DataError:
         for m in args.meas:  # another tool's file given as ours: name the reader that takes it
-            foreign = sniff(m) if isinstance(m, str | Path) else None
+            foreign = sniff(m, MSL_CLI_NAMES) if isinstance(m, str | Path) else None
             if foreign:
                 raise DataError(foreign, file=Path(m).name) from None
         raise
@@ -90,10 +239,8 @@ def data_of(args: argparse.Namespace, instruments: list) -> Dataset | Observatio
         return dataset_of(args)
     if args.setup is not None:
         machine = read_machine(args.setup)
-    elif args.msl_bar and args.msl_metadata:
-        machine = read_machine(read_msl_bar(
-            args.msl_bar[0], args.msl_metadata[0], kind=args.msl_kind,
-            certificate_u=_certificate_u_arg(args.msl_certificate_u)).setup)
+    elif getattr(args, "msl_bar", None):
+        machine = read_machine(msl_inputs(args).bars[0].setup)
     else:
         raise DataError("an instrument-only fit needs the machine: give --setup (its "
                         "machine.layout and range_mm; no positions needed).",
@@ -101,16 +248,63 @@ def data_of(args: argparse.Namespace, instruments: list) -> Dataset | Observatio
     return instrument_observations(instruments, *machine)
 
 
-def _certificate_u_arg(text):
-    """``--msl-certificate-u A,B`` as the setup's certificate statement (k = 2)."""
-    if not text:
-        return None
-    try:
-        a, b = (float(v) for v in text.split(","))
-    except ValueError:
-        raise DataError(f"--msl-certificate-u expects A_UM,B_UM_PER_MM, found {text[:40]!r}.",
-                        file="command line") from None
-    return {"U_um": [a, b], "k": 2, "combine": "quadrature"}
+def settle_defaults(args: argparse.Namespace) -> list[str]:
+    """Set ``--order`` and ``--sigma-um`` where the command line left them out, from what
+    MSL files state, else :data:`.options.DEFAULT_ORDER` and ``DEFAULT_SIGMA_UM``; the
+    notes saying what was taken, one line each, for MSL input (this project's own files
+    keep the documented defaults without a word, as before).
+
+    - order: the degree of the model parameters the metadata lists (MSL's own: 1).
+    - σ: for a simulation, the rounding of the files' decimals, its only scatter; for a
+      measurement, which states no repeatability, the default, said as assumed.
+    - plate: fixed to MSL's nominal grid, the certificate the kind implies.
+    """
+    done = getattr(args, "settled_notes", None)
+    if isinstance(done, list):  # settled already: the notes of the first call
+        return done
+    msl = msl_inputs(args) if (args.msl or getattr(args, "msl_bar", None)) else None
+    notes: list[str] = []
+    if getattr(args, "order", DEFAULT_ORDER) is None:
+        degrees = [d for d in (msl_degree(p.parameters) for p in msl.parts)
+                   if d is not None] if msl else []
+        args.order = max(degrees) if degrees else DEFAULT_ORDER
+        if degrees:
+            notes.append(f"order: {args.order}, the degree of the model parameters the MSL "
+                         "metadata lists (MSL's polynomials; --order N overrides).")
+        elif msl:
+            notes.append(f"order: {DEFAULT_ORDER}, assumed: the MSL metadata lists no model "
+                         "parameters to take the degree from (--order N sets it).")
+    if getattr(args, "sigma_um", DEFAULT_SIGMA_UM) is None:
+        args.sigma_um = DEFAULT_SIGMA_UM
+        if msl and msl.plates and args.msl_kind == "simulated":
+            decimals = max(p.decimals for p in msl.plates)
+            args.sigma_um = rounding_u_um(decimals)
+            notes.append(f"sigma: {args.sigma_um:.3g} µm, the rounding of the MSL files' "
+                         f"{decimals} decimals (step/√12), a noise-free simulation's only "
+                         "scatter (--sigma-um overrides: a simulation with added noise "
+                         "needs it).")
+        elif msl and msl.plates:
+            notes.append(f"sigma: {DEFAULT_SIGMA_UM} µm, assumed: an MSL measured file does "
+                         "not state the repeatability (give --sigma-um UM, or --sigma-um "
+                         "auto to estimate it from the data).")
+    if msl and msl.plates and getattr(args, "plate", "") is None:
+        notes.append("plate: fixed to MSL's nominal grid, "
+                     + ("exact for a simulation" if args.msl_kind == "simulated" else
+                        "with the --msl-certificate-u uncertainty")
+                     + " (--plate prior or free overrides).")
+    args.settled_notes = notes
+    return notes
+
+
+def notes_of(args: argparse.Namespace, data: Dataset | Observations) -> list[str]:
+    """The notes a fitting command prints on stderr: how the data were read (for MSL
+    input every convention once, bars too, :func:`msl_inputs`), then the defaults
+    :func:`settle_defaults` took (call it first)."""
+    if args.msl or getattr(args, "msl_bar", None):
+        read = msl_inputs(args).notes
+    else:
+        read = list(getattr(data, "notes", ()))
+    return [*read, *getattr(args, "settled_notes", [])]
 
 
 def instruments_of(args: argparse.Namespace) -> list:
@@ -121,15 +315,10 @@ def instruments_of(args: argparse.Namespace) -> list:
                                            ("step_gauge", args.step_gauge),
                                            ("ball_bar", args.ball_bar)) for f in files]
     out = [read_instrument(f, kind) for kind, f in given]  # each reader bounds the size
-    bars = getattr(args, "msl_bar", [])
-    # the metadata files pair with the bars when no plate snapshot (--msl) takes them
-    metas = (getattr(args, "msl_metadata", []) if not getattr(args, "msl", []) else []) \
-        or [None] * len(bars)
-    for snapshot, meta in zip(bars, metas, strict=False):
-        bar = read_msl_bar(snapshot, meta, kind=args.msl_kind,
-                           certificate_u=_certificate_u_arg(args.msl_certificate_u))
-        out.append(read_instrument(io.BytesIO(bar.step_gauge_csv.encode()), "step_gauge",
-                                   name=f"{bar.name} (as a step gauge)"))
+    if getattr(args, "msl_bar", None):
+        for bar in msl_inputs(args).bars:
+            out.append(read_instrument(io.BytesIO(bar.step_gauge_csv.encode()),
+                                       "step_gauge", name=f"{bar.name} (as a step gauge)"))
     refuse_repeated(out)  # before any work, as the fit itself would
     return out
 
@@ -161,8 +350,13 @@ def fit_args_of(args: argparse.Namespace, spec: str, exclude: Sequence[Sequence]
                 **more: float) -> dict:
     """Keyword arguments of ``fit`` / ``diagnose`` from the command line's options
     (:class:`CommandChoices` through ``analysis.fit_kwargs``); ``more``: ``sigma_um``."""
-    choices = CommandChoices(spec, args.order, args.plate or "auto",
-                             getattr(args, "sigma_um", 0.5), tuple(map(tuple, exclude)))
+    order = getattr(args, "order", None)
+    sigma = getattr(args, "sigma_um", None)
+    # None: settle_defaults did not run (a caller of this function alone)
+    choices = CommandChoices(spec, DEFAULT_ORDER if order is None else order,
+                             args.plate or "auto",
+                             DEFAULT_SIGMA_UM if sigma is None else sigma,
+                             tuple(map(tuple, exclude)))
     return fit_kwargs(choices, None, **more)
 
 
@@ -170,7 +364,8 @@ def sigma_of(args: argparse.Namespace, data: Dataset | Observations, exclude: li
              spec: str) -> tuple[float, dict]:
     """``(σ µm, JSON record)``: the stated value, or the estimate for ``--sigma-um auto``."""
     if args.sigma_um != "auto":
-        return args.sigma_um, {"value_um": args.sigma_um, "auto": False}
+        value = DEFAULT_SIGMA_UM if args.sigma_um is None else args.sigma_um
+        return value, {"value_um": value, "auto": False}
     if isinstance(data, Observations):
         raise DataError("--sigma-um auto estimates the plate's repeatability, and an "
                         "instrument-only fit has no plate; give a number (it weighs no "

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Callable
+from pathlib import Path
 
 _MAX_ORDER = 5
 """``model.MAX_ORDER``, the highest polynomial order of an error function (a copy: see
@@ -23,6 +24,16 @@ _MAX_MAP_NODES_PER_AXIS = 21
 """``monitor.MAX_MAP_NODES_PER_AXIS``, the largest ``compare --nodes`` (a copy)."""
 _QIF_LABEL_PATTERN = r"(?P<position>.+)/(?P<probe>[^/]+)/(?P<ball>\d+)"
 """``io.QIF_LABEL_PATTERN``, the default of ``--qif-pattern`` (a copy)."""
+DEFAULT_ORDER = 2
+"""``--order`` when neither the command line nor an MSL metadata file states it."""
+DEFAULT_SIGMA_UM = 0.5
+"""``--sigma-um`` when neither the command line nor an MSL simulation states it."""
+_MSL_ROUNDING_UM = 0.0029
+"""``io.MSL_ROUNDING_U_UM`` to two digits, for the help texts (a copy)."""
+_MSL_CERTIFICATE_A_UM = (0.0, 100.0)
+_MSL_CERTIFICATE_B_UM_PER_MM = (0.0, 1.0)
+"""The ranges ``io`` accepts for a certificate's ``U_um`` (a copy: ``--msl-certificate-u``
+is checked at parsing, naming the flag, not later in a setup the user never wrote)."""
 
 MEAS_HELP = ("measurement CSV file(s), coordinates in mm: one long-form file "
               "(position,probe,ball,x_mm,y_mm,z_mm[,time_min,temp_C,repeat,temp_x_C,temp_y_C,temp_z_C]) or one "
@@ -37,7 +48,9 @@ CERT_HELP = ("plate certificate CSV (ball,x_mm,y_mm,z_mm[,u_x_um,u_y_um,u_z_um])
               "(\"certificate\": {\"U_um\": [a, b], \"k\": 2}) or that it is exact; "
               "default: none, the plate geometry is then fitted (self-calibration)")
 ORDER_HELP = (f"polynomial order of each error function along its axis, 1 (linear) to "
-              f"{_MAX_ORDER} (default: %(default)s)")
+              f"{_MAX_ORDER} (default: {DEFAULT_ORDER}; with MSL files the degree of the "
+              "model parameters their metadata lists, 1 in MSL's own files; a note says "
+              "which)")
 PLATE_HELP = ("plate geometry: 'fixed' to the certificate, the certificate as a 'prior' "
                "with its uncertainties, or 'free' (self-calibrated). Default: fixed with a "
                "certificate, free without")
@@ -99,21 +112,43 @@ def add_foreign_args(p: argparse.ArgumentParser) -> None:
                    help="MSL cmm-error-map plate snapshot, read with its conventions "
                         "(ball numbering, origin = location + probe, angles, layout flags, "
                         "sign; docs/msl-format.md) instead of MEAS files; repeatable, one "
-                        "placement each, with --msl-metadata in the same order (default: none)")
+                        "placement each (a placement given twice is refused), with "
+                        "--msl-bar too (default: none)")
     p.add_argument("--msl-metadata", action="append", default=[], metavar="METADATA.csv",
-                   help="MSL metadata file of each --msl/--msl-bar snapshot (layout flags, "
-                        "probe, machine size); default: none (then the snapshot alone)")
+                   help="MSL metadata file (layout flags, probe, machine size, model "
+                        "parameters) of an --msl or --msl-bar snapshot: each is paired with "
+                        "the snapshot whose header it repeats (name, artefact, location, "
+                        "rotation), in any order; repeatable. Default: the metadata.csv "
+                        "saved beside each snapshot (MSL saves the two together), said in a "
+                        "note; a snapshot with neither is refused, since it does not say "
+                        "the machine")
     p.add_argument("--msl-bar", action="append", default=[], metavar="SNAPSHOT.csv",
-                   help="MSL bar (step gauge) snapshot, fitted as a step gauge; repeatable "
-                        "(default: none)")
+                   help="MSL bar (step gauge) snapshot, fitted as a step gauge with the "
+                        "--msl plates, or alone; repeatable (default: none)")
     p.add_argument("--msl-kind", choices=("simulated", "measured"),
                    help="what the MSL files hold, required with --msl and --msl-bar (the "
                         "files do not say): 'simulated' deviations (nominal + deviation, "
-                        "certificate exact) or 'measured' coordinates (default: none)")
+                        "certificate exact, σ the rounding of their decimals, "
+                        f"{_MSL_ROUNDING_UM} µm for 5) or 'measured' coordinates "
+                        "(default: none)")
     p.add_argument("--msl-certificate-u", metavar="A_UM,B_UM_PER_MM",
+                   type=_msl_certificate_arg,
                    help="the artefact's certificate U(k=2) = sqrt(A² + (B·L)²) µm, L mm from "
                         "ball 1, A 0 to 100 µm and B 0 to 1 µm/mm, not both 0, for "
                         "--msl-kind measured (default: none; required then)")
+
+
+def msl_metadata_beside(args: argparse.Namespace) -> list[str]:
+    """The ``metadata.csv`` beside each ``--msl`` / ``--msl-bar`` snapshot that exists and
+    is not given with ``--msl-metadata``: the files the default of ``--msl-metadata`` may
+    read, so that no output overwrites them and a record names them (``cli.commands``)."""
+    given = {str(m) for m in getattr(args, "msl_metadata", None) or []}
+    out = []
+    for snap in [*(getattr(args, "msl", None) or []), *(getattr(args, "msl_bar", None) or [])]:
+        beside = str(Path(snap).with_name("metadata.csv"))
+        if beside not in given and beside not in out and Path(beside).is_file():
+            out.append(beside)
+    return out
 
 
 def add_data_args(p: argparse.ArgumentParser) -> None:
@@ -136,13 +171,15 @@ def add_fit_args(p: argparse.ArgumentParser, *, baseline: bool = False) -> None:
                        help="model to fit, as a model spec (docs/formats.md#model-specs), "
                             "e.g. 'kinematic21,plate_sag' or 'translational,squareness' "
                             "(default: %(default)s, the 21 errors)")
-    p.add_argument("--order", type=_order_arg, default=2, metavar="N", help=ORDER_HELP)
+    p.add_argument("--order", type=_order_arg, default=None, metavar="N", help=ORDER_HELP)
     p.add_argument("--plate", choices=("fixed", "prior", "free"), help=PLATE_HELP)
-    p.add_argument("--sigma-um", type=_sigma_arg, default=0.5, metavar="UM|auto",
+    p.add_argument("--sigma-um", type=_sigma_arg, default=None, metavar="UM|auto",
                    help="repeatability of one probed coordinate, standard deviation in µm "
                         "(0.001 to 1000): "
-                        "weights the fit and scales every uncertainty (default: "
-                        "%(default)s µm). 'auto' estimates it from the data (repeated "
+                        f"weights the fit and scales every uncertainty (default: "
+                        f"{DEFAULT_SIGMA_UM} µm; with MSL simulated files the rounding of "
+                        f"their decimals, {_MSL_ROUNDING_UM} µm for 5; a note says which). "
+                        "'auto' estimates it from the data (repeated "
                         "balls where the file has a repeat column, else the residuals of "
                         "the most flexible model the data determine) and reports the "
                         "estimate with its uncertainty under \"sigma\"")
@@ -183,6 +220,28 @@ def _order_arg(text):
         raise argparse.ArgumentTypeError(
             f"expected a polynomial order 1 to {_MAX_ORDER}, found {value}")
     return value
+
+
+def _msl_certificate_arg(text):
+    """``A,B`` of ``--msl-certificate-u``: two numbers in the certificate ranges, not both
+    zero (an exact certificate is a simulation's: ``--msl-kind simulated``)."""
+    try:
+        a, b = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected A_UM,B_UM_PER_MM (two numbers, e.g. 0.26,0.0019), found "
+            f"{text[:40]!r}") from None
+    (alo, ahi), (blo, bhi) = _MSL_CERTIFICATE_A_UM, _MSL_CERTIFICATE_B_UM_PER_MM
+    if not (math.isfinite(a) and math.isfinite(b) and alo <= a <= ahi and blo <= b <= bhi):
+        raise argparse.ArgumentTypeError(
+            f"expected A from {alo:g} to {ahi:g} µm and B from {blo:g} to {bhi:g} µm/mm, "
+            f"found {text[:40]!r}")
+    if a == 0 and b == 0:
+        raise argparse.ArgumentTypeError(
+            "A and B are both 0: a measured artefact's certificate has an uncertainty "
+            "(a noise-free simulation's grid is exact: --msl-kind simulated, without "
+            "--msl-certificate-u)")
+    return a, b
 
 
 def _sigma_arg(text):

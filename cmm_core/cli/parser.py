@@ -25,6 +25,8 @@ from .options import (
     _MAX_MAP_NODES_PER_AXIS,
     _MAX_ORDER,
     _TARGET_POWER,
+    DEFAULT_ORDER,
+    DEFAULT_SIGMA_UM,
     PLATE_HELP,
     _order_arg,
     _sigma_arg,
@@ -128,9 +130,10 @@ def _gp_arguments(p: argparse.ArgumentParser) -> None:
                         "one noise level per stylus, when the data carry several styli; "
                         "'tip' = the tip coordinates only (default: %(default)s)")
     add_outlier_args(p)
-    p.add_argument("--order", type=number_arg(int, 1, _MAX_ORDER), default=2, metavar="N",
+    p.add_argument("--order", type=number_arg(int, 1, _MAX_ORDER), default=None, metavar="N",
                    help=f"polynomial order of the kinematic model for --mean kinematic, 1 "
-                        f"to {_MAX_ORDER} (default: %(default)s)")
+                        f"to {_MAX_ORDER} (default: {DEFAULT_ORDER}; with MSL files the "
+                        "degree of the model parameters their metadata lists)")
     p.add_argument("--plate", choices=("fixed", "prior", "free"), help=PLATE_HELP)
 
 
@@ -237,8 +240,8 @@ def add_task_arguments(p: argparse.ArgumentParser) -> None:
 
 _MODEL_HELP = ("fitted model written by 'fit --save' (its kinematic coefficients, their "
                "covariance, the layout, strokes and probe offsets). At least one of --grid, "
-               "--axis-tables, --results-json, --results-xml, --qif is required; formats in "
-               "docs/compensation.md")
+               "--axis-tables, --results-json, --results-xml, --qif, --msl-parameters is "
+               "required; formats in docs/compensation.md (MSL's: docs/msl-format.md)")
 _EXPORT_MEAS_HELP = ("for --qif only: the measurement file(s) the model was fitted to, as "
                      "'fit' read them (long or thesis-form CSV, a mapped table, a DMIS or "
                      "QIF file), unchanged: each must be one of the inputs the model file "
@@ -258,6 +261,15 @@ _QIF_HELP = ("write the calibration as an ANSI/DMSC QIF 3.0 document (QIFDocumen
              "the certificate; provenance in its header (docs/formats.md, \"QIF 3.0\"). "
              "Needs the data the model was fitted to: MEAS files, --setup and "
              "--certificate (or --msl snapshots). Default: not written")
+_MSL_PARAMETERS_HELP = ("write the fitted machine as an MSL cmm-error-map metadata file "
+                        "(docs/msl-format.md, \"Writing MSL's form\"): the layout flags, "
+                        "the strokes, the probe (--probe, default the ram reference point) "
+                        "and the 21 model parameters as power series in mm and rad, in "
+                        "MSL's sign; what the MSL reader here reads back to the same "
+                        "coefficients. No provenance line (MSL's files start with 'save "
+                        "time'): the title names the model file and its SHA-256. A model "
+                        "with undetermined combinations is refused unless "
+                        "--allow-undetermined. Default: not written")
 _GRID_STEP_HELP = ("spacing of the 3-D compensation grid along each axis, mm, 0.1 to 10000; "
                    "one number for all axes or three (x,y,z), e.g. 100 or 100,100,50. Each "
                    "axis runs "
@@ -266,8 +278,9 @@ _GRID_STEP_HELP = ("spacing of the 3-D compensation grid along each axis, mm, 0.
 _AXIS_STEP_HELP = ("spacing of the rows of the per-axis tables, mm, 0.1 to 10000 (default: "
                    "the grid step; the first of three)")
 _PROBE_HELP = ("stylus of the model whose tip the grid corrects; default: none, the ram "
-               "reference point (offset 0 0 0 mm), as a controller's table. The per-axis "
-               "tables do not depend on the stylus")
+               "reference point (offset 0 0 0 mm), as a controller's table; also the "
+               "probe --msl-parameters writes. The per-axis tables do not depend on the "
+               "stylus")
 _GRID_HELP = ("write the 3-D grid compensation table to this CSV: at each node the "
               "correction (true minus indicated, µm, added to the reading) in x, y, z and "
               "its standard uncertainty (k = 1), with a header block (units, sign, layout, "
@@ -285,7 +298,8 @@ _XML_HELP = ("write the same results as QIF-like XML (MeasurementResults: machin
              "not written")
 _K_HELP = ("coverage factor k of the expanded uncertainties U = k·u in the results files, "
            "1 to 10 (default: %(default)s, about 95 %% for a normal distribution)")
-_UNDET_HELP = ("write the tables even when the model has parameter combinations the data "
+_UNDET_HELP = ("write the tables (and --msl-parameters) even when the model has parameter "
+               "combinations the data "
                "do not determine (their corrections are then an arbitrary choice and the "
                "uncertainties empty); without it such a model is refused (exit 2)")
 
@@ -328,6 +342,7 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--results-json", metavar="OUT.json", help=_RESULTS_JSON_HELP)
     p.add_argument("--results-xml", metavar="OUT.xml", help=_XML_HELP)
     p.add_argument("--qif", metavar="OUT.qif", help=_QIF_HELP)
+    p.add_argument("--msl-parameters", metavar="OUT.csv", help=_MSL_PARAMETERS_HELP)
     p.add_argument("--coverage-factor", type=_coverage, default=2.0, metavar="K",
                    help=_K_HELP)
     p.add_argument("--allow-undetermined", action="store_true", help=_UNDET_HELP)
@@ -446,15 +461,17 @@ def _next_arguments(p: argparse.ArgumentParser) -> None:
                    help="model the diagnosis starts from, as a model spec "
                         "(docs/formats.md#model-specs), e.g. 'kinematic21,-sxy' "
                         "(default: %(default)s)")
-    p.add_argument("--order", type=_order_arg, default=2, metavar="N",
-                   help="default polynomial order of the error functions (default: "
-                        "%(default)s)")
+    p.add_argument("--order", type=_order_arg, default=None, metavar="N",
+                   help=f"default polynomial order of the error functions (default: "
+                        f"{DEFAULT_ORDER}; with MSL files the degree of the model "
+                        "parameters their metadata lists)")
     p.add_argument("--plate", choices=("fixed", "prior", "free"),
                    help="plate geometry in the fits: certificate fixed, as a prior, or free "
                         "(default: fixed with a certificate)")
-    p.add_argument("--sigma-um", type=_sigma_arg, default=0.5, metavar="UM|auto",
+    p.add_argument("--sigma-um", type=_sigma_arg, default=None, metavar="UM|auto",
                    help="repeatability of one probed coordinate in µm (0.001 to 1000), or "
-                        "'auto' to estimate it from the data (default: %(default)s µm)")
+                        f"'auto' to estimate it from the data (default: {DEFAULT_SIGMA_UM} "
+                        "µm; with MSL simulated files the rounding of their decimals)")
     p.add_argument("--rivals", type=_rivals_arg, metavar="A,B[,C]", default=None,
                    help="the effects to tell apart, as model tokens separated by commas, "
                         "e.g. 'probe_offset,drift' or an alias set 'dzz:4,probe_offset,"

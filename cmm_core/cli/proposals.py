@@ -24,7 +24,7 @@ from ..plan import (
     propose,
     simulate_outcomes,
 )
-from .inputs import dataset_of, sigma_of
+from .inputs import dataset_of, notes_of, settle_defaults, sigma_of
 from .parser import add_command
 from .records import provenance_of
 
@@ -38,6 +38,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 def run(args: argparse.Namespace) -> dict:
     """``next``: rank candidate measurements; optionally simulate the best and write it
     as a plan file."""
+    settle_defaults(args)  # --order, --sigma-um from the MSL files where they state them
     data = dataset_of(args)
     sigma, sigma_rec = sigma_of(args, data, [], args.baseline)
     settings = {"baseline": args.baseline, "order": args.order, "plate": args.plate,
@@ -52,7 +53,7 @@ def run(args: argparse.Namespace) -> dict:
     out["sigma"] = sigma_rec
     # on stderr, one line each (cli.main prints notes): a candidate left out is said,
     # not silently missing from the ranking; the JSON's "skipped" holds the records
-    out["notes"] = [s.line() for s in pr.infeasible]
+    out["notes"] = [*notes_of(args, data), *(s.line() for s in pr.infeasible)]
     if pr.ranked and args.simulate and set(pr.rivals) & PSEUDO:
         out["simulated"] = {"skipped": f"{pr.rivals[1]} cannot be simulated as the truth"}
     elif pr.ranked and args.simulate:  # the top proposal, a placement, repeat or instrument

@@ -17,7 +17,12 @@ lines; ``docs/msl-format.md`` describes the format and every convention applied 
   own position, so odd powers of them change sign (:func:`msl_coefficients`).
 
 Every problem is a :class:`~cmm_core.io.DataError` naming file, row and column; the
-cell-level problems of a file are reported together.
+cell-level problems of a file are reported together, and the caller's choices in the
+caller's words (:class:`MslNames`: keywords here, flags on the command line).
+
+The other way, :func:`msl_parameters` turns this project's coefficients into MSL's
+parameters (the conventions above in reverse) and :func:`msl_metadata_text` writes them
+in MSL's metadata form, which :func:`read_msl_metadata` reads back.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ import json
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
+from datetime import datetime
 
 import numpy as np
 import pandas as pd
@@ -40,9 +46,11 @@ from .delimited import FileSource, read_bytes
 from .errors import DataError, cut_repr, likely_typo
 
 __all__ = ["ForeignDataset", "ForeignStepGauge", "read_msl_plate", "read_msl_bar",
-           "combine_plates", "sniff", "msl_layout", "msl_rotation", "msl_coefficients",
-           "MSL_LAYOUTS", "MSL_KINDS", "MSL_PARAMETERS", "MSL_HEADER_KEYS", "MSL_ROUNDING_U_UM",
-           "MSL_MAX_DEVIATION_MM"]
+           "read_msl_metadata", "msl_header", "combine_plates", "sniff", "msl_layout",
+           "msl_rotation", "msl_coefficients", "msl_parameters", "msl_metadata_text",
+           "msl_degree", "rounding_u_um", "MslNames", "MSL_API_NAMES", "MSL_LAYOUTS",
+           "MSL_KINDS", "MSL_PARAMETERS", "MSL_HEADER_KEYS", "MSL_ROUNDING_U_UM",
+           "MSL_MAX_DEVIATION_MM", "MSL_SQUARENESS_CARRIERS"]
 
 MSL_HEADER_KEYS = ("save time", "title", "name", "artefact.title", "artefact.nballs",
                "artefact.ball_spacing", "location", "rotation/deg")
@@ -65,9 +73,66 @@ MSL_ROUNDING_U_UM = 0.01 / math.sqrt(12.0)
 MSL_MAX_DEVIATION_MM = 1.0
 """Largest plausible departure of a ball from MSL's nominal grid: more is a wrong pitch,
 ball order or unit, not a CMM error."""
+MSL_SQUARENESS_CARRIERS = {"sxy": "Tyx", "sxz": "Tzx", "syz": "Tzy"}
+"""The MSL straightness whose linear part carries each squareness when this project's
+model is written in MSL's form (:func:`msl_parameters`): the three MSL's own validation
+parameters use (:func:`msl_coefficients` reads either straightness of a pair)."""
 _FOREIGN_COLUMNS = {"id,mmt_x,mmt_y,mmt_z": "snapshot",
                     "id,cmm_nom_x,cmm_nom_y,cmm_nom_z": "full-data",
                     "cmm_model.title": "metadata"}
+
+
+@dataclass(frozen=True)
+class MslNames:
+    """How the readers' refusals name the caller's choices.
+
+    The files cannot say what they hold or which certificate the artefact has, so several
+    refusals tell the caller what to give; a Python caller gives keywords, a command-line
+    user flags. Each attribute is the phrase a message uses (the defaults,
+    :data:`MSL_API_NAMES`, are the Python API's).
+
+    Attributes
+    ----------
+    kind : str
+        How to state the kind (both choices).
+    measured, simulated : str
+        One kind, as the caller states it.
+    certificate_u : str
+        The certificate statement.
+    certificate_example : str
+        An example of it.
+    metadata : str
+        How to give the metadata file.
+    machine : str
+        What replaces a metadata file (empty: nothing does).
+    plate, bar : str
+        How to give a plate and a bar snapshot (the other reader of a refused file).
+    pairing : str
+        How a metadata file is paired with its snapshot.
+    files : str
+        How to give MSL files at all (a file that is none).
+    metadata_flag : str
+        The metadata file's keyword or flag alone.
+    """
+
+    kind: str = "kind='simulated' or kind='measured'"
+    measured: str = "kind='measured'"
+    simulated: str = "kind='simulated'"
+    certificate_u: str = "certificate_u"
+    certificate_example: str = ('certificate_u={"U_um": [0.26, 0.0019], "k": 2, '
+                                '"combine": "quadrature"}')
+    metadata: str = "metadata"
+    machine: str = "layout, range_mm, probe_mm"
+    plate: str = "read it with cmm_core.io.msl.read_msl_plate"
+    bar: str = "read it with cmm_core.io.msl.read_msl_bar"
+    pairing: str = "expected the metadata saved with it"
+    files: str = ("read MSL files with cmm_core.io.msl.read_msl_plate or read_msl_bar "
+                  "(snapshot, metadata, kind=...)")
+    metadata_flag: str = "metadata"
+
+
+MSL_API_NAMES = MslNames()
+"""The Python API's words (keywords and functions) in the readers' refusals."""
 
 
 @dataclass(frozen=True)
@@ -95,6 +160,13 @@ class ForeignDataset:
     artefact : str
         The artefact the snapshot measured, as its header names it (``artefact.title``):
         snapshots of different artefacts are not one dataset (:func:`combine_plates`).
+    decimals : int
+        The most decimals of a mm any coordinate of the snapshot is written with (MSL
+        writes 5): the file's resolution, whose rounding is a simulation's only noise
+        (:func:`rounding_u_um`).
+    placement : tuple
+        ``(location, rotation/deg, probe vector)`` as numbers: two snapshots with the same
+        are one placement (:func:`combine_plates` refuses it twice).
     """
 
     measurements_csv: str
@@ -105,6 +177,8 @@ class ForeignDataset:
     name: str = "MSL snapshot"
     parameters: dict = field(default_factory=dict)
     artefact: str = ""
+    decimals: int = 5
+    placement: tuple = ()
 
     def to_dataset(self, name: str | None = None) -> Dataset:
         """Read the three texts with :func:`cmm_core.io.load_dataset` (every check of a
@@ -135,7 +209,7 @@ class ForeignStepGauge:
     setup : dict
         The machine (layout, range) and probe of the measurement, in setup JSON form
         (no positions: a step gauge needs no plate).
-    notes, kind, name, parameters
+    notes, kind, name, parameters, decimals
         As :class:`ForeignDataset`.
 
     Read the text with ``cmm_core.model.read_instrument(io.BytesIO(text.encode()),
@@ -148,7 +222,7 @@ class ForeignStepGauge:
     kind: str
     name: str = "MSL bar snapshot"
     parameters: dict = field(default_factory=dict)
-
+    decimals: int = 5
 
 
 # --------------------------------------------------------------------------- conventions
@@ -253,6 +327,174 @@ def msl_coefficients(parameters: dict, layout: str, range_mm: Sequence[float] | 
     return out
 
 
+def msl_parameters(coefficients: dict, layout: str, range_mm: Sequence[float] | np.ndarray
+                   ) -> tuple[dict, list]:
+    """This project's kinematic coefficients as MSL's model parameters: the inverse of
+    :func:`msl_coefficients`.
+
+    Each Chebyshev series over the stroke (µm, µrad) becomes a power series in the axis
+    position, lowest power first and zero at the axis origin (mm and mm/mm for T, rad and
+    rad/mm for R); a moving table's function changes the sign of its odd powers back
+    (MSL evaluates it at the table's own position); each squareness becomes the linear part
+    of the straightness :data:`MSL_SQUARENESS_CARRIERS` names. ``msl_coefficients`` of the
+    result at the model's order gives ``coefficients`` back.
+
+    Parameters
+    ----------
+    coefficients : dict
+        Label (``dxx[1]``, ``dxy[2]``, ``sxy`` ...) -> value in µm or µrad.
+    layout : str
+        This project's layout; one of :data:`MSL_LAYOUTS` (MSL knows no other).
+    range_mm : sequence of 3 float
+        Axis strokes over which the Chebyshev series are defined.
+
+    Returns
+    -------
+    parameters : dict
+        Every name of :data:`MSL_PARAMETERS` -> coefficients ``[0.0, c1, ...]``, at least
+        two (the W terms and every function the model lacks are zero).
+    left_out : list of str
+        Labels MSL's parameters cannot hold (periodic terms, anything not a kinematic
+        function of the 21 errors).
+
+    Raises
+    ------
+    ValueError
+        A layout MSL does not know.
+    """
+    if layout not in MSL_LAYOUTS.values():
+        raise ValueError(f"MSL's model knows the layouts {', '.join(MSL_LAYOUTS.values())}; "
+                         f"this model's is {layout}.")
+    table = split_chain(LAYOUTS[layout])[0]
+    carriers = {v: k for k, v in MSL_SQUARENESS_CARRIERS.items()}
+    series: dict[str, dict[int, float]] = {}
+    square, left_out = {}, []
+    for label, value in coefficients.items():
+        if label in MSL_SQUARENESS_CARRIERS:
+            square[label] = float(value)
+            continue
+        name, _, rest = label.partition("[")
+        if (len(name) != 3 or name[0] not in "dr" or name[1] not in "xyz"
+                or name[2] not in "xyz" or not rest[:-1].isdigit()):
+            left_out.append(label)
+            continue
+        series.setdefault(name, {})[int(rest[:-1])] = float(value)
+    out = {p: [0.0, 0.0] for p in MSL_PARAMETERS}
+    for p in MSL_PARAMETERS[:18]:
+        a, b = p[1].lower(), p[2].lower()
+        name = ("d" if p[0] == "T" else "r") + a + b
+        given = series.get(name, {})
+        on_table = a in table
+        stroke = float(range_mm["xyz".index(a)])
+        deg = max([1, *given])
+        cheb = np.zeros(deg + 1)
+        for j, v in given.items():
+            cheb[j] = v
+        if p[0] == "T" and a != b:
+            # straightness: T_j minus its chord (zero at both ends); the chord through
+            # T_j(-1) = (-1)^j and T_j(1) = 1 is a T0 + T1 part
+            lo, hi = sum(cheb[j] * (-1) ** j for j in range(2, deg + 1)), cheb[2:].sum()
+            cheb[0], cheb[1] = -(lo + hi) / 2, -(hi - lo) / 2
+        else:  # positioning, rotation: T_j - T_j(-1), zero at the axis origin
+            cheb[0] = -sum(cheb[j] * (-1) ** j for j in range(1, deg + 1))
+        coef = Chebyshev(cheb, domain=[0.0, stroke]).convert(kind=Polynomial).coef
+        poly = np.zeros(deg + 1)
+        poly[:len(coef)] = np.real(coef)
+        if p in carriers:  # the squareness as the chord slope (µrad -> µm/mm)
+            sq = square.get(carriers[p], 0.0) * 1e-3
+            poly[1] += -sq if on_table else sq
+        if on_table:  # back to MSL's evaluation at the table's own position
+            poly = poly * (-1.0) ** np.arange(poly.size)
+        poly[0] = 0.0  # zero at the origin by construction; no rounding residue
+        scale = 1e-3 if p[0] == "T" else 1e-6  # µm -> mm, µrad -> rad
+        out[p] = [float(v) * scale + 0.0 for v in poly]
+    return out, left_out
+
+
+def msl_degree(parameters: dict) -> int | None:
+    """The polynomial degree of MSL's model as a metadata file lists it: the longest
+    coefficient list of the 18 used parameters, less one (MSL's own files: 1, linear);
+    None when the file lists no parameters."""
+    lists = [len(c) - 1 for p, c in parameters.items() if p in MSL_PARAMETERS[:18]]
+    return max(max(lists), 1) if lists else None
+
+
+def rounding_u_um(decimals: int) -> float:
+    """Standard uncertainty (µm) of a coordinate rounded to ``decimals`` decimals of a mm:
+    the step over √12 (5 decimals: :data:`MSL_ROUNDING_U_UM`)."""
+    return 1e3 * 10.0 ** -int(decimals) / math.sqrt(12.0)
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def msl_metadata_text(parameters: dict, layout: str, range_mm: Sequence[float] | np.ndarray,
+                      *, probe_name: str = "ram",
+                      probe_mm: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0),
+                      title: str = "cmm-error-lab fitted machine", name: str = "fit",
+                      save_time: str = "", digits: int = 10) -> str:
+    """A machine in MSL's metadata form, as :func:`read_msl_metadata` (and
+    :func:`read_msl_plate`) read it.
+
+    The eight header lines (``artefact.*``, ``location`` and ``rotation/deg`` say no
+    artefact: one ball, at the origin, unrotated), the machine and probe lines, ``model
+    parameters`` and the 21 parameters, each a Python list as MSL writes it. Nothing else:
+    the readers take the first line to be ``save time``, so no comment or provenance line
+    can precede it, and every line after ``model parameters`` to be a parameter.
+
+    Parameters
+    ----------
+    parameters : dict
+        MSL parameter name -> coefficients (:func:`msl_parameters`).
+    layout : str
+        One of :data:`MSL_LAYOUTS`' layouts (written as its two flags).
+    range_mm : sequence of 3 float
+        The strokes (``cmm_model.size``).
+    probe_name, probe_mm : optional
+        The probe (``probe.name``, ``probe.length``), default the ram reference point.
+    title, name, save_time : str, optional
+        The header's ``title``, ``name`` (commas become spaces: MSL's lines are CSV) and
+        ``save time`` (default now, in MSL's form).
+    digits : int, optional
+        Significant digits of each coefficient.
+
+    Raises
+    ------
+    ValueError
+        A layout MSL does not know.
+    """
+    flags = {v: k for k, v in MSL_LAYOUTS.items()}
+    if layout not in flags:
+        raise ValueError(f"MSL's model knows the layouts {', '.join(flags)}; this model's "
+                         f"is {layout}.")
+    fixed, bridge = flags[layout]
+
+    def clean(text):  # one CSV cell: MSL's reader splits each line on commas
+        return " ".join(str(text).replace(",", " ").split())
+
+    def num(v):
+        return repr(float(f"{float(v):.{digits}g}") + 0.0)
+
+    when = save_time or _now()
+    lines = [f"save time,{when}", f"title,{clean(title)}", f"name,{clean(name)}",
+             "artefact.title,none (a fitted machine)", "artefact.nballs,1,1",
+             "artefact.ball_spacing,1.0", "location,0.0, 0.0, 0.0",
+             "rotation/deg,0.0, 0.0, 0.0", f"cmm_model.title,{clean(title)}",
+             "cmm_model.size," + ",".join(num(v) for v in range_mm),
+             f"cmm_model.fixed_table,{fixed}", f"cmm_model.bridge_axis,{bridge}",
+             "probe.title,stylus", f"probe.name,{clean(probe_name) or 'ram'}",
+             "probe.length," + ",".join(num(v) for v in probe_mm), "model parameters"]
+    for p in MSL_PARAMETERS:
+        c = parameters.get(p, [0.0, 0.0])
+        lines.append(f"{p},[{', '.join(num(v) for v in c)}]")
+    return "\n".join(lines) + "\n"
+
+
+def _now():
+    # MSL's own form of the save time, to the microsecond
+    return datetime.now().strftime("%Y-%m-%d %H:%M:%S.%f")
+
+
 # --------------------------------------------------------------------------- parsing
 
 
@@ -345,6 +587,7 @@ def _snapshot(source, name, use):
     data = lines[row:]
     problems = []
     xyz = np.full((len(data), 3), np.nan)
+    decimals = 0
     for k, line in enumerate(data):
         r = row + 1 + k
         cells = [c.strip() for c in line.split(",")]
@@ -367,6 +610,8 @@ def _snapshot(source, name, use):
                 problems.append(DataError(f"expected a number (mm), found {cut_repr(c)}.",
                                           file=name, row=r, column=_SNAPSHOT_COLUMNS[j + 1]))
             xyz[k, j] = v
+            # the file's resolution: a simulation's only noise is its rounding
+            decimals = max(decimals, _decimals(c))
     if problems:
         raise DataError.collect(problems)
     if len(data) != nx * ny:
@@ -384,7 +629,17 @@ def _snapshot(source, name, use):
                               hint="check the ball order, artefact.ball_spacing and units "
                                    "(mm).") for k, j in far]
         raise DataError.collect(problems)
-    return head, xyz
+    return head, xyz, decimals
+
+
+def _decimals(cell):
+    """Decimals of a mm a coordinate is written with (``1.5e-05``: 5 + 1)."""
+    mant, _, exp = cell.lower().partition("e")
+    digits = len(mant.partition(".")[2])
+    try:
+        return max(0, digits - int(exp or 0))
+    except ValueError:
+        return digits
 
 
 def _grid(nx, ny, pitch):
@@ -393,16 +648,18 @@ def _grid(nx, ny, pitch):
     return np.column_stack([(k % nx) * pitch, (k // nx) * pitch, np.zeros(k.size)])
 
 
-def _metadata(source, name, head: _Header, use):
+def _metadata(source, name, head: _Header | None, use, names: MslNames = MSL_API_NAMES):
     """Machine, probe and model parameters of a metadata file, checked against the
-    snapshot's header."""
+    snapshot's header (``head``; None: a metadata file alone)."""
     lines, name = _lines(source, name, "metadata")
     meta = _header(lines, name, "metadata", use)
     for key in MSL_HEADER_KEYS[2:]:
+        if head is None:  # a metadata file alone: no snapshot to repeat
+            break
         a, b = meta.rows[key][1].strip(), head.rows[key][1].strip()
         if a != b:
             raise DataError(f"{key} {cut_repr(a)} differs from the snapshot's {cut_repr(b)} "
-                            f"({head.name}); expected the metadata saved with it.", file=name,
+                            f"({head.name}); {names.pairing}.", file=name,
                             row=meta.rows[key][0], column=key)
     vals, rows = {}, {}
     i = len(MSL_HEADER_KEYS)
@@ -475,36 +732,36 @@ def _parameters(lines, start, name):
     return params
 
 
-def _kind(kind, certificate_u, name):
+def _kind(kind, certificate_u, name, names: MslNames = MSL_API_NAMES):
     if kind is None:
         raise DataError("an MSL file does not say whether it is simulated or measured; "
-                        "give kind='simulated' or kind='measured'.", file=name,
+                        f"give {names.kind}.", file=name,
                         hint="simulated files hold nominal + (true - indicated): the reader "
                              "must know which to apply the sign.")
     if kind not in MSL_KINDS:
-        raise DataError(f"kind must be 'simulated' or 'measured', found {cut_repr(kind)}.",
-                        file=name)
+        raise DataError(f"the kind must be 'simulated' or 'measured', found "
+                        f"{cut_repr(kind)}; give {names.kind}.", file=name)
     if kind == "simulated":
         if certificate_u is not None:
-            raise DataError("a simulated file's nominal grid is exact; certificate_u is for "
-                            "kind='measured'.", file=name)
+            raise DataError(f"a simulated file's nominal grid is exact; {names.certificate_u} "
+                            f"is for {names.measured}.", file=name)
         return {"exact": True, "source": "MSL simulation: the nominal grid is exact"}
     if certificate_u is None:
-        raise DataError("kind='measured' needs certificate_u, the artefact certificate's "
-                        "uncertainty; the MSL file does not state it.", file=name,
-                        hint='e.g. certificate_u={"U_um": [0.26, 0.0019], "k": 2, '
-                             '"combine": "quadrature"} (U = sqrt(a² + (b·L)²), L mm from '
-                             "ball 1).")
+        raise DataError(f"{names.measured} needs {names.certificate_u}, the artefact "
+                        "certificate's uncertainty; the MSL file does not state it.", file=name,
+                        hint=f"e.g. {names.certificate_example} (U = sqrt(a² + (b·L)²), L mm "
+                             "from ball 1).")
     if not isinstance(certificate_u, dict) or "U_um" not in certificate_u or set(
             certificate_u) - {"U_um", "k", "combine", "source"}:
-        raise DataError(f"certificate_u must be {{'U_um': [a_um, b_um_per_mm], 'k': 2, "
-                        f"'combine': 'quadrature'}}, found {cut_repr(certificate_u)}.",
+        raise DataError(f"{names.certificate_u} must be {{'U_um': [a_um, b_um_per_mm], "
+                        f"'k': 2, 'combine': 'quadrature'}}, found {cut_repr(certificate_u)}.",
                         file=name)
     ab = certificate_u["U_um"]
     if not (isinstance(ab, list | tuple) and len(ab) == 2 and all(
-            isinstance(v, int | float) and not isinstance(v, bool) and v >= 0 for v in ab)):
-        raise DataError(f"certificate_u U_um must be [a_um, b_um_per_mm], two numbers >= 0, "
-                        f"found {cut_repr(ab)}.", file=name)
+            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+            and v >= 0 for v in ab)):
+        raise DataError(f"{names.certificate_u}: U_um must be [a_um, b_um_per_mm], two "
+                        f"numbers >= 0, found {cut_repr(ab)}.", file=name)
     out = {"U_um": [float(ab[0]), float(ab[1])], "k": certificate_u.get("k", 2),
            "combine": certificate_u.get("combine", "quadrature")}
     if "source" in certificate_u:
@@ -512,12 +769,14 @@ def _kind(kind, certificate_u, name):
     return out
 
 
-def _use(what):
-    return (f"read an MSL {what} with cmm_core.io.msl.read_msl_"
-            f"{'bar' if what == 'bar' else 'plate'}(snapshot, metadata, kind=...)")
+def _use(what, names: MslNames = MSL_API_NAMES):
+    if names is MSL_API_NAMES:
+        return (f"read an MSL {what} with cmm_core.io.msl.read_msl_"
+                f"{'bar' if what == 'bar' else 'plate'}(snapshot, metadata, kind=...)")
+    return f"an MSL {what} snapshot: {names.bar if what == 'bar' else names.plate}"
 
 
-def _machine(meta, head, layout, range_mm, probe_mm, name):
+def _machine(meta, head, layout, range_mm, probe_mm, name, names: MslNames = MSL_API_NAMES):
     """Layout, strokes, probe vector and name, from the metadata or the caller."""
     if meta is not None:
         lay = msl_layout(meta["fixed_table"], meta["bridge_axis"])
@@ -530,15 +789,16 @@ def _machine(meta, head, layout, range_mm, probe_mm, name):
     missing = [k for k, v in (("layout", layout), ("range_mm", range_mm),
                               ("probe_mm", probe_mm)) if v is None]
     if missing:
-        raise DataError(f"without the metadata file the machine is unknown; give metadata "
-                        f"or {', '.join(missing)}.", file=head.name,
+        raise DataError("without the metadata file the machine is unknown; give "
+                        + (f"{names.metadata} or {', '.join(missing)}." if names.machine else
+                           f"{names.metadata}."), file=head.name,
                         hint="the metadata.csv saved with the snapshot holds the layout "
                              "flags, the machine size and the probe vector.")
     return (layout, np.asarray(range_mm, float), np.asarray(probe_mm, float), "msl",
             f"layout: {layout}, as the caller gave it (no metadata file).")
 
 
-def _common_notes(head, kind, probe):
+def _common_notes(head, kind, probe, decimals=5):
     nx, ny = head.nballs
     r = msl_rotation(head.angles_deg)
     dev = ("simulated: the snapshot holds nominal + deviation, and MSL's deviation is its "
@@ -560,7 +820,8 @@ def _common_notes(head, kind, probe):
         "frame: the snapshot's artefact-frame coordinates (MSL re-aligns them on ids 0, "
         f"{nx - 1}{'' if ny == 1 else f' and {nx * (ny - 1)}'}) are placed in machine axes by "
         "the nominal placement; a fit's placement absorbs the re-alignment.",
-        "units: mm as in the file; its 5 decimals are steps of 0.01 µm.",
+        f"units: mm as in the file; its {decimals} decimals are steps of "
+        f"{1e3 * 10.0 ** -decimals:g} µm.",
     ]
 
 
@@ -588,8 +849,8 @@ def read_msl_plate(snapshot: FileSource, metadata: FileSource | None = None, *,
                kind: str | None = None, certificate_u: dict | None = None,
                position: str | None = None, layout: str | None = None,
                range_mm: ArrayLike | None = None, probe_mm: ArrayLike | None = None,
-               snapshot_name: str | None = None,
-               metadata_name: str | None = None) -> ForeignDataset:
+               snapshot_name: str | None = None, metadata_name: str | None = None,
+               names: MslNames = MSL_API_NAMES) -> ForeignDataset:
     """Read an MSL cmm-error-map plate snapshot (and its metadata) as this project's files.
 
     Parameters
@@ -607,7 +868,10 @@ def read_msl_plate(snapshot: FileSource, metadata: FileSource | None = None, *,
     layout, range_mm, probe_mm : optional
         The machine, when no metadata file is given (all three then required).
     snapshot_name, metadata_name : str, optional
-        File names for messages when reading bytes.
+        File names for messages (default the path's name).
+    names : MslNames, optional
+        How refusals name the caller's choices (default the keywords above; the command
+        line gives its flags).
 
     Returns
     -------
@@ -619,18 +883,18 @@ def read_msl_plate(snapshot: FileSource, metadata: FileSource | None = None, *,
         Naming file, row and column: a missing kind, an unreadable or inconsistent file, a
         bar file (read it with :func:`read_msl_bar`).
     """
-    use = _use("plate")
-    head, xyz = _snapshot(snapshot, snapshot_name, use)
-    certificate = _kind(kind, certificate_u, head.name)
+    use = _use("plate", names)
+    head, xyz, decimals = _snapshot(snapshot, snapshot_name, use)
+    certificate = _kind(kind, certificate_u, head.name, names)
     assert kind is not None  # _kind refused a missing kind
     nx, ny = head.nballs
     if ny < 2 or nx < 2:
         raise DataError(f"has {nx} × {ny} balls: a bar or step gauge, not a plate.",
                         file=head.name, row=5, column="artefact.nballs",
-                        hint="read it with cmm_core.io.msl.read_msl_bar.")
-    meta = None if metadata is None else _metadata(metadata, metadata_name, head, use)
+                        hint=f"{names.bar}.")
+    meta = None if metadata is None else _metadata(metadata, metadata_name, head, use, names)
     lay, rng, probe, pname, lay_note = _machine(meta, head, layout, range_mm, probe_mm,
-                                                head.name)
+                                                head.name, names)
     pos = position or head.rows["name"][1].strip() or "msl"
     nominal = _grid(nx, ny, head.pitch_mm)
     plate = 2.0 * nominal - xyz if kind == "simulated" else xyz
@@ -648,7 +912,7 @@ def read_msl_plate(snapshot: FileSource, metadata: FileSource | None = None, *,
                                  "v_axis": [float(v) for v in R[:, 1]], "probe": pname}},
              "probes": {pname: [float(v) for v in probe]},
              "certificate": certificate}
-    notes = _common_notes(head, kind, probe) + [lay_note]
+    notes = _common_notes(head, kind, probe, decimals) + [lay_note]
     notes.append("certificate: MSL's nominal grid, "
                  + ("exact (a noise-free simulation): setup certificate.exact = true."
                     if kind == "simulated" else
@@ -659,14 +923,16 @@ def read_msl_plate(snapshot: FileSource, metadata: FileSource | None = None, *,
     return ForeignDataset(meas.to_csv(index=False, float_format="%.7f"), setup,
                           cert.to_csv(index=False, float_format="%.6f"), tuple(notes), kind,
                           head.name, params,
-                          head.rows["artefact.title"][1].strip())
+                          head.rows["artefact.title"][1].strip(), decimals,
+                          (tuple(head.location_mm), tuple(head.angles_deg), tuple(probe)))
 
 
 def read_msl_bar(snapshot: FileSource, metadata: FileSource | None = None, *,
              kind: str | None = None, certificate_u: dict | None = None,
              layout: str | None = None, range_mm: ArrayLike | None = None,
              probe_mm: ArrayLike | None = None, snapshot_name: str | None = None,
-             metadata_name: str | None = None) -> ForeignStepGauge:
+             metadata_name: str | None = None,
+             names: MslNames = MSL_API_NAMES) -> ForeignStepGauge:
     """Read an MSL cmm-error-map bar (step gauge) snapshot as this project's step-gauge file.
 
     One length per row, from ball 1 (MSL id 0) to each other ball: the indicated tip
@@ -678,27 +944,27 @@ def read_msl_bar(snapshot: FileSource, metadata: FileSource | None = None, *,
     Parameters and errors as :func:`read_msl_plate`; a plate file is refused (read it with
     :func:`read_msl_plate`).
     """
-    use = _use("bar")
-    head, xyz = _snapshot(snapshot, snapshot_name, use)
-    certificate = _kind(kind, certificate_u, head.name)
+    use = _use("bar", names)
+    head, xyz, decimals = _snapshot(snapshot, snapshot_name, use)
+    certificate = _kind(kind, certificate_u, head.name, names)
     assert kind is not None  # _kind refused a missing kind
     nx, ny = head.nballs
     if ny != 1 or nx < 2:
         raise DataError(f"has {nx} × {ny} balls: a plate, not a bar or step gauge.",
                         file=head.name, row=5, column="artefact.nballs",
-                        hint="read it with cmm_core.io.msl.read_msl_plate.")
-    meta = None if metadata is None else _metadata(metadata, metadata_name, head, use)
+                        hint=f"{names.plate}.")
+    meta = None if metadata is None else _metadata(metadata, metadata_name, head, use, names)
     lay, rng, probe, pname, lay_note = _machine(meta, head, layout, range_mm, probe_mm,
-                                                head.name)
+                                                head.name, names)
     nominal = _grid(nx, 1, head.pitch_mm)
     bar = 2.0 * nominal - xyz if kind == "simulated" else xyz
     R = msl_rotation(head.angles_deg)
     tips = head.location_mm + probe + bar @ R.T
     length = np.arange(1, nx) * head.pitch_mm
     if kind == "simulated":
-        u = np.full(nx - 1, MSL_ROUNDING_U_UM)
-        u_note = (f"u_um: {MSL_ROUNDING_U_UM:.4f} µm, the rounding of the file's 5 decimals "
-                  "(the nominal lengths of a simulation are exact).")
+        u = np.full(nx - 1, rounding_u_um(decimals))
+        u_note = (f"u_um: {rounding_u_um(decimals):.4g} µm, the rounding of the file's "
+                  f"{decimals} decimals (the nominal lengths of a simulation are exact).")
     else:
         a, b = certificate["U_um"]
         big = (np.hypot(a, b * length) if certificate["combine"] == "quadrature"
@@ -717,7 +983,7 @@ def read_msl_bar(snapshot: FileSource, metadata: FileSource | None = None, *,
     if np.any(probe):
         for a, axis in enumerate("xyz"):
             sg[f"offset_{axis}_mm"] = probe[a]
-    notes = [n for n in _common_notes(head, kind, probe) if not n.startswith("frame")]
+    notes = [n for n in _common_notes(head, kind, probe, decimals) if not n.startswith("frame")]
     notes += [lay_note, u_note,
               f"lengths: from ball 1 to balls 2-{nx}, certified = k·{head.pitch_mm:g} mm "
               "(MSL's nominal); measured = the distance of the indicated tip centres.",
@@ -727,7 +993,52 @@ def read_msl_bar(snapshot: FileSource, metadata: FileSource | None = None, *,
     notes += _parameter_notes(params, kind)
     setup = {"units": "mm", "machine": {"layout": lay, "range_mm": [float(v) for v in rng]},
              "probes": {pname: [float(v) for v in probe]}}
-    return ForeignStepGauge(sg.to_csv(index=False, float_format="%.7f"), setup, tuple(notes), kind, head.name, params)
+    return ForeignStepGauge(sg.to_csv(index=False, float_format="%.7f"), setup, tuple(notes),
+                            kind, head.name, params, decimals)
+
+
+def read_msl_metadata(source: FileSource, name: str | None = None) -> dict:
+    """An MSL metadata file on its own: the machine, probe and model parameters.
+
+    What :func:`msl_metadata_text` writes, and any metadata file MSL saves; its header is
+    checked as a snapshot's (but against no snapshot).
+
+    Returns
+    -------
+    dict
+        ``title``, ``layout`` (:func:`msl_layout`), ``range_mm``, ``probe_name``,
+        ``probe_mm`` and ``parameters`` (name -> power-series coefficients, lowest power
+        first, as listed).
+
+    Raises
+    ------
+    DataError
+        Naming file, row and column.
+    """
+    meta = _metadata(source, name, None, _use("plate"))
+    return {"title": meta["title"], "layout": msl_layout(meta["fixed_table"],
+                                                         meta["bridge_axis"]),
+            "range_mm": [float(v) for v in meta["size_mm"]], "probe_name": meta["probe_name"],
+            "probe_mm": [float(v) for v in meta["probe_mm"]],
+            "parameters": meta["parameters"]}
+
+
+def msl_header(source: FileSource, name: str | None = None,
+               names: MslNames = MSL_API_NAMES) -> tuple:
+    """What identifies a measurement in an MSL file's header: ``name``,
+    ``artefact.title``, ``artefact.nballs``, ``artefact.ball_spacing``, ``location`` and
+    ``rotation/deg`` as written. A snapshot and the metadata saved with it have the same
+    (the readers refuse a pair that differ), so this pairs them whatever their order.
+    ``names``: as :func:`read_msl_plate`.
+
+    Raises
+    ------
+    DataError
+        A file that is not an MSL file, naming its row and column.
+    """
+    lines, name = _lines(source, name, "snapshot or metadata")
+    head = _header(lines, name, "snapshot or metadata", names.files)
+    return tuple(head.rows[k][1].strip() for k in MSL_HEADER_KEYS[2:])
 
 
 def combine_plates(datasets: Iterable[ForeignDataset]) -> ForeignDataset:
@@ -735,7 +1046,8 @@ def combine_plates(datasets: Iterable[ForeignDataset]) -> ForeignDataset:
 
     The machine (layout, range), kind, certificate and plate must agree; positions and
     probes are renamed with a suffix where their names repeat (a probe name that repeats
-    with the same vector is shared).
+    with the same vector is shared). One placement (the same location, rotation and probe
+    vector) given twice is refused: fitted twice, its balls would count double.
 
     Raises
     ------
@@ -750,7 +1062,16 @@ def combine_plates(datasets: Iterable[ForeignDataset]) -> ForeignDataset:
     positions: dict[str, dict] = {}
     probes: dict[str, list[float]] = {}
     notes: list[str] = []
+    placements: dict[tuple, str] = {}
     for ds in datasets:
+        if ds.placement and ds.placement in placements:
+            # one placement fitted twice would count its balls double and divide every
+            # uncertainty it gives by √2 without a word
+            raise DataError(f"is the placement of {placements[ds.placement]} again (the same "
+                            "location, rotation/deg and probe.length); each placement may be "
+                            "fitted once.", file=ds.name, column="location",
+                            hint="give each placement's snapshot once.")
+        placements.setdefault(ds.placement, ds.name)
         for key, what in (("machine", "machine"), ("certificate", "certificate statement")):
             if ds.setup[key] != first.setup[key]:
                 raise DataError(f"its {what} {cut_repr(ds.setup[key])} differs from "
@@ -790,16 +1111,19 @@ def combine_plates(datasets: Iterable[ForeignDataset]) -> ForeignDataset:
     meas = pd.concat(frames, ignore_index=True)
     return replace(first, measurements_csv=meas.to_csv(index=False, float_format="%.7f"),
                    setup=setup, notes=tuple(notes),
-                   name=", ".join(ds.name for ds in datasets))
+                   name=", ".join(ds.name for ds in datasets),
+                   decimals=max(ds.decimals for ds in datasets), placement=())
 
 
 # --------------------------------------------------------------------------- sniffing
 
 
-def sniff(source: FileSource) -> str | None:
+def sniff(source: FileSource, names: MslNames = MSL_API_NAMES) -> str | None:
     """A sentence naming the MSL reader when ``source`` is an MSL cmm-error-map file, else
     None: for the plain readers, whose column checks would only say that columns are
-    missing. Never raises for unreadable input."""
+    missing. Never raises for unreadable input. ``names`` other than the API's (the
+    command line's): the sentence names only how to give the file there
+    (``names.plate``, ``names.bar``, ``names.kind``)."""
     try:
         data, _ = read_bytes(source, None)
         text = data[:8192].decode("utf-8-sig", errors="replace")
@@ -816,6 +1140,15 @@ def sniff(source: FileSource) -> str | None:
     bar = nb.replace(" ", "").endswith(",1")
     reader = "read_msl_bar" if bar else "read_msl_plate"
     art = "bar (step gauge)" if bar else "plate"
+    if names is not MSL_API_NAMES:
+        give = names.bar if bar else names.plate
+        if what == "metadata":
+            return (f"this looks like an MSL cmm-error-map {art} metadata file: give its "
+                    f"snapshot.csv ({give}) and this file with {names.metadata_flag} (or "
+                    "beside the snapshot, as MSL saves them).")
+        return (f"this looks like an MSL cmm-error-map {art} "
+                + ("full-data file: not read; " if what == "full-data" else "file: ")
+                + f"{give} (its snapshot.csv) and give {names.kind}.")
     if what == "snapshot":
         return (f"this looks like an MSL cmm-error-map {art} snapshot file: read it with "
                 f"cmm_core.io.{reader} with its metadata.csv and kind='simulated' or "
