@@ -21,7 +21,7 @@ both results sections), :mod:`.scenario`
 from __future__ import annotations
 
 from .blunder import MAX_BLUNDERS, Blunder, find_blunders, worst_observation
-from .changes import MIN_RESOLVED, Changes, holm, what_changed
+from .changes import MIN_RESOLVED, Changes, holm, projected, what_changed
 from .check import (
     MAX_OBSERVATIONS,
     PROBE_TOLERANCE_MM,
@@ -45,6 +45,7 @@ from .conformity import (
 )
 from .explain import (
     ALIAS_CHI2,
+    STYLUS_U_MAX_UM,
     ChangeExplanation,
     ChangeSystem,
     Hypothesis,
@@ -96,5 +97,6 @@ __all__ = ["CheckSystem", "check_sigma_um", "check_system", "GlsFit", "gls_fit",
            "distinct_words", "CARRIER_WEIGHT", "MAX_CARRIERS", "ALIAS_CHI2",
            "ChangeExplanation", "Hypothesis", "Step", "explain_change", "hypotheses",
            "MAX_BLUNDERS", "Blunder", "find_blunders", "worst_observation",
-           "explain_difference", "select_changes", "ChangeSystem", "change_system", "CALIBRATION_CHI2_ALPHA", "INFLATION_RULE",
+           "explain_difference", "select_changes", "ChangeSystem", "change_system",
+           "projected", "STYLUS_U_MAX_UM", "CALIBRATION_CHI2_ALPHA", "INFLATION_RULE",
            "scale_temperatures"]
