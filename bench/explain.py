@@ -9,7 +9,9 @@ is simulated and fitted (kinematic21, plate fixed), and the machine is measured 
 - ``sxy``: the xy squareness moved by ``--step`` u (u of the stored model's sxy);
 - ``rxz``: the x carriage's yaw, linear term, moved by ``--step`` u of ``rxz[1]``;
 - ``warm``: the three scales 17 ppm long (1.5 K warm steel scales), with the full plate
-  and with one placement (``warm1``).
+  and with one placement (``warm1``);
+- ``stylus``: the layout's second stylus bent by ``--stylus-um`` µm along x (its
+  ``probe_offset``), the rest of the machine unchanged.
 
 For each event: the share of seeds whose check fails (power), whose first named change
 is the true one (``scale`` for warm scales, ``sxy``, ``rxz`` or its linear form), and
@@ -52,8 +54,9 @@ def calibrated(layout: str):
     return cal, model_from_result(fit(cal.dataset, "kinematic21", plate="fixed"))
 
 
-def events(layout: str, step: float) -> dict:
-    """Event -> (changes, placements of the new measurement or None, true first keys)."""
+def events(layout: str, step: float, stylus_um: float = 1.0) -> dict:
+    """Event -> (changes, placements of the new measurement or None, true first keys,
+    simulator effects or None)."""
     cal, model = calibrated(layout)
     labels = model.terms.labels
     u = {lab: float(np.sqrt(model.cov[i, i])) for i, lab in enumerate(labels)}
@@ -61,11 +64,15 @@ def events(layout: str, step: float) -> dict:
     warm = {f"d{a}{a}[1]": PPM * rng[a] / 2000.0 for a in "xyz"}
     first = next(iter(sc.LAYOUTS[layout]["positions"].items()))
     one = {first[0]: first[1][1]}
-    return {"none": ({}, None, ()),
-            "sxy": ({"sxy": step * u["sxy"]}, None, ("sxy",)),
-            "rxz": ({"rxz[1]": step * u["rxz[1]"]}, None, ("rxz_linear", "rxz")),
-            "warm": (warm, None, ("scale",)),
-            "warm1": (warm, one, ("scale",))}
+    second = list(sc.LAYOUTS[layout]["probes"])[1]
+    bent = {**cal.config.get("effects", {}),
+            "probe_offset": {second: [stylus_um, 0.0, 0.0]}}
+    return {"none": ({}, None, (), None),
+            "sxy": ({"sxy": step * u["sxy"]}, None, ("sxy",), None),
+            "rxz": ({"rxz[1]": step * u["rxz[1]"]}, None, ("rxz_linear", "rxz"), None),
+            "warm": (warm, None, ("scale",), None),
+            "warm1": (warm, one, ("scale",), None),
+            "stylus": ({}, None, (f"stylus_{second}",), bent)}
 
 
 def compare_events(layout: str, step: float) -> dict:
@@ -108,7 +115,10 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=400, help="seeds per layout and event")
     ap.add_argument("--layouts", default=",".join(sc.LAYOUTS), help="layouts, comma-separated")
     ap.add_argument("--step", type=float, default=3.0, help="squareness and yaw steps in u")
-    ap.add_argument("--events", default="none,sxy,rxz,warm,warm1", help="events to run")
+    ap.add_argument("--events", default="none,sxy,rxz,warm,warm1,stylus",
+                    help="events to run")
+    ap.add_argument("--stylus-um", type=float, default=1.0,
+                    help="offset error of the bent stylus, µm along x")
     ap.add_argument("--compare", action="store_true",
                     help="between two calibrations (compare) instead of interim checks")
     args = ap.parse_args()
@@ -119,12 +129,14 @@ def main() -> None:
             run_compare(layout, args.seeds, args.step, args.events.split(","))
             continue
         cal, model = calibrated(layout)
-        for name, (changes, one, truth) in events(layout, args.step).items():
+        for name, (changes, one, truth, effects) in events(layout, args.step,
+                                                           args.stylus_um).items():
             if name not in args.events.split(","):
                 continue
             fails = named = right = 0
             for s in range(args.seeds):
-                new = remeasured(cal, 50_000 + s, changes=changes, probes_per_position=one)
+                new = remeasured(cal, 50_000 + s, changes=changes, probes_per_position=one,
+                                 effects=effects)
                 out = run_check(model, new.dataset, name_effects=False)
                 if out.check.passes:
                     continue
