@@ -179,3 +179,18 @@ def test_a_calibration_failing_its_own_chi2_test_is_inflated_and_said():
     # the change's u grows as the inflated calibration's variance does: u₁² + 1.7² u₂²
     assert row.u_change == pytest.approx(np.sqrt(u0 + 1.7**2 * bad.cov[j, j]), rel=1e-12)
     assert ref.u_change == pytest.approx(np.sqrt(u0 + bad.cov[j, j]), rel=1e-12)
+
+
+def test_stylus_offsets_are_compared_by_value_and_said():
+    models = _sample_history()
+    m, d = models[2]
+    probes = {**m.probes_mm, "B": np.asarray(m.probes_mm["B"], float) + [0.003, 0.0, -0.002]}
+    probes.pop("E")
+    models[2] = (replace(m, probes_mm=probes), d)
+    h = compare_calibrations(models)
+    assert h.styli[0]["changed"] == {} and h.styli[0]["only_in"] == []
+    second = h.styli[1]
+    assert list(second["changed"]) == ["B"] and second["only_in"] == ["E"]
+    assert np.allclose(second["changed"]["B"], [3.0, 0.0, -2.0], atol=1e-9)
+    assert "2024-03-04 → 2025-03-03: B by (+3.00, +0.00, -2.00) µm; E in one of the two " \
+        "only." in h.message

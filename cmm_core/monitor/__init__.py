@@ -61,6 +61,7 @@ from .history import (
     HISTORY_RULE,
     INFLATION_RULE,
     MAX_MAP_NODES_PER_AXIS,
+    STYLUS_TOLERANCE_UM,
     History,
     compare_calibrations,
 )
@@ -98,5 +99,5 @@ __all__ = ["CheckSystem", "check_sigma_um", "check_system", "GlsFit", "gls_fit",
            "ChangeExplanation", "Hypothesis", "Step", "explain_change", "hypotheses",
            "MAX_BLUNDERS", "Blunder", "find_blunders", "worst_observation",
            "explain_difference", "select_changes", "ChangeSystem", "change_system",
-           "projected", "STYLUS_U_MAX_UM", "CALIBRATION_CHI2_ALPHA", "INFLATION_RULE",
+           "projected", "STYLUS_U_MAX_UM", "STYLUS_TOLERANCE_UM", "CALIBRATION_CHI2_ALPHA", "INFLATION_RULE",
            "scale_temperatures"]

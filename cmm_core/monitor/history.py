@@ -53,6 +53,10 @@ INFLATION_RULE = ("a calibration whose own χ² test fails (p < 0.05) has its co
                   "compared (Birge 1932; its uncertainties as the misfit says they are)")
 """The inflation rule, as the message and the results document state it."""
 
+STYLUS_TOLERANCE_UM = 0.01
+"""A stylus offset that differs by more than this (µm, any axis) between two model files
+is listed as changed."""
+
 MAX_MAP_NODES_PER_AXIS = 21
 """Largest grid of the error-map change (21³ = 9261 nodes)."""
 
@@ -96,6 +100,11 @@ class History:
     inflated : dict
         Model name -> the factor its uncertainties were multiplied by (its Birge ratio)
         because its own χ² test failed (:data:`INFLATION_RULE`).
+    styli : list of dict
+        Per consecutive pair: ``date_from``, ``date_to``, ``changed`` (stylus -> its
+        offset's change, µm, x y z, where it is above :data:`STYLUS_TOLERANCE_UM`),
+        ``only_in`` (styli in one of the two): compared by value only, as the model
+        files give the offsets no uncertainty.
     """
 
     message: str
@@ -110,6 +119,7 @@ class History:
     coverage_factor: float = 2.0
     explanations: tuple = ()
     inflated: dict = field(default_factory=dict)
+    styli: list = field(default_factory=list)
 
     def results_section(self) -> dict:
         """The "history" section of the results document (``export.results_dict``): every
@@ -131,6 +141,7 @@ class History:
                                  zip(self.explanations, self.dates, self.dates[1:],
                                      strict=False)],
                 "inflated": dict(self.inflated), "inflation_rule": INFLATION_RULE,
+                "styli": list(self.styli),
                 "map_change_max_um": {a: json_num(np.abs(d[f"de{a}_um"]).max()) for a in "xyz"},
                 "map_change_u_max_um": {a: json_num(d[f"u_de{a}_um"].max()) for a in "xyz"}}
 
@@ -147,7 +158,7 @@ class History:
                                  for k, v in r.items()} for r in sig.to_dict("records")],
                 "only_in": {k: list(v) for k, v in self.only_in.items()},
                 "explanations": [e.to_dict() for e in self.explanations],
-                "inflated": dict(self.inflated),
+                "inflated": dict(self.inflated), "styli": list(self.styli),
                 "map_change_max_um": worst}
 
 
@@ -268,6 +279,10 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
            + ", ".join(f"{np.abs(grid[f'de{a}_um']).max():.2f} µm in {a}" for a in "xyz")
            + " from the first to the last (grid of "
            f"{nodes_per_axis}³ nodes, ram reference point).")
+    styli = [_stylus_changes(m1, m2, d1, d2)
+             for (m1, _), (m2, _), d1, d2 in zip(items, items[1:], dates, dates[1:],
+                                                  strict=False)]
+    msg += " " + _stylus_text(styli)
     if only_in:
         msg += " Not compared (in one model only): " + "; ".join(
             f"{k}: {', '.join(v)}" for k, v in only_in.items()) + "."
@@ -275,7 +290,34 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
         msg += (" Not compared (held fixed, no uncertainty in either calibration): "
                 + ", ".join(held) + ".")
     return History(msg, [m.name for m in models], dates, changes, trend, significant,
-                   only_in, float(family_alpha), grid, cf, explanations, inflated)
+                   only_in, float(family_alpha), grid, cf, explanations, inflated, styli)
+
+
+def _stylus_changes(m1: Model, m2: Model, d1: str, d2: str) -> dict:
+    """The styli's offsets of two models compared by value (µm)."""
+    shared = [q for q in m1.probes_mm if q in m2.probes_mm]
+    changed = {}
+    for q in shared:
+        dv = (np.asarray(m2.probes_mm[q], float) - np.asarray(m1.probes_mm[q], float)) * 1e3
+        if np.abs(dv).max() > STYLUS_TOLERANCE_UM:
+            changed[q] = [float(v) for v in dv]
+    only = sorted(set(m1.probes_mm) ^ set(m2.probes_mm))
+    return {"date_from": d1, "date_to": d2, "changed": changed, "only_in": only}
+
+
+def _stylus_text(styli: list) -> str:
+    """What the styli's offsets did, said once for all pairs."""
+    parts = []
+    for s in styli:
+        bits = [f"{q} by ({', '.join(f'{v:+.2f}' for v in dv)}) µm"
+                for q, dv in s["changed"].items()]
+        if s["only_in"]:
+            bits.append(f"{', '.join(s['only_in'])} in one of the two only")
+        if bits:
+            parts.append(f"{s['date_from']} → {s['date_to']}: " + "; ".join(bits))
+    head = ("Stylus offsets (compared by value: the model files give them no "
+            "uncertainty): ")
+    return head + (". ".join(parts) + "." if parts else "the same in every calibration.")
 
 
 def _lead(e: ChangeExplanation) -> str:
