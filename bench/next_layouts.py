@@ -23,13 +23,17 @@ each, and for each case and seed:
 4. every ranked proposal is checked against the machine: the scale reading (tip minus
    stylus offset) of every ball of the plate with every stylus of every new placement,
    computed here from the setup's geometry (independently of the core), and of every
-   reading a repeat measures again, inside the strokes ``[0, range_mm]``; the core's own
-   ``out_of_reach`` must say "" too.
+   reading a repeat measures again, against the strokes ``[0, range_mm]`` and against
+   the strokes widened to the readings the data already made (the core's rule,
+   ``proposals.reached_range``: what the machine measured, it can measure again); the
+   core's own ``out_of_reach`` must say "" too. A proposal beyond the widened strokes is
+   out of the machine's reach (must be none); one outside the strokes but within what
+   the data measured is counted apart.
 
 Printed per layout and pair: the share of seeds whose top proposal has a predicted power
 ≥ 80 % and, among those, the observed separation rate (target ≥ 90 %); the mean predicted
 power against the separation rate over all seeds (target: within ±10 points); the count
-of proposals outside the reach (must be 0); binomial standard errors throughout. Then the
+of proposals out of the reach (must be 0) and of those outside the strokes only; binomial standard errors throughout. Then the
 same pooled over layouts.
 
 Run: ``.venv/bin/python bench/next_layouts.py [--seeds N] [--layouts WORDS]
@@ -55,7 +59,7 @@ from scenarios import layout_config  # noqa: E402
 from cmm_core.io import read_setup  # noqa: E402
 from cmm_core.model import simulate  # noqa: E402
 from cmm_core.plan import append_measurement, fit_rivals, propose  # noqa: E402
-from cmm_core.plan.proposals import out_of_reach, plate_grid  # noqa: E402
+from cmm_core.plan.proposals import out_of_reach, plate_grid, reached_range  # noqa: E402
 
 BASE = "kinematic21,-sxy"
 POWER_BAR = 0.8
@@ -163,22 +167,30 @@ def scale_readings(data, cand) -> np.ndarray:
     return np.vstack(out) if out else np.zeros((0, 3))
 
 
-def outside(data, cand) -> str:
-    """Why the candidate leaves the strokes ``[0, range_mm]`` (both checks), or ""."""
+def outside(data, cand) -> tuple[str, str]:
+    """Why the candidate leaves the strokes ``[0, range_mm]`` (first), and why it leaves
+    the strokes widened to the readings the data already made (second: the core's rule,
+    ``reached_range``; or the core's own ``out_of_reach`` reason), each "" when it does
+    not."""
     if cand.instrument:
-        return ""  # not searched here (``propose``'s default candidates)
+        return "", ""  # not searched here (``propose``'s default candidates)
     rng = np.asarray(data.setup.range_mm, float)
+    lo, hi = reached_range(data)
     x = scale_readings(data, cand)
-    bad = (x < -1e-9) | (x > rng + 1e-9)
-    if bad.any():
-        i, a = np.argwhere(bad)[0]
-        return f"scale reading {x[i, a]:.1f} mm of axis {'xyz'[a]}"
-    return out_of_reach(data, cand)
+    why = []
+    for low, high in ((np.zeros(3), rng), (lo, hi)):
+        bad = (x < low - 1e-9) | (x > high + 1e-9)
+        if bad.any():
+            i, a = np.argwhere(bad)[0]
+            why.append(f"scale reading {x[i, a]:.1f} mm of axis {'xyz'[a]}")
+        else:
+            why.append("")
+    return why[0], why[1] or out_of_reach(data, cand)
 
 
 def run(layout: str, pair: str, seeds: int) -> list:
-    """One row per seed: (predicted power, separated, proposals out of reach, top name,
-    proposals checked, seconds)."""
+    """One row per seed: (predicted power, separated, proposals beyond what the machine
+    reaches, top name, proposals checked, seconds, proposals outside the strokes)."""
     extra, base, truth, rival = PAIRS[pair]
     rows = []
     for seed in range(seeds):
@@ -187,17 +199,20 @@ def run(layout: str, pair: str, seeds: int) -> list:
         data = sim.dataset
         pr = propose(data, (truth, rival), baseline=base)
         top = pr.ranked[0]
-        far = [(p.candidate.name, why) for p in pr.ranked
-               if (why := outside(data, p.candidate))]
+        why = {p.candidate.name: outside(data, p.candidate) for p in pr.ranked}
+        strokes = [(n, w[0]) for n, w in why.items() if w[0]]
+        far = [(n, w[1]) for n, w in why.items() if w[1]]
         aug = append_measurement(data, top.candidate, config=true_machine(sim, top.candidate),
                                  seed=5000 + seed)
         rf = fit_rivals(data, pr.rivals, baseline=base)
         sep = nested_rejects(aug, rf, truth, rival)
         dt = time.perf_counter() - t0
-        rows.append((top.power[truth], sep, len(far), top.candidate.name, len(pr.ranked), dt))
+        rows.append((top.power[truth], sep, len(far), top.candidate.name, len(pr.ranked), dt,
+                     len(strokes)))
         print(f"  seed {seed}: top {top.candidate.name} (predicted {top.power[truth]:.2f}), "
               f"separated {sep}, {len(pr.ranked)} proposals, {len(pr.infeasible)} skipped, "
-              f"out of reach {far or 0}, {dt:.1f} s", flush=True)
+              f"beyond the reach {far or 0}, outside the strokes {strokes or 0}, {dt:.1f} s",
+              flush=True)
     return rows
 
 
@@ -224,8 +239,9 @@ def summary(label: str, rows: list) -> str:
             f"{_share(hi)} ({int(hi.sum())}), separated among them {_share(sep[hi])} "
             f"(predicted {100 * pred[hi].mean() if hi.any() else float('nan'):.1f} %); "
             f"predicted {100 * pred.mean():.1f} % vs separated {_share(sep)} "
-            f"(observed minus predicted {diff:+.1f} points, ± {se:.1f}); out of reach "
-            f"{sum(r[2] for r in rows)} of {sum(r[4] for r in rows)} proposals; "
+            f"(observed minus predicted {diff:+.1f} points, ± {se:.1f}); of "
+            f"{sum(r[4] for r in rows)} proposals {sum(r[2] for r in rows)} beyond the "
+            f"reach, {sum(r[6] for r in rows)} outside the strokes; "
             f"tops {tops}; {np.mean([r[5] for r in rows]):.1f} s a seed")
 
 
