@@ -33,7 +33,9 @@ each, and for each case and seed:
 Printed per layout and pair: the share of seeds whose top proposal has a predicted power
 ≥ 80 % and, among those, the observed separation rate (target ≥ 90 %); the mean predicted
 power against the separation rate over all seeds (target: within ±10 points); the count
-of proposals out of the reach (must be 0) and of those outside the strokes only; binomial standard errors throughout. Then the
+of proposals out of the reach (must be 0) and of those outside the strokes only; the
+prediction against the separation apart for the seeds whose top proposal's
+noise-corrected Δχ² is 0 (the current data fit the truth's size within its noise); binomial standard errors throughout. Then the
 same pooled over layouts.
 
 Run: ``.venv/bin/python bench/next_layouts.py [--seeds N] [--layouts WORDS]
@@ -190,7 +192,8 @@ def outside(data, cand) -> tuple[str, str]:
 
 def run(layout: str, pair: str, seeds: int) -> list:
     """One row per seed: (predicted power, separated, proposals beyond what the machine
-    reaches, top name, proposals checked, seconds, proposals outside the strokes)."""
+    reaches, top name, proposals checked, seconds, proposals outside the strokes, the top
+    proposal's noise-corrected Δχ² with the truth true)."""
     extra, base, truth, rival = PAIRS[pair]
     rows = []
     for seed in range(seeds):
@@ -208,8 +211,9 @@ def run(layout: str, pair: str, seeds: int) -> list:
         sep = nested_rejects(aug, rf, truth, rival)
         dt = time.perf_counter() - t0
         rows.append((top.power[truth], sep, len(far), top.candidate.name, len(pr.ranked), dt,
-                     len(strokes)))
-        print(f"  seed {seed}: top {top.candidate.name} (predicted {top.power[truth]:.2f}), "
+                     len(strokes), top.delta_chi2[truth]))
+        print(f"  seed {seed}: top {top.candidate.name} (predicted {top.power[truth]:.2f}, "
+              f"Δχ² {top.delta_chi2[truth]:.1f}), "
               f"separated {sep}, {len(pr.ranked)} proposals, {len(pr.infeasible)} skipped, "
               f"beyond the reach {far or 0}, outside the strokes {strokes or 0}, {dt:.1f} s",
               flush=True)
@@ -245,6 +249,20 @@ def summary(label: str, rows: list) -> str:
             f"tops {tops}; {np.mean([r[5] for r in rows]):.1f} s a seed")
 
 
+def by_size(label: str, rows: list) -> str:
+    """Predicted against separated, apart for the seeds whose top proposal's
+    noise-corrected Δχ² is 0 (the current data fit the truth's size within its noise: the
+    expected power then rests on the size's uncertainty alone) and the others."""
+    out = []
+    for name, keep in (("Δχ² = 0", lambda r: r[7] <= 0.0), ("Δχ² > 0", lambda r: r[7] > 0.0)):
+        part = [r for r in rows if keep(r)]
+        if part:
+            out.append(f"{name}: {len(part)} seeds, predicted "
+                       f"{100 * np.mean([r[0] for r in part]):.1f} % vs separated "
+                       f"{_share([r[1] for r in part])}")
+    return f"{label}: " + "; ".join(out)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5, help="seeds per layout and pair")
@@ -267,14 +285,17 @@ def main():
             print(f"\n{name}, {pair} ({args.seeds} seeds)", flush=True)
             rows = run(name, pair, args.seeds)
             by_layout.setdefault(name, []).extend(rows)
-            lines.append(summary(f"{name}, {pair}", rows))
-            print(lines[-1], flush=True)
+            lines += [summary(f"{name}, {pair}", rows), by_size(f"  {name}, {pair}", rows)]
+            print(lines[-2], lines[-1], sep="\n", flush=True)
     print("\nSummary")
     for ln in lines:
         print(ln)
     for name, rows in by_layout.items():
         print(summary(f"{name}, all pairs", rows))
-    print(summary("all layouts and pairs", [r for rows in by_layout.values() for r in rows]))
+        print(by_size(f"  {name}, all pairs", rows))
+    every = [r for rows in by_layout.values() for r in rows]
+    print(summary("all layouts and pairs", every))
+    print(by_size("  all layouts and pairs", every))
 
 
 if __name__ == "__main__":
