@@ -128,12 +128,16 @@ def measure_next(ds, fkey: cached.FitKey, cands: list, holdout: list | None = No
     pr = calls.safe(cached_proposals, fkey, pair, ds, bool(tools), what="Measure next")
     if pr is None:
         return
+    if not pr.decided:
+        # the conclusion before the proposals: listed first, the best of them would read
+        # as a recommendation; the core's message says none decides and which wider
+        # family (instrument runs, ...) was not searched and might
+        st.warning(pr.message)
+        if not pr.ranked:
+            return
     now = min(pr.current.values())
     st.markdown(f"The current data decide {_rivals_words([f'**{r}**' for r in pair])} "
                 f"with {100 * now:.0f} % power (target {100 * pr.target:.0f} %).")
-    if not pr.ranked:
-        st.warning(pr.message)
-        return
     for i, p in enumerate(pr.ranked[:NEXT_TOP]):
         name = p.candidate.name
         with st.container(border=True):

@@ -214,3 +214,93 @@ def test_a_repeat_proposal_handed_to_the_plan_page_is_a_plan_with_the_repeat():
     assert list(table["strategy"]) == [now.name, more.name]
     assert table["probings"].iloc[1] > table["probings"].iloc[0]
     assert table["time (min)"].iloc[1] > table["time (min)"].iloc[0]
+
+
+def _next_open(files: A.DataSources) -> AppTest:
+    """The app on ``files`` with the baseline without squareness, the Diagnose page's
+    diagnosis run and "Measure next" open (whatever the verdict)."""
+    at = AppTest.from_file(APP, default_timeout=TIMEOUT)
+    at.session_state["sources"] = files
+    at.session_state["ds_key"] = A.sources_key(files)
+    at.session_state["spec"] = BASE
+    at.run()
+    at.switch_page("pages/diagnose.py")
+    at.run()
+    at.button(key="run_diagnosis").click()
+    at.run()
+    _ok(at)
+    at.session_state["w_diag_next"] = True
+    at.run()
+    _ok(at)
+    return at
+
+
+def _next_texts(at) -> list:
+    """The texts of "Measure next" in page order (markdown and alerts, no captions):
+    ``(kind, text)``, from the element tree of its expander."""
+    box = next(e for e in at.expander if e.label.startswith("Measure next"))
+    out = []
+
+    def walk(node):
+        for child in getattr(node, "children", {}).values():
+            kind = getattr(child, "type", "")
+            if kind in ("markdown", "warning", "success", "info", "error"):
+                out.append((kind, child.value))
+            walk(child)
+
+    walk(box)
+    return out
+
+
+def _weak(seed: int, size_urad: float) -> A.DataSources:
+    """The 80 mm layout with ``rxz:4`` of ``size_urad`` hidden, as the Data page's
+    simulator loads it."""
+    sim = simulated("pitch80_3pos", seed, noise_um=0.5,
+                    kinematic={"spec": "kinematic21,rxz:4",
+                               "coefficients": {"rxz[4]": size_urad}})
+    return A.simulated_sources(sim.dataset, f"rxz:4 = {size_urad:g} µrad hidden, seed {seed}")
+
+
+def test_when_nothing_decides_the_page_says_so_before_the_proposals():
+    """A weak yaw (1 µrad, seed 4): the diagnosis names nothing but leaves sxy and rxz:4
+    open; no default candidate reaches 80 % power (the best about 70 %). The section's
+    first text is the core's conclusion, "No candidate decides between ...", with the
+    instrument runs named as not searched; no outcome reads "decided with"."""
+    at = _next_open(_weak(4, 1.0))
+    assert set(at.selectbox(key="w_next_pair").value) == set(RIVALS)
+    texts = _next_texts(at)
+    kind, first = texts[0]
+    assert kind == "warning" and first.startswith("No candidate decides between "), texts
+    assert "Best next measurement" not in first
+    assert "Not searched, and might decide: instrument runs" in first
+    outcomes = [t for k, t in texts if t.startswith("**1.** ")]
+    assert len(outcomes) == 1 and "too little to decide" in outcomes[0], outcomes
+    assert not any("decided with" in t for _, t in texts)
+    # the proposals are still listed beneath it, each with its buttons
+    assert len([b for b in at.button if b.key and b.key.startswith("next_sim_")]) == 3
+
+
+def test_an_instrument_run_decides_when_instruments_are_included():
+    """A yaw of 1.5 µrad (seed 7): the diagnosis names sxy with rxz:4 as its alias. With
+    "Also instrument runs" a step gauge along X (its offset in Y an Abbe arm for rxz)
+    comes first and decides the pair by itself, in less machine time than the plate
+    moved; no "nothing decides" warning; it cannot be a plan file, and simulated on each
+    rival's machine it separates them."""
+    at = _next_open(_weak(7, 1.5))
+    assert set(at.selectbox(key="w_next_pair").value) == set(RIVALS)
+    assert not any(b.key.startswith("next_sim_step_gauge") for b in at.button if b.key)
+    at.checkbox(key="w_next_instruments").check()
+    at.run()
+    _ok(at)
+    texts = _next_texts(at)
+    assert not any(t.startswith("No candidate decides") for _, t in texts), texts
+    name = _top_name(at)
+    assert name == "step_gauge_x", [b.key for b in at.button if b.key]
+    first = next(t for _, t in texts if t.startswith("**1.** "))
+    assert "step gauge" in first and "decided with" in first, first
+    assert at.button(key=f"next_plan_{name}").disabled
+    at.button(key=f"next_sim_{name}").click()
+    at.run()
+    _ok(at)
+    said = next(m.value for m in at.markdown if m.value.startswith("Simulated (seed 0):"))
+    assert said.count("**separated**") == 2, said
