@@ -19,6 +19,7 @@ from cmm_core.plan import (
     restrict,
     simulate_outcomes,
 )
+from cmm_core.units import p_text
 from pages.ui import cached, calls, state, widgets
 
 # proposals shown with their buttons (the rest in the table below them); a comment: a
@@ -342,7 +343,7 @@ if s["diag_on"]:
                 h1, h2 = st.columns([5, 1])
                 h1.markdown(f"**{i + 1}. {c_['title']}** (`{c_['effect']}`): RMS "
                             f"{c_['rms_um']:.3f} µm, χ²/dof {c_['chi2_dof']:.2f}, ΔBIC "
-                            f"{c_['delta_bic']:.1f}, p = {c_['p_value']:.2g}"
+                            f"{c_['delta_bic']:.1f}, {p_text(c_['p_value'])}"
                             + (" — significant" if c_["significant"] else ""))
                 # an effect the data cannot determine on top of this model adds only
                 # undetermined parameters: nothing to add
