@@ -75,7 +75,9 @@ def test_msl_snapshots_load_on_their_tab_and_fit(tmp_path):
     at.session_state["data_tab"] = "Other tools (MSL)"  # drawn only while open (issue 27)
     at.run()
     at.file_uploader(key="msl_snapshots").set_value(_files([s for s, _m in pairs]))
-    at.file_uploader(key="msl_metadata").set_value(_files([m for _s, m in pairs]))
+    # in the reverse order: each metadata file is paired with the snapshot whose header it
+    # repeats, as the command line pairs them (issue 42)
+    at.file_uploader(key="msl_metadata").set_value(_files([m for _s, m in pairs][::-1]))
     at.button(key="load_msl").click()
     at.run()
     # the kind is not guessed: nothing loads until the user says what the files hold

@@ -20,13 +20,23 @@ KINDS = {"simulated": "Simulated (nominal + deviation; the certificate is exact)
 
 
 def _read(snapshots, metadata, kind, certificate_u):
-    """The combined dataset files of the snapshots (paired with metadata by order)."""
-    metas = list(metadata) + [None] * (len(snapshots) - len(metadata))
+    """The combined dataset files of the snapshots, each paired with the metadata file
+    whose header it repeats (``io.msl_header``), in any order, as the command line
+    pairs them."""
+    by_header = {}
+    for m in metadata:
+        by_header.setdefault(cio.msl_header(m.getvalue(), m.name), m)
+    pairs = [(s, by_header.get(cio.msl_header(s.getvalue(), s.name))) for s in snapshots]
+    unpaired = [m.name for m in metadata if all(m is not p for _, p in pairs)]
+    if unpaired:
+        raise cio.DataError("no snapshot has the header of this metadata file (its name, "
+                            "artefact, location and rotation); expected the metadata.csv "
+                            "saved with one of the snapshots.", file=unpaired[0])
     plates = [cio.read_msl_plate(s.getvalue(), None if m is None else m.getvalue(),
                                  kind=kind, certificate_u=certificate_u,
                                  snapshot_name=s.name,
                                  metadata_name=None if m is None else m.name)
-              for s, m in zip(snapshots, metas, strict=True)]
+              for s, m in pairs]
     return cio.combine_plates(plates)
 
 
@@ -39,8 +49,11 @@ def msl_section() -> None:
     c1, c2 = st.columns(2)
     snaps = c1.file_uploader("Snapshot file(s)", type=["csv"], accept_multiple_files=True,
                              key="msl_snapshots", help="One plate placement each.")
-    metas = c2.file_uploader("Metadata file(s), in the same order", type=["csv"],
-                             accept_multiple_files=True, key="msl_metadata")
+    metas = c2.file_uploader("Metadata file(s)", type=["csv"], accept_multiple_files=True,
+                             key="msl_metadata",
+                             help="The metadata.csv saved with each snapshot, in any "
+                                  "order: each is paired with the snapshot whose header "
+                                  "it repeats.")
     kind = st.radio("What the files hold (they do not say)", list(KINDS),
                     format_func=KINDS.get, index=None, key="msl_kind", horizontal=True)
     cu = None
@@ -63,10 +76,6 @@ def msl_section() -> None:
     if kind is None:
         st.error("Say what the files hold (simulated or measured): the files do not say, "
                  "and the sign of their deviations depends on it.")
-        return
-    if len(metas) > len(snaps):
-        st.error(f"{len(metas)} metadata files for {len(snaps)} snapshot(s): give one per "
-                 "snapshot, in the same order.")
         return
     try:
         fd = _read(snaps, metas, kind, cu)
