@@ -7,11 +7,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import scenarios as sc
 from conftest import ROOT
 from scipy import stats
 from test_monitor import LAYOUTS, calibrated
 
-from cmm_core.export import load_model, model_from_result
+from cmm_core.export import load_model, model_from_dict, model_from_result, model_to_dict
 from cmm_core.io import DataError
 from cmm_core.model import fit
 from cmm_core.monitor import compare_calibrations, holm, remeasured
@@ -194,3 +195,61 @@ def test_stylus_offsets_are_compared_by_value_and_said():
     assert np.allclose(second["changed"]["B"], [3.0, 0.0, -2.0], atol=1e-9)
     assert "2024-03-04 → 2025-03-03: B by (+3.00, +0.00, -2.00) µm; E in one of the two " \
         "only." in h.message
+
+
+@pytest.fixture(scope="module")
+def one_plate():
+    """A calibration (certificate u 0.5 µm, comparable to σ) and the same machine
+    recalibrated on the same plate and certificate, unchanged."""
+    cal = sc.simulated("pitch100_4pos", 301, plate={"certificate_u_um": 0.5})
+    m1 = model_from_result(fit(cal.dataset, "kinematic21", plate="fixed"))
+    again = remeasured(cal, 9001, same_plate=True)
+    m2 = model_from_result(fit(again.dataset, "kinematic21", plate="fixed"))
+    return cal, m1, m2
+
+
+def test_the_certificate_sensitivity_is_the_certificate_part_of_the_covariance(one_plate):
+    """``S Sᵀ`` is what the certificate adds to the σ-only covariance (the fit's
+    sandwich, certificate_prior), to rounding; it survives the model file."""
+    cal, m1, _ = one_plate
+    r = fit(cal.dataset, "kinematic21", plate="fixed")
+    s = r.problem.layout.blocks["kinematic"]
+    S = m1.certificate["sensitivity"]
+    part = r.covariance[s, s] - r.covariance_noise[s, s]
+    np.testing.assert_allclose(S @ S.T, part, rtol=1e-9, atol=1e-12 * np.abs(part).max())
+    back = model_from_dict(model_to_dict(m1))
+    assert back.certificate["digest"] == m1.certificate["digest"]
+    np.testing.assert_array_equal(back.certificate["sensitivity"], S)
+
+
+def test_one_certificate_is_counted_in_the_difference(one_plate):
+    """Both calibrations carry the same certificate's digest: the difference's variance
+    is V₁ + V₂ less the shared part (smaller for sxy, whose certificate part is a large
+    share here), and the message says so; without the sensitivities the calibrations are
+    treated as independent."""
+    _, m1, m2 = one_plate
+    assert m1.certificate["digest"] == m2.certificate["digest"]
+    h = compare_calibrations([(m1, "2024-01-01"), (m2, "2025-01-01")])
+    assert h.same_certificate == ["2024-01-01 → 2025-01-01"]
+    assert "Made with one plate certificate" in h.message
+    plain = compare_calibrations([(replace(m1, certificate=None), "2024-01-01"),
+                                  (replace(m2, certificate=None), "2025-01-01")])
+    assert plain.same_certificate == []
+    u = h.changes.set_index("label").loc["sxy", "u_change"]
+    u_ind = plain.changes.set_index("label").loc["sxy", "u_change"]
+    S = m1.certificate["sensitivity"]
+    j = m1.terms.labels.index("sxy")
+    assert S[j] @ S[j] > 0.3 * m1.cov[j, j]  # the case: the certificate matters
+    assert u < 0.9 * u_ind
+
+
+@pytest.mark.parametrize("field, value, words", [
+    ("digest", "xyz", "SHA-256"), ("balls", [1, 1], "distinct ball numbers"),
+    ("sensitivity", [[True]], "JSON numbers"), ("sensitivity", [[0.0]], "rows of")])
+def test_a_bad_certificate_block_is_refused_in_one_line(one_plate, field, value, words):
+    d = model_to_dict(one_plate[1])
+    d["certificate"][field] = value
+    with pytest.raises(DataError) as exc:
+        model_from_dict(d, name="m.json")
+    assert words in str(exc.value) and "m.json" in str(exc.value)
+    assert "\n" not in str(exc.value)

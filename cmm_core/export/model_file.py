@@ -12,6 +12,7 @@ not positive semi-definite, magnitudes that are not µm and mm. The correction i
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from collections.abc import Iterable
@@ -84,6 +85,13 @@ class Model:
     source : InputFile or None
         The model file itself with its SHA-256, when read from one: the input of every
         record made from this model.
+    certificate : dict or None
+        With the plate fixed to its certificate: ``digest`` (SHA-256 of the certificate's
+        ball numbers, coordinates and uncertainties as the fit used them), ``balls`` and
+        ``sensitivity`` (``S``, kinematic coefficients × 3 per ball: their change per
+        standard uncertainty of each certificate coordinate; the certificate's part of
+        ``cov`` is ``S Sᵀ``): what lets two calibrations made with one certificate be
+        compared with their shared errors counted (``monitor.compare_calibrations``).
     """
 
     spec: str
@@ -97,6 +105,7 @@ class Model:
     name: str = "model"
     provenance: Provenance | None = None
     source: InputFile | None = None
+    certificate: dict | None = None
 
     def derived_provenance(self, inputs: Iterable[InputFile] = (),
                            **extra: Any) -> Provenance:
@@ -157,7 +166,28 @@ def model_from_result(result: FitResult) -> Model:
                   "plate": result.plate, "sigma_um": result.sigma_um,
                   "certificate_u_source": result.certificate_u_source,
                   "region_mm": _region_mm(obs)},
-                 parts)
+                 parts, certificate=_certificate_share(result))
+
+
+def _certificate_share(result: FitResult) -> dict | None:
+    """The model's ``certificate`` (:class:`Model`) from a fit with the certificate fixed."""
+    S = result.certificate_sensitivity
+    obs = result.problem.obs
+    if S is None or obs.cert_u_um is None:
+        return None
+    s = result.problem.layout.blocks["kinematic"]
+    return {"digest": certificate_digest(obs.balls, obs.plate0_mm, obs.cert_u_um),
+            "balls": [int(b) for b in obs.balls], "sensitivity": np.asarray(S[s], float)}
+
+
+def certificate_digest(balls, xyz_mm, u_um) -> str:
+    """SHA-256 of a certificate as a fit uses it: the ball numbers, the coordinates to
+    1 nm and the uncertainties to 1 pm, so that a certificate re-read from its file (or
+    written with other line ends) has the same digest, and any other certificate not."""
+    rows = [f"{int(b)}:{x:.6f},{y:.6f},{z:.6f}:{ux:.6f},{uy:.6f},{uz:.6f}"
+            for b, (x, y, z), (ux, uy, uz) in zip(balls, np.asarray(xyz_mm, float),
+                                                  np.asarray(u_um, float), strict=True)]
+    return hashlib.sha256("\n".join(rows).encode()).hexdigest()
 
 
 def _region_mm(obs) -> list:
@@ -190,13 +220,17 @@ def model_to_dict(model: Model | FitResult, provenance: Provenance | None = None
             # releases before them)
             **{k: v for b in COMPENSATING if b.token in m.parts
                for k, v in b.part_to_file(m.parts[b.token]).items()},
+            **({} if m.certificate is None else {"certificate": {
+                "digest": m.certificate["digest"], "balls": list(m.certificate["balls"]),
+                "sensitivity": np.asarray(m.certificate["sensitivity"]).tolist()}}),
             "provenance": prov.to_dict()}
 
 
 MODEL_FORMAT = "cmm-error-lab model 1"
 _MODEL_REQUIRED = ("format", "spec", "orders", "range_mm", "periods", "labels", "coef",
                    "cov", "probes_mm", "undetermined", "summary")
-_MODEL_OPTIONAL = ("layout", "provenance", *(k for b in COMPENSATING for k in b.model_keys))
+_MODEL_OPTIONAL = ("layout", "provenance", "certificate",
+                   *(k for b in COMPENSATING for k in b.model_keys))
 
 
 _checked_cov = checked_cov  # the name this module used before the blocks shared it
@@ -228,8 +262,40 @@ def model_from_dict(d: dict, *, name: str = "model") -> Model:
         raise DataError("undetermined must be true or false.", file=name,
                         column="undetermined")
     prov = provenance_from_dict(d["provenance"], name) if "provenance" in d else None
+    cert = _checked_certificate(d.get("certificate"), terms.n, name)
     return Model(spec, terms, coef, cov, probes, bool(d.get("undetermined")), summary,
-                 parts, name, prov)
+                 parts, name, prov, certificate=cert)
+
+
+def _checked_certificate(c, n: int, name: str) -> dict | None:
+    """The file's ``certificate`` block, checked, or None when absent."""
+    if c is None:
+        return None
+    where = "certificate"
+    if not isinstance(c, dict) or set(c) != {"digest", "balls", "sensitivity"}:
+        raise DataError("expected an object with digest, balls and sensitivity.", file=name,
+                        column=where, hint="refit and save the model again (fit --save); "
+                                           "do not edit it.")
+    digest, balls, S = c["digest"], c["balls"], c["sensitivity"]
+    if not (isinstance(digest, str) and len(digest) == 64
+            and all(ch in "0123456789abcdef" for ch in digest)):
+        raise DataError(f"expected a SHA-256 in hex, found {cut_repr(digest)}.", file=name,
+                        column=where + ".digest")
+    if not (isinstance(balls, list) and balls and all(
+            isinstance(b, int) and not isinstance(b, bool) and b >= 1 for b in balls)
+            and len(set(balls)) == len(balls)):
+        raise DataError(f"expected distinct ball numbers, found {cut_repr(balls)}.",
+                        file=name, column=where + ".balls")
+    bad = not_a_json_number(S)
+    if bad:
+        raise DataError(f"expected JSON numbers, found sensitivity{bad}.", file=name,
+                        column=where + ".sensitivity")
+    arr = np.asarray(S, float)
+    if arr.shape != (n, 3 * len(balls)) or not np.isfinite(arr).all():
+        raise DataError(f"expected {n} rows of {3 * len(balls)} finite numbers (the "
+                        f"coefficients by the balls' coordinates), found shape "
+                        f"{arr.shape}.", file=name, column=where + ".sensitivity")
+    return {"digest": digest, "balls": list(balls), "sensitivity": arr}
 
 
 def _model_parts(d, spec, n_kin, name):

@@ -47,9 +47,12 @@ def _cert_u_um(prob: Problem) -> np.ndarray:
 def certificate_terms(prob: Problem, state: State, design_null: np.ndarray, sigma_um: float,
                       rank_rtol: float, cov: np.ndarray,
                       normal: tuple[float, np.ndarray, np.ndarray, int] | None = None
-                      ) -> tuple[float, int, np.ndarray]:
-    """``(χ² test statistic, its dof, covariance)`` of a fit with the certificate fixed,
-    the covariance with the certificate's uncertainty propagated.
+                      ) -> tuple[float, int, np.ndarray, np.ndarray]:
+    """``(χ² test statistic, its dof, covariance, sensitivity)`` of a fit with the
+    certificate fixed, the covariance with the certificate's uncertainty propagated, and
+    the parameters' sensitivity to the certificate's errors in units of their standard
+    uncertainty (``S = C Jᵀ J_c diag(u)``, parameters × 3 per ball: the certificate's part
+    of the covariance is ``S Sᵀ``; two fits with one certificate share ``S₁ S₂ᵀ``).
 
     Parameters
     ----------
@@ -86,7 +89,8 @@ def certificate_terms(prob: Problem, state: State, design_null: np.ndarray, sigm
     G = N[np.ix_(rows, np.arange(plate.start, plate.stop))]
     u2 = np.nan_to_num(_cert_u_um(prob).ravel() ** 2, posinf=0.0)  # released: no value
     CG = cov @ G
-    return chi2, dof, cov + (CG * u2) @ CG.T
+    S = CG * np.sqrt(u2)
+    return chi2, dof, cov + S @ S.T, S
 
 
 def _prior_normal_equations(prob, pp, state, st, sigma_um, normal):

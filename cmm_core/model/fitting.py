@@ -226,7 +226,8 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
         bic=float(bic), rank=rank, rank_rtol=rank_rtol, unidentifiable=unident,
         null_combinations=combos, n_obs=prob.n_obs, problem=prob, state=state,
         design_null=C_run[n_gauge:], chi2_test=float(chi2_test), dof_test=int(dof_test),
-        covariance_noise=cov_noise)
+        covariance_noise=cov_noise,
+        certificate_sensitivity=None if cert is None else cert[3])
 
 
 def _plate_mode(obs, plate):

@@ -86,6 +86,10 @@ class FitResult:
         The part of ``covariance`` due to the probing noise alone, when the certificate's
         own uncertainty is propagated into it (certificate fixed, ``certificate_prior``);
         None: ``covariance`` is all noise.
+    certificate_sensitivity : ndarray or None
+        With the certificate fixed: each parameter's change per standard uncertainty of
+        each certificate coordinate (parameters × 3 per ball of ``problem.obs.balls``):
+        ``covariance - covariance_noise`` is ``S Sᵀ``; None otherwise.
     """
 
     status: str
@@ -118,6 +122,7 @@ class FitResult:
     chi2_test: float | None = None
     dof_test: int | None = None
     covariance_noise: np.ndarray | None = field(default=None, repr=False)
+    certificate_sensitivity: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def terms(self) -> KinematicTerms:

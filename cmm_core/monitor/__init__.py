@@ -51,10 +51,12 @@ from .explain import (
     Hypothesis,
     Step,
     change_system,
+    difference_covariance,
     explain_change,
     explain_difference,
     hypotheses,
     select_changes,
+    shares_certificate,
 )
 from .history import (
     CALIBRATION_CHI2_ALPHA,
@@ -99,5 +101,6 @@ __all__ = ["CheckSystem", "check_sigma_um", "check_system", "GlsFit", "gls_fit",
            "ChangeExplanation", "Hypothesis", "Step", "explain_change", "hypotheses",
            "MAX_BLUNDERS", "Blunder", "find_blunders", "worst_observation",
            "explain_difference", "select_changes", "ChangeSystem", "change_system",
-           "projected", "STYLUS_U_MAX_UM", "STYLUS_TOLERANCE_UM", "CALIBRATION_CHI2_ALPHA", "INFLATION_RULE",
+           "projected", "STYLUS_U_MAX_UM", "STYLUS_TOLERANCE_UM",
+           "difference_covariance", "shares_certificate", "CALIBRATION_CHI2_ALPHA", "INFLATION_RULE",
            "scale_temperatures"]

@@ -367,7 +367,7 @@ def explain_difference(m1: Model, m2: Model, *, alpha: float = 0.05,
     common = [lab for lab in m1.terms.labels if lab in set(m2.terms.labels)]
     i1 = [m1.terms.labels.index(lab) for lab in common]
     i2 = [m2.terms.labels.index(lab) for lab in common]
-    V = m1.cov[np.ix_(i1, i1)] + m2.cov[np.ix_(i2, i2)]
+    V, _ = difference_covariance(m1, m2, i1, i2)
     W = np.linalg.pinv((V + V.T) / 2, hermitian=True)
     delta = m2.coef[i2] - m1.coef[i1]
     pool = []
@@ -376,6 +376,28 @@ def explain_difference(m1: Model, m2: Model, *, alpha: float = 0.05,
         if np.any(cols):
             pool.append(Hypothesis(h.key, h.words, cols, h.units, h.names, h.function))
     return select_changes(W @ delta, W, V, pool, alpha=alpha, max_steps=max_steps)
+
+
+def shares_certificate(m1: Model, m2: Model) -> bool:
+    """Both calibrations were fitted with the plate fixed to one certificate (the same
+    digest and balls in their model files)."""
+    c1, c2 = m1.certificate, m2.certificate
+    return bool(c1 and c2 and c1["digest"] == c2["digest"] and c1["balls"] == c2["balls"])
+
+
+def difference_covariance(m1: Model, m2: Model, i1, i2) -> tuple[np.ndarray, bool]:
+    """``(cov(c₂ − c₁), shared)`` on the coefficients ``i1`` of ``m1`` and ``i2`` of
+    ``m2``: ``V₁ + V₂`` for independent calibrations (JCGM 100 eq. 13), less the
+    covariance their shared certificate errors give both, ``S₁ S₂ᵀ + S₂ S₁ᵀ``, when they
+    were made with one certificate (:func:`shares_certificate`; ``shared`` says so):
+    those errors move both calibrations alike and cancel in their difference."""
+    V = m1.cov[np.ix_(i1, i1)] + m2.cov[np.ix_(i2, i2)]
+    if not shares_certificate(m1, m2):
+        return V, False
+    assert m1.certificate is not None and m2.certificate is not None  # shares_certificate
+    C = (np.asarray(m1.certificate["sensitivity"])[i1]
+         @ np.asarray(m2.certificate["sensitivity"])[i2].T)
+    return V - C - C.T, True
 
 
 def select_changes(g: np.ndarray, H: np.ndarray, V: np.ndarray,

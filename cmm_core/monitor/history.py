@@ -31,7 +31,7 @@ from ..io import DataError
 from ..machine import kinematics as kin
 from ..units import UM
 from .changes import holm
-from .explain import ChangeExplanation, explain_difference
+from .explain import ChangeExplanation, difference_covariance, explain_difference
 from .identity import refuse_mixed_machines
 from .numbers import json_num
 
@@ -100,6 +100,9 @@ class History:
     inflated : dict
         Model name -> the factor its uncertainties were multiplied by (its Birge ratio)
         because its own χ² test failed (:data:`INFLATION_RULE`).
+    same_certificate : list of str
+        The pairs (``"date → date"``) made with one certificate, whose shared errors are
+        taken out of the difference's covariance (:func:`.explain.difference_covariance`).
     styli : list of dict
         Per consecutive pair: ``date_from``, ``date_to``, ``changed`` (stylus -> its
         offset's change, µm, x y z, where it is above :data:`STYLUS_TOLERANCE_UM`),
@@ -120,6 +123,7 @@ class History:
     explanations: tuple = ()
     inflated: dict = field(default_factory=dict)
     styli: list = field(default_factory=list)
+    same_certificate: list = field(default_factory=list)
 
     def results_section(self) -> dict:
         """The "history" section of the results document (``export.results_dict``): every
@@ -141,7 +145,7 @@ class History:
                                  zip(self.explanations, self.dates, self.dates[1:],
                                      strict=False)],
                 "inflated": dict(self.inflated), "inflation_rule": INFLATION_RULE,
-                "styli": list(self.styli),
+                "styli": list(self.styli), "same_certificate": list(self.same_certificate),
                 "map_change_max_um": {a: json_num(np.abs(d[f"de{a}_um"]).max()) for a in "xyz"},
                 "map_change_u_max_um": {a: json_num(d[f"u_de{a}_um"].max()) for a in "xyz"}}
 
@@ -159,6 +163,7 @@ class History:
                 "only_in": {k: list(v) for k, v in self.only_in.items()},
                 "explanations": [e.to_dict() for e in self.explanations],
                 "inflated": dict(self.inflated), "styli": list(self.styli),
+                "same_certificate": list(self.same_certificate),
                 "map_change_max_um": worst}
 
 
@@ -208,7 +213,10 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
         if isinstance(p, int | float) and isinstance(birge, int | float) and \
                 p < CALIBRATION_CHI2_ALPHA and birge > 1:
             inflated[m.name] = float(birge)
-            items[k] = (replace(m, cov=m.cov * float(birge) ** 2), d)
+            cert = None if m.certificate is None else {
+                **m.certificate, "sensitivity": np.asarray(m.certificate["sensitivity"])
+                * float(birge)}  # its part of the covariance inflated alike
+            items[k] = (replace(m, cov=m.cov * float(birge) ** 2, certificate=cert), d)
     models = [m for m, _ in items]
     dates = [d.isoformat() for _, d in items]
     label_sets = [set(m.terms.labels) for m in models]
@@ -217,13 +225,16 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
                for m in models}
     only_in = {k: v for k, v in only_in.items() if v}
     rows = []
+    same_certificate: list[str] = []  # pairs made with one certificate
     held: dict[str, list] = {}  # shared parameters with no uncertainty in either model
     for (m1, d1), (m2, d2) in zip(items, items[1:], strict=False):
         common = [lab for lab in m1.terms.labels if lab in set(m2.terms.labels)]
         i1 = [m1.terms.labels.index(lab) for lab in common]
         i2 = [m2.terms.labels.index(lab) for lab in common]
-        u = np.sqrt(np.clip(np.diag(m1.cov)[i1], 0, None)
-                    + np.clip(np.diag(m2.cov)[i2], 0, None))
+        Vd, shared = difference_covariance(m1, m2, i1, i2)
+        if shared:
+            same_certificate.append(f"{d1.isoformat()} → {d2.isoformat()}")
+        u = np.sqrt(np.clip(np.diag(Vd), 0, None))
         # a parameter both calibrations held fixed (u₁ = u₂ = 0) has no E_n (0/0 or
         # ±inf): not compared, and said so
         for lab in (c for c, ok in zip(common, u > 0, strict=True) if not ok):
@@ -283,6 +294,10 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
              for (m1, _), (m2, _), d1, d2 in zip(items, items[1:], dates, dates[1:],
                                                   strict=False)]
     msg += " " + _stylus_text(styli)
+    if same_certificate:
+        msg += (" Made with one plate certificate (the same in both model files): "
+                + ", ".join(same_certificate) + "; its errors move both calibrations "
+                "alike, and their difference is counted without them.")
     if only_in:
         msg += " Not compared (in one model only): " + "; ".join(
             f"{k}: {', '.join(v)}" for k, v in only_in.items()) + "."
@@ -290,7 +305,8 @@ def compare_calibrations(models_with_dates: Sequence[tuple[Model, str]], *, fami
         msg += (" Not compared (held fixed, no uncertainty in either calibration): "
                 + ", ".join(held) + ".")
     return History(msg, [m.name for m in models], dates, changes, trend, significant,
-                   only_in, float(family_alpha), grid, cf, explanations, inflated, styli)
+                   only_in, float(family_alpha), grid, cf, explanations, inflated, styli,
+                   same_certificate)
 
 
 def _stylus_changes(m1: Model, m2: Model, d1: str, d2: str) -> dict:

@@ -9,14 +9,18 @@ that changed, some coefficients moved (a squareness after a crash).
 from __future__ import annotations
 
 import copy
+import dataclasses
 
+import numpy as np
+
+from ..io import Dataset, resolve
 from ..machine import KinematicTerms
 from ..model import Simulation, parse_spec, simulate, thesis_machine_setup
 
 
 def remeasured(calibration: Simulation, seed: int, *, changes: dict | None = None,
                probes_per_position: dict | None = None,
-               effects: dict | None = None) -> Simulation:
+               effects: dict | None = None, same_plate: bool = False) -> Simulation:
     """The machine of ``calibration`` measured again with seed ``seed``.
 
     Parameters
@@ -33,6 +37,12 @@ def remeasured(calibration: Simulation, seed: int, *, changes: dict | None = Non
     effects : dict, optional
         Simulator effects of the new measurement (``simulate``'s ``effects``, e.g. a
         ``drift`` the stored model does not have); default the calibration's.
+    same_plate : bool
+        The same plate and certificate as the calibration's (a yearly recalibration with
+        the lab's own plate): the new readings are those of the calibration's true plate
+        (shifted by its form's difference from the new draw's, in each placement's
+        frame; the machine's error changes by well under a nanometre over such µm
+        shifts) and the certificate is the calibration's, so both share its errors.
 
     Returns
     -------
@@ -60,7 +70,26 @@ def remeasured(calibration: Simulation, seed: int, *, changes: dict | None = Non
         {p: q for p, q in cfg["probes_per_position"].items() if p in setup["positions"]}
     cfg["probes_per_position"] = copy.deepcopy(ppp)
     setup["positions"] = {p: setup["positions"][p] for p in ppp}
-    return simulate(cfg)
+    new = simulate(cfg)
+    return _on_the_plate_of(new, calibration) if same_plate else new
+
+
+def _on_the_plate_of(new: Simulation, calibration: Simulation) -> Simulation:
+    """``new`` measured on ``calibration``'s plate, with its certificate."""
+    data, cert = new.dataset, calibration.dataset.certificate
+    if cert is None:
+        raise ValueError("same_plate needs a calibration with a certificate.")
+    m = data.meas.copy()
+    shift = calibration.true_plate_mm - new.true_plate_mm  # (B, 3) plate frame, mm
+    index = {int(b): i for i, b in enumerate(cert.balls)}
+    for p, rows in m.groupby("position").groups.items():
+        R = data.setup.positions[p].rotation
+        d = shift[[index[int(b)] for b in m.loc[rows, "ball"]]] @ R.T
+        m.loc[rows, ["x_mm", "y_mm", "z_mm"]] += d
+    fresh = m.drop(columns=["mx_mm", "my_mm", "mz_mm"], errors="ignore")
+    meas = resolve(fresh, data.setup, cert)
+    return dataclasses.replace(new, dataset=Dataset(meas, data.setup, cert, data.name),
+                               true_plate_mm=np.array(calibration.true_plate_mm))
 
 
 def _kinematic_labels(sim: Simulation) -> set:
