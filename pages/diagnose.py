@@ -321,6 +321,10 @@ if s["diag_on"]:
         cols_shown = ["effect", "title", "rms_um", "chi2_dof", "delta_chi2", "n_params",
                       "delta_bic", "p_value", "significant", "confirmed", "aliases"]
         table = pd.DataFrame([{k: c_.get(k) for k in cols_shown} for c_ in cands])
+        # as the text says it (p < 1e-16, never 0): a number format shows an underflowed
+        # p as 0; ΔBIC beside it sorts the candidates by their evidence
+        table["p_value"] = [p_text(np.nan if p is None else p).removeprefix("p ")
+                            .removeprefix("= ") for p in table["p_value"]]
         widgets.dataframe(table, hide_index=True, key="diag_table",
                      column_config={"effect": "Effect", "title": "What it is",
                                     "n_params": st.column_config.NumberColumn("Parameters"),
@@ -334,8 +338,7 @@ if s["diag_on"]:
                                                                                format="%.1f"),
                                     "delta_chi2": st.column_config.NumberColumn(
                                         "Δχ²", format="%.1f"),
-                                    "p_value": st.column_config.NumberColumn("p",
-                                                                             format="%.2g")})
+                                    "p_value": st.column_config.TextColumn("p")})
         n_show = (st.slider("Candidates to show in detail", 1, min(10, len(cands)),
                             min(3, len(cands)), key="w_n_show") if len(cands) > 1 else 1)
         for i, c_ in enumerate(cands[:n_show]):
