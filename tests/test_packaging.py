@@ -12,6 +12,7 @@ import shutil
 import socket
 import subprocess
 import sys
+import time
 import zipfile
 from pathlib import Path
 
@@ -165,6 +166,12 @@ def test_cmm_error_lab_app_serves_the_first_page_from_the_installed_wheel(instal
             proc.wait(15)
         except subprocess.TimeoutExpired:
             proc.kill()
+    # the server runs in a child of the command: stopped with it (SIGTERM passed on),
+    # nothing listens on the port any more (servers of earlier runs outlived it)
+    deadline = time.monotonic() + 20
+    while any(c[1] == port for c in _listening()) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(c[1] == port for c in _listening())
 
 
 def _listening() -> list[tuple[str, int]]:

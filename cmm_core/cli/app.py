@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -68,6 +69,14 @@ def serve_app(args: argparse.Namespace) -> int:
     print(f"CMM error lab: starting on http://{args.host}:{args.port} (Ctrl+C stops it)",
           file=sys.stderr)
     proc = subprocess.Popen(cmd)
+
+    def stopped(signum, _frame):
+        raise SystemExit(128 + signum)  # unwinds to the finally below
+
+    # a service manager or a test stops this process with SIGTERM, which the server (a
+    # child, not in the terminal's process group then) would not get: it is passed on,
+    # so no server outlives the command
+    previous = signal.signal(signal.SIGTERM, stopped)
     try:
         return proc.wait()
     except KeyboardInterrupt:  # the server got the same interrupt: let it finish
@@ -76,3 +85,11 @@ def serve_app(args: argparse.Namespace) -> int:
         except subprocess.TimeoutExpired:
             proc.kill()
             return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
