@@ -416,15 +416,24 @@ def select_changes(g: np.ndarray, H: np.ndarray, V: np.ndarray,
     while pool and len(steps) < max_steps:
         base = [h.columns for h in chosen]
         trials = []
-        for h in pool:
+        for order, h in enumerate(pool):
             c2, r, _, _ = _explained(g, H, np.hstack([*base, h.columns]))
             d, q = c2 - have, r - have_rank
             if q > 0:
-                trials.append((float(stats.chi2.sf(max(d, 0.0), q)), q, -d, h, d))
+                trials.append((float(stats.chi2.sf(max(d, 0.0), q)), q, -d, h, d, order))
         if not trials:
             break
         trials.sort(key=lambda t: (t[0], t[1], t[2]))
-        p, q, _, best, gain = trials[0]
+        # hypotheses that explain the same to rounding (the thermal expansion of equally
+        # warm scales is the common scale): the one listed first, the physical cause,
+        # whatever the last digits say
+        top = trials[0]
+        tied = [t for t in trials if t[1] == top[1]
+                and abs(t[4] - top[4]) <= 1e-9 * max(1.0, abs(top[4]))]
+        first = min(tied, key=lambda t: t[5])
+        trials.remove(first)
+        trials.insert(0, first)
+        p, q, _, best, gain, _ = first
         if p * len(trials) > alpha:
             break
         X = np.hstack([*base, best.columns])
@@ -432,7 +441,7 @@ def select_changes(g: np.ndarray, H: np.ndarray, V: np.ndarray,
         k = best.columns.shape[1]
         est, u = theta[-k:], np.sqrt(np.clip(np.diag(cov)[-k:], 0, None))
         aliases = []
-        for _, _, _, h, d2 in trials[1:]:
+        for _, _, _, h, d2, _ in trials[1:]:
             if d2 < gain - ALIAS_CHI2 or h.function == best.function:
                 continue  # a nested form of the same function is not an alias
             after, r2, _, _ = _explained(g, H, np.hstack([X, h.columns]))
