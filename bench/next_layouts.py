@@ -56,19 +56,21 @@ sys.path.insert(0, str(ROOT / "bench"))
 sys.path.insert(0, str(ROOT / "tests"))
 
 from proposals import NOISE_UM, nested_rejects, true_machine  # noqa: E402
-from scenarios import layout_config  # noqa: E402
+from scenarios import (  # noqa: E402
+    arm_config,
+    gantry_config,
+    layout_on,
+    proposal_scale_readings,
+)
 
-from cmm_core.io import read_setup  # noqa: E402
 from cmm_core.model import simulate  # noqa: E402
 from cmm_core.plan import append_measurement, fit_rivals, propose  # noqa: E402
-from cmm_core.plan.proposals import out_of_reach, plate_grid, reached_range  # noqa: E402
+from cmm_core.plan.proposals import out_of_reach, reached_range  # noqa: E402
 
 BASE = "kinematic21,-sxy"
 POWER_BAR = 0.8
 """Predicted power from which a proposal is expected to separate (the issue's 80 %)."""
 
-_H = {"u_axis": [1, 0, 0], "v_axis": [0, 1, 0]}
-_XZ = {"u_axis": [1, 0, 0], "v_axis": [0, 0, 1]}
 
 
 def _hidden(size_urad: float) -> dict:
@@ -92,81 +94,15 @@ PAIRS = {
 cases; the layout's own keys are merged under them."""
 
 
-def _scenario(name: str, layout: str, seed: int, extra: dict) -> dict:
-    """A layout of ``tests/scenarios.py`` on the machine ``layout``."""
-    cfg = layout_config(name, **extra)
-    cfg["setup"] = {**cfg["setup"], "machine": {**cfg["setup"]["machine"],
-                                                "layout": layout}}
-    return {**cfg, "seed": seed, "noise_um": NOISE_UM}
-
-
-def _gantry(seed: int, extra: dict) -> dict:
-    """The gantry of ``tests/test_next_reach.py`` (``_gantry_config``): a 900 mm Z stroke,
-    plate B1 low on the table, so that the plate stood up near B1 is out of reach."""
-    return {"seed": seed, "noise_um": NOISE_UM, **extra,
-            "setup": {"units": "mm", "frame": "machine",
-                      "machine": {"layout": "gantry_fxyz", "range_mm": [1500, 1200, 900]},
-                      "positions": {"B1": {"origin_mm": [400, 300, 190], **_H, "probe": "T"},
-                                    "B2": {"origin_mm": [500, 350, 450], **_H, "probe": "T"},
-                                    "V": {"origin_mm": [400, 700, 150], **_XZ,
-                                          "probe": "S"}},
-                      "probes": {"T": [0, 0, -150], "S": [0, -80, -150]}},
-            "plate": {"rows": 5, "cols": 5, "pitch_mm": 150.0},
-            "probes_per_position": {"B1": ["T"], "B2": ["T", "S"], "V": ["S"]}}
-
-
-def _arm(seed: int, extra: dict) -> dict:
-    """The horizontal arm of ``tests/test_next_reach.py`` (``_arm_config``): column along
-    X, arm along Y, styli pointing sideways, one 155 mm along X."""
-    return {"seed": seed, "noise_um": NOISE_UM, **extra,
-            "setup": {"units": "mm", "frame": "machine",
-                      "machine": {"layout": "horizontal_arm_fxzy",
-                                  "range_mm": [1200, 800, 900]},
-                      "positions": {"A": {"origin_mm": [300, 200, 100], **_H, "probe": "X"},
-                                    "B": {"origin_mm": [350, 250, 500], **_H, "probe": "Y"},
-                                    "V": {"origin_mm": [300, 450, 150], **_XZ,
-                                          "probe": "Y"}},
-                      "probes": {"Y": [0, -150, 0], "X": [155, -60, 0]}},
-            "plate": {"rows": 4, "cols": 4, "pitch_mm": 120.0},
-            "probes_per_position": {"A": ["X", "Y"], "B": ["Y"], "V": ["Y", "X"]}}
-
-
 LAYOUTS = {
-    "moving bridge": lambda s, a: _scenario("pitch80_3pos", "moving_bridge_fxyz", s, a),
-    "fixed bridge": lambda s, a: _scenario("pitch150_5pos", "fixed_bridge_xfyz", s, a),
-    "gantry": _gantry,
-    "horizontal arm": _arm,
+    "moving bridge": lambda s, a: layout_on("pitch80_3pos", "moving_bridge_fxyz", s,
+                                            noise_um=NOISE_UM, **a),
+    "fixed bridge": lambda s, a: layout_on("pitch150_5pos", "fixed_bridge_xfyz", s,
+                                           noise_um=NOISE_UM, **a),
+    "gantry": lambda s, a: gantry_config(s, NOISE_UM, **a),
+    "horizontal arm": lambda s, a: arm_config(s, NOISE_UM, **a),
 }
 """Layout -> simulator configuration of (seed, the pair's simulator keys)."""
-
-
-def scale_readings(data, cand) -> np.ndarray:
-    """Every scale reading (tip minus stylus offset, mm, (n, 3)) the candidate asks for:
-    each ball of the certificate's grid with each stylus of each new placement, laid out
-    here from the placement's geometry; for a repeat, the readings of the data it
-    measures again (same placement, stylus and balls)."""
-    if cand.repeat:
-        m = data.meas
-        probes = data.setup.raw["probes"]
-        out = []
-        for p, r in cand.repeat.items():
-            at = ((m["position"] == p) & (m["probe"].astype(str) == str(r["probe"]))
-                  & m["ball"].isin(r["balls"])).to_numpy()
-            out.append(m.loc[at, ["mx_mm", "my_mm", "mz_mm"]].to_numpy(float)
-                       - np.asarray(probes[str(r["probe"])], float))
-        return np.vstack(out) if out else np.zeros((0, 3))
-    g = plate_grid(data)
-    probes = {**data.setup.raw["probes"], **cand.probes}
-    positions = {p: {k: v for k, v in pl.items() if k != "probe"}
-                 for p, pl in cand.positions.items()}
-    setup = read_setup({"units": "mm", "frame": "machine",
-                        "machine": data.setup.raw["machine"], "positions": positions,
-                        "probes": probes}, name="check")
-    b = np.arange(g.rows * g.cols)
-    plate = np.column_stack([b % g.cols, b // g.cols, 0 * b]) * g.pitch_mm + g.offset_mm
-    out = [setup.positions[p].to_machine(plate) - np.asarray(probes[q], float)
-           for p, styli in cand.probes_of.items() for q in styli]
-    return np.vstack(out) if out else np.zeros((0, 3))
 
 
 def outside(data, cand) -> tuple[str, str]:
@@ -178,7 +114,7 @@ def outside(data, cand) -> tuple[str, str]:
         return "", ""  # not searched here (``propose``'s default candidates)
     rng = np.asarray(data.setup.range_mm, float)
     lo, hi = reached_range(data)
-    x = scale_readings(data, cand)
+    x = proposal_scale_readings(data, cand)
     why = []
     for low, high in ((np.zeros(3), rng), (lo, hi)):
         bad = (x < low - 1e-9) | (x > high + 1e-9)

@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from cmm_core.io import Dataset, resolve
+from cmm_core.io import Dataset, read_setup, resolve
 from cmm_core.model import simulate
+from cmm_core.plan.proposals import plate_grid
 
 _H = {"u_axis": [1, 0, 0], "v_axis": [0, 1, 0]}
 _H90 = {"u_axis": [0, 1, 0], "v_axis": [-1, 0, 0]}
@@ -111,11 +112,79 @@ def simulated(name: str, seed: int, **extra):
     return simulate({**layout_config(name, **extra), "seed": seed})
 
 
-def layout_data(name: str, layout: str, seed: int, **extra):
-    """``simulate`` of one scenario on another machine layout (``gantry_fxyz`` ...)."""
+def layout_on(name: str, layout: str, seed: int, **extra) -> dict:
+    """Simulator configuration of one scenario on another machine layout
+    (``gantry_fxyz`` ...)."""
     cfg = {**layout_config(name, **extra), "seed": seed}
     cfg["setup"] = {**cfg["setup"], "machine": {**cfg["setup"]["machine"], "layout": layout}}
-    return simulate(cfg)
+    return cfg
+
+
+def layout_data(name: str, layout: str, seed: int, **extra):
+    """``simulate`` of one scenario on another machine layout (``gantry_fxyz`` ...)."""
+    return simulate(layout_on(name, layout, seed, **extra))
+
+
+def gantry_config(seed: int, noise_um: float = 0.5, **extra) -> dict:
+    """A gantry with a 900 mm Z stroke, plate B1 low on the table: stood in XZ near B1
+    its top ball is at z = 810 mm, the ram at 960 mm with the 150 mm stylus (within the
+    simulator's 100 mm of slack, out of the machine's reach)."""
+    return {"seed": int(seed), "noise_um": noise_um, **extra,
+            "setup": {"units": "mm", "frame": "machine",
+                      "machine": {"layout": "gantry_fxyz", "range_mm": [1500, 1200, 900]},
+                      "positions": {"B1": {"origin_mm": [400, 300, 190], **_H, "probe": "T"},
+                                    "B2": {"origin_mm": [500, 350, 450], **_H, "probe": "T"},
+                                    "V": {"origin_mm": [400, 700, 150], **_XZ,
+                                          "probe": "S"}},
+                      "probes": {"T": [0, 0, -150], "S": [0, -80, -150]}},
+            "plate": {"rows": 5, "cols": 5, "pitch_mm": 150.0},
+            "probes_per_position": {"B1": ["T"], "B2": ["T", "S"], "V": ["S"]}}
+
+
+def arm_config(seed: int, noise_um: float = 0.5, **extra) -> dict:
+    """A horizontal arm (column along X, arm along Y) with styli pointing sideways, one
+    155 mm along X (a step gauge laid out from the tip ran off the X stroke)."""
+    return {"seed": int(seed), "noise_um": noise_um, **extra,
+            "setup": {"units": "mm", "frame": "machine",
+                      "machine": {"layout": "horizontal_arm_fxzy",
+                                  "range_mm": [1200, 800, 900]},
+                      "positions": {"A": {"origin_mm": [300, 200, 100], **_H, "probe": "X"},
+                                    "B": {"origin_mm": [350, 250, 500], **_H, "probe": "Y"},
+                                    "V": {"origin_mm": [300, 450, 150], **_XZ,
+                                          "probe": "Y"}},
+                      "probes": {"Y": [0, -150, 0], "X": [155, -60, 0]}},
+            "plate": {"rows": 4, "cols": 4, "pitch_mm": 120.0},
+            "probes_per_position": {"A": ["X", "Y"], "B": ["Y"], "V": ["Y", "X"]}}
+
+
+def proposal_scale_readings(data: Dataset, cand) -> np.ndarray:
+    """Every scale reading (tip minus stylus offset, mm, (n, 3)) a proposal asks for,
+    laid out here from the placement's geometry, not by the core's reach check: each
+    ball of the certificate's grid with each stylus of each new placement; for a
+    repeat, the readings of the data it measures again (same placement, stylus, balls)."""
+    if cand.repeat:
+        m = data.meas
+        probes = data.setup.raw["probes"]
+        out = []
+        for p, r in cand.repeat.items():
+            at = ((m["position"] == p) & (m["probe"].astype(str) == str(r["probe"]))
+                  & m["ball"].isin(r["balls"])).to_numpy()
+            out.append(m.loc[at, ["mx_mm", "my_mm", "mz_mm"]].to_numpy(float)
+                       - np.asarray(probes[str(r["probe"])], float))
+        return np.vstack(out) if out else np.zeros((0, 3))
+    g = plate_grid(data)
+    probes = {**data.setup.raw["probes"], **cand.probes}
+    # without the placements' stylus: the setup reader's slack check is not the question
+    positions = {p: {k: v for k, v in pl.items() if k != "probe"}
+                 for p, pl in cand.positions.items()}
+    setup = read_setup({"units": "mm", "frame": "machine",
+                        "machine": data.setup.raw["machine"], "positions": positions,
+                        "probes": probes}, name="check")
+    b = np.arange(g.rows * g.cols)
+    plate = np.column_stack([b % g.cols, b // g.cols, 0 * b]) * g.pitch_mm + g.offset_mm
+    out = [setup.positions[p].to_machine(plate) - np.asarray(probes[q], float)
+           for p, styli in cand.probes_of.items() for q in styli]
+    return np.vstack(out) if out else np.zeros((0, 3))
 
 
 TWIST_SHAPES = {"s2": lambda s: s**2, "s3": lambda s: s**3,

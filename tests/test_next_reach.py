@@ -13,10 +13,15 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from scenarios import simulated  # noqa: E402
+from scenarios import (  # noqa: E402
+    arm_config,
+    gantry_config,
+    proposal_scale_readings,
+    simulated,
+)
 
 from cmm_core.cli.commands import main  # noqa: E402
-from cmm_core.io import load_dataset, read_setup  # noqa: E402
+from cmm_core.io import load_dataset  # noqa: E402
 from cmm_core.model import simulate  # noqa: E402
 from cmm_core.plan.proposals import (  # noqa: E402
     DECIDE_POWER,
@@ -26,7 +31,6 @@ from cmm_core.plan.proposals import (  # noqa: E402
     instrument_of,
     measurement_candidates,
     measurement_observations,
-    plate_grid,
     propose,
 )
 
@@ -38,42 +42,6 @@ HIDDEN = {"kinematic": {"spec": "kinematic21,rxz:4", "coefficients": {"rxz[4]": 
 rivals sxy and rxz:4 (tests/test_proposals.py)."""
 
 BASE = "kinematic21,-sxy"
-_H = {"u_axis": [1, 0, 0], "v_axis": [0, 1, 0]}
-_XZ = {"u_axis": [1, 0, 0], "v_axis": [0, 0, 1]}
-
-
-def _gantry_config(seed: int) -> dict:
-    """A gantry with a 900 mm Z stroke, plate B1 low on the table: stood in XZ near B1
-    its top ball is at z = 810 mm, the ram at 960 mm with the 150 mm stylus (within the
-    simulator's 100 mm of slack: the old proposals offered it)."""
-    return {"seed": int(seed), "noise_um": 0.5, **HIDDEN,
-            "setup": {"units": "mm", "frame": "machine",
-                      "machine": {"layout": "gantry_fxyz", "range_mm": [1500, 1200, 900]},
-                      "positions": {"B1": {"origin_mm": [400, 300, 190], **_H, "probe": "T"},
-                                    "B2": {"origin_mm": [500, 350, 450], **_H, "probe": "T"},
-                                    "V": {"origin_mm": [400, 700, 150], **_XZ,
-                                          "probe": "S"}},
-                      "probes": {"T": [0, 0, -150], "S": [0, -80, -150]}},
-            "plate": {"rows": 5, "cols": 5, "pitch_mm": 150.0},
-            "probes_per_position": {"B1": ["T"], "B2": ["T", "S"], "V": ["S"]}}
-
-
-def _arm_config(seed: int) -> dict:
-    """A horizontal arm (column along X, arm along Y) with styli pointing sideways, one
-    155 mm along X (a step gauge laid out from the tip ran off the X stroke)."""
-    return {"seed": int(seed), "noise_um": 0.5, **HIDDEN,
-            "setup": {"units": "mm", "frame": "machine",
-                      "machine": {"layout": "horizontal_arm_fxzy",
-                                  "range_mm": [1200, 800, 900]},
-                      "positions": {"A": {"origin_mm": [300, 200, 100], **_H, "probe": "X"},
-                                    "B": {"origin_mm": [350, 250, 500], **_H, "probe": "Y"},
-                                    "V": {"origin_mm": [300, 450, 150], **_XZ,
-                                          "probe": "Y"}},
-                      "probes": {"Y": [0, -150, 0], "X": [155, -60, 0]}},
-            "plate": {"rows": 4, "cols": 4, "pitch_mm": 120.0},
-            "probes_per_position": {"A": ["X", "Y"], "B": ["Y"], "V": ["Y", "X"]}}
-
-
 def _per_row(folder: Path) -> None:
     """The setup file of ``folder`` naming no stylus per placement: each measurement row
     names its own (the fit accepts it)."""
@@ -89,24 +57,9 @@ def _inputs(folder: Path) -> list:
             "--certificate", str(folder / "certificate.csv")]
 
 
-def _scale_readings(data, cand) -> np.ndarray:
-    """Every scale reading (tip minus stylus offset) of every ball of every stylus of the
-    candidate's new placements, computed here from the setup's geometry: (n, 3) mm."""
-    g = plate_grid(data)
-    probes = {**data.setup.raw["probes"], **cand.probes}
-    setup = read_setup({"units": "mm", "frame": "machine",
-                        "machine": data.setup.raw["machine"],
-                        "positions": cand.positions, "probes": probes}, name="check")
-    b = np.arange(g.rows * g.cols)
-    plate = np.column_stack([b % g.cols, b // g.cols, 0 * b]) * g.pitch_mm + g.offset_mm
-    out = [setup.positions[p].to_machine(plate) - np.asarray(probes[q], float)
-           for p, styli in cand.probes_of.items() for q in styli]
-    return np.vstack(out) if out else np.zeros((0, 3))
-
-
 @pytest.fixture(scope="module")
 def gantry():
-    return simulate(_gantry_config(SEEDS[0])).dataset
+    return simulate(gantry_config(SEEDS[0], **HIDDEN)).dataset
 
 
 def test_a_gantry_s_proposals_are_all_within_its_strokes(gantry):
@@ -127,17 +80,17 @@ def test_a_gantry_s_proposals_are_all_within_its_strokes(gantry):
     plates = [p.candidate for p in pr.ranked if p.candidate.positions]
     assert plates and not {c.name for c in plates} & set(skipped)
     for c in plates:
-        x = _scale_readings(gantry, c)
+        x = proposal_scale_readings(gantry, c)
         assert ((x >= 0.0) & (x <= rng)).all(), (c.name, x.min(axis=0), x.max(axis=0))
     # the moves to the ends of the strokes are the ram's: within 5 % of each end
-    low = _scale_readings(gantry, by["low_x"])
+    low = proposal_scale_readings(gantry, by["low_x"])
     assert low[:, 0].min() == pytest.approx(0.05 * rng[0], abs=0.01)
 
 
 def test_next_lists_what_it_skipped_on_a_gantry(gantry, tmp_path, capsys):
     """The command names each candidate out of reach on stderr (``note: skipped: ...``)
     and in the JSON's ``skipped`` records, and proposes none of them."""
-    simulate(_gantry_config(SEEDS[0])).write(tmp_path)
+    simulate(gantry_config(SEEDS[0], **HIDDEN)).write(tmp_path)
     rc = main(["next", *_inputs(tmp_path), "--baseline", BASE, "--rivals", "sxy,rxz:4",
                "--top", "30"])
     out = capsys.readouterr()
@@ -155,7 +108,7 @@ def test_next_lists_what_it_skipped_on_a_gantry(gantry, tmp_path, capsys):
 @pytest.fixture(scope="module")
 def arm_files(tmp_path_factory):
     out = tmp_path_factory.mktemp("arm")
-    simulate(_arm_config(SEEDS[1])).write(out)
+    simulate(arm_config(SEEDS[1], **HIDDEN)).write(out)
     _per_row(out)
     return out
 
@@ -178,7 +131,7 @@ def test_instruments_run_on_a_setup_naming_the_stylus_per_row(arm_files, capsys)
                      ["range_mm"], float)
     for p in tools:
         assert p["instrument"]["offset_mm"] == [155.0, -60.0, 0.0]
-    data = simulate(_arm_config(SEEDS[1])).dataset
+    data = simulate(arm_config(SEEDS[1], **HIDDEN)).dataset
     sim0 = append._machine(data)
     for c in instrument_candidates(data):
         for x, _ in instrument_of(c, sim0).points():
@@ -188,7 +141,7 @@ def test_instruments_run_on_a_setup_naming_the_stylus_per_row(arm_files, capsys)
 def test_an_instrument_out_of_reach_is_skipped_not_fatal():
     """A step gauge whose first face needs the X scale at -155 mm is skipped with the
     reading, the other instruments scored (it aborted the whole command)."""
-    data = simulate(_arm_config(SEEDS[1])).dataset
+    data = simulate(arm_config(SEEDS[1], **HIDDEN)).dataset
     tools = instrument_candidates(data)
     gauge = next(c for c in tools if c.name == "step_gauge_x")
     start = list(gauge.instrument["start_mm"])
@@ -258,5 +211,5 @@ def test_readings_the_data_already_made_stay_reachable():
     assert reasons["low_x"] == reasons["xz"] == ""
     for c in cands:
         if c.positions and not reasons[c.name]:
-            x = _scale_readings(data, c)
+            x = proposal_scale_readings(data, c)
             assert ((x >= lo - 1e-9) & (x <= hi + 1e-9)).all(), c.name
