@@ -46,12 +46,14 @@ def alias_files() -> A.DataSources:
     return A.simulated_sources(sim.dataset, "simulated alias case (rxz:4 hidden, 80 mm plate)")
 
 
-def _diagnosed(files: A.DataSources) -> AppTest:
-    """The app on the alias case, the Diagnose page's diagnosis run, "Measure next" open."""
+def _diagnosis_run(files: A.DataSources, spec: str | None = None) -> AppTest:
+    """The app on ``files`` (with the baseline ``spec``, default the app's), the Diagnose
+    page's diagnosis run."""
     at = AppTest.from_file(APP, default_timeout=TIMEOUT)
     at.session_state["sources"] = files
     at.session_state["ds_key"] = A.sources_key(files)
-    at.session_state["spec"] = BASE
+    if spec is not None:
+        at.session_state["spec"] = spec
     at.run()
     at.switch_page("pages/diagnose.py")
     at.run()
@@ -59,6 +61,20 @@ def _diagnosed(files: A.DataSources) -> AppTest:
     at.button(key="run_diagnosis").click()
     at.run()
     _ok(at)
+    return at
+
+
+def _next_shown(at: AppTest) -> AppTest:
+    """``at`` with "Measure next" open."""
+    at.session_state["w_diag_next"] = True
+    at.run()
+    _ok(at)
+    return at
+
+
+def _diagnosed(files: A.DataSources) -> AppTest:
+    """The app on the alias case, the Diagnose page's diagnosis run, "Measure next" open."""
+    at = _diagnosis_run(files, BASE)
     # one headline: the pair named as a set (issue 41), as the core words it
     named = [m.value for m in at.success if m.value.startswith("**Most likely missing")]
     assert len(named) == 1 and ("(sxy)" in named[0] or "(rxz:4)" in named[0]), named
@@ -66,10 +82,7 @@ def _diagnosed(files: A.DataSources) -> AppTest:
         "X carriage yaw (about Z), order 4 or squareness XY" in named[0]), named
     # the section computes only while it is open (as the page's tabs)
     assert not any(b.key and b.key.startswith("next_sim_") for b in at.button)
-    at.session_state["w_diag_next"] = True
-    at.run()
-    _ok(at)
-    return at
+    return _next_shown(at)
 
 
 def test_the_page_shows_the_cores_headline(alias_files):
@@ -188,18 +201,7 @@ def test_a_repeat_proposal_handed_to_the_plan_page_is_a_plan_with_the_repeat():
     sim = simulated("pitch80_3pos", 1000, noise_um=0.5,
                     effects={"drift": {"sd_um_per_h": 1.0}})
     files = A.simulated_sources(sim.dataset, "simulated drift case")
-    at = AppTest.from_file(APP, default_timeout=TIMEOUT)
-    at.session_state["sources"] = files
-    at.session_state["ds_key"] = A.sources_key(files)
-    at.run()
-    at.switch_page("pages/diagnose.py")
-    at.run()
-    at.button(key="run_diagnosis").click()
-    at.run()
-    _ok(at)
-    at.session_state["w_diag_next"] = True
-    at.run()
-    _ok(at)
+    at = _next_shown(_diagnosis_run(files))
     assert tuple(at.selectbox(key="w_next_pair").value) == ("drift", "probe_offset")
     name = _top_name(at)
     assert name.startswith("repeat_"), name
@@ -219,20 +221,7 @@ def test_a_repeat_proposal_handed_to_the_plan_page_is_a_plan_with_the_repeat():
 def _next_open(files: A.DataSources) -> AppTest:
     """The app on ``files`` with the baseline without squareness, the Diagnose page's
     diagnosis run and "Measure next" open (whatever the verdict)."""
-    at = AppTest.from_file(APP, default_timeout=TIMEOUT)
-    at.session_state["sources"] = files
-    at.session_state["ds_key"] = A.sources_key(files)
-    at.session_state["spec"] = BASE
-    at.run()
-    at.switch_page("pages/diagnose.py")
-    at.run()
-    at.button(key="run_diagnosis").click()
-    at.run()
-    _ok(at)
-    at.session_state["w_diag_next"] = True
-    at.run()
-    _ok(at)
-    return at
+    return _next_shown(_diagnosis_run(files, BASE))
 
 
 def _next_texts(at) -> list:
