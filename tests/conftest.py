@@ -61,6 +61,19 @@ def thesis_clean(thesis):
     return thesis, detect_outliers(thesis).exclusions
 
 
+@pytest.fixture(scope="session")
+def rxz4_files(tmp_path_factory):
+    """The files of the 80 mm layout with a 3 µrad rxz:4 hidden from a baseline without
+    squareness (the rivals sxy and rxz:4): the measure-next command line's case."""
+    from scenarios import simulated
+
+    out = tmp_path_factory.mktemp("next")
+    simulated("pitch80_3pos", 3, noise_um=0.5,
+              kinematic={"spec": "kinematic21,rxz:4", "coefficients": {"rxz[4]": 3.0}}
+              ).write(out)
+    return out
+
+
 def open_data_tab(at, tab: str, *, instruments: bool = False):
     """Open the Data page's tab ``tab`` (and the instruments expander) in the AppTest ``at``
     and run it: their widgets are drawn only while open (issue 27)."""

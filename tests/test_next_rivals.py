@@ -8,7 +8,6 @@ against the pairwise ones (λ of a pair does not depend on the third rival's col
 the same rows, the same two rivals' columns); the times from the plan's time model
 (0.5 min per ball, 10 min per placement, ``files.MEASUREMENT_DEFAULTS``)."""
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -17,8 +16,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 from scenarios import simulated  # noqa: E402
+from test_proposals_cli import _parser  # noqa: E402
 
-from cmm_core.cli.proposals import add_parser  # noqa: E402
 from cmm_core.diagnosis import Candidate, Diagnosis  # noqa: E402
 from cmm_core.model import fit  # noqa: E402
 from cmm_core.plan import (  # noqa: E402
@@ -125,28 +124,12 @@ def test_a_three_way_alias_set_is_considered_whole(drifting):
         assert "dzz:4, probe_offset and drift differ pairwise by at least" in p.outcome
 
 
-def _parser():
-    ap = argparse.ArgumentParser(prog="cmm_core")
-    add_parser(ap.add_subparsers(dest="command"))
-    return ap
-
-
-@pytest.fixture(scope="module")
-def files(tmp_path_factory):
-    """The 80 mm layout with rxz:4 hidden (3 µrad; tests/test_proposals_cli.py's)."""
-    out = tmp_path_factory.mktemp("rivals")
-    simulated("pitch80_3pos", 3, noise_um=0.5,
-              kinematic={"spec": "kinematic21,rxz:4", "coefficients": {"rxz[4]": 3.0}}
-              ).write(out)
-    return out
-
-
-def test_the_baseline_is_kept_verbatim_through_the_cli_json(files):
+def test_the_baseline_is_kept_verbatim_through_the_cli_json(rxz4_files):
     """``--baseline kinematic21,-sxy`` with sxy the first rival: the fitted spec of that
     rival is ``kinematic21`` (sxy added back), but the JSON's baseline is the user's."""
     args = _parser().parse_args(
-        ["next", str(files / "measurements.csv"), "--setup", str(files / "setup.json"),
-         "--certificate", str(files / "certificate.csv"), "--baseline", "kinematic21,-sxy",
+        ["next", str(rxz4_files / "measurements.csv"), "--setup", str(rxz4_files / "setup.json"),
+         "--certificate", str(rxz4_files / "certificate.csv"), "--baseline", "kinematic21,-sxy",
          "--rivals", "sxy,rxz:4", "--top", "1"])
     out = args.func(args)
     assert out["baseline"] == "kinematic21,-sxy"

@@ -22,13 +22,9 @@ def _parser():
     return ap
 
 
-@pytest.fixture(scope="module")
-def files(tmp_path_factory):
-    out = tmp_path_factory.mktemp("next")
-    simulated("pitch80_3pos", 3, noise_um=0.5,
-              kinematic={"spec": "kinematic21,rxz:4", "coefficients": {"rxz[4]": 3.0}}
-              ).write(out)
-    return out
+@pytest.fixture
+def files(rxz4_files):
+    return rxz4_files
 
 
 def test_every_option_has_help_text():
