@@ -27,15 +27,13 @@ from pathlib import Path
 import numpy as np
 
 from .delimited import MAX_MEASUREMENT_ROWS, FileSource, read_bytes
-from .errors import DataError, Problems, cut_repr
+from .errors import DataError, cut_repr
 from .qif import QIF_LABEL_PATTERN, is_qif, read_qif
 from .table_mapping import (
     ForeignTable,
     TableMapping,
-    _finish,
-    _label_columns,
     _label_regex,
-    _unmatched_note,
+    _sphere_table,
     apply_mapping,
 )
 
@@ -60,7 +58,6 @@ _DATES = (  # (pattern, order of the groups)
     (re.compile(r"^(\d{1,2})/(\d{1,2})/(\d{2}|\d{4})$"), "mdy"),  # 11/24/2026
     (re.compile(r"^(\d{1,2})[- ]([A-Za-z]{3})[A-Za-z]*[- ](\d{2}|\d{4})$"), "dMy"),  # 24-NOV-2026
 )
-_LONG = ("position", "probe", "ball", "x_mm", "y_mm", "z_mm", "time_min")
 _TIME = re.compile(r"^(\d{1,2}):(\d{2})(?::(\d{2})(?:[.,](\d+))?)?$")
 _DATE_FORMS = "2026/11/24, 2026-11-24, 24.11.2026, 11/24/2026 or 24-NOV-2026"
 _NO_DATE = date(2000, 1, 1)  # the day of TIME lines in a file without any DATE line
@@ -343,26 +340,11 @@ def read_dmis(source: FileSource, *, name: str | None = None, pattern: str,
                         "BP(?P<position>\\w+)_(?P<ball>\\d+) for BP111_5.")
     labels = [s.label for s in spheres]
     lines = np.array([s.line for s in spheres], int)
-    found = Problems(name, lines)
-    prefix = [f"sphere {s.kind}({s.label})" for s in spheres]
-    long = _label_columns(hits, rx, labels, found, default_position, default_probe)
-    xyz = np.array([s.xyz_mm for s in spheres])
-    long["x_mm"], long["y_mm"], long["z_mm"] = xyz.T
-    if minutes is not None:
-        long["time_min"] = minutes
-    found.raise_if_any()
-    notes += _unit_notes(rd)
-    if time_note:
-        notes.append(time_note)
-    if "probe" not in rx.groupindex:
-        notes.append(f"probe {str(default_probe)!r} for every sphere (no probe group).")
-    if "position" not in rx.groupindex:
-        notes.append(f"position {default_position!r} for every sphere (no position group).")
-    um = _unmatched_note(unmatched, pattern)
-    if um:
-        notes.append(um)
-    return _finish(long, lines, name, colmap=dict.fromkeys(_LONG, None),
-                   notes=notes, unmatched=unmatched, labels=labels, prefix=prefix)
+    return _sphere_table(
+        hits, rx, labels, lines, [s.xyz_mm for s in spheres], minutes, name=name,
+        pattern=pattern, notes=notes + _unit_notes(rd) + ([time_note] if time_note else []),
+        unmatched=unmatched, prefix=[f"sphere {s.kind}({s.label})" for s in spheres],
+        default_position=default_position, default_probe=default_probe)
 
 
 def _unit_notes(rd: _Reader) -> list:

@@ -27,13 +27,11 @@ from pathlib import Path
 import numpy as np
 
 from .delimited import FileSource, read_bytes
-from .errors import DataError, Problems, cut_repr
+from .errors import DataError, cut_repr
 from .table_mapping import (
     ForeignTable,
-    _finish,
-    _label_columns,
     _label_regex,
-    _unmatched_note,
+    _sphere_table,
 )
 
 QIF_NS = "http://qifstandards.org/xsd/qif3"
@@ -58,7 +56,6 @@ _Q = f"{{{QIF_NS}}}"
 # the root start tag, any prefix, and the QIF namespace URI declared anywhere in the head
 _ROOT = re.compile(rb"<(?:[\w.-]+:)?QIFDocument[\s/>]")
 _OPEN = re.compile(rb"<(?:[\w.-]+:)?SphereFeatureMeasurement[\s/>]")
-_LONG = ("position", "probe", "ball", "x_mm", "y_mm", "z_mm", "time_min")
 _MEASURED = (f"{_Q}Results/{_Q}MeasurementResultsSet/{_Q}MeasurementResults/"
              f"{_Q}MeasuredFeatures/{_Q}SphereFeatureMeasurement")
 
@@ -316,19 +313,8 @@ def read_qif(source: FileSource, *, name: str | None = None,
     minutes, time_note = _minutes(spheres)
     labels = [s.label for s in spheres]
     lines = np.array([s.line for s in spheres], int)
-    found = Problems(name, lines)
-    prefix = [f"SphereFeatureMeasurement ({s.label})" for s in spheres]
-    long = _label_columns(hits, rx, labels, found, default_position, default_probe)
-    long["x_mm"], long["y_mm"], long["z_mm"] = np.array([s.xyz_mm for s in spheres]).T
-    if minutes is not None:
-        long["time_min"] = minutes
-    found.raise_if_any()
-    for note in (time_note, _unmatched_note(unmatched, pattern)):
-        if note:
-            notes.append(note)
-    if "probe" not in rx.groupindex:
-        notes.append(f"probe {str(default_probe)!r} for every sphere (no probe group).")
-    if "position" not in rx.groupindex:
-        notes.append(f"position {default_position!r} for every sphere (no position group).")
-    return _finish(long, lines, name, colmap=dict.fromkeys(_LONG, None), notes=notes,
-                   unmatched=unmatched, labels=labels, prefix=prefix)
+    return _sphere_table(
+        hits, rx, labels, lines, [s.xyz_mm for s in spheres], minutes, name=name,
+        pattern=pattern, notes=notes + ([time_note] if time_note else []),
+        unmatched=unmatched, prefix=[f"SphereFeatureMeasurement ({s.label})" for s in spheres],
+        default_position=default_position, default_probe=default_probe)

@@ -829,6 +829,35 @@ def preview(source: FileSource, mapping: TableMapping | dict, *, name: str | Non
     return Preview(shown.reset_index(drop=True), len(long), tuple(problems), tuple(notes))
 
 
+_SPHERE_COLUMNS = ("position", "probe", "ball", "x_mm", "y_mm", "z_mm", "time_min")
+"""The long form's columns a sphere reader fills (none from a table column)."""
+
+
+def _sphere_table(hits, rx, labels, lines, xyz_mm, minutes, *, name, pattern, notes,
+                  unmatched, prefix, default_position, default_probe) -> ForeignTable:
+    """The long form of the spheres whose labels matched (the DMIS and QIF readers'
+    common end): their position, probe and ball from the labels (:func:`_label_columns`),
+    coordinates and times; every problem of a label raised at once; the notes of the
+    groups the pattern lacks and of the labels left out after the reader's own
+    ``notes``."""
+    found = Problems(name, lines)
+    long = _label_columns(hits, rx, labels, found, default_position, default_probe)
+    long["x_mm"], long["y_mm"], long["z_mm"] = np.asarray(xyz_mm, float).reshape(-1, 3).T
+    if minutes is not None:
+        long["time_min"] = minutes
+    found.raise_if_any()
+    notes = list(notes)
+    if "probe" not in rx.groupindex:
+        notes.append(f"probe {str(default_probe)!r} for every sphere (no probe group).")
+    if "position" not in rx.groupindex:
+        notes.append(f"position {default_position!r} for every sphere (no position group).")
+    um = _unmatched_note(unmatched, pattern)
+    if um:
+        notes.append(um)
+    return _finish(long, lines, name, colmap=dict.fromkeys(_SPHERE_COLUMNS, None),
+                   notes=notes, unmatched=unmatched, labels=labels, prefix=prefix)
+
+
 def _label_columns(hits, rx, labels, found, default_position, default_probe) -> pd.DataFrame:
     """``position``, ``probe`` and ``ball`` of each matched label (``hits``, matches of the
     pattern ``rx``): a group the pattern lacks takes its default; problems go to ``found``.
