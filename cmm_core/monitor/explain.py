@@ -7,9 +7,11 @@ them. A metrologist asks the other question: which *one* change, or which few, e
 what the new data show? This module answers it the way the diagnosis finds effects:
 nested tests, forward, at a stated family-wise level.
 
-The model is the check's own (``changes``): the score ``g = -Jᵀ Π d`` and information
-``H = Jᵀ Π J`` of the change ``δ`` of the kinematic coefficients, with the stored model's
-uncertainty and the poses already in ``Π``; if nothing changed ``g ~ N(0, H)``, and a
+The model is the check's own (:func:`change_system`, the system of
+``what_changed``): the score ``g = -Jᵀ Π d`` and information ``H = Jᵀ Π J`` of the change
+``δ`` of the kinematic coefficients (and, with two styli or more, of the styli's
+offsets), with the stored model's uncertainty and the poses already in ``Π``; if nothing
+changed ``g ~ N(0, H)``, and a
 change ``δ = X θ`` (``X``: a hypothesis's columns, in the units of its physical
 parameters) shifts it to ``N(H X θ, H)``. A hypothesis set ``S`` explains
 
@@ -50,7 +52,7 @@ from scipy import linalg, stats
 from ..export import Model
 from ..machine import ERROR_NAMES, POSITIONING, ROTATIONAL, SQUARENESS
 from ..units import p_text
-from .changes import MIN_RESOLVED, Changes, projected
+from .changes import MIN_RESOLVED, projected
 from .check import InterimCheck
 from .unseen import unseen_words
 
@@ -323,7 +325,7 @@ def change_system(model: Model, check: InterimCheck, *,
     return ChangeSystem(W, W.T @ sys_.d_um, H, V, tuple(pool))
 
 
-def explain_change(model: Model, check: InterimCheck, changes: Changes | None = None, *,
+def explain_change(model: Model, check: InterimCheck, *,
                    alpha: float = 0.05, max_steps: int = 4,
                    scale_temps_C: dict | None = None) -> ChangeExplanation:
     """The fewest physical changes that explain the new data (module docstring).
@@ -334,9 +336,6 @@ def explain_change(model: Model, check: InterimCheck, changes: Changes | None = 
         The stored calibration.
     check : InterimCheck
         The check of the new data against it.
-    changes : Changes, optional
-        :func:`.changes.what_changed` of the same (not needed: the system is the
-        check's own, :func:`change_system`).
     alpha : float
         Family-wise false-alarm level of the first step (Bonferroni at each step).
     max_steps : int
