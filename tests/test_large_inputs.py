@@ -8,6 +8,8 @@ not here."""
 import dataclasses
 import io
 import os
+import subprocess
+import sys
 import tracemalloc
 from pathlib import Path
 
@@ -271,3 +273,49 @@ def test_a_million_readings_are_refused_at_the_limit_in_bounded_memory(tmp_path)
     assert f"more than {MAX_MEASUREMENT_ROWS} data rows (row {MAX_MEASUREMENT_ROWS + 2} " \
         in str(exc.value) and "million.csv" in str(exc.value)
     assert peak < 3 * path.stat().st_size, peak
+
+
+_PEAK_RSS = """import resource, sys
+from cmm_core.cli import main
+code = main(sys.argv[1:])
+sys.stderr.write(f"\\npeak_kb={resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}\\n")
+sys.exit(code)
+"""
+
+
+def _diagnose_peak(folder: Path, meas: Path, out: Path) -> tuple[int, str, int]:
+    """``diagnose`` of ``meas`` in a process of its own, its result to ``out``: exit code,
+    stderr, peak RSS (kB)."""
+    args = [sys.executable, "-c", _PEAK_RSS, "diagnose", str(meas), "--setup",
+            str(folder / "setup.json"), "--certificate", str(folder / "certificate.csv"),
+            "--json", str(out)]
+    done = subprocess.run(args, capture_output=True, text=True, timeout=600)
+    peak = int(done.stderr.rsplit("peak_kb=", 1)[1])
+    return done.returncode, done.stderr.rsplit("\npeak_kb=", 1)[0], peak
+
+
+def test_a_diagnosis_beyond_its_limit_is_refused_before_any_fit(tmp_path):
+    """The sample simulation's 300 readings repeated to 1.5 × ``diagnosis.MAX_READINGS``
+    (each repeat numbered): refused in one line naming the file and the limit, exit 2, at
+    a peak memory within 150 MB of the 300-reading diagnosis's own (reading 30 000 rows
+    costs about 30 MB; diagnosing them would cost about 0.8 GB more, 26 kB a reading)."""
+    from cmm_core.diagnosis import MAX_READINGS
+
+    sample = Path(__file__).resolve().parents[1] / "sample_data" / "simulated"
+    lines = (sample / "measurements.csv").read_text(encoding="utf-8").splitlines()
+    body = lines[1:]
+    n = int(1.5 * MAX_READINGS)
+    rows = [f"{body[i % len(body)]},{i // len(body)}" for i in range(n)]
+    big = tmp_path / "big.csv"
+    big.write_text("\n".join([lines[0] + ",repeat", *rows]) + "\n", encoding="utf-8")
+    code, err, peak = _diagnose_peak(sample, big, tmp_path / "big.json")
+    assert code == 2, err
+    assert err.strip() == (
+        f"error: big.csv: {n} probed ball centres; a diagnosis takes at most {MAX_READINGS} "
+        "(it holds every candidate's Jacobian in memory, about 26 kB a reading). Hint: "
+        "diagnose fewer placements or styli (positions=, probes=), or average repeated "
+        "readings of a ball.")
+    code0, err0, peak0 = _diagnose_peak(sample, sample / "measurements.csv",
+                                        tmp_path / "small.json")
+    assert code0 == 0, err0
+    assert peak < peak0 + 150_000, (peak, peak0)

@@ -78,7 +78,14 @@ from .scoring import (
     scan_period,
     score,
 )
-from .search import BASE_MAX_ITER, Candidate, Diagnosis, diagnose, estimate_sigma
+from .search import (
+    BASE_MAX_ITER,
+    MAX_READINGS,
+    Candidate,
+    Diagnosis,
+    diagnose,
+    estimate_sigma,
+)
 from .verdict import (
     OUTSIDE,
     evidence,
@@ -95,7 +102,7 @@ __all__ = [
     "CertificateCheck", "check", "check_certificate", "detect_outliers", "diagnose",
     "Diagnosis", "Discrepancy", "discrepancy_gp", "estimate", "estimate_sigma", "evidence", "fitted_text", "FAMILY_ALPHA",
     "family_levels", "flexible_spec", "from_repeats", "from_residuals", "HoldoutCheck",
-    "kinematic_basis", "MATERIAL", "MIN_PLACEMENTS", "misfit_location", "needs_met",
+    "kinematic_basis", "MATERIAL", "MAX_READINGS", "MIN_PLACEMENTS", "misfit_location", "needs_met",
     "OutlierReport", "OUTSIDE", "PHYSICAL_SHARE", "placement_scale_columns", "scale_columns", "placement_scale_test", "plate_columns", "SCALE_ALONE_ALPHA", "SCALE_ALPHA", "scales_alone_p", "released", "scan_period", "score",
     "ScoreCache", "SigmaEstimate", "stylus_offsets", "UNIFORM_ALPHA", "Uniformity", "uniformity",
     "candidate_noise", "certificate_noise", "CertNoise", "cert_columns", "cert_noise",

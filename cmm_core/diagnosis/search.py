@@ -49,7 +49,7 @@ import pandas as pd
 from scipy import optimize, stats
 
 from .._blas import single_blas_thread
-from ..io import Dataset
+from ..io import DataError, Dataset
 from ..model import (
     PERIODIC,
     FitResult,
@@ -91,12 +91,41 @@ from .verdict import (
     misfit_location,
 )
 
-__all__ = ["BASE_MAX_ITER", "Candidate", "Diagnosis", "diagnose", "estimate_sigma"]
+__all__ = ["BASE_MAX_ITER", "Candidate", "Diagnosis", "MAX_READINGS", "diagnose",
+           "estimate_sigma"]
 
 BASE_MAX_ITER = 2000
 """Gauss-Newton budget of the diagnosis's baseline fit (``model.fit``'s default is 500):
 weakly determined directions (one placement, high orders) can need many steps. A given
 fit that stopped at a smaller budget without converging is refitted with this one."""
+
+MAX_READINGS = 20_000
+"""Probed ball centres one diagnosis takes. Its scores, hold-out checks and placement-scale
+tests work on the weighted Jacobian of every candidate at once, dense: about 26 kB per
+reading (0.5 GB above the program's own 0.2 GB at 20 000 readings, measured on a simulated
+plate with repeats; 5 GB at 200 000). A ball-plate calibration has a few hundred to a few
+thousand; beyond this, a diagnosis is refused before any fit rather than exhausting the
+machine's memory."""
+
+
+def _refuse_beyond_limit(data: Dataset | Observations, positions, probes) -> None:
+    """A one-line DataError when the selected data hold more than :data:`MAX_READINGS`."""
+    if isinstance(data, Observations):
+        n, name = int(data.pos.size), "the data"
+    else:
+        df, name = data.meas, data.name
+        keep = np.ones(len(df), bool)
+        if positions is not None:
+            keep &= df["position"].isin(list(positions)).to_numpy()
+        if probes is not None:
+            keep &= df["probe"].isin(list(probes)).to_numpy()
+        n = int(keep.sum())
+    if n > MAX_READINGS:
+        raise DataError(f"{n} probed ball centres; a diagnosis takes at most {MAX_READINGS} "
+                        "(it holds every candidate's Jacobian in memory, about 26 kB a "
+                        "reading).", file=name,
+                        hint="diagnose fewer placements or styli (positions=, probes=), or "
+                             "average repeated readings of a ball.")
 
 
 @dataclass(frozen=True)
@@ -309,7 +338,12 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
     ValueError
         ``baseline_fit`` is not of ``data`` as selected, ``baseline`` or these settings (the
         message names what differs, expected against given).
+    DataError
+        More than :data:`MAX_READINGS` probed ball centres selected.
     """
+    _refuse_beyond_limit(data if baseline_fit is None else baseline_fit.problem.obs,
+                         positions, probes)
+
     def report(frac, text):
         if progress is not None:
             progress(float(min(max(frac, 0.0), 1.0)), text)
