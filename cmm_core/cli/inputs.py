@@ -16,19 +16,15 @@ from ..io import (
     DMIS_SUFFIXES,
     DataError,
     Dataset,
-    ForeignDataset,
-    ForeignStepGauge,
+    MslFiles,
     MslNames,
-    combine_plates,
     is_qif,
     load_dataset,
     msl_degree,
-    msl_header,
     read_foreign,
     read_machine,
     read_mapping,
-    read_msl_bar,
-    read_msl_plate,
+    read_msl_files,
     rounding_u_um,
     sniff,
 )
@@ -50,39 +46,20 @@ MSL_CLI_NAMES = MslNames(
     pairing="give the metadata.csv saved with it (--msl-metadata pairs each file with the "
             "snapshot whose header it repeats)",
     files="give MSL snapshots with --msl or --msl-bar and their metadata with "
-          "--msl-metadata", metadata_flag="--msl-metadata")
+          "--msl-metadata", metadata_flag="--msl-metadata", lead_plate="--msl",
+    lead_bar="--msl-bar", lead_metadata="--msl-metadata")
 """The MSL readers' refusals in the command line's words: its flags, not the keywords of
 ``io.read_msl_plate``."""
 
 
-@dataclass(frozen=True)
-class MslInputs:
-    """The MSL files of a command line, read once (:func:`msl_inputs`).
-
-    Attributes
-    ----------
-    plates : list of io.ForeignDataset
-        The ``--msl`` snapshots with their metadata, in the order given.
-    bars : list of io.ForeignStepGauge
-        The ``--msl-bar`` snapshots with their metadata.
-    notes : list of str
-        How they were read: every convention once, naming the files it applies to, and
-        each metadata file taken from beside its snapshot.
-    """
-
-    plates: list
-    bars: list
-    notes: list
-
-    @property
-    def parts(self) -> list:
-        """Every snapshot read, plates first."""
-        return [*self.plates, *self.bars]
+MslInputs = MslFiles
+"""The MSL files of a command line, read once (:func:`msl_inputs`): ``io.MslFiles``."""
 
 
-def msl_inputs(args: argparse.Namespace) -> MslInputs:
-    """The ``--msl`` and ``--msl-bar`` snapshots read with their metadata (memoised on
-    ``args``: the data, the instruments and the defaults all need them).
+def msl_inputs(args: argparse.Namespace) -> MslFiles:
+    """The ``--msl`` and ``--msl-bar`` snapshots read with their metadata
+    (``io.read_msl_files``, as the app reads them; memoised on ``args``: the data, the
+    instruments and the defaults all need them).
 
     Each ``--msl-metadata`` file is paired with the snapshot whose header it repeats
     (:func:`io.msl_header`), in any order; a snapshot without one takes the
@@ -92,91 +69,27 @@ def msl_inputs(args: argparse.Namespace) -> MslInputs:
     Raises
     ------
     DataError
-        In the flags' words (:data:`MSL_CLI_NAMES`), naming the file: a snapshot without
-        metadata, a metadata file no snapshot pairs with, a placement given twice, a bad
-        file.
+        In the flags' words (:data:`MSL_CLI_NAMES`), naming the flag and the file: a
+        snapshot without metadata, a metadata file no snapshot pairs with, a placement
+        given twice, a bad file.
     """
     done = getattr(args, "msl_read", None)
-    if isinstance(done, MslInputs):
+    if isinstance(done, MslFiles):
         return done
-    given: dict[tuple, str] = {}
-    for m in args.msl_metadata:
-        key = _flagged({str(m): "--msl-metadata"}, msl_header, m, str(m),
-                       MSL_CLI_NAMES)
-        if key in given:
-            raise DataError(f"repeats the header of --msl-metadata {given[key]} (name "
-                            f"{key[0]!r}, location {key[4]}, rotation {key[5]}); give each "
-                            "snapshot's metadata once.", file=str(m))
-        given[key] = str(m)
-    snaps = [("--msl", str(s)) for s in args.msl] + [("--msl-bar", str(s))
-                                                     for s in args.msl_bar]
-    seen: dict[tuple, str] = {}
-    pairs, beside_notes = [], []
-    for flag, snap in snaps:
-        key = _flagged({snap: flag}, msl_header, snap, snap, MSL_CLI_NAMES)
-        if key in seen:
-            # one placement fitted twice would count its balls double and divide every
-            # uncertainty it gives by √2 without a word
-            raise DataError(f"repeats the header of {seen[key]} (name {key[0]!r}, location "
-                            f"{key[4]}, rotation {key[5]}): the same placement given twice; "
-                            "each may be fitted once.", file=snap,
-                            hint=f"give the snapshot once ({flag}).")
-        seen[key] = snap
-        meta = given.get(key)
-        beside = Path(snap).with_name("metadata.csv")
-        if meta is None and beside.is_file() and not beside.samefile(snap) and _flagged(
-                {str(beside): "--msl-metadata"}, msl_header, beside, str(beside),
-                MSL_CLI_NAMES) == key:
-            meta = str(beside)
-            beside_notes.append(f"{snap}: metadata: {meta}, the metadata.csv saved beside "
-                                "the snapshot (no --msl-metadata repeats its header).")
-        # without metadata the reader refuses the snapshot in the flags' words (after its
-        # own checks: a metadata file given as a snapshot is named as such)
-        pairs.append((flag, snap, meta))
-    unpaired = sorted(set(given.values()) - {m for _f, _s, m in pairs if m})
-    if unpaired:
-        raise DataError("--msl-metadata: repeats the header of none of the --msl and "
-                        "--msl-bar snapshots "
-                        "(name, artefact, location, rotation); it is no snapshot's "
-                        "metadata.", file=unpaired[0],
-                        hint="give it with the snapshot it was saved with, or leave it out.")
-    cu = _certificate_u(args.msl_certificate_u)
-    plates: list[ForeignDataset] = []
-    bars: list[ForeignStepGauge] = []
-    for flag, snap, meta in pairs:
-        read = read_msl_plate if flag == "--msl" else read_msl_bar
-        flags = {snap: flag} if meta is None else {snap: flag, meta: "--msl-metadata"}
-        (plates if flag == "--msl" else bars).append(_flagged(
-            flags, read, snap, meta, kind=args.msl_kind,
-            certificate_u=cu, snapshot_name=snap, metadata_name=meta, names=MSL_CLI_NAMES))
-    out = MslInputs(plates, bars, beside_notes + _grouped_notes(plates + bars))
+
+    def beside(snap: str):
+        near = Path(snap).with_name("metadata.csv")
+        if near.is_file() and not near.samefile(snap):
+            return str(near), near
+        return None
+
+    out = read_msl_files([(str(s), s) for s in args.msl],
+                         [(str(s), s) for s in args.msl_bar],
+                         [(str(m), m) for m in args.msl_metadata], kind=args.msl_kind,
+                         certificate_u=_certificate_u(args.msl_certificate_u),
+                         beside=beside, names=MSL_CLI_NAMES)
     args.msl_read = out
     return out
-
-
-def _flagged(flags: dict[str, str], read, *a, **kw):
-    """``read(*a, **kw)``, its one-problem DataError led by the flag that gave the file it
-    names (``flags``: file name -> flag): a refusal names the flag and the file."""
-    try:
-        return read(*a, **kw)
-    except DataError as exc:
-        flag = flags.get(str(exc.file))
-        if flag is None or exc.n_problems != 1 or exc.detail.startswith(flag):
-            raise
-        raise DataError(f"{flag}: {exc.detail}", file=exc.file, row=exc.row,
-                        column=exc.column, hint=exc.hint) from None
-
-
-def _grouped_notes(parts: list) -> list[str]:
-    """Each reader note once, naming the snapshots it applies to (``every MSL snapshot``
-    when all): three placements' identical conventions are not said three times."""
-    names: dict[str, list[str]] = {}
-    for part in parts:
-        for note in part.notes:
-            names.setdefault(note, []).append(part.name)
-    every = len(parts) > 1
-    return [f"{'every MSL snapshot' if every and len(n) == len(parts) else ', '.join(n)}: "
-            f"{note}" for note, n in names.items()]
 
 
 def _certificate_u(ab: tuple[float, float] | None) -> dict | None:
@@ -197,9 +110,7 @@ def dataset_of(args: argparse.Namespace) -> Dataset:
         if args.meas:
             raise DataError("give measurement files or --msl snapshots, not both.",
                             file=str(args.meas[0]))
-        msl = msl_inputs(args)
-        ds = combine_plates(msl.plates).to_dataset()
-        return replace(ds, notes=tuple(msl.notes))
+        return msl_inputs(args).dataset()
     if not args.meas:
         raise DataError("no measurement file given.", file="command line",
                         hint="name MEAS.csv file(s), or --msl SNAPSHOT.csv for MSL files.")
@@ -316,9 +227,8 @@ def instruments_of(args: argparse.Namespace) -> list:
                                            ("ball_bar", args.ball_bar)) for f in files]
     out = [read_instrument(f, kind) for kind, f in given]  # each reader bounds the size
     if getattr(args, "msl_bar", None):
-        for bar in msl_inputs(args).bars:
-            out.append(read_instrument(io.BytesIO(bar.step_gauge_csv.encode()),
-                                       "step_gauge", name=f"{bar.name} (as a step gauge)"))
+        for name, text in msl_inputs(args).step_gauges():
+            out.append(read_instrument(io.BytesIO(text.encode()), "step_gauge", name=name))
     refuse_repeated(out)  # before any work, as the fit itself would
     return out
 

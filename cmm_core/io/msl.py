@@ -45,7 +45,8 @@ from .dataset import Dataset, load_dataset
 from .delimited import FileSource, read_bytes
 from .errors import DataError, cut_repr, likely_typo
 
-__all__ = ["ForeignDataset", "ForeignStepGauge", "read_msl_plate", "read_msl_bar",
+__all__ = ["ForeignDataset", "ForeignStepGauge", "MslFiles", "read_msl_files",
+           "read_msl_plate", "read_msl_bar",
            "read_msl_metadata", "msl_header", "combine_plates", "sniff", "msl_layout",
            "msl_rotation", "msl_coefficients", "msl_parameters", "msl_metadata_text",
            "msl_degree", "rounding_u_um", "MslNames", "MSL_API_NAMES", "MSL_LAYOUTS",
@@ -113,6 +114,10 @@ class MslNames:
         How to give MSL files at all (a file that is none).
     metadata_flag : str
         The metadata file's keyword or flag alone.
+    lead_plate, lead_bar, lead_metadata : str
+        What leads a one-problem refusal of a file given as a plate snapshot, a bar
+        snapshot or metadata (:func:`read_msl_files`; the command line's flags, empty for
+        none).
     """
 
     kind: str = "kind='simulated' or kind='measured'"
@@ -129,6 +134,9 @@ class MslNames:
     files: str = ("read MSL files with cmm_core.io.msl.read_msl_plate or read_msl_bar "
                   "(snapshot, metadata, kind=...)")
     metadata_flag: str = "metadata"
+    lead_plate: str = ""
+    lead_bar: str = ""
+    lead_metadata: str = ""
 
 
 MSL_API_NAMES = MslNames()
@@ -1113,6 +1121,170 @@ def combine_plates(datasets: Iterable[ForeignDataset]) -> ForeignDataset:
                    setup=setup, notes=tuple(notes),
                    name=", ".join(ds.name for ds in datasets),
                    decimals=max(ds.decimals for ds in datasets), placement=())
+
+
+@dataclass(frozen=True)
+class MslFiles:
+    """MSL plate and bar snapshots read together with their metadata
+    (:func:`read_msl_files`): what the command line and the app both load.
+
+    Attributes
+    ----------
+    plates : list of ForeignDataset
+        The plate snapshots, in the order given.
+    bars : list of ForeignStepGauge
+        The bar snapshots, in the order given.
+    notes : list of str
+        How they were read: every reader note once, naming the snapshots it applies to
+        (``every MSL snapshot`` when all), after each metadata file taken from beside its
+        snapshot.
+    """
+
+    plates: list
+    bars: list
+    notes: list
+
+    @property
+    def parts(self) -> list:
+        """Every snapshot read, plates first."""
+        return [*self.plates, *self.bars]
+
+    def plate(self) -> ForeignDataset:
+        """The plates as one dataset's files (:func:`combine_plates`), with :attr:`notes`."""
+        return replace(combine_plates(self.plates), notes=tuple(self.notes))
+
+    def dataset(self) -> Dataset:
+        """The plates loaded (:meth:`ForeignDataset.to_dataset`), with :attr:`notes`."""
+        return self.plate().to_dataset()
+
+    def step_gauges(self) -> list[tuple[str, str]]:
+        """``(name, step-gauge CSV text)`` of each bar, for
+        ``cmm_core.model.read_instrument(..., "step_gauge", name=name)`` (``io`` does not
+        import ``model``)."""
+        return [(f"{bar.name} (as a step gauge)", bar.step_gauge_csv) for bar in self.bars]
+
+
+def read_msl_files(plates: Sequence[tuple[str, FileSource]] = (),
+                   bars: Sequence[tuple[str, FileSource]] = (),
+                   metadata: Sequence[tuple[str, FileSource]] = (), *,
+                   kind: str | None = None, certificate_u: dict | None = None,
+                   beside=None, names: MslNames = MSL_API_NAMES) -> MslFiles:
+    """Plate and bar snapshots with their metadata files, read as one measurement.
+
+    Each metadata file is paired with the snapshot whose header it repeats
+    (:func:`msl_header`), in any order; then each snapshot is read with
+    :func:`read_msl_plate` or :func:`read_msl_bar`. Fit the plates
+    (:meth:`MslFiles.dataset`) with the bars as step gauges (:meth:`MslFiles.step_gauges`).
+
+    Parameters
+    ----------
+    plates, bars : sequence of (name, source)
+        The snapshots: a name for messages and a path, bytes or file-like object.
+    metadata : sequence of (name, source)
+        The metadata files, in any order.
+    kind, certificate_u
+        As :func:`read_msl_plate`, for every snapshot.
+    beside : callable, optional
+        ``beside(name)`` -> ``(name, source)`` of the metadata saved beside snapshot
+        ``name`` (MSL saves ``metadata.csv`` in the snapshot's folder), or None. Taken when
+        no metadata file given repeats the snapshot's header and that one does; a note
+        says so.
+    names : MslNames, optional
+        The caller's words in refusals; a one-problem refusal of a file is led by
+        ``names.lead_plate``, ``lead_bar`` or ``lead_metadata`` (the command line's
+        flags), the role the file was given in.
+
+    Raises
+    ------
+    DataError
+        Naming the file: a metadata file given twice or paired with no snapshot, a
+        snapshot (placement) given twice, a snapshot without metadata, a bad file.
+    """
+    lead_of = {"plate": names.lead_plate, "bar": names.lead_bar,
+               "metadata": names.lead_metadata}
+    given: dict[tuple, str] = {}
+    sources = {}
+    for mname, msrc in metadata:
+        key = _led({mname: lead_of["metadata"]}, msl_header, msrc, mname, names)
+        if key in given:
+            raise DataError(f"repeats the header of {names.metadata_flag} {given[key]} (name "
+                            f"{key[0]!r}, location {key[4]}, rotation {key[5]}); give each "
+                            "snapshot's metadata once.", file=mname)
+        given[key], sources[mname] = mname, msrc
+    seen: dict[tuple, str] = {}
+    pairs, beside_notes = [], []
+    for role, (sname, ssrc) in [*(("plate", p) for p in plates),
+                                *(("bar", b) for b in bars)]:
+        key = _led({sname: lead_of[role]}, msl_header, ssrc, sname, names)
+        if key in seen:
+            # one placement fitted twice would count its balls double and divide every
+            # uncertainty it gives by √2 without a word
+            raise _lead(DataError(f"repeats the header of {seen[key]} (name {key[0]!r}, "
+                                  f"location {key[4]}, rotation {key[5]}): the same placement "
+                                  "given twice; each may be fitted once.", file=sname,
+                                  hint="give the snapshot once."), lead_of[role])
+        seen[key] = sname
+        meta = given.get(key)
+        near = beside(sname) if meta is None and beside is not None else None
+        if near is not None and _led({near[0]: lead_of["metadata"]}, msl_header, near[1],
+                                     near[0], names) == key:
+            meta, sources[near[0]] = near[0], near[1]
+            beside_notes.append(f"{sname}: metadata: {meta}, the metadata.csv saved beside "
+                                f"the snapshot (no {names.metadata_flag} repeats its header).")
+        # without metadata the reader refuses the snapshot in the caller's words (after its
+        # own checks: a metadata file given as a snapshot is named as such)
+        pairs.append((role, sname, ssrc, meta))
+    unpaired = [m for m in given.values() if m not in {p[3] for p in pairs}]
+    if unpaired:
+        raise _lead(DataError("repeats the header of none of the snapshots given (name, "
+                              "artefact, location, rotation); it is no snapshot's metadata.",
+                              file=unpaired[0], hint="give it with the snapshot it was saved "
+                                                     "with, or leave it out."),
+                    lead_of["metadata"])
+    read_plates: list[ForeignDataset] = []
+    read_bars: list[ForeignStepGauge] = []
+    for role, sname, ssrc, meta in pairs:
+        read = read_msl_plate if role == "plate" else read_msl_bar
+        leads = {sname: lead_of[role]}
+        if meta is not None:  # the same file given as both: its metadata role leads
+            leads[meta] = lead_of["metadata"]
+        (read_plates if role == "plate" else read_bars).append(_led(
+            leads, read, ssrc, None if meta is None else sources[meta], kind=kind,
+            certificate_u=certificate_u, snapshot_name=sname, metadata_name=meta,
+            names=names))
+    return MslFiles(read_plates, read_bars,
+                    beside_notes + _grouped_notes([*read_plates, *read_bars]))
+
+
+def _lead(exc: DataError, lead: str) -> DataError:
+    """``exc`` led by ``lead`` (the flag that gave its file), if it is one problem."""
+    if not lead or exc.n_problems != 1 or exc.detail.startswith(lead):
+        return exc
+    return DataError(f"{lead}: {exc.detail}", file=exc.file, row=exc.row, column=exc.column,
+                     hint=exc.hint)
+
+
+def _led(leads: dict, read, *a, **kw):
+    """``read(*a, **kw)``, its refusal led by the word ``leads`` gives its file."""
+    try:
+        return read(*a, **kw)
+    except DataError as exc:
+        out = _lead(exc, leads.get(str(exc.file), ""))
+        if out is exc:
+            raise
+        raise out from None
+
+
+def _grouped_notes(parts: list) -> list[str]:
+    """Each reader note once, naming the snapshots it applies to (``every MSL snapshot``
+    when all): three placements' identical conventions are not said three times."""
+    named: dict[str, list[str]] = {}
+    for part in parts:
+        for note in part.notes:
+            named.setdefault(note, []).append(part.name)
+    every = len(parts) > 1
+    return [f"{'every MSL snapshot' if every and len(n) == len(parts) else ', '.join(n)}: "
+            f"{note}" for note, n in named.items()]
 
 
 # --------------------------------------------------------------------------- sniffing
