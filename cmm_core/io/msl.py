@@ -1202,17 +1202,18 @@ def read_msl_files(plates: Sequence[tuple[str, FileSource]] = (),
     """
     lead_of = {"plate": names.lead_plate, "bar": names.lead_bar,
                "metadata": names.lead_metadata}
-    given: dict[tuple, str] = {}
-    sources = {}
-    for mname, msrc in metadata:
+    metas = list(metadata)  # indexed: two uploads may share a name (MSL's metadata.csv)
+    given: dict[tuple, int] = {}
+    for i, (mname, msrc) in enumerate(metas):
         key = _led({mname: lead_of["metadata"]}, msl_header, msrc, mname, names)
         if key in given:
-            raise DataError(f"repeats the header of {names.metadata_flag} {given[key]} (name "
-                            f"{key[0]!r}, location {key[4]}, rotation {key[5]}); give each "
-                            "snapshot's metadata once.", file=mname)
-        given[key], sources[mname] = mname, msrc
+            raise DataError(f"repeats the header of {names.metadata_flag} "
+                            f"{metas[given[key]][0]} (name {key[0]!r}, location {key[4]}, "
+                            f"rotation {key[5]}); give each snapshot's metadata once.",
+                            file=mname)
+        given[key] = i
     seen: dict[tuple, str] = {}
-    pairs, beside_notes = [], []
+    pairs, beside_notes, used = [], [], set()
     for role, (sname, ssrc) in [*(("plate", p) for p in plates),
                                 *(("bar", b) for b in bars)]:
         key = _led({sname: lead_of[role]}, msl_header, ssrc, sname, names)
@@ -1224,17 +1225,19 @@ def read_msl_files(plates: Sequence[tuple[str, FileSource]] = (),
                                   "given twice; each may be fitted once.", file=sname,
                                   hint="give the snapshot once."), lead_of[role])
         seen[key] = sname
-        meta = given.get(key)
+        meta = metas[given[key]] if key in given else None
+        used.add(given.get(key))
         near = beside(sname) if meta is None and beside is not None else None
         if near is not None and _led({near[0]: lead_of["metadata"]}, msl_header, near[1],
                                      near[0], names) == key:
-            meta, sources[near[0]] = near[0], near[1]
-            beside_notes.append(f"{sname}: metadata: {meta}, the metadata.csv saved beside "
-                                f"the snapshot (no {names.metadata_flag} repeats its header).")
+            meta = near
+            beside_notes.append(f"{sname}: metadata: {near[0]}, the metadata.csv saved "
+                                f"beside the snapshot (no {names.metadata_flag} repeats its "
+                                "header).")
         # without metadata the reader refuses the snapshot in the caller's words (after its
         # own checks: a metadata file given as a snapshot is named as such)
         pairs.append((role, sname, ssrc, meta))
-    unpaired = [m for m in given.values() if m not in {p[3] for p in pairs}]
+    unpaired = [metas[i][0] for i in given.values() if i not in used]
     if unpaired:
         raise _lead(DataError("repeats the header of none of the snapshots given (name, "
                               "artefact, location, rotation); it is no snapshot's metadata.",
@@ -1247,11 +1250,11 @@ def read_msl_files(plates: Sequence[tuple[str, FileSource]] = (),
         read = read_msl_plate if role == "plate" else read_msl_bar
         leads = {sname: lead_of[role]}
         if meta is not None:  # the same file given as both: its metadata role leads
-            leads[meta] = lead_of["metadata"]
+            leads[meta[0]] = lead_of["metadata"]
         (read_plates if role == "plate" else read_bars).append(_led(
-            leads, read, ssrc, None if meta is None else sources[meta], kind=kind,
-            certificate_u=certificate_u, snapshot_name=sname, metadata_name=meta,
-            names=names))
+            leads, read, ssrc, None if meta is None else meta[1], kind=kind,
+            certificate_u=certificate_u, snapshot_name=sname,
+            metadata_name=None if meta is None else meta[0], names=names))
     return MslFiles(read_plates, read_bars,
                     beside_notes + _grouped_notes([*read_plates, *read_bars]))
 
