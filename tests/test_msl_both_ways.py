@@ -7,6 +7,7 @@ back to the same numbers; ``--help`` true; the commands of docs/msl-format.md ru
 
 from __future__ import annotations
 
+import ast
 import io
 import json
 import re
@@ -273,6 +274,57 @@ def test_the_fitted_machine_is_written_in_msl_form_and_read_back(files, tmp_path
             scale = (2e-3 if name[0] == "T" else 2e-6) / RANGE["xyz".index(name[1].lower())]
             assert back["parameters"][name][1] == pytest.approx(
                 MSL_TRUTH[name], abs=max(5 * u, 0.01) * scale), name
+
+
+def test_the_writers_lines_are_msls_and_read_back():
+    """The writer's file line by line against MSL's conventions (docs/msl-format.md,
+    "MSL's conventions the writer follows": MSL's data_cmpts.py and design_poly.py at
+    c337a60): the eight header lines and the machine and probe lines in MSL's order and
+    form, the artefact lines saying no artefact, the 21 parameters in MSL's order as
+    Python lists, lowest power first, in mm/mm and rad/mm with MSL's sign; then read back
+    by this project's reader (and named by ``sniff`` as the machine it is, not a bar)."""
+    probe = (0.0, 130.0, -243.4852)
+    for (fixed, bridge), layout in msl.MSL_LAYOUTS.items():
+        params, left_out = msl.msl_parameters(msl.msl_coefficients(MSL_TRUTH, layout, RANGE),
+                                              layout, RANGE)
+        assert not left_out
+        text = msl.msl_metadata_text(params, layout, RANGE, probe_name="p1", probe_mm=probe,
+                                     title="cmm-error-lab fit, order 1", name="model",
+                                     machine="PMM866")
+        lines = text.splitlines()
+        keys = [ln.split(",", 1)[0] for ln in lines]
+        assert keys[:8] == list(msl.MSL_HEADER_KEYS)
+        assert keys[8:16] == ["cmm_model.title", "cmm_model.size", "cmm_model.fixed_table",
+                              "cmm_model.bridge_axis", "probe.title", "probe.name",
+                              "probe.length", "model parameters"]
+        assert keys[16:] == list(msl.MSL_PARAMETERS)  # all 21: MSL's model needs each
+        assert re.fullmatch(r"save time,\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d{6}", lines[0])
+        assert lines[1:8] == ["title,cmm-error-lab fit order 1", "name,model",
+                              "artefact.title,none (a fitted machine)", "artefact.nballs,1,1",
+                              "artefact.ball_spacing,1.0", "location,0.0, 0.0, 0.0",
+                              "rotation/deg,0.0, 0.0, 0.0"]
+        assert lines[8:16] == ["cmm_model.title,PMM866", "cmm_model.size,800.0,600.0,600.0",
+                               f"cmm_model.fixed_table,{fixed}",
+                               f"cmm_model.bridge_axis,{bridge}", "probe.title,stylus",
+                               "probe.name,p1", "probe.length,0.0,130.0,-243.4852",
+                               "model parameters"]
+        for line in lines[16:]:
+            name, _, value = line.partition(",")
+            # a Python list, as MSL writes its own, to the writer's 10 digits
+            assert re.fullmatch(r"\[\S+(, \S+)+\]", value), line
+            assert ast.literal_eval(value) == pytest.approx(params[name], rel=1e-9,
+                                                            abs=1e-20), line
+        # MSL's own linear parameters (mm/mm, rad/mm, true - indicated) come out as given
+        for name, v in MSL_TRUTH.items():
+            assert params[name] == pytest.approx([0.0, v], abs=1e-18), (layout, name)
+        back = msl.read_msl_metadata(text.encode(), "machine.csv")
+        assert back["layout"] == layout and back["range_mm"] == RANGE
+        assert back["probe_name"] == "p1" and back["probe_mm"] == list(probe)
+        assert back["title"] == "PMM866"
+        for name, v in params.items():
+            assert back["parameters"][name] == pytest.approx(v, rel=1e-9, abs=1e-20), name
+        said = msl.sniff(text.encode())
+        assert "read_msl_metadata" in said and "read_msl_bar" not in said
 
 
 def test_the_writer_inverts_the_readers_conventions_at_any_order():

@@ -166,8 +166,10 @@ def _write(args, model, source) -> dict:
 
 def msl_parameters_text(model: Model, source: str, *, probe: str | None = None,
                         allow_undetermined: bool = False) -> tuple[str, list[str]]:
-    """The model as an MSL cmm-error-map metadata file (``io.msl_metadata_text``), so that
-    MSL's app can show the machine this program fitted; and the notes on what it holds.
+    """The model as an MSL cmm-error-map metadata file (``io.msl_metadata_text``): the
+    machine this program fitted in the form MSL's app saves, read back by
+    ``io.read_msl_metadata`` (MSL's app itself loads snapshots only: its parameters are
+    set by hand, docs/msl-format.md); and the notes on what it holds.
 
     The coefficients become MSL's parameters by the inverse of the reader's conventions
     (``io.msl_parameters``: power series in mm and rad, a moving table's odd powers and
@@ -194,10 +196,12 @@ def msl_parameters_text(model: Model, source: str, *, probe: str | None = None,
         params, left_out = msl_parameters(coefficients, terms.layout, terms.range_mm)
         digest = model.source.sha256[:12] if model.source is not None else "unknown"
         title = f"cmm-error-lab {__version__} fit {source} sha256 {digest} {model.spec}"
+        named = model.provenance.machine if model.provenance is not None else None
         text = msl_metadata_text(params, terms.layout, terms.range_mm,
                                  probe_name=probe or "ram",
                                  probe_mm=probe_offset(model, probe), title=title,
-                                 name=Path(source).stem)
+                                 name=Path(source).stem,
+                                 machine=named or f"cmm-error-lab fit {Path(source).stem}")
     except ValueError as exc:  # MSL knows four layouts
         raise DataError(str(exc), file=source,
                         hint="MSL's model has no gantry or horizontal arm.") from None
@@ -224,6 +228,8 @@ def msl_parameters_text(model: Model, source: str, *, probe: str | None = None,
                      "the fit's minimum-norm choice (--allow-undetermined), not measured.")
     notes.append("msl parameters: the header's artefact lines say no artefact (one ball at "
                  "the origin); probe " + (probe or "none, the ram reference point") + ".")
+    notes.append("msl parameters: MSL's app loads snapshots only, no metadata file: enter "
+                 "the parameters there by hand (docs/msl-format.md, 'Writing MSL's form').")
     return text, notes
 
 

@@ -440,7 +440,8 @@ def msl_metadata_text(parameters: dict, layout: str, range_mm: Sequence[float] |
                       *, probe_name: str = "ram",
                       probe_mm: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0),
                       title: str = "cmm-error-lab fitted machine", name: str = "fit",
-                      save_time: str = "", digits: int = 10) -> str:
+                      machine: str = "cmm-error-lab fitted machine", save_time: str = "",
+                      digits: int = 10) -> str:
     """A machine in MSL's metadata form, as :func:`read_msl_metadata` (and
     :func:`read_msl_plate`) read it.
 
@@ -462,7 +463,10 @@ def msl_metadata_text(parameters: dict, layout: str, range_mm: Sequence[float] |
         The probe (``probe.name``, ``probe.length``), default the ram reference point.
     title, name, save_time : str, optional
         The header's ``title``, ``name`` (commas become spaces: MSL's lines are CSV) and
-        ``save time`` (default now, in MSL's form).
+        ``save time`` (default now, in MSL's form: ``datetime.isoformat(sep=" ")``).
+    machine : str, optional
+        ``cmm_model.title``: the machine's name, where MSL writes its machine type's
+        (``PMM866``); the provenance belongs in ``title``.
     digits : int, optional
         Significant digits of each coefficient.
 
@@ -487,7 +491,7 @@ def msl_metadata_text(parameters: dict, layout: str, range_mm: Sequence[float] |
     lines = [f"save time,{when}", f"title,{clean(title)}", f"name,{clean(name)}",
              "artefact.title,none (a fitted machine)", "artefact.nballs,1,1",
              "artefact.ball_spacing,1.0", "location,0.0, 0.0, 0.0",
-             "rotation/deg,0.0, 0.0, 0.0", f"cmm_model.title,{clean(title)}",
+             "rotation/deg,0.0, 0.0, 0.0", f"cmm_model.title,{clean(machine)}",
              "cmm_model.size," + ",".join(num(v) for v in range_mm),
              f"cmm_model.fixed_table,{fixed}", f"cmm_model.bridge_axis,{bridge}",
              "probe.title,stylus", f"probe.name,{clean(probe_name) or 'ram'}",
@@ -499,7 +503,8 @@ def msl_metadata_text(parameters: dict, layout: str, range_mm: Sequence[float] |
 
 
 def _now():
-    # MSL's own form of the save time, to the microsecond
+    # MSL's own form of the save time (its app writes datetime.isoformat(sep=" ")), always
+    # to the microsecond
     return datetime.now().strftime("%Y-%m-%d %H:%M:%S.%f")
 
 
@@ -1312,6 +1317,16 @@ def sniff(source: FileSource, names: MslNames = MSL_API_NAMES) -> str | None:
     what = next((k for c, k in _FOREIGN_COLUMNS.items() if line9.startswith(c)), "")
     nb = next((ln.split(",", 1)[1] for ln in lines[:8] if ln.startswith("artefact.nballs,")),
               "")
+    if what == "metadata" and nb.replace(" ", "") == "1,1":
+        # one ball, no artefact: a machine alone, as msl_metadata_text writes it (MSL's
+        # own rule, ny = 1 a bar, would send it to the bar reader, which it is not for)
+        return ("this looks like an MSL cmm-error-map metadata file of a machine alone "
+                "(no artefact: one ball at the origin), as cmm-error-lab export "
+                "--msl-parameters writes it: it is no snapshot's metadata; "
+                + ("it is not fitted, nor given with --msl-metadata."
+                   if names is not MSL_API_NAMES else
+                   "read its machine and parameters with "
+                   "cmm_core.io.msl.read_msl_metadata."))
     bar = nb.replace(" ", "").endswith(",1")
     reader = "read_msl_bar" if bar else "read_msl_plate"
     art = "bar (step gauge)" if bar else "plate"
