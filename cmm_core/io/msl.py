@@ -1230,8 +1230,10 @@ def read_msl_files(plates: Sequence[tuple[str, FileSource]] = (),
                                   "given twice; each may be fitted once.", file=sname,
                                   hint="give the snapshot once."), lead_of[role])
         seen[key] = sname
-        meta = metas[given[key]] if key in given else None
-        used.add(given.get(key))
+        meta = None
+        if key in given:
+            meta = metas[given[key]]
+            used.add(given[key])
         near = beside(sname) if meta is None and beside is not None else None
         if near is not None and _led({near[0]: lead_of["metadata"]}, msl_header, near[1],
                                      near[0], names) == key:
