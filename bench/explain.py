@@ -42,7 +42,7 @@ import scenarios as sc  # noqa: E402
 
 from cmm_core.export import model_from_result  # noqa: E402
 from cmm_core.model import fit  # noqa: E402
-from cmm_core.monitor import compare_calibrations, remeasured, run_check  # noqa: E402
+from cmm_core.monitor import VERDICTS, compare_calibrations, remeasured, run_check  # noqa: E402
 
 PPM = 17.0
 """Warm scales: 1.5 K on steel's 11.5 ppm/K."""
@@ -134,23 +134,30 @@ def main() -> None:
             if name not in args.events.split(","):
                 continue
             fails = named = right = 0
+            u_first = []
             for s in range(args.seeds):
                 new = remeasured(cal, 50_000 + s, changes=changes, probes_per_position=one,
                                  effects=effects)
                 out = run_check(model, new.dataset, name_effects=False)
-                if out.check.passes:
+                if out.verdict != VERDICTS[2]:
                     continue
                 fails += 1
                 step = out.explanation.first if out.explanation else None
                 if step is not None:
                     named += 1
                     right += step.hypothesis.key in truth
+                    if step.hypothesis.key in truth:
+                        u_first.append(step.u[0])
             n = args.seeds
             line = (f"{layout:14s} {name:6s} check fails {share(fails, n)}; names a change "
                     f"{share(named, n)}")
             if truth:
                 line += (f"; first named is the truth {share(right, n)} (of the failing "
                          f"checks: {share(right, fails) if fails else '-'})")
+            if name == "stylus" and u_first:
+                # the bend in units of the check's own u of the stylus's x offset change
+                line += (f"; u(x offset) median {np.median(u_first):.3f} µm: the bend is "
+                         f"{args.stylus_um / np.median(u_first):.1f} u")
             print(line, flush=True)
 
 

@@ -71,6 +71,7 @@ from .identity import machine_of, refuse_mixed_machines, refuse_other_machine, v
 from .numbers import json_num
 from .outcome import (
     CHANGE_RULE,
+    TARGETED_SHARE,
     TEST_RULE,
     VERDICTS,
     CheckOutcome,
@@ -93,7 +94,7 @@ __all__ = ["CheckSystem", "check_sigma_um", "check_system", "GlsFit", "gls_fit",
            "MAX_OBSERVATIONS", "PROBE_TOLERANCE_MM", "remeasured", "Changes", "MIN_RESOLVED", "what_changed",
            "Conformity", "conformity", "parse_mpe", "RULE", "STATEMENTS", "holm", "History",
            "compare_calibrations", "MAX_MAP_NODES_PER_AXIS", "CheckOutcome", "NewEffects",
-           "name_new_effects", "run_check", "VERDICTS", "TEST_RULE", "CHANGE_RULE",
+           "name_new_effects", "run_check", "VERDICTS", "TARGETED_SHARE", "TEST_RULE", "CHANGE_RULE",
            "HISTORY_RULE", "json_num", "machine_of", "refuse_mixed_machines",
            "refuse_other_machine", "version_notes", "MPE_MAX_A_UM", "MPE_MIN_D",
            "en_definition", "unseen_words", "combination_text", "unseen_example",
