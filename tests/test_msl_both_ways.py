@@ -391,3 +391,19 @@ def test_every_command_of_the_docs_runs(files, monkeypatch, capsys):
     for argv in commands:
         rc, _out, _notes, errors = run(argv, capsys)
         assert rc == 0, (argv, errors)
+
+
+def test_every_python_example_of_the_docs_runs(files, monkeypatch):
+    """docs/msl-format.md's ``python`` blocks, executed in their order in a folder of the
+    files they name (the XZ plate's files also as ``snapshot.csv``/``metadata.csv``,
+    the first block's names): none raises, and what they build is what they say."""
+    for name in ("snapshot.csv", "metadata.csv"):
+        shutil.copy(files / "XZ" / name, files / name)
+    blocks = re.findall(r"```python\n(.*?)```", DOC.read_text(encoding="utf-8"), flags=re.S)
+    assert len(blocks) >= 3
+    monkeypatch.chdir(files)
+    scope: dict = {}
+    for block in blocks:
+        exec(compile(block, str(DOC), "exec"), scope)  # noqa: S102 - the docs' own examples
+    assert len(scope["plate"].notes) > 0 and len(scope["ds"].meas) > 0
+    assert len(scope["gauges"]) == 1 and scope["res"].status in ("converged", "ok")
