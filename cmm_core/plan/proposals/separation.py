@@ -39,9 +39,15 @@ clipped at 0 and the power there is the level, although the truth's λ is, as of
 above it (drift rates fitted within ±1.3-3.5 µm/h against a 1 µm/h spread: 65 % predicted
 against 93 % measured, docs/proposals.md "Validation"). So ``power_A`` is the assurance
 of the nested test (O'Hagan & Stevens 2001; Spiegelhalter, Abrams & Myles 2004 §6.5):
-``E[P(F(k_A, ν, λ_A(θ)) > F⁻¹(1 − α))]`` over ``θ ~ N(θ̂_A, C_A)``, the current data's
-posterior of A's size under a flat prior (the linear model with σ known), with
-``λ_A(θ) = θᵀ Mᵀ M θ``. With ``C_A → 0`` it is the power at the fitted size.
+``E[P(F(k_A, ν, λ_A(θ)) > F⁻¹(1 − α))]`` over the current data's posterior of A's size,
+with ``λ_A(θ) = θᵀ Mᵀ M θ``. The posterior is that of a stated prior
+(:func:`_hierarchical_assurance`): A's own parameters drawn of mean 0 from one spread
+``τ`` of A's, ``θ ~ N(0, τ² I)``, ``τ`` uniform (the normal/normal hierarchical model,
+Efron & Morris 1973, Carlin & Louis 2000 §3.3-3.4; Gelman 2006), so that a size the
+current data hardly see is shrunk towards 0 instead of taken at the noise's size (the
+flat prior's ``N(θ̂_A, C_A)``, :func:`_expected_power`, used before and still for a
+rival of one free parameter). Where the data determine the size well it is the flat
+prior's result; with ``C_A → 0`` the power at the fitted size.
 
 Three rivals or more (an alias set of the diagnosis, ``rivals.rival_pairs``): deciding
 means separating each pair. With ``A`` true its power is the smallest, over the other
