@@ -733,3 +733,56 @@ def test_rank_ties_at_the_level_go_to_the_other_directions_power(clean80):
     lo = replace(lo, per_minute=0.0)
     ranked = sorted([lo, hi], key=ranking._rank_key(0.9))
     assert [p.candidate.name for p in ranked] == ["z_strong", "b_weak"]
+
+
+def test_the_hierarchical_assurance_is_the_power_averaged_over_its_posterior():
+    """The assurance under θ ~ N(0, τ² I), τ uniform (two parameters): θ's posterior is
+    then ∝ N(θ; θ̂, C) ∫ N(θ; 0, τ² I) dτ ∝ N(θ; θ̂, C) / ‖θ‖ (the τ integral of a 2-D
+    normal density is ∝ 1/‖θ‖). An independent quadrature of the power against that
+    density (a 400 × 400 cell-centred grid over ±7 standard deviations, the singularity at
+    0 integrable) agrees with the quasi-Monte Carlo over τ's quantiles within 0.01 (the
+    grid of τ is cut at 100 times the largest size, about 1 % of its mass, where the
+    posterior is the flat prior's)."""
+    G, theta, C, k, nu, level = TINY
+    for g, th in ((G, theta), (3.0 * G, 2.0 * theta)):
+        got, _ = separation._hierarchical_assurance(g, th, C, k, nu, level)
+        sd = np.sqrt(np.diag(C))
+        ax = [np.linspace(t - 7 * s, t + 7 * s, 400) for t, s in zip(th, sd, strict=True)]
+        X, Y = np.meshgrid(*ax, indexing="ij")
+        P = np.stack([X.ravel(), Y.ravel()], axis=1)
+        d = P - th
+        dens = np.exp(-0.5 * np.einsum("ni,ij,nj->n", d, np.linalg.inv(C), d))
+        dens /= np.linalg.norm(P, axis=1)
+        lam = np.einsum("ni,ij,nj->n", P, g, P)
+        ref = float(np.sum(dens * separation._powers(lam, k, nu, level)) / dens.sum())
+        assert got == pytest.approx(ref, abs=0.01)
+        # shrunk towards 0: below the flat prior's expected power
+        assert got < separation._expected_power(g, th, C, k, nu, level)
+
+
+def test_the_hierarchical_assurance_is_the_flat_one_where_the_data_determine_the_size():
+    """C small against θ̂θ̂ᵀ: τ's posterior sits far above the noise, the shrinkage is 1 and
+    the assurance is the flat prior's (within 0.005); one free direction (a single
+    parameter, or C of rank one): the flat prior's exactly (τ's posterior is improper)."""
+    G, theta, C, k, nu, level = TINY
+    for u in (1e-3, 1e-4):
+        th = 40.0 * theta  # the sizes 40 times larger, λ(θ̂) as in TINY
+        g = G / 1600.0
+        flat = separation._expected_power(g, th, u * C, k, nu, level)
+        assert separation._hierarchical_assurance(g, th, u * C, k, nu, level)[0] == \
+            pytest.approx(flat, abs=0.005)
+    one = np.array([[0.8]])
+    assert separation._hierarchical_assurance(G[:1, :1], theta[:1], one, 1, nu, level)[0] == \
+        separation._expected_power(G[:1, :1], theta[:1], one, 1, nu, level)
+
+
+def test_a_size_fitted_to_noise_alone_predicts_little():
+    """θ̂ = 0 with a large C (the current data see nothing of the rival): the flat prior
+    credits the candidate with the noise's size (0.73); under the hierarchical prior τ's
+    posterior sits near the noise and below, and the assurance is a third lower (0.46;
+    with two parameters τ's posterior tail, falling as τ⁻², still weighs large sizes)."""
+    G, theta, C, k, nu, level = TINY
+    C9 = 9.0 * C
+    flat = separation._expected_power(G, np.zeros(2), C9, k, nu, level)
+    hier = separation._hierarchical_assurance(G, np.zeros(2), C9, k, nu, level)[0]
+    assert flat > 0.6 and hier < flat - 0.2

@@ -7,7 +7,8 @@ is hardest to tell from, :mod:`.separation`'s docstring), the smallest over the 
 on the powers at the noise-corrected sizes (``Proposal.power_at_size``): those reaching
 ``target`` power first, by machine time; then the others by power. Not on the assurance:
 under the flat prior it credits a candidate for seeing directions the current data leave
-loose (large sizes there are as likely as small ones), so a rival fitted to nothing but
+loose (the ranking under the hierarchical prior the assurance now takes, :mod:`.separation`,
+is not examined) (large sizes there are as likely as small ones), so a rival fitted to nothing but
 noise gets a power above :data:`NO_POWER` from a candidate that sees little of it, and
 that candidate would outrank one that shows the other rival with certainty (the weak
 ``rxz:4`` case of bench/proposals.py, seed 9: ``low_x`` at 0.33/0.15 against ``high_x``
@@ -118,8 +119,9 @@ class Proposal:
         tokens: both at the first rival's level, as the diagnosis's nested tests).
     power : dict
         Rival taken as the truth -> probability that its nested test rejects the other:
-        the expected power over the uncertainty of the rival's fitted size
-        (:func:`_expected_power`, the "assurance").
+        the expected power over the uncertainty of the rival's fitted size under the
+        hierarchical prior of :func:`~.separation._hierarchical_assurance` (the
+        "assurance").
     power_min : float
         The smallest of the powers: the probability the pair is decided (of three rivals
         or more: the minimum pairwise power, :mod:`.separation`'s docstring).
