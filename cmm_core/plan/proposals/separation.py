@@ -70,7 +70,7 @@ from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
-from scipy import stats
+from scipy import integrate, stats
 from scipy.stats import qmc
 
 from ...io import Dataset
@@ -377,7 +377,7 @@ def _tau2_quantiles(z2: np.ndarray, c: np.ndarray, q: np.ndarray) -> np.ndarray:
     v = tau[:, None] ** 2 + c[None, :]
     logp = -0.5 * np.sum(np.log(v) + z2 / v, axis=1)
     dens = np.exp(logp - logp.max())
-    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(tau))])
+    cdf = integrate.cumulative_trapezoid(dens, tau, initial=0.0)
     return np.interp(np.asarray(q, float) * cdf[-1], cdf, tau) ** 2
 
 
