@@ -126,8 +126,10 @@ with t_check:
                         "their setup and the plate's certificate, or instrument files, or "
                         "both.")
         c1, c2, c3, c4 = st.columns(4)
-        alpha = c1.number_input("χ² test level", 0.001, 0.2, 0.05, 0.01, key="chk_alpha",
-                                help="fraction of checks of an unchanged machine that fail")
+        alpha = c1.number_input("Check level", 0.001, 0.2, 0.05, 0.01, key="chk_alpha",
+                                help="at most the fraction of checks of an unchanged machine "
+                                     "that say 'changed': half to the χ² test of all the new "
+                                     "data, half to the fewest physical changes (Bonferroni)")
         family = c2.number_input("Family-wise level of the changes", 0.001, 0.2, 0.05, 0.01,
                                  key="chk_family", help="Holm over the parameters tested")
         mpe_text = c3.text_input("MPE 'A,D' (A µm + L/D)", "0.6,600", key="chk_mpe",

@@ -374,8 +374,11 @@ _CHECK_CERT_HELP = ("certificate CSV of the plate (calibrated ball centres with 
                     "the setup names; one of the two is required)")
 _CHECK_SIGMA_HELP = ("repeatability of one probed coordinate of the new data, µm, 0.001 to "
                      "1000 (default: the stored model's σ)")
-_ALPHA_HELP = ("false-alarm level of the χ² test, 0.001 to 0.2 (default: %(default)s): the "
-               "fraction of checks of an unchanged machine that fail")
+_ALPHA_HELP = ("false-alarm level of the check, 0.001 to 0.2 (default: %(default)s): at most "
+               "the fraction of checks of an unchanged machine that say 'changed'; half of "
+               "it goes to the χ² test of all the new data, half to the test of the fewest "
+               "physical changes (a scale, a squareness, an error function, a stylus), "
+               "Bonferroni")
 _FAMILY_HELP = ("family-wise false-alarm level of the parameter changes (Holm over the "
                 "parameters tested), 0.001 to 0.2 (default: %(default)s)")
 _POS_HELP = ("placements of the new data to check, comma-separated (default: all)")
