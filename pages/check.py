@@ -14,6 +14,7 @@ from cmm_core import io as cio
 from cmm_core import monitor as mon
 from cmm_core.io import SAMPLE_DIR
 from cmm_core.model import INSTRUMENT_KINDS, read_instrument
+from cmm_core.units import P_FLOOR
 from pages.ui import calls, widgets
 
 st.title("Interim check")
@@ -103,7 +104,8 @@ with t_check:
                      _read(folder / "measurements.csv"), _read(folder / "setup.json"),
                      _read(folder / "certificate.csv"), ())
         else:
-            up_model = st.file_uploader("Stored model (fit --save JSON)", type=["json"],
+            up_model = st.file_uploader("Stored calibration (the model file a fit saved, .json)",
+                                        type=["json"],
                                         key="chk_model")
             up_meas = st.file_uploader("New measurements (CSV)", type=["csv", "txt"],
                                        key="chk_meas")
@@ -157,7 +159,8 @@ with t_check:
                 en = f"E_n (k = {k:g})"
                 m1, m2, m3, m4 = st.columns(4)
                 m1.metric("χ² / dof", f"{chk['chi2']:.1f} / {chk['dof']}")
-                m2.metric("p-value", f"{chk['p_value']:.3g}")
+                m2.metric("p-value", f"{chk['p_value']:.3g}" if chk["p_value"] >= P_FLOOR
+                          else f"< {P_FLOOR:g}")
                 m3.metric("Within 95 % intervals", f"{100 * chk['coverage_95']:.1f} %")
                 worst = np.abs(np.concatenate([table["En"].to_numpy(float),
                                                readings["En"].to_numpy(float)]))
@@ -220,7 +223,8 @@ with t_check:
                      st.warning if conf["statement"] == "does not conform" else st.info)(
                         f"**{conf['statement']}**: {conf['message']}")
                 st.download_button(
-                    "Download the results (JSON)", results, file_name="interim_check_results.json",
+                    "Download the results (JSON)", results, file_name=ex.download_name(Path(files[0][0]).stem,
+                                              "interim_check_results.json"),
                     mime="application/json", key="chk_results",
                     help="the stored model's parameters and the section interim_check: the "
                          "test, each parameter's change with its uncertainty, the new effect, "
@@ -238,7 +242,7 @@ with t_hist:
             dates = tuple(dmap.values())
             st.caption(", ".join(f"{n} ({d})" for n, d in dmap.items()))
         else:
-            ups = st.file_uploader("Model files (fit --save JSON)", type=["json"],
+            ups = st.file_uploader("Calibrations (the model files fits saved, .json)", type=["json"],
                                    accept_multiple_files=True, key="hist_models")
             if ups:
                 table = st.data_editor(pd.DataFrame({"model": [u.name for u in ups],

@@ -350,12 +350,18 @@ if s["diag_on"]:
                             + (" — significant" if c_["significant"] else ""))
                 # an effect the data cannot determine on top of this model adds only
                 # undetermined parameters: nothing to add
-                h2.button("Add this effect", key=f"add_{c_['effect']}",
+                # one button, worded by the candidate's standing: a candidate the data do
+                # not call for can still be tried, but the label says so
+                h2.button("Add this effect" if c_["significant"] else "Add this effect anyway",
+                          key=f"add_{c_['effect']}",
                           on_click=state.apply_change, args=(c_["effect"],), type="primary"
                           if c_["significant"] else "secondary",
                           disabled=c_["n_params"] == 0,
                           help="The data cannot determine it on top of this model."
-                          if c_["n_params"] == 0 else None)
+                          if c_["n_params"] == 0 else None if c_["significant"] else
+                          "Not significant at its level: the data do not call for it; "
+                          "adding it costs degrees of freedom (try it, and Undo if the "
+                          "error does not fall).")
                 if c_["would_leave_undetermined"]:
                     st.warning(f"Adding it as is would leave "
                                f"{len(c_['would_leave_undetermined'])} parameter combination(s) "

@@ -12,6 +12,7 @@ import pandas as pd
 import streamlit as st
 
 from cmm_core import analysis as A
+from cmm_core.export import download_name
 from cmm_core.model import rigid_removed_error_u
 from cmm_core.plan import check_plans, design_fit, design_from_file, evaluate, read_plan
 from cmm_core.units import label as unit_label
@@ -58,13 +59,13 @@ def u_map(text: str, name: str, z_mm: float, n: int = 25):
 
 
 def _download_name(text: str) -> str:
-    """``plan_<name>.json`` from the plan's own name (letters, digits, _ and -)."""
+    """``<name>_<date>_plan.json`` from the plan's own name, by the downloads' one rule
+    (``export.download_name``)."""
     try:
         name = str(json.loads(text).get("name") or "plan")
     except (json.JSONDecodeError, AttributeError):
         name = "plan"
-    safe = "".join(ch if ch.isalnum() or ch in "_-" else "_" for ch in name).strip("_")
-    return f"plan_{safe[:60] or 'plan'}.json"
+    return download_name(name, "plan.json")
 
 
 def _fmt(v, digits=3):

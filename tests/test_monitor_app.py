@@ -88,7 +88,10 @@ def test_check_offers_its_results_document(monkeypatch):
     _ok(at)
     buttons = at.get("download_button")
     assert [b for b in buttons if "results (JSON)" in b.proto.label]
-    doc = json.loads(files["interim_check_results.json"])
+    # the downloads' one rule: <stored calibration>_<date>_interim_check_results.json
+    name = next(n for n in files if n and n.endswith("_interim_check_results.json"))
+    assert name.startswith("calibration_2024-03-04_")
+    doc = json.loads(files[name])
     ic = doc["interim_check"]
     test = ic["test"]
     shown = next(m.value for m in at.metric if m.label == "χ² / dof")

@@ -11,6 +11,7 @@ import pandas as pd
 from scipy import stats
 
 from ..machine import KinematicTerms
+from ..units import p_text
 from .problem import Problem
 from .state import State
 
@@ -269,7 +270,7 @@ def _message(status, it, rms, chi2_dof, combos, chi2_p=1.0, dof=0, test_dof=None
     if chi2_p < CHI2_ALPHA:
         cert = ("" if abs(test_dof - chi2_dof) < 0.005 else
                 f" with the certificate's uncertainty counted (χ²/dof {test_dof:.2f})")
-        msg += (f" It fails the χ² test{cert} (p = {chi2_p:.2g} at {dof} degrees of freedom):"
+        msg += (f" It fails the χ² test{cert} ({p_text(chi2_p)} at {dof} degrees of freedom):"
                 f" the scatter is {np.sqrt(test_dof):.2f} times what the stated repeatability"
                 f"{' and certificate allow' if cert else ' allows'}, so the model misses "
                 "something or σ is understated (run the diagnosis), and the uncertainties' "
