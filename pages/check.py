@@ -14,7 +14,7 @@ from cmm_core import io as cio
 from cmm_core import monitor as mon
 from cmm_core.io import SAMPLE_DIR
 from cmm_core.model import INSTRUMENT_KINDS, read_instrument
-from cmm_core.units import P_FLOOR
+from cmm_core.units import P_FLOOR, p_text
 from pages.ui import calls, widgets
 
 st.title("Interim check")
@@ -159,7 +159,8 @@ with t_check:
                 en = f"E_n (k = {k:g})"
                 m1, m2, m3, m4 = st.columns(4)
                 m1.metric("χ² / dof", f"{chk['chi2']:.1f} / {chk['dof']}")
-                m2.metric("p-value", f"{chk['p_value']:.3g}" if chk["p_value"] >= P_FLOOR
+                p = chk["p_value"]  # None: not computed (JSON null)
+                m2.metric("p-value", "–" if p is None else f"{p:.3g}" if p >= P_FLOOR
                           else f"< {P_FLOOR:g}")
                 m3.metric("Within 95 % intervals", f"{100 * chk['coverage_95']:.1f} %")
                 worst = np.abs(np.concatenate([table["En"].to_numpy(float),
@@ -195,7 +196,8 @@ with t_check:
                             {"effect": e["effect"], "title": e["title"],
                              "size": "; ".join(f"{k} {v['value']:+.3g} ± {v['u']:.2g} "
                                                f"{v['unit']}" for k, v in e["fitted"].items()),
-                             "p-value": e["p_value"], "confirmed": e["confirmed"]}
+                             "p-value": p_text(e["p_value"]).removeprefix("p = "),
+                             "confirmed": e["confirmed"]}
                             for e in eff["named"]]), hide_index=True, key="chk_effects")
                 st.subheader("What changed")
                 st.write(chg["message"])
