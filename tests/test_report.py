@@ -15,6 +15,7 @@ from scenarios import simulated
 from cmm_core import analysis as A
 from cmm_core.analysis import report as rep
 from cmm_core.cli import main
+from cmm_core.units import p_text
 from pages.ui.session import session_record
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -83,7 +84,8 @@ def test_thesis_report_shows_the_failed_chi2_test_and_inflated_values(thesis_app
     # the statistic the core tests (certificate uncertainty counted), p, dof, and the
     # fit's own χ²/dof beside it
     assert "The model fails its χ² test" in html and f"χ²/dof {val:.2f} at {dof}" in html
-    assert f"p = {res.fit.chi2_p_value:.2g}" in html and "44.71" in html
+    # p as the core writes every p-value: "p < 1e-16", never "p = 0"
+    assert p_text(res.fit.chi2_p_value) in html and "p = 0 " not in html and "44.71" in html
     assert "FAILS at 1 %" in html and f"×{res.fit.birge_ratio:.2f}" in html
     assert html.count("class='chi2 fail'") >= 4  # summary, functions, U, MPE, parameters
     assert "x × Birge (µm)" in html and "u × Birge" in html
