@@ -59,6 +59,7 @@ from ..model import (
     has_plate,
     parse_spec,
     select,
+    selected_rows,
 )
 from ..units import label as unit_label
 from . import replicates as repeatability
@@ -113,13 +114,7 @@ def _refuse_beyond_limit(data: Dataset | Observations, positions, probes) -> Non
     if isinstance(data, Observations):
         n, name = int(data.pos.size), "the data"
     else:
-        df, name = data.meas, data.name
-        keep = np.ones(len(df), bool)
-        if positions is not None:
-            keep &= df["position"].isin(list(positions)).to_numpy()
-        if probes is not None:
-            keep &= df["probe"].isin(list(probes)).to_numpy()
-        n = int(keep.sum())
+        n, name = int(selected_rows(data.meas, positions, probes).sum()), data.name
     if n > MAX_READINGS:
         raise DataError(f"{n} probed ball centres; a diagnosis takes at most {MAX_READINGS} "
                         "(it holds every candidate's Jacobian in memory, about 26 kB a "

@@ -88,6 +88,7 @@ from .observations import (
     has_plate,
     instrument_observations,
     select,
+    selected_rows,
     setup_layout,
 )
 from .problem import Problem, augmented_state, held_constraints, weighted_residual
@@ -125,7 +126,7 @@ __all__ = [
     "covariance_factor",
     "RANGE_MARGIN", "read_ball_bar", "read_instrument", "read_laser", "read_step_gauge",
     "REGISTRY", "residual_u", "residual_u_um", "residuals_frame", "rigid_body_projector",
-    "rigid_removed_error_u", "ROUNDING", "ROWS", "rows_of", "select", "setup_layout",
+    "rigid_removed_error_u", "ROUNDING", "ROWS", "rows_of", "select", "selected_rows", "setup_layout",
     "shortest_resolvable_period", "signed_sum", "SimParam", "simulate", "simulate_ball_bar",
     "simulate_laser", "simulate_step_gauge", "Simulation", "simulator_effects",
     "SimulatorEffect", "solve", "State", "STEP_GAUGE_COLUMNS", "STEP_GAUGE_OPTIONAL",

@@ -138,6 +138,18 @@ def _codes(column: pd.Series) -> tuple[np.ndarray, list]:
     return codes.astype(np.int64), list(uniques)
 
 
+def selected_rows(meas: pd.DataFrame, positions: Iterable[str] | None = None,
+                  probes: Iterable[str] | None = None) -> np.ndarray:
+    """Boolean mask of the rows of ``meas`` (``Dataset.meas``) of the chosen positions and
+    probes (None: all), as :func:`select` takes them."""
+    keep = np.ones(len(meas), bool)
+    if positions is not None:
+        keep &= meas["position"].isin(list(positions)).to_numpy()
+    if probes is not None:
+        keep &= meas["probe"].isin(list(probes)).to_numpy()
+    return keep
+
+
 def select(data: Dataset, *, positions: Iterable[str] | None = None,
        probes: Iterable[str] | None = None,
        exclude: Iterable[tuple[str, str, int]] = ()) -> Observations:
@@ -146,11 +158,7 @@ def select(data: Dataset, *, positions: Iterable[str] | None = None,
     ``exclude`` holds ``(position, probe, ball)`` triples (outliers the user removed).
     """
     df = data.meas
-    keep = np.ones(len(df), bool)
-    if positions is not None:
-        keep &= df["position"].isin(list(positions)).to_numpy()
-    if probes is not None:
-        keep &= df["probe"].isin(list(probes)).to_numpy()
+    keep = selected_rows(df, positions, probes)
     ex = {(str(a), str(b), int(c)) for a, b, c in exclude}
     if ex:
         # one vectorised membership test of the (position, probe, ball) triples
