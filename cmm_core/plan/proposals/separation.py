@@ -256,8 +256,15 @@ def _expected_power(G: np.ndarray, theta: np.ndarray, cov: np.ndarray, k: int, n
     if not theta.size or not np.any(L):
         return _power(float(theta @ G @ theta), k, nu, level)
     d = L @ _normal_points(theta.size, int(draws))
-    # λ(θ̂ ± d) = θ̂ᵀGθ̂ ± 2 θ̂ᵀG d + dᵀG d
-    base, cross = float(theta @ G @ theta), 2.0 * (theta @ G) @ d
+    return _mirrored_power(G, theta[:, None], d, k, nu, level)
+
+
+def _mirrored_power(G: np.ndarray, mean: np.ndarray, d: np.ndarray, k: int, nu: int,
+                    level: float) -> float:
+    """Mean power over the mirrored pairs of sizes ``mean ± d`` (columns; ``mean`` one
+    column for all, or one per pair): ``λ(m ± d) = mᵀGm ± 2 mᵀG d + dᵀG d``."""
+    base = np.sum(mean * (G @ mean), axis=0)
+    cross = 2.0 * np.sum(mean * (G @ d), axis=0)
     quad = np.sum(d * (G @ d), axis=0)
     lam = np.concatenate([base + cross + quad, base - cross + quad])
     return float(np.mean(_powers(np.clip(lam, 0.0, None), k, nu, level)))
@@ -355,13 +362,7 @@ def _hierarchical_assurance(G: np.ndarray, theta: np.ndarray, cov: np.ndarray, k
     b[free] = t2[None, :] / (t2[None, :] + c[free, None])
     mean = V @ (b * z[:, None])
     d = V @ (np.sqrt(b * c[:, None]) * u[1:])
-    # λ(m ± d) = mᵀGm ± 2 mᵀG d + dᵀG d
-    base = np.sum(mean * (G @ mean), axis=0)
-    cross = 2.0 * np.sum(mean * (G @ d), axis=0)
-    quad = np.sum(d * (G @ d), axis=0)
-    lam = np.concatenate([base + cross + quad, base - cross + quad])
-    return float(np.mean(_powers(np.clip(lam, 0.0, None), k, nu, level))), \
-        float(np.median(t2))
+    return _mirrored_power(G, mean, d, k, nu, level), float(np.median(t2))
 
 
 def _tau2_quantiles(z2: np.ndarray, c: np.ndarray, q: np.ndarray) -> np.ndarray:
