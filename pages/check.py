@@ -1,7 +1,9 @@
 """Interim check against a stored calibration, and a machine's calibration history."""
 
+import dataclasses
 import io
 import json
+from datetime import date
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +17,7 @@ from cmm_core import monitor as mon
 from cmm_core.io import SAMPLE_DIR
 from cmm_core.model import INSTRUMENT_KINDS, read_instrument
 from cmm_core.units import P_FLOOR, p_text
-from pages.ui import calls, widgets
+from pages.ui import cached, calls, widgets
 
 st.title("Interim check")
 st.write("Between calibrations: does the machine still behave as its stored calibration "
@@ -30,7 +32,8 @@ SAMPLE_MODEL = "calibration_2024-03-04.json"
 # drawn while the History is looked at (widgets.held)
 CHECK_DEFAULTS = {"chk_src": "Sample history", "chk_sample": next(iter(SAMPLE_CHECKS)),
                   "chk_alpha": 0.05, "chk_family": 0.05, "chk_mpe": "0.6,600",
-                  "chk_k": 2.0, "chk_kind": next(iter(INSTRUMENT_KINDS))}
+                  "chk_k": 2.0, "chk_kind": next(iter(INSTRUMENT_KINDS)),
+                  "chk_stored": "This analysis's fit"}
 
 
 def _model(name: str, text: str):
@@ -72,6 +75,31 @@ def _read(path: Path) -> tuple:
     return path.name, path.read_bytes()
 
 
+SAMPLE_DATES = json.loads((HISTORY / "dates.json").read_text())
+"""The sample history's calibrations and their dates (its model files state none)."""
+
+
+def _analysis_model(day: str) -> tuple[str, str] | None:
+    """The current analysis's fit as the stored calibration: ``(name, model file text)``
+    with its provenance (inputs, machine) and the calibration date ``day``; None, with the
+    reason shown, when there is no fit."""
+    ds = cached.require_dataset()
+    r = cached.current_fit()
+    if r is None:
+        return None
+    prov = dataclasses.replace(st.session_state["sources"].provenance(),
+                               calibration_date=day or None)
+    return (f"{ds.name} (this analysis)", json.dumps(ex.model_to_dict(r, prov)))
+
+
+def _stated_date(text: str) -> str | None:
+    """The calibration date a model file states (its provenance), or None."""
+    try:
+        return (json.loads(text).get("provenance") or {}).get("calibration_date")
+    except (ValueError, AttributeError):
+        return None  # the check itself says what is wrong with the file
+
+
 def _en_columns(table: pd.DataFrame, k: float) -> pd.DataFrame:
     """A table with its E_n columns headed with their coverage factor (``En`` ->
     ``E_n (k = 2)``, ``En_alone`` -> ``E_n alone (k = 2)``, ``rms_En`` -> ``RMS E_n (k =
@@ -99,14 +127,46 @@ with t_check:
         if src == "Sample history":
             which = st.selectbox("Sample check", list(SAMPLE_CHECKS), key="chk_sample")
             folder = HISTORY / SAMPLE_CHECKS[which]
-            st.caption(f"Stored calibration: {SAMPLE_MODEL}.")
+            st.caption(f"Stored calibration: {SAMPLE_MODEL}, calibrated "
+                       f"{SAMPLE_DATES[SAMPLE_MODEL]}.")
             files = ((SAMPLE_MODEL, (HISTORY / SAMPLE_MODEL).read_text()),
                      _read(folder / "measurements.csv"), _read(folder / "setup.json"),
                      _read(folder / "certificate.csv"), ())
         else:
-            up_model = st.file_uploader("Stored calibration (the model file a fit saved, .json)",
-                                        type=["json"],
-                                        key="chk_model")
+            stored = st.radio("Stored calibration", ["This analysis's fit", "A model file"],
+                              horizontal=True, key="chk_stored",
+                              help="This analysis: the model fitted on the Kinematic model "
+                                   "page to the data loaded now, as if it had been saved "
+                                   "at its calibration. A model file: one a fit saved "
+                                   "(Compensate and export, model file).")
+            model_file = None
+            if stored == "This analysis's fit":
+                given = st.session_state["sources"].provenance().calibration_date
+                day = st.text_input("Calibration date (YYYY-MM-DD)", given or "",
+                                    key="chk_cal_date",
+                                    help="The date of the calibration this fit stands for "
+                                         "(the setup's calibration_date when it states "
+                                         "one); recorded in the check's results.")
+                try:
+                    day = date.fromisoformat(day.strip()).isoformat() if day.strip() else ""
+                except ValueError:
+                    st.error(f"Calibration date: expected YYYY-MM-DD, got {day.strip()!r}.")
+                    day = ""
+                model_file = _analysis_model(day)
+                if model_file is not None:
+                    st.caption(f"Stored calibration: {model_file[0]}, "
+                               + (f"calibrated {day}." if day else
+                                  "calibration date not stated."))
+            else:
+                up_model = st.file_uploader("Stored calibration (the model file a fit saved, "
+                                            ".json)", type=["json"], key="chk_model")
+                if up_model is not None:
+                    model_file = (up_model.name,
+                                  up_model.getvalue().decode("utf-8", "replace"))
+                    day = _stated_date(model_file[1])
+                    st.caption(f"Stored calibration: {up_model.name}, "
+                               + (f"calibrated {day}." if day else "its file states no "
+                                  "calibration date."))
             up_meas = st.file_uploader("New measurements (CSV)", type=["csv", "txt"],
                                        key="chk_meas")
             up_setup = st.file_uploader("Setup (JSON)", type=["json"], key="chk_setup")
@@ -117,16 +177,16 @@ with t_check:
             up_inst = st.file_uploader("Instrument files (CSV, optional)", type=["csv", "txt"],
                                        accept_multiple_files=True, key="chk_inst")
             plate = all(u is not None for u in (up_meas, up_setup, up_cert))
-            if up_model is not None and (plate or up_inst):
-                files = ((up_model.name, up_model.getvalue().decode("utf-8", "replace")),
+            if model_file is not None and (plate or up_inst):
+                files = (model_file,
                          (up_meas.name, up_meas.getvalue()) if plate else None,
                          (up_setup.name, up_setup.getvalue()) if plate else None,
                          (up_cert.name, up_cert.getvalue()) if plate else None,
                          tuple((kind, u.name, u.getvalue()) for u in up_inst or ()))
             else:
-                st.info("Upload the stored model and the new data: the measurements with "
-                        "their setup and the plate's certificate, or instrument files, or "
-                        "both.")
+                st.info("Choose the stored calibration and upload the new data: the "
+                        "measurements with their setup and the plate's certificate, or "
+                        "instrument files, or both.")
         c1, c2, c3, c4 = st.columns(4)
         alpha = c1.number_input("Check level", 0.001, 0.2, 0.05, 0.01, key="chk_alpha",
                                 help="at most the fraction of checks of an unchanged machine "
@@ -239,16 +299,18 @@ with t_hist:
                         horizontal=True, key="hist_src")
         named, dates = None, None
         if hsrc == "Sample history":
-            dmap = json.loads((HISTORY / "dates.json").read_text())
-            named = tuple((n, (HISTORY / n).read_text()) for n in dmap)
-            dates = tuple(dmap.values())
-            st.caption(", ".join(f"{n} ({d})" for n, d in dmap.items()))
+            named = tuple((n, (HISTORY / n).read_text()) for n in SAMPLE_DATES)
+            dates = tuple(SAMPLE_DATES.values())
+            st.caption(", ".join(f"{n} ({d})" for n, d in SAMPLE_DATES.items()))
         else:
             ups = st.file_uploader("Calibrations (the model files fits saved, .json)", type=["json"],
                                    accept_multiple_files=True, key="hist_models")
             if ups:
+                # each file's own date where its provenance states one
+                stated = [_stated_date(u.getvalue().decode("utf-8", "replace")) or ""
+                          for u in ups]
                 table = st.data_editor(pd.DataFrame({"model": [u.name for u in ups],
-                                                     "date": [""] * len(ups)}),
+                                                     "date": stated}),
                                        disabled=["model"], hide_index=True, key="hist_dates")
                 if table["date"].str.strip().all():
                     named = tuple((u.name, u.getvalue().decode("utf-8", "replace")) for u in ups)

@@ -365,9 +365,9 @@ if s["diag_on"]:
                 if c_["would_leave_undetermined"]:
                     st.warning(f"Adding it as is would leave "
                                f"{len(c_['would_leave_undetermined'])} parameter combination(s) "
-                               "undetermined (U1-U3 then cannot be evaluated): "
-                               + "; ".join(c_["would_leave_undetermined"][:3])
-                               + ". Remove one of the functions named there, add a placement "
+                               "undetermined (U1-U3 then cannot be evaluated). "
+                               + " ".join(dict.fromkeys(c_["would_leave_undetermined"][:3]))
+                               + " Remove one of the functions named there, add a placement "
                                "or stylus that exercises them, or use a lower order.")
                 if c_["holdout"]:
                     st.caption(f"Leave-one-placement-out check: {c_['holdout']}.")

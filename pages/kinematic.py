@@ -6,7 +6,7 @@ import streamlit as st
 
 from cmm_core import analysis as A
 from cmm_core.machine import ERROR_NAMES
-from cmm_core.model import GROUPS, PHYSICAL, parse_spec, setup_layout
+from cmm_core.model import GROUPS, PHYSICAL, parameter_name, parse_spec, setup_layout
 from cmm_core.model import residuals_frame as instrument_residuals
 from cmm_core.model import summary as instrument_summary
 from cmm_core.units import label as unit_label
@@ -84,8 +84,9 @@ st.subheader("Identifiability")
 if r.unidentifiable:
     st.warning(f"The data cannot determine {len(r.null_combinations)} parameter "
                "combination(s). They are reported, not silently zeroed:")
-    widgets.dataframe(pd.DataFrame({"undetermined combination": r.null_combinations}),
-                 hide_index=True, key="null_combos")
+    widgets.dataframe(pd.DataFrame({"undetermined combination": r.null_words,
+                                    "weights (largest 1)": r.null_combinations}),
+                      hide_index=True, key="null_combos")
     st.caption("Parameters involved: " + ", ".join(r.unidentifiable))
 else:
     st.success(f"Every parameter is determined by the data (numerical rank {r.rank}, "
@@ -145,6 +146,7 @@ def _adopt_scatter(sigma_um):
 
 with tabs[2], calls.guarded("Parameter table"):
     pf = r.parameters_frame()
+    pf.insert(1, "name", [parameter_name(lab) for lab in pf["parameter"]])
     pf["determined"] = ~pf["parameter"].isin(r.unidentifiable)
     pf["U (k=2)"] = 2 * pf["u"]
     birge = r.birge_ratio

@@ -13,7 +13,7 @@ import streamlit as st
 
 from cmm_core import analysis as A
 from cmm_core.export import download_name
-from cmm_core.model import rigid_removed_error_u
+from cmm_core.model import distinct_words, rigid_removed_error_u
 from cmm_core.plan import check_plans, design_fit, design_from_file, evaluate, read_plan
 from cmm_core.units import label as unit_label
 from pages.ui import calls, widgets
@@ -142,6 +142,8 @@ def _comparison(evals: list) -> None:
                              on_change="rerun") as box:
                 if not box.open:
                     continue
+                st.markdown("\n".join(f"- {w}" + (f" ({n} combinations)" if n > 1 else "")
+                                       for w, n in distinct_words(e["undetermined_words"])))
                 st.write("Parameters involved: " + ", ".join(e["undetermined_parameters"]))
                 st.code("\n".join(e["undetermined"]), language=None)
                 st.caption("Any basis of these combinations is as valid; the fit names the "

@@ -11,10 +11,12 @@ pytest.importorskip("streamlit")
 from streamlit.runtime.memory_media_file_storage import MemoryMediaFileStorage  # noqa: E402
 from streamlit.testing.v1 import AppTest  # noqa: E402
 
+from cmm_core import analysis as A  # noqa: E402
 from cmm_core.export import load_model  # noqa: E402
 
 APP = str(Path(__file__).resolve().parents[1] / "app.py")
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_data"
+FILES = ("measurements.csv", "setup.json", "certificate.csv")
 
 
 def _page():
@@ -123,6 +125,7 @@ def test_an_uploaded_bad_model_is_one_message_naming_the_file():
     # ..." without the file's name); now as analysis.load_stored_model reads one
     at = _page()
     at.radio(key="chk_src").set_value("Upload files").run()
+    at.radio(key="chk_stored").set_value("A model file").run()
     at.file_uploader(key="chk_model").set_value(("stored.json", b"not a model", "application/json"))
     at.selectbox(key="chk_kind").set_value("ball_bar")
     bar = (SAMPLES / "instruments" / "ball_bar.csv").read_bytes()
@@ -140,6 +143,7 @@ def test_the_check_tab_keeps_its_choices_while_the_history_is_open():
     History tab."""
     at = _page()
     at.radio(key="chk_src").set_value("Upload files").run()
+    at.radio(key="chk_stored").set_value("A model file").run()
     stored = (SAMPLES / "history" / "calibration_2024-03-04.json").read_bytes()
     at.file_uploader(key="chk_model").set_value(("stored.json", stored, "application/json"))
     at.run()
@@ -150,6 +154,7 @@ def test_the_check_tab_keeps_its_choices_while_the_history_is_open():
     at.run()
     _ok(at)
     assert at.radio(key="chk_src").value == "Upload files"
+    assert at.radio(key="chk_stored").value == "A model file"
     assert at.file_uploader(key="chk_model").value.name == "stored.json"
 
 
@@ -179,3 +184,47 @@ def test_the_map_states_En_at_k_2_and_its_legend_counts_the_markers_drawn():
     _ok(at)
     words = next(m.value for m in at.markdown if m.value.startswith("- "))
     assert "the z scale" in words and "[1]" not in words and " - 0." not in words
+
+
+def test_the_stored_calibration_can_be_this_analysis_with_its_date(monkeypatch):
+    """Issue 41: the stored calibration taken from the current analysis (the thesis fit
+    the app opens with), its calibration date asked for, shown and recorded in the
+    check's results; a date not in ISO form is one message and no check."""
+    files = {}
+    load = MemoryMediaFileStorage.load_and_get_id
+
+    def keep(self, data, mimetype, kind, filename=None):
+        files[filename] = data
+        return load(self, data, mimetype, kind, filename)
+
+    monkeypatch.setattr(MemoryMediaFileStorage, "load_and_get_id", keep)
+    at = _page()
+    # the analysis: a four-placement check's own files, as the Data page's upload loads them
+    check = SAMPLES / "history" / "check_2025-02-10_after_crash"
+    up = {n: (n, (check / n).read_bytes()) for n in FILES}
+    asm = A.assemble_upload([up["measurements.csv"]], up["setup.json"], up["certificate.csv"],
+                            name="after crash")
+    assert asm.sources is not None, asm.problems
+    at.session_state["sources"] = asm.sources
+    at.session_state["ds_key"] = A.sources_key(asm.sources)
+    at.radio(key="chk_src").set_value("Upload files").run()
+    assert at.radio(key="chk_stored").value == "This analysis's fit"
+    for key, name, mime in (("chk_meas", "measurements.csv", "text/csv"),
+                            ("chk_setup", "setup.json", "application/json"),
+                            ("chk_cert", "certificate.csv", "text/csv")):
+        at.file_uploader(key=key).set_value((name, (check / name).read_bytes(), mime))
+    at.text_input(key="chk_cal_date").set_value("15.01.2026").run()
+    assert not at.exception
+    assert [e.value for e in at.error] == [
+        "Calibration date: expected YYYY-MM-DD, got '15.01.2026'."]
+    at.text_input(key="chk_cal_date").set_value("2026-01-15").run()
+    _ok(at)
+    said = [c.value for c in at.caption if c.value.startswith("Stored calibration: ")]
+    assert said and "(this analysis), calibrated 2026-01-15." in said[0], said
+    # the same data as the calibration: nothing changed
+    assert any(m.value.startswith("**Verdict: no change seen.**") for m in at.success)
+    name = next(n for n in files if n and n.endswith("_interim_check_results.json")
+                and "this_analysis" in n)
+    doc = json.loads(files[name])
+    assert doc["interim_check"]["model"].endswith("(this analysis)")
+    assert "2026-01-15" in json.dumps(doc), "the calibration date is not in the record"

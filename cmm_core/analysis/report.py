@@ -522,7 +522,9 @@ def build_report(dataset: Dataset, result: FitResult, *, exclusions: Iterable = 
     if r.unidentifiable:
         section("Identifiability",
                 "<p>The data cannot determine these parameter combinations:</p><ul>"
-                + "".join(f"<li>{html.escape(c)}</li>" for c in r.null_combinations)
+                + "".join(f"<li>{html.escape(w)} <span class='note'>({html.escape(c)})</span>"
+                          "</li>" for w, c in zip(r.null_words, r.null_combinations,
+                                                  strict=True))
                 + "</ul>")
     section("Plate placements", fig_html(fig_placements(dataset)))
     section("Fitted error functions", chi2_html(r), fig_html(fig_error_functions(r)))

@@ -39,6 +39,7 @@ def cmd_fit(args: argparse.Namespace) -> dict:
                            for lab, v, u, ui, un in zip(r.labels, r.values, r.u, r.u_inflated,
                                                         r.units, strict=True)},
             "unidentifiable": r.unidentifiable, "null_combinations": r.null_combinations,
+            "null_words": r.null_words,
             "instruments": summary(r),
             "outliers": outliers, "excluded": [list(e) for e in exclude],
             "notes": notes_of(args, data)}

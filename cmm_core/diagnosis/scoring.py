@@ -36,10 +36,10 @@ from ..model import (
     NormalEquations,
     Problem,
     augmented_state,
-    describe_null,
     held_constraints,
     needs,
     normal_equations,
+    null_words,
     shortest_resolvable_period,
     solve,
     surely_determined,
@@ -165,7 +165,7 @@ def score(base: FitResult, token: str, cache: ScoreCache | None = None
         step, cov, rank, null = ne.step(), ne.cov(), ne.rank, ne.null
         r, J = cache.r, cache.J[:, idx]
     combos = ([] if ne0 is None or not ne0.null.shape[1] else
-              describe_null(ne0.null, prob.layout.labels)[0])
+              null_words(ne0.null, prob.layout.labels))
     Js = J @ step
     r_new = r + Js
     chi2_new = float(r_new @ r_new)

@@ -589,8 +589,8 @@ def _seen(base, cands):
                "baseline: the design does not measure what it changes, or the baseline's "
                "own terms absorb it")
         if c.would_leave_undetermined:
-            why += ("; adding it as is would leave undetermined: "
-                    + "; ".join(c.would_leave_undetermined[:2]))
+            why += ("; adding it as is would leave combinations undetermined: "
+                    + " ".join(dict.fromkeys(c.would_leave_undetermined[:2])))
         if base.problem.obs.artefact == "hole_plate":
             why += ("; a hole plate gives only the two coordinates in its plane, so an "
                     "effect normal to the plate (a sag) is invisible to it")

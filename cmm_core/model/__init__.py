@@ -8,7 +8,7 @@ layout, residuals, Jacobian), :mod:`.fitting` (:func:`fit`), :mod:`.result`
 (:class:`FitResult`), :mod:`.solver`, :mod:`.normal`, :mod:`.certificate_prior`,
 :mod:`.hole_plate`, :mod:`.instruments`, :mod:`.ballbar`, :mod:`.instrument_files`,
 :mod:`.virtual_cmm` (:func:`simulate`), :mod:`.simulation_config`, :mod:`.uncertainty`
-(U1-U3, propagation to points). May import: ``machine``, ``io``.
+(U1-U3, propagation to points), :mod:`.words` (the parameters in words). May import: ``machine``, ``io``.
 """
 
 from __future__ import annotations
@@ -110,10 +110,19 @@ from .uncertainty import (
     rigid_removed_error_u,
 )
 from .virtual_cmm import Simulation, simulate, thesis_machine_setup
+from .words import (
+    CARRIER_WEIGHT,
+    MAX_CARRIERS,
+    direction_phrase,
+    distinct_words,
+    null_words,
+    parameter_name,
+)
 
 __all__ = [
     "accumulate", "aligned_error_u", "approach_directions", "augmented_state",
     "BALL_BAR_COLUMNS", "BALL_BAR_OPTIONAL", "BallBar", "Block", "BY_TOKEN", "catalogue_entry",
+    "CARRIER_WEIGHT", "direction_phrase", "distinct_words", "MAX_CARRIERS", "null_words", "parameter_name",
     "certificate_terms", "check_selection", "checked_cov", "CHI2_ALPHA", "correction_columns",
     "check_repeat_at_end", "cost_of", "DEFAULT_CONFIG", "describe_null", "error_at", "error_covariance",
     "Eval", "evaluate", "fit", "FitResult", "GROUPS", "has_plate", "held_constraints", "held_prior_rows",

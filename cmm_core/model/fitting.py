@@ -34,6 +34,7 @@ from .observations import Observations, has_plate, select
 from .problem import Problem
 from .result import IMPLAUSIBLE, FitResult, _message
 from .solver import Normal, describe_null
+from .words import null_words
 
 __all__ = ["fit", "PLATE_MODES"]
 PLATE_MODES = ("fixed", "prior", "free", "none")
@@ -192,6 +193,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
         cov_noise, cov = cov, cert[2]
     u = np.sqrt(np.clip(np.diag(cov), 0, None))
     combos, names = describe_null(null, L.labels)
+    words = null_words(null, L.labels)
     unident = [lab for lab in L.labels if lab in names]
     u = np.array([np.nan if lab in names else ui for lab, ui in zip(L.labels, u, strict=True)])
     values = _report_values(prob, state)
@@ -202,7 +204,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
     if hole_plate.is_hole_plate(obs):  # two components of three per observation
         rms *= np.sqrt(1.5)
     chi2_test, dof_test = (chi2, dof) if cert is None else cert[:2]
-    msg = _message(status, it, rms, chi2 / max(dof, 1), combos,
+    msg = _message(status, it, rms, chi2 / max(dof, 1), words,
                    float(stats.chi2.sf(chi2_test, max(dof_test, 1))), int(dof_test),
                    chi2_test / max(dof_test, 1)) + hole_plate.tilt_note(prob, state)
     # an effect the data cannot see adds nothing (or no parameter at all): say so
@@ -224,7 +226,7 @@ def fit(data: Dataset | Observations, spec: str | ModelSpec = "kinematic21", *, 
         groups=list(L.groups), values=values, u=u, covariance=cov, residuals_um=d,
         table=obs.table, rms_um=rms, chi2=chi2, dof=int(dof), chi2_dof=chi2 / max(dof, 1),
         bic=float(bic), rank=rank, rank_rtol=rank_rtol, unidentifiable=unident,
-        null_combinations=combos, n_obs=prob.n_obs, problem=prob, state=state,
+        null_combinations=combos, null_words=words, n_obs=prob.n_obs, problem=prob, state=state,
         design_null=C_run[n_gauge:], chi2_test=float(chi2_test), dof_test=int(dof_test),
         covariance_noise=cov_noise,
         certificate_sensitivity=None if cert is None else cert[3])

@@ -67,7 +67,12 @@ class FitResult:
     unidentifiable : list of str
         Parameters carrying weight in a combination the data cannot determine.
     null_combinations : list of str
-        Those combinations, written out with their loadings.
+        Those combinations, written out with their loadings (for experts: "1.00·dzy[2] +
+        0.79·syz").
+    null_words : list of str
+        The same combinations in words, one sentence each (:func:`.words.null_words`:
+        "The z offsets of styli 1 and 2 and the z positions of placements B1 and B2
+        cannot be told apart.").
     n_obs : int
         Observations (probed ball centres) used.
     problem : Problem
@@ -124,6 +129,7 @@ class FitResult:
     dof_test: int | None = None
     covariance_noise: np.ndarray | None = field(default=None, repr=False)
     certificate_sensitivity: np.ndarray | None = field(default=None, repr=False)
+    null_words: list = field(default_factory=list)
 
     @property
     def terms(self) -> KinematicTerms:
@@ -275,10 +281,11 @@ def _message(status, it, rms, chi2_dof, combos, chi2_p=1.0, dof=0, test_dof=None
                 f"{' and certificate allow' if cert else ' allows'}, so the model misses "
                 "something or σ is understated (run the diagnosis), and the uncertainties' "
                 "noise part is too small by that factor (the Birge ratio).")
-    if combos:
+    if combos:  # in words (FitResult.null_words), each distinct sentence once
+        said = list(dict.fromkeys(combos))
         msg += (f" The data cannot determine {len(combos)} parameter combination(s); they "
-                "are held at the minimum-norm solution and reported as unidentifiable: "
-                + "; ".join(combos[:4]) + (" ..." if len(combos) > 4 else "")
-                + ". Add positions, heights or probe offsets that exercise them, or remove "
+                "are held at the minimum-norm solution and reported as unidentifiable. "
+                + " ".join(said[:3]) + (" ..." if len(said) > 3 else "")
+                + " Add positions, heights or probe offsets that exercise them, or remove "
                 "them from the model.")
     return msg

@@ -334,7 +334,7 @@ def evaluate(result: FitResult, *, n_random: int = 200, seed: int = 0,
         return UncertaintySummary(None, None, None, region,
                                   "Not evaluated: the data cannot determine "
                                   f"{len(result.null_combinations)} parameter combination(s) "
-                                  f"({'; '.join(result.null_combinations[:3])}). Uncertainties "
+                                  f"({' '.join(dict.fromkeys(result.null_words[:3]))}) Uncertainties "
                                   "would be unbounded; add positions or probes, or remove "
                                   "those functions from the model.")
     rng = np.random.default_rng(seed)

@@ -16,9 +16,10 @@ names of the 21 errors, ISO 230-1; the Chebyshev degree in brackets):
   curvature;
 - ``sAB``: the AB **squareness** (a constant angle).
 
-The parameters that carry a direction (a weight of at least :data:`CARRIER_WEIGHT` of
-the largest, at most :data:`MAX_CARRIERS` of them) are grouped by error function and by
-the axis the function varies with (``machine.axis_of``: an error of the z axis, and the
+The words are the model's (:func:`model.direction_phrase`, shared with the fit's
+undetermined combinations): the parameters that carry a direction (a weight of at least
+``CARRIER_WEIGHT`` of the largest, at most ``MAX_CARRIERS`` of them) are grouped by
+error function and by the axis the function varies with (``machine.axis_of``: an error of the z axis, and the
 squareness ``sxz``, ``syz`` of x and y readings in proportion to z, vary with z alone).
 A direction carried by functions of one axis only reads "anything that varies only with
 z: ...": one placement of a plate at one height hardly sees them (each is a constant
@@ -32,22 +33,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..machine import (
-    ERROR_NAMES,
-    POSITIONING,
-    ROTATIONAL,
-    SQUARENESS,
-    STRAIGHTNESS,
-    axis_of,
-)
-from ..model import rotation_kind
+from ..model import CARRIER_WEIGHT, MAX_CARRIERS, direction_phrase, distinct_words
 
-CARRIER_WEIGHT = 0.25
-"""A parameter carries a direction when its weight is at least this fraction of the
-direction's largest (prior-scaled weights)."""
-
-MAX_CARRIERS = 4
-"""At most this many parameters of a direction are named (largest weights first)."""
+__all__ = ["CARRIER_WEIGHT", "MAX_CARRIERS", "unseen_words", "combination_text",
+           "distinct_words", "unseen_example"]
 
 
 def unseen_words(directions: np.ndarray | Sequence, labels: Sequence[str]) -> list[str]:
@@ -88,7 +77,7 @@ def unseen_words(directions: np.ndarray | Sequence, labels: Sequence[str]) -> li
     if D.ndim != 2 or D.shape[1] != len(labels):
         raise ValueError(f"each direction needs {len(labels)} weights (one per label), got "
                          f"shape {np.shape(directions)}.")
-    return [_sentence(v, list(labels)) for v in D]
+    return [direction_phrase(v, labels) for v in D]
 
 
 def combination_text(direction: np.ndarray, labels: Sequence[str], *, shown: int = 3) -> str:
@@ -118,82 +107,7 @@ def combination_text(direction: np.ndarray, labels: Sequence[str], *, shown: int
                     for b in big).lstrip("+ ")
 
 
-def distinct_words(words: Sequence[str]) -> list[tuple[str, int]]:
-    """The sentences of :func:`unseen_words` once each, in order, with how many
-    directions read so (for a list on a page or in a message)."""
-    out: dict[str, int] = {}
-    for w in words:
-        out[w] = out.get(w, 0) + 1
-    return list(out.items())
-
-
 def unseen_example(words: Sequence[str], most: int = 2) -> str:
     """The first ``most`` distinct sentences of :func:`unseen_words`, joined by "; " (the
     messages' example of what a check cannot see)."""
     return "; ".join(w for w, _ in distinct_words(words)[:most])
-
-
-def _sentence(v: np.ndarray, labels: list) -> str:
-    """One direction in words (module docstring)."""
-    a = np.abs(v)
-    top = a.max() if a.size else 0.0
-    if not top > 0:
-        return "no parameter"
-    idx = [int(j) for j in np.argsort(-a, kind="stable")[:MAX_CARRIERS]
-           if a[j] >= CARRIER_WEIGHT * top]
-    funcs: dict[str, list[str]] = {}  # error function -> its carrying labels, by weight
-    for j in idx:
-        base, _, rest = labels[j].partition("[")
-        key = base if base in ERROR_NAMES else labels[j]
-        funcs.setdefault(key, []).append(rest.rstrip("]"))
-    axes: dict[str | None, list[str]] = {}  # by the axis the function varies with
-    for base in funcs:
-        axes.setdefault("xyz"[axis_of(base)] if base in ERROR_NAMES else None,
-                        []).append(base)
-    phrases = [_function_phrase(base, funcs[base]) for group in axes.values()
-               for base in group]
-    if len(phrases) == 1:
-        return phrases[0]
-    if len(axes) == 1 and None not in axes:
-        return f"anything that varies only with {next(iter(axes))}: {_join(phrases)}"
-    return f"{phrases[0]} together with {_join(phrases[1:])}"
-
-
-def _join(parts: list) -> str:
-    """``a``, ``a and b``, ``a, b and c``."""
-    return parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
-
-
-def _code(base: str, token: str) -> str:
-    """The label as the sentence quotes it: degree 1 is ``linear``."""
-    return base if not token else f"{base} linear" if token == "1" else f"{base}[{token}]"
-
-
-def _function_phrase(base: str, tokens: list) -> str:
-    """One error function with the terms of it that carry a direction."""
-    if base not in ERROR_NAMES:
-        return base  # not one of the 21 errors: its label
-    tokens = sorted(tokens, key=lambda t: (0, int(t), "") if t.isdigit() else (1, 0, t))
-    codes = ", ".join(_code(base, t) for t in tokens)
-    a, d = base[1], base[2]
-    if base in SQUARENESS:
-        return f"the {a}{d} squareness ({base})"
-    if base in STRAIGHTNESS:
-        return f"the {a} straightness in {d} ({codes})"
-    if base in POSITIONING:
-        noun = f"the {a} scale"
-    elif base in ROTATIONAL:
-        kind = rotation_kind(base)
-        noun = f"the {a} carriage's {kind}" + ("" if kind == "roll" else f" about {d}")
-    else:  # pragma: no cover - ERROR_NAMES is the three groups
-        return f"{base} ({codes})"
-    linear = "1" in tokens
-    curved = any(t.isdigit() and int(t) >= 2 for t in tokens)
-    periods = sorted({t[3:] for t in tokens if t[:3] in ("sin", "cos")})
-    aspects = (["curvature"] if curved else []) + [f"periodic error of {p} mm"
-                                                   for p in periods]
-    if linear:
-        text = noun + (f" and its {_join(aspects)}" if aspects else "")
-    else:
-        text = f"the {_join(aspects)} of {noun}"
-    return f"{text} ({codes})"

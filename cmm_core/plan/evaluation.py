@@ -32,6 +32,8 @@ class PlanEvaluation:
         (any basis of that space is as valid: compare spaces, not strings).
     undetermined_parameters : list of str
         Parameters carrying weight in those combinations.
+    undetermined_words : list of str
+        The same combinations in words (``FitResult.null_words``).
     U1_um, U2_um, U3_um : dict or None
         Thesis U1 (ball centres; None with the plate fixed), U2 (evaluated region) and U3
         (working volume), average standard uncertainty per axis in µm; None when
@@ -68,6 +70,7 @@ class PlanEvaluation:
     message: str
     fit: FitResult = field(repr=False)
     plan: Plan | None = field(default=None, repr=False)
+    undetermined_words: list = field(default_factory=list)
 
     @property
     def determined(self) -> bool:
@@ -101,6 +104,7 @@ class PlanEvaluation:
     def to_dict(self) -> dict:
         """JSON-ready record (the ``strategies`` entries of ``plan``'s output)."""
         return {"name": self.name, "n_obs": self.n_obs, "undetermined": self.undetermined,
+                "undetermined_words": self.undetermined_words,
                 "undetermined_parameters": self.undetermined_parameters,
                 "U1_um": self.U1_um, "U2_um": self.U2_um, "U3_um": self.U3_um,
                 "detection_limits": self._limits_dict(),
@@ -163,4 +167,4 @@ def evaluate(plan: Plan, *, detection: bool = True, n_random: int = 200) -> Plan
     return PlanEvaluation(plan.name, r.n_obs, list(r.null_combinations),
                           list(r.unidentifiable), u.U1_um, u.U2_um, u.U3_um,
                           function_uncertainty(r), limits, skipped, plan.time_min, msg, r,
-                          plan)
+                          plan, list(r.null_words))
