@@ -240,8 +240,13 @@ with t_check:
                     with calls.guarded("E_n map"):
                         widgets.show(A.fig_en_map(table, "Normalised errors of the new "
                                                          f"observations: {en}, the largest "
-                                                         "of x, y, z", coverage_factor=k),
+                                                         "of x, y, z at each place",
+                                                  coverage_factor=k),
                                      chart_key="chk_map")
+                        st.caption(f"One marker per place on the machine's x, y: "
+                                   f"{len(table)} observations (every stylus and placement) "
+                                   "at the places shown, each coloured by its largest |E_n|; "
+                                   "hover a marker for each observation there.")
                 if chk.get("instruments"):
                     widgets.dataframe(_en_columns(pd.DataFrame(chk["instruments"]), k),
                                       hide_index=True, key="chk_instruments")

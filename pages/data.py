@@ -119,8 +119,9 @@ if rep is not None:
     if not rep.outliers:
         st.success("No coordinate is flagged.")
     else:
-        st.warning(f"{len(rep.outliers)} coordinate(s) flagged. They stay in the fit until you "
-                   "tick them; nothing is dropped silently.")
+        # plain text: the summary at the top is the page's one warning of them
+        st.write(f"{len(rep.outliers)} coordinate(s) flagged. They stay in the fit until you "
+                 "tick them; nothing is dropped silently.")
         current = {tuple(e) for e in s["exclusions"]}
         flagged = rep.exclusions
         bcols = st.columns([1, 1, 4])

@@ -321,3 +321,29 @@ def test_a_project_file_of_the_wrong_shape_is_one_line_naming_the_key(path, valu
         A.record_from_project(json.dumps(doc), "p.json")
     assert exc.value.column.startswith(column) and "\n" not in str(exc.value)
     assert str(exc.value).startswith("p.json")
+
+
+def test_an_exclusion_is_a_history_step_fitted_with_its_own_exclusions():
+    """Issue 41: a history step carries the exclusions it was made with; the report's
+    history refits each step with them (a step without its own, with the record's), and
+    the record keeps them through its JSON and project forms."""
+    rec = A.read_record(SAMPLE)
+    flagged = A.run(dataclasses.replace(rec, exclusions=(), diagnose=False)).flagged
+    steps = (("kinematic21", "baseline", ()),
+             ("kinematic21", "exclude 3 flagged outliers", tuple(flagged)),
+             ("kinematic21", "the record's own exclusions"))
+    rec = dataclasses.replace(rec, spec="kinematic21", exclusions=tuple(flagged),
+                              exclude_outliers=False, diagnose=False, history=steps)
+    assert A.read_record(A.record_to_json(rec)) == rec
+    assert A.record_from_project(A.record_to_project_json(rec)).history == steps
+    res = A.run(rec)
+    kept = A.fit_record(rec, A.load_data(rec), exclusions=(), sigma_um=res.fit.sigma_um)
+    rms = [h["rms_um"] for h in res.history]
+    # history rows round the RMS to 4 decimals: equal to within half of 1e-4 µm
+    assert rms[0] == pytest.approx(kept.rms_um, abs=5e-5)
+    assert rms[1] == pytest.approx(res.fit.rms_um, abs=5e-5) and rms[2] == rms[1]
+    assert rms[1] < rms[0] - 0.01
+    # a step naming an observation the data lack is refused, naming the step
+    bad = dataclasses.replace(rec, history=(("kinematic21", "x", (("BP111", "9", 99),)),))
+    with pytest.raises(ValueError, match="history step 'x'"):
+        A.run(bad)

@@ -271,14 +271,21 @@ def test_diagnosis_add_an_effect_rms_falls_and_history_records_it():
     _ok(at)
     assert best in at.session_state["spec"]
     assert _sidebar_rms(at) < before
+    # the exclusion is a step of the history (issue 41), each step fitted with the
+    # exclusions it was made with: the blunders' step lowers the RMS by itself
     hist = _frame(at, "change")
-    assert len(hist) == 2 and hist.iloc[1]["change"] == best
+    assert list(hist["change"]) == ["baseline", "exclude 3 flagged outliers", best]
     assert hist.iloc[1]["rms_um"] < hist.iloc[0]["rms_um"]
-    # remove it again through the undo button
-    at.button(key="undo_step").click()
-    at.run()
-    _ok(at)
+    assert hist.iloc[2]["rms_um"] < hist.iloc[1]["rms_um"]
+    assert hist.iloc[2]["rms_um"] == pytest.approx(_sidebar_rms(at), abs=1e-3)
+    # undone step by step: the effect, then the exclusion
+    at.button(key="undo_step").click().run()
     assert at.session_state["spec"] == "kinematic21"
+    assert len(at.session_state["exclusions"]) == 3
+    at.button(key="undo_step").click().run()
+    assert not at.exception  # the diagnosis now says "flagged outliers first" again
+    assert at.session_state["exclusions"] == [] and len(_frame(at, "change")) == 1
+    assert any("Flagged outlier(s) first" in e.value for e in at.error)
 
 
 def test_a_blunder_verdict_is_one_headline_with_one_exclude_button():
@@ -361,10 +368,11 @@ def test_upload_long_form_csv_and_a_malformed_one():
     assert probs.iloc[0]["file"] == "BP111.csv"
     assert probs.iloc[0]["row"] == 3 and probs.iloc[0]["column"] == "x_mm"
     assert any("long.csv" in m.value for m in at.sidebar.markdown)  # unchanged
-    # issue 27: the refused file left its field (the corrected one is judged alone), and
-    # every problem is shown in full below the table, hint included
-    assert any("fields are cleared" in e.value for e in at.error)
-    assert not _uploader(at, "Measurement CSV").value
+    # issue 41: the fields keep the files (a refusal that emptied them lost the good
+    # files with the bad), the message names the file to replace, and every problem is
+    # shown in full, open, hint included
+    assert any("keep your files: replace BP111.csv" in e.value for e in at.error)
+    assert [f.name for f in _uploader(at, "Measurement CSV").value] == ["BP111.csv"]
     full = " ".join(m.value for m in at.markdown if m.value.startswith("- "))
     assert "**BP111.csv**, row 3, column x_mm:" in full and probs.iloc[0]["hint"] in full
     good = "ball,x_mm,y_mm,z_mm\n" + "".join(f"{b},{133 * (b - 1)},0,0\n" for b in range(1, 5))

@@ -172,10 +172,23 @@ def test_the_map_states_En_at_k_2_and_its_legend_counts_the_markers_drawn():
                         r"(\d+)</text>", svg)
     assert [lab for _, lab, _ in legend] == ["|E_n| ≤ 1 (k = 2)", "1 &lt; |E_n| ≤ 1.5 (k = 2)",
                                              "|E_n| &gt; 1.5 (k = 2)"]
-    # the markers drawn: one per ball, each with its hover title
-    drawn = re.findall(r'<circle [^>]*fill="(#[0-9a-f]{6})"[^>]*><title>', svg)
-    assert len(drawn) == 200
-    assert {c: int(n) for c, _, n in legend} == {c: drawn.count(c) for c, _, _ in legend}
+    # the markers drawn: one per place (issue 41: 200 observations had been drawn on 111
+    # places, up to five on one spot), each with its hover title listing every
+    # observation there
+    drawn = re.findall(r'<circle [^>]*fill="(#[0-9a-f]{6})"[^>]*><title>([^<]*)</title>', svg)
+    places = {re.match(r"x (-?\d+), y (-?\d+) mm", t).groups() for _, t in drawn}
+    assert len(drawn) == len(places) < 200
+    assert sum(t.count(" stylus ") for _, t in drawn) == 200 and "nan" not in svg.lower()
+    colours = [c for c, _ in drawn]
+    assert {c: int(n) for c, _, n in legend} == {c: colours.count(c) for c, _, _ in legend}
+    assert any("200 observations" in c.value for c in at.caption)
+    # each marker's colour is the class of the largest |E_n| listed in its hover title
+    order = [c for c, _, _ in legend]
+    for colour, title in drawn:
+        worst = max(abs(float(v)) for v in re.findall(r"[xyz] ([+-]\d+\.\d+)", title))
+        if min(abs(worst - 1.0), abs(worst - 1.5)) > 0.005:  # not at a class edge: the
+            # hover's two decimals cannot tell 1.004 from 1.0
+            assert colour == order[0 if worst <= 1 else 1 if worst <= 1.5 else 2], title
     # the tables' E_n columns are headed with their k
     tables = [t.value for t in at.dataframe if "E_n (k = 2)" in t.value.columns]
     assert tables, "a table of the changes with its E_n headed with k"

@@ -102,6 +102,9 @@ def test_a_changed_analysis_is_restored_by_a_new_session_with_its_id():
     assert [h["change"] for h in s["history"]] == ["baseline", "+ plate_sag"]
     note = " ".join(i.value for i in again.info)
     assert "Restored from" in note and sid in note
+    # the data's own file names, not "from the saved session" alone (issue 41)
+    assert "Data: thesis tables 6.1-6.6 (BP111.csv, " in note, note
+    assert s["ds_origin"]["setup_source"].startswith("setup.json, from the saved session")
     fresh = _app()  # another browser: its own analysis
     assert fresh.session_state["session_id"] != sid
     assert fresh.session_state["spec"] == "kinematic21"

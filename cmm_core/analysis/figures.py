@@ -335,33 +335,63 @@ def en_classes(coverage_factor: float = 2.0) -> list:
                                                            strict=True)]
 
 
+EN_PLACE_MM = 1.0
+"""Observations of an E_n map within this distance in x and y (mm) are one place: one
+marker (styli probing one ball, balls of a vertical plate at one x, y)."""
+
+
+def _en_places(table: pd.DataFrame, k: float) -> pd.DataFrame:
+    """One row per place of :func:`fig_en_map`: its x, y (mm), the largest ``|E_n|`` of
+    its observations (NaN when none has one) and a hover text listing them."""
+    xy = np.round(table[["x_mm", "y_mm"]].to_numpy(float) / EN_PLACE_MM)
+    key = pd.Series([f"{a:.0f},{b:.0f}" for a, b in xy], index=table.index)
+    rows = []
+    for _, g in table.groupby(key, sort=False):
+        en = np.abs(g["En"].to_numpy(float))
+        lines = [f"{r.position} stylus {r.probe} ball {r.ball}: E_n x {_en_text(r.En_x)}, "
+                 f"y {_en_text(r.En_y)}, z {_en_text(r.En_z)}" for r in g.itertuples()]
+        head = (f"x {g['x_mm'].iloc[0]:.0f}, y {g['y_mm'].iloc[0]:.0f} mm, "
+                f"{len(g)} observation{'s' if len(g) > 1 else ''} (k = {k:g})")
+        rows.append({"x_mm": float(g["x_mm"].mean()), "y_mm": float(g["y_mm"].mean()),
+                     "En": float(np.nanmax(en)) if np.isfinite(en).any() else np.nan,
+                     "hover": "<br>".join([head, *lines])})
+    return pd.DataFrame(rows, columns=["x_mm", "y_mm", "En", "hover"])
+
+
+def _en_text(v: float) -> str:
+    """An E_n component for a hover: "not computed" rather than "nan"."""
+    return f"{v:+.2f}" if np.isfinite(v) else "not computed"
+
+
 def fig_en_map(table: pd.DataFrame, title: str, height: int = 420, *,
                coverage_factor: float = 2.0) -> go.Figure:
-    """The normalised errors of an interim check's new observations over the plate (x, y
-    in mm): one colour per :func:`en_classes` class of the largest ``|E_n|`` of each ball
-    (grey where E_n could not be computed), each legend entry with its count of balls
-    (``monitor`` ``InterimCheck.table``: columns ``x_mm, y_mm, position, probe, ball,
-    En_x, En_y, En_z, En``, E_n at ``coverage_factor``, the check's
-    ``InterimCheck.coverage_factor``); a hover title gives the three components."""
-    en = np.abs(table["En"].to_numpy(float))
+    """The normalised errors of an interim check's new observations over the machine's
+    x, y (mm): one marker per place (observations within :data:`EN_PLACE_MM` of each other:
+    styli on one ball, balls of a vertical plate above each other), coloured by the
+    :func:`en_classes` class of the largest ``|E_n|`` of x, y, z over the observations
+    there (grey where no E_n could be computed); each legend entry counts its places, so
+    the counts are the markers drawn. The hover title lists every observation of the place
+    with its three components.
+
+    ``table`` is ``monitor`` ``InterimCheck.table`` (columns ``x_mm, y_mm, position,
+    probe, ball, En_x, En_y, En_z, En``, E_n at ``coverage_factor``, the check's
+    ``InterimCheck.coverage_factor``).
+    """
+    k = float(coverage_factor)
+    places = _en_places(table, k)
+    en = places["En"].to_numpy(float)
     lower = -np.inf
     fig = go.Figure()
-    k = float(coverage_factor)
     classes = [*en_classes(k), (np.nan, "E_n not computed", "#999999")]
     for upper, name, colour in classes:
-        sub = table[np.isnan(en)] if np.isnan(upper) else table[(en > lower) & (en <= upper)]
+        sub = places[np.isnan(en)] if np.isnan(upper) else places[(en > lower) & (en <= upper)]
         if np.isnan(upper) and not len(sub):
-            continue  # no ball without E_n: no legend entry for it
+            continue  # no place without E_n: no legend entry for it
         lower = upper
         fig.add_trace(go.Scatter(
             x=sub["x_mm"], y=sub["y_mm"], mode="markers", name=f"{name}: {len(sub)}",
-            marker={"color": colour, "size": 9},
-            customdata=sub[["position", "probe", "ball", "En_x", "En_y", "En_z"]].to_numpy(
-                object),
-            hovertemplate="%{customdata[0]} stylus %{customdata[1]} ball %{customdata[2]}"
-                          f" (k = {k:g}): "
-                          "E_n x %{customdata[3]:+.2f}, y %{customdata[4]:+.2f}, "
-                          "z %{customdata[5]:+.2f}<extra></extra>"))
+            marker={"color": colour, "size": 9}, text=sub["hover"],
+            hovertemplate="%{text}<extra></extra>"))
     fig.update_xaxes(title_text="x (mm)")
     fig.update_yaxes(title_text="y (mm)", scaleanchor="x")
     return _layout(fig, title, height=height)

@@ -221,7 +221,10 @@ class AnalysisRecord:
     exclude_outliers: bool = DEFAULT_EXCLUDE_OUTLIERS
     """Also exclude every observation the robust outlier check flags."""
     history: tuple = ()
-    """``(spec, change)`` steps of the diagnosis history, first the baseline."""
+    """``(spec, change)`` steps of the diagnosis history, first the baseline; a step
+    written with the exclusions in force when it was made is ``(spec, change,
+    exclusions)`` (a tuple of ``(position, probe, ball)``), so that excluding outliers is
+    a step of its own; a step without them is fitted with the record's exclusions."""
     diagnose: bool = False
     """Run the diagnosis (ranked missing effects) and report it."""
     uncertainty_points: int = 200

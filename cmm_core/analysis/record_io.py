@@ -193,9 +193,16 @@ def record_from_dict(doc: Any, name: str = "ANALYSIS.json", base: Path | None = 
     out["exclusions"] = tuple(sorted((str(p), str(q), int(b)) for p, q, b in excl))
     hist = doc.get("history") or []
     _check(isinstance(hist, list) and all(isinstance(h, dict) and isinstance(
-        h.get("spec"), str) for h in hist), name, "history",
-        "a list of {\"spec\": ..., \"change\": ...} steps", hist)
-    out["history"] = tuple((h["spec"], str(h.get("change") or "")) for h in hist)
+        h.get("spec"), str) and (h.get("exclusions") is None or isinstance(
+            h["exclusions"], list) and all(_triple(e) for e in h["exclusions"]))
+        for h in hist), name, "history",
+        "a list of {\"spec\": ..., \"change\": ...} steps, each optionally with its "
+        "\"exclusions\" ([position, probe, ball] triples)", hist)
+    out["history"] = tuple(
+        (h["spec"], str(h.get("change") or ""))
+        + (() if h.get("exclusions") is None else
+           (tuple(sorted((str(p), str(q), int(b)) for p, q, b in h["exclusions"])),))
+        for h in hist)
     if doc.get("interim_check") is not None:
         out["interim_check"] = _check_choices(doc["interim_check"], name, base)
     if doc.get("calibration_history") is not None:
@@ -305,7 +312,9 @@ def record_to_dict(record: AnalysisRecord, relative_to: str | Path | None = None
             if v is not None:  # written only when there is one: older records stay
                 out[k] = _monitor_block(v, file)
             continue
-        out[k] = ([{"spec": s, "change": c} for s, c in v] if k == "history" else
+        out[k] = ([{"spec": s, "change": c, **({"exclusions": [list(e) for e in own[0]]}
+                                                if own else {})}
+                   for s, c, *own in v] if k == "history" else
                   [list(e) for e in v] if k == "exclusions" else
                   list(v) if isinstance(v, tuple) else v)
     return out
@@ -391,7 +400,7 @@ def record_from_inline(files: Mapping[str, Any], instruments: Iterable = (),
     their mapping. ``instruments``: ``(kind, file name, text)`` triples. ``choices``: the
     record's own fields by name (:class:`AnalysisRecord`: ``spec``, ``order``, ``plate``,
     ``sigma_um``, ``positions``, ``probes``, ``exclusions``, ``history`` as
-    ``{"spec", "change"}`` dicts, ``diagnose`` ...); None or missing takes the record's
+    ``{"spec", "change"}`` dicts (optionally with the step's own ``"exclusions"``), ``diagnose`` ...); None or missing takes the record's
     default, an empty history the baseline step of ``spec``.
     """
     mapped = {k: tuple(v) for k, v in (files.get("mapped") or {}).items()}

@@ -326,7 +326,7 @@ def monitor_sections(interim: CheckOutcome | None, hist: History | None,
         if len(c.table):
             body.append(fig(fig_en_map(
                 c.table, f"Normalised errors of the new observations: {en}, the largest "
-                         "of x, y, z (scale readings)", height=450,
+                         "of x, y, z at each place (scale readings)", height=450,
                 coverage_factor=c.coverage_factor)))
             cols = ["position", "probe", "ball", "dx_um", "dy_um", "dz_um", "u_dx_um",
                     "u_dy_um", "u_dz_um", "En_x", "En_y", "En_z"]

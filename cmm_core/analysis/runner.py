@@ -237,8 +237,18 @@ def run(record: AnalysisRecord) -> AnalysisResult:
     sigma = resolve_sigma(record, ds, inst, excl)
     steps = {"exclusions": excl, "sigma_um": sigma["value_um"]}
     r = fit_record(record, ds, inst, **steps)
-    history = [(r if spec == record.spec else fit_record(record, ds, inst, spec=spec, **steps))
-               .history_row(change) for spec, change in record.history]
+    history = []
+    for spec, change, *own in record.history:
+        # a step made with exclusions of its own (an outlier exclusion is a step) is
+        # fitted with them; any other with the record's
+        ex = tuple(own[0]) if own else excl
+        if own:
+            check_selection(ds, record.positions, record.probes, ex,
+                            f"analysis record, history step {change!r}")
+        same = spec == record.spec and set(ex) == set(excl)
+        history.append((r if same else fit_record(record, ds, inst, spec=spec, exclusions=ex,
+                                                  sigma_um=steps["sigma_um"]))
+                       .history_row(change))
     rigid = fit_record(record, ds, inst, spec="rigid", **steps)
     err = measured_error_from_residuals_um(rigid.residuals_um)
     try:

@@ -89,16 +89,18 @@ def cached_outliers(key, _ds):
     return detect_outliers(_ds)
 
 
-def fit_key(spec=None, *, instruments: bool = True) -> FitKey:
+def fit_key(spec=None, *, instruments: bool = True, exclusions=None) -> FitKey:
     """The :class:`FitKey` of the session's fit (of ``spec`` when given; without the
-    instrument files when ``instruments`` is false)."""
+    instrument files when ``instruments`` is false; with ``exclusions`` in place of the
+    session's: a history step's own)."""
     s = st.session_state
     return FitKey(
         data=s["ds_key"], spec=spec or s["spec"], order=int(s["order"]), plate=s["plate"],
         sigma_um=float(s["sigma_um"]),
         positions=tuple(s["positions"]) if s["positions"] is not None else None,
         probes=tuple(s["probes"]) if s["probes"] is not None else None,
-        exclusions=tuple(tuple(e) for e in s["exclusions"]),
+        exclusions=tuple(tuple(e) for e in (s["exclusions"] if exclusions is None
+                                            else exclusions)),
         instruments=(s.get("instruments_key") or "") if instruments else "")
 
 
@@ -119,11 +121,12 @@ def require_fit():
     return ds, r
 
 
-def current_fit(spec=None, *, show_error=True, instruments: bool = True):
+def current_fit(spec=None, *, show_error=True, instruments: bool = True, exclusions=None):
     """The fit of the current (or a given) model, with the session's instrument files
-    unless ``instruments`` is false, or None with a message."""
+    unless ``instruments`` is false and its exclusions unless ``exclusions`` are given, or
+    None with a message."""
     try:
-        return fit_of(fit_key(spec, instruments=instruments))
+        return fit_of(fit_key(spec, instruments=instruments, exclusions=exclusions))
     except Exception as exc:  # noqa: BLE001
         if show_error:
             st.error(f"The fit failed: {describe_error(exc)}")
@@ -199,14 +202,18 @@ def history_rows() -> list:
     """The diagnosis history with each step's fit quality (computed from cached fits)."""
     s = st.session_state
     if not s["history"]:
-        s["history"] = [{"spec": s["spec"], "change": "baseline"}]
+        s["history"] = [{"spec": s["spec"], "change": "baseline",
+                         "exclusions": [list(e) for e in s["exclusions"]]}]
     out = []
     for h in s["history"]:
-        r = current_fit(h["spec"], show_error=False)
+        # each step with the exclusions it was made with (a step of an older record has
+        # none of its own: the session's)
+        own = h.get("exclusions")
+        r = current_fit(h["spec"], show_error=False, exclusions=own)
         gp = None
         if r is not None and s.get("hist_gp"):
             try:
-                gp = cached_gp_discrepancy(fit_key(h["spec"]), r)
+                gp = cached_gp_discrepancy(fit_key(h["spec"], exclusions=own), r)
             except Exception:  # noqa: BLE001
                 gp = None
         row = ({"spec": h["spec"], "change": h["change"], "rms_um": None, "chi2_dof": None,

@@ -51,8 +51,11 @@ def restore_record(record, source: str) -> str:
     # again later); tables from other software keep their source and mapping; the
     # instruments are the session's own list, checked below against the new data
     sources = A.inline_sources(d)
-    origin = {"kind": "project", "setup_source": f"from {source}",
-              "certificate_source": f"from {source}" if d.certificate is not None else None}
+    # the files' own names with where they came from (issue 41: a restored analysis said
+    # "from the saved session" and lost the names of the files the user had uploaded)
+    origin = {"kind": "project", "setup_source": f"{sources.setup.name}, from {source}",
+              "certificate_source": None if sources.certificate is None
+              else f"{sources.certificate.name}, from {source}"}
     new_ds = load_sources(A.sources_key(sources), sources)
     have = set(zip(new_ds.meas["position"].astype(str), new_ds.meas["probe"].astype(str),
                    new_ds.meas["ball"].astype(int), strict=True))
@@ -77,12 +80,16 @@ def restore_record(record, source: str) -> str:
     s["probes"] = None if record.probes is None else list(record.probes)
     s["exclusions"] = [list(e) for e in excl]
     s["diag_on"] = bool(record.diagnose)
-    s["history"] = [{"spec": spec, "change": change} for spec, change in record.history]
+    s["history"] = [{"spec": spec, "change": change,
+                     **({"exclusions": [list(e) for e in own[0]]} if own else {})}
+                    for spec, change, *own in record.history]
     if s["history"] and s["history"][-1]["spec"] != s["spec"]:
         # the model was edited by hand after the last recorded step
         s["history"].append({"spec": s["spec"], "change": "edited by hand"})
     s["reset_note"] = []  # the analysis's own settings, not defaults
-    note = ""
+    names = [f.name for f in sources.files]
+    note = (f" Data: {sources.name} ({', '.join(names[:6])}"
+            + (f" and {len(names) - 6} more file(s)" if len(names) > 6 else "") + ").")
     if len(excl) > len(record.exclusions):
         note += (f" Its outlier rule excludes the {len(excl) - len(record.exclusions)} "
                  "flagged observation(s), as the report does.")

@@ -68,7 +68,8 @@ def sidebar():
         sb.caption(f"{n_ex} observation(s) excluded as outliers.")
     pending = pending_outliers(ds)
     if pending:
-        sb.warning(f"{len(pending)} flagged outlier(s) still in the fit (see Data).")
+        # a coloured line, not a box: the Data page's summary is the one warning of it
+        sb.caption(f":orange[{len(pending)} flagged outlier(s) still in the fit (see Data).]")
     if s.get("save_conflict"):
         sb.warning(f"Not saved: {s['save_conflict']}")
     if s.get("save_error"):

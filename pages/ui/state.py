@@ -149,23 +149,54 @@ def sync_from_widgets():
             s[k] = None if set(sel) == set(allv) else sel
 
 
+HAND_EXCLUSIONS = "exclusions edited by hand"
+"""The history step of exclusions ticked one by one (consecutive ticks are one step)."""
+
+
+def _exclusions_step(new: list, change: str) -> None:
+    """Make ``new`` the exclusions and record it as a step of the diagnosis history (issue
+    41: excluding outliers is a step, its fit beside the others), every step holding the
+    exclusions it was fitted with."""
+    s = st.session_state
+    old = [list(e) for e in s["exclusions"]]
+    hist = [dict(h) for h in s["history"]] or [{"spec": s["spec"], "change": "baseline"}]
+    hist[-1].setdefault("exclusions", old)  # the step before keeps what it was fitted with
+    step = {"spec": s["spec"], "change": change, "exclusions": [list(e) for e in new]}
+    if change == HAND_EXCLUSIONS and hist[-1]["change"] == HAND_EXCLUSIONS:
+        hist[-1] = step  # a run of ticks is one step
+    elif sorted(map(tuple, old)) != sorted(map(tuple, new)):
+        hist.append(step)
+    s["history"] = hist
+    s["exclusions"] = sorted(tuple(e) for e in new)
+
+
 def toggle_exclusion(trip, widget_key):
     """Checkbox callback: include or exclude one observation."""
     s = st.session_state
     cur = [tuple(e) for e in s["exclusions"] if tuple(e) != tuple(trip)]
     if s.get(widget_key):
         cur.append(tuple(trip))
-    s["exclusions"] = sorted(cur)
+    _exclusions_step(sorted(cur), HAND_EXCLUSIONS)
 
 
 def set_exclusions(trips, on: bool):
-    """Button callback: exclude (or include) all the given observations."""
+    """Button callback: exclude (or include) all the given observations, a step of the
+    history ("exclude 3 flagged outlier(s)")."""
     s = st.session_state
     trips = {tuple(t) for t in trips}
     cur = {tuple(e) for e in s["exclusions"]}
-    s["exclusions"] = sorted(cur | trips if on else cur - trips)
+    new = cur | trips if on else cur - trips
+    n = len(new - cur) if on else len(cur - new)
+    _exclusions_step(sorted(new), f"{'exclude' if on else 'include'} {n} flagged "
+                                  f"outlier{'s' if n != 1 else ''}"
+                                  + ("" if on else " again"))
+    _reset_exclusion_boxes(trips)
+
+
+def _reset_exclusion_boxes(trips) -> None:
+    """The Data page's checkboxes of ``trips`` follow the exclusions at their next draw."""
     for t in trips:
-        s.pop(f"w_ex_{t[0]}_{t[1]}_{t[2]}", None)
+        st.session_state.pop(f"w_ex_{t[0]}_{t[1]}_{t[2]}", None)
 
 
 def dataset():
@@ -255,14 +286,16 @@ def apply_change(token: str):
     """Button callback: apply a model token (add/remove an effect) and record it."""
     s = st.session_state
     if not s["history"]:
-        s["history"] = [{"spec": s["spec"], "change": "baseline"}]
+        s["history"] = [{"spec": s["spec"], "change": "baseline",
+                         "exclusions": [list(e) for e in s["exclusions"]]}]
     try:
         new = compose_spec(s["spec"], token, int(s["order"]))
     except ValueError as exc:
         s["flash"] = ("error", str(exc))
         return
     s["spec"] = new
-    s["history"] = [*s["history"], {"spec": new, "change": token}]
+    s["history"] = [*s["history"], {"spec": new, "change": token,
+                                    "exclusions": [list(e) for e in s["exclusions"]]}]
     s.pop("w_spec", None)
     s["flash"] = ("success", f"Model is now {new}")
 
@@ -277,6 +310,11 @@ def apply_selected(widget_key: str):
 def undo_change():
     s = st.session_state
     if len(s["history"]) > 1:
+        gone = s["history"][-1]
         s["history"] = s["history"][:-1]
         s["spec"] = s["history"][-1]["spec"]
+        if "exclusions" in s["history"][-1]:  # an exclusion step undone: the ones before
+            before = {tuple(e) for e in s["exclusions"]}
+            s["exclusions"] = sorted(tuple(e) for e in s["history"][-1]["exclusions"])
+            _reset_exclusion_boxes(before | {tuple(e) for e in gone.get("exclusions", [])})
         s.pop("w_spec", None)

@@ -65,22 +65,23 @@ def _show_upload_report():
     report = st.session_state.get("upload_report")
     if not report:
         return
+    files = list(dict.fromkeys(p["file"] for p in report["problems"] if p["file"]))
     st.error(f"Validation found {report['count']} problem(s); the current dataset is "
-             "unchanged."
-             + (" The upload fields are cleared: upload the corrected files (all of "
-                "them)." if report.get("cleared") else ""))
-    table = pd.DataFrame(report["problems"])
-    table["row"] = table["row"].astype("Int64")  # whole row numbers, blank when none
-    widgets.dataframe(table, hide_index=True, key="upload_problems")
-    # a table cell cuts long text ("did you mea…"): every problem and hint in full below
-    with st.expander("Each problem in full"):
-        st.markdown("\n".join(
-            "- " + ", ".join(x for x in (f"**{p['file']}**" if p["file"] else "",
-                                         f"row {p['row']}" if p["row"] is not None else "",
-                                         f"column {p['column']}" if p["column"] else "")
-                             if x)
-            + f": {p['problem']}" + (f" *{p['hint']}*" if p["hint"] else "")
-            for p in report["problems"]))
+             "unchanged. The fields keep your files: "
+             + (f"replace {', '.join(files)} (× removes a file) and load again."
+                if files else "correct what is said below and load again."))
+    # every problem and hint in full, open: a table cell cuts long text ("did you mea…")
+    st.markdown("\n".join(
+        "- " + ", ".join(x for x in (f"**{p['file']}**" if p["file"] else "",
+                                     f"row {p['row']}" if p["row"] is not None else "",
+                                     f"column {p['column']}" if p["column"] else "")
+                         if x)
+        + f": {p['problem']}" + (f" *{p['hint']}*" if p["hint"] else "")
+        for p in report["problems"]))
+    with st.expander("The problems as a table (sortable by file, row, column)"):
+        table = pd.DataFrame(report["problems"])
+        table["row"] = table["row"].astype("Int64")  # whole row numbers, blank when none
+        widgets.dataframe(table, hide_index=True, key="upload_problems")
 
 
 def upload_section():
@@ -130,13 +131,10 @@ def upload_section():
             foreign_hint="use the 'Other tools' tab or the mapped import below.",
             load=lambda src: state.load_sources(A.sources_key(src), src))
         if not got.ok:
-            # the fields are cleared after a refusal too: a corrected file must not be
-            # judged together with the refused one it replaces (issue 27)
+            # the fields keep the files (issue 41: a refusal that emptied every field lost
+            # the good files with the bad); the report names the files to replace
             st.session_state["upload_report"] = {
-                "problems": [p.to_dict() for p in got.problems], "count": got.n_problems,
-                "cleared": True}
-            st.session_state["upload_gen"] = gen + 1
-            st.rerun()  # draw the emptied fields now; the report is kept in the state
+                "problems": [p.to_dict() for p in got.problems], "count": got.n_problems}
         else:
             state.set_dataset(got.sources, got.origin)
             st.session_state["upload_count"] = st.session_state.get("upload_count", 0) + 1
