@@ -127,7 +127,9 @@ def test_a_u_that_is_not_determinable_says_why():
     assert all(math.isnan(u) for _, _, u in best.fitted.values())
     h = d.headline()
     _no_nan(h)
-    assert "u not determinable: aliased with " in h.text
+    # why, in words: the stylus's offsets and the placements cannot be told apart
+    assert "u not determinable: in this design the " in h.text
+    assert "offsets of styli" in h.text and "cannot be told apart" in h.text
     assert "± nan" not in d.message and "u not determinable" in d.message
 
 

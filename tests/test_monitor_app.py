@@ -45,11 +45,13 @@ def test_crash_sample_fails_names_sxy_and_history_shows_it():
     assert any("sxy" in m.value for m in at.markdown)
     # the diagnosis against the stored model names the crash's squareness
     assert any("names squareness XY (sxy" in m.value for m in at.markdown)
-    # the E_n map: every ball of the check in one of the three |E_n| classes, the crash's
-    # balls beyond 3
+    # the E_n map: every place of the check in one of the three |E_n| classes, the
+    # crash's beyond 1.5; 200 observations (4 placements × 25 balls × 2 styli) at 104
+    # places of the machine's x, y (both styli on each ball, and balls of different
+    # placements over each other): the sample's geometry, whole millimetres apart
     svg = next(m.value for m in at.markdown if 'data-figure="chk_map"' in m.value)
     counts = [int(n) for n in re.findall(r"\|E_n\|[^<]*?: (\d+)<", svg)]
-    assert len(counts) == 3 and counts[2] > 0 and sum(counts) == 200  # 4 × 25 balls × 2
+    assert len(counts) == 3 and counts[2] > 0 and sum(counts) == 104
     # the history tab, drawn only while open: the squareness's change between the last two
     # calibrations, its trend and the error map's change
     at.session_state["chk_tab"] = "History"

@@ -39,6 +39,7 @@ from ..model import (
     held_constraints,
     needs,
     normal_equations,
+    null_carriers,
     null_words,
     shortest_resolvable_period,
     solve,
@@ -134,7 +135,8 @@ def score(base: FitResult, token: str, cache: ScoreCache | None = None
     each added parameter label to ``(unit, standard uncertainty)`` in the augmented model:
     how well this data set determines the effect on top of the baseline; ``combos`` are
     the parameter combinations the augmented model would leave undetermined (beyond the
-    baseline's own), written out as the fit writes them. With a ``cache`` of the
+    baseline's own), each as ``(sentence, carriers)``: in words
+    (:func:`model.null_words`) and the labels carrying it (:func:`model.null_carriers`). With a ``cache`` of the
     diagnosis's superset the candidate's normal equations are taken from it.
     """
     spec = base.problem.spec.with_token(token)
@@ -165,7 +167,8 @@ def score(base: FitResult, token: str, cache: ScoreCache | None = None
         step, cov, rank, null = ne.step(), ne.cov(), ne.rank, ne.null
         r, J = cache.r, cache.J[:, idx]
     combos = ([] if ne0 is None or not ne0.null.shape[1] else
-              null_words(ne0.null, prob.layout.labels))
+              list(zip(null_words(ne0.null, prob.layout.labels),
+                       null_carriers(ne0.null, prob.layout.labels), strict=True)))
     Js = J @ step
     r_new = r + Js
     chi2_new = float(r_new @ r_new)

@@ -167,9 +167,12 @@ class Candidate:
         The verdict quotes them (a probe offset names its stylus and vector).
     would_leave_undetermined : list of str
         Parameter combinations the model with this effect added could not determine
-        (beyond the baseline's own): adding it as is leaves them unidentified. Fix by a
-        constraint (remove one of the named functions), another placement or stylus, or a
-        lower order.
+        (beyond the baseline's own), in words: adding it as is leaves them unidentified.
+        Fix by a constraint (remove one of the named functions), another placement or
+        stylus, or a lower order.
+    undetermined_carriers : list of tuple of str
+        The parameter labels carrying each of those combinations (a weight of at least
+        5 % of its largest), in the same order.
     """
 
     effect: str
@@ -191,6 +194,7 @@ class Candidate:
     level: float = 0.01
     would_leave_undetermined: list = field(default_factory=list)
     fitted: dict = field(default_factory=dict)
+    undetermined_carriers: list = field(default_factory=list, repr=False)
 
     def to_dict(self) -> dict:
         """JSON-ready summary (no arrays)."""
@@ -430,7 +434,8 @@ def diagnose(data: Dataset | Observations, baseline: str = "kinematic21", *, ord
                               if ui > 0 else np.inf)
                         for lab, (unit, ui) in sc.u_new.items()},
             level=levels[sc.family],
-            would_leave_undetermined=list(sc.combos), fitted=_fitted(sc)))
+            would_leave_undetermined=[w for w, _ in sc.combos], fitted=_fitted(sc),
+            undetermined_carriers=[c for _, c in sc.combos]))
     out, unseen = _seen(base, out)
     out.sort(key=lambda c: (not c.significant, c.delta_bic))
     out = _with_aliases(out, alias_corr, {sc.token: sc.period_aliases for sc in scored})

@@ -11,7 +11,6 @@ is :data:`OUTSIDE` the catalogue, with where the residual lives
 from __future__ import annotations
 
 import inspect
-import re
 from dataclasses import replace
 from typing import Protocol
 
@@ -37,6 +36,8 @@ class _Named(Protocol):
     def aliases(self) -> list: ...
     @property
     def would_leave_undetermined(self) -> list: ...
+    @property
+    def undetermined_carriers(self) -> list: ...
 
 OUTSIDE = "outside_catalogue"
 """Verdict when the misfit is significant and no catalogue effect passes the checks."""
@@ -311,21 +312,15 @@ def stylus_offsets(fitted: dict) -> dict:
     return out
 
 
-_TERM = re.compile(r"[0-9.]+·(\S+)")
-"""A parameter's label in an undetermined combination (``1.00·probe1.x + ...``)."""
-
-
 def _u_why(c: _Named, labels) -> str:
     """Why the fitted parameters ``labels`` of candidate ``c`` have no determinable u:
     the undetermined combination of the model with it that holds one of them (its other
     members), else that the model leaves some undetermined, else its aliases ("" when
     none of these says why)."""
-    for combo in c.would_leave_undetermined:
-        names = list(dict.fromkeys(_TERM.findall(combo)))
-        if any(lab in names for lab in labels):
-            others = [n for n in names if n not in labels]
-            return ("aliased with " + ", ".join(others[:3])
-                    + (" …" if len(others) > 3 else "") + " in this design")
+    for words, carriers in zip(c.would_leave_undetermined, c.undetermined_carriers,
+                               strict=True):
+        if any(lab in carriers for lab in labels):
+            return f"in this design {words[:1].lower()}{words[1:].rstrip('.')}"
     if c.would_leave_undetermined:
         return (f"the model with {c.effect} leaves {len(c.would_leave_undetermined)} "
                 "parameter combination(s) undetermined")

@@ -115,6 +115,7 @@ from .words import (
     MAX_CARRIERS,
     direction_phrase,
     distinct_words,
+    null_carriers,
     null_words,
     parameter_name,
 )
@@ -122,7 +123,7 @@ from .words import (
 __all__ = [
     "accumulate", "aligned_error_u", "approach_directions", "augmented_state",
     "BALL_BAR_COLUMNS", "BALL_BAR_OPTIONAL", "BallBar", "Block", "BY_TOKEN", "catalogue_entry",
-    "CARRIER_WEIGHT", "direction_phrase", "distinct_words", "MAX_CARRIERS", "null_words", "parameter_name",
+    "CARRIER_WEIGHT", "direction_phrase", "distinct_words", "MAX_CARRIERS", "null_carriers", "null_words", "parameter_name",
     "certificate_terms", "check_selection", "checked_cov", "CHI2_ALPHA", "correction_columns",
     "check_repeat_at_end", "cost_of", "DEFAULT_CONFIG", "describe_null", "error_at", "error_covariance",
     "Eval", "evaluate", "fit", "FitResult", "GROUPS", "has_plate", "held_constraints", "held_prior_rows",

@@ -41,7 +41,7 @@ from ..machine import (
 from .effects import BY_TOKEN, catalogue_entry, rotation_kind
 
 __all__ = ["CARRIER_WEIGHT", "MAX_CARRIERS", "direction_phrase", "distinct_words",
-           "null_words", "parameter_name"]
+           "null_carriers", "null_words", "parameter_name"]
 
 CARRIER_WEIGHT = 0.25
 """A parameter carries a direction when its weight is at least this fraction of the
@@ -152,6 +152,20 @@ def _one_axis(groups: dict) -> str | None:
     axis (``machine.axis_of``); else None."""
     axes = {"xyz"[axis_of(key)] if kind == "error" else None for kind, key in groups}
     return next(iter(axes)) if len(axes) == 1 and None not in axes else None
+
+
+def null_carriers(null: np.ndarray, labels: Sequence[str], share: float = 0.05
+                  ) -> list[tuple[str, ...]]:
+    """The labels that carry weight in each null vector (a column of ``null``): those with
+    at least ``share`` of the largest weight (the fit's rule for an unidentifiable
+    parameter, :func:`.solver.describe_null`)."""
+    null = np.asarray(null, float).reshape(len(labels), -1)
+    out = []
+    for v in np.abs(null.T):
+        top = v.max() if v.size else 0.0
+        out.append(tuple(labels[j] for j in np.flatnonzero(v >= share * top)) if top > 0
+                   else ())
+    return out
 
 
 def parameter_name(label: str) -> str:
