@@ -437,6 +437,9 @@ with c1:
                 column_config={"spec": st.column_config.TextColumn(
                                    "model", width="large",
                                    help="The model of each step as written"),
+                               # wide enough for "exclude 3 flagged outliers" uncut
+                               "change": st.column_config.TextColumn("change",
+                                                                     width="medium"),
                                "rms_um": st.column_config.NumberColumn("RMS (µm)",
                                                                        format="%.3f"),
                                "chi2_dof": st.column_config.NumberColumn("χ²/dof",

@@ -9,7 +9,7 @@ import plotly.graph_objects as go
 import pytest
 from plotly.subplots import make_subplots
 
-from cmm_core.analysis import figure_svg, nice_ticks
+from cmm_core.analysis import figure_svg, nice_ticks, tick_label
 from cmm_core.analysis import svg_supported as supported
 
 CIRCLE = re.compile(r'<circle cx="(-?[\d.]+)" cy="(-?[\d.]+)" r="[\d.]+" fill="[^"]+"[^>]*>'
@@ -97,3 +97,23 @@ def test_ticks_are_round_and_inside(lo, hi):
     assert np.allclose(step, step[0])
     mant = step[0] / 10 ** np.floor(np.log10(step[0]))
     assert any(np.isclose(mant, m) for m in (1, 2, 2.5, 5))
+
+
+@pytest.mark.parametrize(("lo", "hi", "n"), [(0, 10, 4), (0, 1.05, 3), (-0.4, 0.9, 5),
+                                             (0, 8, 4), (100, 1100, 4), (0, 0.03, 4)])
+def test_every_tick_label_reads_its_value(lo, hi, n):
+    """Issue 41: a 2.5 step had been labelled "0, 2, 5, 8"; each label now parses back to
+    its tick to within a millionth of the step, and no two labels are the same."""
+    t = nice_ticks(lo, hi, n)
+    step = t[1] - t[0]
+    labels = [tick_label(float(v), step) for v in t]
+    assert len(set(labels)) == len(labels)
+    for v, lab in zip(t, labels, strict=True):
+        assert float(lab.replace("−", "-")) == pytest.approx(v, abs=1e-6 * step)
+
+
+def test_a_single_positive_value_gets_no_negative_axis():
+    """One history step (RMS 0.4 µm): the y axis had run from −0.6 µm."""
+    svg = figure_svg(go.Figure(go.Scatter(x=[0], y=[0.4], mode="markers")))
+    ys = [float(m.replace("−", "-")) for m in re.findall(r'text-anchor="end"[^>]*>([^<]+)<', svg)]
+    assert ys and min(ys) >= 0 and max(ys) >= 0.4

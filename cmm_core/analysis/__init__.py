@@ -149,14 +149,14 @@ from .sources import (
     sources_key,
     thesis_sources,
 )
-from .svg import figure_svg, nice_ticks, placement_views_svg, svg_supported
+from .svg import figure_svg, nice_ticks, placement_views_svg, svg_supported, tick_label
 
 __all__ = [
     "FIRST_STEPS", "FirstLook", "first_look",
     "THESIS_ORIGIN", "FOREIGN_HINT", "Assembly", "SourceProblem", "assemble_upload", "inline_sources", "refuse_paths",
     "load_sources", "problems_of", "record_from_sources", "simulated_sources", "sources_key",
     "thesis_sources",
-    "placement_views_svg", "figure_svg", "nice_ticks", "svg_supported", "COLORWAY", "PLACEMENT_SYMBOLS", "fig_placement_views", "record_exclusions", "resolve_sigma", "diagnose_record", "FitChoices", "fit_kwargs", "fit_record",
+    "placement_views_svg", "figure_svg", "nice_ticks", "svg_supported", "tick_label", "COLORWAY", "PLACEMENT_SYMBOLS", "fig_placement_views", "record_exclusions", "resolve_sigma", "diagnose_record", "FitChoices", "fit_kwargs", "fit_record",
     "against_coordinates", "analysis_report", "AnalysisRecord", "AnalysisResult",
     "approach_split", "AXIS_COLOURS", "breakdown", "build_report", "chi2_html",
     "chi2_test_numbers", "CheckChoices", "compare_models", "ComparisonFigure", "coverage_reasons", "DataFile", "DataSources", "default_session_folder", "DEFAULT_EXCLUDE_OUTLIERS", "MAX_SESSION_BYTES", "PRIVATE_FILE", "PRIVATE_FOLDER", "LOCK_WAIT_S", "STALE_LOCK_S", "SessionConflict", "text_digest",

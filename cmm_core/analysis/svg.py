@@ -32,7 +32,7 @@ from plotly.colors import get_colorscale, sample_colorscale
 from ..io import Dataset
 from .figures import COLORWAY, fig_placement_views
 
-__all__ = ["figure_svg", "nice_ticks", "placement_views_svg", "svg_supported"]
+__all__ = ["figure_svg", "nice_ticks", "placement_views_svg", "svg_supported", "tick_label"]
 
 _FONT = "font-family=\"'Source Sans Pro', sans-serif\""
 _LEGEND_ROW_PX = 22
@@ -77,13 +77,15 @@ def _colours(t, frac: np.ndarray) -> list:
     return sample_colorscale(scale, list(np.clip(frac, 0, 1)))
 
 
-def _fmt(v: float, step: float) -> str:
+def tick_label(v: float, step: float) -> str:
     """A tick label with the decimals the tick step needs (no "0.30000000000000004")."""
     if v == 0:
         return "0"
     if abs(v) >= 1e5 or abs(v) < 1e-4:
         return f"{v:.3g}"
     dec = max(0, -int(math.floor(math.log10(step) + 1e-9))) if step > 0 else 0
+    while dec < 12 and abs(round(step, dec) - step) > 1e-9 * step:
+        dec += 1  # a step of 2.5 needs one decimal: "0, 2, 5, 8" misread 2.5 and 7.5
     return f"{v:.{dec}f}".replace("-", "−")
 
 
@@ -170,10 +172,17 @@ class _Axis:
             return
         if not np.isfinite(self.lo):
             self.lo, self.hi = 0.0, 1.0
+        positive = self.lo >= 0
         if self.hi - self.lo < 1e-12 * max(1.0, abs(self.hi)):
-            self.lo, self.hi = self.lo - 1.0, self.hi + 1.0
+            # one value: a tenth of it either side (an RMS of 0.4 µm drawn from -0.6 to
+            # 1.4 had read as a negative RMS), one unit for a zero
+            half = 0.1 * abs(self.hi) if self.hi != 0 else 1.0
+            self.lo, self.hi = self.lo - half, self.hi + half
         d = (self.hi - self.lo) * pad
         self.lo, self.hi = self.lo - d, self.hi + d
+        if positive and self.lo < 0 and self.vertical:
+            self.lo = 0.0  # values that are never negative get no negative axis (a y axis:
+            # an x axis keeps its padding, its first marker not cut at the edge)
 
     def px(self, v):
         v = np.asarray(v, float)
@@ -408,7 +417,7 @@ class _Chart:
         for v in ticks:
             yy = top + h * (hi - v) / (hi - lo)
             self.out.append(f'<text x="{x0 + thick + 4:.1f}" y="{yy + 4:.1f}" fill="#444">'
-                            f"{html.escape(_fmt(float(v), step))}</text>")
+                            f"{html.escape(tick_label(float(v), step))}</text>")
         title = cb.title.text if cb is not None and cb.title is not None else None
         if title:
             self.out.append(f'<text x="{x0:.1f}" y="{top - 8:.1f}" fill="#444">'
@@ -441,7 +450,7 @@ class _Chart:
         n = max(2, int(abs(a.p1 - a.p0) / (50 if a.vertical else 90)))
         ticks = list(nice_ticks(a.lo, a.hi, n))
         step = ticks[1] - ticks[0] if len(ticks) > 1 else 1.0
-        return ticks, [_fmt(v, step) for v in ticks]
+        return ticks, [tick_label(v, step) for v in ticks]
 
     def y_axis(self, a: _Axis) -> None:
         spec, out = a.spec, self.out
