@@ -39,13 +39,15 @@ noise-corrected Δχ² is 0 (the current data fit the truth's size within its no
 same pooled over layouts.
 
 Run: ``.venv/bin/python bench/next_layouts.py [--seeds N] [--layouts WORDS]
-[--pairs WORDS]`` (default 5 seeds per layout and pair, seeds 3000 on; about 0.6 s a seed
+[--pairs WORDS] [--instruments]`` (``--instruments``: the instrument candidates searched
+too, a top instrument measured on the true machine with its own noise) (default 5 seeds per layout and pair, seeds 3000 on; about 0.6 s a seed
 on the shared two-core machine).
 """
 
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -63,9 +65,15 @@ from scenarios import (  # noqa: E402
     proposal_scale_readings,
 )
 
-from cmm_core.model import simulate  # noqa: E402
+from cmm_core.model import select, simulate  # noqa: E402
 from cmm_core.plan import append_measurement, fit_rivals, propose  # noqa: E402
-from cmm_core.plan.proposals import out_of_reach, reached_range  # noqa: E402
+from cmm_core.plan.proposals import (  # noqa: E402
+    instrument_candidates,
+    instrument_of,
+    measurement_candidates,
+    out_of_reach,
+    reached_range,
+)
 
 BASE = "kinematic21,-sxy"
 POWER_BAR = 0.8
@@ -126,23 +134,37 @@ def outside(data, cand) -> tuple[str, str]:
     return why[0], why[1] or out_of_reach(data, cand)
 
 
-def run(layout: str, pair: str, seeds: int) -> list:
+def measured(sim, cand, seed: int):
+    """The data with the candidate measured on the true machine: a plate placement,
+    stylus or repeat appended (``append_measurement``), an instrument run simulated on the
+    simulation's own machine with the instrument's noise and fitted jointly (as
+    ``simulate_outcomes`` does on each rival's machine)."""
+    if cand.instrument:
+        obs = select(sim.dataset)
+        return replace(obs, instruments=(*obs.instruments,
+                                         instrument_of(cand, sim, seed=seed)))
+    return append_measurement(sim.dataset, cand, config=true_machine(sim, cand), seed=seed)
+
+
+def run(layout: str, pair: str, seeds: int, instruments: bool = False) -> list:
     """One row per seed: (predicted power, separated, proposals beyond what the machine
     reaches, top name, proposals checked, seconds, proposals outside the strokes, the top
-    proposal's noise-corrected Δχ² with the truth true)."""
+    proposal's noise-corrected Δχ² with the truth true). ``instruments``: the
+    instrument candidates are searched too (``next --instruments``)."""
     extra, base, truth, rival = PAIRS[pair]
     rows = []
     for seed in range(seeds):
         t0 = time.perf_counter()
         sim = simulate(LAYOUTS[layout](3000 + seed, extra), name=layout)
         data = sim.dataset
-        pr = propose(data, (truth, rival), baseline=base)
+        cands = measurement_candidates(data) + (instrument_candidates(data) if instruments
+                                                else [])
+        pr = propose(data, (truth, rival), baseline=base, cands=cands)
         top = pr.ranked[0]
         why = {p.candidate.name: outside(data, p.candidate) for p in pr.ranked}
         strokes = [(n, w[0]) for n, w in why.items() if w[0]]
         far = [(n, w[1]) for n, w in why.items() if w[1]]
-        aug = append_measurement(data, top.candidate, config=true_machine(sim, top.candidate),
-                                 seed=5000 + seed)
+        aug = measured(sim, top.candidate, 5000 + seed)
         rf = fit_rivals(data, pr.rivals, baseline=base)
         sep = nested_rejects(aug, rf, truth, rival)
         dt = time.perf_counter() - t0
@@ -205,6 +227,10 @@ def main():
     ap.add_argument("--layouts", default="",
                     help="only the layouts whose name contains one of these comma-separated "
                          "words (default: all four)")
+    ap.add_argument("--instruments", action="store_true",
+                    help="search the instrument candidates too (laser runs, step gauges, "
+                         "ball bars: next --instruments); a top instrument is measured on "
+                         "the true machine with its own noise")
     ap.add_argument("--pairs", default="",
                     help="only the pairs whose name contains one of these comma-separated "
                          "words (default: all)")
@@ -219,7 +245,7 @@ def main():
     for pair in chosen(PAIRS, args.pairs):
         for name in chosen(LAYOUTS, args.layouts):
             print(f"\n{name}, {pair} ({args.seeds} seeds)", flush=True)
-            rows = run(name, pair, args.seeds)
+            rows = run(name, pair, args.seeds, args.instruments)
             by_layout.setdefault(name, []).extend(rows)
             lines += [summary(f"{name}, {pair}", rows), by_size(f"  {name}, {pair}", rows)]
             print(lines[-2], lines[-1], sep="\n", flush=True)

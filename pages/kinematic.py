@@ -6,7 +6,14 @@ import streamlit as st
 
 from cmm_core import analysis as A
 from cmm_core.machine import ERROR_NAMES
-from cmm_core.model import GROUPS, PHYSICAL, parameter_name, parse_spec, setup_layout
+from cmm_core.model import (
+    GROUPS,
+    PHYSICAL,
+    distinct_words,
+    parameter_name,
+    parse_spec,
+    setup_layout,
+)
 from cmm_core.model import residuals_frame as instrument_residuals
 from cmm_core.model import summary as instrument_summary
 from cmm_core.units import label as unit_label
@@ -84,9 +91,12 @@ st.subheader("Identifiability")
 if r.unidentifiable:
     st.warning(f"The data cannot determine {len(r.null_combinations)} parameter "
                "combination(s). They are reported, not silently zeroed:")
-    widgets.dataframe(pd.DataFrame({"undetermined combination": r.null_words,
-                                    "weights (largest 1)": r.null_combinations}),
-                      hide_index=True, key="null_combos")
+    # in words, each sentence once, in full (a table cell cuts long text)
+    st.markdown("\n".join(f"- {w}" + (f" ({n} combinations read so)" if n > 1 else "")
+                           for w, n in distinct_words(r.null_words)))
+    with st.expander("The combinations with their weights (the largest 1)"):
+        widgets.dataframe(pd.DataFrame({"undetermined combination": r.null_combinations}),
+                          hide_index=True, key="null_combos")
     st.caption("Parameters involved: " + ", ".join(r.unidentifiable))
 else:
     st.success(f"Every parameter is determined by the data (numerical rank {r.rank}, "

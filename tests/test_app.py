@@ -716,6 +716,10 @@ def test_location_0_alone_is_reported_rank_deficient_on_every_page():
     at.run()
     _ok(at)
     assert any("undetermined combination" in c.value for c in at.sidebar.caption)
+    # each combination in plain words (issue 41), the weights for experts apart
+    words = " ".join(m.value for m in at.markdown if m.value.startswith("- "))
+    assert "cannot be told apart" in words and "·" not in words
+    assert "z positions of placements BP111 and BP112" in words, words
     at.switch_page("pages/uncertainty.py")
     at.run()
     _ok(at)
