@@ -51,9 +51,12 @@ def _no_exception(pg):
 
 
 
-def _markers(chart) -> int:
-    """The E_n map's ball markers: those whose hover title gives the three E_n."""
-    return sum("E_n x" in t for t in chart.locator("title").all_text_contents())
+def _markers(chart) -> tuple[int, int, int]:
+    """The E_n map's markers (those whose hover title gives the three E_n), the distinct
+    places their titles name, and the observations they list (one line each)."""
+    titles = [t for t in chart.locator("title").all_text_contents() if "E_n x" in t]
+    places = {t.split(" mm,")[0] for t in titles}
+    return len(titles), len(places), sum(t.count(" stylus ") for t in titles)
 
 
 def test_sample_check_after_a_crash_shows_verdict_map_and_effect(page):
@@ -67,7 +70,9 @@ def test_sample_check_after_a_crash_shows_verdict_map_and_effect(page):
     expect(chart).to_have_count(1)
     expect(chart).to_be_visible()
     expect(chart.get_by_text("Normalised errors of the new observations")).to_be_visible()
-    assert _markers(chart) == 200  # 4 placements × 25 balls × 2 styli
+    # one marker per place, every observation (4 placements × 25 balls × 2 styli) listed
+    markers, places, observations = _markers(chart)
+    assert markers == places < observations == 200
     # what changed: the fewest changes first (the squareness alone), then as the
     # diagnosis names effects
     expect(page.get_by_text("The fewest changes that explain the new data").first
@@ -86,7 +91,8 @@ def test_quiet_one_placement_check_is_partial(page):
     # a rerun keeps the stale picture beside the new one for a moment: wait for one
     expect(chart).to_have_count(1)
     expect(chart).to_be_visible()
-    assert _markers(chart) == 50  # one placement, two styli
+    markers, places, observations = _markers(chart)
+    assert markers == places == observations == 50  # one placement, its two styli apart
     _no_exception(page)
     page.screenshot(path=str(ART / "check_02_quiet.png"), full_page=True)
 
