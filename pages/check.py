@@ -17,7 +17,7 @@ from cmm_core import monitor as mon
 from cmm_core.io import SAMPLE_DIR
 from cmm_core.model import INSTRUMENT_KINDS, read_instrument
 from cmm_core.units import P_FLOOR, p_text
-from pages.ui import cached, calls, widgets
+from pages.ui import cached, calls, state, widgets
 
 st.title("Interim check")
 st.write("Between calibrations: does the machine still behave as its stored calibration "
@@ -83,7 +83,12 @@ def _analysis_model(day: str) -> tuple[str, str] | None:
     """The current analysis's fit as the stored calibration: ``(name, model file text)``
     with its provenance (inputs, machine) and the calibration date ``day``; None, with the
     reason shown, when there is no fit."""
-    ds = cached.require_dataset()
+    try:
+        ds = state.dataset()
+    except Exception as exc:  # noqa: BLE001 - said here; the History tab stays drawn
+        st.error(f"This analysis has no data that load ({calls.describe_error(exc)}): "
+                 "choose a model file as the stored calibration.")
+        return None
     r = cached.current_fit()
     if r is None:
         return None
@@ -120,7 +125,8 @@ with t_check:
     # drawn while open, or while its fields hold the user's files or choices (so that
     # looking at the history loses nothing)
     if t_check.open or widgets.held("chk_model", "chk_meas", "chk_setup", "chk_cert",
-                                  "chk_inst", changed=CHECK_DEFAULTS):
+                                  "chk_inst", text=("chk_cal_date",),
+                                  changed=CHECK_DEFAULTS):
         src = st.radio("Data", ["Sample history", "Upload files"], horizontal=True,
                        key="chk_src")
         files = None

@@ -94,7 +94,7 @@ if r.unidentifiable:
     # in words, each sentence once, in full (a table cell cuts long text)
     st.markdown("\n".join(f"- {w}" + (f" ({n} combinations read so)" if n > 1 else "")
                            for w, n in distinct_words(r.null_words)))
-    with st.expander("The combinations with their weights (the largest 1)"):
+    with st.expander("The combinations with their weights, scaled so the largest is 1"):
         widgets.dataframe(pd.DataFrame({"undetermined combination": r.null_combinations}),
                           hide_index=True, key="null_combos")
     st.caption("Parameters involved: " + ", ".join(r.unidentifiable))

@@ -347,3 +347,15 @@ def test_an_exclusion_is_a_history_step_fitted_with_its_own_exclusions():
     bad = dataclasses.replace(rec, history=(("kinematic21", "x", (("BP111", "9", 99),)),))
     with pytest.raises(ValueError, match="history step 'x'"):
         A.run(bad)
+
+
+def test_a_step_with_its_own_exclusions_gets_the_flagged_ones_when_the_record_says_so():
+    """Review of issue 41: with ``exclude_outliers`` the flagged observations join every
+    fit of the record, a history step's own exclusions included (its RMS is the record's
+    fit's, not that of the flagged data)."""
+    rec = dataclasses.replace(A.read_record(SAMPLE), spec="kinematic21", exclusions=(),
+                              exclude_outliers=True, diagnose=False,
+                              history=(("kinematic21", "baseline", ()),))
+    res = A.run(rec)
+    assert res.history[0]["rms_um"] == pytest.approx(res.fit.rms_um, abs=5e-5)
+    assert A.history_exclusions(rec, A.load_data(rec), res.flagged) == [tuple(res.flagged)]

@@ -1189,3 +1189,31 @@ def test_a_restored_record_is_fitted_as_the_report_fits_it():
     assert shown["RMS residual"] == f"{res.fit.rms_um:.3f} µm"
     assert shown["χ²/dof"] == f"{res.fit.chi2_dof:.2f}"
     assert int(shown["Parameters (rank)"]) == res.fit.rank
+
+
+def test_an_exclusion_after_a_restored_history_keeps_its_steps_fits():
+    """Review of issue 41's history steps: a restored record's steps (written before
+    steps had exclusions of their own) keep the fits they had when the outliers are then
+    excluded, and ticking one box and unticking it again leaves no step."""
+    at = _new()
+    at.session_state["history"] = [{"spec": "kinematic21", "change": "baseline"},
+                                   {"spec": "kinematic21,plate_sag", "change": "plate_sag"}]
+    at.session_state["spec"] = "kinematic21,plate_sag"
+    at.switch_page("pages/diagnose.py").run()
+    before = list(_frame(at, "change")["rms_um"])
+    at.button(key="diag_exclude_outliers").click().run()
+    assert not at.exception
+    hist = _frame(at, "change")
+    assert list(hist["change"]) == ["baseline", "plate_sag", "exclude 3 flagged outliers"]
+    assert list(hist["rms_um"])[:2] == before  # fitted as before, with no exclusions
+    assert hist.iloc[2]["rms_um"] < before[1]
+    # a box ticked and unticked on the Data page: no step
+    at.switch_page("pages/data.py").run()
+    box = next(c for c in at.checkbox if c.key.startswith("w_ex_"))
+    box.set_value(not box.value).run()
+    assert at.session_state["history"][-1]["change"] == "exclusions edited by hand"
+    box = next(c for c in at.checkbox if c.key == box.key)
+    box.set_value(not box.value).run()
+    assert not at.exception
+    assert [h["change"] for h in at.session_state["history"]] == [
+        "baseline", "plate_sag", "exclude 3 flagged outliers"]

@@ -100,7 +100,9 @@ def test_ticks_are_round_and_inside(lo, hi):
 
 
 @pytest.mark.parametrize(("lo", "hi", "n"), [(0, 10, 4), (0, 1.05, 3), (-0.4, 0.9, 5),
-                                             (0, 8, 4), (100, 1100, 4), (0, 0.03, 4)])
+                                             (0, 8, 4), (100, 1100, 4), (0, 0.03, 4),
+                                             (99990, 100010, 4), (0, 3e-4, 5),
+                                             (-3e-4, 0, 5), (0, 1.2e6, 4), (0, 2.6e6, 5)])
 def test_every_tick_label_reads_its_value(lo, hi, n):
     """Issue 41: a 2.5 step had been labelled "0, 2, 5, 8"; each label now parses back to
     its tick to within a millionth of the step, and no two labels are the same."""

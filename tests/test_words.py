@@ -10,6 +10,7 @@ from cmm_core.model import (
     direction_phrase,
     distinct_words,
     fit,
+    null_carriers,
     null_words,
     parameter_name,
     simulate,
@@ -57,6 +58,16 @@ def test_a_weight_below_a_quarter_of_the_largest_is_not_a_carrier():
     assert "ryz linear" in direction_phrase(v, LABELS)
 
 
+def test_a_combination_of_many_parameters_counts_those_it_does_not_name():
+    """One stylus aliased with twenty placements: twelve named, the rest counted."""
+    labels = ["probe1.z"] + [f"B{i}.tz" for i in range(1, 21)]
+    [said] = null_words(np.ones((21, 1)), labels)
+    assert said.endswith("and 9 more parameters cannot be told apart."), said
+    assert "B11" in said and "B12" not in said
+    # the carriers of a sentence are the labels it names
+    assert null_carriers(np.ones((21, 1)), labels) == [tuple(labels[:12])]
+
+
 def test_functions_of_one_axis_say_so():
     labels = ["dzz[2]", "rzx[1]", "dxx[1]"]
     v = np.array([1.0, 0.8, 0.0])
@@ -92,12 +103,16 @@ def test_distinct_words_count_repeats_in_order():
 
 
 @pytest.mark.parametrize(("label", "name"), [
-    ("dzz[1]", "z scale"), ("dzz[2]", "curvature of the z scale"),
+    ("dzz[1]", "z scale"), ("dzz[2]", "z scale, degree 2"),
     ("ryz[1]", "y carriage's yaw about z"), ("ryx[1]", "y carriage's pitch about x"),
     ("ryy[1]", "y carriage's roll"), ("rzx[1]", "z carriage's tilt about x"),
     ("sxy", "xy squareness"), ("probeA.y", "y offset of stylus A"),
     ("B1.tz", "z position of placement B1"), ("B1.drift_x", "x drift of placement B1"),
     ("plate_sag.uu", "plate sag (gravity bending): uu"), ("no_such", "no_such"),
+    ("dxx[3]", "x scale, degree 3"), ("dxy[2]", "x straightness in y, degree 2"),
+    ("dxx[sin50]", "x scale, sine of period 50 mm"),
+    ("dxx[cos50]", "x scale, cosine of period 50 mm"),
+    ("dxx[0]", "x scale (dxx[0])"), ("dxx", "x scale (dxx)"),
 ])
 def test_every_parameter_has_a_name(label, name):
     """The Kinematic page's parameter table names each code (one naming of rotations:

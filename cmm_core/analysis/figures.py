@@ -336,13 +336,15 @@ def en_classes(coverage_factor: float = 2.0) -> list:
 
 
 EN_PLACE_MM = 1.0
-"""Observations of an E_n map within this distance in x and y (mm) are one place: one
-marker (styli probing one ball, balls of a vertical plate at one x, y)."""
+"""An E_n map's place: the observations whose x and y (mm) round to one cell of this
+size are one marker (styli probing one ball, balls of a vertical plate at one x, y)."""
 
 
 def _en_places(table: pd.DataFrame, k: float) -> pd.DataFrame:
     """One row per place of :func:`fig_en_map`: its x, y (mm), the largest ``|E_n|`` of
     its observations (NaN when none has one) and a hover text listing them."""
+    xy_mm = table[["x_mm", "y_mm"]].to_numpy(float)
+    table = table[np.isfinite(xy_mm).all(axis=1)]  # a place without x, y is not drawn
     xy = np.round(table[["x_mm", "y_mm"]].to_numpy(float) / EN_PLACE_MM)
     key = pd.Series([f"{a:.0f},{b:.0f}" for a, b in xy], index=table.index)
     rows = []
@@ -350,7 +352,8 @@ def _en_places(table: pd.DataFrame, k: float) -> pd.DataFrame:
         en = np.abs(g["En"].to_numpy(float))
         lines = [f"{r.position} stylus {r.probe} ball {r.ball}: E_n x {_en_text(r.En_x)}, "
                  f"y {_en_text(r.En_y)}, z {_en_text(r.En_z)}" for r in g.itertuples()]
-        head = (f"x {g['x_mm'].iloc[0]:.0f}, y {g['y_mm'].iloc[0]:.0f} mm, "
+        x0, y0 = (round(float(g[c].iloc[0])) for c in ("x_mm", "y_mm"))  # an int: no "-0"
+        head = (f"x {x0}, y {y0} mm, "
                 f"{len(g)} observation{'s' if len(g) > 1 else ''} (k = {k:g})")
         rows.append({"x_mm": float(g["x_mm"].mean()), "y_mm": float(g["y_mm"].mean()),
                      "En": float(np.nanmax(en)) if np.isfinite(en).any() else np.nan,

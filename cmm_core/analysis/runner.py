@@ -211,6 +211,31 @@ def record_exclusions(record: AnalysisRecord, ds: Dataset) -> tuple[tuple, tuple
     return excl, flagged
 
 
+def history_exclusions(record: AnalysisRecord, ds: Dataset, flagged: tuple
+                       ) -> list[tuple | None]:
+    """The exclusions each history step of ``record`` is fitted with: a step's own (with
+    the flagged observations when the record's ``exclude_outliers`` says so, as its own
+    ``exclusions`` get them), None for a step without its own (the record's
+    ``exclusions``, :func:`record_exclusions`).
+
+    Raises
+    ------
+    ValueError
+        A step's own exclusions name an observation the data lack (the step named).
+    """
+    out: list[tuple | None] = []
+    for _spec, change, *own in record.history:
+        if not own:
+            out.append(None)
+            continue
+        ex = tuple(sorted(set(map(tuple, own[0]))
+                          | (set(flagged) if record.exclude_outliers else set())))
+        check_selection(ds, record.positions, record.probes, ex,
+                        f"analysis record, history step {change!r}")
+        out.append(ex)
+    return out
+
+
 def resolve_sigma(record: AnalysisRecord, ds: Dataset, instruments: Sequence = (),
                   exclusions: Iterable[Sequence] | None = None) -> dict:
     """The σ a record's fits use: ``{"value_um", "auto"}``, plus the estimate's fields
@@ -238,13 +263,12 @@ def run(record: AnalysisRecord) -> AnalysisResult:
     steps = {"exclusions": excl, "sigma_um": sigma["value_um"]}
     r = fit_record(record, ds, inst, **steps)
     history = []
-    for spec, change, *own in record.history:
-        # a step made with exclusions of its own (an outlier exclusion is a step) is
-        # fitted with them; any other with the record's
-        ex = tuple(own[0]) if own else excl
-        if own:
-            check_selection(ds, record.positions, record.probes, ex,
-                            f"analysis record, history step {change!r}")
+    # a step made with exclusions of its own (an outlier exclusion is a step) is fitted
+    # with them; any other with the record's
+    for (spec, change, *_), own in zip(record.history,
+                                       history_exclusions(record, ds, flagged),
+                                       strict=True):
+        ex = excl if own is None else own
         same = spec == record.spec and set(ex) == set(excl)
         history.append((r if same else fit_record(record, ds, inst, spec=spec, exclusions=ex,
                                                   sigma_um=steps["sigma_um"]))

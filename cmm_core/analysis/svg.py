@@ -79,14 +79,29 @@ def _colours(t, frac: np.ndarray) -> list:
 
 def tick_label(v: float, step: float) -> str:
     """A tick label with the decimals the tick step needs (no "0.30000000000000004")."""
-    if v == 0:
+    step = abs(step)
+    if v == 0 or abs(v) < 1e-9 * step:  # the zero tick, summed to 1e-19
         return "0"
-    if abs(v) >= 1e5 or abs(v) < 1e-4:
-        return f"{v:.3g}"
+    dec = _decimals(step)
+    if step and (step < 1e-4 or step >= 1e5):
+        # exponent form, chosen by the step (one form on an axis), with the significant
+        # digits the step needs: 99990 and 1e5 apart, 2.5e+05 never "2e+05"
+        scale = math.floor(math.log10(step) + 1e-9)
+        places = max(0, math.floor(math.log10(abs(v)) + 1e-9) - scale
+                     + _decimals(step / 10.0 ** scale))
+        text = f"{v:.{places}e}"
+    else:
+        text = f"{v:.{dec}f}"
+    return "−" + text[1:] if text.startswith("-") else text
+
+
+def _decimals(step: float) -> int:
+    """The decimals that write ``step`` exactly (to 1e-9 of it): 0 for 5, 1 for 2.5, 2
+    for 0.25 (a step of 2.5 written with none had read "0, 2, 5, 8")."""
     dec = max(0, -int(math.floor(math.log10(step) + 1e-9))) if step > 0 else 0
     while dec < 12 and abs(round(step, dec) - step) > 1e-9 * step:
-        dec += 1  # a step of 2.5 needs one decimal: "0, 2, 5, 8" misread 2.5 and 7.5
-    return f"{v:.{dec}f}".replace("-", "−")
+        dec += 1
+    return dec
 
 
 def nice_ticks(lo: float, hi: float, n: int = 5) -> np.ndarray:

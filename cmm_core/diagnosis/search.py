@@ -171,8 +171,8 @@ class Candidate:
         Fix by a constraint (remove one of the named functions), another placement or
         stylus, or a lower order.
     undetermined_carriers : list of tuple of str
-        The parameter labels carrying each of those combinations (a weight of at least
-        5 % of its largest), in the same order.
+        The parameter labels each of those sentences names (``model.null_carriers``),
+        in the same order.
     """
 
     effect: str

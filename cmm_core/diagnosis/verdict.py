@@ -317,8 +317,9 @@ def _u_why(c: _Named, labels) -> str:
     the undetermined combination of the model with it that holds one of them (its other
     members), else that the model leaves some undetermined, else its aliases ("" when
     none of these says why)."""
+    # the sentence that names one of them (its carriers are the labels it names)
     for words, carriers in zip(c.would_leave_undetermined, c.undetermined_carriers,
-                               strict=True):
+                               strict=False):
         if any(lab in carriers for lab in labels):
             return f"in this design {words[:1].lower()}{words[1:].rstrip('.')}"
     if c.would_leave_undetermined:

@@ -110,6 +110,8 @@ def null_words(null: np.ndarray, labels: Sequence[str]) -> list[str]:
         positions of placements B1 and B2 cannot be told apart."`` or ``"The curvature
         of the y carriage's tilt ... (ryz[2]) is not determined."``.
     """
+    if not len(labels):
+        return []
     null = np.asarray(null, float).reshape(len(labels), -1)
     out = []
     for v in null.T:
@@ -117,13 +119,18 @@ def null_words(null: np.ndarray, labels: Sequence[str]) -> list[str]:
         if not groups:
             out.append("No parameter.")
             continue
-        text = _join([_phrase(kind, key, tokens) for (kind, key), tokens in groups.items()])
-        if sum(map(len, groups.values())) == 1:
-            out.append(f"{text[:1].upper()}{text[1:]} is not determined.")
+        phrases = [_phrase(kind, key, tokens) for (kind, key), tokens in groups.items()]
+        more = len(_carrier_labels(v, labels, len(labels))) - sum(map(len, groups.values()))
+        if more:  # named up to _MOST_NULL; the rest counted, never dropped silently
+            phrases.append(f"{more} more parameter{'s' if more > 1 else ''}")
+        text = _join(phrases)
+        text = text[:1].upper() + text[1:] if text.startswith("the ") else text
+        if sum(map(len, groups.values())) == 1 and not more:
+            out.append(f"{text} is not determined.")
             continue
-        axis = _one_axis(groups) if len(groups) > 1 else None
+        axis = _one_axis(groups) if len(groups) > 1 and not more else None
         why = f" (each varies only with {axis})" if axis else ""
-        out.append(f"{text[:1].upper()}{text[1:]} cannot be told apart{why}.")
+        out.append(f"{text} cannot be told apart{why}.")
     return out
 
 
@@ -135,16 +142,22 @@ with the placements' positions carries six or more of equal weight."""
 def _carriers(v, labels: Sequence[str], most: int) -> dict[tuple, list[str]]:
     """The carrying parameters of ``v`` grouped by ``(kind, key)`` (:func:`_parse`), the
     groups and their tokens in order of weight; empty for a zero direction."""
+    groups: dict[tuple, list[str]] = {}
+    for label in _carrier_labels(v, labels, most):
+        kind, key, token = _parse(label)
+        groups.setdefault((kind, key), []).append(token)
+    return groups
+
+
+def _carrier_labels(v, labels: Sequence[str], most: int) -> list[str]:
+    """The labels of ``v``'s weights of at least :data:`CARRIER_WEIGHT` of the largest,
+    largest first, at most ``most``."""
     a = np.abs(np.asarray(v, float))
     top = a.max() if a.size else 0.0
-    groups: dict[tuple, list[str]] = {}
     if not top > 0:
-        return groups
-    for j in np.argsort(-a, kind="stable")[:most]:
-        if a[j] >= CARRIER_WEIGHT * top:
-            kind, key, token = _parse(labels[int(j)])
-            groups.setdefault((kind, key), []).append(token)
-    return groups
+        return []
+    return [labels[int(j)] for j in np.argsort(-a, kind="stable")[:most]
+            if a[j] >= CARRIER_WEIGHT * top]
 
 
 def _one_axis(groups: dict) -> str | None:
@@ -154,18 +167,13 @@ def _one_axis(groups: dict) -> str | None:
     return next(iter(axes)) if len(axes) == 1 and None not in axes else None
 
 
-def null_carriers(null: np.ndarray, labels: Sequence[str], share: float = 0.05
-                  ) -> list[tuple[str, ...]]:
-    """The labels that carry weight in each null vector (a column of ``null``): those with
-    at least ``share`` of the largest weight (the fit's rule for an unidentifiable
-    parameter, :func:`.solver.describe_null`)."""
+def null_carriers(null: np.ndarray, labels: Sequence[str]) -> list[tuple[str, ...]]:
+    """The labels each sentence of :func:`null_words` names, per null vector (a column of
+    ``null``), largest weight first."""
+    if not len(labels):
+        return []
     null = np.asarray(null, float).reshape(len(labels), -1)
-    out = []
-    for v in np.abs(null.T):
-        top = v.max() if v.size else 0.0
-        out.append(tuple(labels[j] for j in np.flatnonzero(v >= share * top)) if top > 0
-                   else ())
-    return out
+    return [tuple(_carrier_labels(v, labels, _MOST_NULL)) for v in null.T]
 
 
 def parameter_name(label: str) -> str:
@@ -186,9 +194,16 @@ def parameter_name(label: str) -> str:
     kind, key, token = _parse(label)
     if kind == "effect":
         return f"{catalogue_entry(key).title}: {token}"
-    text = (_function_phrase(key, [token], codes=False) if kind == "error"
-            else _phrase(kind, key, [token]))
-    return text.removeprefix("the ")
+    if kind != "error":
+        return _phrase(kind, key, [token]).removeprefix("the ")
+    noun = _function_phrase(key, [], codes=False).removeprefix("the ")
+    if key in SQUARENESS or token == "1":
+        return noun
+    if token.isdigit() and int(token) >= 2:
+        return f"{noun}, degree {token}"
+    if token[:3] in ("sin", "cos") and token[3:]:
+        return f"{noun}, {'sine' if token[:3] == 'sin' else 'cosine'} of period {token[3:]} mm"
+    return f"{noun} ({label})"  # a term this release does not know by name
 
 
 def distinct_words(words: Sequence[str]) -> list[tuple[str, int]]:
@@ -257,14 +272,14 @@ def _code(base: str, token: str) -> str:
 
 def _function_phrase(base: str, tokens: list, codes: bool = True) -> str:
     """One error function with the terms of it that carry a direction (their codes in
-    brackets unless ``codes`` is False)."""
+    brackets unless ``codes`` is False); no terms: the function's noun alone."""
     tokens = sorted(tokens, key=lambda t: (0, int(t), "") if t.isdigit() else (1, 0, t))
     said = f" ({', '.join(_code(base, t) for t in tokens)})" if codes else ""
     a, d = base[1], base[2]
     if base in SQUARENESS:
         return f"the {a}{d} squareness" + (f" ({base})" if codes else "")
     if base in STRAIGHTNESS:
-        return f"the {a} straightness in {d}{said}"
+        return f"the {a} straightness in {d}{said}"  # no terms: the noun alone
     if base in POSITIONING:
         noun = f"the {a} scale"
     elif base in ROTATIONAL:
@@ -272,6 +287,8 @@ def _function_phrase(base: str, tokens: list, codes: bool = True) -> str:
         noun = f"the {a} carriage's {kind}" + ("" if kind == "roll" else f" about {d}")
     else:  # pragma: no cover - ERROR_NAMES is the three groups
         return f"{base}{said}"
+    if not tokens:
+        return noun
     linear = "1" in tokens
     curved = any(t.isdigit() and int(t) >= 2 for t in tokens)
     periods = sorted({t[3:] for t in tokens if t[:3] in ("sin", "cos")})

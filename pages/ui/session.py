@@ -68,7 +68,10 @@ def restore_record(record, source: str) -> str:
     inst = [(i.kind, i.file.name, i.file.text()) for i in d.instruments]
     check_instruments(inst, new_ds)  # before anything changes
     # what analysis.run leaves out and the σ it uses, so the app fits what the report does
-    excl, _ = A.record_exclusions(record, new_ds)
+    excl, flagged = A.record_exclusions(record, new_ds)
+    # each history step with the exclusions the report fits it with (refused, before
+    # anything changes, when a step's own name observations the data lack)
+    step_excl = A.history_exclusions(record, new_ds, flagged)
     sigma = (safe(A.resolve_sigma, record, new_ds, A.load_instruments(record), excl,
                   what="Estimating σ") if record.sigma_um == "auto"
              else A.resolve_sigma(record, new_ds))
@@ -81,8 +84,9 @@ def restore_record(record, source: str) -> str:
     s["exclusions"] = [list(e) for e in excl]
     s["diag_on"] = bool(record.diagnose)
     s["history"] = [{"spec": spec, "change": change,
-                     **({"exclusions": [list(e) for e in own[0]]} if own else {})}
-                    for spec, change, *own in record.history]
+                     **({} if own is None else {"exclusions": [list(e) for e in own]})}
+                    for (spec, change, *_), own in zip(record.history, step_excl,
+                                                       strict=True)]
     if s["history"] and s["history"][-1]["spec"] != s["spec"]:
         # the model was edited by hand after the last recorded step
         s["history"].append({"spec": s["spec"], "change": "edited by hand"})

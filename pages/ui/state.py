@@ -159,15 +159,33 @@ def _exclusions_step(new: list, change: str) -> None:
     exclusions it was fitted with."""
     s = st.session_state
     old = [list(e) for e in s["exclusions"]]
-    hist = [dict(h) for h in s["history"]] or [{"spec": s["spec"], "change": "baseline"}]
-    hist[-1].setdefault("exclusions", old)  # the step before keeps what it was fitted with
+    hist = _held_steps()
     step = {"spec": s["spec"], "change": change, "exclusions": [list(e) for e in new]}
     if change == HAND_EXCLUSIONS and hist[-1]["change"] == HAND_EXCLUSIONS:
         hist[-1] = step  # a run of ticks is one step
-    elif sorted(map(tuple, old)) != sorted(map(tuple, new)):
+        if len(hist) > 1 and _same(hist[-2]["exclusions"], new):
+            hist.pop()  # ticked and unticked again: no step
+    elif not _same(old, new):
         hist.append(step)
     s["history"] = hist
     s["exclusions"] = sorted(tuple(e) for e in new)
+
+
+def _same(a, b) -> bool:
+    """Two lists of exclusions hold the same observations."""
+    return sorted(map(tuple, a)) == sorted(map(tuple, b))
+
+
+def _held_steps() -> list:
+    """The session's history steps (a baseline when there are none), each holding the
+    exclusions it is fitted with: a step of an older record that has none gets the
+    exclusions in force now, which it was being fitted with, before they change."""
+    s = st.session_state
+    now = [list(e) for e in s["exclusions"]]
+    hist = [dict(h) for h in s["history"]] or [{"spec": s["spec"], "change": "baseline"}]
+    for h in hist:
+        h.setdefault("exclusions", now)
+    return hist
 
 
 def toggle_exclusion(trip, widget_key):
@@ -285,17 +303,14 @@ def compose_spec(spec: str, token: str, order: int) -> str:
 def apply_change(token: str):
     """Button callback: apply a model token (add/remove an effect) and record it."""
     s = st.session_state
-    if not s["history"]:
-        s["history"] = [{"spec": s["spec"], "change": "baseline",
-                         "exclusions": [list(e) for e in s["exclusions"]]}]
     try:
         new = compose_spec(s["spec"], token, int(s["order"]))
     except ValueError as exc:
         s["flash"] = ("error", str(exc))
         return
     s["spec"] = new
-    s["history"] = [*s["history"], {"spec": new, "change": token,
-                                    "exclusions": [list(e) for e in s["exclusions"]]}]
+    s["history"] = [*_held_steps(), {"spec": new, "change": token,
+                                     "exclusions": [list(e) for e in s["exclusions"]]}]
     s.pop("w_spec", None)
     s["flash"] = ("success", f"Model is now {new}")
 
