@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from streamlit.runtime.memory_media_file_storage import MemoryMediaFileStorage
 
 # The app keeps every analysis in a per-user folder (cmm_core.analysis.sessions): the tests,
 # and the app servers they start, keep theirs in a folder of their own, never the user's.
@@ -142,3 +143,18 @@ def wait_until_served(proc, url: str, seconds: float = 90.0) -> None:
         except OSError:
             time.sleep(0.3)
     raise RuntimeError(f"the app's server did not answer within {seconds:g} s")
+
+
+@pytest.fixture
+def downloads(monkeypatch):
+    """``{file name: bytes}`` of every file the app hands to a download button (AppTest
+    keeps a download's bytes in its in-memory media storage; caught on their way in)."""
+    seen = {}
+    add = MemoryMediaFileStorage.load_and_get_id
+
+    def record(self, path_or_data, mimetype, kind, filename=None):
+        seen[filename] = path_or_data
+        return add(self, path_or_data, mimetype, kind, filename)
+
+    monkeypatch.setattr(MemoryMediaFileStorage, "load_and_get_id", record)
+    return seen

@@ -8,7 +8,6 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("streamlit")
-from streamlit.runtime.memory_media_file_storage import MemoryMediaFileStorage  # noqa: E402
 from streamlit.testing.v1 import AppTest  # noqa: E402
 
 from cmm_core import analysis as A  # noqa: E402
@@ -77,17 +76,9 @@ def test_quiet_sample_passes_and_bad_mpe_is_one_message():
     assert [e.value for e in at.error] and "MPE" in at.error[0].value
 
 
-def test_check_offers_its_results_document(monkeypatch):
-    # review 2 #14: the document downloaded is the check shown. AppTest keeps a download's
-    # bytes in its in-memory media storage; they are caught on their way in
-    files = {}
-    load = MemoryMediaFileStorage.load_and_get_id
-
-    def keep(self, data, mimetype, kind, filename=None):
-        files[filename] = data
-        return load(self, data, mimetype, kind, filename)
-
-    monkeypatch.setattr(MemoryMediaFileStorage, "load_and_get_id", keep)
+def test_check_offers_its_results_document(downloads):
+    # review 2 #14: the document downloaded is the check shown
+    files = downloads
     at = _page()
     _ok(at)
     buttons = at.get("download_button")
@@ -201,18 +192,11 @@ def test_the_map_states_En_at_k_2_and_its_legend_counts_the_markers_drawn():
     assert "the z scale" in words and "[1]" not in words and " - 0." not in words
 
 
-def test_the_stored_calibration_can_be_this_analysis_with_its_date(monkeypatch):
-    """Issue 41: the stored calibration taken from the current analysis (the thesis fit
-    the app opens with), its calibration date asked for, shown and recorded in the
-    check's results; a date not in ISO form is one message and no check."""
-    files = {}
-    load = MemoryMediaFileStorage.load_and_get_id
-
-    def keep(self, data, mimetype, kind, filename=None):
-        files[filename] = data
-        return load(self, data, mimetype, kind, filename)
-
-    monkeypatch.setattr(MemoryMediaFileStorage, "load_and_get_id", keep)
+def test_the_stored_calibration_can_be_this_analysis_with_its_date(downloads):
+    """Issue 41: the stored calibration taken from the current analysis (here a
+    four-placement check's own files), its calibration date asked for, shown and recorded
+    in the check's results; a date not in ISO form is one message and no check."""
+    files = downloads
     at = _page()
     # the analysis: a four-placement check's own files, as the Data page's upload loads them
     check = SAMPLES / "history" / "check_2025-02-10_after_crash"

@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 from conftest import THESIS, open_data_tab
 from conftest import uploader as _uploader
-from streamlit.runtime.memory_media_file_storage import MemoryMediaFileStorage
 from streamlit.testing.v1 import AppTest
 
 from cmm_core.cli import main
@@ -193,20 +192,6 @@ def test_read_foreign_routes_qif_by_name_and_content(thesis_qif, tmp_path):
 
 def test_the_help_texts_copy_of_the_qif_label_pattern_is_the_readers():
     assert _QIF_LABEL_PATTERN == QIF_LABEL_PATTERN
-
-
-@pytest.fixture
-def downloads(monkeypatch):
-    """``{file name: bytes}`` of every file the app hands to a download button."""
-    seen = {}
-    add = MemoryMediaFileStorage.load_and_get_id
-
-    def record(self, path_or_data, mimetype, kind, filename=None):
-        seen[filename] = path_or_data
-        return add(self, path_or_data, mimetype, kind, filename)
-
-    monkeypatch.setattr(MemoryMediaFileStorage, "load_and_get_id", record)
-    return seen
 
 
 def _ok(at):
