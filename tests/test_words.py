@@ -68,6 +68,13 @@ def test_a_combination_of_many_parameters_counts_those_it_does_not_name():
     assert null_carriers(np.ones((21, 1)), labels) == [tuple(labels[:12])]
 
 
+def test_a_periodic_error_s_two_terms_are_its_phase():
+    labels = ["dxx[sin200]", "dxx[cos200]"]
+    assert null_words(np.array([[1.0], [0.8]]), labels) == [
+        "The periodic error of 200 mm of the x scale (dxx[cos200], dxx[sin200]): its sine "
+        "and cosine terms cannot be told apart."]
+
+
 def test_functions_of_one_axis_say_so():
     labels = ["dzz[2]", "rzx[1]", "dxx[1]"]
     v = np.array([1.0, 0.8, 0.0])

@@ -128,6 +128,10 @@ def null_words(null: np.ndarray, labels: Sequence[str]) -> list[str]:
         if sum(map(len, groups.values())) == 1 and not more:
             out.append(f"{text} is not determined.")
             continue
+        if len(groups) == 1 and not more and _sine_and_cosine(next(iter(groups.values()))):
+            # one periodic error's two terms: its phase, not two errors
+            out.append(f"{text}: its sine and cosine terms cannot be told apart.")
+            continue
         axis = _one_axis(groups) if len(groups) > 1 and not more else None
         why = f" (each varies only with {axis})" if axis else ""
         out.append(f"{text} cannot be told apart{why}.")
@@ -158,6 +162,11 @@ def _carrier_labels(v, labels: Sequence[str], most: int) -> list[str]:
         return []
     return [labels[int(j)] for j in np.argsort(-a, kind="stable")[:most]
             if a[j] >= CARRIER_WEIGHT * top]
+
+
+def _sine_and_cosine(tokens: list) -> bool:
+    """The tokens are the sine and cosine terms of one period (``sin200``, ``cos200``)."""
+    return sorted(t[:3] for t in tokens) == ["cos", "sin"] and len({t[3:] for t in tokens}) == 1
 
 
 def _one_axis(groups: dict) -> str | None:
