@@ -325,6 +325,12 @@ def test_plan_page_and_task_section_run():
     table = at.dataframe[0].value
     assert list(table["strategy"]) == ["location 0", "thesis (all six)"]
     assert list(table["undetermined"]) == [14, 0]
+    # the strategy's undetermined combinations in words once its expander is opened
+    at.session_state["w_plan_undet_0"] = True
+    at.run()
+    assert not at.exception and not at.error
+    said = [m.value for m in at.markdown if m.value.startswith("- ")]
+    assert said and "cannot be told apart" in said[0] and "·" not in said[0], said
 
     def section():
 
