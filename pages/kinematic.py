@@ -155,60 +155,64 @@ def _adopt_scatter(sigma_um):
 
 
 with tabs[2], calls.guarded("Parameter table"):
-    pf = r.parameters_frame()
-    pf.insert(1, "name", [parameter_name(lab) for lab in pf["parameter"]])
-    pf["determined"] = ~pf["parameter"].isin(r.unidentifiable)
-    pf["U (k=2)"] = 2 * pf["u"]
-    birge = r.birge_ratio
-    if birge > 1.05:
-        # the scatter exceeds the stated σ: scale u by √(χ²/dof) (Birge 1932), the
-        # figure to quote until the missing effect is found
-        pf["u, Birge-scaled"] = r.u_inflated
-        st.info(f"Birge ratio √(χ²/dof) = {birge:.2f} (of the tested statistic): the "
-                f"residuals scatter {birge:.2f} times what the stated σ allows, so the noise "
-                "part of u is too small. The column *u, "
-                "Birge-scaled* is the honest standard uncertainty until the model explains "
-                "the data (see Compare and diagnose). The bands, maps, U1-U3 and exports "
-                "use σ; to carry the scaling everywhere, adopt the observed scatter as σ.")
-        st.button(f"Use the observed scatter as σ ({s['sigma_um'] * birge:.3g} µm)",
-                  key="adopt_scatter", on_click=_adopt_scatter, args=(s["sigma_um"] * birge,),
-                  help="Sets σ to σ·√(χ²/dof): every uncertainty on every page and in the "
-                       "exports is then Birge-scaled, and χ²/dof becomes 1.")
-    if truth and truth.get("key") == s["ds_key"]:
-        pf["true (simulation)"] = pf["parameter"].map(truth["truth"])
-        # the check a metrologist makes first: |z| < 2-3 for nearly every parameter
-        pf["(value − true)/u"] = (pf["value"] - pf["true (simulation)"]) / pf["u"]
-    blocks = st.multiselect("Blocks", list(dict.fromkeys(pf["block"])),
-                            default=[b for b in dict.fromkeys(pf["block"])
-                                     if b not in ("rotation", "translation")],
-                            )
-    view = pf[pf["block"].isin(blocks)].assign(unit=lambda d: d["unit"].map(
-        unit_label))
-    widgets.dataframe(view, hide_index=True, key="param_table",
-                 column_config={"value": st.column_config.NumberColumn(format="%.4f"),
-                                "u": st.column_config.NumberColumn("u (k=1)", format="%.4f"),
-                                "U (k=2)": st.column_config.NumberColumn(format="%.4f"),
-                                "(value − true)/u": st.column_config.NumberColumn(
-                                    format="%.2f"),
-                                "u, Birge-scaled": st.column_config.NumberColumn(
-                                    format="%.4f")})
-    st.caption("Units per row: µm (translational, placement translation, plate), µrad "
-               "(rotations, squareness, placement rotation). `plate_sag.uu`, `.vv` are bowl "
-               "heights at the plate edge (µm, middle of the u and v edges against the "
-               "centre), `.uv` the twist at a corner (µm). `drift` is in µm/h"
-               + ("." if state.dataset().meas.get("time_min", pd.Series([None])).notna().all() else
-                  ": these data have no time_min column, so time is the row order at one "
-                  "minute per row (µm/h = µm per 60 rows)."))
+    # drawn only while open: its data grid's scripts (1.3 MB) would load with the
+    # page's first visit from a tab no one has opened (issue 41: a first visit under 1 s)
+    if tabs[2].open:
+        pf = r.parameters_frame()
+        pf.insert(1, "name", [parameter_name(lab) for lab in pf["parameter"]])
+        pf["determined"] = ~pf["parameter"].isin(r.unidentifiable)
+        pf["U (k=2)"] = 2 * pf["u"]
+        birge = r.birge_ratio
+        if birge > 1.05:
+            # the scatter exceeds the stated σ: scale u by √(χ²/dof) (Birge 1932), the
+            # figure to quote until the missing effect is found
+            pf["u, Birge-scaled"] = r.u_inflated
+            st.info(f"Birge ratio √(χ²/dof) = {birge:.2f} (of the tested statistic): the "
+                    f"residuals scatter {birge:.2f} times what the stated σ allows, so the noise "
+                    "part of u is too small. The column *u, "
+                    "Birge-scaled* is the honest standard uncertainty until the model explains "
+                    "the data (see Compare and diagnose). The bands, maps, U1-U3 and exports "
+                    "use σ; to carry the scaling everywhere, adopt the observed scatter as σ.")
+            st.button(f"Use the observed scatter as σ ({s['sigma_um'] * birge:.3g} µm)",
+                      key="adopt_scatter", on_click=_adopt_scatter, args=(s["sigma_um"] * birge,),
+                      help="Sets σ to σ·√(χ²/dof): every uncertainty on every page and in the "
+                           "exports is then Birge-scaled, and χ²/dof becomes 1.")
+        if truth and truth.get("key") == s["ds_key"]:
+            pf["true (simulation)"] = pf["parameter"].map(truth["truth"])
+            # the check a metrologist makes first: |z| < 2-3 for nearly every parameter
+            pf["(value − true)/u"] = (pf["value"] - pf["true (simulation)"]) / pf["u"]
+        blocks = st.multiselect("Blocks", list(dict.fromkeys(pf["block"])),
+                                default=[b for b in dict.fromkeys(pf["block"])
+                                         if b not in ("rotation", "translation")],
+                                )
+        view = pf[pf["block"].isin(blocks)].assign(unit=lambda d: d["unit"].map(
+            unit_label))
+        widgets.dataframe(view, hide_index=True, key="param_table",
+                     column_config={"value": st.column_config.NumberColumn(format="%.4f"),
+                                    "u": st.column_config.NumberColumn("u (k=1)", format="%.4f"),
+                                    "U (k=2)": st.column_config.NumberColumn(format="%.4f"),
+                                    "(value − true)/u": st.column_config.NumberColumn(
+                                        format="%.2f"),
+                                    "u, Birge-scaled": st.column_config.NumberColumn(
+                                        format="%.4f")})
+        st.caption("Units per row: µm (translational, placement translation, plate), µrad "
+                   "(rotations, squareness, placement rotation). `plate_sag.uu`, `.vv` are bowl "
+                   "heights at the plate edge (µm, middle of the u and v edges against the "
+                   "centre), `.uv` the twist at a corner (µm). `drift` is in µm/h"
+                   + ("." if state.dataset().meas.get("time_min", pd.Series([None])).notna().all() else
+                      ": these data have no time_min column, so time is the row order at one "
+                      "minute per row (µm/h = µm per 60 rows)."))
 
 with tabs[3], calls.guarded("Residuals"):
     if tabs[3].open:
         widgets.plot("pattern", cached.fit_key(), A.fig_pattern, r.table, r.residuals_um,
                    "Residuals per observation (µm)", chart_key="fig_resid")
-    widgets.dataframe(A.residual_summary(r), hide_index=True, key="resid_summary")
-    rf = r.residuals_frame()
-    worst = rf.assign(norm_um=np.linalg.norm(r.residuals_um, axis=1)).nlargest(10, "norm_um")
-    st.caption("Largest residuals (µm), with the file and row each came from:")
-    widgets.dataframe(worst, hide_index=True, key="resid_worst")
+        widgets.dataframe(A.residual_summary(r), hide_index=True, key="resid_summary")
+        rf = r.residuals_frame()
+        worst = rf.assign(norm_um=np.linalg.norm(r.residuals_um, axis=1)).nlargest(
+            10, "norm_um")
+        st.caption("Largest residuals (µm), with the file and row each came from:")
+        widgets.dataframe(worst, hide_index=True, key="resid_worst")
 
 def instruments_section(r):
     """The instruments fitted with the plate: their residuals and the uncertainty gain."""

@@ -56,6 +56,13 @@ def _sim_tab(at):
     return at
 
 
+def _parameters(at):
+    """The Kinematic page's parameter table, its tab opened (drawn only while open)."""
+    at.session_state["w_kin_tab"] = "Parameters"
+    at.run()
+    return _frame(at, "parameter")
+
+
 def _ok(at):
     assert not at.exception, [e.message for e in at.exception]
     assert not at.error, [e.value for e in at.error]
@@ -165,7 +172,7 @@ def test_kinematic_page_elements_and_order_change():
     at.sidebar.toggle(key="interactive_plots").set_value(True).run()
     assert [c.key for c in at.get("plotly_chart")] == ["fig_errfun"]
     at.sidebar.toggle(key="interactive_plots").set_value(False).run()
-    pf = _frame(at, "parameter")
+    pf = _parameters(at)
     # thesis data scatter ~10 σ (outliers included here): Birge-scaled u shown beside u,
     # scaled by the Birge ratio the χ² test reports (sidebar)
     birge = _sidebar_birge(at)
@@ -203,13 +210,13 @@ def test_adopting_the_observed_scatter_scales_every_uncertainty():
     at = _new()
     at.switch_page("pages/kinematic.py")
     at.run()
-    before = _frame(at, "parameter").set_index("parameter")
+    before = _parameters(at).set_index("parameter")
     chi2_before = float({m.label: m.value for m in at.metric}["χ²/dof"])
     birge = _sidebar_birge(at)
     at.button(key="adopt_scatter").click()
     at.run()
     _ok(at)
-    after = _frame(at, "parameter").set_index("parameter")
+    after = _parameters(at).set_index("parameter")
     assert float({m.label: m.value for m in at.metric}["χ²/dof"]) == pytest.approx(
         chi2_before / birge**2, rel=0.01, abs=0.01)
     ratio = (after["u"] / before["u"]).dropna().to_numpy()
@@ -424,7 +431,7 @@ def test_simulate_a_virtual_cmm():
     at.switch_page("pages/kinematic.py")
     at.run()
     _ok(at)
-    assert "true (simulation)" in _frame(at, "parameter").columns
+    assert "true (simulation)" in _parameters(at).columns
 
 
 def test_the_plan_page_keeps_its_plan_after_a_new_dataset():
@@ -456,7 +463,7 @@ def test_without_a_hidden_effect_the_fit_matches_the_truth_within_its_uncertaint
     at.switch_page("pages/kinematic.py")
     at.run()
     _ok(at)
-    table = _frame(at, "parameter")
+    table = _parameters(at)
     z = table.loc[table["block"] == "kinematic", "(value − true)/u"].dropna()
     assert len(z) > 20 and (z.abs() < 4).all(), z.abs().max()
     assert 0.7 < float(np.sqrt(np.mean(z**2))) < 1.3  # χ²₆₀/60 in [0.5, 1.7]: > 4 sd wide
@@ -873,7 +880,7 @@ def test_sag_is_explained_as_bowl_heights_and_drift_over_row_order():
     at.text_input(key="w_spec").input("kinematic21,plate_sag,drift")
     at.run()
     _ok(at)
-    pf = _frame(at, "parameter")
+    pf = _parameters(at)
     assert {"plate_sag.uu", "plate_sag.vv"} <= set(pf["parameter"])
     cap = " ".join(c.value for c in at.caption)
     assert "bowl heights at the plate edge" in cap
