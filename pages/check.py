@@ -17,6 +17,7 @@ from cmm_core import monitor as mon
 from cmm_core.io import SAMPLE_DIR
 from cmm_core.model import INSTRUMENT_KINDS, read_instrument
 from cmm_core.units import P_FLOOR, p_text
+from cmm_core.units import label as unit_label
 from pages.ui import cached, calls, state, widgets
 
 st.title("Interim check")
@@ -75,8 +76,9 @@ def _read(path: Path) -> tuple:
     return path.name, path.read_bytes()
 
 
+# the sample history's calibrations and their dates (its model files state none); a
+# comment, not a string: Streamlit's "magic" would write a bare string onto the page
 SAMPLE_DATES = json.loads((HISTORY / "dates.json").read_text())
-"""The sample history's calibrations and their dates (its model files state none)."""
 
 
 def _analysis_model(day: str) -> tuple[str, str] | None:
@@ -266,7 +268,8 @@ with t_check:
                         widgets.dataframe(pd.DataFrame([
                             {"effect": e["effect"], "title": e["title"],
                              "size": "; ".join(f"{k} {v['value']:+.3g} ± {v['u']:.2g} "
-                                               f"{v['unit']}" for k, v in e["fitted"].items()),
+                                               f"{unit_label(v['unit'])}"
+                                               for k, v in e["fitted"].items()),
                              "p-value": p_text(e["p_value"]).removeprefix("p = "),
                              "confirmed": e["confirmed"]}
                             for e in eff["named"]]), hide_index=True, key="chk_effects")

@@ -343,6 +343,17 @@ def test_pages_holds_page_scripts_and_the_ui_package_only():
                   if p.name != "__pycache__" and p.suffix != ".py") == ["ui"]
 
 
+@pytest.mark.parametrize("path", [ROOT / "app.py", *PAGE_SCRIPTS], ids=lambda p: p.name)
+def test_a_script_writes_no_bare_string_onto_its_page(path):
+    """Streamlit's "magic" draws a bare expression of a script on the page: a string
+    after the module docstring (an attribute's docstring, as a module would write one)
+    appeared above the Interim check page's tabs."""
+    body = ast.parse(path.read_text(encoding="utf-8")).body
+    bare = [n.lineno for n in body[1:] if isinstance(n, ast.Expr)
+            and isinstance(n.value, ast.Constant) and isinstance(n.value.value, str)]
+    assert bare == [], f"{path.name}: bare strings at lines {bare}"
+
+
 # --- names in prose: docstrings and comments went on naming modules after they moved into
 # the wings (``cmm_core.gp_optimise`` for ``cmm_core.gp.optimise``, ``cmm_core.blocks``)
 
