@@ -81,22 +81,34 @@ def _read(path: Path) -> tuple:
 SAMPLE_DATES = json.loads((HISTORY / "dates.json").read_text())
 
 
-def _analysis_model(day: str) -> tuple[str, str] | None:
-    """The current analysis's fit as the stored calibration: ``(name, model file text)``
-    with its provenance (inputs, machine) and the calibration date ``day``; None, with the
-    reason shown, when there is no fit."""
+def _dataset_or_none():
+    """The analysis's dataset, or None with the reason shown (the History tab stays
+    drawn)."""
     try:
-        ds = state.dataset()
-    except Exception as exc:  # noqa: BLE001 - said here; the History tab stays drawn
+        return state.dataset()
+    except Exception as exc:  # noqa: BLE001 - said here, not a traceback
         st.error(f"This analysis has no data that load ({calls.describe_error(exc)}): "
                  "choose a model file as the stored calibration.")
         return None
+
+
+@st.cache_data(show_spinner=False, max_entries=8)
+def _analysis_model_text(key, day: str, _result, _sources) -> str:
+    """The fit of ``key`` as a model file's text with its provenance and the calibration
+    date ``day``: made once per fit and date, so that the check cached on the model's
+    text is not run again at every rerun (the provenance's time would change it)."""
+    prov = dataclasses.replace(_sources.provenance(), calibration_date=day or None)
+    return json.dumps(ex.model_to_dict(_result, prov))
+
+
+def _analysis_model(ds, day: str) -> tuple[str, str] | None:
+    """The current analysis's fit as the stored calibration: ``(name, model file text)``;
+    None when there is no fit (the fit's error shown)."""
     r = cached.current_fit()
     if r is None:
         return None
-    prov = dataclasses.replace(st.session_state["sources"].provenance(),
-                               calibration_date=day or None)
-    return (f"{ds.name} (this analysis)", json.dumps(ex.model_to_dict(r, prov)))
+    return (f"{ds.name} (this analysis)",
+            _analysis_model_text(cached.fit_key(), day, r, st.session_state["sources"]))
 
 
 def _stated_date(text: str) -> str | None:
@@ -148,9 +160,10 @@ with t_check:
                                    "at its calibration. A model file: one a fit saved "
                                    "(Compensate and export, model file).")
             model_file = None
-            if stored == "This analysis's fit":
-                given = st.session_state["sources"].provenance().calibration_date
-                day = st.text_input("Calibration date (YYYY-MM-DD)", given or "",
+            ds_now = _dataset_or_none() if stored == "This analysis's fit" else None
+            if ds_now is not None:
+                day = st.text_input("Calibration date (YYYY-MM-DD)",
+                                    ds_now.setup.calibration_date or "",
                                     key="chk_cal_date",
                                     help="The date of the calibration this fit stands for "
                                          "(the setup's calibration_date when it states "
@@ -160,12 +173,12 @@ with t_check:
                 except ValueError:
                     st.error(f"Calibration date: expected YYYY-MM-DD, got {day.strip()!r}.")
                     day = ""
-                model_file = _analysis_model(day)
+                model_file = _analysis_model(ds_now, day)
                 if model_file is not None:
                     st.caption(f"Stored calibration: {model_file[0]}, "
                                + (f"calibrated {day}." if day else
                                   "calibration date not stated."))
-            else:
+            elif stored == "A model file":
                 up_model = st.file_uploader("Stored calibration (the model file a fit saved, "
                                             ".json)", type=["json"], key="chk_model")
                 if up_model is not None:

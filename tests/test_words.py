@@ -75,6 +75,16 @@ def test_a_periodic_error_s_two_terms_are_its_phase():
         "and cosine terms cannot be told apart."]
 
 
+def test_an_interim_check_s_phrase_puts_functions_of_one_axis_side_by_side():
+    """The interim check's words as before they moved into the model wing (checked then
+    against the old code on 20 000 random directions): the z functions together, then
+    the x scale, whatever their weights' order."""
+    v = np.array([1.0, 0.9, 0.8])
+    assert direction_phrase(v, ["dzz[1]", "dxx[1]", "rzx[1]"]) == (
+        "the z scale (dzz linear) together with the z carriage's tilt about x (rzx linear) "
+        "and the x scale (dxx linear)")
+
+
 def test_functions_of_one_axis_say_so():
     labels = ["dzz[2]", "rzx[1]", "dxx[1]"]
     v = np.array([1.0, 0.8, 0.0])

@@ -314,9 +314,9 @@ def stylus_offsets(fitted: dict) -> dict:
 
 def _u_why(c: _Named, labels) -> str:
     """Why the fitted parameters ``labels`` of candidate ``c`` have no determinable u:
-    the undetermined combination of the model with it that holds one of them (its other
-    members), else that the model leaves some undetermined, else its aliases ("" when
-    none of these says why)."""
+    the sentence of the undetermined combination of the model with it that names one of
+    them, else that the model leaves some undetermined, else its aliases ("" when none of
+    these says why)."""
     # the sentence that names one of them (its carriers are the labels it names)
     for words, carriers in zip(c.would_leave_undetermined, c.undetermined_carriers,
                                strict=False):

@@ -265,7 +265,7 @@ machine whose straightness or rotation errors reach a millimetre or a milliradia
 broken, so such values mean the data barely determine that function."""
 
 
-def _message(status, it, rms, chi2_dof, combos, chi2_p=1.0, dof=0, test_dof=None):
+def _message(status, it, rms, chi2_dof, null_words, chi2_p=1.0, dof=0, test_dof=None):
     head = {"converged": f"Converged in {it} iterations",
             "max_iterations": f"Stopped after {it} iterations without converging",
             "failed": "No step reduced the misfit"}[status]
@@ -281,9 +281,9 @@ def _message(status, it, rms, chi2_dof, combos, chi2_p=1.0, dof=0, test_dof=None
                 f"{' and certificate allow' if cert else ' allows'}, so the model misses "
                 "something or σ is understated (run the diagnosis), and the uncertainties' "
                 "noise part is too small by that factor (the Birge ratio).")
-    if combos:  # in words (FitResult.null_words), each distinct sentence once
-        said = list(dict.fromkeys(combos))
-        msg += (f" The data cannot determine {len(combos)} parameter combination(s); they "
+    if null_words:  # FitResult.null_words, each distinct sentence once
+        said = list(dict.fromkeys(null_words))
+        msg += (f" The data cannot determine {len(null_words)} parameter combination(s); they "
                 "are held at the minimum-norm solution and reported as unidentifiable. "
                 + " ".join(said[:3]) + (" ..." if len(said) > 3 else "")
                 + " Add positions, heights or probe offsets that exercise them, or remove "

@@ -84,7 +84,13 @@ def direction_phrase(v: np.ndarray, labels: Sequence[str], *,
     groups = _carriers(v, labels, most)
     if not groups:
         return "no parameter"
-    phrases = [_phrase(kind, key, tokens) for (kind, key), tokens in groups.items()]
+    # the functions of one axis side by side (the first axis met first), then the rest
+    by_axis: dict = {}
+    for kind, key in groups:
+        by_axis.setdefault("xyz"[axis_of(key)] if kind == "error" else None,
+                           []).append((kind, key))
+    phrases = [_phrase(kind, key, groups[(kind, key)]) for keys in by_axis.values()
+               for kind, key in keys]
     if len(phrases) == 1:
         return phrases[0]
     if axis := _one_axis(groups):

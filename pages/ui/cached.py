@@ -14,7 +14,7 @@ from cmm_core import analysis as A
 from cmm_core.diagnosis import detect_outliers, discrepancy_gp
 from cmm_core.model import evaluate, read_instrument
 from pages.ui.calls import describe_error, safe
-from pages.ui.state import dataset, instruments_key
+from pages.ui.state import dataset, held_steps, instruments_key
 
 
 @st.cache_resource(show_spinner=False, max_entries=16)
@@ -202,8 +202,7 @@ def history_rows() -> list:
     """The diagnosis history with each step's fit quality (computed from cached fits)."""
     s = st.session_state
     if not s["history"]:
-        s["history"] = [{"spec": s["spec"], "change": "baseline",
-                         "exclusions": [list(e) for e in s["exclusions"]]}]
+        s["history"] = held_steps()  # the baseline, with the exclusions it is fitted with
     out = []
     for h in s["history"]:
         # each step with the exclusions it was made with (a step of an older record has

@@ -159,7 +159,7 @@ def _exclusions_step(new: list, change: str) -> None:
     exclusions it was fitted with."""
     s = st.session_state
     old = [list(e) for e in s["exclusions"]]
-    hist = _held_steps()
+    hist = held_steps()
     step = {"spec": s["spec"], "change": change, "exclusions": [list(e) for e in new]}
     if change == HAND_EXCLUSIONS and hist[-1]["change"] == HAND_EXCLUSIONS:
         hist[-1] = step  # a run of ticks is one step
@@ -176,7 +176,7 @@ def _same(a, b) -> bool:
     return sorted(map(tuple, a)) == sorted(map(tuple, b))
 
 
-def _held_steps() -> list:
+def held_steps() -> list:
     """The session's history steps (a baseline when there are none), each holding the
     exclusions it is fitted with: a step of an older record that has none gets the
     exclusions in force now, which it was being fitted with, before they change."""
@@ -309,7 +309,7 @@ def apply_change(token: str):
         s["flash"] = ("error", str(exc))
         return
     s["spec"] = new
-    s["history"] = [*_held_steps(), {"spec": new, "change": token,
+    s["history"] = [*held_steps(), {"spec": new, "change": token,
                                      "exclusions": [list(e) for e in s["exclusions"]]}]
     s.pop("w_spec", None)
     s["flash"] = ("success", f"Model is now {new}")
