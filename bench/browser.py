@@ -2,7 +2,8 @@
 
 ``streamlit run app.py`` and Debian's chromium driven by Playwright (headless). Each action
 is timed from the click (or the navigation) until the app is idle and every plot on the
-page is drawn: no "running" status widget, no skeleton, every Plotly chart with its SVG.
+page is drawn: no "running" status widget, no skeleton, every Plotly chart with its SVG,
+every static figure's frame with its picture and as tall as it.
 Beside it, in the same run, the server's time for the same action: the wall time of every
 script run that ended inside the action's window, summed (``app.py`` appends each run to the
 file named by ``CMM_LAB_RUN_LOG``). The difference is the browser's share (transfer,
@@ -61,11 +62,16 @@ PAGES = ["Kinematic model", "Gaussian process", "Compare and diagnose", "Uncerta
          "Compensate and export", "Plan", "Interim check", "Data"]
 GOAL_S, FIRST_LOAD_GOAL_S = 1.0, 2.0
 
-# idle and drawn: no status widget, no skeleton, every plotly chart has its svg
+# idle and drawn: no status widget, no skeleton, every plotly chart has its svg, every
+# static figure's frame (widgets.svg_figure) its picture and the picture's height
 IDLE_JS = """() => !document.querySelector('[data-testid="stStatusWidget"]')
   && !document.querySelector('[data-testid="stSkeleton"]')
   && Array.from(document.querySelectorAll('[data-testid="stPlotlyChart"]'))
-       .every(c => c.querySelector('.main-svg'))"""
+       .every(c => c.querySelector('.main-svg'))
+  && Array.from(document.querySelectorAll('iframe[data-testid="stIFrame"]')).every(f => {
+       const s = f.contentDocument && f.contentDocument.querySelector('svg');
+       return s && Math.abs(f.getBoundingClientRect().height
+                            - s.getBoundingClientRect().height) < 2; })"""
 
 
 def _free_port() -> int:

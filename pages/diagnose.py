@@ -199,7 +199,8 @@ fkey = cached.fit_key()  # what decides the fit: the key of its cached figures
 
 c = st.columns(4)
 # the model as the user wrote it, wrapped at its commas (a metric would cut it)
-c[0].markdown(f"Model  \n{widgets.spec_markup(s['spec'])}", unsafe_allow_html=True)
+_spec, _spec_help = widgets.spec_markdown(s["spec"])
+c[0].markdown(f"Model  \n{_spec}", help=_spec_help)
 c[1].metric("RMS residual", f"{r.rms_um:.3f} µm")
 # one χ²/dof is the headline: the one the χ² test decides on (with a fixed certificate
 # it counts the certificate's uncertainty; the fit's own value is named in the help)

@@ -1,6 +1,7 @@
 """Shared fixtures: paths from __file__, seeded generators, the thesis dataset."""
 
 import os
+import re
 import socket
 import tempfile
 import time
@@ -72,6 +73,18 @@ def rxz4_files(tmp_path_factory):
     simulated("pitch80_3pos", 3, noise_um=0.5,
               kinematic={"spec": "kinematic21,rxz:4", "coefficients": {"rxz[4]": 3.0}}
               ).write(out)
+    return out
+
+
+def svg_figures(at) -> dict:
+    """The static SVG figures on the AppTest ``at``'s page (``widgets.svg_figure``: each an
+    iframe's document): ``{key: document}``, the key the ``data-figure`` of its ``div``, in
+    page order."""
+    out = {}
+    for f in at.get("iframe"):
+        m = re.search(r'<div data-figure="([^"]+)">', f.proto.srcdoc)
+        if m:
+            out[m.group(1)] = f.proto.srcdoc
     return out
 
 

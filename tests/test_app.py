@@ -9,6 +9,7 @@ import pytest
 
 pytest.importorskip("streamlit")
 import scenarios as sc  # noqa: E402
+from conftest import svg_figures  # noqa: E402
 from conftest import uploader as _uploader  # noqa: E402
 from streamlit.testing.v1 import AppTest  # noqa: E402
 
@@ -42,10 +43,9 @@ def _new():
 
 def _figures(at) -> list:
     """The keys of the figures on the page: Plotly charts and the static SVG figures
-    (``frame.svg_figure``: the ``data-figure`` of the SVG's div), in page order within each
+    (``widgets.svg_figure``: the ``data-figure`` of the SVG's div), in page order within each
     kind."""
-    svgs = [re.match(r'<div data-figure="([^"]+)">', m.value) for m in at.markdown]
-    return [c.key for c in at.get("plotly_chart")] + [m.group(1) for m in svgs if m]
+    return [c.key for c in at.get("plotly_chart")] + list(svg_figures(at))
 
 
 def _sim_tab(at):
@@ -905,12 +905,18 @@ def test_model_spec_is_shown_as_written_and_wraps_at_commas():
     at.run()
     _ok(at)
     assert at.session_state["spec"] == "translational,squareness,-sxy"
-    side = next(m.value for m in at.sidebar.markdown if "Model:" in m.value)
-    assert "translational,<wbr>squareness,<wbr>-sxy" in side
-    assert 'title="translational,squareness,-sxy' in side
-    assert "dxx" not in side.split("title=")[0]  # not expanded where it is displayed
-    head = next(m.value for m in at.markdown if m.value.startswith("Model"))
-    assert "translational,<wbr>squareness" in head
+    # the spec as written, wrapping at its commas; its expansion in the help (hover)
+    side = next(m for m in at.sidebar.markdown if "Model:" in m.value)
+    assert "**Model:** translational, squareness, -sxy  \n" in side.value
+    assert "dxx" not in side.value  # not expanded where it is displayed
+    from cmm_core.model import parse_spec
+
+    full = parse_spec("translational,squareness,-sxy", default_order=2).to_string()
+    assert side.proto.help == f"translational,squareness,-sxy  \n= {full}"
+    assert "<" not in side.value and not side.proto.allow_html  # plain markdown (issue 41)
+    head = next(m for m in at.markdown if m.value.startswith("Model"))
+    assert "translational, squareness, -sxy" in head.value
+    assert head.proto.help == side.proto.help
     hist = _frame(at, "change")
     assert list(hist["spec"]) == ["translational, squareness",
                                   "translational, squareness, -sxy"]
@@ -1114,7 +1120,8 @@ def test_placements_drawn_as_three_views_and_in_3d_on_request():
     at.run()
     _ok(at)
     assert not at.get("plotly_chart")
-    (svg,) = [m.value for m in at.markdown if "<svg" in m.value]
+    assert not [m for m in at.markdown if "<svg" in m.value]  # framed, not in markdown
+    (svg,) = svg_figures(at).values()
     assert svg.count("<title>BP111, probe") == 3 * 25  # every ball of a placement, 3 views
     at.toggle(key="w_place_3d").set_value(True)
     at.run()

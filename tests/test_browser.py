@@ -21,8 +21,9 @@ CHROMIUM = "/usr/bin/chromium"
 ROOT = Path(__file__).resolve().parents[1]
 ART = ROOT / "tests" / "artifacts"
 THESIS = ROOT / "sample_data" / "thesis"
-FIGURES = "[data-figure] > svg, .js-plotly-plot"
-"""A figure on a page: static SVG drawn on the server (frame.plot) or a Plotly chart."""
+FIGURES = 'iframe[data-testid="stIFrame"], .js-plotly-plot'
+"""A figure on a page: static SVG drawn on the server (``widgets.svg_figure``: its frame)
+or a Plotly chart."""
 
 if not Path(CHROMIUM).exists():
     pytest.skip(f"{CHROMIUM} is not installed", allow_module_level=True)
@@ -118,6 +119,20 @@ def _no_exception(pg):
     assert pg.locator('[data-testid="stException"]').count() == 0
 
 
+def svg_figure(pg, key: str):
+    """The SVG of the static figure keyed ``key`` (``widgets.svg_figure``: in its own
+    frame), once its container holds one frame (a rerun keeps the stale picture beside the
+    new one for a moment) and the frame is as tall as the picture it shows."""
+    frame = pg.locator(f".st-key-{key} iframe")
+    expect(frame).to_have_count(1)
+    svg = frame.content_frame.locator(f"[data-figure='{key}'] > svg")
+    expect(svg).to_be_visible()
+    pg.wait_for_function(
+        "f => Math.abs(f.getBoundingClientRect().height - f.contentDocument"
+        ".querySelector('svg').getBoundingClientRect().height) < 2", arg=frame.element_handle())
+    return svg
+
+
 def _choose(pg, label: str, option: str):
     """Pick ``option`` in the selectbox labelled ``label``."""
     box = pg.locator('[data-testid="stSelectbox"]').filter(has_text=label).first
@@ -193,10 +208,20 @@ def test_first_load_shows_the_thesis_model(page, server):
     expect(page.get_by_text("thesis tables 6.1-6.6").first).to_be_visible()
     # the placements' three views are in the page (st.html had sanitised the SVG away: an
     # empty element where AppTest saw the picture), a hover title on every ball
-    views = page.locator("[data-figure='placement_views'] > svg")
-    expect(views).to_be_visible()
+    views = svg_figure(page, "placement_views")
     assert views.bounding_box()["height"] > 200
     assert views.locator("title").count() >= 3 * 150
+    # its frame follows the page's width both ways (Streamlit's own sizing only grows)
+    frame = page.locator(".st-key-placement_views iframe")
+    tall = frame.bounding_box()["height"]
+    for width, grows in ((900, False), (1400, True)):
+        page.set_viewport_size({"width": width, "height": 1100})
+        page.wait_for_function(
+            "([f, h, grows]) => { const s = f.contentDocument.querySelector('svg')"
+            ".getBoundingClientRect().height, g = f.getBoundingClientRect().height;"
+            " return Math.abs(g - s) < 2 && (grows ? g > 0.9 * h : g < 0.8 * h); }",
+            arg=[frame.element_handle(), tall, grows])
+    page.set_viewport_size({"width": 1500, "height": 1800})  # the fixture's, for what follows
     _no_exception(page)
     page.screenshot(path=str(ART / "01_data_thesis.png"), full_page=True)
 
@@ -429,21 +454,24 @@ def test_uncertainty_maps_fill_the_width_with_their_colour_bars_beside(page, ser
     expect(page.locator("h1", has_text="Uncertainty").first).to_be_visible(timeout=90_000)
     _idle(page)
     # static SVG drawn on the server (issue 27): the cells, then the colour bar's gradient
-    maps = page.locator('[data-testid="stColumn"] [data-figure] > svg').filter(
-        has=page.locator('rect[fill^="url(#cmm-grad"]'))
-    expect(maps.first).to_be_visible()
-    expect(maps).to_have_count(2)  # the second map may be drawn a moment later
-    boxes = [maps.nth(i).bounding_box() for i in range(2)]
+    frames = page.locator('[data-testid="stColumn"] iframe')
+    expect(frames).to_have_count(2)  # the second map may be drawn a moment later
+    maps = [frames.nth(i).content_frame.locator("[data-figure] > svg").filter(
+        has=page.locator('rect[fill^="url(#cmm-grad"]')) for i in range(2)]
+    for m in maps:
+        expect(m).to_be_visible()
+    boxes = [m.bounding_box() for m in maps]
     span = boxes[1]["x"] + boxes[1]["width"] - boxes[0]["x"]
     assert span >= 0.9 * _main_width(page), (span, boxes)
-    for i in range(2):
-        heat = maps.nth(i).evaluate(
-            "s => Math.max(...[...s.querySelectorAll('g[clip-path] rect')]"
-            ".map(r => r.getBoundingClientRect().right))")
-        bar = maps.nth(i).locator('rect[fill^="url(#cmm-grad"]').first.bounding_box()
-        gap = bar["x"] - heat
+    for i, m in enumerate(maps):
+        # in the frame's own coordinates, both
+        heat, bar = m.evaluate(
+            "s => [Math.max(...[...s.querySelectorAll('g[clip-path] rect')]"
+            ".map(r => r.getBoundingClientRect().right)), s.querySelector("
+            "'rect[fill^=\"url(#cmm-grad\"]').getBoundingClientRect().left]")
+        gap = bar - heat
         assert -2 <= gap <= 30, (i, heat, bar)
-    maps.first.scroll_into_view_if_needed()
+    frames.first.scroll_into_view_if_needed()
     page.screenshot(path=str(ART / "12_uncertainty_maps.png"))
     _no_exception(page)
 
@@ -458,15 +486,15 @@ def test_error_function_grid_has_no_blank_band_below(page, server):
     _idle(page)
     # drawn as static SVG on the server (issue 27): its last texts are the last row's axis
     # titles and the legend row under them
-    grid = page.locator(".st-key-fig_errfun svg").first
-    expect(grid).to_be_visible()
-    box = grid.bounding_box()
-    assert box["width"] >= 0.9 * _main_width(page)
-    texts = grid.evaluate("s => [...s.querySelectorAll('text')].map(t => "
-                          "[t.textContent, t.getBoundingClientRect().bottom])")
+    grid = svg_figure(page, "fig_errfun")
+    assert grid.bounding_box()["width"] >= 0.9 * _main_width(page)
+    # in the frame's own coordinates: the figure's bottom and every text's
+    bottom, texts = grid.evaluate(
+        "s => [s.getBoundingClientRect().bottom, [...s.querySelectorAll('text')].map(t => "
+        "[t.textContent, t.getBoundingClientRect().bottom])]")
     assert sum(1 for t, _ in texts if t.endswith("(mm)")) >= 3  # the x axes' titles
     lowest = max(b for _, b in texts)
-    assert box["y"] + box["height"] - lowest < 60, (box, lowest)
+    assert bottom - lowest < 60, (bottom, lowest)
     assert [t for t, _ in texts].count("95 % band (k = 2)") == 1  # the legend
     _no_exception(page)
 

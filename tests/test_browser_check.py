@@ -10,7 +10,8 @@ check: partial, with what it cannot see; then the History tab's trend.
 from pathlib import Path
 
 import pytest
-from test_browser import _browser_context, _choose, _goto, _idle, _start_server, _stop_server
+from test_browser import (_browser_context, _choose, _goto, _idle, _start_server, _stop_server,
+                          svg_figure)
 
 pytestmark = pytest.mark.slow  # a real browser: seconds a test (`make test-fast` skips)
 
@@ -65,10 +66,7 @@ def test_sample_check_after_a_crash_shows_verdict_map_and_effect(page):
     expect(page.get_by_text("Verdict: changed").first).to_be_visible()
     # the E_n map: a picture drawn on the server with its title, one marker per ball
     # centre, each with its hover title
-    chart = page.locator("[data-figure='chk_map'] > svg")
-    # a rerun keeps the stale picture beside the new one for a moment: wait for one
-    expect(chart).to_have_count(1)
-    expect(chart).to_be_visible()
+    chart = svg_figure(page, "chk_map")
     expect(chart.get_by_text("Normalised errors of the new observations")).to_be_visible()
     # one marker per place, every observation (4 placements × 25 balls × 2 styli) listed
     markers, places, observations = _markers(chart)
@@ -87,10 +85,7 @@ def test_quiet_one_placement_check_is_partial(page):
     _choose(page, "Sample check", "quiet (2024-06-17, one placement)")
     expect(page.get_by_text("Verdict: partial").first).to_be_visible()
     expect(page.get_by_text("cannot see 19 combination(s)").first).to_be_visible()
-    chart = page.locator("[data-figure='chk_map'] > svg")
-    # a rerun keeps the stale picture beside the new one for a moment: wait for one
-    expect(chart).to_have_count(1)
-    expect(chart).to_be_visible()
+    chart = svg_figure(page, "chk_map")
     markers, places, observations = _markers(chart)
     assert markers == places == observations == 50  # one placement, its two styli apart
     _no_exception(page)

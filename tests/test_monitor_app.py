@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("streamlit")
+from conftest import svg_figures  # noqa: E402
 from streamlit.testing.v1 import AppTest  # noqa: E402
 
 from cmm_core import analysis as A  # noqa: E402
@@ -48,7 +49,7 @@ def test_crash_sample_fails_names_sxy_and_history_shows_it():
     # crash's beyond 1.5; 200 observations (4 placements × 25 balls × 2 styli) at 104
     # places of the machine's x, y (both styli on each ball, and balls of different
     # placements over each other): the sample's geometry, whole millimetres apart
-    svg = next(m.value for m in at.markdown if 'data-figure="chk_map"' in m.value)
+    svg = svg_figures(at)["chk_map"]
     counts = [int(n) for n in re.findall(r"\|E_n\|[^<]*?: (\d+)<", svg)]
     assert len(counts) == 3 and counts[2] > 0 and sum(counts) == 104
     # the history tab, drawn only while open: the squareness's change between the last two
@@ -158,7 +159,7 @@ def test_the_map_states_En_at_k_2_and_its_legend_counts_the_markers_drawn():
     _ok(at)
     assert any("Largest |E_n| (k = 2)" in c.value for c in at.caption)
     assert any(m.label == "Largest |E_n (k = 2)|" for m in at.metric)
-    svg = next(m.value for m in at.markdown if 'data-figure="chk_map"' in m.value)
+    svg = svg_figures(at)["chk_map"]
     assert "Normalised errors of the new observations: E_n (k = 2)" in svg
     # legend entries: a marker without a hover title, then "label: count"
     legend = re.findall(r'<circle [^>]*fill="(#[0-9a-f]{6})"[^>]*/>\s*<text[^>]*>([^<]*): '

@@ -10,7 +10,7 @@ from cmm_core.units import p_text
 from pages.ui.cached import current_fit, pending_outliers
 from pages.ui.calls import describe_error
 from pages.ui.state import INSTRUMENT_NAMES, dataset
-from pages.ui.widgets import INTERACTIVE, spec_markup
+from pages.ui.widgets import INTERACTIVE, spec_markdown
 
 
 def sidebar():
@@ -46,8 +46,9 @@ def sidebar():
     if s.get("reset_note"):
         sb.caption("New dataset, settings reset to its defaults: "
                    + "; ".join(s["reset_note"]) + ".")
-    sb.markdown(f"**Model:** {spec_markup(s['spec'])}  \norder {s['order']}, plate "
-                f"{s['plate']}, σ = {s['sigma_um']:g} µm", unsafe_allow_html=True)
+    spec, spec_help = spec_markdown(s["spec"])
+    sb.markdown(f"**Model:** {spec}  \norder {s['order']}, plate {s['plate']}, "
+                f"σ = {s['sigma_um']:g} µm", help=spec_help)
     r = current_fit(show_error=False)
     if r is None:
         sb.warning("No fit for these settings.")

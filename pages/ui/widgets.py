@@ -43,6 +43,15 @@ def headline(h: dict, where=None) -> None:
     draw(f"**{h['title']}**\n\n{h['text']}\n\nNext: {h['action']}")
 
 
+_MD_SPECIAL = re.compile(r"([\\`*_\[\]{}<>#|~$:])")
+
+
+def md_escape(text) -> str:
+    """``text`` as literal markdown: its special characters escaped (a name ``*A|B`` or
+    ``probe_offset`` stays that text), a line break a blank."""
+    return _MD_SPECIAL.sub(r"\\\1", str(text)).replace("\n", " ")
+
+
 def spec_text(spec: str) -> str:
     """The spec as written, one blank after each comma: a table cell wraps there rather
     than inside a name (the blank parses the same)."""
@@ -60,19 +69,18 @@ def spec_expansion(spec: str, order: int | None = None) -> str | None:
     return None if spec_tokens(full) == spec_tokens(spec) else full
 
 
-def spec_markup(spec: str, order: int | None = None) -> str:
-    """HTML (for ``st.markdown(..., unsafe_allow_html=True)``): the spec as the user wrote
-    it, breakable after each comma and never inside a name, the full text and its
-    expansion on hover."""
-    toks = spec_tokens(spec)
-    hover = ",".join(toks)
+def spec_markdown(spec: str, order: int | None = None) -> tuple[str, str]:
+    """``(markdown, help)`` of the model spec for ``st.markdown(markdown, help=help)``: the
+    spec as the user wrote it, one blank after each comma (it wraps there, never inside a
+    name), markdown's characters escaped; the help is the spec as one string and, where
+    it differs, its expansion into functions. Plain markdown rather than HTML: the
+    sidebar draws it on every page, and HTML in markdown (or a ``<code>`` span) makes a
+    first load fetch and run the frontend's HTML parser and code font (issue 41)."""
+    hover = md_escape(",".join(spec_tokens(spec)))
     full = spec_expansion(spec, order)
     if full:
-        hover += f"\n= {full}"
-    body = ",<wbr>".join(html.escape(t) for t in toks)
-    return (f'<code class="cmm-spec" title="{html.escape(hover, quote=True)}" '
-            'style="white-space: normal; word-break: normal; overflow-wrap: normal">'
-            f"{body}</code>")
+        hover += f"  \n= {md_escape(full)}"
+    return md_escape(spec_text(spec)), hover
 
 
 def flash():
@@ -144,12 +152,43 @@ def held(*prefixes: str, text: tuple[str, ...] = (), changed: dict | None = None
                    for key, default in (changed or {}).items() if k.startswith(key)))
 
 
+# Streamlit sizes a frame "as tall as its content" by the document's height, which is never
+# less than the frame's own: grown with a wider page, it would never shrink with a narrower
+# one. The picture's own height is posted on Streamlit's message after Streamlit's
+# (setTimeout: its listener runs after this one) at load and on every resize.
+_FIT_HEIGHT = """<script>(function () {
+  var fig = document.querySelector("[data-figure]");
+  function post() {
+    var r = fig.getBoundingClientRect();
+    parent.postMessage({type: "streamlit:iframe:setSize", width: Math.ceil(r.width),
+                        height: Math.ceil(r.height)}, "*");
+  }
+  function later() { setTimeout(post, 0); }
+  addEventListener("load", later);
+  addEventListener("resize", later);
+})();</script>"""
+
+
+def svg_document(svg: str, key: str) -> str:
+    """The HTML document :func:`svg_figure` frames: ``svg`` in a ``div`` whose
+    ``data-figure`` is ``key``, no margin, and the script that keeps the frame as tall as
+    the picture when the page's width changes."""
+    return ('<!doctype html><html><head><meta charset="utf-8">'
+            "<style>body{margin:0}svg{display:block}</style></head><body>"
+            f'<div data-figure="{html.escape(key, quote=True)}">{svg}</div>'
+            f"{_FIT_HEIGHT}</body></html>")
+
+
 def svg_figure(svg: str, key: str) -> None:
-    """An SVG picture on the page, in a container keyed ``key`` and a ``div`` whose
-    ``data-figure`` is ``key``. Through ``st.markdown``'s HTML: ``st.html`` sanitises SVG
-    away (Streamlit 1.67 draws an empty element)."""
+    """An SVG picture (the server's own, from :func:`figure_svg`) on the page, in a
+    container keyed ``key``, as its own document in an iframe as tall as its content
+    (:func:`svg_document`). Not ``st.markdown``'s HTML: the frontend parses that in script
+    and builds an element per node, 0.12 s of a first load for the placements' 1 000
+    nodes (issue 41), where the iframe's document is parsed by the browser; not
+    ``st.html``, which sanitises SVG away; not ``st.image``, which loses the hover label
+    of every marker."""
     with st.container(key=key):
-        st.markdown(f'<div data-figure="{key}">{svg}</div>', unsafe_allow_html=True)
+        st.iframe(svg_document(svg, key), height="content")
 
 
 def beside_map(fig):
@@ -165,9 +204,6 @@ def beside_map(fig):
 
 _DF_PLACEHOLDER = "placeholder" in inspect.signature(st.dataframe).parameters
 
-_MD_SPECIAL = re.compile(r"([\\`*_\[\]{}<>#|~$:])")
-
-
 def _table_cell(value, float_format: str) -> str:
     """One cell of :func:`static_table`: "—" for a missing value, floats formatted,
     markdown's special characters escaped (a position named ``*A|B`` stays that text)."""
@@ -175,7 +211,7 @@ def _table_cell(value, float_format: str) -> str:
         return "—"
     if isinstance(value, float):
         return format(value, float_format)
-    return _MD_SPECIAL.sub(r"\\\1", str(value)).replace("\n", " ")
+    return md_escape(value)
 
 
 def static_table_markdown(data, float_format: str = ".1f") -> str:
