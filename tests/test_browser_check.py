@@ -10,8 +10,15 @@ check: partial, with what it cannot see; then the History tab's trend.
 from pathlib import Path
 
 import pytest
-from test_browser import (_browser_context, _choose, _goto, _idle, _start_server, _stop_server,
-                          svg_figure)
+from test_browser import (
+    _browser_context,
+    _choose,
+    _goto,
+    _idle,
+    _start_server,
+    _stop_server,
+    svg_figure,
+)
 
 pytestmark = pytest.mark.slow  # a real browser: seconds a test (`make test-fast` skips)
 
