@@ -119,3 +119,35 @@ def test_a_single_positive_value_gets_no_negative_axis():
     svg = figure_svg(go.Figure(go.Scatter(x=[0], y=[0.4], mode="markers")))
     ys = [float(m.replace("−", "-")) for m in re.findall(r'text-anchor="end"[^>]*>([^<]+)<', svg)]
     assert ys and min(ys) >= 0 and max(ys) >= 0.4
+
+
+HOSTILE = '<script>alert("x")</script><img src=x onerror=alert(1)>'
+
+
+def test_text_from_the_data_is_escaped_everywhere_it_is_written():
+    """The app frames each SVG as its own document, where a script would run (issue 41):
+    a name read from a user's file (a placement, a trace, a title, an axis title, an
+    annotation, a hover text) is written as text, never as markup."""
+    fig = make_subplots(rows=1, cols=2, subplot_titles=[HOSTILE, "b"])
+    fig.add_trace(go.Scatter(x=[0, 1], y=[1, 2], mode="markers", name=HOSTILE,
+                             text=[HOSTILE, HOSTILE],
+                             hovertemplate="%{text}<extra></extra>"), row=1, col=1)
+    fig.add_trace(go.Bar(x=[HOSTILE, "q"], y=[1, 2], name=HOSTILE), row=1, col=2)
+    fig.update_layout(title=HOSTILE, showlegend=True)
+    fig.update_xaxes(title=HOSTILE)
+    fig.add_annotation(text=HOSTILE, x=0.5, y=0.5, xref="paper", yref="paper",
+                       showarrow=False)
+    svg = figure_svg(fig, 900)
+    assert "<script" not in svg and "<img" not in svg
+    assert svg.count("&lt;script&gt;") >= 5  # drawn, as text
+
+
+def test_the_frame_document_escapes_its_key_and_holds_the_svg_whole():
+    pytest.importorskip("streamlit")
+    from pages.ui.widgets import svg_document
+
+    svg = figure_svg(go.Figure(go.Scatter(x=[0, 1], y=[0, 1], mode="markers")), 600)
+    doc = svg_document(svg, 'a"><script>alert(1)</script>')
+    assert svg in doc
+    assert doc.count("<script") == 1  # the frame's own height script, nothing else
+    assert 'data-figure="a&quot;&gt;&lt;script&gt;' in doc

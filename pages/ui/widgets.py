@@ -186,7 +186,9 @@ def svg_figure(svg: str, key: str) -> None:
     and builds an element per node, 0.12 s of a first load for the placements' 1 000
     nodes (issue 41), where the iframe's document is parsed by the browser; not
     ``st.html``, which sanitises SVG away; not ``st.image``, which loses the hover label
-    of every marker."""
+    of every marker. A frame's document runs scripts: ``svg`` must be the server's own
+    drawing, whose every text from the data is escaped (``figure_svg``; tested with
+    markup in every kind of name)."""
     with st.container(key=key):
         st.iframe(svg_document(svg, key), height="content")
 
