@@ -147,6 +147,17 @@ def test_static_table_escapes_markdown_and_marks_missing_values():
         "| — | 24 | — |"]
 
 
+@pytest.mark.parametrize(("text", "markdown"), [
+    ("- dxx", "\\- dxx"), ("+sxy, dxx", "\\+sxy, dxx"), ("1. x", "1\\. x"), ("12) y", "12\\) y"),
+    ("A&B", "A\\&B"), ("3.5", "3.5"), ("BP111.csv", "BP111.csv"), ("x-1", "x-1")])
+def test_markdown_escape_starts_no_list_and_keeps_entities_as_text(text, markdown):
+    """A spec drawn at a line's start ("- dxx" removes dxx) or a name like "1. x" starts no
+    list, "&copy;" stays that text; what needs no escape is left as written."""
+    from pages.ui.widgets import md_escape
+
+    assert md_escape(text) == markdown
+
+
 @pytest.mark.parametrize("page", list(PAGES))
 def test_every_page_renders_without_error(app, page):
     app.switch_page(page)

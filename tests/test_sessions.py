@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import svg_figures
 from streamlit.testing.v1 import AppTest
 
 from cmm_core import analysis as A
@@ -180,7 +181,7 @@ def test_an_uploaded_project_naming_a_server_path_is_refused_in_one_line(tmp_pat
     at.button(key="restore_project").click().run()
     assert not at.exception
     shown = " ".join([e.value for e in at.error] + [i.value for i in at.info]
-                     + [m.value for m in at.markdown])
+                     + [m.value for m in at.markdown] + list(svg_figures(at).values()))
     assert "TOP SECRET" not in shown
     (err,) = [e.value for e in at.error]
     assert "\n" not in err and ("by a path" in err or "p.json" in err), err

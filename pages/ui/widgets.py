@@ -43,13 +43,17 @@ def headline(h: dict, where=None) -> None:
     draw(f"**{h['title']}**\n\n{h['text']}\n\nNext: {h['action']}")
 
 
-_MD_SPECIAL = re.compile(r"([\\`*_\[\]{}<>#|~$:])")
+_MD_SPECIAL = re.compile(r"([\\`*_\[\]{}<>#|~$:&])")
+# what starts a list where a line starts ("- dxx" is a spec that removes dxx, "1." a name)
+_MD_LINE_START = re.compile(r"^(\s*(?:\d+(?=[.)](?:\s|$))|(?=[-+])))([-+.)])")
 
 
 def md_escape(text) -> str:
-    """``text`` as literal markdown: its special characters escaped (a name ``*A|B`` or
-    ``probe_offset`` stays that text), a line break a blank."""
-    return _MD_SPECIAL.sub(r"\\\1", str(text)).replace("\n", " ")
+    """``text`` as literal markdown: its special characters escaped (a name ``*A|B``,
+    ``probe_offset`` or ``A&B`` stays that text, a leading ``- `` or ``1.`` starts no list),
+    a line break a blank."""
+    text = _MD_SPECIAL.sub(r"\\\1", str(text)).replace("\n", " ")
+    return _MD_LINE_START.sub(r"\1\\\2", text)
 
 
 def spec_text(spec: str) -> str:
@@ -174,7 +178,10 @@ def svg_document(svg: str, key: str) -> str:
     ``data-figure`` is ``key``, no margin, and the script that keeps the frame as tall as
     the picture when the page's width changes."""
     return ('<!doctype html><html><head><meta charset="utf-8">'
-            "<style>body{margin:0}svg{display:block}</style></head><body>"
+            # no scroll bar: a frame briefly shorter than its picture (a wider page, the
+            # first draw) would keep one and lay the picture out narrower under it
+            "<style>html,body{margin:0;overflow:hidden}svg{display:block}</style>"
+            "</head><body>"
             f'<div data-figure="{html.escape(key, quote=True)}">{svg}</div>'
             f"{_FIT_HEIGHT}</body></html>")
 
@@ -188,7 +195,8 @@ def svg_figure(svg: str, key: str) -> None:
     ``st.html``, which sanitises SVG away; not ``st.image``, which loses the hover label
     of every marker. A frame's document runs scripts: ``svg`` must be the server's own
     drawing, whose every text from the data is escaped (``figure_svg``; tested with
-    markup in every kind of name)."""
+    markup in trace names, titles, axis titles, annotations, hover texts and bar
+    categories)."""
     with st.container(key=key):
         st.iframe(svg_document(svg, key), height="content")
 
